@@ -1,0 +1,287 @@
+"""RobotModel: the robot description loaded with Pinocchio, reduced to the policy's joints.
+
+It owns one Pinocchio `Model`/`Data` pair (allocated once, reused on every call; not thread
+safe — the caller serialises access) and answers the kinematic questions the planners and the
+envelope ask: TCP and frame poses, Jacobians, and the placement of every collision capsule for
+a batch of configurations. All positions it returns are in the policy's base frame.
+
+No forward kinematics is written here by hand: every pose comes from Pinocchio.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from armwarden.errors import RobotModelError
+from armwarden.robot.capsules import Capsule, capsule_from_geometry
+
+BUILTIN_PREFIX = "builtin:"
+BUILTIN_DESCRIPTIONS = {"fr3": "fr3.urdf"}
+
+
+def resolve_description(description: str) -> Path:
+    """Path of the URDF named by `robot.description` (`builtin:<name>` or a file path)."""
+    if description.startswith(BUILTIN_PREFIX):
+        key = description[len(BUILTIN_PREFIX):]
+        if key not in BUILTIN_DESCRIPTIONS:
+            raise RobotModelError(
+                f"unknown built-in robot description {description!r}; "
+                f"available: {', '.join(BUILTIN_PREFIX + k for k in sorted(BUILTIN_DESCRIPTIONS))}"
+            )
+        return Path(str(resources.files("armwarden.robot") / "description" / BUILTIN_DESCRIPTIONS[key]))
+    path = Path(description).expanduser()
+    if not path.is_file():
+        raise RobotModelError(f"robot description {description!r} is not a readable file")
+    return path
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A pose in the base frame: position [m] and rotation matrix."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+    @property
+    def quaternion_xyzw(self) -> np.ndarray:
+        return pin.Quaternion(self.rotation).coeffs().copy()
+
+    def as_se3(self) -> pin.SE3:
+        return pin.SE3(self.rotation, self.position)
+
+
+class RobotModel:
+    """Kinematics of the arm named by the policy (extra joints such as fingers are locked)."""
+
+    def __init__(
+        self,
+        urdf_path: Path,
+        joint_names: Sequence[str],
+        base_frame: str,
+        tcp_frame: str,
+        locked_positions: dict[str, float] | None = None,
+        check_links: Sequence[str] | None = None,
+    ) -> None:
+        try:
+            full_model = pin.buildModelFromUrdf(str(urdf_path))
+            full_geometry = pin.buildGeomFromUrdf(
+                full_model, str(urdf_path), pin.GeometryType.COLLISION, package_dirs=[str(urdf_path.parent)]
+            )
+        except Exception as exc:  # pinocchio raises ValueError/RuntimeError with parser text
+            raise RobotModelError(f"cannot load robot description {urdf_path}: {exc}") from exc
+
+        names = list(full_model.names)
+        unknown = [name for name in joint_names if name not in names]
+        if unknown:
+            movable = [n for n in names[1:]]
+            raise RobotModelError(f"unknown joint(s) {unknown}; the description has {movable}")
+        reference = pin.neutral(full_model)
+        for name, value in (locked_positions or {}).items():
+            if name not in names:
+                raise RobotModelError(f"cannot lock unknown joint {name!r}")
+            reference[full_model.joints[full_model.getJointId(name)].idx_q] = value
+        to_lock = [jid for jid in range(1, full_model.njoints) if names[jid] not in joint_names]
+        self.model, self.geometry = pin.buildReducedModel(full_model, full_geometry, to_lock, reference)
+        self.data = self.model.createData()
+
+        reduced_names = list(self.model.names)[1:]
+        if reduced_names != list(joint_names):
+            order = {n: i for i, n in enumerate(reduced_names)}
+            raise RobotModelError(
+                f"joint_names must follow the kinematic order of the description: {reduced_names} "
+                f"(got {list(joint_names)}; positions {[order[n] for n in joint_names]})"
+            )
+        for jid in range(1, self.model.njoints):
+            joint = self.model.joints[jid]
+            if joint.nq != 1 or joint.nv != 1:
+                raise RobotModelError(
+                    f"joint {self.model.names[jid]!r} ({joint.shortname()}) is not a 1-DoF revolute or "
+                    "prismatic joint; only those are supported"
+                )
+        self.joint_names: tuple[str, ...] = tuple(joint_names)
+        self.nq = self.model.nq
+        self.lower = self.model.lowerPositionLimit.copy()
+        self.upper = self.model.upperPositionLimit.copy()
+
+        self.base_frame = base_frame
+        self.tcp_frame = tcp_frame
+        self._base_from_world = self._fixed_frame_inverse(base_frame)
+        self._tcp_frame_id = self.frame_id(tcp_frame)
+        tcp = self.model.frames[self._tcp_frame_id]
+        self._tcp_joint = int(tcp.parentJoint)
+        self._tcp_in_joint = tcp.placement.translation.copy()
+
+        self.capsules = self._extract_capsules(check_links)
+        self._build_batch_tables()
+
+    # ------------------------------------------------------------------ construction helpers
+    @classmethod
+    def from_description(
+        cls,
+        description: str,
+        joint_names: Sequence[str],
+        base_frame: str,
+        tcp_frame: str,
+        check_links: Sequence[str] | None = None,
+    ) -> RobotModel:
+        return cls(resolve_description(description), joint_names, base_frame, tcp_frame, check_links=check_links)
+
+    def frame_id(self, frame: str) -> int:
+        if not self.model.existFrame(frame):
+            raise RobotModelError(f"unknown frame {frame!r}; valid frames: {', '.join(self.frame_names())}")
+        return int(self.model.getFrameId(frame))
+
+    def frame_names(self) -> list[str]:
+        return [f.name for f in self.model.frames if f.name != "universe"]
+
+    def link_names(self) -> list[str]:
+        return [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]
+
+    def _fixed_frame_inverse(self, frame: str) -> pin.SE3 | None:
+        frame_id = self.frame_id(frame)
+        placement = self.model.frames[frame_id]
+        if placement.parentJoint != 0:
+            raise RobotModelError(f"base frame {frame!r} must be fixed to the world (it moves with a joint)")
+        pin.framesForwardKinematics(self.model, self.data, pin.neutral(self.model))
+        world_from_base = self.data.oMf[frame_id]
+        if world_from_base.isIdentity():
+            return None
+        return world_from_base.inverse()
+
+    def _extract_capsules(self, check_links: Sequence[str] | None) -> tuple[Capsule, ...]:
+        link_names = set(self.link_names())
+        if check_links is not None:
+            unknown = [name for name in check_links if name not in link_names]
+            if unknown:
+                raise RobotModelError(f"unknown link(s) in check_links {unknown}; valid links: {sorted(link_names)}")
+        wanted = None if check_links is None else set(check_links)
+        capsules = []
+        for obj in self.geometry.geometryObjects:
+            link = self.model.frames[obj.parentFrame].name
+            if wanted is not None and link not in wanted:
+                continue
+            if obj.parentJoint == 0:
+                continue  # fixed to the world: it cannot move, so no motion can violate with it
+            p0, p1, radius = capsule_from_geometry(obj)
+            capsules.append(
+                Capsule(
+                    name=obj.name,
+                    link=link,
+                    joint_index=int(obj.parentJoint),
+                    p0_m=tuple(float(x) for x in p0),
+                    p1_m=tuple(float(x) for x in p1),
+                    radius_m=radius,
+                )
+            )
+        return tuple(capsules)
+
+    def _build_batch_tables(self) -> None:
+        """Index tables so a batch of configurations maps to capsule end points in a few numpy ops."""
+        joints = sorted({c.joint_index for c in self.capsules} | {self._tcp_joint})
+        self._batch_joints = joints
+        self._joint_refs = [self.data.oMi[j] for j in joints]  # live references into Data
+        slot = {j: k for k, j in enumerate(joints)}
+        self._capsule_slot = np.array([slot[c.joint_index] for c in self.capsules], dtype=np.intp)
+        self._capsule_p0 = np.array([c.p0_m for c in self.capsules], dtype=float).reshape(-1, 3)
+        self._capsule_p1 = np.array([c.p1_m for c in self.capsules], dtype=float).reshape(-1, 3)
+        self.capsule_radii = np.array([c.radius_m for c in self.capsules], dtype=float)
+        self._tcp_slot = slot[self._tcp_joint]
+        self.reach = self._compute_reach()
+
+    def _compute_reach(self) -> np.ndarray:
+        """`reach[i, b]`: bound on how far a point of body b moves per unit motion of joint i.
+
+        Body index `len(capsules)` is the TCP point. For a revolute joint i the bound is the
+        largest distance from joint i's origin to the body over all configurations: the sum of
+        the joint-to-joint offsets along the chain plus the body's farthest end point. For a
+        prismatic joint it is 1 (metres per metre). Zero when the body is not distal to joint i.
+        """
+        model = self.model
+        n_bodies = len(self.capsules) + 1
+        reach = np.zeros((self.nq, n_bodies))
+        # points per body, in their joint frame
+        body_points = [(c.joint_index, [np.array(c.p0_m), np.array(c.p1_m)]) for c in self.capsules]
+        body_points.append((self._tcp_joint, [self._tcp_in_joint]))
+        for b, (joint, points) in enumerate(body_points):
+            far = max(float(np.linalg.norm(p)) for p in points)
+            chain = []
+            j = joint
+            while j > 0:
+                chain.append(j)
+                j = model.parents[j]
+            # chain: [joint, parent, ..., first]; offsets accumulate from the body back to joint i
+            offset_sum = 0.0
+            for k, jid in enumerate(chain):
+                if k > 0:
+                    offset_sum += float(np.linalg.norm(model.jointPlacements[chain[k - 1]].translation))
+                idx = model.joints[jid].idx_q
+                shortname = model.joints[jid].shortname()
+                if "JointModelP" in shortname:
+                    reach[idx, b] = 1.0
+                else:
+                    reach[idx, b] = offset_sum + far
+        return reach
+
+    # ------------------------------------------------------------------ single-configuration queries
+    def _to_base(self, placement: pin.SE3) -> pin.SE3:
+        return placement if self._base_from_world is None else self._base_from_world * placement
+
+    def frame_pose(self, q: np.ndarray, frame: str) -> Pose:
+        frame_id = self.frame_id(frame)
+        pin.forwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        placement = self._to_base(pin.updateFramePlacement(self.model, self.data, frame_id))
+        return Pose(placement.translation.copy(), placement.rotation.copy())
+
+    def tcp_pose(self, q: np.ndarray) -> Pose:
+        return self.frame_pose(q, self.tcp_frame)
+
+    def tcp_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """6×nq Jacobian of the TCP, linear part first, in the world-aligned TCP frame."""
+        q = np.asarray(q, dtype=float)
+        jac = pin.computeFrameJacobian(
+            self.model, self.data, q, self._tcp_frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        )
+        if self._base_from_world is not None:
+            rot = self._base_from_world.rotation
+            jac = np.vstack([rot @ jac[:3], rot @ jac[3:]])
+        return jac
+
+    def within_limits(self, q: np.ndarray, margin_rad: float = 0.0) -> bool:
+        q = np.asarray(q, dtype=float)
+        return bool(np.all(q >= self.lower + margin_rad) and np.all(q <= self.upper - margin_rad))
+
+    # ------------------------------------------------------------------ batch queries (the envelope's hot path)
+    def joint_frames(self, qs: np.ndarray) -> np.ndarray:
+        """Homogeneous placements (N, J, 4, 4) of the joints that carry capsules or the TCP."""
+        model, data, refs = self.model, self.data, self._joint_refs
+        forward = pin.forwardKinematics
+        frames = []
+        append = frames.append
+        for q in qs:
+            forward(model, data, q)
+            for ref in refs:
+                append(ref.homogeneous)
+        out = np.array(frames).reshape(len(qs), len(refs), 4, 4)
+        if self._base_from_world is not None:
+            out = np.einsum("ij,nkjl->nkil", self._base_from_world.homogeneous, out)
+        return out
+
+    def capsule_segments(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Capsule end points (N, B, 3) in the base frame from `joint_frames` output."""
+        per_capsule = frames[:, self._capsule_slot]  # (N, B, 4, 4)
+        rot = per_capsule[..., :3, :3]
+        trans = per_capsule[..., :3, 3]
+        p0 = np.einsum("nbij,bj->nbi", rot, self._capsule_p0) + trans
+        p1 = np.einsum("nbij,bj->nbi", rot, self._capsule_p1) + trans
+        return p0, p1
+
+    def tcp_positions(self, frames: np.ndarray) -> np.ndarray:
+        """TCP positions (N, 3) in the base frame from `joint_frames` output."""
+        tcp = frames[:, self._tcp_slot]
+        return np.einsum("nij,j->ni", tcp[:, :3, :3], self._tcp_in_joint) + tcp[:, :3, 3]
