@@ -120,6 +120,13 @@ class RobotModel:
         self.capsules = self._extract_capsules(check_links)
         self._build_batch_tables()
 
+    def set_position_limits(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Narrow the joint limits (from the policy); IK and planners respect these."""
+        self.lower = np.array(lower, dtype=float)
+        self.upper = np.array(upper, dtype=float)
+        self.model.lowerPositionLimit = self.lower.copy()
+        self.model.upperPositionLimit = self.upper.copy()
+
     # ------------------------------------------------------------------ construction helpers
     @classmethod
     def from_description(
@@ -192,6 +199,12 @@ class RobotModel:
         self._capsule_p1 = np.array([c.p1_m for c in self.capsules], dtype=float).reshape(-1, 3)
         self.capsule_radii = np.array([c.radius_m for c in self.capsules], dtype=float)
         self._tcp_slot = slot[self._tcp_joint]
+        # homogeneous local points: every capsule's p0 then the TCP, then every capsule's p1 then the TCP
+        slots = np.concatenate([self._capsule_slot, [self._tcp_slot]])
+        self._point_slot = np.concatenate([slots, slots])
+        p0 = np.vstack([self._capsule_p0, self._tcp_in_joint[None]])
+        p1 = np.vstack([self._capsule_p1, self._tcp_in_joint[None]])
+        self._points_h = np.hstack([np.vstack([p0, p1]), np.ones((2 * len(slots), 1))])
         self.reach = self._compute_reach()
 
     def _compute_reach(self) -> np.ndarray:
@@ -252,6 +265,18 @@ class RobotModel:
             jac = np.vstack([rot @ jac[:3], rot @ jac[3:]])
         return jac
 
+    def tcp_pose_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """TCP position, rotation and 6×nq world-aligned Jacobian from one kinematics pass (IK's inner loop)."""
+        model, data = self.model, self.data
+        pin.computeJointJacobians(model, data, q)
+        placement = pin.updateFramePlacement(model, data, self._tcp_frame_id)
+        jac = pin.getFrameJacobian(model, data, self._tcp_frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        if self._base_from_world is not None:
+            placement = self._base_from_world * placement
+            rot = self._base_from_world.rotation
+            jac = np.vstack([rot @ jac[:3], rot @ jac[3:]])
+        return placement.translation.copy(), placement.rotation.copy(), jac
+
     def within_limits(self, q: np.ndarray, margin_rad: float = 0.0) -> bool:
         q = np.asarray(q, dtype=float)
         return bool(np.all(q >= self.lower + margin_rad) and np.all(q <= self.upper - margin_rad))
@@ -272,16 +297,11 @@ class RobotModel:
             out = np.einsum("ij,nkjl->nkil", self._base_from_world.homogeneous, out)
         return out
 
-    def capsule_segments(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Capsule end points (N, B, 3) in the base frame from `joint_frames` output."""
-        per_capsule = frames[:, self._capsule_slot]  # (N, B, 4, 4)
-        rot = per_capsule[..., :3, :3]
-        trans = per_capsule[..., :3, 3]
-        p0 = np.einsum("nbij,bj->nbi", rot, self._capsule_p0) + trans
-        p1 = np.einsum("nbij,bj->nbi", rot, self._capsule_p1) + trans
-        return p0, p1
+    def body_points(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Segment end points (N, B+1, 3) of every capsule plus the TCP (last, as a point).
 
-    def tcp_positions(self, frames: np.ndarray) -> np.ndarray:
-        """TCP positions (N, 3) in the base frame from `joint_frames` output."""
-        tcp = frames[:, self._tcp_slot]
-        return np.einsum("nij,j->ni", tcp[:, :3, :3], self._tcp_in_joint) + tcp[:, :3, 3]
+        One batched matrix product from the `joint_frames` output; base frame, metres.
+        """
+        world = np.matmul(frames[:, self._point_slot, :3, :], self._points_h[..., None])[..., 0]
+        n_bodies = len(self.capsules) + 1
+        return world[:, :n_bodies], world[:, n_bodies:]

@@ -1,0 +1,191 @@
+"""The three planners: to a joint goal, to a TCP pose (IK, then a joint line) and along straight
+TCP lines through waypoints (IK at every step).
+
+Planners build trajectories and report what they could not do (`IK_FAILED`, `MALFORMED`) as
+violations; whether a trajectory is *allowed* is decided by the envelope, which the Guard runs on
+every plan. Velocity/acceleration scaling above the policy's cap is clamped to the cap (the one
+clamp the design permits) and the plan says so in its notes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from armwarden.planning.timing import TimingError, time_parameterize
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.ik import IkSolver
+from armwarden.robot.model import RobotModel
+from armwarden.safety.violations import Code, Violation
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Limits and defaults the planners use (from the policy)."""
+
+    max_velocity_rad_s: np.ndarray
+    max_acceleration_rad_s2: np.ndarray
+    max_velocity_scaling: float
+    max_acceleration_scaling: float
+    default_velocity_scaling: float
+    default_acceleration_scaling: float
+    home_rad: np.ndarray
+    cartesian_step_m: float = 0.005  # TCP interpolation step of Cartesian paths
+    cartesian_step_rad: float = 0.05  # orientation interpolation step of Cartesian paths
+    max_ik_jump_rad: float = 0.25  # a larger joint change between consecutive Cartesian steps is a jump
+
+    @classmethod
+    def from_policy(cls, policy) -> PlannerSettings:
+        robot = policy.robot
+        limits = [robot.joint_limits[name] for name in robot.joint_names]
+        motion = policy.motion
+        return cls(
+            max_velocity_rad_s=np.array([lim.max_velocity for lim in limits]),
+            max_acceleration_rad_s2=np.array([lim.max_acceleration for lim in limits]),
+            max_velocity_scaling=motion.max_velocity_scaling,
+            max_acceleration_scaling=motion.max_acceleration_scaling,
+            default_velocity_scaling=motion.default_velocity_scaling,
+            default_acceleration_scaling=motion.default_acceleration_scaling,
+            home_rad=np.array(robot.home_joint_positions, dtype=float),
+        )
+
+
+@dataclass(frozen=True)
+class PlanOutcome:
+    """A trajectory (None when planning failed) with the planner's own findings and notes."""
+
+    trajectory: JointTrajectory | None
+    violations: tuple[Violation, ...] = ()
+    notes: tuple[str, ...] = field(default_factory=tuple)
+    velocity_scaling: float = 0.0
+    acceleration_scaling: float = 0.0
+
+
+@dataclass(frozen=True)
+class PoseTarget:
+    """A TCP target in the base frame; `rotation` None keeps the orientation free (position only)."""
+
+    position: np.ndarray
+    rotation: np.ndarray | None = None
+
+
+class Planner:
+    """Joint, pose and Cartesian planners on one robot model (not thread safe)."""
+
+    def __init__(self, robot: RobotModel, settings: PlannerSettings, ik: IkSolver | None = None) -> None:
+        self.robot = robot
+        self.settings = settings
+        self.ik = ik or IkSolver(robot)
+
+    # ------------------------------------------------------------------ scaling
+    def _scaling(self, velocity: float | None, acceleration: float | None) -> tuple[float, float, list[str], list[Violation]]:
+        s = self.settings
+        notes: list[str] = []
+        problems: list[Violation] = []
+        chosen = []
+        for label, value, default, cap in (
+            ("velocity", velocity, s.default_velocity_scaling, s.max_velocity_scaling),
+            ("acceleration", acceleration, s.default_acceleration_scaling, s.max_acceleration_scaling),
+        ):
+            if value is None:
+                chosen.append(default)
+                continue
+            if not np.isfinite(value) or value <= 0.0:
+                problems.append(Violation(Code.MALFORMED, f"{label}_scaling must be a finite number in (0, 1], got {value!r}"))
+                chosen.append(default)
+                continue
+            if value > cap:
+                notes.append(f"{label}_scaling {value:g} is above the policy cap {cap:g}; clamped to {cap:g}")
+                value = cap
+            chosen.append(float(value))
+        return chosen[0], chosen[1], notes, problems
+
+    def _timed(self, path: np.ndarray, vel: float, acc: float, notes: list[str], stops: tuple[int, ...] = ()) -> PlanOutcome:
+        s = self.settings
+        try:
+            trajectory = time_parameterize(
+                self.robot.joint_names, path, s.max_velocity_rad_s * vel, s.max_acceleration_rad_s2 * acc, stops=stops
+            )
+        except TimingError as exc:
+            return PlanOutcome(None, (Violation(Code.ACCELERATION_LIMIT, str(exc)),), tuple(notes), vel, acc)
+        return PlanOutcome(trajectory, (), tuple(notes), vel, acc)
+
+    # ------------------------------------------------------------------ planners
+    def plan_to_joints(
+        self, start: np.ndarray, goal: Sequence[float], velocity_scaling: float | None = None, acceleration_scaling: float | None = None
+    ) -> PlanOutcome:
+        vel, acc, notes, problems = self._scaling(velocity_scaling, acceleration_scaling)
+        goal_arr = np.asarray(goal, dtype=float)
+        if goal_arr.shape != (self.robot.nq,):
+            problems.append(Violation(Code.MALFORMED, f"expected {self.robot.nq} joint positions, got {goal_arr.size}"))
+        elif not np.all(np.isfinite(goal_arr)):
+            problems.append(Violation(Code.MALFORMED, "joint goal contains NaN or Inf"))
+        if problems:
+            return PlanOutcome(None, tuple(problems), tuple(notes), vel, acc)
+        return self._timed(np.vstack([start, goal_arr]), vel, acc, notes)
+
+    def plan_to_pose(
+        self, start: np.ndarray, target: PoseTarget, velocity_scaling: float | None = None, acceleration_scaling: float | None = None
+    ) -> PlanOutcome:
+        vel, acc, notes, problems = self._scaling(velocity_scaling, acceleration_scaling)
+        if problems:
+            return PlanOutcome(None, tuple(problems), tuple(notes), vel, acc)
+        result = self.ik.solve(target.position, target.rotation, [start, self.settings.home_rad])
+        if not result.success:
+            return PlanOutcome(None, (Violation(Code.IK_FAILED, result.message, None, self.robot.tcp_frame),), tuple(notes), vel, acc)
+        return self._timed(np.vstack([start, result.q]), vel, acc, notes)
+
+    def plan_cartesian_path(
+        self,
+        start: np.ndarray,
+        waypoints: Sequence[PoseTarget],
+        velocity_scaling: float | None = None,
+        acceleration_scaling: float | None = None,
+    ) -> PlanOutcome:
+        vel, acc, notes, problems = self._scaling(velocity_scaling, acceleration_scaling)
+        if not waypoints:
+            problems.append(Violation(Code.MALFORMED, "a Cartesian path needs at least one waypoint"))
+        if problems:
+            return PlanOutcome(None, tuple(problems), tuple(notes), vel, acc)
+        s = self.settings
+        current = self.robot.tcp_pose(start)
+        position, rotation = current.position, current.rotation
+        q = np.asarray(start, dtype=float)
+        path = [q]
+        stops: list[int] = []
+        for index, waypoint in enumerate(waypoints):
+            goal_rotation = rotation if waypoint.rotation is None else waypoint.rotation
+            distance = float(np.linalg.norm(waypoint.position - position))
+            angle = float(np.linalg.norm(pin.log3(rotation.T @ goal_rotation)))
+            steps = max(1, int(np.ceil(max(distance / s.cartesian_step_m, angle / s.cartesian_step_rad))))
+            q0_rot = pin.Quaternion(rotation)
+            q1_rot = pin.Quaternion(goal_rotation)
+            for step in range(1, steps + 1):
+                alpha = step / steps
+                p = position + alpha * (waypoint.position - position)
+                r = q0_rot.slerp(alpha, q1_rot).toRotationMatrix()
+                result = self.ik.solve_from(p, r, q)
+                if not result.success:
+                    return PlanOutcome(
+                        None,
+                        (Violation(Code.IK_FAILED, f"waypoint {index}: no IK solution on the straight line near "
+                                   f"({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}): {result.message}", None, self.robot.tcp_frame),),
+                        tuple(notes), vel, acc,
+                    )
+                jump = float(np.max(np.abs(result.q - q)))
+                if jump > s.max_ik_jump_rad:
+                    return PlanOutcome(
+                        None,
+                        (Violation(Code.IK_FAILED, f"waypoint {index}: joint jump of {jump:.3f} rad between "
+                                   f"consecutive steps near ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}); the straight "
+                                   "line passes a singularity or a limit", None, self.robot.tcp_frame),),
+                        tuple(notes), vel, acc,
+                    )
+                q = result.q
+                path.append(q)
+            position, rotation = waypoint.position, goal_rotation
+            stops.append(len(path) - 1)
+        return self._timed(np.vstack(path), vel, acc, notes, tuple(stops))

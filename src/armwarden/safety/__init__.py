@@ -1,0 +1,1 @@
+"""Safety components: envelope, plans, rate limits, e-stop, approval, audit log."""

@@ -1,0 +1,448 @@
+"""The envelope: every static and geometric check a trajectory must pass before it may run.
+
+Input: a timed joint trajectory. Output: an `EnvelopeReport` with violations and the figures a
+human needs to judge the motion. The checks (DESIGN §4):
+
+- per waypoint, without kinematics: malformed input, joint limits (exact between waypoints,
+  since the path is linear in joint space), near-limit margin, joint travel, peak velocity and
+  acceleration from the waypoint timing;
+- geometry, with Pinocchio FK at conservatively chosen samples: every checked link's capsule
+  (padded) inside the workspace box and out of every keep-out box, the TCP likewise (its
+  segments between samples too), and capsule pairs apart (self-collision).
+
+**Why the sampling is a guarantee.** Moving joint i by Δq_i moves any point of body b by at most
+|Δq_i| · reach[i, b] (`RobotModel.reach`), so along the path every point of b moves at most
+Σ_i |Δq_i| · reach[i, b] between two samples. Samples are placed so that this bound never
+exceeds `sweep_resolution_m`. Because the bound is uniform over the body and grows along the
+path, at every instant between samples k and k+1 *every* point of b is within half the bound of
+where it was at sample k, or every point is within half the bound of where it is at k+1. Each
+body is therefore tested inflated by half the bound of the intervals next to the sample, and
+nothing can slip through a zone between samples, however thin the zone or fast the motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.model import Pose, RobotModel
+from armwarden.safety import geometry
+from armwarden.safety.violations import Code, Violation
+
+ACCELERATION_TOLERANCE = 1.10  # the 10 % tolerance on acceleration estimated from waypoint timing
+_VELOCITY_TOLERANCE = 1.0 + 1e-9
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box in the base frame [m]."""
+
+    name: str
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def of(cls, name: str, lo, hi) -> Box:
+        return cls(name, np.asarray(lo, dtype=float), np.asarray(hi, dtype=float))
+
+
+@dataclass(frozen=True)
+class EnvelopeLimits:
+    """The numbers the envelope enforces (built from the policy; see `from_policy`)."""
+
+    lower_rad: np.ndarray
+    upper_rad: np.ndarray
+    max_velocity_rad_s: np.ndarray
+    max_acceleration_rad_s2: np.ndarray
+    max_velocity_scaling: float
+    max_acceleration_scaling: float
+    max_joint_step_rad: float
+    soft_joint_step_rad: float | None
+    max_cartesian_step_m: float
+    joint_limit_margin_rad: float
+    sweep_resolution_m: float
+    workspace: Box
+    keep_out: tuple[Box, ...] = ()
+    link_padding_m: float = 0.0
+    self_collision: bool = True
+
+    @classmethod
+    def from_policy(cls, policy) -> EnvelopeLimits:
+        robot = policy.robot
+        limits = [robot.joint_limits[name] for name in robot.joint_names]
+        motion = policy.motion
+        ws = policy.workspace
+        return cls(
+            lower_rad=np.array([lim.min for lim in limits]),
+            upper_rad=np.array([lim.max for lim in limits]),
+            max_velocity_rad_s=np.array([lim.max_velocity for lim in limits]),
+            max_acceleration_rad_s2=np.array([lim.max_acceleration for lim in limits]),
+            max_velocity_scaling=motion.max_velocity_scaling,
+            max_acceleration_scaling=motion.max_acceleration_scaling,
+            max_joint_step_rad=motion.max_joint_step_rad,
+            soft_joint_step_rad=motion.soft_joint_step_rad,
+            max_cartesian_step_m=motion.max_cartesian_step_m,
+            joint_limit_margin_rad=motion.joint_limit_margin_rad,
+            sweep_resolution_m=motion.sweep_resolution_m,
+            workspace=Box.of("workspace", ws.box.min, ws.box.max),
+            keep_out=tuple(Box.of(z.name, z.min, z.max) for z in ws.keep_out),
+            link_padding_m=ws.link_padding_m,
+            self_collision=ws.self_collision,
+        )
+
+
+@dataclass(frozen=True)
+class EnvelopeReport:
+    violations: tuple[Violation, ...]
+    max_joint_velocity_ratio: float = 0.0
+    max_joint_acceleration_ratio: float = 0.0
+    max_joint_travel_rad: float = 0.0
+    tcp_path_length_m: float = 0.0
+    final_tcp_pose: Pose | None = None
+    samples_checked: int = 0
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def hard(self) -> tuple[Violation, ...]:
+        return tuple(v for v in self.violations if v.is_hard)
+
+    @property
+    def soft(self) -> tuple[Violation, ...]:
+        return tuple(v for v in self.violations if not v.is_hard)
+
+
+def estimate_velocities(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Per-segment joint velocities (K-1, n) from the waypoint timing."""
+    return np.diff(positions, axis=0) / np.diff(times)[:, None]
+
+
+def estimate_accelerations(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Joint accelerations (K, n) from the waypoint timing, the trajectory at rest at both ends.
+
+    Interior waypoints: change of segment velocity over the mean of the two segment durations.
+    Ends: from rest to the first segment velocity over half its duration (and back to rest).
+    """
+    dt = np.diff(times)
+    vel = np.diff(positions, axis=0) / dt[:, None]
+    padded_v = np.vstack([np.zeros((1, positions.shape[1])), vel, np.zeros((1, positions.shape[1]))])
+    padded_dt = np.concatenate([[0.0], dt, [0.0]])
+    span = (padded_dt[:-1] + padded_dt[1:]) / 2.0
+    return np.diff(padded_v, axis=0) / span[:, None]
+
+
+class Envelope:
+    """Checks trajectories against the limits for one robot model. Not thread safe (shares Pinocchio data)."""
+
+    def __init__(self, robot: RobotModel, limits: EnvelopeLimits) -> None:
+        self.robot = robot
+        self.limits = limits
+        self._body_names = [f"{c.link}" + (f"#{c.name}" if _link_has_many(robot, c.link) else "") for c in robot.capsules]
+        self._body_names.append(robot.tcp_frame)  # the TCP point is the last body (zero radius, no padding)
+        self._padded_radii = np.concatenate([robot.capsule_radii + limits.link_padding_m, [0.0]])
+        self._pairs = self._self_collision_pairs() if limits.self_collision else np.zeros((0, 2), dtype=np.intp)
+        self._pair_radii = robot.capsule_radii[self._pairs[:, 0]] + robot.capsule_radii[self._pairs[:, 1]]
+        self._ws_lo = limits.workspace.lo
+        self._ws_hi = limits.workspace.hi
+        if limits.keep_out:
+            self._ko_lo = np.stack([z.lo for z in limits.keep_out])
+            self._ko_hi = np.stack([z.hi for z in limits.keep_out])
+        else:
+            self._ko_lo = self._ko_hi = np.zeros((0, 3))
+
+    # ------------------------------------------------------------------ set-up
+    def _self_collision_pairs(self) -> np.ndarray:
+        """Capsule pairs that can meet: not on the same or neighbouring joints (those touch by design)."""
+        capsules = self.robot.capsules
+        pairs = [
+            (a, b)
+            for a in range(len(capsules))
+            for b in range(a + 1, len(capsules))
+            if abs(capsules[a].joint_index - capsules[b].joint_index) >= 2
+        ]
+        return np.array(pairs, dtype=np.intp).reshape(-1, 2)
+
+    @property
+    def self_collision_pairs(self) -> list[tuple[str, str]]:
+        return [(self._body_names[a], self._body_names[b]) for a, b in self._pairs]
+
+    # ------------------------------------------------------------------ entry point
+    def check(self, trajectory: JointTrajectory) -> EnvelopeReport:
+        malformed = self._check_malformed(trajectory)
+        if malformed:
+            return EnvelopeReport(violations=tuple(malformed))
+        times, positions = trajectory.times, trajectory.positions
+        violations: list[Violation] = []
+        violations += self._check_joint_limits(times, positions)
+        travel = np.sum(np.abs(np.diff(positions, axis=0)), axis=0) if len(positions) > 1 else np.zeros(positions.shape[1])
+        violations += self._check_travel(travel)
+        vel_ratio, acc_ratio, dyn = self._check_dynamics(times, positions)
+        violations += dyn
+        geo, tcp_length, final_pose, n_samples = self._check_geometry(times, positions)
+        violations += geo
+        if tcp_length > self.limits.max_cartesian_step_m:
+            violations.append(
+                Violation(
+                    Code.CARTESIAN_STEP_TOO_LARGE,
+                    f"TCP path length {tcp_length:.3f} m exceeds max_cartesian_step_m {self.limits.max_cartesian_step_m:.3f} m",
+                    float(times[-1]),
+                    self.robot.tcp_frame,
+                )
+            )
+        return EnvelopeReport(
+            violations=tuple(violations),
+            max_joint_velocity_ratio=vel_ratio,
+            max_joint_acceleration_ratio=acc_ratio,
+            max_joint_travel_rad=float(np.max(travel)) if travel.size else 0.0,
+            tcp_path_length_m=tcp_length,
+            final_tcp_pose=final_pose,
+            samples_checked=n_samples,
+        )
+
+    # ------------------------------------------------------------------ per-waypoint checks
+    def _check_malformed(self, trajectory: JointTrajectory) -> list[Violation]:
+        robot = self.robot
+        times, positions = trajectory.times, trajectory.positions
+        problems = []
+        if tuple(trajectory.joint_names) != robot.joint_names:
+            problems.append(f"joint names {list(trajectory.joint_names)} do not match the robot's {list(robot.joint_names)}")
+        if times.ndim != 1 or positions.ndim != 2 or positions.shape[0] != times.shape[0]:
+            problems.append(f"shape mismatch: times {times.shape}, positions {positions.shape}")
+        elif positions.shape[1] != robot.nq:
+            problems.append(f"{positions.shape[1]} joint values per waypoint, expected {robot.nq}")
+        elif len(times) < 2:
+            problems.append("a trajectory needs at least two waypoints")
+        if not problems:
+            if not (np.all(np.isfinite(times)) and np.all(np.isfinite(positions))):
+                problems.append("non-finite value (NaN or Inf) in the trajectory")
+            elif times[0] != 0.0:
+                problems.append(f"the first waypoint must be at t = 0 (got {times[0]})")
+            elif np.any(np.diff(times) <= 0.0):
+                problems.append("waypoint times must strictly increase")
+        return [Violation(Code.MALFORMED, p) for p in problems]
+
+    def _check_joint_limits(self, times: np.ndarray, positions: np.ndarray) -> list[Violation]:
+        lim = self.limits
+        out: list[Violation] = []
+        names = self.robot.joint_names
+        below = positions < lim.lower_rad
+        above = positions > lim.upper_rad
+        for j in np.flatnonzero(np.any(below | above, axis=0)):
+            k = int(np.flatnonzero(below[:, j] | above[:, j])[0])
+            out.append(
+                Violation(
+                    Code.JOINT_LIMIT,
+                    f"{names[j]} = {positions[k, j]:.4f} rad is outside [{lim.lower_rad[j]:.4f}, {lim.upper_rad[j]:.4f}]",
+                    float(times[k]),
+                    names[j],
+                )
+            )
+        margin = lim.joint_limit_margin_rad
+        if margin > 0:
+            near = ((positions < lim.lower_rad + margin) | (positions > lim.upper_rad - margin)) & ~(below | above)
+            for j in np.flatnonzero(np.any(near, axis=0)):
+                if np.any(below[:, j] | above[:, j]):
+                    continue
+                k = int(np.flatnonzero(near[:, j])[0])
+                out.append(
+                    Violation(
+                        Code.NEAR_JOINT_LIMIT,
+                        f"{names[j]} = {positions[k, j]:.4f} rad is within {margin:.3f} rad of its limit "
+                        f"[{lim.lower_rad[j]:.4f}, {lim.upper_rad[j]:.4f}]",
+                        float(times[k]),
+                        names[j],
+                    )
+                )
+        return out
+
+    def _check_travel(self, travel: np.ndarray) -> list[Violation]:
+        lim = self.limits
+        names = self.robot.joint_names
+        j = int(np.argmax(travel))
+        if travel[j] > lim.max_joint_step_rad:
+            return [
+                Violation(
+                    Code.STEP_TOO_LARGE,
+                    f"{names[j]} travels {travel[j]:.3f} rad, over max_joint_step_rad {lim.max_joint_step_rad:.3f}",
+                    None,
+                    names[j],
+                )
+            ]
+        if lim.soft_joint_step_rad is not None and travel[j] > lim.soft_joint_step_rad:
+            return [
+                Violation(
+                    Code.LARGE_MOTION,
+                    f"{names[j]} travels {travel[j]:.3f} rad, over soft_joint_step_rad {lim.soft_joint_step_rad:.3f}",
+                    None,
+                    names[j],
+                )
+            ]
+        return []
+
+    def _check_dynamics(self, times: np.ndarray, positions: np.ndarray) -> tuple[float, float, list[Violation]]:
+        lim = self.limits
+        names = self.robot.joint_names
+        out: list[Violation] = []
+        vel = np.abs(estimate_velocities(times, positions)) / lim.max_velocity_rad_s
+        acc = np.abs(estimate_accelerations(times, positions)) / lim.max_acceleration_rad_s2
+        vel_ratio = float(np.max(vel)) if vel.size else 0.0
+        acc_ratio = float(np.max(acc)) if acc.size else 0.0
+        if vel_ratio > lim.max_velocity_scaling * _VELOCITY_TOLERANCE:
+            k, j = np.unravel_index(int(np.argmax(vel)), vel.shape)
+            out.append(
+                Violation(
+                    Code.VELOCITY_LIMIT,
+                    f"{names[j]} peaks at {vel_ratio:.3f} × its velocity limit; the cap is {lim.max_velocity_scaling:.3f}",
+                    float(times[k]),
+                    names[j],
+                )
+            )
+        if acc_ratio > lim.max_acceleration_scaling * ACCELERATION_TOLERANCE:
+            k, j = np.unravel_index(int(np.argmax(acc)), acc.shape)
+            out.append(
+                Violation(
+                    Code.ACCELERATION_LIMIT,
+                    f"{names[j]} peaks at {acc_ratio:.3f} × its acceleration limit; the cap is "
+                    f"{lim.max_acceleration_scaling:.3f} (+10 % tolerance)",
+                    float(times[k]),
+                    names[j],
+                )
+            )
+        return vel_ratio, acc_ratio, out
+
+    # ------------------------------------------------------------------ geometry
+    def sample_path(self, times: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Conservative geometry samples along the path.
+
+        Returns sample times (N,), configurations (N, n) and, per sample and body (incl. the
+        TCP point as the last column), the inflation radius: half the larger motion bound of
+        the two intervals next to the sample.
+        """
+        reach = self.robot.reach  # (n, B+1)
+        seg_bound = np.abs(np.diff(positions, axis=0)) @ reach  # (K-1, B+1)
+        cum_body = np.vstack([np.zeros((1, reach.shape[1])), np.cumsum(seg_bound, axis=0)])
+        cum = np.concatenate([[0.0], np.cumsum(np.max(seg_bound, axis=1))])
+        total = float(cum[-1])
+        step = self.limits.sweep_resolution_m
+        n_intervals = max(1, int(np.ceil(total / step))) if total > 0 else 1
+        targets = np.linspace(0.0, total, n_intervals + 1)
+        # locate each target on the waypoint polyline (first segment whose cumulative bound reaches it)
+        k = np.clip(np.searchsorted(cum, targets, side="left") - 1, 0, len(cum) - 2)
+        span = cum[k + 1] - cum[k]
+        alpha = np.where(span > 0, (targets - cum[k]) / np.where(span > 0, span, 1.0), 0.0)
+        alpha = np.clip(alpha, 0.0, 1.0)
+        q_samples = positions[k] + alpha[:, None] * (positions[k + 1] - positions[k])
+        t_samples = times[k] + alpha * (times[k + 1] - times[k])
+        q_samples[-1] = positions[-1]
+        t_samples[-1] = times[-1]
+        body_at = cum_body[k] + alpha[:, None] * (cum_body[k + 1] - cum_body[k])
+        body_at[-1] = cum_body[-1]
+        interval = np.diff(body_at, axis=0)  # (N-1, B+1) per-body bound between samples
+        if len(interval):
+            left = np.vstack([interval[:1], interval])
+            right = np.vstack([interval, interval[-1:]])
+            inflation = np.maximum(left, right) / 2.0
+        else:
+            inflation = np.zeros((1, reach.shape[1]))
+        return t_samples, q_samples, inflation
+
+    def _check_geometry(self, times: np.ndarray, positions: np.ndarray) -> tuple[list[Violation], float, Pose, int]:
+        robot, lim = self.robot, self.limits
+        t_s, q_s, inflation = self.sample_path(times, positions)
+        p0, p1 = robot.body_points(robot.joint_frames(q_s))  # (N, B+1, 3); last body is the TCP point
+        tcp = p0[:, -1]
+        radius = inflation + self._padded_radii  # (N, B+1)
+        out: list[Violation] = []
+
+        # axis-aligned bounds of every padded, inflated capsule: the broad phase for everything below
+        lo = np.minimum(p0, p1) - radius[..., None]
+        hi = np.maximum(p0, p1) + radius[..., None]
+
+        # workspace: every capsule and the TCP entirely inside the box (exact for capsules)
+        inside = np.all(lo >= self._ws_lo, axis=-1) & np.all(hi <= self._ws_hi, axis=-1)
+        out += self._first_per_body(~inside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
+
+        # keep-out: bounds that overlap a zone are confirmed exactly with coal
+        if len(lim.keep_out):
+            overlap = np.all(lo[:, :, None] <= self._ko_hi, axis=-1) & np.all(hi[:, :, None] >= self._ko_lo, axis=-1)
+            if len(tcp) > 1:  # the TCP's straight segments between samples, too
+                r_tcp = radius[1:, -1, None]
+                seg_lo = np.minimum(tcp[:-1], tcp[1:]) - r_tcp
+                seg_hi = np.maximum(tcp[:-1], tcp[1:]) + r_tcp
+                overlap[1:, -1] |= np.all(seg_lo[:, None] <= self._ko_hi, axis=-1) & np.all(seg_hi[:, None] >= self._ko_lo, axis=-1)
+            if np.any(overlap):
+                confirmed = self._confirm_keep_out(overlap, p0, p1, radius, tcp)
+                for zone_index, zone in enumerate(lim.keep_out):
+                    out += self._first_per_body(
+                        confirmed[:, :, zone_index], t_s, p0, Code.KEEP_OUT, f"enters keep-out zone '{zone.name}'"
+                    )
+
+        # self-collision: capsule pairs closer than the sum of their inflated radii
+        if len(self._pairs):
+            out += self._check_self_collision(t_s, p0, p1, inflation)
+
+        tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
+        return out, tcp_length, robot.tcp_pose(positions[-1]), len(q_s)
+
+    def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, tcp: np.ndarray) -> np.ndarray:
+        """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments."""
+        confirmed = np.zeros_like(overlap)
+        tcp_body = radius.shape[1] - 1
+        for k, body, zone in zip(*np.nonzero(overlap)):
+            zone_lo, zone_hi = self._ko_lo[zone], self._ko_hi[zone]
+            r = radius[k, body]
+            hit = geometry.capsule_box_distance(p0[k, body], p1[k, body], r, zone_lo, zone_hi) <= 0.0
+            if not hit and body == tcp_body and k > 0:
+                hit = bool(geometry.segments_hit_boxes(tcp[k - 1], tcp[k], zone_lo - r, zone_hi + r))
+            confirmed[k, body, zone] = hit
+        return confirmed
+
+    def _check_self_collision(self, t_s: np.ndarray, p0: np.ndarray, p1: np.ndarray, inflation: np.ndarray) -> list[Violation]:
+        a, b = self._pairs[:, 0], self._pairs[:, 1]
+        grown = self.robot.capsule_radii + inflation[:, :-1]  # (N, B): no link padding between links
+        lo = np.minimum(p0[:, :-1], p1[:, :-1]) - grown[..., None]
+        hi = np.maximum(p0[:, :-1], p1[:, :-1]) + grown[..., None]
+        candidates = np.all(lo[:, a] <= hi[:, b], axis=-1) & np.all(hi[:, a] >= lo[:, b], axis=-1)  # (N, P)
+        if not np.any(candidates):
+            return []
+        k_idx, pair_idx = np.nonzero(candidates)
+        pa, pb = a[pair_idx], b[pair_idx]
+        dist = geometry.segment_segment_distance(p0[k_idx, pa], p1[k_idx, pa], p0[k_idx, pb], p1[k_idx, pb])
+        allowed = self._pair_radii[pair_idx] + inflation[k_idx, pa] + inflation[k_idx, pb]
+        touching = dist < allowed
+        out: list[Violation] = []
+        reported: set[int] = set()
+        for i in np.flatnonzero(touching):  # sorted by sample, so the first hit per pair comes first
+            pair = int(pair_idx[i])
+            if pair in reported:
+                continue
+            reported.add(pair)
+            name_a, name_b = self._body_names[a[pair]], self._body_names[b[pair]]
+            out.append(
+                Violation(
+                    Code.SELF_COLLISION,
+                    f"{name_a} and {name_b} come within {dist[i] - self._pair_radii[pair]:.3f} m of each other "
+                    f"(capsule surfaces, before the {allowed[i] - self._pair_radii[pair]:.3f} m sweep allowance)",
+                    float(t_s[k_idx[i]]),
+                    f"{name_a}|{name_b}",
+                )
+            )
+        return out
+
+    def _first_per_body(self, mask: np.ndarray, t_s: np.ndarray, where: np.ndarray, code: Code, what: str) -> list[Violation]:
+        """One violation per body: the first sample at which `mask` is set."""
+        out = []
+        for body in np.flatnonzero(np.any(mask, axis=0)):
+            k = int(np.flatnonzero(mask[:, body])[0])
+            name = self._body_names[body]
+            out.append(Violation(code, f"{name} {what} near {_fmt(where[k, body])}", float(t_s[k]), name))
+        return out
+
+
+def _link_has_many(robot: RobotModel, link: str) -> bool:
+    return sum(1 for c in robot.capsules if c.link == link) > 1
+
+
+def _fmt(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:.3f}" for x in p) + ")"

@@ -1,0 +1,539 @@
+"""The fake backend: exact, time-scaled execution on its own control thread; stop, contact, faults.
+
+Timing assertions are about order and behaviour, with generous bounds, so that a loaded 2-core CI
+machine does not make them flake.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import threading
+import time
+
+import anyio
+import numpy as np
+import pytest
+from PIL import Image
+
+from armwarden.backends import create_backend
+from armwarden.backends.base import ControllerInfo
+from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
+from armwarden.errors import BackendError
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.model import RobotModel
+
+Q_READY = np.array(FR3_READY)
+# joint 2 forward: the TCP goes down (≈ 3 cm per 0.1 rad near "ready")
+Q_REACH = Q_READY + np.array([0.3, 0.2, 0.0, 0.2, 0.0, 0.0, 0.3])
+
+
+def run_with_backend(scenario, **options):
+    """Open a fake backend, run `scenario(backend)` on a fresh event loop, always close it."""
+
+    async def main():
+        backend = FakeBackend(**options)
+        await backend.open()
+        try:
+            return await scenario(backend)
+        finally:
+            await backend.close()
+
+    return asyncio.run(main())
+
+
+def straight_line(q_start, q_goal, duration_s: float, dt_s: float = 0.01) -> JointTrajectory:
+    times = np.linspace(0.0, duration_s, max(2, round(duration_s / dt_s) + 1))
+    alpha = times / duration_s
+    positions = np.outer(1 - alpha, q_start) + np.outer(alpha, q_goal)
+    return JointTrajectory(FR3_JOINT_NAMES, times, positions)
+
+
+def distance_to_polyline(q: np.ndarray, vertices: np.ndarray) -> float:
+    """Euclidean distance in joint space from `q` to the piecewise linear path through `vertices`."""
+    best = np.inf
+    for a, b in zip(vertices[:-1], vertices[1:]):
+        ab = b - a
+        denom = float(ab @ ab)
+        s = 0.0 if denom == 0 else float(np.clip((q - a) @ ab / denom, 0.0, 1.0))
+        best = min(best, float(np.linalg.norm(q - (a + s * ab))))
+    return best
+
+
+async def wait_until(predicate, timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not await predicate():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        await asyncio.sleep(0.002)
+
+
+async def has_moved(backend: FakeBackend, q_from=Q_READY, by_rad: float = 0.01):
+    async def predicate():
+        state = await backend.read_joint_state()
+        return np.max(np.abs(state.positions - q_from)) > by_rad
+
+    return predicate
+
+
+# ---------------------------------------------------------------------------- execution
+def test_executes_the_trajectory_exactly_along_its_linear_interpolation():
+    # a bent path (three segments with different directions) so that "on the path" means something
+    vertices = np.array([Q_READY, Q_READY + [0.2, 0, 0, 0, 0, 0, 0], Q_READY + [0.2, 0.1, 0, 0.2, 0, 0, 0], Q_REACH])
+    times = np.array([0.0, 0.15, 0.3, 0.45])
+    trajectory = JointTrajectory(FR3_JOINT_NAMES, times, vertices)
+
+    async def scenario(backend: FakeBackend):
+        fractions: list[float] = []
+        task = asyncio.create_task(backend.execute(trajectory, fractions.append))
+        samples = []
+        while not task.done():
+            samples.append((await backend.read_joint_state()).positions)
+            await asyncio.sleep(0.003)
+        result = await task
+        return result, samples, fractions, await backend.read_joint_state()
+
+    result, samples, fractions, final = run_with_backend(scenario)
+    assert result.completed and result.reason == "completed"
+    assert np.array_equal(result.final_positions, trajectory.goal)
+    assert np.array_equal(final.positions, trajectory.goal)
+    assert np.all(final.velocities == 0.0)
+    assert len(samples) > 10
+    assert max(distance_to_polyline(q, vertices) for q in samples) < 1e-9
+    assert fractions and fractions[-1] == 1.0
+    assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions)
+
+
+def test_speedup_shortens_the_wall_time_of_a_trajectory():
+    trajectory = straight_line(Q_READY, Q_REACH, duration_s=1.0)
+
+    async def timed(backend: FakeBackend):
+        start = time.perf_counter()
+        result = await backend.execute(trajectory)
+        return result, time.perf_counter() - start
+
+    real_result, real_s = run_with_backend(timed, speedup=1.0)
+    fast_result, fast_s = run_with_backend(timed, speedup=10.0)
+    assert real_result.completed and fast_result.completed
+    assert np.array_equal(fast_result.final_positions, trajectory.goal)
+    assert real_s >= 1.0  # a time-based interpolation cannot finish early
+    assert 0.1 <= fast_s < real_s / 2
+
+
+def test_a_second_execution_while_one_runs_is_refused():
+    async def scenario(backend: FakeBackend):
+        first = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend, by_rad=0.0))
+        with pytest.raises(BackendError, match="one execution at a time"):
+            await backend.execute(straight_line(Q_READY, Q_READY, 0.1))
+        return await first
+
+    # a refused execute() also stops the arm: the base class stops on any failure (fail closed)
+    assert run_with_backend(scenario).reason == "stopped"
+
+
+def test_refuses_a_trajectory_that_does_not_start_where_the_arm_is():
+    async def scenario(backend: FakeBackend):
+        with pytest.raises(BackendError, match="rad away from the arm on fr3_joint"):
+            await backend.execute(straight_line(Q_REACH, Q_READY, 0.1))
+        return await backend.read_joint_state()
+
+    assert np.array_equal(run_with_backend(scenario).positions, Q_READY)
+
+
+# ---------------------------------------------------------------------------- stop
+def test_stop_mid_motion_halts_at_once_and_the_arm_stays_still():
+    async def scenario(backend: FakeBackend):
+        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend))
+        await backend.stop()
+        after_stop = await backend.read_joint_state()
+        await asyncio.sleep(0.1)
+        later = await backend.read_joint_state()
+        return await task, after_stop, later
+
+    result, after_stop, later = run_with_backend(scenario)
+    assert not result.completed and result.reason == "stopped"
+    assert np.array_equal(after_stop.positions, later.positions)
+    assert np.array_equal(result.final_positions, later.positions)
+    assert later.stamp > after_stop.stamp  # the control loop keeps running, holding position
+    assert np.all(later.velocities == 0.0)
+    assert not np.allclose(later.positions, Q_REACH)
+
+
+def test_stop_records_its_latency_to_the_first_still_tick():
+    async def scenario(backend: FakeBackend):
+        assert backend.last_stop_latency_s is None
+        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend))
+        requested = time.monotonic()
+        await backend.stop()
+        returned = time.monotonic()
+        await task
+        return requested, returned, backend.last_stop_latency_s, backend.last_stop_stamp
+
+    requested, returned, latency_s, stamp = run_with_backend(scenario)
+    assert 0.0 <= latency_s < 0.1  # one tick (≤ 1 ms) on an idle machine; generous for a loaded one
+    assert requested <= stamp <= returned  # stop() returns once the thread has confirmed the hold
+
+
+def test_stop_issued_as_the_execution_is_handed_over_is_never_lost():
+    # the stop lands right after execute() handed the trajectory over: sometimes before the control
+    # thread picked it up, sometimes just after; either way the execution must end "stopped"
+    async def scenario(backend: FakeBackend):
+        results = []
+        for _ in range(20):
+            q_now = (await backend.read_joint_state()).positions
+            task = asyncio.create_task(backend.execute(straight_line(q_now, Q_REACH, 1.0)))
+            await asyncio.sleep(0)  # the task runs up to its first await: the trajectory is submitted
+            await backend.stop()
+            results.append(await task)
+        return results
+
+    results = run_with_backend(scenario)
+    assert [r.reason for r in results] == ["stopped"] * 20
+    assert not np.allclose(results[-1].final_positions, Q_REACH)
+
+
+def test_stop_before_execute_does_not_block_the_next_motion():
+    async def scenario(backend: FakeBackend):
+        await backend.stop()
+        return await backend.execute(straight_line(Q_READY, Q_REACH, 0.2))
+
+    assert run_with_backend(scenario).completed
+
+
+def test_cancelling_the_awaiting_task_stops_the_arm():
+    async def scenario(backend: FakeBackend):
+        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend))
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        first = await backend.read_joint_state()
+        await asyncio.sleep(0.1)
+        second = await backend.read_joint_state()
+        # the execution slot is free again: a new motion from here runs
+        again = await backend.execute(straight_line(second.positions, Q_READY, 0.2))
+        return first, second, again
+
+    first, second, again = run_with_backend(scenario)
+    assert np.array_equal(first.positions, second.positions)
+    assert not np.allclose(second.positions, Q_REACH)
+    assert again.completed
+
+
+def test_fail_stop_makes_stop_raise():
+    async def scenario(backend: FakeBackend):
+        with pytest.raises(BackendError, match="fail_stop"):
+            await backend.stop()
+
+    run_with_backend(scenario, fail_stop=True)
+
+
+# ---------------------------------------------------------------------------- wrench
+def test_virtual_table_pushes_back_in_proportion_to_penetration():
+    model = RobotModel.from_description("builtin:fr3", FR3_JOINT_NAMES, "fr3_link0", "fr3_hand_tcp")
+    table_z = float(model.tcp_pose(Q_READY).position[2]) - 0.01
+    q_touch = Q_READY + [0, 0.1, 0, 0, 0, 0, 0]
+    q_deep = Q_READY + [0, 0.15, 0, 0, 0, 0, 0]
+    stiffness = 20000.0
+
+    async def scenario(backend: FakeBackend):
+        wrenches = [await backend.read_wrench()]
+        for q_from, q_to in ((Q_READY, q_touch), (q_touch, q_deep)):
+            assert (await backend.execute(straight_line(q_from, q_to, 0.2))).completed
+            await asyncio.sleep(0.01)
+            wrenches.append(await backend.read_wrench())
+        return wrenches
+
+    above, touch, deep = run_with_backend(scenario, table_height_m=table_z, table_stiffness_n_per_m=stiffness, speedup=4.0)
+    assert above.force_norm_n == 0.0
+    for wrench, q in ((touch, q_touch), (deep, q_deep)):
+        penetration = table_z - model.tcp_pose(q).position[2]
+        assert penetration > 0
+        assert wrench.force[:2].tolist() == [0.0, 0.0] and wrench.torque_norm_nm == 0.0
+        assert wrench.force[2] == pytest.approx(stiffness * penetration, rel=1e-9)
+    assert deep.force[2] > touch.force[2] > 0
+
+
+def test_wrench_stamp_advances_with_the_control_loop():
+    async def scenario(backend: FakeBackend):
+        first = await backend.read_wrench()
+        await asyncio.sleep(0.02)
+        return first, await backend.read_wrench()
+
+    first, second = run_with_backend(scenario)
+    assert second.stamp > first.stamp
+
+
+def test_freeze_wrench_keeps_the_stamp():
+    async def scenario(backend: FakeBackend):
+        first = await backend.read_wrench()
+        await asyncio.sleep(0.05)
+        return first, await backend.read_wrench()
+
+    first, second = run_with_backend(scenario, freeze_wrench=True)
+    assert second.stamp == first.stamp
+
+
+def test_stalled_wrench_reads_time_out():
+    async def scenario(backend: FakeBackend):
+        with pytest.raises(TimeoutError):
+            await backend.read_wrench()
+
+    run_with_backend(scenario, stall_wrench_s=2.0)
+
+
+def test_backend_without_wrench_reports_none():
+    async def scenario(backend: FakeBackend):
+        return backend.capabilities.wrench, await backend.read_wrench()
+
+    assert run_with_backend(scenario, wrench=False) == (False, None)
+
+
+# ---------------------------------------------------------------------------- gripper
+def test_gripper_moves_grasps_and_homes():
+    async def scenario(backend: FakeBackend):
+        moved = await backend.gripper_move(0.04, 0.1)
+        state_after_move = await backend.gripper_state()
+        grasped = await backend.gripper_grasp(0.03, 40.0, 0.1, 0.005, 0.005)
+        state_after_grasp = await backend.gripper_state()
+        backend.object_width_m = 0.0  # nothing between the fingers: they close fully
+        await backend.gripper_home()
+        missed = await backend.gripper_grasp(0.03, 20.0, 0.1, 0.005, 0.005)
+        homed = await backend.gripper_home()
+        return moved, state_after_move, grasped, state_after_grasp, missed, homed, backend.last_grasp_force_n
+
+    moved, state_after_move, grasped, state_after_grasp, missed, homed, force = run_with_backend(scenario, speedup=10.0)
+    assert moved.success and moved.width_m == 0.04 and state_after_move.width_m == 0.04
+    assert not state_after_move.moving
+    assert grasped.success and grasped.is_grasped and grasped.width_m == pytest.approx(0.03)
+    assert state_after_grasp.is_grasped
+    assert not missed.success and not missed.is_grasped and missed.width_m == 0.0
+    assert homed.success and homed.width_m == 0.08
+    assert force == 20.0
+
+
+def test_stop_interrupts_a_gripper_move():
+    async def scenario(backend: FakeBackend):
+        task = asyncio.create_task(backend.gripper_move(0.0, 0.01))  # 8 s to close
+        await wait_until(lambda: _gripper_moving(backend))
+        await asyncio.sleep(0.05)
+        await backend.stop()
+        result = await task
+        held = await backend.gripper_state()
+        await asyncio.sleep(0.05)
+        return result, held, await backend.gripper_state()
+
+    result, held, later = run_with_backend(scenario)
+    assert not result.success and result.detail == "stopped"
+    assert 0.0 < result.width_m < 0.08
+    assert not held.moving and held.width_m == later.width_m == result.width_m
+
+
+async def _gripper_moving(backend: FakeBackend) -> bool:
+    return (await backend.gripper_state()).moving
+
+
+def test_gripper_refuses_widths_outside_its_range():
+    async def scenario(backend: FakeBackend):
+        with pytest.raises(BackendError, match="outside"):
+            await backend.gripper_move(0.09, 0.1)
+        with pytest.raises(BackendError, match="speed"):
+            await backend.gripper_move(0.04, float("nan"))
+        return (await backend.gripper_state()).width_m
+
+    assert run_with_backend(scenario) == 0.08
+
+
+# ---------------------------------------------------------------------------- cameras, controllers, graph
+@pytest.mark.parametrize("camera", ["scene", "wrist"])
+def test_camera_returns_a_decodable_png_of_the_expected_size(camera):
+    async def scenario(backend: FakeBackend):
+        return await backend.camera_snapshot(camera), await backend.camera_snapshot(camera)
+
+    first, second = run_with_backend(scenario, table_height_m=0.0)
+    image = Image.open(io.BytesIO(first.png))
+    assert image.format == "PNG" and image.size == (320, 240) == (first.width, first.height)
+    assert first.camera == camera
+    assert first.png != second.png  # the frame counter is drawn into the picture
+    # deterministic: a fresh backend in the same state renders the same first frame
+    again, _ = run_with_backend(scenario, table_height_m=0.0)
+    assert again.png == first.png
+
+
+def test_unknown_camera_is_refused():
+    async def scenario(backend: FakeBackend):
+        with pytest.raises(BackendError, match="camera"):
+            await backend.camera_snapshot("thermal")
+
+    run_with_backend(scenario)
+
+
+def test_switch_controllers_validates_names_and_claims():
+    async def scenario(backend: FakeBackend):
+        with pytest.raises(BackendError, match="unknown controller"):
+            await backend.switch_controllers(["no_such_controller"], [])
+        with pytest.raises(BackendError, match="claim"):
+            await backend.switch_controllers(["joint_impedance_controller"], [])
+        await backend.switch_controllers(["joint_impedance_controller"], ["fr3_arm_controller"])
+        states = {c.name: c.state for c in await backend.list_controllers()}
+        with pytest.raises(BackendError, match="not active"):
+            await backend.execute(straight_line(Q_READY, Q_REACH, 0.1))
+        return states
+
+    states = run_with_backend(scenario)
+    assert states == {
+        "fr3_arm_controller": "inactive",
+        "joint_impedance_controller": "active",
+        "franka_robot_state_broadcaster": "active",
+    }
+
+
+def test_error_recovery_clears_a_fault_that_blocks_motion():
+    async def scenario(backend: FakeBackend):
+        backend.fault = True
+        with pytest.raises(BackendError, match="error recovery"):
+            await backend.execute(straight_line(Q_READY, Q_REACH, 0.1))
+        await backend.error_recovery()
+        return backend.fault, await backend.execute(straight_line(Q_READY, Q_REACH, 0.1))
+
+    fault, result = run_with_backend(scenario)
+    assert fault is False and result.completed
+
+
+def test_collision_thresholds_are_stored_and_graph_and_capabilities_describe_the_robot():
+    async def scenario(backend: FakeBackend):
+        await backend.set_collision_thresholds(30.0, 25.0)
+        return backend.collision_thresholds, await backend.graph(), backend.capabilities
+
+    thresholds, graph, capabilities = run_with_backend(scenario)
+    assert thresholds == (30.0, 25.0)
+    assert set(graph) == {"nodes", "topics", "services", "actions"}
+    assert "/fr3_arm_controller/follow_joint_trajectory" in graph["actions"]
+    assert capabilities.cameras == ("wrist", "scene") and capabilities.gripper and capabilities.wrench
+    assert "fr3_hand_tcp" in capabilities.frames and "fr3_link0" in capabilities.frames
+
+
+def test_custom_controller_list_is_used():
+    custom = [ControllerInfo("arm", "joint_trajectory_controller/JointTrajectoryController", "active")]
+
+    async def scenario(backend: FakeBackend):
+        return await backend.list_controllers()
+
+    assert run_with_backend(scenario, controllers=custom) == custom
+
+
+# ---------------------------------------------------------------------------- bookkeeping, lifecycle
+def test_actuation_commands_count_every_call_that_could_move_something():
+    async def scenario(backend: FakeBackend):
+        counts = [backend.actuation_commands]
+        # reads and stop are not actuation commands
+        await backend.read_joint_state()
+        await backend.read_wrench()
+        await backend.gripper_state()
+        await backend.list_controllers()
+        await backend.graph()
+        await backend.camera_snapshot("scene")
+        await backend.stop()
+        counts.append(backend.actuation_commands)
+        await backend.execute(straight_line(Q_READY, Q_REACH, 0.05))
+        await backend.gripper_move(0.05, 0.1)
+        await backend.gripper_grasp(0.04, 10.0, 0.1, 0.01, 0.01)
+        await backend.gripper_home()
+        await backend.switch_controllers([], [])
+        await backend.set_collision_thresholds(20.0, 20.0)
+        await backend.error_recovery()
+        counts.append(backend.actuation_commands)
+        with pytest.raises(BackendError):  # a refused command still reached the backend: counted
+            await backend.gripper_move(1.0, 0.1)
+        counts.append(backend.actuation_commands)
+        return counts
+
+    assert run_with_backend(scenario, speedup=10.0) == [0, 0, 7, 8]
+
+
+def test_close_is_idempotent_joins_the_thread_and_refuses_further_calls():
+    async def scenario():
+        backend = FakeBackend()
+        await backend.open()
+        thread = backend.control_thread
+        assert thread is not None and thread.is_alive()
+        await backend.close()
+        await backend.close()
+        assert not thread.is_alive()
+        assert thread not in threading.enumerate()
+        with pytest.raises(BackendError, match="not open"):
+            await backend.read_joint_state()
+        with pytest.raises(BackendError, match="not open"):
+            await backend.execute(straight_line(Q_READY, Q_REACH, 0.1))
+        await backend.stop()  # stop after close is a harmless no-op
+
+    asyncio.run(scenario())
+
+
+def test_close_during_execution_stops_it():
+    async def scenario():
+        backend = FakeBackend()
+        await backend.open()
+        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend))
+        await backend.close()
+        return await task, backend.control_thread.is_alive()
+
+    result, alive = asyncio.run(scenario())
+    assert result.reason == "stopped" and not alive
+
+
+def test_close_inside_a_cancelled_scope_still_stops_and_joins_the_thread():
+    async def scenario():
+        backend = FakeBackend()
+        await backend.open()
+        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend))
+        with anyio.move_on_after(0.01):  # like a server shutting down on SIGTERM
+            try:
+                await anyio.sleep(10)
+            finally:
+                await backend.close()  # every await in here is cancelled unless shielded
+        joined = not backend.control_thread.is_alive()  # checked before anything else can run
+        return joined, await task
+
+    joined, result = asyncio.run(scenario())
+    assert joined
+    assert result.reason == "stopped"
+
+
+def test_close_does_not_hang_when_the_stop_hangs():
+    async def scenario():
+        backend = FakeBackend()
+        await backend.open()
+
+        async def hung_stop():
+            await asyncio.sleep(3600)
+
+        backend._stop = hung_stop
+        backend.stop_timeout_s = 0.2
+        start = time.monotonic()
+        await backend.close()
+        return time.monotonic() - start, backend.control_thread.is_alive()
+
+    elapsed_s, alive = asyncio.run(scenario())
+    assert elapsed_s < 5.0 and not alive
+
+
+@pytest.mark.parametrize("period_s", [0.002, 0.0, float("nan")])
+def test_refuses_a_control_period_above_one_millisecond(period_s):
+    with pytest.raises(ValueError, match="control_period_s"):
+        FakeBackend(control_period_s=period_s)
+
+
+def test_refuses_a_home_outside_the_joint_limits():
+    with pytest.raises(ValueError, match="outside the joint limits"):
+        FakeBackend(home=[0.0] * 7)
+
+
+def test_registry_builds_the_fake_backend_from_keyword_arguments():
+    backend = create_backend("fake", speedup=5.0, table_height_m=0.1, policy=None)
+    assert isinstance(backend, FakeBackend)
+    assert backend.speedup == 5.0 and backend.table_height_m == 0.1

@@ -1,0 +1,50 @@
+"""Shared fixtures: the bundled FR3 policy, robot model, envelope and planner."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from armwarden.planning.planners import Planner, PlannerSettings
+from armwarden.policy import Policy, load_policy
+from armwarden.robot import RobotModel, build_robot
+from armwarden.safety.envelope import Envelope, EnvelopeLimits
+
+READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+
+
+def bundled_policy_path(name: str) -> Path:
+    return Path(str(resources.files("armwarden") / "policies" / f"{name}.yaml"))
+
+
+@pytest.fixture(scope="session")
+def fr3_policy() -> Policy:
+    return load_policy(bundled_policy_path("fr3"))
+
+
+@pytest.fixture(scope="session")
+def robot(fr3_policy: Policy) -> RobotModel:
+    return build_robot(fr3_policy)
+
+
+@pytest.fixture(scope="session")
+def limits(fr3_policy: Policy) -> EnvelopeLimits:
+    return EnvelopeLimits.from_policy(fr3_policy)
+
+
+@pytest.fixture(scope="session")
+def envelope(robot: RobotModel, limits: EnvelopeLimits) -> Envelope:
+    return Envelope(robot, limits)
+
+
+@pytest.fixture(scope="session")
+def planner(robot: RobotModel, fr3_policy: Policy) -> Planner:
+    return Planner(robot, PlannerSettings.from_policy(fr3_policy))
+
+
+@pytest.fixture
+def ready() -> np.ndarray:
+    return READY.copy()

@@ -1,0 +1,61 @@
+"""Inverse kinematics: round trips on random reachable poses, and failure as a result."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from armwarden.robot import RobotModel
+from armwarden.robot.ik import IkSolver
+from tests.conftest import READY
+
+
+def _random_reachable_poses(robot: RobotModel, count: int, seed: int):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        q = rng.uniform(robot.lower, robot.upper)
+        yield robot.tcp_pose(q)
+
+
+def test_full_pose_round_trips_on_200_random_reachable_poses(robot: RobotModel) -> None:
+    solver = IkSolver(robot)
+    failures = []
+    for pose in _random_reachable_poses(robot, 200, seed=11):
+        result = solver.solve(pose.position, pose.rotation, [READY])
+        reached = robot.tcp_pose(result.q)
+        if not (
+            result.success
+            and np.linalg.norm(reached.position - pose.position) < 1e-4
+            and np.allclose(reached.rotation, pose.rotation, atol=2e-3)
+            and robot.within_limits(result.q)
+        ):
+            failures.append((pose.position, result.message))
+    assert failures == []
+
+
+def test_position_only_round_trips_on_200_random_reachable_positions(robot: RobotModel) -> None:
+    solver = IkSolver(robot)
+    for pose in _random_reachable_poses(robot, 200, seed=12):
+        result = solver.solve(pose.position, None, [READY])
+        assert result.success, result.message
+        assert np.linalg.norm(robot.tcp_pose(result.q).position - pose.position) < 1e-4
+
+
+def test_unreachable_target_is_reported_with_its_residual_not_raised(robot: RobotModel) -> None:
+    result = IkSolver(robot).solve(np.array([2.0, 0.0, 0.5]), None, [READY])
+    assert not result.success
+    assert result.position_error_m > 0.5
+    assert "best residual" in result.message
+
+
+def test_nearby_target_is_solved_from_the_current_state_with_small_motion(robot: RobotModel) -> None:
+    start = robot.tcp_pose(READY)
+    result = IkSolver(robot).solve(start.position + [0.02, 0.0, -0.02], start.rotation, [READY])
+    assert result.success
+    assert np.max(np.abs(result.q - READY)) < 0.2
+
+
+def test_solutions_respect_the_joint_limits(robot: RobotModel) -> None:
+    solver = IkSolver(robot)
+    for pose in _random_reachable_poses(robot, 30, seed=13):
+        result = solver.solve(pose.position, pose.rotation, [READY])
+        assert np.all(result.q >= robot.lower) and np.all(result.q <= robot.upper)
