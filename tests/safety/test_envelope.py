@@ -197,6 +197,7 @@ def test_samples_bound_every_point_motion_by_the_sweep_resolution(envelope: Enve
     _, q_samples, inflation = envelope.sample_path(trajectory.times, trajectory.positions)
     bound = np.abs(np.diff(q_samples, axis=0)) @ envelope.robot.reach
     assert np.all(bound <= envelope.limits.sweep_resolution_m + 1e-9)
+    assert np.all(np.abs(np.diff(q_samples, axis=0)) <= envelope.limits.check_resolution_rad + 1e-9)
     assert np.all(inflation <= envelope.limits.sweep_resolution_m / 2 + 1e-9)
 
 

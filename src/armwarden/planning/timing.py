@@ -18,6 +18,7 @@ from armwarden.planning.trajectory import DEFAULT_DT_S, JointTrajectory
 from armwarden.safety.envelope import estimate_accelerations, estimate_velocities
 
 _MAX_STRETCHES = 30
+_MIN_STEP_RAD = 1e-9  # smaller joint steps are numerical noise, not motion
 
 
 @dataclass(frozen=True)
@@ -89,13 +90,11 @@ def time_leg(
     subdivided so that waypoints are about `dt_s` apart at full speed; each waypoint gets the
     time at which a trapezoidal profile of the path parameter reaches it.
     """
-    path = np.asarray(path, dtype=float)
-    seg = np.max(np.abs(np.diff(path, axis=0)) / max_velocity, axis=1) if len(path) > 1 else np.zeros(0)
-    if not np.any(seg > 0):
+    path = _drop_repeated_vertices(np.asarray(path, dtype=float))
+    if len(path) < 2:
         return JointTrajectory(joint_names, np.array([0.0, dt_s]), np.vstack([path[0], path[0]]))
-    # path parameter: time each segment takes at full speed on its limiting joint; drop repeats
-    keep = np.concatenate([[True], seg > 0])
-    path, seg = path[keep], seg[seg > 0]
+    # path parameter: time each segment takes at full speed on its limiting joint
+    seg = np.max(np.abs(np.diff(path, axis=0)) / max_velocity, axis=1)
     pieces = np.maximum(1, np.ceil(seg / dt_s).astype(int))
     dense = [path[:1]]
     for k, n in enumerate(pieces):
@@ -103,9 +102,13 @@ def time_leg(
         dense.append(path[k] + alpha * (path[k + 1] - path[k]))
     positions = np.vstack(dense)
     s = np.concatenate([[0.0], np.cumsum(np.repeat(seg / pieces, pieces))])
-    # with ds/dt ≤ 1 every joint is within its velocity limit; tangential acceleration
-    # |q_i'| s̈ ≤ a_i holds for s̈ ≤ min_i a_i / v_i; curvature at vertices is caught by the check
-    profile = _Trapezoid.fit(float(s[-1]), 1.0, float(np.min(max_acceleration / max_velocity)))
+    # with ds/dt ≤ 1 every joint is within its velocity limit; the tangential acceleration
+    # |dq_i/ds| s̈ stays within a_i for s̈ ≤ min_i a_i / max|dq_i/ds|; curvature at vertices is
+    # caught by the verification below
+    slope = np.max(np.abs(np.diff(path, axis=0)) / seg[:, None], axis=0)
+    moving = slope > 0
+    a_path = float(np.min(max_acceleration[moving] / slope[moving]))
+    profile = _Trapezoid.fit(float(s[-1]), 1.0, a_path)
     base_times = profile.time_at(s)
     base_times[0], base_times[-1] = 0.0, profile.duration
     stretch = 1.0
@@ -117,6 +120,21 @@ def time_leg(
             return JointTrajectory(joint_names, times, positions)
         stretch *= max(1.01, float(np.sqrt(max(acc, 1.0))) * 1.001, float(vel) * 1.001)
     raise TimingError(f"no timing within the limits after {_MAX_STRETCHES} stretches (acceleration ratio {acc:.2f})")
+
+
+def _drop_repeated_vertices(path: np.ndarray) -> np.ndarray:
+    """Vertices closer than `_MIN_STEP_RAD` to the previous kept one carry no motion: drop them.
+
+    The first vertex always stays; the last one replaces a near-duplicate before it, so a path
+    that moves ends exactly at its goal (one that does not move holds its start).
+    """
+    kept = [path[0]]
+    for vertex in path[1:]:
+        if np.max(np.abs(vertex - kept[-1])) > _MIN_STEP_RAD:
+            kept.append(vertex)
+    if len(kept) > 1:
+        kept[-1] = path[-1]
+    return np.array(kept)
 
 
 class TimingError(RuntimeError):

@@ -205,6 +205,7 @@ class RobotModel:
         p0 = np.vstack([self._capsule_p0, self._tcp_in_joint[None]])
         p1 = np.vstack([self._capsule_p1, self._tcp_in_joint[None]])
         self._points_h = np.hstack([np.vstack([p0, p1]), np.ones((2 * len(slots), 1))])
+        self._point_index = np.arange(len(self._point_slot))
         self.reach = self._compute_reach()
 
     def _compute_reach(self) -> np.ndarray:
@@ -291,7 +292,7 @@ class RobotModel:
         for q in qs:
             forward(model, data, q)
             for ref in refs:
-                append(ref.homogeneous)
+                append(ref.np)  # the 4×4 homogeneous matrix; the cheapest read pinocchio offers
         out = np.array(frames).reshape(len(qs), len(refs), 4, 4)
         if self._base_from_world is not None:
             out = np.einsum("ij,nkjl->nkil", self._base_from_world.homogeneous, out)
@@ -302,6 +303,8 @@ class RobotModel:
 
         One batched matrix product from the `joint_frames` output; base frame, metres.
         """
-        world = np.matmul(frames[:, self._point_slot, :3, :], self._points_h[..., None])[..., 0]
+        # every point through every joint's transform (one BLAS call), then keep each point's own joint
+        through_all = np.tensordot(frames[:, :, :3, :], self._points_h, axes=([3], [1]))  # (N, J, 3, P)
+        world = through_all[:, self._point_slot, :, self._point_index].transpose(1, 0, 2)  # (N, P, 3)
         n_bodies = len(self.capsules) + 1
         return world[:, :n_bodies], world[:, n_bodies:]

@@ -63,6 +63,7 @@ class EnvelopeLimits:
     max_cartesian_step_m: float
     joint_limit_margin_rad: float
     sweep_resolution_m: float
+    check_resolution_rad: float
     workspace: Box
     keep_out: tuple[Box, ...] = ()
     link_padding_m: float = 0.0
@@ -86,6 +87,7 @@ class EnvelopeLimits:
             max_cartesian_step_m=motion.max_cartesian_step_m,
             joint_limit_margin_rad=motion.joint_limit_margin_rad,
             sweep_resolution_m=motion.sweep_resolution_m,
+            check_resolution_rad=motion.check_resolution_rad,
             workspace=Box.of("workspace", ws.box.min, ws.box.max),
             keep_out=tuple(Box.of(z.name, z.min, z.max) for z in ws.keep_out),
             link_padding_m=ws.link_padding_m,
@@ -143,6 +145,8 @@ class Envelope:
         self._padded_radii = np.concatenate([robot.capsule_radii + limits.link_padding_m, [0.0]])
         self._pairs = self._self_collision_pairs() if limits.self_collision else np.zeros((0, 2), dtype=np.intp)
         self._pair_radii = robot.capsule_radii[self._pairs[:, 0]] + robot.capsule_radii[self._pairs[:, 1]]
+        half_lengths = np.array([np.linalg.norm(np.subtract(c.p1_m, c.p0_m)) / 2.0 for c in robot.capsules])
+        self._pair_sphere_reach = self._pair_radii + half_lengths[self._pairs[:, 0]] + half_lengths[self._pairs[:, 1]]
         self._ws_lo = limits.workspace.lo
         self._ws_hi = limits.workspace.hi
         if limits.keep_out:
@@ -320,12 +324,18 @@ class Envelope:
         the two intervals next to the sample.
         """
         reach = self.robot.reach  # (n, B+1)
-        seg_bound = np.abs(np.diff(positions, axis=0)) @ reach  # (K-1, B+1)
+        steps = np.abs(np.diff(positions, axis=0))
+        seg_bound = steps @ reach  # (K-1, B+1)
         cum_body = np.vstack([np.zeros((1, reach.shape[1])), np.cumsum(seg_bound, axis=0)])
-        cum = np.concatenate([[0.0], np.cumsum(np.max(seg_bound, axis=1))])
+        # sampling cost of a segment, in units of "one sample interval": the point-motion bound
+        # against sweep_resolution_m, and the joint step against check_resolution_rad
+        cost = np.maximum(
+            np.max(seg_bound, axis=1) / self.limits.sweep_resolution_m,
+            np.max(steps, axis=1) / self.limits.check_resolution_rad,
+        )
+        cum = np.concatenate([[0.0], np.cumsum(cost)])
         total = float(cum[-1])
-        step = self.limits.sweep_resolution_m
-        n_intervals = max(1, int(np.ceil(total / step))) if total > 0 else 1
+        n_intervals = max(1, int(np.ceil(total))) if total > 0 else 1
         targets = np.linspace(0.0, total, n_intervals + 1)
         # locate each target on the waypoint polyline (first segment whose cumulative bound reaches it)
         k = np.clip(np.searchsorted(cum, targets, side="left") - 1, 0, len(cum) - 2)
@@ -400,10 +410,11 @@ class Envelope:
 
     def _check_self_collision(self, t_s: np.ndarray, p0: np.ndarray, p1: np.ndarray, inflation: np.ndarray) -> list[Violation]:
         a, b = self._pairs[:, 0], self._pairs[:, 1]
-        grown = self.robot.capsule_radii + inflation[:, :-1]  # (N, B): no link padding between links
-        lo = np.minimum(p0[:, :-1], p1[:, :-1]) - grown[..., None]
-        hi = np.maximum(p0[:, :-1], p1[:, :-1]) + grown[..., None]
-        candidates = np.all(lo[:, a] <= hi[:, b], axis=-1) & np.all(hi[:, a] >= lo[:, b], axis=-1)  # (N, P)
+        # broad phase: bounding spheres of the capsules (centre, half length + radius + inflation)
+        centers = (p0[:, :-1] + p1[:, :-1]) / 2.0
+        gap = centers[:, a] - centers[:, b]
+        center_distance = np.sqrt(np.einsum("npi,npi->np", gap, gap))
+        candidates = center_distance < self._pair_sphere_reach + inflation[:, a] + inflation[:, b]  # (N, P)
         if not np.any(candidates):
             return []
         k_idx, pair_idx = np.nonzero(candidates)

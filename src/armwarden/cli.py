@@ -1,0 +1,128 @@
+"""`armwarden` command line: serve, check-policy, audit verify|tail, tokens add|list|revoke.
+
+Exit status 2 means "refused to start / invalid input" (bad policy, unavailable backend,
+unopenable audit log, unsafe bind); 1 means a check failed (e.g. a broken audit chain).
+Logs go to stderr only: on stdio, stdout carries nothing but MCP.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+
+from armwarden import __version__
+from armwarden.errors import ArmWardenError, PolicyError
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_REFUSED = 2
+
+
+def bundled_policy(name: str = "fr3") -> Path:
+    """Path of a policy shipped inside the package (`fr3` or `readonly`)."""
+    return Path(str(resources.files("armwarden") / "policies" / f"{name}.yaml"))
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="armwarden", description="Safety-first MCP server daemon for robot arms.")
+    parser.add_argument("--version", action="version", version=f"armwarden {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    serve = commands.add_parser("serve", help="run the MCP server (stdio or streamable HTTP)")
+    serve.add_argument("--policy", default=None, help="safety policy YAML (default: the bundled FR3 policy)")
+    serve.add_argument("--backend", default="fake", choices=["fake", "mujoco", "ros2", "can"])
+    serve.add_argument("--backend-config", default=None, help="backend wiring YAML (ROS names, CAN ids, scene)")
+    serve.add_argument("--transport", default="stdio", choices=["stdio", "http"])
+    serve.add_argument("--host", default="127.0.0.1")
+    serve.add_argument("--port", type=int, default=8765)
+    serve.add_argument("--audit-log", default="armwarden-audit.jsonl", help="append-only audit log (JSONL)")
+    serve.add_argument("--auth-tokens", default=None, help="bearer token file (see `armwarden tokens`)")
+    serve.add_argument("--dry-run", action="store_true", help="validate and ask, never actuate")
+    serve.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+
+    check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
+    check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")
+
+    audit = commands.add_parser("audit", help="verify or read an audit log").add_subparsers(dest="audit_command", required=True)
+    verify = audit.add_parser("verify", help="prove the hash chain (exit 0 intact, 1 broken)")
+    verify.add_argument("file")
+    tail = audit.add_parser("tail", help="print the last records")
+    tail.add_argument("file")
+    tail.add_argument("-n", type=int, default=20)
+
+    tokens = commands.add_parser("tokens", help="manage HTTP bearer tokens").add_subparsers(dest="tokens_command", required=True)
+    add = tokens.add_parser("add", help="create a token (printed once; only its hash is stored)")
+    add.add_argument("file")
+    add.add_argument("--role", required=True, choices=["observer", "operator"])
+    add.add_argument("--name", default=None)
+    listing = tokens.add_parser("list", help="list token names and roles")
+    listing.add_argument("file")
+    revoke = tokens.add_parser("revoke", help="revoke a token by name")
+    revoke.add_argument("file")
+    revoke.add_argument("name")
+    return parser
+
+
+def check_policy_command(path: str | None) -> int:
+    from armwarden.policy import load_policy, summarize_policy
+    from armwarden.preflight import load_runtime_model
+
+    policy_path = Path(path) if path else bundled_policy()
+    try:
+        policy = load_policy(policy_path)
+        runtime = load_runtime_model(policy, str(policy_path))
+    except PolicyError as exc:
+        print(f"INVALID: {exc.source} ({len(exc.errors)} error{'s' if len(exc.errors) != 1 else ''})")
+        for yaml_path, message in exc.errors:
+            print(f"  {yaml_path}: {message}")
+        return EXIT_REFUSED
+    print(f"OK: {policy_path}")
+    print(summarize_policy(policy))
+    robot = runtime.robot
+    print(
+        f"Robot model: {len(robot.capsules)} collision capsules on {len({c.link for c in robot.capsules})} links, "
+        f"{len(runtime.envelope.self_collision_pairs)} self-collision pairs; home configuration passes the envelope"
+    )
+    return EXIT_OK
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _build_parser().parse_args(argv)
+    logging.basicConfig(
+        stream=sys.stderr,
+        level=getattr(args, "log_level", "WARNING"),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        if args.command == "check-policy":
+            return check_policy_command(args.policy)
+        if args.command == "audit":
+            from armwarden.safety import audit
+
+            if args.audit_command == "verify":
+                return audit.verify_command(args.file, audit.hmac_key_from_env())
+            return audit.tail_command(args.file, args.n)
+        if args.command == "tokens":
+            from armwarden.transport import tokens
+
+            if args.tokens_command == "add":
+                return tokens.tokens_add_command(args.file, args.role, args.name)
+            if args.tokens_command == "list":
+                return tokens.tokens_list_command(args.file)
+            return tokens.tokens_revoke_command(args.file, args.name)
+        if args.command == "serve":
+            from armwarden.daemon import serve_command
+
+            return serve_command(args)
+    except ArmWardenError as exc:
+        print(f"armwarden: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    return EXIT_FAILED  # pragma: no cover - argparse enforces the choices
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,234 @@
+"""The force monitor: watches the external wrench while the arm moves, and fails closed.
+
+Why: the envelope keeps planned motion away from what the policy knows about, but not from
+what it does not (a person, a misplaced box). The contact force is the last line of defence, so
+the monitor treats "cannot tell" exactly like "too much": a wrench that is missing, slow to
+read, frozen (its stamp stops advancing) or not finite ends the motion just as a force over the
+limit does (DESIGN.md §4).
+
+How: `baseline()` reads the wrench once before the motion starts. `run()` then polls it at
+`monitor_rate_hz`, each read bounded by `wrench_timeout_s`, until it finds a violation (which
+it hands to `on_violation`, shielded from cancellation so the stop and the latch complete, and
+returns) or until the Guard cancels it because the motion ended. If the arm was already pressing
+harder than the limit when the motion started (e.g. resting on a surface), the limit becomes
+"no more than 1 N (0.2 N·m) above that baseline", so the arm can move away but not push harder.
+
+One monitor per execution. The monitor never stops the robot itself: `on_violation` (the Guard)
+does. The clock is injected so tests never sleep for timing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import anyio
+import numpy as np
+
+from armwarden.backends.base import Wrench
+from armwarden.errors import ConfigurationError
+
+__all__ = [
+    "FORCE_RISE_ALLOWANCE_N",
+    "TORQUE_RISE_ALLOWANCE_NM",
+    "ForceLimits",
+    "ForceMonitor",
+    "ForceViolation",
+    "ViolationKind",
+]
+
+#: with a baseline above the force limit, the largest allowed rise above the baseline [N]
+FORCE_RISE_ALLOWANCE_N = 1.0
+#: with a baseline above the torque limit, the largest allowed rise above the baseline [N·m]
+TORQUE_RISE_ALLOWANCE_NM = 0.2
+
+ViolationKind = Literal[
+    "force_limit", "torque_limit", "wrench_missing", "wrench_timeout", "wrench_frozen", "wrench_invalid"
+]
+
+
+@dataclass(frozen=True)
+class ForceLimits:
+    """What the monitor enforces, in SI units; validated at construction."""
+
+    max_force_n: float
+    max_torque_nm: float
+    monitor_rate_hz: float = 200.0
+    wrench_timeout_s: float = 0.1
+    #: whether execution needs a wrench at all (the Guard's decision; the monitor always fails closed)
+    require_wrench: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("max_force_n", "max_torque_nm", "monitor_rate_hz", "wrench_timeout_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ConfigurationError(f"force limit {name} must be a positive finite number, got {value!r}")
+
+    @classmethod
+    def from_policy(cls, policy) -> ForceLimits:
+        force = policy.force
+        return cls(
+            max_force_n=force.max_contact_force_n,
+            max_torque_nm=force.max_contact_torque_nm,
+            monitor_rate_hz=force.monitor_rate_hz,
+            wrench_timeout_s=force.wrench_timeout_s,
+            require_wrench=force.require_wrench,
+        )
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.monitor_rate_hz
+
+
+@dataclass(frozen=True)
+class ForceViolation:
+    """Why the motion must stop; forces are None when no usable sample was read."""
+
+    kind: ViolationKind
+    detail: str
+    force_n: float | None
+    torque_nm: float | None
+    at_mono: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for the audit log and the e-stop event."""
+        return asdict(self)
+
+
+def _finite_vector(value: object) -> np.ndarray | None:
+    """`value` as a finite 3-vector, or None."""
+    try:
+        vector = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    return vector if vector.shape == (3,) and bool(np.all(np.isfinite(vector))) else None
+
+
+class ForceMonitor:
+    """Polls the wrench during one execution; see the module docstring."""
+
+    def __init__(
+        self,
+        limits: ForceLimits,
+        read_wrench: Callable[[], Awaitable[Wrench | None]],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.limits = limits
+        self._read_wrench = read_wrench
+        self._clock = clock
+        self.baseline_wrench: Wrench | None = None
+        #: largest force / torque norm seen in a valid sample (baseline included), for the report
+        self.max_observed_force_n = 0.0
+        self.max_observed_torque_nm = 0.0
+        self.samples = 0
+        self._last_stamp: float | None = None
+        self._stamp_advanced_mono = 0.0
+
+    # ------------------------------------------------------------------ thresholds
+    @property
+    def force_threshold_n(self) -> float:
+        """The force norm [N] above which the motion stops (the limit, or baseline + allowance)."""
+        return self._threshold(self.limits.max_force_n, self._baseline_norms()[0], FORCE_RISE_ALLOWANCE_N)
+
+    @property
+    def torque_threshold_nm(self) -> float:
+        """The torque norm [N·m] above which the motion stops (the limit, or baseline + allowance)."""
+        return self._threshold(self.limits.max_torque_nm, self._baseline_norms()[1], TORQUE_RISE_ALLOWANCE_NM)
+
+    @staticmethod
+    def _threshold(limit: float, baseline: float | None, allowance: float) -> float:
+        return baseline + allowance if baseline is not None and baseline > limit else limit
+
+    def _baseline_norms(self) -> tuple[float | None, float | None]:
+        if self.baseline_wrench is None:
+            return None, None
+        return self.baseline_wrench.force_norm_n, self.baseline_wrench.torque_norm_nm
+
+    # ------------------------------------------------------------------ reading
+    async def baseline(self) -> Wrench | None:
+        """Read the wrench before the motion; None if it is missing, slow, unreadable or not finite."""
+        self.baseline_wrench = None
+        sample = await self._read_sample()
+        if isinstance(sample, ForceViolation):
+            return None
+        self.baseline_wrench = sample
+        return sample
+
+    async def run(self, on_violation: Callable[[ForceViolation], Awaitable[None]] | None = None) -> ForceViolation:
+        """Poll until a violation (returned after `on_violation` has run) or until cancelled."""
+        while True:
+            sample = await self._read_sample()
+            violation = sample if isinstance(sample, ForceViolation) else self._check_limits(sample)
+            if violation is not None:
+                if on_violation is not None:
+                    with anyio.CancelScope(shield=True):  # the stop and the latch must complete
+                        await on_violation(violation)
+                return violation
+            await anyio.sleep(self.limits.period_s)
+
+    async def _read_sample(self) -> Wrench | ForceViolation:
+        """One bounded read, checked for presence, finiteness and a stamp that keeps advancing."""
+        timeout_s = self.limits.wrench_timeout_s
+        try:
+            with anyio.fail_after(timeout_s):
+                wrench = await self._read_wrench()
+        except TimeoutError:
+            return self._violation("wrench_timeout", f"wrench read took longer than {timeout_s:g} s")
+        except Exception as exc:  # a failing sensor is a missing sensor; cancellation still propagates
+            reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+            return self._violation("wrench_missing", f"wrench read failed ({reason})")
+        now = self._clock()
+        if wrench is None:
+            return self._violation("wrench_missing", "no wrench estimate available")
+        force = _finite_vector(getattr(wrench, "force", None))
+        torque = _finite_vector(getattr(wrench, "torque", None))
+        stamp = getattr(wrench, "stamp", None)
+        if force is None or torque is None or not isinstance(stamp, (int, float)) or not math.isfinite(stamp):
+            return self._violation("wrench_invalid", "wrench has non-finite or malformed force, torque or stamp")
+        force_n, torque_nm = float(np.linalg.norm(force)), float(np.linalg.norm(torque))
+        self.samples += 1
+        self.max_observed_force_n = max(self.max_observed_force_n, force_n)
+        self.max_observed_torque_nm = max(self.max_observed_torque_nm, torque_nm)
+        if self._last_stamp is None or stamp > self._last_stamp:
+            self._last_stamp, self._stamp_advanced_mono = float(stamp), now
+        elif now - self._stamp_advanced_mono > timeout_s:
+            return self._violation(
+                "wrench_frozen",
+                f"wrench stamp has not advanced for {now - self._stamp_advanced_mono:.3f} s "
+                f"(more than {timeout_s:g} s)",
+                force_n,
+                torque_nm,
+            )
+        return wrench
+
+    def _check_limits(self, wrench: Wrench) -> ForceViolation | None:
+        force_n, torque_nm = wrench.force_norm_n, wrench.torque_norm_nm
+        force_max, torque_max = self.force_threshold_n, self.torque_threshold_nm
+        if force_n > force_max:
+            return self._violation(
+                "force_limit", f"contact force {force_n:.2f} N exceeds {self._describe(force_max, 'force')}",
+                force_n, torque_nm,
+            )
+        if torque_nm > torque_max:
+            return self._violation(
+                "torque_limit", f"contact torque {torque_nm:.3f} N·m exceeds {self._describe(torque_max, 'torque')}",
+                force_n, torque_nm,
+            )
+        return None
+
+    def _describe(self, threshold: float, which: str) -> str:
+        if which == "force":
+            limit, unit, allowance = self.limits.max_force_n, "N", FORCE_RISE_ALLOWANCE_N
+        else:
+            limit, unit, allowance = self.limits.max_torque_nm, "N·m", TORQUE_RISE_ALLOWANCE_NM
+        if threshold == limit:
+            return f"the limit of {limit:g} {unit}"
+        return f"{threshold:.2f} {unit} (baseline above the {limit:g} {unit} limit, plus {allowance:g} {unit})"
+
+    def _violation(
+        self, kind: ViolationKind, detail: str, force_n: float | None = None, torque_nm: float | None = None
+    ) -> ForceViolation:
+        return ForceViolation(kind, detail, force_n, torque_nm, self._clock())

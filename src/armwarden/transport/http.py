@@ -1,0 +1,367 @@
+"""Streamable HTTP transport: ``/mcp`` behind Host/Origin checks and bearer tokens, plus ``/healthz``.
+
+Request path (outermost first)::
+
+    uvicorn ─▶ HostOriginGuard ─▶ BearerAuth ─▶ AuthContextMiddleware ─▶ Starlette routes
+               421 bad Host      401 + WWW-     (SDK: publishes the     /healthz  (GET, no auth)
+               403 bad Origin    Authenticate   user to get_access_     /mcp      (SDK streamable HTTP,
+               (every path)      (all but       token())                          stateful)
+                                 /healthz)
+
+- Host/Origin validation (DNS rebinding) uses the SDK's `TransportSecuritySettings` and
+  `TransportSecurityMiddleware.validate_request` on *every* path, before credentials are looked
+  at; the same settings are handed to the SDK transport, which checks ``/mcp`` again.
+  Allowed Host values: the bind ``host:port`` plus ``127.0.0.1``/``localhost``/``[::1]`` on that
+  port, plus `allowed_hosts`. A wildcard bind (``0.0.0.0``/``::``) is not a Host a client sends:
+  pass the names clients use in `allowed_hosts`. Requests without an Origin (non-browser
+  clients) pass; with one, it must be ``http://<allowed host>`` or listed in `allowed_origins`.
+- With a `TokenStore`, every path except ``/healthz`` needs ``Authorization: Bearer <token>``.
+  The authenticated `Principal` becomes the SDK's `AuthenticatedUser`/`AccessToken`
+  (``client_id`` = token name, ``scopes`` = [role]); the SDK copies it into the task that runs
+  the tool under both protocol revisions, binds sessions and sealed ``requestState`` to it, and
+  `current_principal` reads it back inside a tool. The Authorization header is removed from the
+  request before it reaches the SDK, so ``ctx.headers`` never carries the token.
+  Without a token store there is no principal (`current_principal` returns None) and
+  `check_bind_safety` only allows loopback binds.
+- `serve_http` runs uvicorn without installing signal handlers (the daemon owns SIGINT/SIGTERM and
+  sets the `shutdown` event), without access logs, and with a bounded graceful shutdown so that
+  open SSE streams cannot hold the process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+import logging
+import socket
+from collections.abc import AsyncIterator, Callable, Iterator, Mapping, Sequence
+from typing import Any
+
+import anyio
+import uvicorn
+from mcp.server.auth.middleware.auth_context import AuthContextMiddleware, get_access_token
+from mcp.server.auth.middleware.bearer_auth import AuthenticatedUser
+from mcp.server.auth.provider import AccessToken
+from mcp.server.mcpserver import MCPServer
+from mcp.server.transport_security import TransportSecurityMiddleware, TransportSecuritySettings
+from starlette.applications import Starlette
+from starlette.datastructures import Headers
+from starlette.middleware import Middleware
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Mount, Route
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from armwarden.errors import ConfigurationError
+from armwarden.transport.tokens import ROLES, Principal, TokenStore
+
+__all__ = [
+    "HEALTH_PATH",
+    "MCP_PATH",
+    "OBSERVER_GROUPS",
+    "OBSERVER_TOOLS",
+    "build_http_app",
+    "check_bind_safety",
+    "current_principal",
+    "is_loopback_host",
+    "role_allows",
+    "serve_http",
+    "transport_security_settings",
+]
+
+logger = logging.getLogger(__name__)
+
+MCP_PATH = "/mcp"
+HEALTH_PATH = "/healthz"
+PUBLIC_PATHS = frozenset({HEALTH_PATH})
+"""Paths served without a bearer token (Host/Origin are still checked)."""
+
+OBSERVER_GROUPS = frozenset({"introspect", "perception"})
+OBSERVER_TOOLS = frozenset({"get_safety_status", "stop_motion", "estop"})
+"""Observers may always stop the robot and read the safety status, whatever group those are in."""
+
+_LOOPBACK_NAMES = frozenset({"localhost", "localhost."})
+
+
+# ------------------------------------------------------------------------ roles / principal
+def role_allows(role: str, tool: str, group_of: Mapping[str, str]) -> bool:
+    """May `role` call `tool`? `group_of` maps tool name -> policy group (e.g. 'introspect').
+
+    operator: every tool (the policy decides which exist). observer: the introspect and
+    perception groups plus `OBSERVER_TOOLS`. Unknown roles and, for observers, tools of unknown
+    group are refused.
+    """
+    if role == "operator":
+        return True
+    if role == "observer":
+        return tool in OBSERVER_TOOLS or group_of.get(tool) in OBSERVER_GROUPS
+    return False
+
+
+def current_principal() -> Principal | None:
+    """The principal of the HTTP request being served, or None (stdio, or HTTP without tokens).
+
+    Call it inside a tool (or anything the tool awaits); it works under 2025-11-25 and
+    2026-07-28 because the SDK propagates the request's context into the tool's task.
+    """
+    access = get_access_token()
+    if access is None:
+        return None
+    role = (access.claims or {}).get("armwarden_role")
+    if role not in ROLES:  # a token not minted by BearerAuth (e.g. an SDK verifier): no role
+        return None
+    return Principal(name=access.client_id, role=role)
+
+
+# ------------------------------------------------------------------------ bind safety
+def is_loopback_host(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 (also bracketed or IPv4-mapped) and 'localhost'."""
+    name = host.strip().lower()
+    if name in _LOOPBACK_NAMES:
+        return True
+    if name.startswith("[") and name.endswith("]"):
+        name = name[1:-1]
+    try:
+        address = ipaddress.ip_address(name)
+    except ValueError:
+        return False  # other host names may resolve anywhere: not loopback
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        address = address.ipv4_mapped
+    return address.is_loopback
+
+
+def check_bind_safety(host: str, token_store: TokenStore | None) -> None:
+    """Refuse (ConfigurationError) to serve a non-loopback address without bearer tokens."""
+    if token_store is None and not is_loopback_host(host):
+        raise ConfigurationError(
+            f"refusing to serve HTTP on {host!r} without bearer tokens: anyone who can reach it could move "
+            "the robot. Bind 127.0.0.1 (or ::1/localhost), or pass a token file "
+            "(create one with 'armwarden tokens add FILE --role operator')."
+        )
+
+
+# ------------------------------------------------------------------------ Host / Origin
+def _host_header(host: str, port: int) -> Iterator[str]:
+    bracketed = f"[{host}]" if ":" in host and not host.startswith("[") else host
+    yield f"{bracketed}:{port}"
+    if port == 80:  # clients omit the default port
+        yield bracketed
+
+
+def transport_security_settings(
+    host: str, port: int, *, allowed_hosts: Sequence[str] = (), allowed_origins: Sequence[str] = ()
+) -> TransportSecuritySettings:
+    """DNS-rebinding settings: the bind address, loopback names and `allowed_hosts` on `port`.
+
+    `allowed_hosts` entries may be ``name`` (port `port` implied), ``name:port`` or ``name:*``.
+    """
+    hosts: list[str] = []
+    for name in (host, "127.0.0.1", "localhost", "::1"):
+        hosts.extend(_host_header(name, port))
+    for entry in allowed_hosts:
+        bare_ipv6 = entry.count(":") > 1 and not entry.startswith("[")
+        has_port = not bare_ipv6 and (entry.rsplit(":", 1)[-1].isdigit() or entry.endswith(":*"))
+        hosts.extend([entry] if has_port else _host_header(entry, port))
+    hosts = list(dict.fromkeys(hosts))
+    origins = list(dict.fromkeys([*(f"http://{value}" for value in hosts), *allowed_origins]))
+    return TransportSecuritySettings(enable_dns_rebinding_protection=True, allowed_hosts=hosts, allowed_origins=origins)
+
+
+class HostOriginGuard:
+    """Pure ASGI: reject a foreign Host (421) or Origin (403) on every HTTP path."""
+
+    def __init__(self, app: ASGIApp, settings: TransportSecuritySettings) -> None:
+        self.app = app
+        self.checker = TransportSecurityMiddleware(settings)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket"):
+            rejection = await self.checker.validate_request(Request(scope), is_post=False)
+            if rejection is not None:
+                await rejection(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
+# ------------------------------------------------------------------------ bearer tokens
+def _unauthorized(description: str, *, invalid: bool) -> Response:
+    challenge = 'Bearer realm="armwarden"' + (', error="invalid_token"' if invalid else "")
+    return JSONResponse(
+        {"error": "invalid_token" if invalid else "unauthorized", "error_description": description},
+        status_code=401,
+        headers={"WWW-Authenticate": challenge},
+    )
+
+
+class BearerAuth:
+    """Pure ASGI: require a valid bearer token on every path but `PUBLIC_PATHS`."""
+
+    def __init__(self, app: ASGIApp, token_store: TokenStore) -> None:
+        self.app = AuthContextMiddleware(app)  # SDK: scope["user"] -> get_access_token()
+        self.token_store = token_store
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket") or scope["path"] in PUBLIC_PATHS:
+            await self.app(scope, receive, send)
+            return
+        values = Headers(scope=scope).getlist("authorization")
+        client = (scope.get("client") or ("?", 0))[0]
+        if not values:
+            await _unauthorized("this server requires 'Authorization: Bearer <token>'", invalid=False)(
+                scope, receive, send
+            )
+            return
+        scheme, _, presented = values[0].partition(" ")
+        principal = None
+        if len(values) == 1 and scheme.lower() == "bearer":
+            principal = self.token_store.authenticate(presented.strip())
+        if principal is None:
+            logger.warning("rejected HTTP request from %s: invalid bearer token", client)
+            await _unauthorized("the bearer token is not valid (unknown or revoked)", invalid=True)(
+                scope, receive, send
+            )
+            return
+        scope = dict(scope)
+        scope["headers"] = [(k, v) for k, v in scope["headers"] if k.lower() != b"authorization"]
+        scope["user"] = AuthenticatedUser(
+            AccessToken(
+                token=f"redacted:{principal.name}",  # never the token itself
+                client_id=principal.name,
+                scopes=[principal.role],
+                claims={"armwarden_role": principal.role},
+            )
+        )
+        await self.app(scope, receive, send)
+
+
+# ------------------------------------------------------------------------ the app
+def build_http_app(
+    server: MCPServer,
+    *,
+    host: str,
+    port: int,
+    token_store: TokenStore | None,
+    allowed_origins: Sequence[str] = (),
+    allowed_hosts: Sequence[str] = (),
+    health: Callable[[], dict[str, Any]] | None = None,
+) -> Starlette:
+    """The ASGI app: ``/mcp`` (stateful streamable HTTP) and ``/healthz``.
+
+    Build one app per serve: the SDK's session manager it creates can run only once.
+    `health` must be quick, non-blocking and return JSON-able data with nothing secret in it.
+    """
+    security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
+    mcp_app = server.streamable_http_app(
+        streamable_http_path=MCP_PATH,
+        stateless_http=False,  # 2025-11-25 clients need the session's back-channel to elicit
+        json_response=False,
+        transport_security=security,
+        host=host,
+    )
+    session_manager = server.session_manager  # created by streamable_http_app(); run() works once
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        # A mounted app's own lifespan never runs: without this, every /mcp request is a 500.
+        async with session_manager.run():
+            yield
+
+    async def healthz(request: Request) -> Response:
+        if health is None:
+            return JSONResponse({"status": "ok"})
+        try:
+            return JSONResponse(health())
+        except Exception:
+            logger.exception("health callback failed")
+            return JSONResponse({"status": "error"}, status_code=503)
+
+    middleware = [Middleware(HostOriginGuard, settings=security)]
+    if token_store is not None:
+        middleware.append(Middleware(BearerAuth, token_store=token_store))
+    return Starlette(
+        routes=[Route(HEALTH_PATH, healthz, methods=["GET"]), Mount("/", app=mcp_app)],
+        middleware=middleware,
+        lifespan=lifespan,
+    )
+
+
+# ------------------------------------------------------------------------ serving
+class _Server(uvicorn.Server):
+    """uvicorn without its signal handlers; `started_event` is set once the socket listens."""
+
+    def __init__(self, config: uvicorn.Config, started_event: anyio.Event | None) -> None:
+        super().__init__(config)
+        self._started_event = started_event
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        yield  # the daemon handles SIGINT/SIGTERM and sets the shutdown event
+
+    async def startup(self, sockets: list[socket.socket] | None = None) -> None:
+        await super().startup(sockets)
+        if self.started and self._started_event is not None:
+            self._started_event.set()
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(
+            host.strip("[]"), port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+        sock = socket.socket(family, kind, proto)
+    except OSError as exc:
+        raise ConfigurationError(f"cannot bind HTTP to {host}:{port}: {exc}") from exc
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.set_inheritable(True)
+    except OSError as exc:
+        sock.close()
+        raise ConfigurationError(f"cannot bind HTTP to {host}:{port}: {exc.strerror or exc}") from exc
+    return sock
+
+
+async def serve_http(
+    app: ASGIApp,
+    host: str,
+    port: int,
+    *,
+    ready: anyio.Event | None = None,
+    shutdown: anyio.Event | None = None,
+    graceful_shutdown_s: float = 3.0,
+    log_level: str = "warning",
+) -> None:
+    """Serve `app` on host:port until `shutdown` is set (or the task is cancelled).
+
+    The socket is bound before anything else, so a busy port raises ConfigurationError here
+    instead of uvicorn calling sys.exit. `ready` is set once requests are accepted. Open
+    connections (SSE streams) get `graceful_shutdown_s` seconds [s] to finish.
+    Logs go through the `uvicorn` loggers to whatever handlers the daemon configured (stderr).
+    """
+    sock = _bind(host, port)
+    config = uvicorn.Config(
+        app,
+        log_config=None,  # keep the daemon's logging (stderr); uvicorn's default sends access logs to stdout
+        log_level=log_level,
+        access_log=False,
+        lifespan="on",
+        timeout_graceful_shutdown=graceful_shutdown_s,
+        server_header=False,
+    )
+    server = _Server(config, ready)
+
+    async def stop_on_shutdown() -> None:
+        assert shutdown is not None
+        await shutdown.wait()
+        server.should_exit = True
+
+    try:
+        async with anyio.create_task_group() as tg:
+            if shutdown is not None:
+                tg.start_soon(stop_on_shutdown)
+            await server.serve(sockets=[sock])
+            tg.cancel_scope.cancel()
+    finally:
+        sock.close()
+    if not server.started:
+        raise ConfigurationError(f"HTTP server on {host}:{port} did not start (see the log above)")
