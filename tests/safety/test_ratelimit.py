@@ -177,3 +177,14 @@ def test_global_count_never_exceeds_its_bucket(global_pm: int, calls: list[tuple
         clock.advance(gap)
         allowed += rl.try_acquire(tool).allowed and tool != "estop"
     assert allowed <= math.floor(global_pm + global_pm * clock.now / 60.0 + 1e-6)
+
+
+def test_peek_answers_like_try_acquire_without_taking_a_token() -> None:
+    from armwarden.safety.ratelimit import RateLimiter
+
+    limiter = RateLimiter(global_per_minute=100, default_per_minute=1, clock=lambda: 0.0)
+    assert limiter.peek("plan_to_pose").allowed
+    assert limiter.peek("plan_to_pose").allowed
+    assert limiter.try_acquire("plan_to_pose").allowed
+    assert not limiter.peek("plan_to_pose").allowed
+    assert not limiter.try_acquire("plan_to_pose").allowed

@@ -74,7 +74,8 @@ def make_server() -> MCPServer:
         """Pretend to move."""
         principal = current_principal()
         if principal is None or not role_allows(principal.role, "move_thing", GROUP_OF):
-            return CallToolResult(content=[TextContent(type="text", text="refused: operator role required")], is_error=True)
+            refusal = TextContent(type="text", text="refused: operator role required")
+            return CallToolResult(content=[refusal], is_error=True)
         return CallToolResult(content=[TextContent(type="text", text=f"moved to {x} by {principal.name}")])
 
     async def approve_thing(approval: Annotated[ElicitationResult[Approval], Resolve(ask_approval)]) -> str:

@@ -128,6 +128,13 @@ class RateLimiter:
 
     def try_acquire(self, tool: str) -> RateDecision:
         """Take one token from `tool`'s bucket and the global bucket, or neither."""
+        return self._decide(tool, consume=True)
+
+    def peek(self, tool: str) -> RateDecision:
+        """What `try_acquire` would answer now, taking nothing (for side-effect-free pre-checks)."""
+        return self._decide(tool, consume=False)
+
+    def _decide(self, tool: str, consume: bool) -> RateDecision:
         if tool in self._exempt:
             return RateDecision(allowed=True, tool=tool)
         now = self._clock()
@@ -138,8 +145,9 @@ class RateLimiter:
         bucket.refill(now)
         self._global.refill(now)
         if bucket.has_token() and self._global.has_token():
-            bucket.tokens = max(0.0, bucket.tokens - 1.0)
-            self._global.tokens = max(0.0, self._global.tokens - 1.0)
+            if consume:
+                bucket.tokens = max(0.0, bucket.tokens - 1.0)
+                self._global.tokens = max(0.0, self._global.tokens - 1.0)
             return RateDecision(allowed=True, tool=tool)
         # both buckets must have a token, so the call can proceed once the slower one has one
         tool_wait, global_wait = bucket.wait_for_token_s(), self._global.wait_for_token_s()

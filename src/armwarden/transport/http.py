@@ -168,14 +168,17 @@ def transport_security_settings(
 
 
 class HostOriginGuard:
-    """Pure ASGI: reject a foreign Host (421) or Origin (403) on every HTTP path."""
+    """Pure ASGI: reject a foreign Host (421) or Origin (403) on every HTTP path; no WebSockets."""
 
     def __init__(self, app: ASGIApp, settings: TransportSecuritySettings) -> None:
         self.app = app
         self.checker = TransportSecurityMiddleware(settings)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] in ("http", "websocket"):
+        if scope["type"] == "websocket":  # nothing here speaks WebSocket: refuse before any check
+            await send({"type": "websocket.close", "code": 1008})
+            return
+        if scope["type"] == "http":
             rejection = await self.checker.validate_request(Request(scope), is_post=False)
             if rejection is not None:
                 await rejection(scope, receive, send)
@@ -201,7 +204,7 @@ class BearerAuth:
         self.token_store = token_store
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] not in ("http", "websocket") or scope["path"] in PUBLIC_PATHS:
+        if scope["type"] != "http" or scope["path"] in PUBLIC_PATHS:
             await self.app(scope, receive, send)
             return
         values = Headers(scope=scope).getlist("authorization")
@@ -341,6 +344,8 @@ async def serve_http(
     sock = _bind(host, port)
     config = uvicorn.Config(
         app,
+        host=host,  # for uvicorn's messages only: it serves the socket bound above
+        port=port,
         log_config=None,  # keep the daemon's logging (stderr); uvicorn's default sends access logs to stdout
         log_level=log_level,
         access_log=False,

@@ -171,7 +171,8 @@ def _read_file(path: Path) -> tuple[TokenFile, tuple[int, int, int, int]]:
     try:
         data: Any = yaml.safe_load(raw) if _is_yaml(path) else json.loads(raw)
     except (yaml.YAMLError, ValueError) as exc:
-        raise ConfigurationError(f"token file {path} is not valid {'YAML' if _is_yaml(path) else 'JSON'}: {exc}") from exc
+        kind = "YAML" if _is_yaml(path) else "JSON"
+        raise ConfigurationError(f"token file {path} is not valid {kind}: {exc}") from exc
     try:
         content = TokenFile.model_validate(data)
     except ValidationError as exc:
@@ -298,7 +299,8 @@ class TokenStore:
             content = _read_file(path)[0] if path.exists() else TokenFile()
             names = {entry.name for entry in content.tokens}
             if name is None:
-                name = next(f"{checked_role}-{k}" for k in range(1, len(names) + 2) if f"{checked_role}-{k}" not in names)
+                candidates = (f"{checked_role}-{k}" for k in range(1, len(names) + 2))
+                name = next(candidate for candidate in candidates if candidate not in names)
             elif name in names:
                 raise ConfigurationError(f"a token named {name!r} already exists in {path}; revoke it first")
             token = TOKEN_PREFIX + secrets.token_urlsafe(32)
