@@ -1,0 +1,188 @@
+"""The plan preview picture and the PNG downscaler."""
+
+from __future__ import annotations
+
+import io
+import struct
+import sys
+import zlib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.policy import load_policy
+from armwarden.preflight import RuntimeModel, load_runtime_model
+from armwarden.server import images
+from armwarden.server.images import ImageSupportMissing, downscale_png, pillow_available
+from armwarden.server.preview import render_plan_preview
+
+Image = pytest.importorskip("PIL.Image")
+
+READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+
+
+@pytest.fixture(scope="module")
+def runtime() -> RuntimeModel:
+    return load_runtime_model(load_policy(Path(str(resources.files("armwarden") / "policies" / "fr3.yaml"))))
+
+
+def _plan(runtime: RuntimeModel, goal: np.ndarray):
+    trajectory = runtime.planner.plan_to_joints(READY, goal).trajectory
+    return trajectory, runtime.envelope.check(trajectory)
+
+
+@pytest.fixture(scope="module")
+def accepted(runtime: RuntimeModel):
+    goal = READY.copy()
+    goal[0] = 0.6  # a small turn of the base joint, clear of everything
+    return _plan(runtime, goal)
+
+
+@pytest.fixture(scope="module")
+def into_monitor(runtime: RuntimeModel):
+    goal = READY.copy()
+    goal[[0, 1, 3]] = 0.9, 0.3, -1.6  # reach out, front left, into the monitor zone
+    return _plan(runtime, goal)
+
+
+def _render(runtime: RuntimeModel, plan, **kwargs) -> bytes:
+    trajectory, report = plan
+    png = render_plan_preview(runtime.robot, runtime.envelope.limits, trajectory, report, **kwargs)
+    assert png is not None
+    return png
+
+
+def _decode(png: bytes):
+    image = Image.open(io.BytesIO(png))
+    image.load()
+    return image
+
+
+def _strongly_red(png: bytes) -> int:
+    rgb = np.asarray(_decode(png).convert("RGB")).astype(int)
+    return int(np.sum((rgb[..., 0] > 200) & (rgb[..., 1] < 60) & (rgb[..., 2] < 60)))
+
+
+def _png(width: int, height: int, colour=(10, 120, 200)) -> bytes:
+    out = io.BytesIO()
+    Image.new("RGB", (width, height), colour).save(out, format="PNG")
+    return out.getvalue()
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+# ---------------------------------------------------------------------------- preview
+def test_preview_is_a_png_of_the_requested_size(runtime: RuntimeModel, accepted) -> None:
+    png = _render(runtime, accepted, size=(520, 280))
+    assert png.startswith(images.PNG_SIGNATURE)
+    image = _decode(png)
+    assert image.format == "PNG"
+    assert image.size == (520, 280)
+
+
+def test_default_preview_is_640_by_320(runtime: RuntimeModel, accepted) -> None:
+    assert _decode(_render(runtime, accepted)).size == (640, 320)
+
+
+def test_identical_inputs_give_identical_bytes(runtime: RuntimeModel, into_monitor) -> None:
+    assert _render(runtime, into_monitor) == _render(runtime, into_monitor)
+
+
+def test_plan_into_a_keep_out_zone_is_marked_with_red_crosses(runtime: RuntimeModel, into_monitor) -> None:
+    trajectory, report = into_monitor
+    assert any(v.code.value == "KEEP_OUT" and v.time_s is not None for v in report.violations)
+    assert _strongly_red(_render(runtime, into_monitor)) > 20
+
+
+def test_accepted_plan_has_no_red_crosses_and_looks_different(runtime: RuntimeModel, accepted, into_monitor) -> None:
+    assert not accepted[1].violations
+    png = _render(runtime, accepted)
+    assert _strongly_red(png) == 0
+    assert png != _render(runtime, into_monitor)
+
+
+def test_status_override_changes_the_picture(runtime: RuntimeModel, accepted) -> None:
+    assert _render(runtime, accepted, status="needs_approval") != _render(runtime, accepted)
+
+
+def test_malformed_trajectory_still_renders_the_zones(runtime: RuntimeModel, accepted) -> None:
+    _, report = accepted
+    broken = JointTrajectory(runtime.robot.joint_names, np.array([0.0, 1.0]), np.vstack([READY, np.full(7, np.nan)]))
+    png = render_plan_preview(runtime.robot, runtime.envelope.limits, broken, report)
+    assert png is not None and _decode(png).size == (640, 320)
+
+
+def test_too_small_a_preview_is_refused(runtime: RuntimeModel, accepted) -> None:
+    with pytest.raises(ValueError, match="at least"):
+        _render(runtime, accepted, size=(40, 20))
+
+
+def test_preview_is_none_without_pillow(runtime: RuntimeModel, accepted, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "PIL", None)  # makes `import PIL...` raise ImportError
+    trajectory, report = accepted
+    assert render_plan_preview(runtime.robot, runtime.envelope.limits, trajectory, report) is None
+
+
+# ---------------------------------------------------------------------------- downscale_png
+def test_downscale_keeps_the_aspect_ratio() -> None:
+    png, width, height = downscale_png(_png(800, 600), 400)
+    assert (width, height) == (400, 300)
+    assert _decode(png).size == (400, 300)
+
+
+def test_downscale_never_enlarges() -> None:
+    png, width, height = downscale_png(_png(120, 90), 400)
+    assert (width, height) == (120, 90)
+    assert _decode(png).size == (120, 90)
+
+
+def test_downscale_keeps_the_pixels_recognisable() -> None:
+    png, _, _ = downscale_png(_png(300, 200, colour=(200, 30, 40)), 150)
+    assert _decode(png).convert("RGB").getpixel((75, 50)) == (200, 30, 40)
+
+
+def test_non_png_input_is_refused() -> None:
+    jpeg = io.BytesIO()
+    Image.new("RGB", (10, 10)).save(jpeg, format="JPEG")
+    with pytest.raises(ValueError, match="not a PNG"):
+        downscale_png(jpeg.getvalue(), 100)
+
+
+def test_truncated_png_is_refused() -> None:
+    with pytest.raises(ValueError, match="cannot decode"):
+        downscale_png(_png(200, 200)[:60], 100)
+
+
+def test_png_header_claiming_a_huge_image_is_refused_before_decoding() -> None:
+    ihdr = struct.pack(">IIBBBBB", 100_000, 100_000, 8, 2, 0, 0, 0)  # 10 gigapixels, 8-bit RGB
+    bomb = images.PNG_SIGNATURE + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(b"\0" * 64)) + _chunk(b"IEND", b"")
+    with pytest.raises(ValueError, match="pixel limit"):
+        downscale_png(bomb, 100)
+
+
+def test_image_above_the_pixel_limit_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(images, "MAX_PIXELS", 50 * 50)
+    with pytest.raises(ValueError, match="pixel limit"):
+        downscale_png(_png(60, 60), 30)
+
+
+def test_non_positive_max_width_is_refused() -> None:
+    with pytest.raises(ValueError, match="max_width"):
+        downscale_png(_png(10, 10), 0)
+
+
+def test_pillow_is_reported_available() -> None:
+    assert pillow_available()
+
+
+def test_without_pillow_downscale_raises_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    png = _png(10, 10)
+    monkeypatch.setitem(sys.modules, "PIL", None)
+    assert not pillow_available()
+    with pytest.raises(ImageSupportMissing, match=r"armwarden\[image\]"):
+        downscale_png(png, 5)
