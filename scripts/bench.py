@@ -8,6 +8,12 @@
 Sections
 - envelope: cost of the full envelope check (every link, self-collision, keep-out, workspace)
   on a typical 0.5 rad, ~1.5 s FR3 plan, against bare Pinocchio FK over the same samples.
+- server: round trips through the official MCP SDK client — plan_to_pose (all links checked, with
+  and without the preview picture) and get_robot_state in memory, get_robot_state over real
+  stdio, and the audit log's cost per call.
+- estop: e-stop latency while 8 HTTP clients load the daemon (a subprocess on 127.0.0.1): from
+  the request reaching ArmWarden to the backend stop being issued, and to the arm being still
+  (the fake backend confirms the stop from its 1 kHz control thread).
 
 Timing thresholds live here, never in unit tests: the machines are shared and noisy. Each
 target is reported as met or missed; nothing is asserted.
@@ -22,6 +28,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -113,15 +120,233 @@ def _report_envelope(r: dict[str, float]) -> None:
           f"{r['ratio_full_to_fk_bodies']:.2f}x")
 
 
-SECTIONS = {"envelope": (bench_envelope, _report_envelope)}
+# ------------------------------------------------------------------------------------ server
+def _bench_policy_file(directory: Path) -> Path:
+    """The bundled FR3 policy with rate limits raised so the benchmark measures latency, not limits."""
+    import yaml
+
+    document = yaml.safe_load(bundled_policy("fr3").read_text())
+    document["rate_limits"] = {"global_per_minute": 1_000_000, "default_per_minute": 1_000_000, "per_tool": {}}
+    path = directory / "bench-policy.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+def _summary(values_s: list[float]) -> dict[str, float]:
+    ms = [v * 1e3 for v in values_s]
+    return {"median_ms": statistics.median(ms), "p95_ms": _percentile(ms, 95), "n": len(ms)}
+
+
+async def _timed_calls(client, tool: str, args_for: Callable[[int], dict], repeats: int) -> list[float]:
+    out = []
+    for i in range(repeats):
+        start = time.perf_counter()
+        result = await client.call_tool(tool, args_for(i))
+        out.append(time.perf_counter() - start)
+        if result.is_error:
+            raise RuntimeError(f"{tool} failed in the benchmark: {result.content[0].text}")
+    return out[5:] if len(out) > 10 else out
+
+
+def bench_server(repeats: int = 200) -> dict[str, Any]:
+    import tempfile
+
+    import anyio
+    from mcp import Client, StdioServerParameters
+
+    from armwarden.daemon import assemble, close_assembly, open_assembly
+
+    results: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        directory = Path(tmp)
+        policy_path = _bench_policy_file(directory)
+        policy = load_policy(policy_path)
+
+        def pose(i: int) -> dict:  # alternate between two nearby targets so every plan is a real one
+            return {"position": {"x": 0.40 + 0.02 * (i % 2), "y": 0.05, "z": 0.35}}
+
+        async def in_memory(with_audit: bool) -> dict[str, Any]:
+            parts = assemble(policy, "fake", None, str(directory / f"audit-{with_audit}.jsonl"))
+            assembly = await open_assembly(*parts)
+            if not with_audit:
+                assembly.guard.audit = None
+            out: dict[str, Any] = {}
+            try:
+                async with Client(assembly.server.mcp) as client:
+                    out["state"] = _summary(await _timed_calls(client, "get_robot_state", lambda i: {}, repeats))
+                    if with_audit:
+                        out["plan_to_pose"] = _summary(await _timed_calls(
+                            client, "plan_to_pose", lambda i: pose(i) | {"preview": False}, repeats))
+                        out["plan_to_pose_with_preview"] = _summary(await _timed_calls(
+                            client, "plan_to_pose", pose, max(20, repeats // 5)))
+            finally:
+                await close_assembly(assembly, "benchmark done")
+            return out
+
+        audited = anyio.run(in_memory, True)
+        bare = anyio.run(in_memory, False)
+        results["plan_to_pose_in_memory"] = audited["plan_to_pose"]
+        results["plan_to_pose_with_preview_in_memory"] = audited["plan_to_pose_with_preview"]
+        results["get_robot_state_in_memory"] = audited["state"]
+        results["get_robot_state_in_memory_no_audit"] = bare["state"]
+        results["audit_overhead_per_call_ms"] = audited["state"]["median_ms"] - bare["state"]["median_ms"]
+
+        async def over_stdio() -> dict[str, float]:
+            params = StdioServerParameters(
+                command=sys.executable,
+                args=["-m", "armwarden.cli", "serve", "--policy", str(policy_path),
+                      "--audit-log", str(directory / "stdio-audit.jsonl"), "--log-level", "WARNING"],
+                env={"PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")},
+            )
+            async with Client(params) as client:
+                return _summary(await _timed_calls(client, "get_robot_state", lambda i: {}, repeats))
+
+        results["get_robot_state_stdio"] = anyio.run(over_stdio)
+    return results
+
+
+def _report_server(r: dict[str, Any]) -> None:
+    def line(label: str, key: str, target: float | None = None) -> None:
+        figures = r[key]
+        verdict = "" if target is None else f"  (target <= {target:g} ms median: {'met' if figures['median_ms'] <= target else 'MISSED'})"
+        print(f"{label}: {figures['median_ms']:.2f} ms median, {figures['p95_ms']:.2f} ms p95 over {figures['n']}{verdict}")
+
+    print("## server (official MCP SDK client)")
+    line("plan_to_pose round trip, in memory, all links checked, no preview", "plan_to_pose_in_memory", 5)
+    line("plan_to_pose round trip, in memory, with the PNG preview (default)", "plan_to_pose_with_preview_in_memory")
+    line("get_robot_state, in memory", "get_robot_state_in_memory", 1)
+    line("get_robot_state over stdio", "get_robot_state_stdio", 1.5)
+    line("get_robot_state, in memory, audit log off", "get_robot_state_in_memory_no_audit")
+    print(f"audit log cost per call (hash chain + fsync on a worker thread): {r['audit_overhead_per_call_ms']:.2f} ms")
+
+
+# ------------------------------------------------------------------------------------ e-stop under load
+def bench_estop(cycles: int = 30, load_clients: int = 8) -> dict[str, Any]:
+    import os
+    import signal
+    import socket
+    import subprocess
+    import tempfile
+
+    import anyio
+    import httpx2
+    import mcp_types as types
+    from mcp import Client
+    from mcp.client.streamable_http import streamable_http_client
+
+    from armwarden.safety.audit import read_tail
+    from armwarden.transport.tokens import TokenStore
+
+    with tempfile.TemporaryDirectory() as tmp:
+        directory = Path(tmp)
+        policy_path = _bench_policy_file(directory)
+        token_file = directory / "tokens.json"
+        token = TokenStore.add(token_file, "operator", "bench")
+        audit_path = directory / "audit.jsonl"
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+        daemon = subprocess.Popen(
+            [sys.executable, "-m", "armwarden.cli", "serve", "--transport", "http", "--host", "127.0.0.1",
+             "--port", str(port), "--policy", str(policy_path), "--auth-tokens", str(token_file),
+             "--audit-log", str(audit_path), "--log-level", "WARNING"],
+            env=env, stdin=subprocess.DEVNULL,
+        )
+        url = f"http://127.0.0.1:{port}/mcp"
+        load_calls = 0
+
+        async def approve(context, params):
+            return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
+
+        def client(**kwargs):
+            http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {token}"}, timeout=30)
+            return http, Client(streamable_http_client(url, http_client=http), **kwargs)
+
+        async def wait_ready() -> None:
+            async with httpx2.AsyncClient() as http:
+                for _ in range(200):
+                    try:
+                        if (await http.get(f"http://127.0.0.1:{port}/healthz")).status_code == 200:
+                            return
+                    except httpx2.HTTPError:
+                        pass
+                    await anyio.sleep(0.05)
+            raise RuntimeError("the daemon did not become ready")
+
+        async def main() -> None:
+            nonlocal load_calls
+            await wait_ready()
+            stop_load = anyio.Event()
+
+            async def load() -> None:
+                nonlocal load_calls
+                http, c = client()
+                async with http, c as session:
+                    while not stop_load.is_set():
+                        await session.call_tool("get_robot_state", {})
+                        load_calls += 1
+
+            async with anyio.create_task_group() as group:
+                for _ in range(load_clients):
+                    group.start_soon(load)
+                http, c = client(elicitation_callback=approve)
+                async with http, c as session:
+                    home = (await session.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+                    for cycle in range(cycles):
+                        status = (await session.call_tool("get_safety_status", {})).structured_content
+                        if status["estopped"]:
+                            await session.call_tool("reset_estop", {})
+                        state = (await session.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+                        goal = list(home)
+                        goal[0] = home[0] + (0.25 if state[0] <= home[0] else -0.25)
+                        plan = await session.call_tool("plan_to_joints", {"joint_positions": goal, "preview": False})
+                        plan_id = plan.structured_content["plan_id"]
+                        async with anyio.create_task_group() as motion:
+                            motion.start_soon(session.call_tool, "execute_plan", {"plan_id": plan_id})
+                            await anyio.sleep(0.3)  # mid-motion
+                            await session.call_tool("estop", {"reason": f"benchmark cycle {cycle}"})
+                stop_load.set()
+
+        try:
+            anyio.run(main)
+        finally:
+            daemon.send_signal(signal.SIGTERM)
+            daemon.wait(timeout=30)
+        records = read_tail(audit_path, 1000)
+    timings = [r["extra"]["stop_timing_ms"] for r in records
+               if r.get("tool") == "estop" and r.get("extra") and "stop_timing_ms" in (r.get("extra") or {})]
+    issued = [t["issued_after_receipt"] / 1e3 for t in timings]
+    confirmed = [t["confirmed_after_receipt"] / 1e3 for t in timings]
+    return {"estops": len(timings), "load_clients": load_clients, "load_calls": load_calls,
+            "issued": _summary(issued), "still": _summary(confirmed)}
+
+
+def _report_estop(r: dict[str, Any]) -> None:
+    print(f"## e-stop under load ({r['load_clients']} HTTP clients calling get_robot_state, "
+          f"{r['load_calls']} calls served during the run; {r['estops']} e-stops mid-motion)")
+    for label, key in (("request -> backend stop issued", "issued"), ("request -> arm still (stop confirmed)", "still")):
+        f = r[key]
+        print(f"{label}: {f['median_ms']:.3f} ms median, {f['p95_ms']:.3f} ms p95  "
+              f"(target <= 2 ms p95: {'met' if f['p95_ms'] <= 2 else 'MISSED'})")
+
+
+SECTIONS = {
+    "envelope": (bench_envelope, _report_envelope),
+    "server": (bench_server, _report_server),
+    "estop": (bench_estop, _report_estop),
+}
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("sections", nargs="*", choices=[*SECTIONS, []], default=[])
+    parser.add_argument("sections", nargs="*", help=f"any of {', '.join(SECTIONS)} (default: all)")
     parser.add_argument("--json", default=None, help="write the raw figures to this file")
     args = parser.parse_args()
     chosen = args.sections or list(SECTIONS)
+    unknown = [name for name in chosen if name not in SECTIONS]
+    if unknown:
+        parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
     results = {}
     for name in chosen:
         run, report = SECTIONS[name]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 from dataclasses import dataclass
@@ -36,6 +37,8 @@ EXIT_REFUSED = 2
 #: GIL hand-off interval while planning runs on its worker thread: bounds how long a stop request
 #: on the event loop can wait for the interpreter [s] (CPython's default is 5 ms)
 SWITCH_INTERVAL_S = 0.0005
+#: after SIGTERM/SIGINT on stdio: time for cancelled calls to stop the arm and audit themselves [s]
+SIGNAL_GRACE_S = 0.3
 
 
 class FakeBackendConfig(BaseModel):
@@ -148,6 +151,16 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                     async for signum in signals:
                         why = f"signal {signal.Signals(signum).name}"
                         group.cancel_scope.cancel()
+                        if args.transport == "stdio":
+                            # The SDK reads stdin in a worker thread that cancellation cannot interrupt,
+                            # so the group would not unwind until the client closes stdin. Let the
+                            # cancelled calls stop and record, then stop, close and record here and exit.
+                            with anyio.CancelScope(shield=True):
+                                await anyio.sleep(SIGNAL_GRACE_S)
+                                await close_assembly(assembly, why)
+                            logging.shutdown()
+                            sys.stderr.flush()
+                            os._exit(0)
                         return
 
             group.start_soon(on_signals)

@@ -30,13 +30,13 @@ from typing import Any, Literal
 
 import anyio
 import numpy as np
-import pinocchio as pin
 
 from armwarden import conversions
-from armwarden.backends.base import Backend, JointState
+from armwarden.callcontext import current_call
+from armwarden.backends.base import Backend, ExecutionResult, JointState
 from armwarden.errors import BackendError, SafetyRefusal
-from armwarden.planning.planners import PlanOutcome, PoseTarget
-from armwarden.policy import TOOL_GROUPS, Policy
+from armwarden.planning.planners import PlanOutcome
+from armwarden.policy import Policy
 from armwarden.preflight import RuntimeModel
 from armwarden.results import (
     ActionResult,
@@ -64,7 +64,7 @@ from armwarden.safety.estop import EStopLatch, flatten_reason
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
 from armwarden.safety.plans import PlanRefusal, PlanStore, StoredPlan
 from armwarden.safety.ratelimit import RateLimiter
-from armwarden.safety.violations import Code, Violation
+from armwarden.safety.violations import Violation
 
 logger = logging.getLogger(__name__)
 
@@ -305,7 +305,8 @@ class Guard:
             if outcome.trajectory is None:
                 return outcome, None, None
             report = envelope.check(outcome.trajectory)
-            preview = self._previewer(self.planning, outcome.trajectory, report) if self._previewer else None
+            wants_preview = request.get("preview", True) and self._previewer is not None
+            preview = self._previewer(self.planning, outcome.trajectory, report) if wants_preview else None
             return outcome, report, preview
 
         outcome, report, preview = await self._run_planning(work)
@@ -431,7 +432,19 @@ class Guard:
 
     # ================================================================== execution: the body
     def interpret(self, outcome: Any, required: bool) -> Approval:
-        """Turn the resolver outcome (a ServerDecision or an elicitation result) into an Approval."""
+        """Turn the resolver outcome (a ServerDecision or an elicitation result) into an Approval.
+
+        The human's answer (and the name they gave) is noted on the call's audit record.
+        """
+        approval = self._interpret(outcome, required)
+        record = current_call()
+        if record is not None:
+            record.operator = approval.operator or record.operator
+            record.extra["approval"] = {"granted": approval.granted, "via": approval.via, "operator": approval.operator,
+                                        "answer": type(outcome).__name__}
+        return approval
+
+    def _interpret(self, outcome: Any, required: bool) -> Approval:
         from mcp.server.mcpserver import AcceptedElicitation, CancelledElicitation, DeclinedElicitation
 
         from armwarden.safety.approval import ApprovalForm
@@ -506,6 +519,7 @@ class Guard:
     async def _run(self, plan: StoredPlan, execution: _Execution, approval: Approval,
                    monitor: ForceMonitor | None, report_progress: ProgressReporter | None) -> ExecutionReport:
         violation: ForceViolation | None = None
+        result: ExecutionResult | None = None
         started = self._clock()
 
         def on_progress(fraction: float) -> None:
@@ -557,14 +571,15 @@ class Guard:
                 f"#{self.latch.current_event.number if self.latch.current_event else '?'} is latched; a human must "
                 "check the robot and approve reset_estop before anything can move again.",
             )
-        completed = bool(result.completed) if 'result' in locals() else False
+        completed = result is not None and result.completed
         report = ExecutionReport(
             plan_id=plan.plan_id,
             status="succeeded" if completed else "aborted",
             approval=approval.info(),
             duration_s=duration,
             max_observed_force_n=max_force,
-            detail="completed" if completed else f"stopped before the goal: {result.reason}",
+            detail=("completed" if completed else f"stopped before the goal: {result.reason}")
+            + ("" if monitor is not None else "; no wrench estimate: the contact force limit was NOT enforced"),
         )
         execution.progress = 1.0 if completed else execution.progress
         return self._record(report)
@@ -594,7 +609,7 @@ class Guard:
         """Stop arm and gripper now. Never rate limited, never needs approval."""
         self._stop_generation += 1
         try:
-            await self.backend.stop()
+            await self._timed_stop()
         except BackendError as exc:
             event = self.latch.latch(f"stop_motion failed: {exc}", "stop_failed")
             self.plans.invalidate_all("stop failed")
@@ -611,11 +626,24 @@ class Guard:
             self.force_violation_latched = True
         self.plans.invalidate_all(f"e-stop #{event.number}")
         try:
-            await self.backend.stop()
+            await self._timed_stop()
         except BackendError as exc:
             self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
             event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
+
+    async def _timed_stop(self) -> None:
+        """The backend stop, with when it was issued and confirmed noted on the call's audit record."""
+        issued = time.monotonic()
+        try:
+            await self.backend.stop()
+        finally:
+            record = current_call()
+            if record is not None:
+                record.extra["stop_timing_ms"] = {
+                    "issued_after_receipt": round((issued - record.received_mono) * 1e3, 4),
+                    "confirmed_after_receipt": round((time.monotonic() - record.received_mono) * 1e3, 4),
+                }
 
     def precheck_reset(self, can_elicit: bool) -> ServerDecision | Prompt:
         event = self.latch.current_event
@@ -768,5 +796,4 @@ _NO_WRENCH_MESSAGE = (
     "policy requires it (force.require_wrench: true); nothing was moved"
 )
 
-__all__ = ["Approval", "Guard", "Prompt", "TOOL_GROUPS", "refuse"]
-_ = (pin, PoseTarget, Code)  # re-exported names used by the tool layer's type hints
+__all__ = ["Approval", "Guard", "Prompt", "refuse"]

@@ -40,11 +40,10 @@ class PlannerSettings:
     @classmethod
     def from_policy(cls, policy) -> PlannerSettings:
         robot = policy.robot
-        limits = [robot.joint_limits[name] for name in robot.joint_names]
         motion = policy.motion
         return cls(
-            max_velocity_rad_s=np.array([lim.max_velocity for lim in limits]),
-            max_acceleration_rad_s2=np.array([lim.max_acceleration for lim in limits]),
+            max_velocity_rad_s=np.array(robot.velocity_limits),
+            max_acceleration_rad_s2=np.array(robot.acceleration_limits),
             max_velocity_scaling=motion.max_velocity_scaling,
             max_acceleration_scaling=motion.max_acceleration_scaling,
             default_velocity_scaling=motion.default_velocity_scaling,

@@ -24,8 +24,8 @@ def build_robot(policy) -> RobotModel:
         robot_cfg.tcp_frame,
         check_links=policy.workspace.check_links,
     )
-    lower = np.array([robot_cfg.joint_limits[n].min for n in robot_cfg.joint_names])
-    upper = np.array([robot_cfg.joint_limits[n].max for n in robot_cfg.joint_names])
+    lower = np.array(robot_cfg.lower_limits)
+    upper = np.array(robot_cfg.upper_limits)
     tolerance = 1e-6
     for name, lo, hi, urdf_lo, urdf_hi in zip(robot_cfg.joint_names, lower, upper, robot.lower, robot.upper):
         if lo < urdf_lo - tolerance or hi > urdf_hi + tolerance:

@@ -72,14 +72,13 @@ class EnvelopeLimits:
     @classmethod
     def from_policy(cls, policy) -> EnvelopeLimits:
         robot = policy.robot
-        limits = [robot.joint_limits[name] for name in robot.joint_names]
         motion = policy.motion
         ws = policy.workspace
         return cls(
-            lower_rad=np.array([lim.min for lim in limits]),
-            upper_rad=np.array([lim.max for lim in limits]),
-            max_velocity_rad_s=np.array([lim.max_velocity for lim in limits]),
-            max_acceleration_rad_s2=np.array([lim.max_acceleration for lim in limits]),
+            lower_rad=np.array(robot.lower_limits),
+            upper_rad=np.array(robot.upper_limits),
+            max_velocity_rad_s=np.array(robot.velocity_limits),
+            max_acceleration_rad_s2=np.array(robot.acceleration_limits),
             max_velocity_scaling=motion.max_velocity_scaling,
             max_acceleration_scaling=motion.max_acceleration_scaling,
             max_joint_step_rad=motion.max_joint_step_rad,

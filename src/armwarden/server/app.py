@@ -11,6 +11,8 @@ The middleware (outermost) does two jobs for each `tools/call`:
 from __future__ import annotations
 
 import logging
+import secrets
+import weakref
 from typing import Any
 
 import anyio
@@ -27,6 +29,12 @@ from armwarden.server.tools import ToolBuilder
 from armwarden.transport.http import current_principal, role_allows
 
 logger = logging.getLogger(__name__)
+
+#: tools that must work whatever they are sent (DESIGN.md §4: stopping always works)
+_ACCEPTS_ANY_ARGUMENTS = frozenset({"stop_motion", "estop"})
+#: argument names that are dropped, not refused: approvals come from a human, never from the
+#: client, and an `approval` sent as an argument is ignored (and stays visible in the audit record)
+_IGNORED_ARGUMENTS = frozenset({"approval"})
 
 INSTRUCTIONS = """\
 ArmWarden controls a real robot arm through a fixed set of tools. The server, not you, enforces
@@ -45,6 +53,8 @@ class ArmWardenServer:
         self.mcp = MCPServer(name, instructions=INSTRUCTIONS, version=__version__)
         self.tools = ToolBuilder(self.mcp, guard).build()
         self.group_of = ToolBuilder(self.mcp, guard).group_of
+        self._sessions = SessionNames()
+        self._declared: dict[str, frozenset[str]] | None = None  # tool -> argument names, built on first call
         self.mcp.middleware.append(self._middleware)
 
     # ------------------------------------------------------------------ middleware
@@ -59,7 +69,7 @@ class ArmWardenServer:
         record = CallRecord(
             tool=str(params.get("name"))[:128],
             arguments=params.get("arguments"),
-            session=_session_of(ctx),
+            session=self._sessions.of(ctx),
             principal=None if principal is None else principal.name,
             role=None if principal is None else principal.role,
         )
@@ -71,6 +81,8 @@ class ArmWardenServer:
                 result: Any = CallToolResult(
                     content=[TextContent(type="text", text=f"REFUSED [FORBIDDEN]: {record.detail}")], is_error=True
                 )
+            elif (unknown := await self._unknown_arguments(record.tool, record.arguments)) is not None:
+                result = unknown
             else:
                 result = await call_next(ctx)
         except anyio.get_cancelled_exc_class():
@@ -89,7 +101,26 @@ class ArmWardenServer:
         await self._audit(record)
         return result
 
+    async def _unknown_arguments(self, tool: str, arguments: Any) -> CallToolResult | None:
+        """Refuse argument names the tool does not declare (the SDK would silently drop them, so
+        e.g. `execute_plan(plan_id, dry_run=true)` would move the arm). Stopping tools accept
+        anything; a client-sent `approval` is ignored (the SDK drops it; only a human approves)."""
+        if tool in _ACCEPTS_ANY_ARGUMENTS or not isinstance(arguments, dict) or not arguments:
+            return None
+        if self._declared is None:
+            self._declared = {t.name: frozenset((t.input_schema or {}).get("properties", {})) for t in await self.mcp.list_tools()}
+        declared = self._declared.get(tool)
+        if declared is None:
+            return None  # unknown tool: the SDK answers that itself
+        unknown = sorted(str(key)[:64] for key in arguments if key not in declared and key not in _IGNORED_ARGUMENTS)
+        if not unknown:
+            return None
+        text = (f"REFUSED [INVALID_ARGUMENTS]: {tool} has no argument(s) {unknown[:8]}; it accepts "
+                f"{sorted(declared) or 'no arguments'}. Nothing was done.")
+        return CallToolResult(content=[TextContent(type="text", text=text)], is_error=True)
+
     def _classify(self, record: CallRecord, result: Any) -> None:
+        result = _as_model(result)
         if isinstance(result, InputRequiredResult):
             record.outcome = "input_required"
             record.detail = "approval question sent to the client: " + " | ".join(
@@ -106,7 +137,7 @@ class ArmWardenServer:
             elif record.outcome is None:
                 record.outcome = "ok"
             if result.structured_content is not None:
-                record.extra = {"result": result.structured_content}
+                record.extra["result"] = result.structured_content  # keep what the body noted (approval, timings)
                 approval = result.structured_content.get("approval") if isinstance(result.structured_content, dict) else None
                 if isinstance(approval, dict):
                     record.operator = approval.get("operator")
@@ -145,16 +176,43 @@ class ArmWardenServer:
         return result
 
 
-def _session_of(ctx: ServerRequestContext) -> str | None:
-    request = ctx.request
-    headers = getattr(request, "headers", None)
-    if headers is not None:
-        session = headers.get("mcp-session-id")
-        if session:
-            return str(session)[:64]
-    client = getattr(ctx.session, "client_params", None)
-    info = getattr(client, "client_info", None)
-    return None if info is None else f"{info.name}/{info.version}"[:64]
+class SessionNames:
+    """A short random name per client connection, so the audit log tells two clients apart even when
+    they run the same software (the HTTP session id when there is one; `<client>/<version>#<name>`)."""
+
+    def __init__(self) -> None:
+        self._names: weakref.WeakKeyDictionary[Any, str] = weakref.WeakKeyDictionary()
+
+    def of(self, ctx: ServerRequestContext) -> str | None:
+        headers = getattr(ctx.request, "headers", None)
+        if headers is not None and headers.get("mcp-session-id"):
+            return str(headers.get("mcp-session-id"))[:64]
+        session = ctx.session
+        # the per-connection object behind the per-request session (the SDK has no public accessor)
+        connection = getattr(session, "_connection", session)
+        try:
+            name = self._names.get(connection)
+            if name is None:
+                name = self._names[connection] = secrets.token_hex(4)
+        except TypeError:  # not weak-referenceable: fall back to the client's name alone
+            name = None
+        info = getattr(getattr(session, "client_params", None), "client_info", None)
+        client = "unknown-client" if info is None else f"{info.name}/{info.version}"[:48]
+        return client if name is None else f"{client}#{name}"
+
+
+def _as_model(result: Any) -> Any:
+    """The middleware sees results as wire dicts (camelCase); classify them as the models they are."""
+    if not isinstance(result, dict):
+        return result
+    try:
+        if "inputRequests" in result:
+            return InputRequiredResult.model_validate(result)
+        if "content" in result:
+            return CallToolResult.model_validate(result)
+    except ValueError:  # pydantic ValidationError: leave it to the dict fallback
+        pass
+    return result
 
 
 def _question_text(request: Any) -> str:

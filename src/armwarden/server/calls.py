@@ -1,50 +1,18 @@
-"""Per-call bookkeeping shared by the tool functions and the audit middleware.
+"""How tool bodies answer: a structured success, or a refusal as an `isError` result.
 
-The middleware opens a `CallRecord` for every `tools/call` and puts it in a context variable;
-the tool body (if it runs) fills in the outcome. After the call the middleware writes exactly one
-audit record from it, so calls refused before a body runs (bad arguments, unknown tool, wrong
-role) are recorded as faithfully as those that run.
+Both also note the outcome on the call's `CallRecord` (see `armwarden.callcontext`), from which
+the middleware writes the audit record.
 """
 
 from __future__ import annotations
 
-import contextvars
-from dataclasses import dataclass, field
-from typing import Any
-
 from mcp_types import CallToolResult, ImageContent, TextContent
 from pydantic import BaseModel
 
+from armwarden.callcontext import CURRENT_CALL, CallRecord, current_call, mark_body_ran
 from armwarden.errors import SafetyRefusal
 
-
-@dataclass
-class CallRecord:
-    tool: str
-    arguments: Any
-    session: str | None = None
-    principal: str | None = None
-    role: str | None = None
-    body_ran: bool = False
-    outcome: str | None = None  # "ok" | "refused" | "error" | "cancelled" | "input_required"
-    code: str | None = None
-    detail: str | None = None
-    operator: str | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-CURRENT_CALL: contextvars.ContextVar[CallRecord | None] = contextvars.ContextVar("armwarden_call", default=None)
-
-
-def current_call() -> CallRecord | None:
-    return CURRENT_CALL.get()
-
-
-def mark_body_ran() -> CallRecord | None:
-    record = CURRENT_CALL.get()
-    if record is not None:
-        record.body_ran = True
-    return record
+__all__ = ["CURRENT_CALL", "CallRecord", "current_call", "mark_body_ran", "ok", "refused"]
 
 
 def ok(result: BaseModel, *extra: ImageContent | TextContent, summary: str | None = None) -> CallToolResult:

@@ -119,7 +119,7 @@ def render_plan_preview(
             draw.line([(panel_w, top), (panel_w, height - 2)], fill=(215, 215, 215), width=1)
 
     out = io.BytesIO()
-    image.save(out, format="PNG", compress_level=3)
+    image.save(out, format="PNG", compress_level=1)  # encoding dominates the cost; size matters less
     return out.getvalue()
 
 

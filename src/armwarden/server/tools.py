@@ -45,12 +45,15 @@ from armwarden.results import (
     TransformResult,
 )
 from armwarden.safety.approval import ApprovalForm, ServerDecision, approval_code, compose_prompt
-from armwarden.server.calls import mark_body_ran, ok, refused
+from armwarden.server.calls import current_call, mark_body_ran, ok, refused
 
 Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 Name = Annotated[str, Field(min_length=1, max_length=128)]
 MAX_WAYPOINTS = 50
 POSITION_BOUND_M = 10.0  # sanity bound on any position argument; the envelope enforces the real box
+#: sanity bound on any joint target [rad] (a 1e6 rad target made the time parameterisation allocate
+#: until the daemon was OOM-killed); the envelope enforces the real joint limits
+JOINT_BOUND = 10.0
 
 
 class Point(BaseModel):
@@ -93,7 +96,12 @@ def can_elicit(ctx: Context) -> bool:
 
 
 def _ask(check: ServerDecision | Prompt) -> ServerDecision | Elicit[ApprovalForm]:
-    return Elicit(check.message, ApprovalForm) if isinstance(check, Prompt) else check
+    if not isinstance(check, Prompt):
+        return check
+    record = current_call()
+    if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
+        record.extra["approval_prompt"] = check.message
+    return Elicit(check.message, ApprovalForm)
 
 
 def _shown(check: ServerDecision | Prompt) -> str | None:
@@ -126,6 +134,14 @@ class ToolBuilder:
 
     def add(self, fn: Callable[..., Awaitable[CallToolResult]], description: str, annotations: ToolAnnotations) -> None:
         self.server.add_tool(fn, name=fn.__name__, description=description, annotations=annotations)
+        # Publish self-contained output schemas: every client validates each result against it, and
+        # `$ref` resolution made that validation cost more than the call itself. (The SDK offers no
+        # public setter; the schema dict is the one it publishes.)
+        tool = self.server._tool_manager.get_tool(fn.__name__)
+        if tool is not None and tool.output_schema is not None:
+            inlined = inline_refs(tool.output_schema)
+            tool.output_schema.clear()
+            tool.output_schema.update(inlined)
         self.registered.append(fn.__name__)
 
     def _run(self, tool: str, body: Callable[[], Awaitable[CallToolResult]]) -> Awaitable[CallToolResult]:
@@ -247,11 +263,13 @@ class ToolBuilder:
                   f"{motion.max_acceleration_scaling:g}); default from the policy"),
         ]
         JointVector = Annotated[
-            list[Finite],
+            list[Annotated[Finite, Field(ge=-JOINT_BOUND, le=JOINT_BOUND)]],
             Field(min_length=n, max_length=n, description=f"{n} joint positions [rad] in the order {list(robot.joint_names)}; "
                   f"limits: {limits_text}"),
         ]
         FrameId = Annotated[str | None, Field(default=None, max_length=128, description=f"Must be {robot.base_frame} (the default)")]
+        Preview = Annotated[bool, Strict(), Field(description="Attach a PNG preview (top and side views of the swept "
+                                                    "links against the workspace and keep-out zones); ~20 ms")]
 
         def plan_result(summary: PlanSummary, preview: bytes | None) -> CallToolResult:
             extra = [McpImage(data=preview, format="png").to_image_content()] if preview else []
@@ -262,11 +280,12 @@ class ToolBuilder:
                 raise SafetyRefusal("INVALID", f"frame_id must be the base frame {robot.base_frame!r}")
 
         async def plan_to_joints(joint_positions: JointVector, velocity_scaling: Scaling = None,
-                                 acceleration_scaling: Scaling = None) -> Annotated[CallToolResult, PlanSummary]:
+                                 acceleration_scaling: Scaling = None, preview: Preview = True,
+                                 ) -> Annotated[CallToolResult, PlanSummary]:
             async def body() -> CallToolResult:
                 guard.admit("plan_to_joints")
                 request = {"joint_positions": np.array(joint_positions), "velocity_scaling": velocity_scaling,
-                           "acceleration_scaling": acceleration_scaling}
+                           "acceleration_scaling": acceleration_scaling, "preview": preview}
                 return plan_result(*await guard.plan("joints", request))
 
             return await run("plan_to_joints", body)
@@ -277,12 +296,13 @@ class ToolBuilder:
 
         async def plan_to_pose(position: Point, orientation: Orientation | None = None, frame_id: FrameId = None,
                                velocity_scaling: Scaling = None, acceleration_scaling: Scaling = None,
-                               ) -> Annotated[CallToolResult, PlanSummary]:
+                               preview: Preview = True) -> Annotated[CallToolResult, PlanSummary]:
             async def body() -> CallToolResult:
                 guard.admit("plan_to_pose")
                 check_frame(frame_id)
                 target = PoseTarget(np.array([position.x, position.y, position.z]), _unit_rotation(orientation))
-                request = {"target": target, "velocity_scaling": velocity_scaling, "acceleration_scaling": acceleration_scaling}
+                request = {"target": target, "velocity_scaling": velocity_scaling,
+                           "acceleration_scaling": acceleration_scaling, "preview": preview}
                 return plan_result(*await guard.plan("pose", request))
 
             return await run("plan_to_pose", body)
@@ -294,6 +314,7 @@ class ToolBuilder:
         async def plan_cartesian_path(
             waypoints: Annotated[list[Waypoint], Field(min_length=1, max_length=MAX_WAYPOINTS)],
             frame_id: FrameId = None, velocity_scaling: Scaling = None, acceleration_scaling: Scaling = None,
+            preview: Preview = True,
         ) -> Annotated[CallToolResult, PlanSummary]:
             async def body() -> CallToolResult:
                 guard.admit("plan_cartesian_path")
@@ -302,7 +323,8 @@ class ToolBuilder:
                     PoseTarget(np.array([w.position.x, w.position.y, w.position.z]), _unit_rotation(w.orientation))
                     for w in waypoints
                 ]
-                request = {"waypoints": targets, "velocity_scaling": velocity_scaling, "acceleration_scaling": acceleration_scaling}
+                request = {"waypoints": targets, "velocity_scaling": velocity_scaling,
+                           "acceleration_scaling": acceleration_scaling, "preview": preview}
                 return plan_result(*await guard.plan("cartesian", request))
 
             return await run("plan_cartesian_path", body)
@@ -394,6 +416,10 @@ class ToolBuilder:
                 ], ["A controller switch changes how the arm is commanded."]), digest)
 
             async def precheck_switch(ctx: Context, activate: list[str], deactivate: list[str]) -> ServerDecision | Prompt:
+                try:  # never ask a human to approve a switch that would be refused anyway
+                    guard.check_controllers(activate, deactivate)
+                except SafetyRefusal as exc:
+                    return ServerDecision(False, "refused", exc.code, str(exc))
                 return guard.precheck_action("switch_controllers", "switch_controllers", can_elicit(ctx),
                                              lambda: describe_switch(activate, deactivate))
 
@@ -521,6 +547,24 @@ class ToolBuilder:
 
         self.add(get_safety_status, "E-stop state and event, latched force violation, dry-run flag, the last envelope "
                  "violation and backend faults. Never rate limited.", READ_ONLY_LOCAL)
+
+
+def inline_refs(schema: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a JSON schema with every local `#/$defs/...` reference replaced by its definition."""
+    definitions = schema.get("$defs", {})
+
+    def resolve(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                merged = {**resolve(definitions[ref[len("#/$defs/"):]]), **{k: resolve(v) for k, v in node.items() if k != "$ref"}}
+                return merged
+            return {k: resolve(v) for k, v in node.items() if k != "$defs"}
+        if isinstance(node, list):
+            return [resolve(item) for item in node]
+        return node
+
+    return resolve(schema)
 
 
 def _make_ask(check: Resolve) -> Callable[..., Any]:

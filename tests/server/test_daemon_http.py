@@ -1,0 +1,274 @@
+"""`armwarden serve --transport http` as a real subprocess on 127.0.0.1, driven by the SDK's
+streamable HTTP client: bearer tokens and roles, Host validation, plan + approved execute in both
+protocol modes, and SIGTERM with a verifiable audit log naming the HTTP principals.
+
+One daemon per module (start-up costs ~2 s). Tests that change shared state (an observer's
+e-stop) put it back; the SIGTERM test comes last and makes its own calls first.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import anyio
+import httpx2
+import mcp_types as types
+import pytest
+from mcp import Client, MCPError
+from mcp.client.streamable_http import streamable_http_client
+
+from tests.server.harness import MODES
+
+REPO = Path(__file__).resolve().parents[2]
+SRC = REPO / "src"
+CLI = [sys.executable, "-m", "armwarden.cli"]
+HOST = "127.0.0.1"  # never anything else
+HOME = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
+
+
+def child_env() -> dict[str, str]:
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env.pop("ARMWARDEN_AUDIT_HMAC_KEY", None)
+    return env
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((HOST, 0))
+        return sock.getsockname()[1]
+
+
+def add_token(path: Path, role: str, name: str) -> str:
+    result = subprocess.run([*CLI, "tokens", "add", str(path), "--role", role, "--name", name], cwd=REPO,
+                            env=child_env(), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    token = result.stdout.strip()
+    assert token and "\n" not in token
+    return token
+
+
+@dataclass
+class Daemon:
+    process: subprocess.Popen
+    port: int
+    audit: Path
+    operator_token: str
+    observer_token: str
+    stderr_path: Path
+
+    @property
+    def base(self) -> str:
+        return f"http://{HOST}:{self.port}"
+
+    @property
+    def url(self) -> str:
+        return f"{self.base}/mcp"
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory) -> Iterator[Daemon]:
+    tmp = tmp_path_factory.mktemp("http-daemon")
+    tokens = tmp / "tokens.json"
+    operator_token = add_token(tokens, "operator", "alice")
+    observer_token = add_token(tokens, "observer", "bob")
+    config = tmp / "fake.yaml"
+    config.write_text("speedup: 20\n", encoding="utf-8")
+    audit = tmp / "audit.jsonl"
+    port = free_port()
+    stderr_path = tmp / "stderr.log"
+    with open(stderr_path, "wb") as stderr:
+        process = subprocess.Popen(
+            [*CLI, "serve", "--transport", "http", "--host", HOST, "--port", str(port), "--auth-tokens", str(tokens),
+             "--audit-log", str(audit), "--backend-config", str(config), "--log-level", "WARNING"],
+            cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=stderr,
+        )
+    running = Daemon(process, port, audit, operator_token, observer_token, stderr_path)
+    try:
+        deadline = time.monotonic() + 30
+        while True:
+            assert process.poll() is None, stderr_path.read_text()
+            try:
+                if httpx2.get(f"{running.base}/healthz", timeout=1.0).status_code == 200:
+                    break
+            except httpx2.HTTPError:
+                pass
+            assert time.monotonic() < deadline, "the daemon did not become healthy"
+            time.sleep(0.1)
+        yield running
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def approving(operator: str):
+    prompts: list[str] = []
+
+    async def on_elicit(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
+        prompts.append(params.message)
+        return types.ElicitResult(action="accept", content={"approve": True, "operator": operator})
+
+    on_elicit.prompts = prompts  # type: ignore[attr-defined]
+    return on_elicit
+
+
+def session(daemon: Daemon, token: str | None, mode: str, elicitation=None) -> tuple[httpx2.AsyncClient, Client]:
+    """An httpx2 client carrying an optional bearer token, and an SDK client over it (enter both)."""
+    headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
+    http = httpx2.AsyncClient(headers=headers)
+    return http, Client(streamable_http_client(daemon.url, http_client=http), mode=mode, elicitation_callback=elicitation)
+
+
+def leaves(error: BaseException) -> list[BaseException]:
+    if isinstance(error, BaseExceptionGroup):
+        return [leaf for inner in error.exceptions for leaf in leaves(inner)]
+    return [error]
+
+
+def text_of(result) -> str:
+    return " ".join(getattr(block, "text", "") for block in result.content)
+
+
+def records_of(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+# ------------------------------------------------------------------ authentication and Host
+@pytest.mark.parametrize("token", [None, "aw_not-a-real-token"], ids=["no_token", "wrong_token"])
+def test_http_requests_without_a_valid_bearer_token_are_rejected_with_401(daemon, token) -> None:
+    headers = {"Accept": "application/json, text/event-stream"}
+    if token is not None:
+        headers["Authorization"] = f"Bearer {token}"
+    initialize = {"jsonrpc": "2.0", "id": 1, "method": "initialize", "params": {
+        "protocolVersion": "2025-11-25", "capabilities": {}, "clientInfo": {"name": "raw", "version": "1"}}}
+    response = httpx2.post(daemon.url, json=initialize, headers=headers, timeout=5)
+    assert response.status_code == 401
+    assert response.headers["www-authenticate"].startswith("Bearer")
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("token", [None, "aw_not-a-real-token"], ids=["no_token", "wrong_token"])
+def test_sdk_client_without_a_valid_token_cannot_use_the_server(daemon, mode, token) -> None:
+    async def scenario() -> None:
+        http, client = session(daemon, token, mode)
+        with anyio.fail_after(15):
+            async with http, client:
+                await client.list_tools()
+
+    with pytest.raises(BaseException) as caught:  # noqa: PT011 - the SDK wraps it in an ExceptionGroup
+        anyio.run(scenario)
+    assert not isinstance(caught.value, (TimeoutError, KeyboardInterrupt))
+    assert any(isinstance(leaf, (MCPError, httpx2.HTTPStatusError)) for leaf in leaves(caught.value)), caught.value
+
+
+@pytest.mark.parametrize("path", ["/mcp", "/healthz"])
+def test_a_foreign_host_header_is_rejected_with_421(daemon, path) -> None:
+    headers = {"Host": "evil.example", "Authorization": f"Bearer {daemon.operator_token}",
+               "Accept": "application/json, text/event-stream"}
+    if path == "/mcp":
+        response = httpx2.post(f"{daemon.base}{path}", headers=headers, timeout=5,
+                               json={"jsonrpc": "2.0", "id": 1, "method": "tools/list", "params": {}})
+    else:
+        response = httpx2.get(f"{daemon.base}{path}", headers=headers, timeout=5)
+    assert response.status_code == 421
+
+
+# ------------------------------------------------------------------ operator
+@pytest.mark.parametrize("mode", MODES)
+def test_operator_token_plans_and_executes_with_approval(daemon, mode) -> None:
+    on_elicit = approving("alice-at-the-desk")
+
+    async def scenario() -> None:
+        http, client = session(daemon, daemon.operator_token, mode, on_elicit)
+        async with http, client:
+            tools = {t.name for t in (await client.list_tools()).tools}
+            assert {"execute_plan", "plan_to_joints", "reset_estop"} <= tools
+            state = (await client.call_tool("get_robot_state", {})).structured_content
+            start = state["joint_positions"]
+            # joint 1 swings 1 rad from wherever it is (towards 0): above the soft step, so a human is asked
+            goal = [start[0] - 1.0 if start[0] > 0 else start[0] + 1.0, *start[1:]]
+            plan = await client.call_tool("plan_to_joints", {"joint_positions": goal})
+            assert plan.structured_content["status"] == "needs_approval", plan.structured_content
+            done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
+            assert not done.is_error, text_of(done)
+            assert done.structured_content["status"] == "succeeded"
+            assert done.structured_content["approval"]["operator"] == "alice-at-the-desk"
+            after = (await client.call_tool("get_robot_state", {})).structured_content
+            assert after["joint_positions"] == pytest.approx(goal, abs=1e-6)
+
+    anyio.run(scenario)
+    assert len(on_elicit.prompts) == 1 and "APPROVE ROBOT MOTION?" in on_elicit.prompts[0]
+
+
+# ------------------------------------------------------------------ observer
+@pytest.mark.parametrize("mode", MODES)
+def test_observer_token_sees_no_motion_tools_and_cannot_execute_but_can_stop(daemon, mode) -> None:
+    async def scenario() -> None:
+        http, operator = session(daemon, daemon.operator_token, mode, approving("alice"))
+        async with http, operator:
+            plan = await operator.call_tool("plan_to_joints", {"joint_positions": HOME})
+            plan_id = plan.structured_content["plan_id"]
+
+            http2, observer = session(daemon, daemon.observer_token, mode)
+            async with http2, observer:
+                tools = {t.name for t in (await observer.list_tools()).tools}
+                assert "execute_plan" not in tools and "plan_to_pose" not in tools and "reset_estop" not in tools
+                assert {"get_robot_state", "get_safety_status", "stop_motion", "estop"} <= tools
+
+                refused = await observer.call_tool("execute_plan", {"plan_id": plan_id})
+                assert refused.is_error and "FORBIDDEN" in text_of(refused)
+
+                assert not (await observer.call_tool("get_robot_state", {})).is_error
+                stop = await observer.call_tool("stop_motion", {})
+                assert not stop.is_error and stop.structured_content["stopped"] is True
+                estop = await observer.call_tool("estop", {"reason": "observer saw a hand near the gripper"})
+                assert not estop.is_error and estop.structured_content["estopped"] is True
+                assert (await observer.call_tool("get_safety_status", {})).structured_content["estopped"] is True
+
+            # the observer's e-stop holds for the operator too; the operator's approved reset releases it
+            blocked = await operator.call_tool("execute_plan", {"plan_id": plan_id})
+            assert blocked.is_error
+            reset = await operator.call_tool("reset_estop", {})
+            assert not reset.is_error, text_of(reset)
+            assert reset.structured_content["estopped"] is False
+
+    anyio.run(scenario)
+
+
+# ------------------------------------------------------------------ shutdown (keep last: it ends the daemon)
+def test_sigterm_ends_the_http_daemon_with_principals_and_a_shutdown_record_in_a_verified_audit_log(daemon) -> None:
+    async def calls() -> None:
+        for token, name in ((daemon.operator_token, "alice"), (daemon.observer_token, "bob")):
+            http, client = session(daemon, token, "legacy")
+            async with http, client:
+                assert not (await client.call_tool("get_safety_status", {})).is_error
+
+    anyio.run(calls)
+    daemon.process.send_signal(signal.SIGTERM)
+    assert daemon.process.wait(timeout=15) == 0, daemon.stderr_path.read_text()
+
+    records = records_of(daemon.audit)
+    principals = {r["principal"] for r in records if r["event"] == "tool_call"}
+    assert {"alice", "bob"} <= principals
+    assert None not in principals  # every HTTP call is attributed
+    assert records[0]["event"] == "startup"
+    assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "signal SIGTERM"
+    verdict = subprocess.run([*CLI, "audit", "verify", str(daemon.audit)], cwd=REPO, env=child_env(),
+                             capture_output=True, text=True, timeout=60)
+    assert verdict.returncode == 0, verdict.stdout
+    assert daemon.operator_token not in daemon.audit.read_text()
+    assert daemon.observer_token not in daemon.audit.read_text()

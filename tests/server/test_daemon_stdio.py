@@ -1,0 +1,290 @@
+"""`armwarden serve` as a real subprocess over stdio, driven by the SDK's stdio client.
+
+Covers: the bundled tool set, state, plan + approved execute, a refusal, the shutdown record on
+client exit (also mid-motion), SIGTERM, and the start-up refusals (exit 2 before serving).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import anyio
+import mcp_types as types
+import pytest
+from mcp import Client, StdioServerParameters
+
+from tests.server.harness import MODES
+
+REPO = Path(__file__).resolve().parents[2]
+SRC = REPO / "src"
+HOME = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
+BUNDLED_TOOL_COUNT = 22
+CLI = [sys.executable, "-m", "armwarden.cli"]
+
+
+def child_env() -> dict[str, str]:
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env.pop("ARMWARDEN_AUDIT_HMAC_KEY", None)
+    return env
+
+
+def backend_config(tmp_path: Path, speedup: float) -> Path:
+    path = tmp_path / f"fake-{speedup:g}.yaml"
+    path.write_text(f"speedup: {speedup}\n", encoding="utf-8")
+    return path
+
+
+def serve_params(audit: Path, config: Path) -> StdioServerParameters:
+    return StdioServerParameters(
+        command=sys.executable,
+        args=["-m", "armwarden.cli", "serve", "--audit-log", str(audit), "--backend-config", str(config),
+              "--log-level", "WARNING"],
+        env={"PYTHONPATH": str(SRC)},
+        cwd=str(REPO),
+    )
+
+
+def records_of(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+async def wait_for_record(path: Path, predicate, timeout: float = 10.0) -> list[dict[str, Any]]:
+    with anyio.fail_after(timeout):
+        while True:
+            if path.exists():
+                records = records_of(path)
+                if any(predicate(r) for r in records):
+                    return records
+            await anyio.sleep(0.05)
+
+
+def approving(operator: str):
+    prompts: list[str] = []
+
+    async def on_elicit(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
+        prompts.append(params.message)
+        return types.ElicitResult(action="accept", content={"approve": True, "operator": operator})
+
+    on_elicit.prompts = prompts  # type: ignore[attr-defined]
+    return on_elicit
+
+
+def text_of(result) -> str:
+    return " ".join(getattr(block, "text", "") for block in result.content)
+
+
+# ------------------------------------------------------------------ a session over stdio
+@pytest.mark.parametrize("mode", MODES)
+def test_stdio_daemon_serves_a_session_and_writes_a_shutdown_record_when_the_client_exits(tmp_path, mode) -> None:
+    audit = tmp_path / "audit.jsonl"
+    on_elicit = approving("carol")
+
+    async def scenario() -> None:
+        async with Client(serve_params(audit, backend_config(tmp_path, 20)), mode=mode, elicitation_callback=on_elicit) as client:
+            tools = await client.list_tools()
+            assert len(tools.tools) == BUNDLED_TOOL_COUNT
+            assert {"execute_plan", "estop", "stop_motion", "get_robot_state"} <= {t.name for t in tools.tools}
+
+            state = await client.call_tool("get_robot_state", {})
+            assert not state.is_error
+            assert state.structured_content["joint_positions"] == pytest.approx(HOME, abs=1e-6)
+
+            # a refusal: the plan id is unknown
+            refused = await client.call_tool("execute_plan", {"plan_id": "plan_does_not_exist"})
+            assert refused.is_error and "UNKNOWN_PLAN" in text_of(refused)
+
+            # 1 rad on joint 1 is above the soft step threshold: a human must approve
+            goal = [1.0, *HOME[1:]]
+            plan = await client.call_tool("plan_to_joints", {"joint_positions": goal})
+            assert plan.structured_content["status"] == "needs_approval"
+            done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
+            assert not done.is_error, text_of(done)
+            assert done.structured_content["status"] == "succeeded"
+            assert done.structured_content["approval"] == {"required": True, "operator": "carol", "via": "elicitation"}
+            after = await client.call_tool("get_robot_state", {})
+            assert after.structured_content["joint_positions"] == pytest.approx(goal, abs=1e-6)
+
+        records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
+        assert records[0]["event"] == "startup"
+        assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "end of stdin"
+        executed = [r for r in records if r["tool"] == "execute_plan" and r["outcome"] == "ok"]
+        assert len(executed) == 1 and executed[0]["operator"] == "carol"
+
+    anyio.run(scenario)
+    assert len(on_elicit.prompts) == 1 and on_elicit.prompts[0].startswith("APPROVE ROBOT MOTION?")
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exits(tmp_path, mode) -> None:
+    audit = tmp_path / "audit.jsonl"
+
+    async def scenario() -> None:
+        moving = anyio.Event()
+
+        async def on_progress(progress: float, total: float | None, message: str | None) -> None:
+            if progress > 0:
+                moving.set()
+
+        with anyio.fail_after(30):
+            async with anyio.create_task_group() as group:
+                async with Client(serve_params(audit, backend_config(tmp_path, 0.5)), mode=mode,
+                                  elicitation_callback=approving("dave")) as client:
+                    plan = await client.call_tool("plan_to_pose", {"position": {"x": 0.3069, "y": 0.0, "z": 0.35}})
+                    assert plan.structured_content["status"] == "ok"
+
+                    async def run() -> None:
+                        try:
+                            await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]},
+                                                   progress_callback=on_progress)
+                        except Exception:  # the connection goes away under the call
+                            pass
+
+                    group.start_soon(run)
+                    await moving.wait()
+                # the client (and the daemon's stdin) is gone while the arm moves
+
+        records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
+        events = [r["event"] for r in records]
+        assert "execution_interrupted" in events
+        assert events.index("execution_interrupted") < events.index("shutdown")
+        assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
+        assert records[-1]["event"] == "shutdown"
+        assert not any(r["tool"] == "execute_plan" and r["outcome"] == "ok" for r in records)
+
+    anyio.run(scenario)
+
+
+# ------------------------------------------------------------------ SIGTERM
+class RawStdio:
+    """Just enough JSON-RPC over a daemon's pipes to reach the middle of a motion (2025-11-25)."""
+
+    def __init__(self, process: subprocess.Popen) -> None:
+        self.process = process
+        self.buffer = b""
+        self.next_id = 0
+
+    def send(self, message: dict[str, Any]) -> None:
+        self.process.stdin.write(json.dumps(message).encode() + b"\n")
+        self.process.stdin.flush()
+
+    def receive(self, timeout: float = 20.0) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self.buffer:
+            remaining = deadline - time.monotonic()
+            assert remaining > 0, f"no message from the daemon within {timeout} s"
+            ready, _, _ = select.select([self.process.stdout], [], [], remaining)
+            if ready:
+                chunk = os.read(self.process.stdout.fileno(), 65536)
+                assert chunk, "the daemon closed stdout"
+                self.buffer += chunk
+        line, self.buffer = self.buffer.split(b"\n", 1)
+        return json.loads(line)
+
+    def request(self, method: str, params: dict[str, Any], until=None) -> dict[str, Any]:
+        self.next_id += 1
+        self.send({"jsonrpc": "2.0", "id": self.next_id, "method": method, "params": params})
+        while True:
+            message = self.receive()
+            if message.get("id") == self.next_id or (until is not None and until(message)):
+                return message
+
+
+def test_sigterm_mid_motion_stops_the_arm_and_the_stdio_daemon_exits_with_a_shutdown_record(tmp_path) -> None:
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(
+        [*CLI, "serve", "--audit-log", str(audit), "--backend-config", str(backend_config(tmp_path, 0.5)),
+         "--log-level", "WARNING"],
+        cwd=REPO, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )
+    try:
+        rpc = RawStdio(process)
+        hello = rpc.request("initialize", {"protocolVersion": "2025-11-25", "capabilities": {},
+                                           "clientInfo": {"name": "sigterm-test", "version": "1"}})
+        assert hello["result"]["serverInfo"]["name"] == "armwarden"
+        rpc.send({"jsonrpc": "2.0", "method": "notifications/initialized"})
+        plan = rpc.request("tools/call", {"name": "plan_to_pose",
+                                          "arguments": {"position": {"x": 0.3069, "y": 0.0, "z": 0.35}}})
+        plan_id = plan["result"]["structuredContent"]["plan_id"]
+        progress = rpc.request(
+            "tools/call", {"name": "execute_plan", "arguments": {"plan_id": plan_id}, "_meta": {"progressToken": "p1"}},
+            until=lambda m: m.get("method") == "notifications/progress" and m["params"]["progress"] > 0,
+        )
+        assert progress.get("method") == "notifications/progress", progress  # moving, not finished
+
+        started = time.monotonic()
+        process.send_signal(signal.SIGTERM)
+        returncode = process.wait(timeout=10)  # stdin stays open: the signal alone must end it
+        elapsed = time.monotonic() - started
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        for stream in (process.stdin, process.stdout, process.stderr):
+            stream.close()
+    assert returncode == 0
+    assert elapsed < 5
+    records = records_of(audit)
+    events = [r["event"] for r in records]
+    assert events[0] == "startup"
+    assert "execution_interrupted" in events
+    assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
+    assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "signal SIGTERM"
+    verdict = subprocess.run([*CLI, "audit", "verify", str(audit)], cwd=REPO, env=child_env(),
+                             capture_output=True, text=True, timeout=60)
+    assert verdict.returncode == 0, verdict.stdout
+
+
+# ------------------------------------------------------------------ refusing to start
+def _invalid_policy(tmp_path: Path) -> Path:
+    text = (SRC / "armwarden" / "policies" / "fr3.yaml").read_text(encoding="utf-8")
+    path = tmp_path / "bad-policy.yaml"
+    path.write_text(text + "\nmystery_section: {loosen_everything: true}\n", encoding="utf-8")
+    return path
+
+
+START_REFUSALS = {
+    "invalid_policy": (lambda tmp: ["--policy", str(_invalid_policy(tmp))], "mystery_section"),
+    "unknown_backend": (lambda tmp: ["--backend", "warp-drive"], "invalid choice"),
+    "unavailable_backend": (lambda tmp: ["--backend", "mujoco"], "backend"),
+    "unopenable_audit_log": (lambda tmp: ["--audit-log", str(tmp / "no-such-dir" / "audit.jsonl")], "does not exist"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(START_REFUSALS))
+def test_serve_refuses_to_start_with_exit_2(tmp_path, case) -> None:
+    extra, expected = START_REFUSALS[case]
+    args = ["--audit-log", str(tmp_path / "audit.jsonl"), *extra(tmp_path)]
+    result = subprocess.run([*CLI, "serve", *args], cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert expected in result.stderr, result.stderr
+    assert result.stdout == ""  # nothing was served
+    if case != "unopenable_audit_log":
+        audit = tmp_path / "audit.jsonl"
+        assert not audit.exists() or not any(r["event"] == "startup" for r in records_of(audit))
+
+
+def test_serve_refuses_a_non_loopback_http_bind_without_tokens(tmp_path) -> None:
+    # Belt and braces: hold the port on 127.0.0.1 so that, should the check ever regress, the
+    # daemon could not start listening on all interfaces either (it would fail with another message).
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as guard:
+        guard.bind(("127.0.0.1", 0))
+        guard.listen(1)
+        port = guard.getsockname()[1]
+        result = subprocess.run(
+            [*CLI, "serve", "--transport", "http", "--host", "0.0.0.0", "--port", str(port),
+             "--audit-log", str(tmp_path / "audit.jsonl")],
+            cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60,
+        )
+    assert result.returncode == 2, result.stderr
+    assert "without bearer tokens" in result.stderr
+    assert not (tmp_path / "audit.jsonl").exists()

@@ -1,0 +1,335 @@
+"""End-to-end execution behaviour through the SDK client (in-memory, both protocol modes).
+
+Force limit, fail-closed wrench monitoring, cancellation and disconnect mid-motion, an e-stop
+from another client, progress, dry run and a failing stop. Every scenario runs the real Guard
+and server on the fake backend (see `harness.py`); the fake's fault injection (`table_height_m`,
+`freeze_wrench`, `stall_wrench_s`, `fail_stop`, `wrench`) stands in for the hardware fault.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+from mcp import Client
+
+from tests.server.harness import MODES, approve, arm_harness, policy_with
+
+HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
+DOWN_TARGET_Z = 0.30  # a plan straight down from home: 0.19 m of TCP travel, 1.5 s at the default scaling
+TABLE_Z = DOWN_TARGET_Z + 0.02  # the virtual table top, just above the planned target
+
+
+# ------------------------------------------------------------------ helpers
+async def wait_until(predicate: Callable[[], bool], timeout: float = 5.0, what: str = "condition") -> None:
+    with anyio.fail_after(timeout):
+        while not predicate():
+            await anyio.sleep(0.005)
+
+
+def audit_records(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+def text_of(result) -> str:
+    return " ".join(getattr(block, "text", "") for block in result.content)
+
+
+async def plan_down(client: Client, z: float = DOWN_TARGET_Z) -> dict[str, Any]:
+    result = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": z}})
+    assert not result.is_error, text_of(result)
+    summary = result.structured_content
+    assert summary["status"] == "ok", summary
+    return summary
+
+
+async def tcp_z(client: Client) -> float:
+    state = await client.call_tool("get_robot_state", {})
+    return state.structured_content["tcp_pose"]["position"]["z"]
+
+
+async def assert_arm_still(client: Client) -> list[float]:
+    """Two joint-state reads 50 ms apart are identical (the fake is kinematic: still means equal)."""
+    first = (await client.call_tool("get_robot_state", {})).structured_content
+    await anyio.sleep(0.05)
+    second = (await client.call_tool("get_robot_state", {})).structured_content
+    assert first["joint_positions"] == second["joint_positions"]
+    assert all(v == 0.0 for v in second["joint_velocities"])
+    return second["joint_positions"]
+
+
+async def safety(client: Client) -> dict[str, Any]:
+    return (await client.call_tool("get_safety_status", {})).structured_content
+
+
+async def motion(client: Client) -> dict[str, Any]:
+    return (await client.call_tool("get_motion_status", {})).structured_content
+
+
+# ------------------------------------------------------------------ force limit
+@pytest.mark.parametrize("mode", MODES)
+def test_pressing_into_the_table_over_the_force_limit_aborts_mid_motion_and_latches_the_estop(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, table_height_m=TABLE_Z, speedup=2.0) as arm, arm.client(mode, approve()) as client:
+            earlier = await client.call_tool("plan_to_pose", {"position": {"x": 0.35, "y": 0.05, "z": 0.45}})
+            assert earlier.structured_content["status"] == "ok"
+            summary = await plan_down(client)
+            assert summary["force_monitoring"] is True
+
+            result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+            assert result.is_error
+            assert "FORCE_LIMIT" in text_of(result) and "reset_estop" in text_of(result)
+            status = await safety(client)
+            assert status["estopped"] is True
+            assert status["force_violation_latched"] is True
+            assert status["estop_event"]["source"] == "force_monitor"
+            # stopped on the table, well short of the planned target below its top
+            await assert_arm_still(client)
+            assert await tcp_z(client) > DOWN_TARGET_Z + 0.005
+            last = (await motion(client))["last_result"]
+            assert last["status"] == "aborted" and last["max_observed_force_n"] > 30.0
+            # a plan made before the violation can no longer run
+            again = await client.call_tool("execute_plan", {"plan_id": earlier.structured_content["plan_id"]})
+            assert again.is_error and "INVALIDATED_PLAN" in text_of(again)
+            assert arm.actuations == ["execute"]
+
+    anyio.run(scenario)
+
+
+# ------------------------------------------------------------------ wrench monitoring fails closed
+@pytest.mark.parametrize("fault", ["freeze_wrench", "stall_wrench_s"])
+@pytest.mark.parametrize("mode", MODES)
+def test_a_wrench_that_freezes_or_stalls_mid_motion_aborts_the_motion(tmp_path, mode, fault) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client, z=0.40)
+            outcome: dict[str, Any] = {}
+
+            async def run() -> None:
+                outcome["result"] = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+            async with anyio.create_task_group() as group:
+                group.start_soon(run)
+                await wait_until(lambda: arm.guard.motion_status().progress > 0.05, what="motion started")
+                setattr(arm.fake, fault, True if fault == "freeze_wrench" else 0.5)
+
+            arm.fake.stall_wrench_s = 0.0  # state reads below read the wrench too; keep them quick
+            result = outcome["result"]
+            assert result.is_error and "FORCE_LIMIT" in text_of(result)
+            expected = "has not advanced" if fault == "freeze_wrench" else "longer than"
+            assert expected in text_of(result)
+            status = await safety(client)
+            assert status["estopped"] and status["force_violation_latched"]
+            await assert_arm_still(client)
+            assert await tcp_z(client) > 0.40 + 0.01  # stopped short of the goal
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_wrench_that_is_already_stalled_refuses_execution_before_anything_moves(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, stall_wrench_s=0.3) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client, z=0.40)
+            result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            assert result.is_error and "NO_WRENCH" in text_of(result)
+            assert arm.actuations == []
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_no_wrench_at_all_is_refused_when_the_policy_requires_one(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, wrench=False) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client, z=0.40)
+            assert summary["force_monitoring"] is False
+            assert any("execute_plan will refuse" in note for note in summary["notes"])
+            result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            assert result.is_error and "NO_WRENCH" in text_of(result)
+            assert arm.actuations == []
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_no_wrench_at_all_runs_when_the_policy_allows_it_and_says_force_is_not_enforced(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        policy = policy_with(**{"force.require_wrench": False, "approval.mode": "always"})
+        prompts = approve()
+        async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client(mode, prompts) as client:
+            result = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": 0.40}})
+            summary = result.structured_content
+            assert summary["force_monitoring"] is False
+            assert any("NOT enforced" in note for note in summary["notes"])
+
+            done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+            assert not done.is_error, text_of(done)
+            report = done.structured_content
+            assert report["status"] == "succeeded"
+            assert report["max_observed_force_n"] is None
+            assert "NOT enforced" in report["detail"]
+            assert any("Force monitoring" in p and "NOT enforced" in p for p in prompts.prompts)
+            assert arm.actuations == ["execute"]
+
+    anyio.run(scenario)
+
+
+# ------------------------------------------------------------------ cancellation and disconnect
+@pytest.mark.parametrize("mode", MODES)
+def test_client_cancel_mid_motion_stops_the_arm_and_is_audited(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client)
+            start_z = await tcp_z(client)
+            with anyio.move_on_after(0.4) as scope:
+                await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            assert scope.cancelled_caught, "the call should still have been running"
+
+            await wait_until(lambda: not arm.guard.motion_status().executing, what="execution ended")
+            await wait_until(
+                lambda: any(r["event"] == "execution_interrupted" for r in audit_records(arm.audit_path))
+                and any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in audit_records(arm.audit_path)),
+                what="cancellation audited",
+            )
+            await assert_arm_still(client)
+            z = await tcp_z(client)
+            assert DOWN_TARGET_Z + 0.01 < z < start_z - 0.005  # it moved, then stopped short of the goal
+            status = await motion(client)
+            assert status["executing"] is False
+            assert status["last_result"]["status"] == "aborted"
+            assert arm.backend.stops >= 1
+
+    anyio.run(scenario)
+
+
+# In-memory, only the legacy mode has a connection to lose: the SDK's 2026-07-28 in-process client
+# dispatches directly in the caller's task. test_daemon_stdio.py covers a real disconnect in both modes.
+@pytest.mark.parametrize("mode", ["legacy"])
+def test_client_disconnect_mid_motion_stops_the_arm(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=1.0) as arm:
+            async with arm.client(mode, approve()) as planner:
+                summary = await plan_down(planner)
+            errors: list[BaseException] = []
+            with anyio.fail_after(10):
+                async with anyio.create_task_group() as group:
+                    async with arm.client(mode, approve()) as client:
+                        async def run() -> None:
+                            try:
+                                await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+                            except Exception as exc:  # the connection closes under the call
+                                errors.append(exc)
+
+                        group.start_soon(run)
+                        await wait_until(lambda: arm.guard.motion_status().progress > 0.1, what="motion started")
+                    # the client context has exited while the call was running
+            await wait_until(lambda: not arm.guard.motion_status().executing, what="execution ended")
+            await wait_until(
+                lambda: any(r["event"] == "execution_interrupted" for r in audit_records(arm.audit_path)),
+                what="interruption audited",
+            )
+            async with arm.client(mode) as observer:
+                await assert_arm_still(observer)
+                assert await tcp_z(observer) > DOWN_TARGET_Z + 0.01
+                assert (await motion(observer))["last_result"]["status"] == "aborted"
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_estop_from_a_second_client_stops_an_execution_started_by_the_first(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as mover, \
+                arm.client(mode) as other:
+            summary = await plan_down(mover)
+            outcome: dict[str, Any] = {}
+
+            async def run() -> None:
+                outcome["result"] = await mover.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+            async with anyio.create_task_group() as group:
+                group.start_soon(run)
+                await wait_until(lambda: arm.guard.motion_status().progress > 0.1, what="motion started")
+                stop = await other.call_tool("estop", {"reason": "person entered the cell"})
+                assert not stop.is_error and stop.structured_content["estopped"] is True
+
+            result = outcome["result"]
+            if result.is_error:
+                assert "REFUSED" in text_of(result)
+            else:
+                assert result.structured_content["status"] == "aborted"
+            assert (await safety(mover))["estopped"] is True
+            await assert_arm_still(other)
+            assert await tcp_z(other) > DOWN_TARGET_Z + 0.01
+            assert not arm.guard.motion_status().executing
+
+    anyio.run(scenario)
+
+
+# ------------------------------------------------------------------ progress, dry run, failing stop
+@pytest.mark.parametrize("mode", MODES)
+def test_progress_notifications_stream_increasing_fractions_while_moving(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        seen: list[tuple[float, float | None]] = []
+
+        async def on_progress(progress: float, total: float | None, message: str | None) -> None:
+            seen.append((progress, total))
+
+        async with arm_harness(tmp_path, speedup=2.0) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client)
+            done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]}, progress_callback=on_progress)
+            assert not done.is_error and done.structured_content["status"] == "succeeded"
+
+        values = [p for p, _ in seen]
+        assert len(values) >= 2, seen
+        assert all(0.0 <= v <= 1.0 and math.isfinite(v) for v in values)
+        assert all(b > a for a, b in zip(values, values[1:])), values
+        assert all(total == 1.0 for _, total in seen)
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_dry_run_validates_and_approves_but_nothing_actuates(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, policy_with(dry_run=True)) as arm, arm.client(mode, approve()) as client:
+            before = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+            summary = await plan_down(client, z=0.40)
+            assert any("dry run" in note for note in summary["notes"])
+            done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            assert not done.is_error, text_of(done)
+            assert done.structured_content["status"] == "dry_run"
+            assert arm.actuations == []
+            after = await assert_arm_still(client)
+            assert after == before
+            assert (await safety(client))["dry_run"] is True
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_stop_that_fails_latches_the_estop_and_reports_stop_failed(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, fail_stop=True) as arm, arm.client(mode, approve()) as client:
+            earlier = await plan_down(client, z=0.40)
+            result = await client.call_tool("stop_motion", {})
+            assert result.is_error
+            assert "STOP_FAILED" in text_of(result) and "hardware e-stop" in text_of(result)
+            status = await safety(client)
+            assert status["estopped"] is True
+            assert status["estop_event"]["source"] == "stop_failed"
+            assert status["faults"]
+            again = await client.call_tool("execute_plan", {"plan_id": earlier["plan_id"]})
+            assert again.is_error
+            assert arm.actuations == []
+            arm.fake.fail_stop = False  # let the harness close the backend cleanly
+
+    anyio.run(scenario)

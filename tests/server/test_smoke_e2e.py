@@ -1,0 +1,26 @@
+"""A first end-to-end pass through the SDK client: plan, approve, execute, replay refused."""
+
+from __future__ import annotations
+
+import anyio
+import pytest
+
+from armwarden.safety.audit import verify_file
+from tests.server.harness import MODES, approve, arm_harness
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_plan_then_execute_moves_once_and_a_replay_is_refused(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path) as arm, arm.client(mode, approve()) as client:
+            plan = await client.call_tool("plan_to_pose", {"position": {"x": 0.4, "y": 0.1, "z": 0.35}})
+            assert plan.structured_content["status"] == "ok"
+            plan_id = plan.structured_content["plan_id"]
+            done = await client.call_tool("execute_plan", {"plan_id": plan_id})
+            assert not done.is_error and done.structured_content["status"] == "succeeded"
+            again = await client.call_tool("execute_plan", {"plan_id": plan_id})
+            assert again.is_error and "USED_PLAN" in again.content[0].text
+            assert arm.actuations == ["execute"]
+        assert verify_file(arm.audit_path).ok
+
+    anyio.run(scenario)
