@@ -154,8 +154,9 @@ def bench_server(repeats: int = 200) -> dict[str, Any]:
     import anyio
     from mcp import Client, StdioServerParameters
 
-    from armwarden.daemon import assemble, close_assembly, open_assembly
+    from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, open_assembly
 
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs
     results: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as tmp:
         directory = Path(tmp)

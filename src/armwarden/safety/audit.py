@@ -25,6 +25,7 @@ is not detectable from the file alone (compare `seq` against an external copy of
 
 from __future__ import annotations
 
+import asyncio
 import datetime as _dt
 import decimal
 import enum
@@ -36,6 +37,7 @@ import itertools
 import json
 import math
 import os
+import queue
 import stat
 import sys
 import threading
@@ -47,9 +49,6 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import IO, Any
 
-import anyio
-import anyio.to_thread
-from anyio.lowlevel import RunVar
 
 from armwarden.errors import ArmWardenError, ConfigurationError
 
@@ -575,7 +574,6 @@ def read_tail(path: str | os.PathLike[str], n: int = 20) -> list[dict[str, Any]]
 # The log
 # --------------------------------------------------------------------------------------------
 
-_ASYNC_LIMITERS: RunVar[dict[int, anyio.CapacityLimiter]] = RunVar("armwarden_audit_limiters")
 
 
 class AuditLog:
@@ -604,6 +602,8 @@ class AuditLog:
         self._max_chars = max_string_chars
         self._texter = _Sanitizer(max_string_chars, 1, 1, 1)  # text() only; stateless
         self._lock = threading.Lock()
+        self._queue: queue.SimpleQueue | None = None  # jobs for the writer thread (started on first use)
+        self._thread: threading.Thread | None = None
         self._fd: int | None = None
         self._broken: str | None = None
         self._seq = 0
@@ -824,10 +824,12 @@ class AuditLog:
         operator: str | None = None,
         extra: Mapping[str, Any] | None = None,
     ) -> AuditRecord:
-        """`append` in a worker thread. Concurrent callers on one event loop are served FIFO.
+        """`append` on the log's own writer thread, so the event loop never waits on disk.
 
-        Once the worker has started, cancelling the caller waits for the write to finish (the
-        record is never half-done); a caller cancelled while still queued writes nothing.
+        Records are written in the order of the calls. A record handed to the writer is always
+        written — also when the caller is cancelled meanwhile (the event happened; the log must
+        say so). A dedicated thread and a plain queue cost far less per record than a generic
+        thread pool hop, which matters because every tool call writes one.
         """
         call = functools.partial(
             self.append,
@@ -841,18 +843,36 @@ class AuditLog:
             operator=operator,
             extra=extra,
         )
-        return await anyio.to_thread.run_sync(call, limiter=self._async_limiter())
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[AuditRecord] = loop.create_future()
+        self._writer().put((call, loop, future))
+        return await asyncio.shield(future)
 
-    def _async_limiter(self) -> anyio.CapacityLimiter:
-        try:
-            limiters = _ASYNC_LIMITERS.get()
-        except LookupError:
-            limiters = {}
-            _ASYNC_LIMITERS.set(limiters)
-        limiter = limiters.get(id(self))
-        if limiter is None:
-            limiter = limiters[id(self)] = anyio.CapacityLimiter(1)
-        return limiter
+    def _writer(self) -> queue.SimpleQueue:
+        with self._lock:
+            if self._queue is None:
+                if self._fd is None:
+                    raise AuditWriteError(f"audit log {self.path} is closed")
+                self._queue = queue.SimpleQueue()
+                self._thread = threading.Thread(target=self._drain, args=(self._queue,), name="armwarden-audit", daemon=True)
+                self._thread.start()
+            return self._queue
+
+    @staticmethod
+    def _drain(jobs: queue.SimpleQueue) -> None:
+        while True:
+            job = jobs.get()
+            if job is None:
+                return
+            call, loop, future = job
+            try:
+                outcome, failed = call(), False
+            except BaseException as exc:  # handed back to the awaiting caller
+                outcome, failed = exc, True
+            try:
+                loop.call_soon_threadsafe(_settle, future, outcome, failed)
+            except RuntimeError:  # the loop is closed: nobody is waiting any more
+                pass
 
     # -- reading ---------------------------------------------------------------------------
     def tail(self, n: int = 20) -> list[dict[str, Any]]:
@@ -874,7 +894,15 @@ class AuditLog:
 
     # -- closing ---------------------------------------------------------------------------
     def close(self) -> None:
-        """Release the file. Idempotent; writes nothing (a ``shutdown`` record is the caller's)."""
+        """Release the file. Idempotent; writes nothing (a ``shutdown`` record is the caller's).
+
+        Records already handed to the writer thread are written first."""
+        with self._lock:
+            jobs, thread, self._queue, self._thread = self._queue, self._thread, None, None
+        if jobs is not None and thread is not None:
+            jobs.put(None)
+            if thread is not threading.current_thread():
+                thread.join()
         with self._lock:
             fd, self._fd = self._fd, None
         if fd is not None:
@@ -894,6 +922,15 @@ class AuditLog:
 
 def _last_byte(fd: int, size: int) -> bytes:
     return os.pread(fd, 1, size - 1)
+
+
+def _settle(future: asyncio.Future, outcome: Any, failed: bool) -> None:
+    if future.done():  # the caller went away (cancelled): the record is written regardless
+        return
+    if failed:
+        future.set_exception(outcome)
+    else:
+        future.set_result(outcome)
 
 
 def _fsync_dir(directory: Path) -> None:

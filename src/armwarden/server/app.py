@@ -32,6 +32,12 @@ logger = logging.getLogger(__name__)
 
 #: tools that must work whatever they are sent (DESIGN.md §4: stopping always works)
 _ACCEPTS_ANY_ARGUMENTS = frozenset({"stop_motion", "estop"})
+#: read-only tools whose results are observations, not decisions: the call is recorded, the
+#: (large, frequent) result is not — it would make every state poll cost a big audit record
+_UNRECORDED_RESULTS = frozenset({
+    "get_robot_state", "get_safety_envelope", "lookup_transform", "list_controllers", "list_ros_graph",
+    "get_audit_tail", "get_motion_status", "get_safety_status", "camera_snapshot",
+})
 #: argument names that are dropped, not refused: approvals come from a human, never from the
 #: client, and an `approval` sent as an argument is ignored (and stays visible in the audit record)
 _IGNORED_ARGUMENTS = frozenset({"approval"})
@@ -136,7 +142,7 @@ class ArmWardenServer:
                     self.guard.limiter.try_acquire(record.tool)  # floods of invalid calls still cost tokens
             elif record.outcome is None:
                 record.outcome = "ok"
-            if result.structured_content is not None:
+            if result.structured_content is not None and record.tool not in _UNRECORDED_RESULTS:
                 record.extra["result"] = result.structured_content  # keep what the body noted (approval, timings)
                 approval = result.structured_content.get("approval") if isinstance(result.structured_content, dict) else None
                 if isinstance(approval, dict):
