@@ -64,32 +64,44 @@ def bench_envelope(repeats: int = 400) -> dict[str, float]:
     trajectory = planner.plan_to_joints(READY, READY + TYPICAL_DELTA, velocity_scaling=0.15).trajectory
     report = envelope.check(trajectory)
     assert not report.violations, report.violations
-    _, q_samples, _ = envelope.sample_path(trajectory.times, trajectory.positions)
+    # the samples the sweep bound requires (fine), and those a clean plan actually evaluates (the
+    # coarse pass; see Envelope._check_geometry)
+    _, q_fine, _ = envelope.sample_path(trajectory.times, trajectory.positions)
+    n_evaluated = report.samples_checked
+    q_evaluated = q_fine[np.linspace(0, len(q_fine) - 1, n_evaluated).round().astype(int)]
     model, data = robot.model, robot.data
     tcp_id = model.getFrameId(robot.tcp_frame)
 
-    def bare_fk_tcp() -> None:
-        for q in q_samples:
-            pin.forwardKinematics(model, data, q)
-            pin.updateFramePlacement(model, data, tcp_id).translation  # noqa: B018 - read it, as a check must
+    def bare_fk_tcp(samples: np.ndarray) -> Callable[[], None]:
+        def run() -> None:
+            for q in samples:
+                pin.forwardKinematics(model, data, q)
+                pin.updateFramePlacement(model, data, tcp_id).translation  # noqa: B018 - read it, as a check must
+        return run
 
     def bare_fk_bodies() -> None:
-        robot.joint_frames(q_samples)
+        robot.joint_frames(q_fine)
 
     def full_check() -> None:
         envelope.check(trajectory)
 
-    # interleave the three so that machine noise hits them alike
-    full, tcp, bodies = [], [], []
+    # interleave them so that machine noise hits them alike
+    full, tcp, tcp_eval, bodies = [], [], [], []
+    fk_fine, fk_eval = bare_fk_tcp(q_fine), bare_fk_tcp(q_evaluated)
     for _ in range(repeats):
         full += _time_us(full_check, 1)
-        tcp += _time_us(bare_fk_tcp, 1)
+        tcp += _time_us(fk_fine, 1)
+        tcp_eval += _time_us(fk_eval, 1)
         bodies += _time_us(bare_fk_bodies, 1)
-    n = len(q_samples)
+    n = len(q_fine)
     full_med, tcp_med, bodies_med = statistics.median(full), statistics.median(tcp), statistics.median(bodies)
+    eval_med = statistics.median(tcp_eval)
     return {
         "plan_duration_s": trajectory.duration_s,
         "plan_waypoints": len(trajectory.times),
+        "evaluated_samples": n_evaluated,
+        "bare_fk_tcp_evaluated_us_median": eval_med,
+        "ratio_full_to_fk_tcp_evaluated": full_med / eval_med,
         "checked_samples": n,
         "capsules": len(robot.capsules),
         "self_collision_pairs": len(envelope.self_collision_pairs),
@@ -108,14 +120,17 @@ def _report_envelope(r: dict[str, float]) -> None:
     print("## envelope")
     print(
         f"typical plan: {r['plan_duration_s']:.2f} s, {r['plan_waypoints']} waypoints, largest joint travel 0.5 rad; "
-        f"{r['checked_samples']} conservative geometry samples, {r['capsules']} capsules + TCP, "
+        f"the sweep bound needs {r['checked_samples']} samples, the coarse-to-fine check evaluated "
+        f"{r['evaluated_samples']}; {r['capsules']} capsules + TCP, "
         f"{r['self_collision_pairs']} self-collision pairs, {r['keep_out_zones']} keep-out zones"
     )
     print(f"full check: {r['full_check_ms_median']:.3f} ms median, {r['full_check_ms_p95']:.3f} ms p95  "
           f"(target < 2 ms: {'met' if r['full_check_ms_median'] < 2 else 'MISSED'})")
-    print(f"checked samples per second: {r['checked_samples_per_s']:,.0f}")
-    print(f"bare FK + TCP read over the same samples: {r['bare_fk_tcp_us_median']:.0f} us -> ratio "
+    print(f"checked samples per second (samples the sweep bound covers / check time): {r['checked_samples_per_s']:,.0f}")
+    print(f"bare FK + TCP read over the {r['checked_samples']} sweep-bound samples: {r['bare_fk_tcp_us_median']:.0f} us -> ratio "
           f"{r['ratio_full_to_fk_tcp']:.2f}x (target <= 3x: {'met' if r['ratio_full_to_fk_tcp'] <= 3 else 'MISSED'})")
+    print(f"bare FK + TCP read over the {r['evaluated_samples']} samples actually evaluated: "
+          f"{r['bare_fk_tcp_evaluated_us_median']:.0f} us -> ratio {r['ratio_full_to_fk_tcp_evaluated']:.2f}x")
     print(f"bare FK + every checked body's placement: {r['bare_fk_bodies_us_median']:.0f} us -> ratio "
           f"{r['ratio_full_to_fk_bodies']:.2f}x")
 

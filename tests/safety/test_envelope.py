@@ -206,8 +206,8 @@ class DenseOracle:
     """An independent checker: Pinocchio geometry placements + coal, resampled until no capsule
     end point moves more than 1 mm between samples (so no point of any capsule does)."""
 
-    def __init__(self, robot: RobotModel, limits: EnvelopeLimits) -> None:
-        self.robot, self.limits = robot, limits
+    def __init__(self, robot: RobotModel, limits: EnvelopeLimits, pairs: list[tuple[int, int]] = ()) -> None:
+        self.robot, self.limits, self.pairs = robot, limits, list(pairs)
         self.data = robot.model.createData()
         self.geometry_data = pin.GeometryData(robot.geometry)
         self.ids = [robot.geometry.getGeometryId(c.name) for c in robot.capsules]
@@ -245,6 +245,14 @@ class DenseOracle:
     def _check(self, segments, found: list[str], t: float) -> None:
         pad = self.limits.link_padding_m
         ws = self.limits.workspace
+        for a, b in self.pairs:
+            (a0, a1, ra), (b0, b1, rb) = segments[a], segments[b]
+            shape_a, tf_a = _coal_capsule(a0, a1, ra)
+            shape_b, tf_b = _coal_capsule(b0, b1, rb)
+            result = coal.CollisionResult()
+            coal.collide(shape_a, tf_a, shape_b, tf_b, coal.CollisionRequest(), result)
+            if result.isCollision():
+                found.append(f"{self.robot.capsules[a].name} touches {self.robot.capsules[b].name} at t={t:.4f}")
         for (p0, p1, radius), capsule in zip(segments, self.robot.capsules):
             r = radius + pad
             if np.any(np.minimum(p0, p1) - r < ws.lo) or np.any(np.maximum(p0, p1) + r > ws.hi):
@@ -262,6 +270,16 @@ class DenseOracle:
                 )
                 if result.isCollision():
                     found.append(f"{capsule.name} inside {zone.name} at t={t:.4f}")
+
+
+def _coal_capsule(p0: np.ndarray, p1: np.ndarray, radius: float):
+    length = float(np.linalg.norm(p1 - p0))
+    if length < 1e-12:
+        return coal.Sphere(radius), coal.Transform3s(np.eye(3), p0)
+    z = (p1 - p0) / length
+    x = np.cross([1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return coal.Capsule(radius, length), coal.Transform3s(np.column_stack([x, np.cross(z, x), z]), (p0 + p1) / 2)
 
 
 @pytest.fixture(scope="module")
@@ -282,7 +300,27 @@ def test_plans_the_envelope_accepts_never_touch_a_zone_under_dense_resampling(se
     zone = Box.of("random", center - half, center + half)
     checked = _with_zones(envelope, zone)
     report = checked.check(trajectory)
-    geometric = {Code.KEEP_OUT, Code.WORKSPACE}
+    geometric = {Code.KEEP_OUT, Code.WORKSPACE, Code.SELF_COLLISION}
     if _codes(report) & geometric:
         return  # refused: nothing to prove
-    assert DenseOracle(robot, checked.limits).violations(trajectory) == []
+    assert DenseOracle(robot, checked.limits, [tuple(p) for p in checked._pairs]).violations(trajectory) == []
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_plans_accepted_near_self_contact_never_collide_under_dense_resampling(seed: int, robot: RobotModel, envelope: Envelope, planner: Planner) -> None:
+    """Folding motions (elbow and wrist toward the upper arm) exercise the relative-motion
+    allowance of self-collision pairs: whatever the envelope accepts, no pair ever touches."""
+    rng = np.random.default_rng(seed)
+    start = np.clip(READY + rng.uniform(-0.3, 0.3, 7), robot.lower + 0.05, robot.upper - 0.05)
+    goal = start.copy()
+    goal[3] = rng.uniform(-3.0, -2.3)
+    goal[5] = rng.uniform(0.6, 1.4)
+    goal[4] += rng.uniform(-0.6, 0.6)
+    goal = np.clip(goal, robot.lower + 0.05, robot.upper - 0.05)
+    trajectory = planner.plan_to_joints(start, goal, 0.3, 0.3).trajectory
+    relaxed = Envelope(robot, dataclasses.replace(envelope.limits, keep_out=(), max_joint_step_rad=3.0))
+    report = relaxed.check(trajectory)
+    if _codes(report) & {Code.SELF_COLLISION, Code.WORKSPACE}:
+        return
+    assert DenseOracle(robot, relaxed.limits, [tuple(p) for p in relaxed._pairs]).violations(trajectory) == []

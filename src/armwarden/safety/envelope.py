@@ -32,6 +32,8 @@ from armwarden.safety import geometry
 from armwarden.safety.violations import Code, Violation
 
 ACCELERATION_TOLERANCE = 1.10  # the 10 % tolerance on acceleration estimated from waypoint timing
+#: the first geometry pass samples this many times more sparsely (bodies inflated to match)
+COARSE_FACTOR = 4.0
 _VELOCITY_TOLERANCE = 1.0 + 1e-9
 
 
@@ -144,6 +146,7 @@ class Envelope:
         self._padded_radii = np.concatenate([robot.capsule_radii + limits.link_padding_m, [0.0]])
         self._pairs = self._self_collision_pairs() if limits.self_collision else np.zeros((0, 2), dtype=np.intp)
         self._pair_radii = robot.capsule_radii[self._pairs[:, 0]] + robot.capsule_radii[self._pairs[:, 1]]
+        self._pair_reach = self._relative_reach()
         half_lengths = np.array([np.linalg.norm(np.subtract(c.p1_m, c.p0_m)) / 2.0 for c in robot.capsules])
         self._pair_sphere_reach = self._pair_radii + half_lengths[self._pairs[:, 0]] + half_lengths[self._pairs[:, 1]]
         self._ws_lo = limits.workspace.lo
@@ -165,6 +168,28 @@ class Envelope:
             if abs(capsules[a].joint_index - capsules[b].joint_index) >= 2
         ]
         return np.array(pairs, dtype=np.intp).reshape(-1, 2)
+
+    def _relative_reach(self) -> np.ndarray:
+        """`(n, P)`: bound on how far the distal capsule of each pair moves *relative to the other*
+        per unit motion of each joint. Only the joints between the two capsules move one relative
+        to the other, so pairs near the base get far smaller allowances than the sum of both
+        capsules' absolute motions. Capsules on separate branches keep the sum (conservative)."""
+        model, capsules, reach = self.robot.model, self.robot.capsules, self.robot.reach
+        out = np.zeros((self.robot.nq, len(self._pairs)))
+        for index, (a, b) in enumerate(self._pairs):
+            ja, jb = capsules[a].joint_index, capsules[b].joint_index
+            if ja > jb:
+                a, b, ja, jb = b, a, jb, ja
+            chain, j = set(), jb
+            while j > 0:
+                chain.add(j)
+                j = model.parents[j]
+            if ja == 0 or ja in chain:
+                between = [model.joints[j].idx_q for j in chain if j > ja]
+                out[between, index] = reach[between, b]
+            else:
+                out[:, index] = reach[:, a] + reach[:, b]
+        return out
 
     @property
     def self_collision_pairs(self) -> list[tuple[str, str]]:
@@ -315,62 +340,101 @@ class Envelope:
         return vel_ratio, acc_ratio, out
 
     # ------------------------------------------------------------------ geometry
-    def sample_path(self, times: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Conservative geometry samples along the path.
+    def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:
+        """Cumulative sampling cost along the waypoint polyline, in units of one fine interval.
 
-        Returns sample times (N,), configurations (N, n) and, per sample and body (incl. the
-        TCP point as the last column), the inflation radius: half the larger motion bound of
-        the two intervals next to the sample.
+        A segment's cost is its point-motion bound against `sweep_resolution_m` or its largest
+        joint step against `check_resolution_rad`, whichever is larger; samples one unit apart
+        satisfy both. `body` holds the cumulative per-body motion bound [m] (TCP last).
         """
-        reach = self.robot.reach  # (n, B+1)
         steps = np.abs(np.diff(positions, axis=0))
-        seg_bound = steps @ reach  # (K-1, B+1)
-        cum_body = np.vstack([np.zeros((1, reach.shape[1])), np.cumsum(seg_bound, axis=0)])
-        # sampling cost of a segment, in units of "one sample interval": the point-motion bound
-        # against sweep_resolution_m, and the joint step against check_resolution_rad
+        seg_bound = steps @ self.robot.reach  # (K-1, B+1)
         cost = np.maximum(
             np.max(seg_bound, axis=1) / self.limits.sweep_resolution_m,
             np.max(steps, axis=1) / self.limits.check_resolution_rad,
         )
-        cum = np.concatenate([[0.0], np.cumsum(cost)])
-        total = float(cum[-1])
-        n_intervals = max(1, int(np.ceil(total))) if total > 0 else 1
-        targets = np.linspace(0.0, total, n_intervals + 1)
-        # locate each target on the waypoint polyline (first segment whose cumulative bound reaches it)
+        pair_bound = steps @ self._pair_reach  # (K-1, P)
+        return _PathParameter(
+            times=times,
+            positions=positions,
+            cost=np.concatenate([[0.0], np.cumsum(cost)]),
+            body=np.vstack([np.zeros((1, seg_bound.shape[1])), np.cumsum(seg_bound, axis=0)]),
+            pairs=np.vstack([np.zeros((1, pair_bound.shape[1])), np.cumsum(pair_bound, axis=0)]),
+        )
+
+    def _samples_at(self, path: _PathParameter, targets: np.ndarray) -> _Samples:
+        """Times, configurations and inflations of samples at path-parameter `targets`.
+
+        The inflation of a sample is half the larger motion bound of the intervals next to it
+        (within this run of samples): per body, and per self-collision pair (relative motion).
+        """
+        cum = path.cost
         k = np.clip(np.searchsorted(cum, targets, side="left") - 1, 0, len(cum) - 2)
         span = cum[k + 1] - cum[k]
-        alpha = np.where(span > 0, (targets - cum[k]) / np.where(span > 0, span, 1.0), 0.0)
-        alpha = np.clip(alpha, 0.0, 1.0)
-        q_samples = positions[k] + alpha[:, None] * (positions[k + 1] - positions[k])
-        t_samples = times[k] + alpha * (times[k + 1] - times[k])
-        q_samples[-1] = positions[-1]
-        t_samples[-1] = times[-1]
-        body_at = cum_body[k] + alpha[:, None] * (cum_body[k + 1] - cum_body[k])
-        body_at[-1] = cum_body[-1]
-        interval = np.diff(body_at, axis=0)  # (N-1, B+1) per-body bound between samples
-        if len(interval):
-            left = np.vstack([interval[:1], interval])
-            right = np.vstack([interval, interval[-1:]])
-            inflation = np.maximum(left, right) / 2.0
-        else:
-            inflation = np.zeros((1, reach.shape[1]))
-        return t_samples, q_samples, inflation
+        alpha = np.clip(np.where(span > 0, (targets - cum[k]) / np.where(span > 0, span, 1.0), 0.0), 0.0, 1.0)
+        at_end = targets >= cum[-1]
+
+        def at(values: np.ndarray) -> np.ndarray:
+            sampled = values[k] + (alpha[:, None] if values.ndim == 2 else alpha) * (values[k + 1] - values[k])
+            sampled[at_end] = values[-1]
+            return sampled
+
+        return _Samples(
+            times=at(path.times),
+            positions=at(path.positions),
+            inflation=_half_neighbour_bound(at(path.body)),
+            pair_inflation=_half_neighbour_bound(at(path.pairs)),
+        )
+
+    def sample_path(self, times: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fine conservative samples along the whole path: times (N,), configurations (N, n) and
+        per-sample, per-body inflation (N, B+1; the TCP point last)."""
+        path = self._path_parameter(times, positions)
+        samples = self._samples_at(path, _unit_targets(0.0, path.total))
+        return samples.times, samples.positions, samples.inflation
 
     def _check_geometry(self, times: np.ndarray, positions: np.ndarray) -> tuple[list[Violation], float, Pose, int]:
+        """Coarse to fine: a pass at `COARSE_FACTOR` times the sweep resolution (bodies inflated
+        accordingly, so a clean pass is as much a proof as a fine one); where it finds anything,
+        the path around those samples is checked again at full resolution, and only fine
+        findings are reported. Plans far from every zone cost a fraction of a fine pass."""
+        path = self._path_parameter(times, positions)
+        coarse = _unit_targets(0.0, path.total, COARSE_FACTOR)
+        samples = self._samples_at(path, coarse)
+        found, flagged, tcp = self._geometry_pass(samples)
+        checked = len(samples.times)
+        if np.any(flagged):
+            found = {}
+            for start, end in _merged_ranges(coarse, np.flatnonzero(flagged)):
+                fine_samples = self._samples_at(path, _unit_targets(start, end))
+                fine, _, _ = self._geometry_pass(fine_samples)
+                checked += len(fine_samples.times)
+                for key, violation in fine.items():
+                    if key not in found or violation.time_s < found[key].time_s:
+                        found[key] = violation
+        tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
+        ordered = sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
+        return ordered, tcp_length, self.robot.tcp_pose(positions[-1]), checked
+
+    def _geometry_pass(self, samples: _Samples) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
+        """One check of consecutive samples. Returns the first violation per (code, body, what),
+        which samples found anything, and the TCP positions."""
         robot, lim = self.robot, self.limits
-        t_s, q_s, inflation = self.sample_path(times, positions)
+        t_s, q_s, inflation = samples.times, samples.positions, samples.inflation
         p0, p1 = robot.body_points(robot.joint_frames(q_s))  # (N, B+1, 3); last body is the TCP point
         tcp = p0[:, -1]
         radius = inflation + self._padded_radii  # (N, B+1)
-        out: list[Violation] = []
+        found: dict[tuple[str, str, str], Violation] = {}
+        flagged = np.zeros(len(t_s), dtype=bool)
 
         # axis-aligned bounds of every padded, inflated capsule: the broad phase for everything below
         lo = np.minimum(p0, p1) - radius[..., None]
         hi = np.maximum(p0, p1) + radius[..., None]
 
         # workspace: every capsule and the TCP entirely inside the box (exact for capsules)
-        inside = np.all(lo >= self._ws_lo, axis=-1) & np.all(hi <= self._ws_hi, axis=-1)
-        out += self._first_per_body(~inside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
+        outside = ~(np.all(lo >= self._ws_lo, axis=-1) & np.all(hi <= self._ws_hi, axis=-1))
+        flagged |= np.any(outside, axis=1)
+        self._first_per_body(found, outside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
 
         # keep-out: bounds that overlap a zone are confirmed exactly with coal
         if len(lim.keep_out):
@@ -382,17 +446,16 @@ class Envelope:
                 overlap[1:, -1] |= np.all(seg_lo[:, None] <= self._ko_hi, axis=-1) & np.all(seg_hi[:, None] >= self._ko_lo, axis=-1)
             if np.any(overlap):
                 confirmed = self._confirm_keep_out(overlap, p0, p1, radius, tcp)
+                flagged |= np.any(confirmed, axis=(1, 2))
                 for zone_index, zone in enumerate(lim.keep_out):
-                    out += self._first_per_body(
-                        confirmed[:, :, zone_index], t_s, p0, Code.KEEP_OUT, f"enters keep-out zone '{zone.name}'"
+                    self._first_per_body(
+                        found, confirmed[:, :, zone_index], t_s, p0, Code.KEEP_OUT, f"enters keep-out zone '{zone.name}'"
                     )
 
         # self-collision: capsule pairs closer than the sum of their inflated radii
         if len(self._pairs):
-            out += self._check_self_collision(t_s, p0, p1, inflation)
-
-        tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
-        return out, tcp_length, robot.tcp_pose(positions[-1]), len(q_s)
+            flagged |= self._check_self_collision(found, t_s, p0, p1, samples.pair_inflation)
+        return found, flagged, tcp
 
     def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, tcp: np.ndarray) -> np.ndarray:
         """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments."""
@@ -407,29 +470,32 @@ class Envelope:
             confirmed[k, body, zone] = hit
         return confirmed
 
-    def _check_self_collision(self, t_s: np.ndarray, p0: np.ndarray, p1: np.ndarray, inflation: np.ndarray) -> list[Violation]:
+    def _check_self_collision(
+        self, found: dict, t_s: np.ndarray, p0: np.ndarray, p1: np.ndarray, pair_inflation: np.ndarray
+    ) -> np.ndarray:
+        """Adds the first self-collision per pair to `found`; returns which samples had one."""
         a, b = self._pairs[:, 0], self._pairs[:, 1]
         # broad phase: bounding spheres of the capsules (centre, half length + radius + inflation)
         centers = (p0[:, :-1] + p1[:, :-1]) / 2.0
         gap = centers[:, a] - centers[:, b]
         center_distance = np.sqrt(np.einsum("npi,npi->np", gap, gap))
-        candidates = center_distance < self._pair_sphere_reach + inflation[:, a] + inflation[:, b]  # (N, P)
+        candidates = center_distance < self._pair_sphere_reach + pair_inflation  # (N, P)
+        flagged = np.zeros(len(t_s), dtype=bool)
         if not np.any(candidates):
-            return []
+            return flagged
         k_idx, pair_idx = np.nonzero(candidates)
         pa, pb = a[pair_idx], b[pair_idx]
         dist = geometry.segment_segment_distance(p0[k_idx, pa], p1[k_idx, pa], p0[k_idx, pb], p1[k_idx, pb])
-        allowed = self._pair_radii[pair_idx] + inflation[k_idx, pa] + inflation[k_idx, pb]
+        allowed = self._pair_radii[pair_idx] + pair_inflation[k_idx, pair_idx]
         touching = dist < allowed
-        out: list[Violation] = []
-        reported: set[int] = set()
+        flagged[k_idx[touching]] = True
         for i in np.flatnonzero(touching):  # sorted by sample, so the first hit per pair comes first
             pair = int(pair_idx[i])
-            if pair in reported:
-                continue
-            reported.add(pair)
             name_a, name_b = self._body_names[a[pair]], self._body_names[b[pair]]
-            out.append(
+            key = (Code.SELF_COLLISION.value, f"{name_a}|{name_b}", "")
+            if key in found:
+                continue
+            found[key] = (
                 Violation(
                     Code.SELF_COLLISION,
                     f"{name_a} and {name_b} come within {dist[i] - self._pair_radii[pair]:.3f} m of each other "
@@ -438,16 +504,64 @@ class Envelope:
                     f"{name_a}|{name_b}",
                 )
             )
-        return out
+        return flagged
 
-    def _first_per_body(self, mask: np.ndarray, t_s: np.ndarray, where: np.ndarray, code: Code, what: str) -> list[Violation]:
-        """One violation per body: the first sample at which `mask` is set."""
-        out = []
+    def _first_per_body(self, found: dict, mask: np.ndarray, t_s: np.ndarray, where: np.ndarray, code: Code, what: str) -> None:
+        """Adds to `found` one violation per body: the first sample at which `mask` is set."""
         for body in np.flatnonzero(np.any(mask, axis=0)):
-            k = int(np.flatnonzero(mask[:, body])[0])
             name = self._body_names[body]
-            out.append(Violation(code, f"{name} {what} near {_fmt(where[k, body])}", float(t_s[k]), name))
-        return out
+            key = (code.value, name, what)
+            if key in found:
+                continue
+            k = int(np.flatnonzero(mask[:, body])[0])
+            found[key] = Violation(code, f"{name} {what} near {_fmt(where[k, body])}", float(t_s[k]), name)
+
+
+@dataclass(frozen=True)
+class _PathParameter:
+    times: np.ndarray
+    positions: np.ndarray
+    cost: np.ndarray  # (K,) cumulative sampling cost at each waypoint
+    body: np.ndarray  # (K, B+1) cumulative per-body motion bound [m]
+    pairs: np.ndarray  # (K, P) cumulative relative-motion bound of each self-collision pair [m]
+
+    @property
+    def total(self) -> float:
+        return float(self.cost[-1])
+
+
+@dataclass(frozen=True)
+class _Samples:
+    times: np.ndarray  # (N,)
+    positions: np.ndarray  # (N, n)
+    inflation: np.ndarray  # (N, B+1) per body [m], the TCP point last
+    pair_inflation: np.ndarray  # (N, P) per self-collision pair [m]
+
+
+def _half_neighbour_bound(cumulative: np.ndarray) -> np.ndarray:
+    """Per sample: half the larger of the bounds of the two intervals next to it."""
+    interval = np.diff(cumulative, axis=0)
+    if not len(interval):
+        return np.zeros_like(cumulative)
+    return np.maximum(np.vstack([interval[:1], interval]), np.vstack([interval, interval[-1:]])) / 2.0
+
+
+def _unit_targets(start: float, end: float, spacing: float = 1.0) -> np.ndarray:
+    """Evenly spaced path-parameter targets from `start` to `end`, at most `spacing` apart."""
+    n_intervals = max(1, int(np.ceil((end - start) / spacing - 1e-12))) if end > start else 1
+    return np.linspace(start, end, n_intervals + 1)
+
+
+def _merged_ranges(targets: np.ndarray, flagged: np.ndarray) -> list[tuple[float, float]]:
+    """Path ranges [target[k-1], target[k+1]] around every flagged sample k, overlaps merged."""
+    ranges: list[tuple[float, float]] = []
+    for k in flagged:
+        start, end = float(targets[max(k - 1, 0)]), float(targets[min(k + 1, len(targets) - 1)])
+        if ranges and start <= ranges[-1][1]:
+            ranges[-1] = (ranges[-1][0], max(ranges[-1][1], end))
+        else:
+            ranges.append((start, end))
+    return ranges
 
 
 def _link_has_many(robot: RobotModel, link: str) -> bool:
