@@ -237,7 +237,7 @@ def _report_server(r: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------------------ e-stop under load
-def bench_estop(cycles: int = 30, load_clients: int = 8) -> dict[str, Any]:
+def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
     import os
     import signal
     import socket
@@ -250,7 +250,6 @@ def bench_estop(cycles: int = 30, load_clients: int = 8) -> dict[str, Any]:
     from mcp import Client
     from mcp.client.streamable_http import streamable_http_client
 
-    from armwarden.safety.audit import read_tail
     from armwarden.transport.tokens import TokenStore
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -329,22 +328,27 @@ def bench_estop(cycles: int = 30, load_clients: int = 8) -> dict[str, Any]:
         finally:
             daemon.send_signal(signal.SIGTERM)
             daemon.wait(timeout=30)
-        records = read_tail(audit_path, 1000)
+        records = [json.loads(line) for line in audit_path.read_text().splitlines() if line.strip()]
     timings = [r["extra"]["stop_timing_ms"] for r in records
-               if r.get("tool") == "estop" and r.get("extra") and "stop_timing_ms" in (r.get("extra") or {})]
+               if r.get("tool") == "estop" and "stop_timing_ms" in (r.get("extra") or {})]
     issued = [t["issued_after_receipt"] / 1e3 for t in timings]
+    still = [t["still_after_receipt"] / 1e3 for t in timings if "still_after_receipt" in t]
     confirmed = [t["confirmed_after_receipt"] / 1e3 for t in timings]
     return {"estops": len(timings), "load_clients": load_clients, "load_calls": load_calls,
-            "issued": _summary(issued), "still": _summary(confirmed)}
+            "issued": _summary(issued), "still": _summary(still), "confirmed": _summary(confirmed)}
 
 
 def _report_estop(r: dict[str, Any]) -> None:
     print(f"## e-stop under load ({r['load_clients']} HTTP clients calling get_robot_state, "
           f"{r['load_calls']} calls served during the run; {r['estops']} e-stops mid-motion)")
-    for label, key in (("request -> backend stop issued", "issued"), ("request -> arm still (stop confirmed)", "still")):
+    for label, key, target in (
+        ("request -> backend stop issued", "issued", 2.0),
+        ("request -> arm still (first 1 kHz control tick holding position)", "still", 2.0),
+        ("request -> stop confirmation back on the event loop", "confirmed", None),
+    ):
         f = r[key]
-        print(f"{label}: {f['median_ms']:.3f} ms median, {f['p95_ms']:.3f} ms p95  "
-              f"(target <= 2 ms p95: {'met' if f['p95_ms'] <= 2 else 'MISSED'})")
+        verdict = "" if target is None else f"  (target <= {target:g} ms p95: {'met' if f['p95_ms'] <= target else 'MISSED'})"
+        print(f"{label}: {f['median_ms']:.3f} ms median, {f['p95_ms']:.3f} ms p95{verdict}")
 
 
 SECTIONS = {

@@ -143,6 +143,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                "tools": assembly.server.tools},
     )
     why = "shutdown"
+    shutdown = anyio.Event()
     try:
         async with anyio.create_task_group() as group:
             async def on_signals() -> None:
@@ -150,6 +151,14 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                 with anyio.open_signal_receiver(signal.SIGTERM, signal.SIGINT) as signals:
                     async for signum in signals:
                         why = f"signal {signal.Signals(signum).name}"
+                        with anyio.CancelScope(shield=True):  # the arm stops first, whatever follows
+                            try:
+                                await assembly.backend.stop()
+                            except Exception as exc:
+                                logger.error("stop on %s failed: %s", why, exc)
+                        if args.transport == "http":
+                            shutdown.set()  # uvicorn drains and returns; in-flight executions stop
+                            return
                         group.cancel_scope.cancel()
                         if args.transport == "stdio":
                             # The SDK reads stdin in a worker thread that cancellation cannot interrupt,
@@ -168,13 +177,13 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                 await assembly.server.mcp.run_stdio_async()
                 why = "end of stdin"
             else:
-                await _serve_http(args, assembly)
+                await _serve_http(args, assembly, shutdown)
             group.cancel_scope.cancel()
     finally:
         await close_assembly(assembly, why)
 
 
-async def _serve_http(args: argparse.Namespace, assembly: Assembly) -> None:
+async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: anyio.Event) -> None:
     from armwarden.transport.http import build_http_app, serve_http
     from armwarden.transport.tokens import TokenStore
 
@@ -185,7 +194,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly) -> None:
         return {"status": "ok", "estopped": status.estopped, "executing": assembly.guard.motion_status().executing}
 
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens, health=health)
-    await serve_http(app, args.host, args.port)
+    await serve_http(app, args.host, args.port, shutdown=shutdown)
 
 
 def serve_command(args: argparse.Namespace) -> int:

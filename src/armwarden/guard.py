@@ -640,10 +640,14 @@ class Guard:
         finally:
             record = current_call()
             if record is not None:
-                record.extra["stop_timing_ms"] = {
+                timing = {
                     "issued_after_receipt": round((issued - record.received_mono) * 1e3, 4),
                     "confirmed_after_receipt": round((time.monotonic() - record.received_mono) * 1e3, 4),
                 }
+                still = getattr(self.backend, "last_stop_latency_s", None)
+                if isinstance(still, float):
+                    timing["still_after_receipt"] = round((issued - record.received_mono + still) * 1e3, 4)
+                record.extra["stop_timing_ms"] = timing
 
     def precheck_reset(self, can_elicit: bool) -> ServerDecision | Prompt:
         event = self.latch.current_event

@@ -126,6 +126,9 @@ class Backend(abc.ABC):
 
     def __init__(self, joint_names: Sequence[str]) -> None:
         self.joint_names = tuple(joint_names)
+        #: time from the last stop request to the first control tick that held position [s], for
+        #: backends that can tell (the fake and CAN servo loops); None otherwise
+        self.last_stop_latency_s: float | None = None
         self._opened = False
         self._closed = False
 
