@@ -218,6 +218,22 @@ def bench_server(repeats: int = 200) -> dict[str, Any]:
                 return _summary(await _timed_calls(client, "get_robot_state", lambda i: {}, repeats))
 
         results["get_robot_state_stdio"] = anyio.run(over_stdio)
+
+        # the SDK's own floor on this machine, in the same run: a trivial structured tool
+        sys.path.insert(0, str(Path(__file__).resolve().parent / "_bench"))
+        import trivial_server
+
+        async def floor_in_memory() -> dict[str, float]:
+            async with Client(trivial_server.build()) as client:
+                return _summary(await _timed_calls(client, "trivial", lambda i: {}, repeats))
+
+        async def floor_stdio() -> dict[str, float]:
+            params = StdioServerParameters(command=sys.executable, args=[trivial_server.__file__])
+            async with Client(params) as client:
+                return _summary(await _timed_calls(client, "trivial", lambda i: {}, repeats))
+
+        results["sdk_floor_in_memory"] = anyio.run(floor_in_memory)
+        results["sdk_floor_stdio"] = anyio.run(floor_stdio)
     return results
 
 
@@ -234,6 +250,8 @@ def _report_server(r: dict[str, Any]) -> None:
     line("get_robot_state over stdio", "get_robot_state_stdio", 1.5)
     line("get_robot_state, in memory, audit log off", "get_robot_state_in_memory_no_audit")
     print(f"audit log cost per call (hash chain + fsync on a worker thread): {r['audit_overhead_per_call_ms']:.2f} ms")
+    line("SDK floor: trivial structured tool, in memory", "sdk_floor_in_memory")
+    line("SDK floor: trivial structured tool, over stdio", "sdk_floor_stdio")
 
 
 # ------------------------------------------------------------------------------------ e-stop under load
@@ -359,6 +377,11 @@ SECTIONS = {
 
 
 def main() -> int:
+    import logging
+
+    logging.basicConfig(level=logging.WARNING)  # the HTTP client logs every request at INFO
+    for noisy in ("httpx", "httpx2", "mcp", "armwarden"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sections", nargs="*", help=f"any of {', '.join(SECTIONS)} (default: all)")
     parser.add_argument("--json", default=None, help="write the raw figures to this file")

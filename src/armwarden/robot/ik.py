@@ -7,7 +7,7 @@ residual, never an exception: the planner turns it into an `IK_FAILED` violation
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,12 +63,12 @@ class IkSolver:
     ) -> IkResult:
         """Solve from each seed in turn (then random seeds); the first converged solution wins."""
         opts = self.options
-        candidates = [np.asarray(s, dtype=float) for s in seeds]
-        rng = np.random.default_rng(opts.rng_seed)  # same seeds every call: planning is deterministic
-        candidates += [rng.uniform(self._lower, self._upper) for _ in range(opts.random_seeds)]
+        position = np.asarray(target_position, dtype=float)
         best: IkResult | None = None
-        for seed in candidates:
-            result = self.solve_from(np.asarray(target_position, dtype=float), target_rotation, seed)
+        tried = 0
+        for seed in self._candidates(seeds):
+            tried += 1
+            result = self.solve_from(position, target_rotation, seed)
             if result.success:
                 return result
             if best is None or result.position_error_m < best.position_error_m:
@@ -80,9 +80,18 @@ class IkSolver:
             best.position_error_m,
             best.orientation_error_rad,
             best.iterations,
-            f"no IK solution within tolerance from {len(candidates)} seeds: best residual "
+            f"no IK solution within tolerance from {tried} seeds: best residual "
             f"{best.position_error_m * 1000:.2f} mm, {np.degrees(best.orientation_error_rad):.2f} deg",
         )
+
+    def _candidates(self, seeds: Sequence[np.ndarray]) -> Iterator[np.ndarray]:
+        """The given seeds, then random ones — drawn only if needed, the same ones every call."""
+        for seed in seeds:
+            yield np.asarray(seed, dtype=float)
+        rng = np.random.default_rng(self.options.rng_seed)
+        lower, upper = self._lower, self._upper
+        for _ in range(self.options.random_seeds):
+            yield rng.uniform(lower, upper)
 
     def solve_from(self, position: np.ndarray, rotation: np.ndarray | None, seed: np.ndarray) -> IkResult:
         """Solve from one seed only (Cartesian steps stay on the branch of the previous step)."""
