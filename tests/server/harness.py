@@ -1,7 +1,7 @@
 """An in-memory ArmWarden for end-to-end tests through the official MCP SDK client.
 
 `ArmHarness` builds the real Guard and server on the fake backend, wrapped in a
-`CountingBackend` that counts every actuation command that reaches it — the proof that a
+`CountingBackend` (armwarden.backends.counting) that counts every actuation command that reaches it — the proof that a
 refusal moved nothing. Tests talk to it only through `mcp.Client`, in either protocol mode.
 """
 
@@ -15,7 +15,7 @@ from typing import Any
 import mcp_types as types
 from mcp import Client
 
-from armwarden.backends.base import Backend
+from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import FakeBackend
 from armwarden.cli import bundled_policy
 from armwarden.guard import Guard
@@ -26,37 +26,8 @@ from armwarden.safety.audit import AuditLog
 from armwarden.server.app import ArmWardenServer
 
 MODES = ("legacy", "2026-07-28")
-ACTUATING_METHODS = (
-    "execute", "gripper_move", "gripper_grasp", "gripper_home", "switch_controllers",
-    "set_collision_thresholds", "error_recovery",
-)
 
 ElicitationCallback = Callable[[Any, types.ElicitRequestParams], Awaitable[types.ElicitResult]]
-
-
-class CountingBackend:
-    """Wraps a backend: every actuating call is counted (and recorded) before it is forwarded."""
-
-    def __init__(self, inner: Backend) -> None:
-        self._inner = inner
-        self.actuations: list[str] = []
-        self.stops = 0
-
-    def __getattr__(self, name: str) -> Any:
-        attribute = getattr(self._inner, name)
-        if name in ACTUATING_METHODS:
-            async def counted(*args: Any, **kwargs: Any) -> Any:
-                self.actuations.append(name)
-                return await attribute(*args, **kwargs)
-
-            return counted
-        if name == "stop":
-            async def stop() -> None:
-                self.stops += 1
-                await attribute()
-
-            return stop
-        return attribute
 
 
 def approve(operator: str = "test-operator") -> ElicitationCallback:

@@ -133,6 +133,10 @@ def session(daemon: Daemon, token: str | None, mode: str, elicitation=None) -> t
     return http, Client(streamable_http_client(daemon.url, http_client=http), mode=mode, elicitation_callback=elicitation)
 
 
+if sys.version_info < (3, 11):  # pragma: no cover - the backport anyio installs on 3.10
+    from exceptiongroup import BaseExceptionGroup
+
+
 def leaves(error: BaseException) -> list[BaseException]:
     if isinstance(error, BaseExceptionGroup):
         return [leaf for inner in error.exceptions for leaf in leaves(inner)]

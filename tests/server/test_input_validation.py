@@ -16,7 +16,6 @@ Two SDK behaviours shape the generators:
 from __future__ import annotations
 
 import json
-import math
 import tempfile
 from pathlib import Path
 from typing import Any

@@ -62,7 +62,6 @@ class IkSolver:
         seeds: Sequence[np.ndarray],
     ) -> IkResult:
         """Solve from each seed in turn (then random seeds); the first converged solution wins."""
-        opts = self.options
         position = np.asarray(target_position, dtype=float)
         best: IkResult | None = None
         tried = 0
