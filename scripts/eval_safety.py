@@ -30,7 +30,7 @@ from armwarden.backends.counting import CountingBackend  # noqa: E402
 from armwarden.backends.fake import FakeBackend  # noqa: E402
 from armwarden.cli import bundled_policy  # noqa: E402
 from armwarden.guard import Guard  # noqa: E402
-from armwarden.policy import Policy, parse_policy  # noqa: E402
+from armwarden.policy import Policy, apply_overrides, parse_policy  # noqa: E402
 from armwarden.preflight import load_runtime_model  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402
 from armwarden.safety.audit import AuditLog, verify_file  # noqa: E402
@@ -41,14 +41,8 @@ READY = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
 
 def _policy(**overrides: Any) -> Policy:
     document = yaml.safe_load(bundled_policy("fr3").read_text())
-    document["rate_limits"] = {"global_per_minute": 100000, "default_per_minute": 100000, "per_tool": {}}
-    for dotted, value in overrides.items():
-        node = document
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node[key]
-        node[leaf] = value
-    return parse_policy(document, source="eval")
+    unlimited = {"rate_limits": {"global_per_minute": 100000, "default_per_minute": 100000, "per_tool": {}}}
+    return parse_policy(apply_overrides(document, unlimited | overrides), source="eval")
 
 
 async def _approve(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:

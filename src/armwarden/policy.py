@@ -22,6 +22,7 @@ Public API: :func:`load_policy`, :func:`parse_policy`, :class:`Policy` (and its 
 
 from __future__ import annotations
 
+import copy
 import difflib
 import math
 import os
@@ -803,6 +804,22 @@ def load_policy(path: str | os.PathLike[str]) -> Policy:
     except yaml.YAMLError as exc:
         raise PolicyError(source, [(DOCUMENT_PATH, _yaml_error_message(exc))]) from exc
     return parse_policy(document, source=source, base_dir=path.resolve().parent)
+
+
+def apply_overrides(document: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """A deep copy of a policy document with dotted keys replaced, e.g. `{"approval.mode": "always"}`.
+
+    For tests, benchmarks and evaluations that need a variant of a shipped policy; the result is
+    validated like any policy when parsed.
+    """
+    result = copy.deepcopy(dict(document))
+    for dotted, value in overrides.items():
+        node = result
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node[key]
+        node[leaf] = value
+    return result
 
 
 def parse_policy(

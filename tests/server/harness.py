@@ -19,7 +19,7 @@ from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import FakeBackend
 from armwarden.cli import bundled_policy
 from armwarden.guard import Guard
-from armwarden.policy import Policy, load_policy, parse_policy
+from armwarden.policy import Policy, apply_overrides, load_policy, parse_policy
 from armwarden.preflight import load_runtime_model
 from armwarden.robot import build_robot
 from armwarden.safety.audit import AuditLog
@@ -53,13 +53,7 @@ def policy_with(**overrides: Any) -> Policy:
     import yaml
 
     document = yaml.safe_load(bundled_policy("fr3").read_text())
-    for dotted, value in overrides.items():
-        node = document
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node[key]
-        node[leaf] = value
-    return parse_policy(document, source="test")
+    return parse_policy(apply_overrides(document, overrides), source="test")
 
 
 class ArmHarness:

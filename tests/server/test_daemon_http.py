@@ -22,12 +22,12 @@ from typing import Any
 
 import anyio
 import httpx2
-import mcp_types as types
 import pytest
 from mcp import Client, MCPError
 from mcp.client.streamable_http import streamable_http_client
 
 from tests.server.harness import MODES
+from tests.server.harness import approve as approving
 
 REPO = Path(__file__).resolve().parents[2]
 SRC = REPO / "src"
@@ -113,17 +113,6 @@ def daemon(tmp_path_factory) -> Iterator[Daemon]:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
-
-
-def approving(operator: str):
-    prompts: list[str] = []
-
-    async def on_elicit(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
-        prompts.append(params.message)
-        return types.ElicitResult(action="accept", content={"approve": True, "operator": operator})
-
-    on_elicit.prompts = prompts  # type: ignore[attr-defined]
-    return on_elicit
 
 
 def session(daemon: Daemon, token: str | None, mode: str, elicitation=None) -> tuple[httpx2.AsyncClient, Client]:

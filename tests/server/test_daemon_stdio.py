@@ -18,11 +18,11 @@ from pathlib import Path
 from typing import Any
 
 import anyio
-import mcp_types as types
 import pytest
 from mcp import Client, StdioServerParameters
 
 from tests.server.harness import MODES
+from tests.server.harness import approve as approving
 
 REPO = Path(__file__).resolve().parents[2]
 SRC = REPO / "src"
@@ -65,17 +65,6 @@ async def wait_for_record(path: Path, predicate, timeout: float = 10.0) -> list[
                 if any(predicate(r) for r in records):
                     return records
             await anyio.sleep(0.05)
-
-
-def approving(operator: str):
-    prompts: list[str] = []
-
-    async def on_elicit(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
-        prompts.append(params.message)
-        return types.ElicitResult(action="accept", content={"approve": True, "operator": operator})
-
-    on_elicit.prompts = prompts  # type: ignore[attr-defined]
-    return on_elicit
 
 
 def text_of(result) -> str:
