@@ -5,7 +5,7 @@ from __future__ import annotations
 import anyio
 import pytest
 
-from armwarden.safety.audit import verify_file
+from armwarden.safety.audit import read_tail, verify_file
 from tests.server.harness import MODES, approve, arm_harness
 
 
@@ -22,5 +22,26 @@ def test_plan_then_execute_moves_once_and_a_replay_is_refused(tmp_path, mode) ->
             assert again.is_error and "USED_PLAN" in again.content[0].text
             assert arm.actuations == ["execute"]
         assert verify_file(arm.audit_path).ok
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_an_unexpected_failure_is_an_error_result_and_the_server_keeps_serving(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path) as arm, arm.client(mode) as client:
+            async def broken() -> None:
+                raise RuntimeError("simulated bug with secret internals")
+
+            arm.guard.robot_state = broken  # type: ignore[method-assign]
+            result = await client.call_tool("get_robot_state", {})
+            assert result.is_error and "INTERNAL_ERROR" in result.content[0].text
+            assert "secret internals" not in result.content[0].text
+            status = await client.call_tool("get_safety_status", {})
+            assert not status.is_error
+            assert arm.actuations == []
+        records = read_tail(arm.audit_path, 10)
+        failed = [r for r in records if r.get("tool") == "get_robot_state"]
+        assert failed and failed[-1]["outcome"] == "refused" and failed[-1]["extra"]["code"] == "INTERNAL_ERROR"
 
     anyio.run(scenario)

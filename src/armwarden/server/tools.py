@@ -12,6 +12,7 @@ once and does all the consuming, moving and recording.
 """
 
 
+import logging
 from collections.abc import Awaitable, Callable
 from typing import Annotated, Any
 
@@ -46,6 +47,8 @@ from armwarden.results import (
 )
 from armwarden.safety.approval import ApprovalForm, ServerDecision, approval_code, compose_prompt
 from armwarden.server.calls import current_call, mark_body_ran, ok, refused
+
+logger = logging.getLogger(__name__)
 
 Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 Name = Annotated[str, Field(min_length=1, max_length=128)]
@@ -145,12 +148,23 @@ class ToolBuilder:
         self.registered.append(fn.__name__)
 
     def _run(self, tool: str, body: Callable[[], Awaitable[CallToolResult]]) -> Awaitable[CallToolResult]:
+        """The one error boundary of every tool: refusals become `isError` results that say why;
+        an unexpected failure is logged with its traceback and answered without internals."""
+
         async def call() -> CallToolResult:
             mark_body_ran()
             try:
                 return await body()
             except SafetyRefusal as exc:
+                logger.info("%s refused [%s]: %s", tool, exc.code, exc)
                 return refused(exc)
+            except Exception:
+                logger.exception("%s failed unexpectedly", tool)
+                return refused(SafetyRefusal(
+                    "INTERNAL_ERROR",
+                    f"{tool} failed inside the server (see its log); nothing further was done. If the arm "
+                    "moved, call stop_motion; a human should check the robot.",
+                ))
 
         return call()
 
