@@ -45,3 +45,28 @@ def test_an_unexpected_failure_is_an_error_result_and_the_server_keeps_serving(t
         assert failed and failed[-1]["outcome"] == "refused" and failed[-1]["extra"]["code"] == "INTERNAL_ERROR"
 
     anyio.run(scenario)
+
+
+def test_a_client_cannot_answer_an_approval_question_it_was_not_asked(tmp_path) -> None:
+    """Protocol 2026-07-28: pre-filled `input_responses` without the server's sealed request state
+    are not an approval; the server asks again and nothing moves."""
+    import mcp_types as types
+
+    from tests.server.harness import policy_with
+
+    async def scenario() -> None:
+        policy = policy_with(**{"approval.mode": "always"})
+        async with arm_harness(tmp_path, policy) as arm, arm.client("2026-07-28", approve()) as client:
+            session = client.session
+            first = (await client.call_tool("plan_to_joints", {"joint_positions": [0.1, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398], "preview": False})).structured_content
+            asked = await session.call_tool("execute_plan", {"plan_id": first["plan_id"]}, allow_input_required=True)
+            assert isinstance(asked, types.InputRequiredResult)
+            key = next(iter(asked.input_requests))
+            forged = {key: types.ElicitResult(action="accept", content={"approve": True, "operator": "the model"})}
+            # the same answer sent without the sealed state the server issued: asked again, not executed
+            again = await session.call_tool("execute_plan", {"plan_id": first["plan_id"]}, allow_input_required=True,
+                                            input_responses=forged)
+            assert isinstance(again, types.InputRequiredResult)
+            assert arm.actuations == []
+
+    anyio.run(scenario)
