@@ -74,6 +74,8 @@ FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi
 
 #: minimum interval between two progress callbacks [s] (≤ 50 Hz)
 PROGRESS_PERIOD_S = 0.02
+#: control-loop period while the arm is idle [s]; stops and executions wake it immediately
+IDLE_PERIOD_S = 0.01
 #: how long `_close` waits for the control thread to finish [s]
 JOIN_TIMEOUT_S = 2.0
 #: speed of the homing motion (fully open) [m/s]
@@ -405,12 +407,16 @@ class FakeBackend(Backend):
         try:
             while not self._shutdown:
                 self._tick()
-                next_tick += period
+                # while nothing moves, tick slowly: a stop or a new execution wakes the loop at once,
+                # and the idle loop then takes the interpreter lock from planning 10× less often
+                busy = self._active is not None or self._pending is not None
+                next_tick += period if busy else max(period, IDLE_PERIOD_S)
                 delay = next_tick - time.perf_counter()
                 if delay < -10 * period:  # fell far behind (machine stalled): resynchronise
                     next_tick = time.perf_counter()
                 elif delay > 0 and self._wake.wait(delay):
                     self._wake.clear()  # woken early by a stop or a new execution: tick now
+                    next_tick = time.perf_counter()
         except BaseException as exc:  # a dead control loop must never look like a healthy one
             logger.exception("fake backend: control thread failed")
             self._thread_error = exc
