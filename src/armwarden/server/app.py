@@ -126,6 +126,9 @@ class ArmWardenServer:
         return CallToolResult(content=[TextContent(type="text", text=text)], is_error=True)
 
     def _classify(self, record: CallRecord, result: Any) -> None:
+        if isinstance(result, dict) and "content" in result and not result.get("isError") and "inputRequests" not in result:
+            self._note_success(record, result.get("structuredContent"))  # the common case, read off the wire dict
+            return
         result = _as_model(result)
         if isinstance(result, InputRequiredResult):
             record.outcome = "input_required"
@@ -140,15 +143,22 @@ class ArmWardenServer:
                 record.detail = _text_of(result)
                 if not record.body_ran and record.tool in ALL_TOOLS:
                     self.guard.limiter.try_acquire(record.tool)  # floods of invalid calls still cost tokens
-            elif record.outcome is None:
-                record.outcome = "ok"
-            if result.structured_content is not None and record.tool not in _UNRECORDED_RESULTS:
-                record.extra["result"] = result.structured_content  # keep what the body noted (approval, timings)
-                approval = result.structured_content.get("approval") if isinstance(result.structured_content, dict) else None
-                if isinstance(approval, dict):
-                    record.operator = approval.get("operator")
+                if result.structured_content is not None and record.tool not in _UNRECORDED_RESULTS:
+                    record.extra["result"] = result.structured_content
+            else:
+                self._note_success(record, result.structured_content)
         elif isinstance(result, dict) and "isError" in result:
             record.outcome = record.outcome or ("error" if result.get("isError") else "ok")
+
+    @staticmethod
+    def _note_success(record: CallRecord, structured: Any) -> None:
+        if record.outcome is None:
+            record.outcome = "ok"
+        if structured is not None and record.tool not in _UNRECORDED_RESULTS:
+            record.extra["result"] = structured  # keeps what the body noted too (approval, timings)
+            approval = structured.get("approval") if isinstance(structured, dict) else None
+            if isinstance(approval, dict):
+                record.operator = approval.get("operator")
 
     async def _audit(self, record: CallRecord) -> None:
         audit = self.guard.audit
