@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -547,3 +548,43 @@ def test_a_failed_write_makes_the_log_refuse_further_appends(tmp_path: Path, mon
     with pytest.raises(AuditWriteError, match="unusable"):  # fail closed: never write past a hole
         log.append("tool_call")
     log.close()
+
+
+def test_concurrent_async_appends_share_fsyncs_and_keep_the_chain(tmp_path: Path) -> None:
+    path = tmp_path / "audit.jsonl"
+
+    async def scenario() -> None:
+        with AuditLog(path) as log:
+            async with anyio.create_task_group() as group:
+                for i in range(60):
+                    group.start_soon(functools.partial(log.append_async, "tool_call", arguments={"i": i}))
+
+    anyio.run(scenario)
+    report = verify_file(path)
+    assert report.ok and report.records == 60
+
+
+def test_a_failed_group_fsync_fails_every_caller_of_the_batch(tmp_path: Path, monkeypatch) -> None:
+    path = tmp_path / "audit.jsonl"
+    errors: list[BaseException] = []
+
+    async def scenario() -> None:
+        with AuditLog(path) as log:
+            def broken_fsync(fd: int) -> None:
+                raise OSError(5, "simulated I/O error")
+
+            monkeypatch.setattr("armwarden.safety.audit.os.fsync", broken_fsync)
+
+            async def one(i: int) -> None:
+                try:
+                    await log.append_async("tool_call", arguments={"i": i})
+                except AuditWriteError as exc:
+                    errors.append(exc)
+
+            async with anyio.create_task_group() as group:
+                for i in range(5):
+                    group.start_soon(one, i)
+            monkeypatch.undo()
+
+    anyio.run(scenario)
+    assert len(errors) == 5

@@ -224,8 +224,12 @@ def test_sigterm_mid_motion_stops_the_arm_and_the_stdio_daemon_exits_with_a_shut
     records = records_of(audit)
     events = [r["event"] for r in records]
     assert events[0] == "startup"
-    assert "execution_interrupted" in events
-    assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
+    # the daemon stops the arm as soon as the signal arrives, and cancels the call in flight: the
+    # execution is recorded either as interrupted (the cancellation won) or as stopped short of its goal
+    execution = [r for r in records if r["tool"] == "execute_plan"]
+    interrupted = "execution_interrupted" in events and any(r["outcome"] == "cancelled" for r in execution)
+    stopped_short = any(((r.get("extra") or {}).get("result") or {}).get("status") == "aborted" for r in execution)
+    assert interrupted or stopped_short, execution
     assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "signal SIGTERM"
     verdict = subprocess.run([*CLI, "audit", "verify", str(audit)], cwd=REPO, env=child_env(),
                              capture_output=True, text=True, timeout=60)
