@@ -40,7 +40,9 @@ def wrench_model(wrench: Wrench | None) -> WrenchModel | None:
 
 
 def iso_utc(wall_time: float) -> str:
-    return _dt.datetime.fromtimestamp(wall_time, tz=_dt.timezone.utc).isoformat(timespec="milliseconds")
+    """ISO 8601 UTC with milliseconds and a `Z`, the one time format of every result."""
+    stamp = _dt.datetime.fromtimestamp(wall_time, tz=_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return stamp.replace("+00:00", "Z")
 
 
 def estop_info(event: EStopEvent | None) -> EStopInfo | None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import anyio
@@ -103,7 +103,6 @@ class Prompt:
 class _Execution:
     plan_id: str
     progress: float = 0.0
-    started_mono: float = field(default_factory=time.monotonic)
 
 
 def refuse(code: str, message: str) -> SafetyRefusal:

@@ -191,7 +191,6 @@ class RobotModel:
     def _build_batch_tables(self) -> None:
         """Index tables so a batch of configurations maps to capsule end points in a few numpy ops."""
         joints = sorted({c.joint_index for c in self.capsules} | {self._tcp_joint})
-        self._batch_joints = joints
         self._joint_refs = [self.data.oMi[j] for j in joints]  # live references into Data
         slot = {j: k for k, j in enumerate(joints)}
         self._capsule_slot = np.array([slot[c.joint_index] for c in self.capsules], dtype=np.intp)

@@ -22,7 +22,7 @@ nothing can slip through a zone between samples, however thin the zone or fast t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -105,7 +105,6 @@ class EnvelopeReport:
     tcp_path_length_m: float = 0.0
     final_tcp_pose: Pose | None = None
     samples_checked: int = 0
-    notes: tuple[str, ...] = field(default_factory=tuple)
 
     @property
     def hard(self) -> tuple[Violation, ...]:
@@ -428,11 +427,10 @@ class Envelope:
         flagged = np.zeros(len(t_s), dtype=bool)
 
         # axis-aligned bounds of every padded, inflated capsule: the broad phase for everything below
-        lo = np.minimum(p0, p1) - radius[..., None]
-        hi = np.maximum(p0, p1) + radius[..., None]
+        lo, hi = geometry.capsule_bounds(p0, p1, radius)
 
         # workspace: every capsule and the TCP entirely inside the box (exact for capsules)
-        outside = ~(np.all(lo >= self._ws_lo, axis=-1) & np.all(hi <= self._ws_hi, axis=-1))
+        outside = ~geometry.bounds_inside(lo, hi, self._ws_lo, self._ws_hi)
         flagged |= np.any(outside, axis=1)
         self._first_per_body(found, outside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
 

@@ -14,16 +14,25 @@ import numpy as np
 _EPS = 1e-12
 
 
+def capsule_bounds(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds (lo, hi) of each capsule (segment p0–p1 swept by a ball of `radius`)."""
+    r = radius[..., None]
+    return np.minimum(p0, p1) - r, np.maximum(p0, p1) + r
+
+
+def bounds_inside(lo: np.ndarray, hi: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """Whether each bounds [lo, hi] lies entirely inside the box [box_lo, box_hi]."""
+    return np.all(lo >= box_lo, axis=-1) & np.all(hi <= box_hi, axis=-1)
+
+
 def capsules_inside_box(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Whether each capsule lies entirely inside the box [lo, hi].
 
     Exact: a capsule (segment ⊕ ball r) is inside a box iff the segment is inside the box shrunk
-    by r, and a segment is inside a convex set iff both end points are.
+    by r, and a segment is inside a convex set iff both end points are — which is exactly the
+    capsule's axis-aligned bounds lying inside the box.
     """
-    r = radius[..., None]
-    low = np.minimum(p0, p1) - r
-    high = np.maximum(p0, p1) + r
-    return np.all(low >= lo, axis=-1) & np.all(high <= hi, axis=-1)
+    return bounds_inside(*capsule_bounds(p0, p1, radius), lo, hi)
 
 
 def segments_hit_boxes(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -22,12 +22,12 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from types import MappingProxyType
 from typing import Any, Literal, TypeGuard
 
 import numpy as np
 
+from armwarden.conversions import iso_utc
 from armwarden.errors import ConfigurationError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.safety.envelope import EnvelopeReport
@@ -91,10 +91,6 @@ def _start_of(trajectory: JointTrajectory) -> np.ndarray:
     start.setflags(write=False)
     return start
 
-
-def _iso_utc(wall_time: float) -> str:
-    stamp = datetime.fromtimestamp(wall_time, tz=timezone.utc).isoformat(timespec="milliseconds")
-    return stamp.replace("+00:00", "Z")
 
 
 def _is_plausible_id(plan_id: object) -> TypeGuard[str]:
@@ -177,7 +173,7 @@ class PlanStore:
             digest=trajectory.digest,
             created_mono=now,
             expires_mono=now + self.ttl_s,
-            expires_at_wall=_iso_utc(self._wall_clock() + self.ttl_s),
+            expires_at_wall=iso_utc(self._wall_clock() + self.ttl_s),
             estop_generation=estop_generation,
             meta=MappingProxyType(dict(meta or {})),
         )

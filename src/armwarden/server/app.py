@@ -57,8 +57,9 @@ class ArmWardenServer:
     def __init__(self, guard: Guard, *, name: str = "armwarden") -> None:
         self.guard = guard
         self.mcp = MCPServer(name, instructions=INSTRUCTIONS, version=__version__)
-        self.tools = ToolBuilder(self.mcp, guard).build()
-        self.group_of = ToolBuilder(self.mcp, guard).group_of
+        builder = ToolBuilder(self.mcp, guard)
+        self.tools = builder.build()
+        self.group_of = builder.group_of
         self._sessions = SessionNames()
         self._declared: dict[str, frozenset[str]] | None = None  # tool -> argument names, built on first call
         self.mcp.middleware.append(self._middleware)

@@ -557,7 +557,10 @@ class ToolBuilder:
                      "while the e-stop is latched.", RELEASING)
 
         async def get_safety_status() -> Annotated[CallToolResult, SafetyStatus]:
-            return await run("get_safety_status", lambda: _ok_of(_immediate(guard.safety_status())))
+            async def body() -> CallToolResult:
+                return ok(guard.safety_status())
+
+            return await run("get_safety_status", body)
 
         self.add(get_safety_status, "E-stop state and event, latched force violation, dry-run flag, the last envelope "
                  "violation and backend faults. Never rate limited.", READ_ONLY_LOCAL)
@@ -602,10 +605,6 @@ async def _admitted(guard: Guard, tool: str, fn: Callable[[], Awaitable[BaseMode
 
 async def _ok_of(awaitable: Awaitable[BaseModel]) -> CallToolResult:
     return ok(await awaitable)
-
-
-async def _immediate(value: BaseModel) -> BaseModel:
-    return value
 
 
 __all__ = ["ToolBuilder", "can_elicit", "TextContent"]
