@@ -160,7 +160,7 @@ def test_stop_mid_motion_halts_at_once_and_the_arm_stays_still():
     assert not np.allclose(later.positions, Q_REACH)
 
 
-def test_stop_records_its_latency_to_the_first_still_tick():
+def test_stop_holds_the_arm_before_it_returns_and_records_when():
     async def scenario(backend: FakeBackend):
         assert backend.last_stop_latency_s is None
         task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
@@ -168,12 +168,45 @@ def test_stop_records_its_latency_to_the_first_still_tick():
         requested = time.monotonic()
         await backend.stop()
         returned = time.monotonic()
-        await task
-        return requested, returned, backend.last_stop_latency_s, backend.last_stop_stamp
+        held = await backend.read_joint_state()  # no await in between: the hold is already published
+        return requested, returned, held, backend.last_stop_latency_s, backend.last_stop_stamp, await task
 
-    requested, returned, latency_s, stamp = run_with_backend(scenario)
-    assert 0.0 <= latency_s < 0.1  # one tick (≤ 1 ms) on an idle machine; generous for a loaded one
-    assert requested <= stamp <= returned  # stop() returns once the thread has confirmed the hold
+    requested, returned, held, latency_s, stamp, result = run_with_backend(scenario)
+    assert requested <= stamp <= returned
+    assert 0.0 <= latency_s <= returned - requested
+    assert held.stamp == stamp and np.all(held.velocities == 0.0)
+    assert np.array_equal(result.final_positions, held.positions)
+
+
+def test_stop_does_not_wait_for_a_starved_control_thread_and_its_late_step_is_dropped():
+    # the control thread is stuck in the middle of a step (as when it waits for the interpreter
+    # lock under load): the stop still holds the arm at once, and the step computed before the stop
+    # is never published afterwards
+    async def scenario(backend: FakeBackend):
+        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
+        await wait_until(await has_moved(backend))
+        entered, release = threading.Event(), threading.Event()
+        compute_tcp = backend._compute_tcp
+
+        def stalled_compute_tcp(q):
+            entered.set()
+            release.wait(5.0)
+            return compute_tcp(q)
+
+        backend._compute_tcp = stalled_compute_tcp
+        assert await asyncio.to_thread(entered.wait, 5.0)
+        await backend.stop()
+        held = await backend.read_joint_state()
+        release.set()
+        await asyncio.sleep(0.05)  # the stalled step finishes and later ticks run
+        backend._compute_tcp = compute_tcp
+        later = await backend.read_joint_state()
+        return held, later, await task
+
+    held, later, result = run_with_backend(scenario)
+    assert result.reason == "stopped"
+    assert np.array_equal(held.positions, later.positions)
+    assert np.all(later.velocities == 0.0) and later.stamp > held.stamp
 
 
 def test_stop_issued_as_the_execution_is_handed_over_is_never_lost():
@@ -451,6 +484,24 @@ def test_actuation_commands_count_every_call_that_could_move_something():
         return counts
 
     assert run_with_backend(scenario, speedup=10.0) == [0, 0, 7, 8]
+
+
+def test_state_read_right_after_open_is_a_sample_of_the_running_control_loop():
+    # a daemon builds the backend, then spends a while loading models before opening it: the first
+    # read after open() must not be the (stale) sample taken at construction
+    async def scenario():
+        backend = FakeBackend()
+        constructed = time.monotonic()
+        time.sleep(0.2)
+        opened = time.monotonic()
+        await backend.open()
+        try:
+            return constructed, opened, (await backend.read_joint_state()).stamp
+        finally:
+            await backend.close()
+
+    constructed, opened, stamp = asyncio.run(scenario())
+    assert stamp >= opened > constructed
 
 
 def test_close_is_idempotent_joins_the_thread_and_refuses_further_calls():

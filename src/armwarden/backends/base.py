@@ -13,6 +13,10 @@ Rules every backend follows:
   awaiting task is cancelled.
 - Blocking work (hardware I/O, simulation stepping) lives on the backend's own thread; results
   cross into asyncio with `loop.call_soon_threadsafe`.
+- A backend whose thread publishes every new sample (a servo loop, a receive thread, a topic
+  subscription) answers `_latest_joint_state` / `_latest_wrench` from that snapshot without
+  awaiting anything; the template then skips the read deadline, which costs more than the read.
+  Freshness is never assumed: every sample carries its stamp and the Guard refuses stale ones.
 """
 
 from __future__ import annotations
@@ -126,7 +130,7 @@ class Backend(abc.ABC):
 
     def __init__(self, joint_names: Sequence[str]) -> None:
         self.joint_names = tuple(joint_names)
-        #: time from the last stop request to the first control tick that held position [s], for
+        #: time from the last stop request to the moment the backend stopped commanding motion [s],
         #: backends that can tell (the fake and CAN servo loops); None otherwise
         self.last_stop_latency_s: float | None = None
         self._opened = False
@@ -172,6 +176,9 @@ class Backend(abc.ABC):
     # ---------------------------------------------------------------- state
     async def read_joint_state(self) -> JointState:
         self._require_open()
+        published = self._latest_joint_state()
+        if published is not None:
+            return published
         with anyio.fail_after(self.read_timeout_s):
             return await self._read_joint_state()
 
@@ -180,6 +187,9 @@ class Backend(abc.ABC):
         self._require_open()
         if not self.capabilities.wrench:
             return None
+        published = self._latest_wrench()
+        if published is not None:
+            return published
         with anyio.fail_after(self.read_timeout_s):
             return await self._read_wrench()
 
@@ -268,6 +278,15 @@ class Backend(abc.ABC):
 
     @abc.abstractmethod
     async def _read_joint_state(self) -> JointState: ...
+
+    def _latest_joint_state(self) -> JointState | None:
+        """The newest published sample, without waiting (may raise BackendError); None = ask
+        `_read_joint_state` under the read deadline."""
+        return None
+
+    def _latest_wrench(self) -> Wrench | None:
+        """Like `_latest_joint_state`, for the wrench estimate."""
+        return None
 
     async def _read_wrench(self) -> Wrench | None:
         return None

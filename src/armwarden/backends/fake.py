@@ -5,14 +5,15 @@ The arm is kinematic: on its own daemon thread a control loop ticks every `contr
 interpolation the envelope checked, so the final positions equal the goal exactly. Everything
 that crosses from that thread into asyncio goes through `loop.call_soon_threadsafe`.
 
-Stop semantics. `_stop()` bumps a stop sequence number under the lock and wakes the thread; the
-next tick (within one control period, usually at once) holds the current positions, ends any
-execution submitted *before* that stop as "stopped", and confirms the stop back to the awaiting
-coroutine. An execution carries the sequence number current when it was submitted, so a stop
-that lands after `execute()` handed over the trajectory but before the thread picked it up still
-stops it (no lost stop); a stop that happened before the submission does not poison later moves.
-The tick that applies a stop records `last_stop_latency_s` (request → first tick with zero
-commanded motion) and `last_stop_stamp` (that tick, monotonic clock).
+Stop semantics. A stop takes effect in the thread that issues it, before `_stop()` returns:
+under the lock it ends the running (or just submitted) execution as "stopped" and republishes the
+last commanded positions with zero velocity, so no later position is ever commanded. The control
+thread computes each step outside the lock and publishes it under the lock only if no stop landed
+meanwhile (a stop sequence number tells), so a stop racing a tick can never be overtaken by it. A
+kinematic arm has no inertia: it is still from that instant. `last_stop_latency_s` is the time the
+issuing thread took to apply the hold (lock wait included) and `last_stop_stamp` its monotonic time.
+Nothing therefore waits for the control thread to be scheduled, which under load (the thread needs
+the interpreter lock) could take several milliseconds.
 
 Contact. With `table_height_m` set, the estimated wrench is a force of `stiffness × penetration`
 along +z, where penetration = max(0, table_height_m − tcp_z) and tcp_z comes from the thread's own
@@ -56,7 +57,7 @@ from armwarden.backends.base import (
     ProgressCallback,
     Wrench,
 )
-from armwarden.errors import BackendError, BackendTimeout
+from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 
@@ -78,6 +79,8 @@ PROGRESS_PERIOD_S = 0.02
 IDLE_PERIOD_S = 0.01
 #: how long `_close` waits for the control thread to finish [s]
 JOIN_TIMEOUT_S = 2.0
+#: `open` fails if the control thread has not published its first state by then [s]
+FIRST_TICK_TIMEOUT_S = 5.0
 #: speed of the homing motion (fully open) [m/s]
 GRIPPER_HOMING_SPEED_MPS = 0.1
 #: the controller that executes trajectories; arm motion is refused while it is inactive
@@ -101,7 +104,6 @@ class _Execution:
     trajectory: JointTrajectory
     loop: asyncio.AbstractEventLoop
     future: asyncio.Future
-    submit_seq: int  # stop sequence number at submission: any later stop ends this execution
     start_time: float | None = None  # perf_counter of the tick that started it
     fraction: float = 0.0  # progress in [0, 1], written by the thread
 
@@ -136,7 +138,7 @@ def _resolve(future: asyncio.Future, result: Any = None, error: BaseException | 
 
 
 def _post(loop: asyncio.AbstractEventLoop, future: asyncio.Future, result: Any = None, error: BaseException | None = None) -> None:
-    """From the control thread: complete `future` on its loop (ignored if that loop is gone)."""
+    """From any thread: complete `future` on its loop (ignored if that loop is gone)."""
     try:
         loop.call_soon_threadsafe(_resolve, future, result, error)
     except RuntimeError:  # the loop was closed: nobody is waiting any more
@@ -230,8 +232,8 @@ class FakeBackend(Backend):
         self.object_width_m: float | None = None
         #: every call that could move something (refused or not) increments this
         self.actuation_commands = 0
-        #: request → first tick with zero commanded motion, for the latest stop [s]
-        self.last_stop_latency_s: float | None = None
+        #: time the stopping thread took to publish the hold (lock wait included), for the latest stop [s]
+        #: monotonic time the hold was published [s]
         #: monotonic time of that tick [s]
         self.last_stop_stamp: float | None = None
         #: control ticks run so far (the thread's heartbeat)
@@ -262,15 +264,14 @@ class FakeBackend(Backend):
         self._shutdown = False
         self._pending: _Execution | None = None
         self._active: _Execution | None = None  # owned by the thread
-        self._stop_seq = 0
-        self._stop_requested_at: float | None = None  # perf_counter of the oldest unapplied stop
-        self._stop_waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future]] = []
+        self._stop_seq = 0  # bumped by every stop: a tick computed before it is not published
         self._thread_error: BaseException | None = None
         now = time.monotonic()
-        self._q = q_home.copy()
+        self._still = _frozen(np.zeros(len(joint_names)))
+        self._q = _frozen(q_home)  # the last commanded positions (published arrays are read-only)
         self._tcp_q = None
         self._tcp_position = self._compute_tcp(self._q)
-        self._state = (self._q.copy(), np.zeros(len(joint_names)), now, self._tcp_position)
+        self._state = (self._q, self._still, now, self._tcp_position)
         self._wrench = (self._contact_force_n(self._tcp_position), now)
         self.control_thread: threading.Thread | None = None
 
@@ -285,8 +286,16 @@ class FakeBackend(Backend):
         return self._capabilities
 
     async def _open(self) -> None:
+        """Start the control thread and return once it has published a state of its own (until
+        then the only sample is the one taken at construction, which may already be stale)."""
         self.control_thread = threading.Thread(target=self._run, name="armwarden-fake-control", daemon=True)
         self.control_thread.start()
+        deadline = time.monotonic() + FIRST_TICK_TIMEOUT_S
+        while self.tick_count == 0:
+            self._require_running()
+            if time.monotonic() > deadline:
+                raise BackendError(f"fake backend: the control thread did not tick within {FIRST_TICK_TIMEOUT_S} s")
+            await asyncio.sleep(0.0005)
 
     async def _close(self) -> None:
         self._shutdown = True
@@ -297,7 +306,7 @@ class FakeBackend(Backend):
             if thread.is_alive():
                 logger.error("fake backend: control thread did not stop within %.1f s", JOIN_TIMEOUT_S)
         # whoever still waits is told the backend is gone (normally nobody: close stopped everything)
-        self._fail_waiters(BackendError("fake backend closed"))
+        self._fail_executions(BackendError("fake backend closed"))
 
     def _require_running(self) -> None:
         thread = self.control_thread
@@ -307,17 +316,28 @@ class FakeBackend(Backend):
             raise BackendError("fake backend control thread is not running")
 
     # ================================================================ state
-    async def _read_joint_state(self) -> JointState:
+    def _latest_joint_state(self) -> JointState:
         self._require_running()
-        q, dq, stamp, _tcp = self._state
-        return JointState(self.joint_names, q.copy(), dq.copy(), stamp)
+        q, dq, stamp, _tcp = self._state  # read-only arrays, replaced whole by each tick
+        return JointState(self.joint_names, q, dq, stamp)
+
+    async def _read_joint_state(self) -> JointState:
+        return self._latest_joint_state()
+
+    def _latest_wrench(self) -> Wrench | None:
+        if self.stall_wrench_s > 0:
+            return None  # a stalled sensor: take the slow path below, under the read deadline
+        return self._wrench_sample()
 
     async def _read_wrench(self) -> Wrench | None:
         if self.stall_wrench_s > 0:
             await anyio.sleep(self.stall_wrench_s)
+        return self._wrench_sample()
+
+    def _wrench_sample(self) -> Wrench:
         self._require_running()
         force_z, stamp = self._wrench
-        return Wrench(np.array([0.0, 0.0, force_z]), np.zeros(3), stamp)
+        return Wrench(np.array([0.0, 0.0, force_z]), _ZERO3, stamp)
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
@@ -331,11 +351,10 @@ class FakeBackend(Backend):
         self._check_trajectory(trajectory)
 
         loop = asyncio.get_running_loop()
-        execution = _Execution(trajectory, loop, loop.create_future(), submit_seq=0)
+        execution = _Execution(trajectory, loop, loop.create_future())
         with self._lock:
             if self._pending is not None or self._active is not None:
                 raise BackendError("fake backend is already executing a trajectory; one execution at a time")
-            execution.submit_seq = self._stop_seq
             self._pending = execution
         self._wake.set()
 
@@ -353,9 +372,9 @@ class FakeBackend(Backend):
                 progress(1.0)
             return result
         except BaseException:
-            # cancelled (or the progress callback raised): the thread must drop this execution now,
-            # even before the base class's stop() runs, and the future must not dangle
-            self._request_stop()
+            # cancelled (or the progress callback raised): hold the arm now, even before the base
+            # class's stop() runs, and do not leave the future dangling
+            self._hold()
             execution.future.cancel()
             raise
 
@@ -381,24 +400,24 @@ class FakeBackend(Backend):
         if self.fail_stop:  # neither the arm nor the gripper hears this stop
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
         self._halt_gripper()
-        self._require_running()
-        loop = asyncio.get_running_loop()
-        confirmed = loop.create_future()
-        self._request_stop((loop, confirmed))
-        try:
-            await asyncio.wait_for(confirmed, self.stop_timeout_s)
-        except asyncio.TimeoutError as exc:
-            raise BackendTimeout(f"fake backend: stop not confirmed by the control thread within {self.stop_timeout_s} s") from exc
+        self._hold()
+        self._require_running()  # held either way; a dead control thread is still reported as a failure
 
-    def _request_stop(self, waiter: tuple[asyncio.AbstractEventLoop, asyncio.Future] | None = None) -> None:
-        """Ask the control thread to hold position on its next tick (any thread, never blocks long)."""
+    def _hold(self) -> None:
+        """Stop commanding motion, now, from the calling thread (see the module docstring)."""
+        requested = time.perf_counter()
         with self._lock:
-            if self._stop_requested_at is None:
-                self._stop_requested_at = time.perf_counter()
             self._stop_seq += 1
-            if waiter is not None:
-                self._stop_waiters.append(waiter)
-        self._wake.set()
+            stopped = [e for e in (self._active, self._pending) if e is not None]
+            self._active = self._pending = None
+            q, _dq, _stamp, tcp = self._state
+            stamp = time.monotonic()
+            self._state = (q, self._still, stamp, tcp)
+            self.last_stop_latency_s = time.perf_counter() - requested
+            self.last_stop_stamp = stamp
+        for execution in stopped:
+            _post(execution.loop, execution.future, ExecutionResult(False, "stopped", q.copy()))
+        self._wake.set()  # the idle period starts now
 
     # ================================================================ the control thread
     def _run(self) -> None:
@@ -422,63 +441,45 @@ class FakeBackend(Backend):
             self._thread_error = exc
             self.fault, self.fault_reason = True, f"control thread failed: {exc!r}"
         finally:
-            self._fail_waiters(BackendError("fake backend control thread stopped"))
+            self._fail_executions(BackendError("fake backend control thread stopped"))
 
     def _tick(self) -> None:
         with self._lock:
-            stop_seq = self._stop_seq
-            stop_requested_at = self._stop_requested_at
             if self._active is None and self._pending is not None:
                 self._active, self._pending = self._pending, None
-            waiters = self._stop_waiters
-            if stop_requested_at is not None:
-                self._stop_requested_at = None
-                self._stop_waiters = []
-            now = time.perf_counter()
+            execution = self._active
+            stop_seq = self._stop_seq
+        now = time.perf_counter()
         stamp = time.monotonic()
         self.tick_count += 1
 
-        q = self._q
-        dq = np.zeros_like(q)
-        execution = self._active
+        q, dq, completed = self._q, self._still, False
         if execution is not None:
-            if execution.submit_seq < stop_seq:  # stopped: hold where the arm is (zero commanded motion)
-                self._finish(execution, completed=False, reason="stopped")
+            if execution.start_time is None:
+                execution.start_time = now
+            trajectory = execution.trajectory
+            t = (now - execution.start_time) * self.speedup
+            duration = trajectory.duration_s
+            if t >= duration:
+                q, completed = _frozen(trajectory.goal), True
             else:
-                if execution.start_time is None:
-                    execution.start_time = now
-                trajectory = execution.trajectory
-                t = (now - execution.start_time) * self.speedup
-                duration = trajectory.duration_s
-                if t >= duration:
-                    q = trajectory.goal.copy()
-                    execution.fraction = 1.0
-                else:
-                    q = trajectory.sample(t)
-                    dq = _segment_velocity(trajectory, t)
-                    execution.fraction = t / duration
-                self._q = q
-                if t >= duration:
-                    self._finish(execution, completed=True, reason="completed")
-
+                q, dq = _frozen(trajectory.sample(t)), _frozen(_segment_velocity(trajectory, t))
         tcp = self._compute_tcp(q)
-        q_out = q.copy()
-        q_out.setflags(write=False)
-        dq.setflags(write=False)
-        self._state = (q_out, dq, stamp, tcp)
-        if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
-            self._wrench = (self._contact_force_n(tcp), stamp)
+        force_n = self._contact_force_n(tcp)
 
-        if stop_requested_at is not None:  # this tick commanded no motion: the stop took effect
-            self.last_stop_latency_s = now - stop_requested_at
-            self.last_stop_stamp = stamp
-            for loop, future in waiters:
-                _post(loop, future)
-
-    def _finish(self, execution: _Execution, *, completed: bool, reason: str) -> None:
-        self._active = None
-        result = ExecutionResult(completed=completed, reason=reason, final_positions=self._q.copy())
-        _post(execution.loop, execution.future, result)
+        with self._lock:
+            if self._stop_seq != stop_seq:
+                return  # a stop landed while this step was computed: it already published the hold
+            self._q = q
+            self._state = (q, dq, stamp, tcp)
+            if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
+                self._wrench = (force_n, stamp)
+            if execution is not None:
+                execution.fraction = 1.0 if completed else t / duration
+                if completed:
+                    self._active = None
+        if completed:
+            _post(execution.loop, execution.future, ExecutionResult(True, "completed", q.copy()))
 
     def _compute_tcp(self, q: np.ndarray) -> np.ndarray:
         """TCP position in the base frame; forward kinematics only when q changed (thread side)."""
@@ -493,15 +494,12 @@ class FakeBackend(Backend):
         penetration_m = max(0.0, self.table_height_m - float(tcp_position[2]))
         return self.table_stiffness_n_per_m * penetration_m
 
-    def _fail_waiters(self, error: BackendError) -> None:
+    def _fail_executions(self, error: BackendError) -> None:
         with self._lock:
             pending = [e for e in (self._pending, self._active) if e is not None]
             self._pending = self._active = None
-            waiters, self._stop_waiters = self._stop_waiters, []
         for execution in pending:
             _post(execution.loop, execution.future, error=error)
-        for loop, future in waiters:
-            _post(loop, future, error=error)
 
     # ================================================================ gripper (event loop side)
     async def _gripper_state(self) -> GripperState:
@@ -645,6 +643,15 @@ class FakeBackend(Backend):
                 "/franka_gripper/move",
             ],
         }
+
+
+def _frozen(array: np.ndarray) -> np.ndarray:
+    out = np.array(array, dtype=float)
+    out.setflags(write=False)
+    return out
+
+
+_ZERO3 = _frozen(np.zeros(3))
 
 
 def _require(condition: bool, message: str) -> None:

@@ -19,6 +19,7 @@ from armwarden.safety.envelope import estimate_accelerations, estimate_velocitie
 
 _MAX_STRETCHES = 30
 _MIN_STEP_RAD = 1e-9  # smaller joint steps are numerical noise, not motion
+_NEGLIGIBLE_SLOPE = 1e-12  # |dq_i/ds| below this: joint i does not limit the path acceleration
 
 
 @dataclass(frozen=True)
@@ -106,8 +107,8 @@ def time_leg(
     # |dq_i/ds| s̈ stays within a_i for s̈ ≤ min_i a_i / max|dq_i/ds|; curvature at vertices is
     # caught by the verification below
     slope = np.max(np.abs(np.diff(path, axis=0)) / seg[:, None], axis=0)
-    moving = slope > 0
-    a_path = float(np.min(max_acceleration[moving] / slope[moving]))
+    moving = slope > _NEGLIGIBLE_SLOPE  # a joint that moves ~1e-300 rad would overflow a_i / slope
+    a_path = float(np.min(max_acceleration[moving] / slope[moving])) if moving.any() else float(np.min(max_acceleration))
     profile = _Trapezoid.fit(float(s[-1]), 1.0, a_path)
     base_times = profile.time_at(s)
     base_times[0], base_times[-1] = 0.0, profile.duration

@@ -257,8 +257,13 @@ class PlanStore:
         return refusal
 
     def _drop_expired(self) -> None:
+        """Retire expired plans. One TTL for all and a monotonic clock: plans expire in the order
+        they were added, so only the oldest few are ever looked at."""
         now = self._clock()
-        for plan_id in [pid for pid, plan in self._plans.items() if now >= plan.expires_mono]:
+        while self._plans:
+            plan_id, plan = next(iter(self._plans.items()))
+            if now < plan.expires_mono:
+                return
             self._retire(plan_id, self._expired(self._plans.pop(plan_id)))
 
     # ------------------------------------------------------------------ checks and invalidation
