@@ -537,6 +537,7 @@ class Guard:
                     sent = execution.progress
                     await report_progress(sent)
 
+        fault: BackendError | None = None
         try:
             async with anyio.create_task_group() as group:
                 if monitor is not None:
@@ -545,17 +546,20 @@ class Guard:
                         group.cancel_scope.cancel()
                     group.start_soon(watch)
                 group.start_soon(forward_progress)
-                result = await self.backend.execute(plan.trajectory, on_progress)
+                try:
+                    result = await self.backend.execute(plan.trajectory, on_progress)
+                except BackendError as exc:  # caught here: out of the task group it would be an ExceptionGroup
+                    fault = exc
                 group.cancel_scope.cancel()
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True):
                 await self._stop_after_interruption(plan.plan_id)
             raise
-        except BackendError as exc:
+        if fault is not None:
             with anyio.CancelScope(shield=True):
-                await self.emergency_stop(f"backend fault during execution: {exc}", source="backend_fault")
-            raise refuse("BACKEND_FAULT", f"the backend failed during execution ({exc}); the e-stop is latched, "
-                         "a human must inspect the robot and approve reset_estop") from exc
+                await self.emergency_stop(f"backend fault during execution: {fault}", source="backend_fault")
+            raise refuse("BACKEND_FAULT", f"the backend failed during execution ({fault}); the e-stop is latched, "
+                         "a human must inspect the robot and approve reset_estop") from fault
         duration = self._clock() - started
         max_force = None if monitor is None else monitor.max_observed_force_n
         if violation is not None:
@@ -634,8 +638,10 @@ class Guard:
     async def _timed_stop(self) -> None:
         """The backend stop, with when it was issued and confirmed noted on the call's audit record."""
         issued = time.monotonic()
+        stopped = False
         try:
             await self.backend.stop()
+            stopped = True
         finally:
             record = current_call()
             if record is not None:
@@ -643,9 +649,9 @@ class Guard:
                     "issued_after_receipt": round((issued - record.received_mono) * 1e3, 4),
                     "confirmed_after_receipt": round((time.monotonic() - record.received_mono) * 1e3, 4),
                 }
-                still = getattr(self.backend, "last_stop_latency_s", None)
-                if isinstance(still, float):
-                    timing["still_after_receipt"] = round((issued - record.received_mono + still) * 1e3, 4)
+                still = self.backend.last_stop_stamp
+                if stopped and isinstance(still, float) and still >= issued:  # this stop's, and it worked
+                    timing["still_after_receipt"] = round((still - record.received_mono) * 1e3, 4)
                 record.extra["stop_timing_ms"] = timing
 
     def precheck_reset(self, can_elicit: bool) -> ServerDecision | Prompt:

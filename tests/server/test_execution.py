@@ -316,6 +316,69 @@ def test_dry_run_validates_and_approves_but_nothing_actuates(tmp_path, mode) -> 
 
 
 @pytest.mark.parametrize("mode", MODES)
+def test_a_backend_that_fails_mid_motion_is_a_backend_fault_with_the_estop_latched(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client, z=0.40)
+            outcome: dict[str, Any] = {}
+
+            async def run() -> None:
+                outcome["result"] = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+            def crash(_q):
+                raise RuntimeError("injected: servo loop crash")
+
+            async with anyio.create_task_group() as group:
+                group.start_soon(run)
+                await wait_until(lambda: arm.guard.motion_status().progress > 0.05, what="motion started")
+                arm.fake._compute_tcp = crash  # the control thread dies on its next tick
+
+            result = outcome["result"]
+            assert result.is_error and "BACKEND_FAULT" in text_of(result) and "reset_estop" in text_of(result)
+            # latched for the fault; the stop sent with it cannot be confirmed by a dead servo loop,
+            # so a second latch says the stop failed too (the human is told to use the hardware e-stop)
+            assert arm.guard.latch.is_latched
+            assert any("stop during e-stop" in fault for fault in arm.guard.faults)
+            assert arm.actuations == ["execute"]
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_force_violation_while_stops_fail_still_reports_force_limit_and_latches_stop_failed(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, table_height_m=TABLE_Z, speedup=2.0) as arm, arm.client(mode, approve()) as client:
+            summary = await plan_down(client)
+            arm.fake.fail_stop = True  # the stop the force monitor sends is lost
+            result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            arm.fake.fail_stop = False  # let the harness close the backend cleanly
+            assert result.is_error and "FORCE_LIMIT" in text_of(result), text_of(result)
+            event = arm.guard.latch.current_event
+            assert event is not None and event.source == "stop_failed"
+            assert arm.guard.force_violation_latched
+            assert any("failed" in fault for fault in arm.guard.faults)
+            assert arm.guard.last_result is not None and arm.guard.last_result.status == "aborted"
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_failed_stop_is_audited_without_claiming_the_arm_was_still(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path) as arm, arm.client(mode, approve()) as client:
+            assert not (await client.call_tool("stop_motion", {})).is_error  # a working stop first
+            arm.fake.fail_stop = True
+            assert (await client.call_tool("stop_motion", {})).is_error
+            arm.fake.fail_stop = False
+            timings = [r["extra"]["stop_timing_ms"] for r in audit_records(arm.audit_path)
+                       if r.get("tool") == "stop_motion"]
+            assert "still_after_receipt" in timings[0]
+            assert timings[1]["issued_after_receipt"] >= 0 and "still_after_receipt" not in timings[1]
+
+    anyio.run(scenario)
+
+
+@pytest.mark.parametrize("mode", MODES)
 def test_a_stop_that_fails_latches_the_estop_and_reports_stop_failed(tmp_path, mode) -> None:
     async def scenario() -> None:
         async with arm_harness(tmp_path, fail_stop=True) as arm, arm.client(mode, approve()) as client:

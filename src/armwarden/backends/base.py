@@ -130,9 +130,9 @@ class Backend(abc.ABC):
 
     def __init__(self, joint_names: Sequence[str]) -> None:
         self.joint_names = tuple(joint_names)
-        #: time from the last stop request to the moment the backend stopped commanding motion [s],
-        #: backends that can tell (the fake and CAN servo loops); None otherwise
-        self.last_stop_latency_s: float | None = None
+        #: monotonic time [s] at which the latest stop took effect (no motion commanded after it),
+        #: for backends that can tell (the fake, servo loops); None otherwise
+        self.last_stop_stamp: float | None = None
         self._opened = False
         self._closed = False
 
@@ -203,7 +203,10 @@ class Backend(abc.ABC):
             return await self._execute(trajectory, progress or (lambda _fraction: None))
         except BaseException:
             with anyio.CancelScope(shield=True):
-                await self.stop()
+                try:
+                    await self.stop()
+                except BackendError:  # keep the original exception: the caller stops again and latches
+                    logger.exception("backend %s: stop after an interrupted execution failed", self.name)
             raise
 
     async def stop(self) -> None:

@@ -10,8 +10,8 @@ under the lock it ends the running (or just submitted) execution as "stopped" an
 last commanded positions with zero velocity, so no later position is ever commanded. The control
 thread computes each step outside the lock and publishes it under the lock only if no stop landed
 meanwhile (a stop sequence number tells), so a stop racing a tick can never be overtaken by it. A
-kinematic arm has no inertia: it is still from that instant. `last_stop_latency_s` is the time the
-issuing thread took to apply the hold (lock wait included) and `last_stop_stamp` its monotonic time.
+kinematic arm has no inertia: it is still from that instant, which `last_stop_stamp` records
+(monotonic clock).
 Nothing therefore waits for the control thread to be scheduled, which under load (the thread needs
 the interpreter lock) could take several milliseconds.
 
@@ -232,9 +232,7 @@ class FakeBackend(Backend):
         self.object_width_m: float | None = None
         #: every call that could move something (refused or not) increments this
         self.actuation_commands = 0
-        #: time the stopping thread took to publish the hold (lock wait included), for the latest stop [s]
-        #: monotonic time the hold was published [s]
-        #: monotonic time of that tick [s]
+        #: monotonic time the latest stop's hold was published [s]
         self.last_stop_stamp: float | None = None
         #: control ticks run so far (the thread's heartbeat)
         self.tick_count = 0
@@ -265,6 +263,7 @@ class FakeBackend(Backend):
         self._pending: _Execution | None = None
         self._active: _Execution | None = None  # owned by the thread
         self._stop_seq = 0  # bumped by every stop: a tick computed before it is not published
+        self._refusing_executions: str | None = None  # set once the control thread is gone (why)
         self._thread_error: BaseException | None = None
         now = time.monotonic()
         self._still = _frozen(np.zeros(len(joint_names)))
@@ -353,6 +352,8 @@ class FakeBackend(Backend):
         loop = asyncio.get_running_loop()
         execution = _Execution(trajectory, loop, loop.create_future())
         with self._lock:
+            if self._refusing_executions is not None:  # the thread died after the check above
+                raise BackendError(f"fake backend: {self._refusing_executions}")
             if self._pending is not None or self._active is not None:
                 raise BackendError("fake backend is already executing a trajectory; one execution at a time")
             self._pending = execution
@@ -364,6 +365,7 @@ class FakeBackend(Backend):
                 done, _ = await asyncio.wait((execution.future,), timeout=PROGRESS_PERIOD_S)
                 if done:
                     break
+                self._require_running()  # never wait on a thread that is gone
                 if execution.fraction != reported:
                     reported = execution.fraction
                     progress(reported)
@@ -373,8 +375,10 @@ class FakeBackend(Backend):
             return result
         except BaseException:
             # cancelled (or the progress callback raised): hold the arm now, even before the base
-            # class's stop() runs, and do not leave the future dangling
-            self._hold()
+            # class's stop() runs, and do not leave the future dangling (unless the injected fault
+            # says stops are lost: then the arm keeps going, as a real one would)
+            if not self.fail_stop:
+                self._hold()
             execution.future.cancel()
             raise
 
@@ -399,13 +403,12 @@ class FakeBackend(Backend):
     async def _stop(self) -> None:
         if self.fail_stop:  # neither the arm nor the gripper hears this stop
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
-        self._halt_gripper()
         self._hold()
+        self._halt_gripper()
         self._require_running()  # held either way; a dead control thread is still reported as a failure
 
     def _hold(self) -> None:
         """Stop commanding motion, now, from the calling thread (see the module docstring)."""
-        requested = time.perf_counter()
         with self._lock:
             self._stop_seq += 1
             stopped = [e for e in (self._active, self._pending) if e is not None]
@@ -413,7 +416,6 @@ class FakeBackend(Backend):
             q, _dq, _stamp, tcp = self._state
             stamp = time.monotonic()
             self._state = (q, self._still, stamp, tcp)
-            self.last_stop_latency_s = time.perf_counter() - requested
             self.last_stop_stamp = stamp
         for execution in stopped:
             _post(execution.loop, execution.future, ExecutionResult(False, "stopped", q.copy()))
@@ -495,7 +497,9 @@ class FakeBackend(Backend):
         return self.table_stiffness_n_per_m * penetration_m
 
     def _fail_executions(self, error: BackendError) -> None:
+        """Fail every submitted execution and refuse later ones (the control thread is gone)."""
         with self._lock:
+            self._refusing_executions = str(error)
             pending = [e for e in (self._pending, self._active) if e is not None]
             self._pending = self._active = None
         for execution in pending:
@@ -564,7 +568,9 @@ class FakeBackend(Backend):
             if self._gripper_motion is motion:  # not halted by _stop: it arrived, or our caller was cancelled
                 self._gripper_motion = None
                 self._gripper_width_m = target_m if finished else motion.width_at(time.perf_counter())
-        return self._gripper_width_m, motion.halted.is_set()
+        # a stop that lands after the fingers arrived (before this task resumed) did not interrupt it
+        interrupted = motion.halted.is_set() and not math.isclose(self._gripper_width_m, target_m, abs_tol=1e-9)
+        return self._gripper_width_m, interrupted
 
     def _halt_gripper(self) -> None:
         motion = self._gripper_motion
