@@ -184,7 +184,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
 
 
 async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: anyio.Event) -> None:
-    from armwarden.transport.http import build_http_app, serve_http
+    from armwarden.transport.http import build_http_app, current_principal, serve_http
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
@@ -193,7 +193,12 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: an
         status = assembly.guard.safety_status()
         return {"status": "ok", "estopped": status.estopped, "executing": assembly.guard.motion_status().executing}
 
-    app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens, health=health)
+    async def on_abandoned(tool: str, arguments: dict[str, Any]) -> None:
+        principal = current_principal()
+        await assembly.guard.stop_abandoned_call(tool, arguments, principal=None if principal is None else principal.name)
+
+    app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens, health=health,
+                         on_abandoned=on_abandoned)
     await serve_http(app, args.host, args.port, shutdown=shutdown)
 
 

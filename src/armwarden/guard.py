@@ -594,18 +594,44 @@ class Guard:
     async def _stop_after_interruption(self, plan_id: str) -> None:
         """The execute call was cancelled (client cancel, disconnect, timeout): stop, then record."""
         self._stop_generation += 1
+        stop_failed = False
         try:
             await self.backend.stop()
         except BackendError as exc:
+            stop_failed = True
             self.latch.latch(f"stop after interruption failed: {exc}", "stop_failed")
             self.plans.invalidate_all("stop failed")
+            self.faults.append(f"stop after an interrupted execution failed: {exc}")
         self.last_result = ExecutionReport(
             plan_id=plan_id, status="aborted", approval=ApprovalInfo(required=False, operator=None, via="not_required"),
             duration_s=0.0, max_observed_force_n=None, detail="interrupted: the call was cancelled",
         )
         if self.audit is not None:
-            await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome="stopped",
-                                          detail=f"plan {plan_id}: the call was cancelled; the arm was stopped")
+            outcome, what = ("stop_failed", "the stop FAILED (e-stop latched)") if stop_failed else ("stopped", "the arm was stopped")
+            await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome=outcome,
+                                          detail=f"plan {plan_id}: the call was cancelled; {what}")
+
+    async def stop_abandoned_call(self, tool: str, arguments: dict[str, Any], principal: str | None = None) -> None:
+        """A client went away in the middle of a motion call it made (an HTTP request that ended
+        without its response, see `transport/abandoned.py`): if that motion still runs, stop it."""
+        if tool == "execute_plan":
+            running = self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
+        else:
+            running = self._gripper_busy
+        if not running:
+            return
+        self._stop_generation += 1
+        outcome, detail = "stopped", f"the client of {tool} disconnected mid-motion; arm and gripper stopped"
+        try:
+            await self.backend.stop()
+        except BackendError as exc:
+            event = self.latch.latch(f"stop after a client disconnected failed: {exc}", "stop_failed")
+            self.plans.invalidate_all("stop failed")
+            self.faults.append(f"stop after a client disconnected failed: {exc}")
+            outcome, detail = "stop_failed", f"the client of {tool} disconnected mid-motion; the stop FAILED ({exc}), e-stop #{event.number} latched"
+        if self.audit is not None:
+            await self.audit.append_async("client_disconnected", principal=principal, tool=tool, arguments=arguments,
+                                          outcome=outcome, detail=detail)
 
     # ================================================================== stop and e-stop
     async def stop_motion(self) -> StopResult:

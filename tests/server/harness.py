@@ -12,6 +12,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
+import anyio
 import mcp_types as types
 from mcp import Client
 
@@ -22,7 +23,7 @@ from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, load_policy, parse_policy
 from armwarden.preflight import load_runtime_model
 from armwarden.robot import build_robot
-from armwarden.safety.audit import AuditLog
+from armwarden.safety.audit import AuditLog, verify_file
 from armwarden.server.app import ArmWardenServer
 
 MODES = ("legacy", "2026-07-28")
@@ -46,6 +47,17 @@ def answer(action: str, content: dict | None = None) -> ElicitationCallback:
 
     callback.prompts = []  # type: ignore[attr-defined]
     return callback
+
+
+class MotionStarted:
+    """A progress callback for `call_tool`; `event` is set at the first progress above 0."""
+
+    def __init__(self) -> None:
+        self.event = anyio.Event()
+
+    async def __call__(self, progress: float, total: float | None, message: str | None) -> None:
+        if progress > 0:
+            self.event.set()
 
 
 def policy_with(**overrides: Any) -> Policy:
@@ -90,3 +102,5 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, **fake_optio
     finally:
         await fake.close()
         audit.close()
+    report = verify_file(audit_path)  # whatever the scenario did, the chain it left must verify
+    assert report.ok, f"audit chain broken at line {report.first_bad_line}: {report.reason}"

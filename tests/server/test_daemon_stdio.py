@@ -21,7 +21,7 @@ import anyio
 import pytest
 from mcp import Client, StdioServerParameters
 
-from tests.server.harness import MODES
+from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
 
 REPO = Path(__file__).resolve().parents[2]
@@ -117,11 +117,7 @@ def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exits(tmp_
     audit = tmp_path / "audit.jsonl"
 
     async def scenario() -> None:
-        moving = anyio.Event()
-
-        async def on_progress(progress: float, total: float | None, message: str | None) -> None:
-            if progress > 0:
-                moving.set()
+        on_progress = MotionStarted()
 
         with anyio.fail_after(30):
             async with anyio.create_task_group() as group:
@@ -138,7 +134,7 @@ def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exits(tmp_
                             pass
 
                     group.start_soon(run)
-                    await moving.wait()
+                    await on_progress.event.wait()
                 # the client (and the daemon's stdin) is gone while the arm moves
 
         records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
@@ -231,6 +227,51 @@ def test_sigterm_mid_motion_stops_the_arm_and_the_stdio_daemon_exits_with_a_shut
     stopped_short = any(((r.get("extra") or {}).get("result") or {}).get("status") == "aborted" for r in execution)
     assert interrupted or stopped_short, execution
     assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "signal SIGTERM"
+    verdict = subprocess.run([*CLI, "audit", "verify", str(audit)], cwd=REPO, env=child_env(),
+                             capture_output=True, text=True, timeout=60)
+    assert verdict.returncode == 0, verdict.stdout
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "-Infinity", "1e999"])
+def test_literal_non_finite_json_numbers_over_stdio_are_refused_and_nothing_moves(tmp_path, literal) -> None:
+    # the SDK client would send NaN as null; a raw client can put the literal on the wire
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(
+        [*CLI, "serve", "--audit-log", str(audit), "--log-level", "WARNING"],
+        cwd=REPO, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+    )
+    try:
+        rpc = RawStdio(process)
+        rpc.request("initialize", {"protocolVersion": "2025-11-25", "capabilities": {},
+                                   "clientInfo": {"name": "raw-nan", "version": "1"}})
+        rpc.send({"jsonrpc": "2.0", "method": "notifications/initialized"})
+        before = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})["result"]["structuredContent"]
+        answers = []
+        for name, arguments in [
+            ("plan_to_joints", '{"joint_positions": [%s, -0.78, 0, -2.35, 0, 1.57, 0.78]}' % literal),
+            ("plan_to_pose", '{"position": {"x": %s, "y": 0.0, "z": 0.4}}' % literal),
+            ("gripper_move", '{"width_m": %s}' % literal),
+        ]:
+            rpc.next_id += 1
+            wire = '{"jsonrpc": "2.0", "id": %d, "method": "tools/call", "params": {"name": "%s", "arguments": %s}}' % (
+                rpc.next_id, name, arguments)
+            process.stdin.write(wire.encode() + b"\n")
+            process.stdin.flush()
+            answer = rpc.receive()
+            while answer.get("id") != rpc.next_id:
+                answer = rpc.receive()
+            answers.append(answer)
+        after = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})["result"]["structuredContent"]
+    finally:
+        process.stdin.close()
+        process.wait(timeout=10)
+        process.stdout.close()
+    for answer in answers:  # a protocol error or an isError result; never a plan id, never a move
+        result = answer.get("result")
+        assert "error" in answer or (result is not None and result.get("isError")), answer
+        assert not ((result or {}).get("structuredContent") or {}).get("plan_id"), answer
+    assert after["joint_positions"] == before["joint_positions"]
+    assert after["gripper"]["width_m"] == before["gripper"]["width_m"]
     verdict = subprocess.run([*CLI, "audit", "verify", str(audit)], cwd=REPO, env=child_env(),
                              capture_output=True, text=True, timeout=60)
     assert verdict.returncode == 0, verdict.stdout

@@ -8,9 +8,10 @@ and server on the fake backend (see `harness.py`); the fake's fault injection (`
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,21 @@ async def wait_until(predicate: Callable[[], bool], timeout: float = 5.0, what: 
     with anyio.fail_after(timeout):
         while not predicate():
             await anyio.sleep(0.005)
+
+
+@contextlib.asynccontextmanager
+async def executing(arm: Any, client: Client, plan_id: str, past: float = 0.05) -> AsyncIterator[dict[str, Any]]:
+    """`execute_plan(plan_id)` in the background; the body runs once the arm is `past` that fraction
+    of the motion; after the block the call's result is in `outcome["result"]`."""
+    outcome: dict[str, Any] = {}
+
+    async def run() -> None:
+        outcome["result"] = await client.call_tool("execute_plan", {"plan_id": plan_id})
+
+    async with anyio.create_task_group() as group:
+        group.start_soon(run)
+        await wait_until(lambda: arm.guard.motion_status().progress > past, what="motion started")
+        yield outcome
 
 
 def audit_records(path: Path) -> list[dict[str, Any]]:
@@ -109,14 +125,7 @@ def test_a_wrench_that_freezes_or_stalls_mid_motion_aborts_the_motion(tmp_path, 
     async def scenario() -> None:
         async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as client:
             summary = await plan_down(client, z=0.40)
-            outcome: dict[str, Any] = {}
-
-            async def run() -> None:
-                outcome["result"] = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
-
-            async with anyio.create_task_group() as group:
-                group.start_soon(run)
-                await wait_until(lambda: arm.guard.motion_status().progress > 0.05, what="motion started")
+            async with executing(arm, client, summary["plan_id"]) as outcome:
                 setattr(arm.fake, fault, True if fault == "freeze_wrench" else 0.5)
 
             arm.fake.stall_wrench_s = 0.0  # state reads below read the wrench too; keep them quick
@@ -250,14 +259,7 @@ def test_estop_from_a_second_client_stops_an_execution_started_by_the_first(tmp_
         async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as mover, \
                 arm.client(mode) as other:
             summary = await plan_down(mover)
-            outcome: dict[str, Any] = {}
-
-            async def run() -> None:
-                outcome["result"] = await mover.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
-
-            async with anyio.create_task_group() as group:
-                group.start_soon(run)
-                await wait_until(lambda: arm.guard.motion_status().progress > 0.1, what="motion started")
+            async with executing(arm, mover, summary["plan_id"], past=0.1) as outcome:
                 stop = await other.call_tool("estop", {"reason": "person entered the cell"})
                 assert not stop.is_error and stop.structured_content["estopped"] is True
 
@@ -320,17 +322,11 @@ def test_a_backend_that_fails_mid_motion_is_a_backend_fault_with_the_estop_latch
     async def scenario() -> None:
         async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as client:
             summary = await plan_down(client, z=0.40)
-            outcome: dict[str, Any] = {}
-
-            async def run() -> None:
-                outcome["result"] = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
 
             def crash(_q):
                 raise RuntimeError("injected: servo loop crash")
 
-            async with anyio.create_task_group() as group:
-                group.start_soon(run)
-                await wait_until(lambda: arm.guard.motion_status().progress > 0.05, what="motion started")
+            async with executing(arm, client, summary["plan_id"]) as outcome:
                 arm.fake._compute_tcp = crash  # the control thread dies on its next tick
 
             result = outcome["result"]
@@ -394,5 +390,26 @@ def test_a_stop_that_fails_latches_the_estop_and_reports_stop_failed(tmp_path, m
             assert again.is_error
             assert arm.actuations == []
             arm.fake.fail_stop = False  # let the harness close the backend cleanly
+
+    anyio.run(scenario)
+
+
+# ------------------------------------------------------------------ a client that went away (HTTP, see transport/abandoned.py)
+def test_an_abandoned_execute_call_stops_only_the_execution_it_started(tmp_path) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client("2026-07-28", approve()) as client:
+            summary = await plan_down(client, z=0.40)
+            async with executing(arm, client, summary["plan_id"]) as outcome:
+                await arm.guard.stop_abandoned_call("execute_plan", {"plan_id": "plan_someone_else"})
+                await arm.guard.stop_abandoned_call("gripper_move", {})  # no gripper action runs
+                assert arm.guard.motion_status().executing  # neither of those was this motion
+                await arm.guard.stop_abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, principal="alice")
+
+            assert outcome["result"].structured_content["status"] == "aborted"
+            await assert_arm_still(client)
+            assert not arm.guard.latch.is_latched
+            gone = [r for r in audit_records(arm.audit_path) if r["event"] == "client_disconnected"]
+            assert [(r["principal"], r["outcome"], r["arguments"]) for r in gone] == [
+                ("alice", "stopped", {"plan_id": summary["plan_id"]})]
 
     anyio.run(scenario)

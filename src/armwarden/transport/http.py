@@ -2,10 +2,10 @@
 
 Request path (outermost first)::
 
-    uvicorn ─▶ HostOriginGuard ─▶ BearerAuth ─▶ AuthContextMiddleware ─▶ Starlette routes
-               421 bad Host      401 + WWW-     (SDK: publishes the     /healthz  (GET, no auth)
-               403 bad Origin    Authenticate   user to get_access_     /mcp      (SDK streamable HTTP,
-               (every path)      (all but       token())                          stateful)
+    uvicorn ─▶ HostOriginGuard ─▶ BearerAuth ─▶ AuthContextMiddleware ─▶ AbandonedMotionStop ─▶ routes
+               421 bad Host      401 + WWW-     (SDK: publishes the     (a motion call whose   /healthz
+               403 bad Origin    Authenticate   user to get_access_     request ends unanswered /mcp
+               (every path)      (all but       token())                is stopped)
                                  /healthz)
 
 - Host/Origin validation (DNS rebinding) uses the SDK's `TransportSecuritySettings` and
@@ -53,6 +53,7 @@ from starlette.routing import Mount, Route
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.errors import ConfigurationError
+from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
 from armwarden.transport.tokens import ROLES, Principal, TokenStore
 
 __all__ = [
@@ -247,11 +248,14 @@ def build_http_app(
     allowed_origins: Sequence[str] = (),
     allowed_hosts: Sequence[str] = (),
     health: Callable[[], dict[str, Any]] | None = None,
+    on_abandoned: AbandonedCallback | None = None,
 ) -> Starlette:
     """The ASGI app: ``/mcp`` (stateful streamable HTTP) and ``/healthz``.
 
     Build one app per serve: the SDK's session manager it creates can run only once.
     `health` must be quick, non-blocking and return JSON-able data with nothing secret in it.
+    `on_abandoned(tool, arguments)` is awaited when an authenticated motion call's request ends
+    without its response (the client went away; see `abandoned.py`).
     """
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     mcp_app = server.streamable_http_app(
@@ -281,6 +285,8 @@ def build_http_app(
     middleware = [Middleware(HostOriginGuard, settings=security)]
     if token_store is not None:
         middleware.append(Middleware(BearerAuth, token_store=token_store))
+    if on_abandoned is not None:  # innermost: only requests that passed the checks above
+        middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned))
     return Starlette(
         routes=[Route(HEALTH_PATH, healthz, methods=["GET"]), Mount("/", app=mcp_app)],
         middleware=middleware,

@@ -1,0 +1,110 @@
+"""An `armwarden serve --transport http` subprocess on 127.0.0.1 with operator and observer tokens,
+and SDK clients for it (shared by the HTTP daemon tests)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx2
+from mcp import Client
+from mcp.client.streamable_http import streamable_http_client
+
+REPO = Path(__file__).resolve().parents[2]
+SRC = REPO / "src"
+CLI = [sys.executable, "-m", "armwarden.cli"]
+HOST = "127.0.0.1"  # never anything else
+
+
+def child_env() -> dict[str, str]:
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env.pop("ARMWARDEN_AUDIT_HMAC_KEY", None)
+    return env
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((HOST, 0))
+        return sock.getsockname()[1]
+
+
+def add_token(path: Path, role: str, name: str) -> str:
+    result = subprocess.run([*CLI, "tokens", "add", str(path), "--role", role, "--name", name], cwd=REPO,
+                            env=child_env(), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    token = result.stdout.strip()
+    assert token and "\n" not in token
+    return token
+
+
+@dataclass
+class Daemon:
+    process: subprocess.Popen
+    port: int
+    audit: Path
+    operator_token: str
+    observer_token: str
+    stderr_path: Path
+
+    @property
+    def base(self) -> str:
+        return f"http://{HOST}:{self.port}"
+
+    @property
+    def url(self) -> str:
+        return f"{self.base}/mcp"
+
+
+@contextlib.contextmanager
+def http_daemon(tmp: Path, speedup: float) -> Iterator[Daemon]:
+    """Start the daemon (fake backend at `speedup`), wait until /healthz answers, SIGTERM it after."""
+    tokens = tmp / "tokens.json"
+    operator_token = add_token(tokens, "operator", "alice")
+    observer_token = add_token(tokens, "observer", "bob")
+    config = tmp / "fake.yaml"
+    config.write_text(f"speedup: {speedup}\n", encoding="utf-8")
+    audit = tmp / "audit.jsonl"
+    port = free_port()
+    stderr_path = tmp / "stderr.log"
+    with open(stderr_path, "wb") as stderr:
+        process = subprocess.Popen(
+            [*CLI, "serve", "--transport", "http", "--host", HOST, "--port", str(port), "--auth-tokens", str(tokens),
+             "--audit-log", str(audit), "--backend-config", str(config), "--log-level", "WARNING"],
+            cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=stderr,
+        )
+    running = Daemon(process, port, audit, operator_token, observer_token, stderr_path)
+    try:
+        deadline = time.monotonic() + 30
+        while True:
+            assert process.poll() is None, stderr_path.read_text()
+            try:
+                if httpx2.get(f"{running.base}/healthz", timeout=1.0).status_code == 200:
+                    break
+            except httpx2.HTTPError:
+                pass
+            assert time.monotonic() < deadline, "the daemon did not become healthy"
+            time.sleep(0.1)
+        yield running
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def session(daemon: Daemon, token: str | None, mode: str, elicitation=None) -> tuple[httpx2.AsyncClient, Client]:
+    """An httpx2 client carrying an optional bearer token, and an SDK client over it (enter both)."""
+    headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
+    http = httpx2.AsyncClient(headers=headers)
+    return http, Client(streamable_http_client(daemon.url, http_client=http), mode=mode, elicitation_callback=elicitation)

@@ -1,0 +1,116 @@
+"""A client that drops its HTTP connection, or cancels its call, in the middle of `execute_plan`
+leaves the arm stopped, under both protocol revisions (on a disconnect under 2026-07-28 the SDK
+cancels the call; under 2025-11-25 the call outlives its request, and ArmWarden's
+`AbandonedMotionStop` layer stops it). Real daemon subprocess on 127.0.0.1, slowed down so that
+the motion is still running when the client goes away."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+
+from tests.server.harness import MODES, MotionStarted
+from tests.server.harness import approve as approving
+from tests.server.http_daemon import Daemon, http_daemon, session
+
+HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
+
+
+@pytest.fixture(scope="module")
+def slow_daemon(tmp_path_factory) -> Iterator[Daemon]:
+    with http_daemon(tmp_path_factory.mktemp("http-disconnect"), speedup=0.5) as running:
+        yield running
+
+
+def records_of(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+async def plan_a_slow_move(client: Any) -> dict[str, Any]:
+    """A 0.13 m vertical TCP move from wherever the arm is (about 1 s at full speed, 2 s here)."""
+    start = (await client.call_tool("get_robot_state", {})).structured_content["tcp_pose"]["position"]
+    target = {"x": HOME_TCP_X, "y": 0.0, "z": 0.35 if start["z"] > 0.42 else 0.48}
+    plan = (await client.call_tool("plan_to_pose", {"position": target})).structured_content
+    assert plan["status"] == "ok" and plan["duration_s"] > 0.8, plan
+    return plan
+
+
+async def state_and_motion(daemon: Daemon, mode: str) -> tuple[list[float], dict[str, Any]]:
+    http, client = session(daemon, daemon.operator_token, mode)
+    async with http, client:
+        state = (await client.call_tool("get_robot_state", {})).structured_content
+        motion = (await client.call_tool("get_motion_status", {})).structured_content
+    return state["joint_positions"], motion
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_client_that_disconnects_mid_motion_leaves_the_arm_stopped(slow_daemon, mode) -> None:
+    async def scenario() -> tuple[str, list[float], list[float], dict[str, Any]]:
+        on_progress = MotionStarted()
+
+        with anyio.fail_after(30):
+            async with anyio.create_task_group() as group:
+                http, client = session(slow_daemon, slow_daemon.operator_token, mode, approving())
+                async with http, client:
+                    plan = await plan_a_slow_move(client)
+
+                    async def execute() -> None:
+                        await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]}, progress_callback=on_progress)
+
+                    group.start_soon(execute)
+                    await on_progress.event.wait()
+                    group.cancel_scope.cancel()  # the whole client goes: streams closed, connection dropped
+
+            # the arm must come to rest well before the plan's end (2 × duration at speedup 0.5)
+            for _ in range(100):
+                first, motion = await state_and_motion(slow_daemon, mode)
+                if not motion["executing"]:
+                    break
+                await anyio.sleep(0.05)
+            await anyio.sleep(0.1)
+            second, motion = await state_and_motion(slow_daemon, mode)
+        return plan["plan_id"], first, second, motion
+
+    plan_id, first, second, motion = anyio.run(scenario)
+    assert first == second  # still
+    assert motion["last_result"]["plan_id"] == plan_id
+    assert motion["last_result"]["status"] == "aborted"
+    stops = [r for r in records_of(slow_daemon.audit)
+             if r["event"] in ("client_disconnected", "execution_interrupted") and plan_id in json.dumps(r)]
+    assert stops and all(r["outcome"] == "stopped" for r in stops), stops
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_client_that_cancels_execute_plan_mid_motion_leaves_the_arm_stopped(slow_daemon, mode) -> None:
+    async def scenario() -> tuple[str, list[float], list[float], dict[str, Any]]:
+        on_progress = MotionStarted()
+
+        with anyio.fail_after(30):
+            http, client = session(slow_daemon, slow_daemon.operator_token, mode, approving())
+            async with http, client:
+                plan = await plan_a_slow_move(client)
+                async with anyio.create_task_group() as group:
+                    async def execute() -> None:
+                        await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]}, progress_callback=on_progress)
+
+                    group.start_soon(execute)
+                    await on_progress.event.wait()
+                    group.cancel_scope.cancel()  # this call only: the session stays open
+                for _ in range(100):
+                    motion = (await client.call_tool("get_motion_status", {})).structured_content
+                    if not motion["executing"]:
+                        break
+                    await anyio.sleep(0.05)
+                first = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+                await anyio.sleep(0.1)
+                second = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+        return plan["plan_id"], first, second, motion
+
+    plan_id, first, second, motion = anyio.run(scenario)
+    assert first == second
+    assert motion["last_result"]["plan_id"] == plan_id and motion["last_result"]["status"] == "aborted"
