@@ -193,9 +193,10 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: an
         status = assembly.guard.safety_status()
         return {"status": "ok", "estopped": status.estopped, "executing": assembly.guard.motion_status().executing}
 
-    async def on_abandoned(tool: str, arguments: dict[str, Any]) -> None:
+    async def on_abandoned(tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool) -> None:
         principal = current_principal()
-        await assembly.guard.stop_abandoned_call(tool, arguments, principal=None if principal is None else principal.name)
+        await assembly.guard.abandoned_call(tool, arguments, request_id, cancelled,
+                                            principal=None if principal is None else principal.name)
 
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens, health=health,
                          on_abandoned=on_abandoned)

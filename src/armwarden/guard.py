@@ -611,24 +611,28 @@ class Guard:
             await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome=outcome,
                                           detail=f"plan {plan_id}: the call was cancelled; {what}")
 
-    async def stop_abandoned_call(self, tool: str, arguments: dict[str, Any], principal: str | None = None) -> None:
-        """A client went away in the middle of a motion call it made (an HTTP request that ended
-        without its response, see `transport/abandoned.py`): if that motion still runs, stop it."""
-        if tool == "execute_plan":
-            running = self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
-        else:
-            running = self._gripper_busy
-        if not running:
-            return
-        self._stop_generation += 1
-        outcome, detail = "stopped", f"the client of {tool} disconnected mid-motion; arm and gripper stopped"
-        try:
-            await self.backend.stop()
-        except BackendError as exc:
-            event = self.latch.latch(f"stop after a client disconnected failed: {exc}", "stop_failed")
-            self.plans.invalidate_all("stop failed")
-            self.faults.append(f"stop after a client disconnected failed: {exc}")
-            outcome, detail = "stop_failed", f"the client of {tool} disconnected mid-motion; the stop FAILED ({exc}), e-stop #{event.number} latched"
+    async def abandoned_call(self, tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool,
+                             principal: str | None = None) -> None:
+        """An HTTP client went away before its motion call answered (`transport/abandoned.py`).
+
+        Normally the call was cancelled through the SDK, and the cancellation path stopped whatever
+        it moved. If that cancellation could not be delivered and the motion of that call is still
+        running (same plan id; the one gripper action), stop it here. Audited either way."""
+        outcome = "cancelled" if cancelled else "nothing_running"
+        detail = f"the client of {tool} (request {str(request_id)[:64]}) went away before the answer"
+        if not cancelled:
+            running = (self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
+                       if tool == "execute_plan" else self._gripper_busy)
+            if running:
+                self._stop_generation += 1
+                try:
+                    await self.backend.stop()
+                    outcome, detail = "stopped", detail + "; the cancellation failed, so the robot was stopped"
+                except BackendError as exc:
+                    event = self.latch.latch(f"stop after a client disconnected failed: {exc}", "stop_failed")
+                    self.plans.invalidate_all("stop failed")
+                    self.faults.append(f"stop after a client disconnected failed: {exc}")
+                    outcome, detail = "stop_failed", detail + f"; the stop FAILED ({exc}), e-stop #{event.number} latched"
         if self.audit is not None:
             await self.audit.append_async("client_disconnected", principal=principal, tool=tool, arguments=arguments,
                                           outcome=outcome, detail=detail)

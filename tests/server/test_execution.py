@@ -395,21 +395,22 @@ def test_a_stop_that_fails_latches_the_estop_and_reports_stop_failed(tmp_path, m
 
 
 # ------------------------------------------------------------------ a client that went away (HTTP, see transport/abandoned.py)
-def test_an_abandoned_execute_call_stops_only_the_execution_it_started(tmp_path) -> None:
+def test_an_abandoned_call_whose_cancellation_failed_stops_only_the_motion_it_started(tmp_path) -> None:
     async def scenario() -> None:
         async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client("2026-07-28", approve()) as client:
             summary = await plan_down(client, z=0.40)
             async with executing(arm, client, summary["plan_id"]) as outcome:
-                await arm.guard.stop_abandoned_call("execute_plan", {"plan_id": "plan_someone_else"})
-                await arm.guard.stop_abandoned_call("gripper_move", {})  # no gripper action runs
-                assert arm.guard.motion_status().executing  # neither of those was this motion
-                await arm.guard.stop_abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, principal="alice")
+                await arm.guard.abandoned_call("execute_plan", {"plan_id": "plan_someone_else"}, 3, cancelled=False)
+                await arm.guard.abandoned_call("gripper_move", {}, 4, cancelled=False)  # no gripper action runs
+                await arm.guard.abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, 5, cancelled=True)
+                assert arm.guard.motion_status().executing  # none of those stopped this motion
+                await arm.guard.abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, 6, cancelled=False,
+                                               principal="alice")
 
             assert outcome["result"].structured_content["status"] == "aborted"
             await assert_arm_still(client)
             assert not arm.guard.latch.is_latched
-            gone = [r for r in audit_records(arm.audit_path) if r["event"] == "client_disconnected"]
-            assert [(r["principal"], r["outcome"], r["arguments"]) for r in gone] == [
-                ("alice", "stopped", {"plan_id": summary["plan_id"]})]
+            gone = [(r["principal"], r["outcome"]) for r in audit_records(arm.audit_path) if r["event"] == "client_disconnected"]
+            assert gone == [(None, "nothing_running"), (None, "nothing_running"), (None, "cancelled"), ("alice", "stopped")]
 
     anyio.run(scenario)

@@ -7,12 +7,19 @@ the motion is still running when the client goes away."""
 from __future__ import annotations
 
 import json
+import re
+import socket
+import struct
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import anyio
+import httpx2
 import pytest
+
+from armwarden.transport.abandoned import MAX_BODY_BYTES
 
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
@@ -80,9 +87,12 @@ def test_a_client_that_disconnects_mid_motion_leaves_the_arm_stopped(slow_daemon
     assert first == second  # still
     assert motion["last_result"]["plan_id"] == plan_id
     assert motion["last_result"]["status"] == "aborted"
-    stops = [r for r in records_of(slow_daemon.audit)
-             if r["event"] in ("client_disconnected", "execution_interrupted") and plan_id in json.dumps(r)]
-    assert stops and all(r["outcome"] == "stopped" for r in stops), stops
+    records = records_of(slow_daemon.audit)
+    interrupted = [r for r in records if r["event"] == "execution_interrupted" and plan_id in r["detail"]]
+    assert [r["outcome"] for r in interrupted] == ["stopped"], interrupted
+    gone = [r for r in records if r["event"] == "client_disconnected" and r["arguments"] == {"plan_id": plan_id}]
+    assert [(r["principal"], r["outcome"]) for r in gone] == [
+        ("alice", "cancelled" if mode == "legacy" else "nothing_running")], gone  # 2026-07-28: the SDK cancelled it
 
 
 @pytest.mark.parametrize("mode", MODES)
@@ -114,3 +124,122 @@ def test_a_client_that_cancels_execute_plan_mid_motion_leaves_the_arm_stopped(sl
     plan_id, first, second, motion = anyio.run(scenario)
     assert first == second
     assert motion["last_result"]["plan_id"] == plan_id and motion["last_result"]["status"] == "aborted"
+
+
+# ------------------------------------------------------------------ raw 2025-11-25 clients (what the SDK client cannot do)
+class RawSession:
+    """A 2025-11-25 streamable HTTP session driven by hand: calls answered over httpx2, and POSTs
+    on a bare socket that can be dropped (RST) at any point of their SSE answer."""
+
+    VERSION = "2025-11-25"
+
+    def __init__(self, daemon: Daemon, token: str) -> None:
+        self.daemon, self.token, self.session_id, self.next_id = daemon, token, None, 0
+        self.http = httpx2.Client(timeout=30)
+        hello = self.post({"jsonrpc": "2.0", "id": self._id(), "method": "initialize", "params": {
+            "protocolVersion": self.VERSION, "capabilities": {"elicitation": {"form": {}}},
+            "clientInfo": {"name": "raw-http-test", "version": "1"}}})
+        self.session_id = hello.headers["mcp-session-id"]
+        assert self.post({"jsonrpc": "2.0", "method": "notifications/initialized"}).status_code == 202
+
+    def _id(self) -> int:
+        self.next_id += 1
+        return self.next_id
+
+    def headers(self) -> dict[str, str]:
+        headers = {"Authorization": f"Bearer {self.token}", "Accept": "application/json, text/event-stream",
+                   "Content-Type": "application/json", "MCP-Protocol-Version": self.VERSION}
+        if self.session_id is not None:
+            headers["mcp-session-id"] = self.session_id
+        return headers
+
+    def post(self, message: dict[str, Any]):
+        return self.http.post(self.daemon.url, json=message, headers=self.headers())
+
+    def call(self, tool: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        response = self.post({"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
+                              "params": {"name": tool, "arguments": arguments}})
+        for line in response.text.splitlines():
+            if line.startswith("data: ") and ('"result"' in line or '"error"' in line):
+                return json.loads(line[len("data: "):])
+        raise AssertionError(response.text)
+
+    def open_call(self, tool: str, arguments: dict[str, Any]) -> "DroppableCall":
+        return DroppableCall(self, {"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
+                                    "params": {"name": tool, "arguments": arguments}})
+
+
+class DroppableCall:
+    def __init__(self, owner: RawSession, message: dict[str, Any]) -> None:
+        payload = json.dumps(message).encode()
+        header = "".join(f"{name}: {value}\r\n" for name, value in owner.headers().items())
+        self.sock = socket.create_connection(("127.0.0.1", owner.daemon.port), timeout=30)
+        self.sock.sendall(f"POST /mcp HTTP/1.1\r\nHost: 127.0.0.1:{owner.daemon.port}\r\n{header}"
+                          f"Content-Length: {len(payload)}\r\n\r\n".encode() + payload)
+        self.buffer = b""
+
+    def wait_for(self, predicate) -> dict[str, Any]:
+        while True:
+            for raw in re.findall(rb"data: (\{.*?\})\r?\n", self.buffer):
+                event = json.loads(raw)
+                if predicate(event):
+                    return event
+            chunk = self.sock.recv(65536)
+            assert chunk, "the daemon closed the stream"
+            self.buffer += chunk
+
+    def drop(self) -> None:
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # RST, no FIN
+        self.sock.close()
+
+
+def test_an_approval_answered_after_its_client_dropped_the_call_moves_nothing(slow_daemon) -> None:
+    raw = RawSession(slow_daemon, slow_daemon.operator_token)
+    start = raw.call("get_robot_state", {})["result"]["structuredContent"]["joint_positions"]
+    goal = [start[0] + 1.0 if start[0] < 1.0 else start[0] - 1.0, *start[1:]]  # 1 rad: a human must approve
+    plan = raw.call("plan_to_joints", {"joint_positions": goal})["result"]["structuredContent"]
+    assert plan["status"] == "needs_approval", plan
+    call = raw.open_call("execute_plan", {"plan_id": plan["plan_id"]})
+    question = call.wait_for(lambda event: event.get("method") == "elicitation/create")
+    call.drop()  # the client goes away while the human is deciding
+    time.sleep(0.5)
+    # the human approves anyway, and the answer reaches the session
+    raw.post({"jsonrpc": "2.0", "id": question["id"],
+              "result": {"action": "accept", "content": {"approve": True, "operator": "late"}}})
+    time.sleep(1.0)
+    after = raw.call("get_robot_state", {})["result"]["structuredContent"]["joint_positions"]
+    motion = raw.call("get_motion_status", {})["result"]["structuredContent"]
+    assert after == start and not motion["executing"]
+    records = records_of(slow_daemon.audit)
+    assert any(r["event"] == "client_disconnected" and r["outcome"] == "cancelled"
+               and r["arguments"] == {"plan_id": plan["plan_id"]} for r in records)
+
+
+def test_a_call_abandoned_by_another_client_does_not_stop_this_motion(slow_daemon) -> None:
+    async def scenario() -> dict[str, Any]:
+        http, client = session(slow_daemon, slow_daemon.operator_token, "legacy", approving())
+        async with http, client:
+            plan = await plan_a_slow_move(client)
+            outcome: dict[str, Any] = {}
+            on_progress = MotionStarted()
+
+            async def execute() -> None:
+                outcome["result"] = await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]},
+                                                           progress_callback=on_progress)
+
+            async with anyio.create_task_group() as group:
+                group.start_soon(execute)
+                await on_progress.event.wait()
+                observer = RawSession(slow_daemon, slow_daemon.observer_token)  # names the same plan, hangs up
+                await anyio.to_thread.run_sync(lambda: observer.open_call("execute_plan", {"plan_id": plan["plan_id"]}).drop())
+        return outcome["result"].structured_content
+
+    result = anyio.run(scenario)
+    assert result["status"] == "succeeded", result
+
+
+def test_a_post_body_over_the_limit_is_refused_before_the_sdk_sees_it(slow_daemon) -> None:
+    raw = RawSession(slow_daemon, slow_daemon.operator_token)
+    message = {"jsonrpc": "2.0", "id": 99, "method": "tools/call",
+               "params": {"name": "execute_plan", "arguments": {"plan_id": "plan_x"}, "_meta": {"pad": "x" * MAX_BODY_BYTES}}}
+    assert raw.post(message).status_code == 413

@@ -1,5 +1,7 @@
-"""`AbandonedMotionStop`: a motion call whose request ends without its response is reported, once,
-with its arguments; answered calls, other tools, other paths and oversized bodies are not."""
+"""`AbandonedMotionStop`: a motion call whose request ends without its response is cancelled in its
+own session (the `notifications/cancelled` the client would have sent goes through the same app)
+and reported once; answered calls, other tools, other paths are left alone; oversized bodies are
+refused before the app sees them."""
 
 from __future__ import annotations
 
@@ -11,31 +13,50 @@ import pytest
 
 from armwarden.transport.abandoned import MAX_BODY_BYTES, AbandonedMotionStop, motion_call
 
-
-def rpc(name: str, arguments: Any = None, method: str = "tools/call") -> bytes:
-    return json.dumps({"jsonrpc": "2.0", "id": 7, "method": method,
-                       "params": {"name": name, "arguments": arguments if arguments is not None else {}}}).encode()
+SESSION = (b"mcp-session-id", b"s-123")
 
 
-def run(body: bytes, *, answer: bool, path: str = "/mcp", method: str = "POST", fail: bool = False,
-        chunk: int | None = None) -> list[tuple[str, dict]]:
-    """Drive the middleware around an app that reads the body and answers (or not)."""
-    abandoned: list[tuple[str, dict]] = []
+def rpc(name: str, arguments: Any = None, method: str = "tools/call", request_id: Any = 7) -> bytes:
+    message = {"jsonrpc": "2.0", "method": method, "params": {"name": name, "arguments": arguments if arguments is not None else {}}}
+    if request_id is not None:
+        message["id"] = request_id
+    return json.dumps(message).encode()
 
-    async def on_abandoned(tool: str, arguments: dict) -> None:
-        abandoned.append((tool, arguments))
 
-    async def app(scope, receive, send) -> None:
-        more = True
+class Recorder:
+    """The wrapped app: reads the body, streams part of an answer, then answers in full or not.
+    Every request it sees is kept (the injected cancellation among them)."""
+
+    def __init__(self, answer: bool, fail: bool = False, cancel_status: int = 202) -> None:
+        self.answer, self.fail, self.cancel_status = answer, fail, cancel_status
+        self.seen: list[tuple[dict, bytes]] = []
+
+    async def __call__(self, scope, receive, send) -> None:
+        body, more = b"", True
         while more:
             message = await receive()
+            body += message.get("body", b"")
             more = message.get("more_body", False)
+        self.seen.append((scope, body))
+        if json.loads(body).get("method") == "notifications/cancelled":
+            await send({"type": "http.response.start", "status": self.cancel_status, "headers": []})
+            await send({"type": "http.response.body", "body": b""})
+            return
         await send({"type": "http.response.start", "status": 200, "headers": []})
         await send({"type": "http.response.body", "body": b"event: progress", "more_body": True})
-        if fail:
+        if self.fail:
             raise RuntimeError("the client went away mid-stream")
-        if answer:
+        if self.answer:
             await send({"type": "http.response.body", "body": b"event: result", "more_body": False})
+
+
+def run(body: bytes, app: Recorder, *, path: str = "/mcp", method: str = "POST", headers=(SESSION,),
+        chunk: int | None = None) -> tuple[list[tuple], list[dict]]:
+    reports: list[tuple] = []
+    responses: list[dict] = []
+
+    async def on_abandoned(tool: str, arguments: dict, request_id: Any, cancelled: bool) -> None:
+        reports.append((tool, arguments, request_id, cancelled))
 
     size = chunk or max(1, len(body))
     pieces = [body[i:i + size] for i in range(0, len(body), size)] or [b""]
@@ -45,53 +66,91 @@ def run(body: bytes, *, answer: bool, path: str = "/mcp", method: str = "POST", 
         return messages.pop(0) if messages else {"type": "http.disconnect"}
 
     async def send(message: dict) -> None:
-        pass
+        responses.append(message)
 
     middleware = AbandonedMotionStop(app, "/mcp", on_abandoned)
 
     async def main() -> None:
         try:
-            await middleware({"type": "http", "method": method, "path": path}, receive, send)
+            await middleware({"type": "http", "method": method, "path": path, "headers": list(headers)}, receive, send)
         except RuntimeError:
             pass
 
     anyio.run(main)
-    return abandoned
+    return reports, responses
+
+
+def cancellations(app: Recorder) -> list[dict]:
+    return [json.loads(body) for _scope, body in app.seen if json.loads(body).get("method") == "notifications/cancelled"]
 
 
 @pytest.mark.parametrize("tool", ["execute_plan", "gripper_move", "gripper_grasp", "gripper_home"])
-def test_an_unanswered_motion_call_is_reported_with_its_arguments(tool):
-    assert run(rpc(tool, {"plan_id": "plan_x"}), answer=False) == [(tool, {"plan_id": "plan_x"})]
+def test_an_unanswered_motion_call_is_cancelled_in_its_session_and_reported(tool):
+    app = Recorder(answer=False)
+    reports, _ = run(rpc(tool, {"plan_id": "plan_x"}, request_id="r-1"), app)
+    assert [c["params"]["requestId"] for c in cancellations(app)] == ["r-1"]
+    cancel_scope = app.seen[-1][0]
+    assert SESSION in cancel_scope["headers"]  # the same session, so only this client's call is touched
+    assert reports == [(tool, {"plan_id": "plan_x"}, "r-1", True)]
 
 
-def test_a_motion_call_whose_stream_broke_is_reported():
-    assert run(rpc("execute_plan", {"plan_id": "p"}), answer=False, fail=True) == [("execute_plan", {"plan_id": "p"})]
+def test_a_motion_call_whose_stream_broke_is_cancelled():
+    app = Recorder(answer=False, fail=True)
+    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app)
+    assert len(cancellations(app)) == 1 and reports == [("execute_plan", {"plan_id": "p"}, 7, True)]
 
 
-def test_a_body_that_arrives_in_pieces_is_put_back_together():
-    assert run(rpc("execute_plan", {"plan_id": "p"}), answer=False, chunk=5) == [("execute_plan", {"plan_id": "p"})]
+def test_a_body_that_arrives_in_pieces_reaches_the_app_whole():
+    app = Recorder(answer=True)
+    body = rpc("execute_plan", {"plan_id": "p"})
+    run(body, app, chunk=5)
+    assert app.seen[0][1] == body
 
 
-def test_an_answered_motion_call_is_not_reported():
-    assert run(rpc("execute_plan", {"plan_id": "p"}), answer=True) == []
+def test_an_answered_motion_call_is_left_alone():
+    app = Recorder(answer=True)
+    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app)
+    assert reports == [] and cancellations(app) == []
+
+
+def test_a_refused_cancellation_is_reported_as_not_delivered():
+    app = Recorder(answer=False, cancel_status=404)
+    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app)
+    assert reports == [("execute_plan", {"plan_id": "p"}, 7, False)]
+
+
+def test_without_a_session_nothing_is_injected_and_the_call_is_reported_uncancelled():
+    # 2026-07-28 requests carry no session: the SDK cancels the call itself when its request ends
+    app = Recorder(answer=False)
+    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app, headers=())
+    assert cancellations(app) == [] and reports == [("execute_plan", {"plan_id": "p"}, 7, False)]
 
 
 @pytest.mark.parametrize("body", [rpc("get_robot_state"), rpc("plan_to_pose"), rpc("execute_plan", method="tools/list"),
-                                  b"not json", b"[1, 2]", b""])
-def test_other_requests_are_never_reported(body):
-    assert run(body, answer=False) == []
+                                  rpc("execute_plan", request_id=None), rpc("execute_plan", request_id=True)])
+def test_other_messages_are_never_cancelled(body):
+    app = Recorder(answer=False)
+    reports, _ = run(body, app)
+    assert reports == [] and cancellations(app) == []
 
 
-def test_other_paths_and_methods_are_passed_through():
-    body = rpc("execute_plan", {"plan_id": "p"})
-    assert run(body, answer=False, path="/healthz") == []
-    assert run(body, answer=False, method="GET") == []
+def test_other_paths_and_methods_are_passed_through_untouched():
+    app = Recorder(answer=False)
+    assert run(rpc("execute_plan", {"plan_id": "p"}), app, path="/healthz")[0] == []
+    assert run(rpc("execute_plan", {"plan_id": "p"}), app, method="GET")[0] == []
+    assert cancellations(app) == []
 
 
-def test_an_oversized_body_is_not_kept():
-    padding = "x" * MAX_BODY_BYTES
-    assert run(rpc("execute_plan", {"plan_id": "p", "pad": padding}), answer=False, chunk=4096) == []
+def test_an_oversized_body_is_refused_with_413_and_never_reaches_the_app():
+    app = Recorder(answer=True)
+    reports, responses = run(rpc("execute_plan", {"plan_id": "p", "pad": "x" * MAX_BODY_BYTES}), app, chunk=65536)
+    assert responses[0]["status"] == 413 and app.seen == [] and reports == []
+
+
+@pytest.mark.parametrize("body", [b"not json", b"[1, 2]", b""])
+def test_bodies_that_are_not_calls_are_not_motion_calls(body):
+    assert motion_call(body) is None
 
 
 def test_non_object_arguments_become_an_empty_mapping():
-    assert motion_call(rpc("execute_plan", ["plan_x"])) == ("execute_plan", {})
+    assert motion_call(rpc("execute_plan", ["plan_x"])) == ("execute_plan", {}, 7)

@@ -1,15 +1,22 @@
-"""Stop motion whose HTTP caller went away.
+"""Cancel motion calls whose HTTP caller went away.
 
 Under the 2026-07-28 protocol a tool call lives and dies with its HTTP request: when the client
-disconnects, the SDK cancels the call and the Guard stops the arm. Under 2025-11-25 the call runs
-inside the session, not the request: a client that drops the connection of an `execute_plan`
-POST leaves the motion running to its end, and nobody is there to see it or stop it. This ASGI
-layer closes that gap. For each POST to the MCP endpoint it keeps the (bounded) request body and
-notes whether the response was sent in full; when the request ends without a complete response
-and it was a call to a tool that moves something, it hands the tool name and arguments to
-`on_abandoned`, which stops that motion if it is still running (`Guard.stop_abandoned_call`).
+disconnects, the SDK cancels the call, and a cancelled call stops what it moved (Guard). Under
+2025-11-25 the call runs inside the session, not the request: a client that drops the connection
+of an `execute_plan` POST would leave the call running — waiting for an approval that can still be
+posted later, or moving the arm to its goal with nobody watching.
 
-It only ever adds a stop; it never blocks, changes or drops a message.
+This ASGI layer closes that gap for exactly the call that was abandoned. For each POST to the MCP
+endpoint it reads the body first (at most `MAX_BODY_BYTES`; a larger body is refused with 413 before
+the SDK sees it, so no call escapes the watch by being large), and notes whether the response was
+sent in full. When a request that carried a `tools/call` of a motion tool ends without its
+response, it sends the SDK, through the same app and in the same session and principal, the
+`notifications/cancelled` for that request id that the client would have sent. The SDK cancels
+that one call wherever it is (prechecks, approval question, motion) and the Guard's cancellation
+path stops the robot and audits it. Nothing else is touched: another client's motion keeps going.
+`on_abandoned` is told afterwards, for the audit log.
+
+It never blocks, changes or drops a message of a request it passes on.
 """
 
 from __future__ import annotations
@@ -24,33 +31,66 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 logger = logging.getLogger(__name__)
 
-#: tools whose call, abandoned by its client, must not keep moving the robot
+#: tools whose call, abandoned by its client, must be cancelled
 MOTION_TOOLS = frozenset({"execute_plan", "gripper_move", "gripper_grasp", "gripper_home"})
-#: larger request bodies are not kept (no motion call is anywhere near this size)
-MAX_BODY_BYTES = 64 * 1024
+#: POST bodies above this are refused (413); no MCP message this server accepts comes near it
+MAX_BODY_BYTES = 1024 * 1024
+#: how long the injected cancellation may take before it is given up (logged) [s]
+CANCEL_TIMEOUT_S = 2.0
+SESSION_HEADER = b"mcp-session-id"
 
-AbandonedCallback = Callable[[str, dict[str, Any]], Awaitable[None]]
+#: (tool, arguments, request id, whether the cancellation was delivered)
+AbandonedCallback = Callable[[str, dict[str, Any], Any, bool], Awaitable[None]]
 
 
-def motion_call(body: bytes) -> tuple[str, dict[str, Any]] | None:
-    """(tool, arguments) if `body` is a JSON-RPC `tools/call` of a motion tool, else None."""
+def motion_call(body: bytes) -> tuple[str, dict[str, Any], Any] | None:
+    """(tool, arguments, request id) if `body` is a JSON-RPC `tools/call` request of a motion tool."""
     try:
         message = json.loads(body)
     except (ValueError, UnicodeDecodeError, RecursionError):
         return None
     if not isinstance(message, dict) or message.get("method") != "tools/call":
         return None
+    request_id = message.get("id")
+    if isinstance(request_id, bool) or not isinstance(request_id, (int, str)):
+        return None  # without a usable id it is a notification: the SDK runs nothing
     params = message.get("params")
     if not isinstance(params, dict) or params.get("name") not in MOTION_TOOLS:
         return None
     arguments = params.get("arguments")
-    return str(params["name"]), arguments if isinstance(arguments, dict) else {}
+    return str(params["name"]), arguments if isinstance(arguments, dict) else {}, request_id
+
+
+class _ClientGone(Exception):
+    """The client disconnected before its request body arrived."""
+
+
+async def _read_body(receive: Receive) -> bytes | None:
+    """The whole request body, or None once it exceeds `MAX_BODY_BYTES`."""
+    body = bytearray()
+    while True:
+        message = await receive()
+        if message["type"] != "http.request":
+            raise _ClientGone
+        body.extend(message.get("body", b""))
+        if len(body) > MAX_BODY_BYTES:
+            return None
+        if not message.get("more_body", False):
+            return bytes(body)
+
+
+async def _too_large(send: Send) -> None:
+    payload = json.dumps({"jsonrpc": "2.0", "id": None, "error": {
+        "code": -32600, "message": f"request body over {MAX_BODY_BYTES} bytes refused"}}).encode()
+    await send({"type": "http.response.start", "status": 413,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode())]})
+    await send({"type": "http.response.body", "body": payload})
 
 
 class AbandonedMotionStop:
     """ASGI middleware: see the module docstring."""
 
-    def __init__(self, app: ASGIApp, path: str, on_abandoned: AbandonedCallback) -> None:
+    def __init__(self, app: ASGIApp, path: str, on_abandoned: AbandonedCallback | None = None) -> None:
         self.app = app
         self.path = path.rstrip("/")
         self.on_abandoned = on_abandoned
@@ -59,21 +99,22 @@ class AbandonedMotionStop:
         if scope["type"] != "http" or scope.get("method") != "POST" or scope.get("path", "").rstrip("/") != self.path:
             await self.app(scope, receive, send)
             return
-        body = bytearray()
-        kept = True
+        try:
+            body = await _read_body(receive)
+        except _ClientGone:
+            return  # nothing was asked, nothing runs
+        if body is None:
+            await _too_large(send)
+            return
+        delivered = False
         answered = False
 
-        async def receive_and_keep() -> Message:
-            nonlocal kept
-            message = await receive()
-            if message["type"] == "http.request" and kept:
-                chunk = message.get("body", b"")
-                if len(body) + len(chunk) > MAX_BODY_BYTES:
-                    kept = False
-                    body.clear()
-                else:
-                    body.extend(chunk)
-            return message
+        async def replay_then_receive() -> Message:
+            nonlocal delivered
+            if not delivered:
+                delivered = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()  # after the body: the client's disconnect, if it comes
 
         async def send_and_note(message: Message) -> None:
             nonlocal answered
@@ -82,11 +123,54 @@ class AbandonedMotionStop:
                 answered = True
 
         try:
-            await self.app(scope, receive_and_keep, send_and_note)
+            await self.app(scope, replay_then_receive, send_and_note)
         finally:
-            if not answered and kept and (call := motion_call(bytes(body))) is not None:
-                with anyio.CancelScope(shield=True):  # runs also when this request was cancelled
-                    try:
-                        await self.on_abandoned(*call)
-                    except Exception:  # the stop path reports its own failures; never break the server
-                        logger.exception("stopping the abandoned %s call failed", call[0])
+            if not answered and (call := motion_call(body)) is not None:
+                with anyio.CancelScope(shield=True):  # runs also when this request task was cancelled
+                    await self._abandoned(scope, *call)
+
+    async def _abandoned(self, scope: Scope, tool: str, arguments: dict[str, Any], request_id: Any) -> None:
+        cancelled = False
+        if any(name == SESSION_HEADER for name, _ in scope.get("headers", [])):
+            try:
+                cancelled = await self._cancel(scope, request_id)
+            except Exception:
+                logger.exception("cancelling the abandoned %s call %r failed", tool, request_id)
+        if self.on_abandoned is not None:
+            try:
+                await self.on_abandoned(tool, arguments, request_id, cancelled)
+            except Exception:
+                logger.exception("reporting the abandoned %s call %r failed", tool, request_id)
+
+    async def _cancel(self, scope: Scope, request_id: Any) -> bool:
+        """Send `notifications/cancelled` for `request_id` through the app, as the client would have."""
+        payload = json.dumps({"jsonrpc": "2.0", "method": "notifications/cancelled", "params": {
+            "requestId": request_id, "reason": "the client disconnected before the call finished"}}).encode()
+        replaced = {b"content-type", b"content-length", b"accept"}
+        headers = [(name, value) for name, value in scope.get("headers", []) if name not in replaced]
+        headers += [(b"content-type", b"application/json"), (b"accept", b"application/json, text/event-stream"),
+                    (b"content-length", str(len(payload)).encode())]
+        done = anyio.Event()
+        status: list[int] = []
+        sent = False
+
+        async def receive() -> Message:
+            nonlocal sent
+            if not sent:
+                sent = True
+                return {"type": "http.request", "body": payload, "more_body": False}
+            await done.wait()
+            return {"type": "http.disconnect"}
+
+        async def send(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                status.append(int(message["status"]))
+            elif message["type"] == "http.response.body" and not message.get("more_body", False):
+                done.set()
+
+        with anyio.move_on_after(CANCEL_TIMEOUT_S):
+            await self.app({**scope, "headers": headers}, receive, send)
+        if not status or status[0] >= 300:
+            logger.error("the SDK did not accept the cancellation of request %r (status %s)", request_id, status)
+            return False
+        return True

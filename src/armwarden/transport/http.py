@@ -3,10 +3,10 @@
 Request path (outermost first)::
 
     uvicorn ─▶ HostOriginGuard ─▶ BearerAuth ─▶ AuthContextMiddleware ─▶ AbandonedMotionStop ─▶ routes
-               421 bad Host      401 + WWW-     (SDK: publishes the     (a motion call whose   /healthz
-               403 bad Origin    Authenticate   user to get_access_     request ends unanswered /mcp
-               (every path)      (all but       token())                is stopped)
-                                 /healthz)
+               421 bad Host      401 + WWW-     (SDK: publishes the     (413 over 1 MiB; a      /healthz
+               403 bad Origin    Authenticate   user to get_access_     motion call whose       /mcp
+               (every path)      (all but       token())                request ends unanswered
+                                 /healthz)                              is cancelled)
 
 - Host/Origin validation (DNS rebinding) uses the SDK's `TransportSecuritySettings` and
   `TransportSecurityMiddleware.validate_request` on *every* path, before credentials are looked
@@ -254,8 +254,8 @@ def build_http_app(
 
     Build one app per serve: the SDK's session manager it creates can run only once.
     `health` must be quick, non-blocking and return JSON-able data with nothing secret in it.
-    `on_abandoned(tool, arguments)` is awaited when an authenticated motion call's request ends
-    without its response (the client went away; see `abandoned.py`).
+    `on_abandoned(tool, arguments, request_id, cancelled)` is awaited after an authenticated motion
+    call's request ended without its response and the call was cancelled (see `abandoned.py`).
     """
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     mcp_app = server.streamable_http_app(
@@ -285,8 +285,8 @@ def build_http_app(
     middleware = [Middleware(HostOriginGuard, settings=security)]
     if token_store is not None:
         middleware.append(Middleware(BearerAuth, token_store=token_store))
-    if on_abandoned is not None:  # innermost: only requests that passed the checks above
-        middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned))
+    # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
+    middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned))
     return Starlette(
         routes=[Route(HEALTH_PATH, healthz, methods=["GET"]), Mount("/", app=mcp_app)],
         middleware=middleware,
