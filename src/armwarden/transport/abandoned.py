@@ -79,6 +79,20 @@ async def _read_body(receive: Receive) -> bytes | None:
             return bytes(body)
 
 
+def _replaying(body: bytes, afterwards: Callable[[], Awaitable[Message]]) -> Receive:
+    """A `receive` that hands over `body` in one message, then defers to `afterwards`."""
+    pending = True
+
+    async def receive() -> Message:
+        nonlocal pending
+        if pending:
+            pending = False
+            return {"type": "http.request", "body": body, "more_body": False}
+        return await afterwards()
+
+    return receive
+
+
 async def _too_large(send: Send) -> None:
     payload = json.dumps({"jsonrpc": "2.0", "id": None, "error": {
         "code": -32600, "message": f"request body over {MAX_BODY_BYTES} bytes refused"}}).encode()
@@ -106,15 +120,7 @@ class AbandonedMotionStop:
         if body is None:
             await _too_large(send)
             return
-        delivered = False
         answered = False
-
-        async def replay_then_receive() -> Message:
-            nonlocal delivered
-            if not delivered:
-                delivered = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()  # after the body: the client's disconnect, if it comes
 
         async def send_and_note(message: Message) -> None:
             nonlocal answered
@@ -123,7 +129,7 @@ class AbandonedMotionStop:
                 answered = True
 
         try:
-            await self.app(scope, replay_then_receive, send_and_note)
+            await self.app(scope, _replaying(body, receive), send_and_note)  # then: the client's disconnect, if any
         finally:
             if not answered and (call := motion_call(body)) is not None:
                 with anyio.CancelScope(shield=True):  # runs also when this request task was cancelled
@@ -152,13 +158,8 @@ class AbandonedMotionStop:
                     (b"content-length", str(len(payload)).encode())]
         done = anyio.Event()
         status: list[int] = []
-        sent = False
 
-        async def receive() -> Message:
-            nonlocal sent
-            if not sent:
-                sent = True
-                return {"type": "http.request", "body": payload, "more_body": False}
+        async def after_the_response() -> Message:
             await done.wait()
             return {"type": "http.disconnect"}
 
@@ -169,7 +170,7 @@ class AbandonedMotionStop:
                 done.set()
 
         with anyio.move_on_after(CANCEL_TIMEOUT_S):
-            await self.app({**scope, "headers": headers}, receive, send)
+            await self.app({**scope, "headers": headers}, _replaying(payload, after_the_response), send)
         if not status or status[0] >= 300:
             logger.error("the SDK did not accept the cancellation of request %r (status %s)", request_id, status)
             return False
