@@ -193,7 +193,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: an
         status = assembly.guard.safety_status()
         return {"status": "ok", "estopped": status.estopped, "executing": assembly.guard.motion_status().executing}
 
-    async def on_abandoned(tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool) -> None:
+    async def on_abandoned(tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool | None) -> None:
         principal = current_principal()
         await assembly.guard.abandoned_call(tool, arguments, request_id, cancelled,
                                             principal=None if principal is None else principal.name)

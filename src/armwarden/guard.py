@@ -611,16 +611,17 @@ class Guard:
             await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome=outcome,
                                           detail=f"plan {plan_id}: the call was cancelled; {what}")
 
-    async def abandoned_call(self, tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool,
+    async def abandoned_call(self, tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool | None,
                              principal: str | None = None) -> None:
         """An HTTP client went away before its motion call answered (`transport/abandoned.py`).
 
-        Normally the call was cancelled through the SDK, and the cancellation path stopped whatever
-        it moved. If that cancellation could not be delivered and the motion of that call is still
-        running (same plan id; the one gripper action), stop it here. Audited either way."""
-        outcome = "cancelled" if cancelled else "nothing_running"
+        `cancelled` True: the call was cancelled in its session and the cancellation path stopped
+        whatever it moved. None: a sessionless (2026-07-28) call, which the SDK ends with its
+        request. False: the cancellation could not be delivered; if that call's motion still runs
+        (same plan id; the one gripper action), it is stopped here. Audited in every case."""
+        outcome = {True: "cancelled", None: "ended_with_request", False: "nothing_running"}[cancelled]
         detail = f"the client of {tool} (request {str(request_id)[:64]}) went away before the answer"
-        if not cancelled:
+        if cancelled is False:
             running = (self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
                        if tool == "execute_plan" else self._gripper_busy)
             if running:

@@ -403,14 +403,16 @@ def test_an_abandoned_call_whose_cancellation_failed_stops_only_the_motion_it_st
                 await arm.guard.abandoned_call("execute_plan", {"plan_id": "plan_someone_else"}, 3, cancelled=False)
                 await arm.guard.abandoned_call("gripper_move", {}, 4, cancelled=False)  # no gripper action runs
                 await arm.guard.abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, 5, cancelled=True)
+                await arm.guard.abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, 6, cancelled=None)
                 assert arm.guard.motion_status().executing  # none of those stopped this motion
-                await arm.guard.abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, 6, cancelled=False,
+                await arm.guard.abandoned_call("execute_plan", {"plan_id": summary["plan_id"]}, 7, cancelled=False,
                                                principal="alice")
 
             assert outcome["result"].structured_content["status"] == "aborted"
             await assert_arm_still(client)
             assert not arm.guard.latch.is_latched
             gone = [(r["principal"], r["outcome"]) for r in audit_records(arm.audit_path) if r["event"] == "client_disconnected"]
-            assert gone == [(None, "nothing_running"), (None, "nothing_running"), (None, "cancelled"), ("alice", "stopped")]
+            assert gone == [(None, "nothing_running"), (None, "nothing_running"), (None, "cancelled"),
+                            (None, "ended_with_request"), ("alice", "stopped")]
 
     anyio.run(scenario)

@@ -92,7 +92,7 @@ def test_a_client_that_disconnects_mid_motion_leaves_the_arm_stopped(slow_daemon
     assert [r["outcome"] for r in interrupted] == ["stopped"], interrupted
     gone = [r for r in records if r["event"] == "client_disconnected" and r["arguments"] == {"plan_id": plan_id}]
     assert [(r["principal"], r["outcome"]) for r in gone] == [
-        ("alice", "cancelled" if mode == "legacy" else "nothing_running")], gone  # 2026-07-28: the SDK cancelled it
+        ("alice", "cancelled" if mode == "legacy" else "ended_with_request")], gone  # 2026-07-28: the SDK cancelled it
 
 
 @pytest.mark.parametrize("mode", MODES)

@@ -119,11 +119,11 @@ def test_a_refused_cancellation_is_reported_as_not_delivered():
     assert reports == [("execute_plan", {"plan_id": "p"}, 7, False)]
 
 
-def test_without_a_session_nothing_is_injected_and_the_call_is_reported_uncancelled():
+def test_without_a_session_nothing_is_injected_and_the_call_is_reported_as_ended_with_its_request():
     # 2026-07-28 requests carry no session: the SDK cancels the call itself when its request ends
     app = Recorder(answer=False)
     reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app, headers=())
-    assert cancellations(app) == [] and reports == [("execute_plan", {"plan_id": "p"}, 7, False)]
+    assert cancellations(app) == [] and reports == [("execute_plan", {"plan_id": "p"}, 7, None)]
 
 
 @pytest.mark.parametrize("body", [rpc("get_robot_state"), rpc("plan_to_pose"), rpc("execute_plan", method="tools/list"),
@@ -154,3 +154,69 @@ def test_bodies_that_are_not_calls_are_not_motion_calls(body):
 
 def test_non_object_arguments_become_an_empty_mapping():
     assert motion_call(rpc("execute_plan", ["plan_x"])) == ("execute_plan", {}, 7)
+
+
+def test_a_declared_oversized_body_is_refused_before_it_is_read():
+    app = Recorder(answer=True)
+    read: list[dict] = []
+    responses: list[dict] = []
+
+    async def receive() -> dict:
+        read.append({})
+        return {"type": "http.request", "body": b"{}", "more_body": False}
+
+    async def send(message: dict) -> None:
+        responses.append(message)
+
+    scope = {"type": "http", "method": "POST", "path": "/mcp",
+             "headers": [SESSION, (b"content-length", str(50 * MAX_BODY_BYTES).encode())]}
+    anyio.run(AbandonedMotionStop(app, "/mcp"), scope, receive, send)
+    assert responses[0]["status"] == 413 and read == [] and app.seen == []
+
+
+def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_stays_cancellable():
+    class Holding(Recorder):
+        """Keeps the first call open until told; answers everything else at once."""
+
+        def __init__(self) -> None:
+            super().__init__(answer=True)
+            self.release = anyio.Event()
+
+        async def __call__(self, scope, receive, send) -> None:
+            if not self.seen:
+                self.seen.append((scope, b'{"method": "tools/call"}'))
+                await self.release.wait()
+                return  # ends unanswered: the client went away
+            await super().__call__(scope, receive, send)
+
+    app = Holding()
+    reports: list[tuple] = []
+
+    async def on_abandoned(*report) -> None:
+        reports.append(report)
+
+    middleware = AbandonedMotionStop(app, "/mcp", on_abandoned)
+    statuses: list[int] = []
+
+    def request(body: bytes):
+        async def receive() -> dict:
+            return {"type": "http.request", "body": body, "more_body": False}
+
+        async def send(message: dict) -> None:
+            if message["type"] == "http.response.start":
+                statuses.append(message["status"])
+
+        return middleware({"type": "http", "method": "POST", "path": "/mcp", "headers": [SESSION]}, receive, send)
+
+    async def main() -> None:
+        async with anyio.create_task_group() as group:
+            group.start_soon(request, rpc("execute_plan", {"plan_id": "p"}, request_id=777))
+            await anyio.sleep(0.01)
+            await request(rpc("get_safety_status", request_id="777"))  # same id (7 and "7" are one to the SDK)
+            await request(rpc("get_safety_status", request_id=778))
+            app.release.set()
+
+    anyio.run(main)
+    assert statuses[:2] == [409, 200]
+    assert [c["params"]["requestId"] for c in cancellations(app)] == [777]
+    assert reports == [("execute_plan", {"plan_id": "p"}, 777, True)]

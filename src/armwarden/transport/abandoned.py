@@ -7,9 +7,11 @@ of an `execute_plan` POST would leave the call running — waiting for an approv
 posted later, or moving the arm to its goal with nobody watching.
 
 This ASGI layer closes that gap for exactly the call that was abandoned. For each POST to the MCP
-endpoint it reads the body first (at most `MAX_BODY_BYTES`; a larger body is refused with 413 before
-the SDK sees it, so no call escapes the watch by being large), and notes whether the response was
-sent in full. When a request that carried a `tools/call` of a motion tool ends without its
+endpoint it reads the body first (at most `MAX_BODY_BYTES`; a larger body, declared or sent, is
+refused with 413 before the SDK sees it, so no call escapes the watch by being large), refuses
+(409) a request whose id is already used by an open request of the same session (the SDK would
+overwrite the open call's entry, and that call could no longer be cancelled), and notes whether
+the response was sent in full. When a request that carried a `tools/call` of a motion tool ends without its
 response, it sends the SDK, through the same app and in the same session and principal, the
 `notifications/cancelled` for that request id that the client would have sent. The SDK cancels
 that one call wherever it is (prechecks, approval question, motion) and the Guard's cancellation
@@ -39,8 +41,9 @@ MAX_BODY_BYTES = 1024 * 1024
 CANCEL_TIMEOUT_S = 2.0
 SESSION_HEADER = b"mcp-session-id"
 
-#: (tool, arguments, request id, whether the cancellation was delivered)
-AbandonedCallback = Callable[[str, dict[str, Any], Any, bool], Awaitable[None]]
+#: (tool, arguments, request id, cancelled): True = the cancellation was accepted by the SDK; False =
+#: it was not; None = no session, so there was nothing to cancel (the SDK ends such a call itself)
+AbandonedCallback = Callable[[str, dict[str, Any], Any, "bool | None"], Awaitable[None]]
 
 
 def motion_call(body: bytes) -> tuple[str, dict[str, Any], Any] | None:
@@ -93,12 +96,40 @@ def _replaying(body: bytes, afterwards: Callable[[], Awaitable[Message]]) -> Rec
     return receive
 
 
-async def _too_large(send: Send) -> None:
-    payload = json.dumps({"jsonrpc": "2.0", "id": None, "error": {
-        "code": -32600, "message": f"request body over {MAX_BODY_BYTES} bytes refused"}}).encode()
-    await send({"type": "http.response.start", "status": 413,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode())]})
+async def _refuse(send: Send, status: int, message: str, request_id: Any = None) -> None:
+    """A JSON-RPC error answer that the SDK never saw the request for."""
+    payload = json.dumps({"jsonrpc": "2.0", "id": request_id, "error": {"code": -32600, "message": message}}).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode()),
+                            (b"connection", b"close")]})
     await send({"type": "http.response.body", "body": payload})
+
+
+def _header(scope: Scope, name: bytes) -> bytes | None:
+    return next((value for key, value in scope.get("headers", []) if key == name), None)
+
+
+def _declared_length(scope: Scope) -> int | None:
+    value = _header(scope, b"content-length")
+    try:
+        return int(value) if value is not None else None
+    except ValueError:
+        return None
+
+
+def _request_key(scope: Scope, body: bytes) -> tuple[bytes, str] | None:
+    """(session, id) of a JSON-RPC request sent in a session: the SDK matches cancellations (and
+    answers) by id, with 7 and "7" the same, so two open requests must never share one."""
+    session = _header(scope, SESSION_HEADER)
+    if session is None:
+        return None
+    try:
+        message = json.loads(body)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    if not isinstance(message, dict) or "method" not in message or "id" not in message:
+        return None  # a notification, or the client's answer to a server request (other id space)
+    return session, str(message["id"])
 
 
 class AbandonedMotionStop:
@@ -108,18 +139,38 @@ class AbandonedMotionStop:
         self.app = app
         self.path = path.rstrip("/")
         self.on_abandoned = on_abandoned
+        self._open_requests: set[tuple[bytes, str]] = set()  # (session, request id) of POSTs not yet ended
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope.get("method") != "POST" or scope.get("path", "").rstrip("/") != self.path:
             await self.app(scope, receive, send)
+            return
+        declared = _declared_length(scope)
+        if declared is not None and declared > MAX_BODY_BYTES:  # before reading: no "100 Continue" for it
+            await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
             return
         try:
             body = await _read_body(receive)
         except _ClientGone:
             return  # nothing was asked, nothing runs
         if body is None:
-            await _too_large(send)
+            await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
             return
+        key = _request_key(scope, body)
+        if key is not None and key in self._open_requests:
+            # the SDK would replace the open call's entry: that call could then no longer be cancelled
+            await _refuse(send, 409, f"request id {key[1][:64]} is already in use by an open request of this session",
+                          request_id=json.loads(body).get("id"))
+            return
+        if key is not None:
+            self._open_requests.add(key)
+        try:
+            await self._pass_on(scope, receive, send, body)
+        finally:
+            if key is not None:
+                self._open_requests.discard(key)
+
+    async def _pass_on(self, scope: Scope, receive: Receive, send: Send, body: bytes) -> None:
         answered = False
 
         async def send_and_note(message: Message) -> None:
@@ -136,8 +187,9 @@ class AbandonedMotionStop:
                     await self._abandoned(scope, *call)
 
     async def _abandoned(self, scope: Scope, tool: str, arguments: dict[str, Any], request_id: Any) -> None:
-        cancelled = False
-        if any(name == SESSION_HEADER for name, _ in scope.get("headers", [])):
+        cancelled: bool | None = None  # no session: the call ended with its request (2026-07-28)
+        if _header(scope, SESSION_HEADER) is not None:
+            cancelled = False
             try:
                 cancelled = await self._cancel(scope, request_id)
             except Exception:
