@@ -60,7 +60,7 @@ from armwarden.results import (
 from armwarden.robot.model import Pose, RobotModel
 from armwarden.safety.approval import ServerDecision, approval_code, approval_required, compose_prompt
 from armwarden.safety.envelope import EnvelopeReport
-from armwarden.safety.estop import EStopLatch, flatten_reason
+from armwarden.safety.estop import EStopEvent, EStopLatch, flatten_reason
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
 from armwarden.safety.plans import PlanRefusal, PlanStore, StoredPlan
 from armwarden.safety.ratelimit import RateLimiter
@@ -599,9 +599,7 @@ class Guard:
             await self.backend.stop()
         except BackendError as exc:
             stop_failed = True
-            self.latch.latch(f"stop after interruption failed: {exc}", "stop_failed")
-            self.plans.invalidate_all("stop failed")
-            self.faults.append(f"stop after an interrupted execution failed: {exc}")
+            self._latch_failed_stop("stop after an interrupted execution", exc)
         self.last_result = ExecutionReport(
             plan_id=plan_id, status="aborted", approval=ApprovalInfo(required=False, operator=None, via="not_required"),
             duration_s=0.0, max_observed_force_n=None, detail="interrupted: the call was cancelled",
@@ -630,9 +628,7 @@ class Guard:
                     await self.backend.stop()
                     outcome, detail = "stopped", detail + "; the cancellation failed, so the robot was stopped"
                 except BackendError as exc:
-                    event = self.latch.latch(f"stop after a client disconnected failed: {exc}", "stop_failed")
-                    self.plans.invalidate_all("stop failed")
-                    self.faults.append(f"stop after a client disconnected failed: {exc}")
+                    event = self._latch_failed_stop("stop after a client disconnected", exc)
                     outcome, detail = "stop_failed", detail + f"; the stop FAILED ({exc}), e-stop #{event.number} latched"
         if self.audit is not None:
             await self.audit.append_async("client_disconnected", principal=principal, tool=tool, arguments=arguments,
@@ -645,9 +641,7 @@ class Guard:
         try:
             await self._timed_stop()
         except BackendError as exc:
-            event = self.latch.latch(f"stop_motion failed: {exc}", "stop_failed")
-            self.plans.invalidate_all("stop failed")
-            self.faults.append(f"stop failed: {exc}")
+            event = self._latch_failed_stop("stop_motion", exc)
             raise refuse("STOP_FAILED", f"the stop command failed ({exc}); the software e-stop #{event.number} is "
                          "latched. Use the hardware e-stop if the robot is still moving.") from exc
         return StopResult(stopped=True, detail="stop commanded for arm and gripper")
@@ -665,6 +659,13 @@ class Guard:
             self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
             event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
+
+    def _latch_failed_stop(self, what: str, exc: BaseException) -> EStopEvent:
+        """A stop that could not be issued: latch the e-stop, void every plan, report the fault."""
+        event = self.latch.latch(f"{what} failed: {exc}", "stop_failed")
+        self.plans.invalidate_all("stop failed")
+        self.faults.append(f"{what} failed: {exc}")
+        return event
 
     async def _timed_stop(self) -> None:
         """The backend stop, with when it was issued and confirmed noted on the call's audit record."""

@@ -11,9 +11,8 @@ last commanded positions with zero velocity, so no later position is ever comman
 thread computes each step outside the lock and publishes it under the lock only if no stop landed
 meanwhile (a stop sequence number tells), so a stop racing a tick can never be overtaken by it. A
 kinematic arm has no inertia: it is still from that instant, which `last_stop_stamp` records
-(monotonic clock).
-Nothing therefore waits for the control thread to be scheduled, which under load (the thread needs
-the interpreter lock) could take several milliseconds.
+(monotonic clock). Nothing therefore waits for the control thread to be scheduled, which under
+load (the thread needs the interpreter lock) could take several milliseconds.
 
 Contact. With `table_height_m` set, the estimated wrench is a force of `stiffness × penetration`
 along +z, where penetration = max(0, table_height_m − tcp_z) and tcp_z comes from the thread's own
@@ -261,7 +260,7 @@ class FakeBackend(Backend):
         self._wake = threading.Event()
         self._shutdown = False
         self._pending: _Execution | None = None
-        self._active: _Execution | None = None  # owned by the thread
+        self._active: _Execution | None = None  # the running execution (changed under the lock)
         self._stop_seq = 0  # bumped by every stop: a tick computed before it is not published
         self._refusing_executions: str | None = None  # set once the control thread is gone (why)
         self._thread_error: BaseException | None = None
