@@ -137,6 +137,9 @@ class Guard:
         self._planning_slot = anyio.CapacityLimiter(1)  # one planning thread, one Pinocchio Data
         self._execution: _Execution | None = None
         self._gripper_busy = False
+        self._actions_done: dict[str, int] = {}  # completed approvable actions per tool (see action_round)
+        #: force/torque thresholds carried between executions while resting above a limit (see force.py)
+        self._contact_ceiling: tuple[float | None, float | None] = (None, None)
         self._stop_generation = 0
         self.last_violation: Violation | None = None
         self.faults: list[str] = []
@@ -167,6 +170,12 @@ class Guard:
             f"{what} refused: the software e-stop #{event.number} is latched ({event.source}: {event.reason}). "
             "A human must approve reset_estop before anything can move again.",
         )
+
+    def require_audit(self, what: str) -> None:
+        """Nothing actuates unless it can be audited: a log that failed a write refuses, and so do we."""
+        if self.audit is not None and (self.audit.closed or self.audit.broken is not None):
+            raise refuse("AUDIT_UNAVAILABLE", f"{what} refused: the audit log cannot be written "
+                         f"({self.audit.broken or 'closed'}); nothing moves until it is repaired and the daemon restarted")
 
     def require_not_estopped(self, what: str) -> None:
         refusal = self._estop_refusal(what)
@@ -290,6 +299,7 @@ class Guard:
     async def plan(self, kind: PlanKind, request: dict[str, Any]) -> tuple[PlanSummary, bytes | None]:
         """Plan and check a motion (never moves). Returns the summary and an optional preview PNG."""
         self.require_not_estopped("planning")
+        generation = self.latch.generation  # an e-stop while planning voids the result
         start = (await self._joint_state()).positions.copy()
         planner, envelope = self.planning.planner, self.planning.envelope
         vel, acc = request.get("velocity_scaling"), request.get("acceleration_scaling")
@@ -309,9 +319,13 @@ class Guard:
             return outcome, report, preview
 
         outcome, report, preview = await self._run_planning(work)
-        return self._summarize(kind, outcome, report), preview
+        if self.latch.generation != generation:
+            raise refuse("ESTOPPED", "an e-stop latched while this motion was being planned; the plan was discarded. "
+                         "A human must approve reset_estop before anything can move again.")
+        return self._summarize(kind, outcome, report, generation), preview
 
-    def _summarize(self, kind: PlanKind, outcome: PlanOutcome, report: EnvelopeReport | None) -> PlanSummary:
+    def _summarize(self, kind: PlanKind, outcome: PlanOutcome, report: EnvelopeReport | None,
+                   estop_generation: int) -> PlanSummary:
         violations = list(outcome.violations) + (list(report.violations) if report else [])
         notes = list(outcome.notes)
         hard = [v for v in violations if v.is_hard]
@@ -340,7 +354,7 @@ class Guard:
             outcome.trajectory,
             report,
             status=status,
-            estop_generation=self.latch.generation,
+            estop_generation=estop_generation,
             meta={"kind": kind, "notes": tuple(notes), "velocity_scaling": outcome.velocity_scaling},
         )
         return PlanSummary(
@@ -361,12 +375,13 @@ class Guard:
 
     # ================================================================== execution: pre-check (resolver side)
     def _client_decision(self, action: str, required: bool, can_elicit: bool) -> ServerDecision | None:
-        """No prompt needed (proceed), cannot prompt (policy decides), or None: ask the human."""
+        """No prompt needed (proceed), cannot prompt (policy decides), or None: ask the human.
+        Releasing the e-stop always needs a human, whatever `on_client_without_elicitation` says."""
         if not required:
             return ServerDecision(True, "not_required")
         if can_elicit:
             return None
-        if self.policy.approval.on_client_without_elicitation == "allow":
+        if self.policy.approval.on_client_without_elicitation == "allow" and action != "reset_estop":
             return ServerDecision(True, "no_elicitation_client")
         return ServerDecision(
             False,
@@ -385,7 +400,7 @@ class Guard:
             return ServerDecision(False, "refused", r.code, str(r))
         if self._execution is not None:
             return ServerDecision(False, "refused", "BUSY", f"plan {self._execution.plan_id} is still executing")
-        plan = self.plans.peek(plan_id)
+        plan = self.plans.peek(plan_id, self.latch.generation)
         if isinstance(plan, PlanRefusal):
             return ServerDecision(False, "refused", plan.code, plan.message)
         try:
@@ -470,12 +485,13 @@ class Guard:
                       report_progress: ProgressReporter | None = None) -> ExecutionReport:
         """Run a stored plan: the only way the arm moves. See the module docstring for the order."""
         self.admit("execute_plan")  # a refusal here leaves the plan usable
+        self.require_audit("execute_plan")
         if self._execution is not None:
             raise refuse("BUSY", f"plan {self._execution.plan_id} is still executing; the plan {plan_id} stays usable")
         execution = self._execution = _Execution(plan_id=str(plan_id))  # claimed synchronously
         stop_generation = self._stop_generation
         try:
-            plan = self.plans.consume(plan_id)  # from here on the plan is spent, whatever happens
+            plan = self.plans.consume(plan_id, self.latch.generation)  # from here on the plan is spent, whatever happens
             if isinstance(plan, PlanRefusal):
                 raise refuse(plan.code, plan.message)
             required = approval_required(self.policy, "execute", bool(plan.report.soft))
@@ -493,6 +509,8 @@ class Guard:
             if (stale := self.plans.check_start(plan, state.positions)) is not None:
                 raise refuse(stale.code, stale.message)
             monitor = await self._force_monitor()
+            if not self.dry_run:  # on disk before the arm moves: a crash mid-motion still leaves a trace
+                await self._audit_start(plan, approval)
             if self._stop_generation != stop_generation or self.latch.is_latched:
                 raise refuse("STOPPED", "a stop or e-stop arrived while the plan was being checked; nothing moved")
             if self.dry_run:
@@ -505,14 +523,32 @@ class Guard:
             if self._execution is execution:
                 self._execution = None
 
+    async def _audit_start(self, plan: StoredPlan, approval: Approval) -> None:
+        if self.audit is None:
+            return
+        try:
+            await self.audit.append_async(
+                "execution_started", tool="execute_plan", arguments={"plan_id": plan.plan_id}, outcome="starting",
+                operator=approval.operator, detail=f"{plan.trajectory.duration_s:.2f} s, approval via {approval.via}",
+            )
+        except Exception as exc:
+            raise refuse("AUDIT_UNAVAILABLE", f"execute_plan refused: the audit log cannot be written ({exc}); "
+                         "nothing moved") from exc
+
     async def _force_monitor(self) -> ForceMonitor | None:
         if not self.backend.capabilities.wrench:
             if self.policy.force.require_wrench:
                 raise refuse("NO_WRENCH", _NO_WRENCH_MESSAGE)
             return None
-        monitor = ForceMonitor(self.force_limits, self.backend.read_wrench, clock=self._clock)
+        monitor = ForceMonitor(self.force_limits, self.backend.read_wrench, clock=self._clock,
+                               carried_ceiling=self._contact_ceiling)
         if await monitor.baseline() is None:
-            raise refuse("NO_WRENCH", "the wrench estimate is missing, slow or invalid right now; refusing to move")
+            raise refuse("NO_WRENCH", "the wrench estimate is missing, slow, stale or invalid right now; refusing to move")
+        if monitor.baseline_excessive:
+            raise refuse("IN_CONTACT", f"the arm already presses with {monitor.baseline_wrench.force_norm_n:.1f} N / "
+                         f"{monitor.baseline_wrench.torque_norm_nm:.2f} N·m, more than twice the limit; a human must "
+                         "relieve the contact before anything moves")
+        self._contact_ceiling = monitor.contact_ceiling  # kept until a baseline is back under the limit
         return monitor
 
     async def _run(self, plan: StoredPlan, execution: _Execution, approval: Approval,
@@ -551,6 +587,11 @@ class Guard:
                 except BackendError as exc:  # caught here: out of the task group it would be an ExceptionGroup
                     fault = exc
                 group.cancel_scope.cancel()
+            if monitor is not None and violation is None and fault is None:
+                # one more sample now that the motion ended: a crossing after the last poll still counts
+                if (final := await monitor.check_once()) is not None:
+                    with anyio.CancelScope(shield=True):
+                        await on_violation(final)
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True):
                 await self._stop_after_interruption(plan.plan_id)
@@ -734,15 +775,23 @@ class Guard:
         decision = self._client_decision(tool, required, can_elicit)
         return decision if decision is not None else describe()
 
+    def action_round(self, tool: str) -> str:
+        """Part of every action's approval digest and prompt: it changes after each completed action
+        of `tool` and with each e-stop, so an approval (or a replayed protocol round carrying one)
+        never carries over to a later request, nor across an e-stop and its reset."""
+        return f"{self.latch.generation}.{self._actions_done.get(tool, 0)}"
+
     async def run_action(self, action: str, tool: str, approval_outcome: Any, shown: str | None, expected: str,
                          actuate: Callable[[], Awaitable[None]], done: str) -> ActionResult:
         self.admit(tool)
+        self.require_audit(tool)
         self.require_not_estopped(tool)
         approval = self.interpret(approval_outcome, approval_required(self.policy, action))  # type: ignore[arg-type]
         if not approval.granted:
             raise refuse(approval.refusal_code, f"{tool}: {approval.refusal_message}")
         if approval.via == "elicitation" and shown != expected:
             raise refuse("APPROVAL_MISMATCH", f"{tool}: the approval was given for a different request; nothing was done")
+        self._actions_done[tool] = self._actions_done.get(tool, 0) + 1  # this approval is now spent
         if self.dry_run:
             return ActionResult(status="dry_run", approval=approval.info(), detail=f"dry run: {done} would be done; nothing changed")
         await self._backend_call(tool.replace("_", " "), actuate())
@@ -773,6 +822,7 @@ class Guard:
                       speed_mps: float | None = None, epsilon_inner_m: float = 0.005,
                       epsilon_outer_m: float = 0.005) -> GripperResultModel:
         self.admit(tool)
+        self.require_audit(tool)
         self.require_not_estopped(tool)
         cfg = self.policy.gripper
         if cfg is None:

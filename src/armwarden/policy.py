@@ -671,7 +671,9 @@ class ApprovalConfig(BaseModel):
         description="always: every approvable action; outside_envelope: only with soft violations; never (no unit).",
     )
     on_client_without_elicitation: Literal["deny", "allow"] = Field(
-        default="deny", description="What to do when approval is needed but the client cannot ask (no unit)."
+        default="deny",
+        description="What to do when approval is needed but the client cannot ask (no unit); "
+        "`reset_estop` always needs a human.",
     )
     require_for: Annotated[tuple[ApprovalAction, ...], AfterValidator(_normalise_require_for)] = Field(
         default=APPROVAL_ACTIONS,

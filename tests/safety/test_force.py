@@ -156,7 +156,7 @@ def test_slow_wrench_read_fails_closed_as_timeout() -> None:
 
 
 def test_frozen_stamp_fails_closed_once_older_than_the_timeout() -> None:
-    frozen = wrench(1.0, 0.0, stamp=10.0)
+    frozen = wrench(1.0, 0.0, stamp=10.02)  # fresh when first read, then never again
     mon, source = monitor([frozen], dt_s=0.02)  # 20 ms per read, timeout 50 ms
     violation = run_until_violation(mon)
     assert violation.kind == "wrench_frozen"
@@ -164,11 +164,48 @@ def test_frozen_stamp_fails_closed_once_older_than_the_timeout() -> None:
     assert violation.force_n == pytest.approx(1.0)
 
 
-def test_stamp_that_keeps_advancing_is_not_frozen_however_slowly() -> None:
-    stamps = iter(np.arange(0.0, 1.0, 0.001))
+def test_fresh_samples_read_slowly_are_neither_frozen_nor_stale() -> None:
+    mon, _ = monitor([(1.0, 0.0)] * 30 + [None], dt_s=0.04)  # each stamped at its read, 40 ms apart
+    violation = run_until_violation(mon)
+    assert violation.kind == "wrench_missing"  # only the scripted end
+
+
+def test_a_stamp_that_keeps_advancing_but_lags_the_clock_is_stale() -> None:
+    stamps = iter(np.arange(0.0, 1.0, 0.001))  # advancing, but seconds behind the monotonic clock
     mon, _ = monitor([lambda: _async(wrench(1.0, 0.0, float(next(stamps))))] * 30 + [None], dt_s=0.04)
     violation = run_until_violation(mon)
-    assert violation.kind == "wrench_missing"  # only the scripted end, never "frozen"
+    assert violation.kind == "wrench_stale" and "s old" in violation.detail
+
+
+def test_a_baseline_read_from_an_old_sample_is_refused() -> None:
+    mon, _ = monitor([wrench(1.0, 0.0, stamp=5.0)])  # 5 s old at the first read
+    assert anyio.run(mon.baseline) is None
+
+
+def test_an_above_limit_baseline_cannot_ratchet_up_across_executions() -> None:
+    # resting on a surface above the limit: the first motion may rise 1 N; the next one, starting
+    # higher, is held to the first one's ceiling
+    first, _ = monitor([(LIMITS.max_force_n + 4.0, 0.0)])
+    anyio.run(first.baseline)
+    ceiling = first.contact_ceiling
+    assert ceiling[0] == pytest.approx(LIMITS.max_force_n + 5.0) and ceiling[1] is None
+    clock = FakeClock()
+    later = ForceMonitor(LIMITS, WrenchScript(clock, [(LIMITS.max_force_n + 4.9, 0.0)]), clock=clock,
+                         carried_ceiling=ceiling)
+    anyio.run(later.baseline)
+    assert later.force_threshold_n == pytest.approx(LIMITS.max_force_n + 5.0)  # not 4.9 + 1
+
+
+def test_a_baseline_far_above_the_limit_is_excessive() -> None:
+    mon, _ = monitor([(3.0 * LIMITS.max_force_n, 0.0)])
+    anyio.run(mon.baseline)
+    assert mon.baseline_excessive
+
+
+def test_check_once_catches_a_crossing_after_the_last_poll() -> None:
+    mon, _ = monitor([(LIMITS.max_force_n + 3.0, 0.0)])
+    violation = anyio.run(mon.check_once)
+    assert violation is not None and violation.kind == "force_limit"
 
 
 async def _async(value: Wrench) -> Wrench:

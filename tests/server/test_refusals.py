@@ -8,7 +8,9 @@ asserts that the refused call added nothing to the backend's record.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import threading
 from typing import Any
 
 import anyio
@@ -357,6 +359,87 @@ def test_a_client_without_elicitation_may_run_when_the_policy_allows_it_and_the_
     run(scenario)
 
 
+@mode_param
+def test_reset_estop_always_needs_a_human_even_when_the_policy_allows_clients_without_elicitation(tmp_path, mode) -> None:
+    policy = policy_with(**{"approval.on_client_without_elicitation": "allow"})
+
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, policy, speedup=FAST) as arm, arm.client(mode) as client:
+            assert not (await client.call_tool("estop", {"reason": "test"})).is_error
+            assert_refused(await client.call_tool("reset_estop", {}), "APPROVAL_UNAVAILABLE")
+            assert (await client.call_tool("get_safety_status", {})).structured_content["estopped"] is True
+
+    run(scenario)
+
+
+@mode_param
+@pytest.mark.parametrize("content", [{"approve": "true"}, {"approve": "yes"}, {"approve": 1},
+                                     {"approve": True, "also": "this"}], ids=["str_true", "str_yes", "int_1", "extra_field"])
+def test_an_approval_answer_that_is_not_exactly_a_boolean_true_does_not_approve(tmp_path, mode, content) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, policy_with(**{"approval.mode": "always"}), speedup=FAST) as arm, \
+                arm.client(mode, answer("accept", content)) as client:
+            summary = await plan_joints(client, joints(j1=0.2))
+            result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            assert result.is_error
+            assert arm.actuations == []
+
+    run(scenario)
+
+
+def test_an_action_question_left_open_across_an_estop_and_its_reset_does_not_actuate(tmp_path) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=FAST) as arm:
+            asked, answer_now = anyio.Event(), anyio.Event()
+
+            async def slow_human(context: Any, params: Any) -> Any:
+                import mcp_types as types
+
+                asked.set()
+                await answer_now.wait()
+                return types.ElicitResult(action="accept", content={"approve": True, "operator": "alice"})
+
+            outcome: dict[str, Any] = {}
+            async with arm.client("legacy", slow_human) as first, arm.client("legacy", approve("bob")) as second:
+                async def change_thresholds() -> None:
+                    outcome["result"] = await first.call_tool("set_collision_thresholds", {"force_n": 20.0, "torque_nm": 10.0})
+
+                async with anyio.create_task_group() as group:
+                    group.start_soon(change_thresholds)
+                    await asked.wait()
+                    assert not (await second.call_tool("estop", {"reason": "collision"})).is_error
+                    assert not (await second.call_tool("reset_estop", {})).is_error
+                    answer_now.set()
+            assert_refused(outcome["result"], "APPROVAL_MISMATCH")
+            assert arm.actuations == []
+
+    run(scenario)
+
+
+def test_a_replayed_approval_round_does_not_run_an_action_twice(tmp_path) -> None:
+    # 2026-07-28: the sealed request state and the human's answer, sent again, ask again instead of acting
+    import mcp_types as types
+    from mcp_types import InputRequiredResult
+
+    async def scenario() -> None:
+        arguments = {"force_n": 20.0, "torque_nm": 10.0}
+        async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client("2026-07-28", answer("decline")) as client:
+            first = await client.session.call_tool("set_collision_thresholds", arguments, allow_input_required=True)
+            assert isinstance(first, InputRequiredResult)
+            key = next(iter(first.input_requests))
+            answers = {key: types.ElicitResult(action="accept", content={"approve": True, "operator": "alice"})}
+            for attempt in range(3):
+                result = await client.session.call_tool("set_collision_thresholds", arguments, input_responses=answers,
+                                                        request_state=first.request_state, allow_input_required=True)
+                if attempt == 0:
+                    assert not result.is_error, text_of(result)
+                else:
+                    assert isinstance(result, InputRequiredResult) or result.is_error, result
+            assert arm.actuations == ["set_collision_thresholds"]
+
+    run(scenario)
+
+
 # ---------------------------------------------------------------------------------------------- concurrency
 @mode_param
 def test_two_concurrent_executions_one_runs_and_the_other_is_refused_busy(tmp_path, mode) -> None:
@@ -481,6 +564,59 @@ def test_reset_approved_for_an_older_event_while_a_newer_latch_exists_is_refused
                 status = await client.call_tool("get_safety_status", {})
                 assert status.structured_content["estopped"] is True
                 assert status.structured_content["estop_event"]["number"] == 2
+            assert arm.actuations == []
+
+    run(scenario)
+
+
+class _HeldPlanner:
+    """The planning thread's planner, held at the start of `plan_to_pose` until `gate` opens."""
+
+    def __init__(self, planner: Any, gate: threading.Event) -> None:
+        self._planner, self._gate = planner, gate
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._planner, name)
+
+    def plan_to_pose(self, *args: Any, **kwargs: Any) -> Any:
+        self._gate.wait(5.0)
+        return self._planner.plan_to_pose(*args, **kwargs)
+
+
+@mode_param
+def test_a_plan_being_made_when_the_estop_latches_is_discarded_and_cannot_run_after_the_reset(tmp_path, mode) -> None:
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client(mode, approve("alice")) as client:
+            gate = threading.Event()
+            arm.guard.planning = dataclasses.replace(arm.guard.planning, planner=_HeldPlanner(arm.guard.planning.planner, gate))
+            outcome: dict[str, Any] = {}
+
+            async def plan() -> None:
+                outcome["plan"] = await client.call_tool("plan_to_pose", {"position": {"x": 0.3069, "y": 0.0, "z": 0.40}})
+
+            async with anyio.create_task_group() as group:
+                group.start_soon(plan)
+                await anyio.sleep(0.1)  # the planning thread is inside plan_to_pose
+                assert not (await client.call_tool("estop", {"reason": "person in the cell"})).is_error
+                gate.set()
+            assert_refused(outcome["plan"], "ESTOPPED")
+            assert not (await client.call_tool("reset_estop", {})).is_error
+            assert arm.actuations == []
+
+    run(scenario)
+
+
+def test_a_stored_plan_from_before_an_estop_is_refused_after_the_reset_even_if_it_escaped_invalidation(tmp_path) -> None:
+    # belt and braces: the plan store itself refuses a plan made under an older e-stop generation
+    async def scenario() -> None:
+        async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client("legacy", approve("alice")) as client:
+            summary = await plan_joints(client, joints(j1=0.1))
+            stored = arm.guard.plans._plans[summary["plan_id"]]
+            assert not (await client.call_tool("estop", {"reason": "test"})).is_error
+            assert not (await client.call_tool("reset_estop", {})).is_error
+            arm.guard.plans._plans[summary["plan_id"]] = stored  # as if invalidate_all had missed it
+            result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            assert_refused(result, "INVALIDATED_PLAN")
             assert arm.actuations == []
 
     run(scenario)

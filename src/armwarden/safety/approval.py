@@ -15,7 +15,7 @@ import hashlib
 from dataclasses import dataclass
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from armwarden.safety.estop import flatten_reason
 
@@ -24,9 +24,13 @@ UNTRUSTED_TEXT_LIMIT = 160
 
 
 class ApprovalForm(BaseModel):
-    """The elicitation form: one checkbox and a name. Primitive fields only (MCP form schema)."""
+    """The elicitation form: one checkbox and a name. Primitive fields only (MCP form schema).
+    Strict: only a real boolean `true` approves ("true", "yes", 1 do not), and unknown fields are
+    refused, so a sloppy or forged answer never counts as a yes."""
 
-    approve: bool = Field(default=False, description="Tick to allow exactly what is described above")
+    model_config = ConfigDict(extra="forbid")
+
+    approve: StrictBool = Field(default=False, description="Tick to allow exactly what is described above")
     operator: str = Field(default="", max_length=64, description="Your name, recorded in the audit log")
 
 

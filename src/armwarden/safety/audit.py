@@ -706,6 +706,11 @@ class AuditLog:
         return self._prev
 
     @property
+    def broken(self) -> str | None:
+        """Why the log refuses appends after a failed write (None while it is healthy)."""
+        return self._broken
+
+    @property
     def recovery_record(self) -> AuditRecord | None:
         """The recovery record written on open, if the file ended with a torn line."""
         return self._recovery

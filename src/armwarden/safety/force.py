@@ -9,9 +9,16 @@ limit does (DESIGN.md §4).
 How: `baseline()` reads the wrench once before the motion starts. `run()` then polls it at
 `monitor_rate_hz`, each read bounded by `wrench_timeout_s`, until it finds a violation (which
 it hands to `on_violation`, shielded from cancellation so the stop and the latch complete, and
-returns) or until the Guard cancels it because the motion ended. If the arm was already pressing
-harder than the limit when the motion started (e.g. resting on a surface), the limit becomes
-"no more than 1 N (0.2 N·m) above that baseline", so the arm can move away but not push harder.
+returns) or until the Guard cancels it because the motion ended; `check_once()` then takes one
+last sample, so a crossing inside the last polling period is not missed. A sample older than
+`wrench_timeout_s` (stamps are on the monotonic clock) counts as no sample.
+
+If the arm was already pressing harder than the limit when the motion started (e.g. resting on a
+surface), the limit becomes "no more than 1 N (0.2 N·m) above that baseline", so the arm can move
+away but not push harder. That allowance does not stack: the Guard carries the ceiling of the
+first such motion over to the next ones (`carried_ceiling`) until a baseline is back under the
+limit, so a series of small motions cannot ratchet the force up 1 N at a time. A baseline more
+than `BASELINE_CAP_FACTOR` times the limit is not moved from at all (`baseline_excessive`).
 
 One monitor per execution. The monitor never stops the robot itself: `on_violation` (the Guard)
 does. The clock is injected so tests never sleep for timing.
@@ -44,9 +51,11 @@ __all__ = [
 FORCE_RISE_ALLOWANCE_N = 1.0
 #: with a baseline above the torque limit, the largest allowed rise above the baseline [N·m]
 TORQUE_RISE_ALLOWANCE_NM = 0.2
+#: a baseline above this multiple of a limit is not moved from (a human must relieve the contact)
+BASELINE_CAP_FACTOR = 2.0
 
 ViolationKind = Literal[
-    "force_limit", "torque_limit", "wrench_missing", "wrench_timeout", "wrench_frozen", "wrench_invalid"
+    "force_limit", "torque_limit", "wrench_missing", "wrench_timeout", "wrench_frozen", "wrench_stale", "wrench_invalid"
 ]
 
 
@@ -115,8 +124,10 @@ class ForceMonitor:
         limits: ForceLimits,
         read_wrench: Callable[[], Awaitable[Wrench | None]],
         clock: Callable[[], float] = time.monotonic,
+        carried_ceiling: tuple[float | None, float | None] = (None, None),
     ) -> None:
         self.limits = limits
+        self.carried_ceiling = carried_ceiling
         self._read_wrench = read_wrench
         self._clock = clock
         self.baseline_wrench: Wrench | None = None
@@ -131,16 +142,35 @@ class ForceMonitor:
     @property
     def force_threshold_n(self) -> float:
         """The force norm [N] above which the motion stops (the limit, or baseline + allowance)."""
-        return self._threshold(self.limits.max_force_n, self._baseline_norms()[0], FORCE_RISE_ALLOWANCE_N)
+        return self._threshold(self.limits.max_force_n, self._baseline_norms()[0], FORCE_RISE_ALLOWANCE_N,
+                               self.carried_ceiling[0])
 
     @property
     def torque_threshold_nm(self) -> float:
         """The torque norm [N·m] above which the motion stops (the limit, or baseline + allowance)."""
-        return self._threshold(self.limits.max_torque_nm, self._baseline_norms()[1], TORQUE_RISE_ALLOWANCE_NM)
+        return self._threshold(self.limits.max_torque_nm, self._baseline_norms()[1], TORQUE_RISE_ALLOWANCE_NM,
+                               self.carried_ceiling[1])
 
     @staticmethod
-    def _threshold(limit: float, baseline: float | None, allowance: float) -> float:
-        return baseline + allowance if baseline is not None and baseline > limit else limit
+    def _threshold(limit: float, baseline: float | None, allowance: float, carried: float | None) -> float:
+        if baseline is None or baseline <= limit:
+            return limit
+        return baseline + allowance if carried is None else min(baseline + allowance, carried)
+
+    @property
+    def contact_ceiling(self) -> tuple[float | None, float | None]:
+        """The thresholds to carry into the next execution: set per axis while its baseline is above
+        the limit, None once it is back under (the contact was relieved)."""
+        force, torque = self._baseline_norms()
+        return (self.force_threshold_n if force is not None and force > self.limits.max_force_n else None,
+                self.torque_threshold_nm if torque is not None and torque > self.limits.max_torque_nm else None)
+
+    @property
+    def baseline_excessive(self) -> bool:
+        """The baseline is more than `BASELINE_CAP_FACTOR` times a limit: do not move from here."""
+        force, torque = self._baseline_norms()
+        return (force is not None and force > BASELINE_CAP_FACTOR * self.limits.max_force_n) or (
+            torque is not None and torque > BASELINE_CAP_FACTOR * self.limits.max_torque_nm)
 
     def _baseline_norms(self) -> tuple[float | None, float | None]:
         if self.baseline_wrench is None:
@@ -157,11 +187,15 @@ class ForceMonitor:
         self.baseline_wrench = sample
         return sample
 
+    async def check_once(self) -> ForceViolation | None:
+        """One sample checked like every sample of `run` (e.g. right after the motion ended)."""
+        sample = await self._read_sample()
+        return sample if isinstance(sample, ForceViolation) else self._check_limits(sample)
+
     async def run(self, on_violation: Callable[[ForceViolation], Awaitable[None]] | None = None) -> ForceViolation:
         """Poll until a violation (returned after `on_violation` has run) or until cancelled."""
         while True:
-            sample = await self._read_sample()
-            violation = sample if isinstance(sample, ForceViolation) else self._check_limits(sample)
+            violation = await self.check_once()
             if violation is not None:
                 if on_violation is not None:
                     with anyio.CancelScope(shield=True):  # the stop and the latch must complete
@@ -202,6 +236,9 @@ class ForceMonitor:
                 force_n,
                 torque_nm,
             )
+        if now - stamp > timeout_s:  # advancing, but late (or from another clock): not a current reading
+            return self._violation("wrench_stale", f"wrench sample is {now - stamp:.3f} s old (more than {timeout_s:g} s)",
+                                   force_n, torque_nm)
         return wrench
 
     def _check_limits(self, wrench: Wrench) -> ForceViolation | None:

@@ -193,21 +193,24 @@ class PlanStore:
                 return plan_id
 
     # ------------------------------------------------------------------ lookup
-    def peek(self, plan_id: object) -> StoredPlan | PlanRefusal:
-        """The plan if it could run now, else why not. Reads only; call it as often as needed."""
-        found = self._lookup(plan_id)
+    def peek(self, plan_id: object, estop_generation: int | None = None) -> StoredPlan | PlanRefusal:
+        """The plan if it could run now, else why not. Reads only; call it as often as needed.
+
+        With `estop_generation` (the latch's current one), a plan made under an earlier generation
+        is refused: an e-stop latched after it was made (DESIGN §4: nothing survives a reset)."""
+        found = self._lookup(plan_id, estop_generation)
         if isinstance(found, PlanRefusal):
             return found
         if found.status == "rejected":
             return self._rejected(found)
         return found
 
-    def consume(self, plan_id: object) -> StoredPlan | PlanRefusal:
+    def consume(self, plan_id: object, estop_generation: int | None = None) -> StoredPlan | PlanRefusal:
         """Remove the plan and return it (or why it cannot run); its id can never be used again.
 
-        A rejected plan is spent too, and keeps answering REJECTED_PLAN.
+        A rejected plan is spent too, and keeps answering REJECTED_PLAN. `estop_generation` as in `peek`.
         """
-        found = self._lookup(plan_id)
+        found = self._lookup(plan_id, estop_generation)
         if isinstance(found, PlanRefusal):
             return found
         del self._plans[found.plan_id]
@@ -220,7 +223,7 @@ class PlanStore:
         ))
         return found
 
-    def _lookup(self, plan_id: object) -> StoredPlan | PlanRefusal:
+    def _lookup(self, plan_id: object, estop_generation: int | None = None) -> StoredPlan | PlanRefusal:
         if not _is_plausible_id(plan_id):
             return PlanRefusal("UNKNOWN_PLAN", "that is not a plan id this server issued; plan a motion first")
         plan = self._plans.get(plan_id)
@@ -232,6 +235,11 @@ class PlanStore:
         if self._clock() >= plan.expires_mono:
             del self._plans[plan_id]
             return self._retire(plan_id, self._expired(plan))
+        if estop_generation is not None and plan.estop_generation != estop_generation:
+            del self._plans[plan_id]
+            return self._retire(plan_id, PlanRefusal(
+                "INVALIDATED_PLAN", f"plan {plan_id} was made before the latest e-stop latched; plan again once it is safe"
+            ))
         return plan
 
     @staticmethod

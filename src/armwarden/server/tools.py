@@ -422,7 +422,7 @@ class ToolBuilder:
 
         if caps.controllers:
             def describe_switch(activate: list[str], deactivate: list[str]) -> Prompt:
-                digest = f"switch:{sorted(activate)}:{sorted(deactivate)}"
+                digest = f"switch:{guard.action_round('switch_controllers')}:{sorted(activate)}:{sorted(deactivate)}"
                 return Prompt(compose_prompt("SWITCH CONTROLLERS?", [
                     ("Approval code", approval_code(digest)),
                     ("Activate", ", ".join(activate) or "-"), ("Deactivate", ", ".join(deactivate) or "-"),
@@ -459,7 +459,7 @@ class ToolBuilder:
 
         if caps.collision_thresholds:
             def describe_thresholds(force_n: float, torque_nm: float) -> Prompt:
-                digest = f"thresholds:{force_n!r}:{torque_nm!r}"
+                digest = f"thresholds:{guard.action_round('set_collision_thresholds')}:{force_n!r}:{torque_nm!r}"
                 return Prompt(compose_prompt("CHANGE COLLISION THRESHOLDS?", [
                     ("Approval code", approval_code(digest)),
                     ("Force threshold", f"{force_n:g} N (policy cap {force.max_contact_force_n:g} N)"),
@@ -536,9 +536,14 @@ class ToolBuilder:
 
         if self.capabilities.error_recovery:
             def describe_recovery() -> Prompt:
-                faults = guard.faults[-3:] or ["none recorded"]
-                return Prompt(compose_prompt("RUN ERROR RECOVERY?", [("Faults", "; ".join(faults))],
-                                             ["Error recovery clears the robot's reflex/error state."]), "error_recovery")
+                digest = f"error_recovery:{guard.action_round('error_recovery')}"
+                faults = guard.faults
+                shown = "; ".join(faults[-3:]) if faults else "none recorded"
+                if len(faults) > 3:
+                    shown = f"{len(faults)} recorded, the last 3: {shown}"
+                return Prompt(compose_prompt("RUN ERROR RECOVERY?", [
+                    ("Approval code", approval_code(digest)), ("Faults", shown),
+                ], ["Error recovery clears the robot's reflex/error state."]), digest)
 
             async def precheck_recovery(ctx: Context) -> ServerDecision | Prompt:
                 return guard.precheck_action("error_recovery", "error_recovery", can_elicit(ctx), describe_recovery)
@@ -550,7 +555,7 @@ class ToolBuilder:
                 shown: Annotated[str | None, Resolve(_make_shown(check_r))],
             ) -> Annotated[CallToolResult, ActionResult]:
                 return await run("error_recovery", lambda: _ok_of(guard.run_action(
-                    "error_recovery", "error_recovery", approval, shown, "error_recovery",
+                    "error_recovery", "error_recovery", approval, shown, describe_recovery().digest,
                     guard.error_recovery_actuate, "error recovery done")))
 
             self.add(error_recovery, "Clear the robot's error/reflex state (e.g. after a collision reflex). Refused "
