@@ -42,6 +42,10 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--port", type=int, default=8765)
     serve.add_argument("--audit-log", default="armwarden-audit.jsonl", help="append-only audit log (JSONL)")
     serve.add_argument("--auth-tokens", default=None, help="bearer token file (see `armwarden tokens`)")
+    serve.add_argument("--allowed-host", action="append", default=[], metavar="HOST[:PORT]",
+                       help="extra Host header value clients may use (repeatable; e.g. the LAN name of this machine)")
+    serve.add_argument("--allowed-origin", action="append", default=[], metavar="ORIGIN",
+                       help="extra browser Origin allowed (repeatable; e.g. http://console.local:8080)")
     serve.add_argument("--dry-run", action="store_true", help="validate and ask, never actuate")
     serve.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
 

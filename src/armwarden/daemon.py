@@ -199,7 +199,8 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: an
                                             principal=None if principal is None else principal.name)
 
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens, health=health,
-                         on_abandoned=on_abandoned)
+                         on_abandoned=on_abandoned, allowed_hosts=getattr(args, "allowed_host", []) or [],
+                         allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)
 
 

@@ -4,15 +4,19 @@ and SDK clients for it (shared by the HTTP daemon tests)."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import re
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx2
 from mcp import Client
@@ -64,7 +68,7 @@ class Daemon:
 
 
 @contextlib.contextmanager
-def http_daemon(tmp: Path, speedup: float) -> Iterator[Daemon]:
+def http_daemon(tmp: Path, speedup: float, extra_args: Sequence[str] = ()) -> Iterator[Daemon]:
     """Start the daemon (fake backend at `speedup`), wait until /healthz answers, SIGTERM it after."""
     tokens = tmp / "tokens.json"
     operator_token = add_token(tokens, "operator", "alice")
@@ -77,7 +81,7 @@ def http_daemon(tmp: Path, speedup: float) -> Iterator[Daemon]:
     with open(stderr_path, "wb") as stderr:
         process = subprocess.Popen(
             [*CLI, "serve", "--transport", "http", "--host", HOST, "--port", str(port), "--auth-tokens", str(tokens),
-             "--audit-log", str(audit), "--backend-config", str(config), "--log-level", "WARNING"],
+             "--audit-log", str(audit), "--backend-config", str(config), "--log-level", "WARNING", *extra_args],
             cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=stderr,
         )
     running = Daemon(process, port, audit, operator_token, observer_token, stderr_path)
@@ -108,3 +112,69 @@ def session(daemon: Daemon, token: str | None, mode: str, elicitation=None) -> t
     headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
     http = httpx2.AsyncClient(headers=headers)
     return http, Client(streamable_http_client(daemon.url, http_client=http), mode=mode, elicitation_callback=elicitation)
+
+
+class RawSession:
+    """A 2025-11-25 streamable HTTP session driven by hand: calls answered over httpx2, and POSTs
+    on a bare socket that can be dropped (RST) at any point of their SSE answer."""
+
+    VERSION = "2025-11-25"
+
+    def __init__(self, daemon: Daemon, token: str) -> None:
+        self.daemon, self.token, self.session_id, self.next_id = daemon, token, None, 0
+        self.http = httpx2.Client(timeout=30)
+        hello = self.post({"jsonrpc": "2.0", "id": self._id(), "method": "initialize", "params": {
+            "protocolVersion": self.VERSION, "capabilities": {"elicitation": {"form": {}}},
+            "clientInfo": {"name": "raw-http-test", "version": "1"}}})
+        self.session_id = hello.headers["mcp-session-id"]
+        assert self.post({"jsonrpc": "2.0", "method": "notifications/initialized"}).status_code == 202
+
+    def _id(self) -> int:
+        self.next_id += 1
+        return self.next_id
+
+    def headers(self) -> dict[str, str]:
+        headers = {"Authorization": f"Bearer {self.token}", "Accept": "application/json, text/event-stream",
+                   "Content-Type": "application/json", "MCP-Protocol-Version": self.VERSION}
+        if self.session_id is not None:
+            headers["mcp-session-id"] = self.session_id
+        return headers
+
+    def post(self, message: dict[str, Any]):
+        return self.http.post(self.daemon.url, json=message, headers=self.headers())
+
+    def call(self, tool: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        response = self.post({"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
+                              "params": {"name": tool, "arguments": arguments}})
+        for line in response.text.splitlines():
+            if line.startswith("data: ") and ('"result"' in line or '"error"' in line):
+                return json.loads(line[len("data: "):])
+        raise AssertionError(response.text)
+
+    def open_call(self, tool: str, arguments: dict[str, Any]) -> "DroppableCall":
+        return DroppableCall(self, {"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
+                                    "params": {"name": tool, "arguments": arguments}})
+
+
+class DroppableCall:
+    def __init__(self, owner: RawSession, message: dict[str, Any]) -> None:
+        payload = json.dumps(message).encode()
+        header = "".join(f"{name}: {value}\r\n" for name, value in owner.headers().items())
+        self.sock = socket.create_connection(("127.0.0.1", owner.daemon.port), timeout=30)
+        self.sock.sendall(f"POST /mcp HTTP/1.1\r\nHost: 127.0.0.1:{owner.daemon.port}\r\n{header}"
+                          f"Content-Length: {len(payload)}\r\n\r\n".encode() + payload)
+        self.buffer = b""
+
+    def wait_for(self, predicate) -> dict[str, Any]:
+        while True:
+            for raw in re.findall(rb"data: (\{.*?\})\r?\n", self.buffer):
+                event = json.loads(raw)
+                if predicate(event):
+                    return event
+            chunk = self.sock.recv(65536)
+            assert chunk, "the daemon closed the stream"
+            self.buffer += chunk
+
+    def drop(self) -> None:
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # RST, no FIN
+        self.sock.close()

@@ -19,11 +19,12 @@ from typing import Any
 import anyio
 import httpx2
 import pytest
-from mcp import MCPError
+from mcp import Client, MCPError
+from mcp.client.streamable_http import streamable_http_client
 
 from tests.server.harness import MODES
 from tests.server.harness import approve as approving
-from tests.server.http_daemon import CLI, REPO, Daemon, child_env, http_daemon, session
+from tests.server.http_daemon import CLI, REPO, Daemon, RawSession, add_token, child_env, http_daemon, session
 
 HOME = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
 
@@ -92,6 +93,35 @@ def test_a_foreign_host_header_is_rejected_with_421(daemon, path) -> None:
     assert response.status_code == 421
 
 
+def test_allowed_host_and_origin_flags_admit_exactly_the_names_given(tmp_path) -> None:
+    extra = ["--allowed-host", "arm-cell.lan", "--allowed-origin", "http://console.lan:8080"]
+    with http_daemon(tmp_path, speedup=20, extra_args=extra) as flagged:
+        def health(host: str, origin: str | None = None) -> int:
+            headers = {"Host": host} | ({"Origin": origin} if origin else {})
+            return httpx2.get(f"{flagged.base}/healthz", headers=headers, timeout=5).status_code
+
+        assert health(f"arm-cell.lan:{flagged.port}") == 200
+        assert health(f"other.lan:{flagged.port}") == 421
+        assert health(f"127.0.0.1:{flagged.port}", "http://console.lan:8080") == 200
+        assert health(f"127.0.0.1:{flagged.port}", "http://evil.lan:8080") == 403
+
+
+def test_a_new_token_under_a_revoked_tokens_name_cannot_take_over_its_session(tmp_path) -> None:
+    with http_daemon(tmp_path, speedup=20) as daemon:
+        old = RawSession(daemon, daemon.operator_token)
+        assert "result" in old.call("get_safety_status", {})
+        tokens = daemon.audit.parent / "tokens.json"
+        subprocess.run([*CLI, "tokens", "revoke", str(tokens), "alice"], cwd=REPO, env=child_env(), check=True,
+                       capture_output=True, timeout=60)
+        successor = add_token(tokens, "operator", "alice")  # same name, different token
+        old.token = successor  # present the new token on the old session
+        response = old.post({"jsonrpc": "2.0", "id": 99, "method": "tools/call",
+                             "params": {"name": "get_safety_status", "arguments": {}}})
+        assert response.status_code == 404  # not this token's session
+        fresh = RawSession(daemon, successor)  # the new token works in a session of its own
+        assert "result" in fresh.call("get_safety_status", {})
+
+
 # ------------------------------------------------------------------ operator
 @pytest.mark.parametrize("mode", MODES)
 def test_operator_token_plans_and_executes_with_approval(daemon, mode) -> None:
@@ -154,6 +184,20 @@ def test_observer_token_sees_no_motion_tools_and_cannot_execute_but_can_stop(dae
             assert reset.structured_content["estopped"] is False
 
     anyio.run(scenario)
+
+
+def test_the_audit_session_is_the_one_the_sdk_bound_never_a_session_id_header_the_client_sent(daemon) -> None:
+    # under 2026-07-28 the SDK ignores mcp-session-id; a client must not be able to sign its calls
+    # with someone else's session id in the audit log
+    async def scenario() -> None:
+        http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {daemon.observer_token}",
+                                           "mcp-session-id": "someone-elses-session"})
+        async with http, Client(streamable_http_client(daemon.url, http_client=http), mode="2026-07-28") as client:
+            assert not (await client.call_tool("get_safety_status", {})).is_error
+
+    anyio.run(scenario)
+    mine = [r for r in records_of(daemon.audit) if r.get("principal") == "bob" and r.get("tool") == "get_safety_status"]
+    assert mine and all(r["session"] != "someone-elses-session" for r in mine)
 
 
 # ------------------------------------------------------------------ shutdown (keep last: it ends the daemon)

@@ -7,23 +7,19 @@ the motion is still running when the client goes away."""
 from __future__ import annotations
 
 import json
-import re
-import socket
-import struct
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import anyio
-import httpx2
 import pytest
 
 from armwarden.transport.abandoned import MAX_BODY_BYTES
 
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
-from tests.server.http_daemon import Daemon, http_daemon, session
+from tests.server.http_daemon import Daemon, RawSession, http_daemon, session
 
 HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
 
@@ -124,73 +120,6 @@ def test_a_client_that_cancels_execute_plan_mid_motion_leaves_the_arm_stopped(sl
     plan_id, first, second, motion = anyio.run(scenario)
     assert first == second
     assert motion["last_result"]["plan_id"] == plan_id and motion["last_result"]["status"] == "aborted"
-
-
-# ------------------------------------------------------------------ raw 2025-11-25 clients (what the SDK client cannot do)
-class RawSession:
-    """A 2025-11-25 streamable HTTP session driven by hand: calls answered over httpx2, and POSTs
-    on a bare socket that can be dropped (RST) at any point of their SSE answer."""
-
-    VERSION = "2025-11-25"
-
-    def __init__(self, daemon: Daemon, token: str) -> None:
-        self.daemon, self.token, self.session_id, self.next_id = daemon, token, None, 0
-        self.http = httpx2.Client(timeout=30)
-        hello = self.post({"jsonrpc": "2.0", "id": self._id(), "method": "initialize", "params": {
-            "protocolVersion": self.VERSION, "capabilities": {"elicitation": {"form": {}}},
-            "clientInfo": {"name": "raw-http-test", "version": "1"}}})
-        self.session_id = hello.headers["mcp-session-id"]
-        assert self.post({"jsonrpc": "2.0", "method": "notifications/initialized"}).status_code == 202
-
-    def _id(self) -> int:
-        self.next_id += 1
-        return self.next_id
-
-    def headers(self) -> dict[str, str]:
-        headers = {"Authorization": f"Bearer {self.token}", "Accept": "application/json, text/event-stream",
-                   "Content-Type": "application/json", "MCP-Protocol-Version": self.VERSION}
-        if self.session_id is not None:
-            headers["mcp-session-id"] = self.session_id
-        return headers
-
-    def post(self, message: dict[str, Any]):
-        return self.http.post(self.daemon.url, json=message, headers=self.headers())
-
-    def call(self, tool: str, arguments: dict[str, Any]) -> dict[str, Any]:
-        response = self.post({"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
-                              "params": {"name": tool, "arguments": arguments}})
-        for line in response.text.splitlines():
-            if line.startswith("data: ") and ('"result"' in line or '"error"' in line):
-                return json.loads(line[len("data: "):])
-        raise AssertionError(response.text)
-
-    def open_call(self, tool: str, arguments: dict[str, Any]) -> "DroppableCall":
-        return DroppableCall(self, {"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
-                                    "params": {"name": tool, "arguments": arguments}})
-
-
-class DroppableCall:
-    def __init__(self, owner: RawSession, message: dict[str, Any]) -> None:
-        payload = json.dumps(message).encode()
-        header = "".join(f"{name}: {value}\r\n" for name, value in owner.headers().items())
-        self.sock = socket.create_connection(("127.0.0.1", owner.daemon.port), timeout=30)
-        self.sock.sendall(f"POST /mcp HTTP/1.1\r\nHost: 127.0.0.1:{owner.daemon.port}\r\n{header}"
-                          f"Content-Length: {len(payload)}\r\n\r\n".encode() + payload)
-        self.buffer = b""
-
-    def wait_for(self, predicate) -> dict[str, Any]:
-        while True:
-            for raw in re.findall(rb"data: (\{.*?\})\r?\n", self.buffer):
-                event = json.loads(raw)
-                if predicate(event):
-                    return event
-            chunk = self.sock.recv(65536)
-            assert chunk, "the daemon closed the stream"
-            self.buffer += chunk
-
-    def drop(self) -> None:
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # RST, no FIN
-        self.sock.close()
 
 
 def test_an_approval_answered_after_its_client_dropped_the_call_moves_nothing(slow_daemon) -> None:

@@ -195,18 +195,21 @@ class ArmWardenServer:
 
 class SessionNames:
     """A short random name per client connection, so the audit log tells two clients apart even when
-    they run the same software (the HTTP session id when there is one; `<client>/<version>#<name>`)."""
+    they run the same software (the HTTP session id the SDK bound, when there is one; otherwise
+    `<client>/<version>#<name>`)."""
 
     def __init__(self) -> None:
         self._names: weakref.WeakKeyDictionary[Any, str] = weakref.WeakKeyDictionary()
 
     def of(self, ctx: ServerRequestContext) -> str | None:
-        headers = getattr(ctx.request, "headers", None)
-        if headers is not None and headers.get("mcp-session-id"):
-            return str(headers.get("mcp-session-id"))[:64]
         session = ctx.session
         # the per-connection object behind the per-request session (the SDK has no public accessor)
         connection = getattr(session, "_connection", session)
+        # the session id the transport bound to this connection (never the client's header, which
+        # a 2026-07-28 client could set to anyone's id without it meaning anything to the SDK)
+        bound = getattr(connection, "session_id", None)
+        if isinstance(bound, str) and bound:
+            return bound[:64]
         try:
             name = self._names.get(connection)
             if name is None:

@@ -117,19 +117,23 @@ def _declared_length(scope: Scope) -> int | None:
         return None
 
 
-def _request_key(scope: Scope, body: bytes) -> tuple[bytes, str] | None:
-    """(session, id) of a JSON-RPC request sent in a session: the SDK matches cancellations (and
-    answers) by id, with 7 and "7" the same, so two open requests must never share one."""
+def _request_key(scope: Scope, body: bytes) -> tuple[str, bytes, str] | None:
+    """(principal, session, id) of a JSON-RPC request sent in a session: the SDK matches
+    cancellations (and answers) by id, with 7 and "7" the same, so two open requests must never
+    share one. The principal is part of the key: the session header is the client's claim, checked
+    by the SDK only later, so nobody can block (or probe) the ids of another principal's session."""
     session = _header(scope, SESSION_HEADER)
     if session is None:
         return None
+    user = scope.get("user")
+    principal = str(getattr(getattr(user, "access_token", None), "client_id", "") or "")
     try:
         message = json.loads(body)
     except (ValueError, UnicodeDecodeError, RecursionError):
         return None
     if not isinstance(message, dict) or "method" not in message or "id" not in message:
         return None  # a notification, or the client's answer to a server request (other id space)
-    return session, str(message["id"])
+    return principal, session, str(message["id"])
 
 
 class AbandonedMotionStop:
@@ -139,7 +143,7 @@ class AbandonedMotionStop:
         self.app = app
         self.path = path.rstrip("/")
         self.on_abandoned = on_abandoned
-        self._open_requests: set[tuple[bytes, str]] = set()  # (session, request id) of POSTs not yet ended
+        self._open_requests: set[tuple[str, bytes, str]] = set()  # (principal, session, id) of POSTs not ended
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope.get("method") != "POST" or scope.get("path", "").rstrip("/") != self.path:
@@ -159,7 +163,7 @@ class AbandonedMotionStop:
         key = _request_key(scope, body)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
-            await _refuse(send, 409, f"request id {key[1][:64]} is already in use by an open request of this session",
+            await _refuse(send, 409, f"request id {key[2][:64]} is already in use by an open request of this session",
                           request_id=json.loads(body).get("id"))
             return
         if key is not None:

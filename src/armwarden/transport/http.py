@@ -17,8 +17,9 @@ Request path (outermost first)::
   clients) pass; with one, it must be ``http://<allowed host>`` or listed in `allowed_origins`.
 - With a `TokenStore`, every path except ``/healthz`` needs ``Authorization: Bearer <token>``.
   The authenticated `Principal` becomes the SDK's `AuthenticatedUser`/`AccessToken`
-  (``client_id`` = token name, ``scopes`` = [role]); the SDK copies it into the task that runs
-  the tool under both protocol revisions, binds sessions and sealed ``requestState`` to it, and
+  (``client_id`` = token name, ``subject`` = a fingerprint of the token, ``scopes`` = [role]); the
+  SDK copies it into the task that runs the tool under both protocol revisions, binds sessions and
+  sealed ``requestState`` to it (so to that very token, not just its name), and
   `current_principal` reads it back inside a tool. The Authorization header is removed from the
   request before it reaches the SDK, so ``ctx.headers`` never carries the token.
   Without a token store there is no principal (`current_principal` returns None) and
@@ -31,6 +32,7 @@ Request path (outermost first)::
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import ipaddress
 import logging
 import socket
@@ -231,6 +233,10 @@ class BearerAuth:
             AccessToken(
                 token=f"redacted:{principal.name}",  # never the token itself
                 client_id=principal.name,
+                # the SDK binds sessions and sealed request state to (client_id, issuer, subject):
+                # a fingerprint of this very token, so a new token under a revoked token's name
+                # cannot take over that token's sessions or pending questions
+                subject=hashlib.sha256(presented.strip().encode("utf-8")).hexdigest()[:32],
                 scopes=[principal.role],
                 claims={"armwarden_role": principal.role},
             )
