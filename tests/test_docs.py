@@ -40,20 +40,18 @@ def _first_difference(expected: str, actual: str) -> str:
     return f"generated {len(expected.splitlines())} lines, the file has {len(actual.splitlines())}"
 
 
-def test_policy_reference_is_up_to_date(gen_docs) -> None:
-    expected = gen_docs.render_policy_doc()
-    path = gen_docs.POLICY_DOC
+def _assert_matches_generated(path: Path, expected: str) -> None:
     assert path.exists(), f"{path.relative_to(ROOT)} is missing; {REGENERATE_HINT}"
     actual = path.read_text(encoding="utf-8")
     assert actual == expected, f"{path.relative_to(ROOT)}: {REGENERATE_HINT}\n{_first_difference(expected, actual)}"
+
+
+def test_policy_reference_is_up_to_date(gen_docs) -> None:
+    _assert_matches_generated(gen_docs.POLICY_DOC, gen_docs.render_policy_doc())
 
 
 def test_tools_reference_is_up_to_date(gen_docs) -> None:
-    expected = gen_docs.render_tools_doc()
-    path = gen_docs.TOOLS_DOC
-    assert path.exists(), f"{path.relative_to(ROOT)} is missing; {REGENERATE_HINT}"
-    actual = path.read_text(encoding="utf-8")
-    assert actual == expected, f"{path.relative_to(ROOT)}: {REGENERATE_HINT}\n{_first_difference(expected, actual)}"
+    _assert_matches_generated(gen_docs.TOOLS_DOC, gen_docs.render_tools_doc())
 
 
 def test_tools_reference_covers_every_tool_the_full_policy_registers(gen_docs) -> None:

@@ -397,7 +397,7 @@ class Guard:
         if (d := self._peek_rate("execute_plan")) is not None:
             return d
         if (r := self._estop_refusal("execute_plan")) is not None:
-            return ServerDecision(False, "refused", r.code, str(r))
+            return ServerDecision.refusal(r)
         if self._execution is not None:
             return ServerDecision(False, "refused", "BUSY", f"plan {self._execution.plan_id} is still executing")
         plan = self.plans.peek(plan_id, self.latch.generation)
@@ -406,7 +406,7 @@ class Guard:
         try:
             state = await self._joint_state()
         except SafetyRefusal as exc:
-            return ServerDecision(False, "refused", exc.code, str(exc))
+            return ServerDecision.refusal(exc)
         if (stale := self.plans.check_start(plan, state.positions)) is not None:
             return ServerDecision(False, "refused", stale.code, stale.message)
         if not self.backend.capabilities.wrench and self.policy.force.require_wrench:
@@ -634,13 +634,7 @@ class Guard:
 
     async def _stop_after_interruption(self, plan_id: str) -> None:
         """The execute call was cancelled (client cancel, disconnect, timeout): stop, then record."""
-        self._stop_generation += 1
-        stop_failed = False
-        try:
-            await self.backend.stop()
-        except BackendError as exc:
-            stop_failed = True
-            self._latch_failed_stop("stop after an interrupted execution", exc)
+        stop_failed = await self._stop_for("stop after an interrupted execution") is not None
         self.last_result = ExecutionReport(
             plan_id=plan_id, status="aborted", approval=ApprovalInfo(required=False, operator=None, via="not_required"),
             duration_s=0.0, max_observed_force_n=None, detail="interrupted: the call was cancelled",
@@ -664,13 +658,11 @@ class Guard:
             running = (self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
                        if tool == "execute_plan" else self._gripper_busy)
             if running:
-                self._stop_generation += 1
-                try:
-                    await self.backend.stop()
+                event = await self._stop_for("stop after a client disconnected")
+                if event is None:
                     outcome, detail = "stopped", detail + "; the cancellation failed, so the robot was stopped"
-                except BackendError as exc:
-                    event = self._latch_failed_stop("stop after a client disconnected", exc)
-                    outcome, detail = "stop_failed", detail + f"; the stop FAILED ({exc}), e-stop #{event.number} latched"
+                else:
+                    outcome, detail = "stop_failed", detail + f"; the stop FAILED, e-stop #{event.number} latched ({event.reason})"
         if self.audit is not None:
             await self.audit.append_async("client_disconnected", principal=principal, tool=tool, arguments=arguments,
                                           outcome=outcome, detail=detail)
@@ -700,6 +692,16 @@ class Guard:
             self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
             event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
+
+    async def _stop_for(self, what: str) -> EStopEvent | None:
+        """Stop arm and gripper for a call that can no longer do it itself (cancelled, abandoned).
+        Returns None when the stop was issued, else the e-stop event latched because it failed."""
+        self._stop_generation += 1
+        try:
+            await self.backend.stop()
+        except BackendError as exc:
+            return self._latch_failed_stop(what, exc)
+        return None
 
     def _latch_failed_stop(self, what: str, exc: BaseException) -> EStopEvent:
         """A stop that could not be issued: latch the e-stop, void every plan, report the fault."""
@@ -770,7 +772,7 @@ class Guard:
         if (d := self._peek_rate(tool)) is not None:
             return d
         if (r := self._estop_refusal(tool)) is not None:
-            return ServerDecision(False, "refused", r.code, str(r))
+            return ServerDecision.refusal(r)
         required = approval_required(self.policy, action)  # type: ignore[arg-type]
         decision = self._client_decision(tool, required, can_elicit)
         return decision if decision is not None else describe()

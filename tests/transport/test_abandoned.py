@@ -11,7 +11,7 @@ from typing import Any
 import anyio
 import pytest
 
-from armwarden.transport.abandoned import MAX_BODY_BYTES, AbandonedMotionStop, motion_call
+from armwarden.transport.abandoned import MAX_BODY_BYTES, AbandonedMotionStop, decode_message, motion_call
 
 SESSION = (b"mcp-session-id", b"s-123")
 
@@ -149,11 +149,11 @@ def test_an_oversized_body_is_refused_with_413_and_never_reaches_the_app():
 
 @pytest.mark.parametrize("body", [b"not json", b"[1, 2]", b""])
 def test_bodies_that_are_not_calls_are_not_motion_calls(body):
-    assert motion_call(body) is None
+    assert motion_call(decode_message(body)) is None
 
 
 def test_non_object_arguments_become_an_empty_mapping():
-    assert motion_call(rpc("execute_plan", ["plan_x"])) == ("execute_plan", {}, 7)
+    assert motion_call(decode_message(rpc("execute_plan", ["plan_x"]))) == ("execute_plan", {}, 7)
 
 
 def test_a_declared_oversized_body_is_refused_before_it_is_read():

@@ -266,10 +266,11 @@ class FakeBackend(Backend):
         self._thread_error: BaseException | None = None
         now = time.monotonic()
         self._still = _frozen(np.zeros(len(joint_names)))
-        self._q = _frozen(q_home)  # the last commanded positions (published arrays are read-only)
+        q_start = _frozen(q_home)
         self._tcp_q = None
-        self._tcp_position = self._compute_tcp(self._q)
-        self._state = (self._q, self._still, now, self._tcp_position)
+        self._tcp_position = self._compute_tcp(q_start)
+        #: (commanded positions, velocities, stamp, TCP position): published arrays are read-only
+        self._state = (q_start, self._still, now, self._tcp_position)
         self._wrench = (self._contact_force_n(self._tcp_position), now)
         self.control_thread: threading.Thread | None = None
 
@@ -454,7 +455,7 @@ class FakeBackend(Backend):
         stamp = time.monotonic()
         self.tick_count += 1
 
-        q, dq, completed = self._q, self._still, False
+        q, dq, completed = self._state[0], self._still, False  # held where the last tick (or hold) left it
         if execution is not None:
             if execution.start_time is None:
                 execution.start_time = now
@@ -471,7 +472,6 @@ class FakeBackend(Backend):
         with self._lock:
             if self._stop_seq != stop_seq:
                 return  # a stop landed while this step was computed: it already published the hold
-            self._q = q
             self._state = (q, dq, stamp, tcp)
             if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
                 self._wrench = (force_n, stamp)

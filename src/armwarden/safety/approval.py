@@ -17,6 +17,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
+from armwarden.errors import SafetyRefusal
 from armwarden.safety.estop import flatten_reason
 
 Action = Literal["execute", "switch_controllers", "reset_estop", "error_recovery", "set_collision_thresholds"]
@@ -47,6 +48,11 @@ class ServerDecision:
     via: Literal["not_required", "no_elicitation_client", "dry_run", "refused"]
     code: str = ""
     message: str = ""
+
+    @classmethod
+    def refusal(cls, refused: SafetyRefusal) -> ServerDecision:
+        """The decision a pre-check returns for a refusal the Guard raised (or would raise)."""
+        return cls(False, "refused", refused.code, str(refused))
 
 
 def approval_required(policy, action: Action, has_soft_violations: bool = False) -> bool:

@@ -433,7 +433,7 @@ class ToolBuilder:
                 try:  # never ask a human to approve a switch that would be refused anyway
                     guard.check_controllers(activate, deactivate)
                 except SafetyRefusal as exc:
-                    return ServerDecision(False, "refused", exc.code, str(exc))
+                    return ServerDecision.refusal(exc)
                 return guard.precheck_action("switch_controllers", "switch_controllers", can_elicit(ctx),
                                              lambda: describe_switch(activate, deactivate))
 
@@ -470,7 +470,7 @@ class ToolBuilder:
                 try:
                     guard.check_thresholds(force_n, torque_nm)
                 except SafetyRefusal as exc:
-                    return ServerDecision(False, "refused", exc.code, str(exc))
+                    return ServerDecision.refusal(exc)
                 return guard.precheck_action("set_collision_thresholds", "set_collision_thresholds", can_elicit(ctx),
                                              lambda: describe_thresholds(force_n, torque_nm))
 

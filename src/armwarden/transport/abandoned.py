@@ -46,13 +46,19 @@ SESSION_HEADER = b"mcp-session-id"
 AbandonedCallback = Callable[[str, dict[str, Any], Any, "bool | None"], Awaitable[None]]
 
 
-def motion_call(body: bytes) -> tuple[str, dict[str, Any], Any] | None:
-    """(tool, arguments, request id) if `body` is a JSON-RPC `tools/call` request of a motion tool."""
+def decode_message(body: bytes) -> dict[str, Any] | None:
+    """The JSON-RPC message object in a request body, or None (not JSON, or not one object).
+    Decoded once per request; the SDK parses the body again on its own."""
     try:
         message = json.loads(body)
     except (ValueError, UnicodeDecodeError, RecursionError):
         return None
-    if not isinstance(message, dict) or message.get("method") != "tools/call":
+    return message if isinstance(message, dict) else None
+
+
+def motion_call(message: dict[str, Any] | None) -> tuple[str, dict[str, Any], Any] | None:
+    """(tool, arguments, request id) if `message` is a JSON-RPC `tools/call` request of a motion tool."""
+    if message is None or message.get("method") != "tools/call":
         return None
     request_id = message.get("id")
     if isinstance(request_id, bool) or not isinstance(request_id, (int, str)):
@@ -117,7 +123,7 @@ def _declared_length(scope: Scope) -> int | None:
         return None
 
 
-def _request_key(scope: Scope, body: bytes) -> tuple[str, bytes, str] | None:
+def _request_key(scope: Scope, message: dict[str, Any] | None) -> tuple[str, bytes, str] | None:
     """(principal, session, id) of a JSON-RPC request sent in a session: the SDK matches
     cancellations (and answers) by id, with 7 and "7" the same, so two open requests must never
     share one. The principal is part of the key: the session header is the client's claim, checked
@@ -125,14 +131,10 @@ def _request_key(scope: Scope, body: bytes) -> tuple[str, bytes, str] | None:
     session = _header(scope, SESSION_HEADER)
     if session is None:
         return None
+    if message is None or "method" not in message or "id" not in message:
+        return None  # a notification, or the client's answer to a server request (other id space)
     user = scope.get("user")
     principal = str(getattr(getattr(user, "access_token", None), "client_id", "") or "")
-    try:
-        message = json.loads(body)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        return None
-    if not isinstance(message, dict) or "method" not in message or "id" not in message:
-        return None  # a notification, or the client's answer to a server request (other id space)
     return principal, session, str(message["id"])
 
 
@@ -150,31 +152,30 @@ class AbandonedMotionStop:
             await self.app(scope, receive, send)
             return
         declared = _declared_length(scope)
-        if declared is not None and declared > MAX_BODY_BYTES:  # before reading: no "100 Continue" for it
-            await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
-            return
-        try:
-            body = await _read_body(receive)
+        try:  # a declared oversize is refused before reading: no "100 Continue" for it
+            body = None if declared is not None and declared > MAX_BODY_BYTES else await _read_body(receive)
         except _ClientGone:
             return  # nothing was asked, nothing runs
         if body is None:
             await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
             return
-        key = _request_key(scope, body)
+        message = decode_message(body)
+        key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
             await _refuse(send, 409, f"request id {key[2][:64]} is already in use by an open request of this session",
-                          request_id=json.loads(body).get("id"))
+                          request_id=message.get("id") if message else None)
             return
         if key is not None:
             self._open_requests.add(key)
         try:
-            await self._pass_on(scope, receive, send, body)
+            await self._pass_on(scope, receive, send, body, message)
         finally:
             if key is not None:
                 self._open_requests.discard(key)
 
-    async def _pass_on(self, scope: Scope, receive: Receive, send: Send, body: bytes) -> None:
+    async def _pass_on(self, scope: Scope, receive: Receive, send: Send, body: bytes,
+                       message: dict[str, Any] | None) -> None:
         answered = False
 
         async def send_and_note(message: Message) -> None:
@@ -186,7 +187,7 @@ class AbandonedMotionStop:
         try:
             await self.app(scope, _replaying(body, receive), send_and_note)  # then: the client's disconnect, if any
         finally:
-            if not answered and (call := motion_call(body)) is not None:
+            if not answered and (call := motion_call(message)) is not None:
                 with anyio.CancelScope(shield=True):  # runs also when this request task was cancelled
                     await self._abandoned(scope, *call)
 
