@@ -14,7 +14,16 @@ from armwarden.errors import ConfigurationError
 from armwarden.stopchannel import StopChannel, token_store_authenticator
 from armwarden.transport.tokens import TokenStore
 
-from .conftest import NETWORK_TIMEOUT_S, OBSERVER_TOKEN, TOKENS, Events, Latch, exchange, post, status_of
+from .conftest import (
+    NETWORK_TIMEOUT_S,
+    OBSERVER_TOKEN,
+    TOKENS,
+    Events,
+    Latch,
+    exchange,
+    post,
+    status_of,
+)
 
 
 # ---------------------------------------------------------------------------------------------- stopping
@@ -189,7 +198,7 @@ def test_on_event_runs_after_the_reply_was_sent(make_channel) -> None:
         done.set()
 
     channel = make_channel(on_event=on_event)
-    status, _, answer = post(channel.port, b"audit me")
+    status, _, _ = post(channel.port, b"audit me")
     replied.set()
 
     assert status == 200

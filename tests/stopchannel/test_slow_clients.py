@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import socket
 import threading
 from collections.abc import Iterator
@@ -79,3 +80,36 @@ def test_connections_that_close_without_a_request_leave_the_channel_serving(chan
 
     assert post(channel.port)[0] == 200
     assert channel.is_serving
+
+
+@pytest.mark.timeout(60)
+def test_stops_are_served_while_new_silent_connections_keep_arriving(make_channel, latch: Latch) -> None:
+    channel: StopChannel = make_channel(request_timeout_s=60.0, max_connections=16)
+    flooding = threading.Event()
+    stop_flooding = threading.Event()
+
+    def flood() -> None:
+        held: collections.deque[socket.socket] = collections.deque()
+        while not stop_flooding.is_set():
+            try:
+                held.append(socket.create_connection(("127.0.0.1", channel.port), timeout=NETWORK_TIMEOUT_S))
+            except OSError:
+                pass
+            if len(held) > 300:
+                held.popleft().close()
+            if len(held) == 100:
+                flooding.set()
+        for sock in held:
+            sock.close()
+
+    flooder = threading.Thread(target=flood, daemon=True)
+    flooder.start()
+    try:
+        assert flooding.wait(NETWORK_TIMEOUT_S)
+        statuses = [post(channel.port)[0] for _ in range(5)]
+    finally:
+        stop_flooding.set()
+        flooder.join()
+
+    assert statuses == [200] * 5
+    assert len(latch.calls) == 5

@@ -16,6 +16,13 @@ Robustness comes from bounds, not from trust:
   never keep a real stop out;
 - every answer closes the connection; nothing from a request is logged unbounded.
 
+Answers (JSON, always ``Connection: close``): 200 ``{"estopped": true, "event": N,
+"stop_issued_ms": T}`` where T is the time from the whole request being read to
+``latch_and_stop`` returning; otherwise ``{"error": "..."}`` with 400 malformed, 401 missing or
+unknown token, 404/405 wrong path/method, 408 too slow, 413 too large, 501 chunked, and 500
+when the authenticator or ``latch_and_stop`` raised (the message says whether a stop may have
+been issued). Only requests that reached ``latch_and_stop`` are reported to `on_event`.
+
 The audit hook `on_event` runs after the reply was sent, on this thread: it must be quick
 (hand the record to the audit writer) and its failure is logged, never raised.
 """
@@ -198,22 +205,21 @@ class StopChannel:
     def _serve(self) -> None:
         try:
             while not self._closing.is_set():
-                for key, mask in self._selector.select(self._next_timeout()):
-                    if key.data == "listener":
-                        self._accept()
-                    elif key.data == "wake":
-                        self._drain_wake()
-                    else:
+                ready = self._selector.select(self._next_timeout())
+                for key, mask in ready:
+                    if isinstance(key.data, _Connection):
                         self._on_ready(key.data, mask)
+                    elif key.data == "wake":
+                        with contextlib.suppress(OSError):
+                            self._wake_r.recv(64)
+                # accept last: a connection accepted in the previous round is read before newer ones can evict it
+                if any(key.data == "listener" for key, _ in ready):
+                    self._accept()
                 self._expire(time.monotonic())
         except Exception:
             logger.critical("stop channel thread failed: e-stops over the channel are no longer served", exc_info=True)
         finally:
             self._release()
-
-    def _drain_wake(self) -> None:
-        with contextlib.suppress(OSError):
-            self._wake_r.recv(64)
 
     def _next_timeout(self) -> float | None:
         if not self._connections:
