@@ -1,0 +1,35 @@
+"""The independent stop channel: an e-stop path beside MCP that no command load can delay.
+
+`StopChannel` serves ``POST /estop`` on its own thread and socket; `send_estop` and
+`estop_command` are the client side (``armwarden estop``).
+"""
+
+from armwarden.stopchannel.client import (
+    EStopRefused,
+    EStopRequestError,
+    EStopTimeout,
+    EStopUnauthorized,
+    EStopUnreachable,
+    add_estop_arguments,
+    estop_command,
+    send_estop,
+)
+from armwarden.stopchannel.server import (
+    ChannelStop,
+    StopChannel,
+    token_store_authenticator,
+)
+
+__all__ = [
+    "ChannelStop",
+    "EStopRefused",
+    "EStopRequestError",
+    "EStopTimeout",
+    "EStopUnauthorized",
+    "EStopUnreachable",
+    "StopChannel",
+    "add_estop_arguments",
+    "estop_command",
+    "send_estop",
+    "token_store_authenticator",
+]

@@ -1,0 +1,144 @@
+"""Trigger an e-stop from outside the daemon: over the stop channel, or by signal.
+
+`send_estop` is the one-shot HTTP client (standard library only, so it works from any script
+next to the daemon); `estop_command` is the body of ``armwarden estop`` and
+`add_estop_arguments` declares its options on an argparse sub-parser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.client
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from armwarden.safety.estop import flatten_reason
+from armwarden.stopchannel.wire import ESTOP_PATH
+
+__all__ = [
+    "EStopRefused",
+    "EStopRequestError",
+    "EStopTimeout",
+    "EStopUnauthorized",
+    "EStopUnreachable",
+    "add_estop_arguments",
+    "estop_command",
+    "send_estop",
+]
+
+_MAX_ANSWER_BYTES = 64 * 1024
+
+
+class EStopRequestError(Exception):
+    """The e-stop request did not get a confirmed stop. Assume the arm has NOT been stopped."""
+
+
+class EStopUnreachable(EStopRequestError):
+    """Nothing answered at the URL (connection refused, reset, unknown host)."""
+
+
+class EStopTimeout(EStopRequestError):
+    """The channel did not answer within the timeout."""
+
+
+class EStopUnauthorized(EStopRequestError):
+    """The channel refused the token (401)."""
+
+
+class EStopRefused(EStopRequestError):
+    """The channel answered with another error; `status` is the HTTP status."""
+
+    def __init__(self, status: int, message: str) -> None:
+        self.status = status
+        super().__init__(message)
+
+
+def send_estop(url: str, token: str, reason: str = "", timeout_s: float = 2.0) -> dict[str, Any]:
+    """POST an e-stop to `url` and return the channel's answer (``{"estopped": true, "event": N, ...}``).
+
+    `url` is ``http://HOST:PORT`` or ``http://HOST:PORT/estop``; `timeout_s` bounds each socket
+    operation. Raises an `EStopRequestError` subclass unless the stop was confirmed.
+    """
+    parts = urlsplit(url)
+    if parts.scheme != "http" or not parts.hostname:
+        raise EStopRequestError(f"stop channel URL must look like http://127.0.0.1:PORT/estop, got {url!r}")
+    try:
+        port = parts.port or 80
+    except ValueError as exc:
+        raise EStopRequestError(f"bad port in stop channel URL {url!r}") from exc
+    path = parts.path if parts.path not in ("", "/") else ESTOP_PATH
+    body = json.dumps({"reason": reason}).encode("utf-8") if reason else b""
+    headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json", "Connection": "close"}
+    connection = http.client.HTTPConnection(parts.hostname, port, timeout=timeout_s)
+    try:
+        connection.request("POST", path, body=body, headers=headers)
+        response = connection.getresponse()
+        raw = response.read(_MAX_ANSWER_BYTES)
+    except TimeoutError as exc:
+        raise EStopTimeout(f"stop channel at {url} did not answer within {timeout_s} s") from exc
+    except (OSError, http.client.HTTPException) as exc:
+        raise EStopUnreachable(f"cannot reach the stop channel at {url}: {exc}") from exc
+    finally:
+        connection.close()
+    try:
+        answer = json.loads(raw)
+    except ValueError:
+        answer = {}
+    if not isinstance(answer, dict):
+        answer = {}
+    message = flatten_reason(answer.get("error") or response.reason or "no message", 300)
+    if response.status == 401:
+        raise EStopUnauthorized(f"stop channel refused the token: {message}")
+    if response.status != 200 or answer.get("estopped") is not True:
+        raise EStopRefused(response.status, f"stop channel answered {response.status}: {message}")
+    return answer
+
+
+def add_estop_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare ``[--url URL | --pid PID] [--token-file FILE] [--reason TEXT] [--timeout S]``."""
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--url", help="stop channel URL, e.g. http://127.0.0.1:PORT/estop")
+    target.add_argument("--pid", type=int, help="send SIGUSR1 to this daemon process instead")
+    parser.add_argument("--token-file", help="file holding just the bearer token (required with --url)")
+    parser.add_argument("--reason", default="", help="why you stop (recorded in the audit log)")
+    parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for each network step")
+
+
+def estop_command(args: argparse.Namespace) -> int:
+    """``armwarden estop``: 0 when the stop was confirmed (URL) or the signal sent (PID), else 1."""
+    url, pid = getattr(args, "url", None), getattr(args, "pid", None)
+    try:
+        if pid is not None:
+            if pid <= 0:  # 0 and negative numbers would signal whole process groups
+                raise EStopRequestError(f"--pid must be a positive process id, got {pid}")
+            os.kill(pid, signal.SIGUSR1)
+            print(f"armwarden: sent SIGUSR1 (e-stop) to process {pid}; check its log for the event number")
+            return 0
+        if not url:
+            raise EStopRequestError("give --url URL (with --token-file) or --pid PID")
+        token_file = getattr(args, "token_file", None)
+        if not token_file:
+            raise EStopRequestError("--url needs --token-file FILE holding a bearer token")
+        try:
+            token = Path(token_file).read_text(encoding="utf-8").strip()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise EStopRequestError(f"cannot read token file {token_file}: {exc}") from exc
+        if not token or any(char.isspace() for char in token):
+            raise EStopRequestError(f"token file {token_file} must hold just the token")
+        answer = send_estop(url, token, getattr(args, "reason", "") or "", getattr(args, "timeout", 2.0))
+    except ProcessLookupError:
+        return _fail(f"no process {pid}")
+    except (EStopRequestError, OSError) as exc:
+        return _fail(str(exc))
+    print(f"armwarden: e-stop latched, event {answer.get('event')} (stop issued in {answer.get('stop_issued_ms')} ms)")
+    return 0
+
+
+def _fail(message: str) -> int:
+    print(f"armwarden: e-stop FAILED: {flatten_reason(message, 400)}", file=sys.stderr)
+    return 1
