@@ -81,8 +81,14 @@ FiniteFloat = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 #: A name: non-empty, no whitespace (joints, frames, links, cameras, controllers, zones).
 Name = Annotated[str, Field(strict=True, min_length=1, max_length=128, pattern=r"^\S+$")]
 UniqueNames = Annotated[tuple[Name, ...], AfterValidator(unique_names)]
+#: Largest |coordinate| [m] of a workspace or keep-out corner. No arm ArmWarden drives reaches
+#: this far from its base; a larger number is almost always centimetres or millimetres written
+#: where metres belong, which would silently move a box out of the arm's way.
+MAX_COORDINATE_M = 5.0
+#: A coordinate [m] in the robot base frame, within ±MAX_COORDINATE_M.
+Coordinate = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_COORDINATE_M, le=MAX_COORDINATE_M)]
 #: [x, y, z] in metres, in the robot base frame.
-Vector3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+Vector3 = tuple[Coordinate, Coordinate, Coordinate]
 StrictBool = Annotated[bool, Field(strict=True)]
 Rate = Annotated[int, Field(strict=True, ge=1)]
 
@@ -119,3 +125,8 @@ def check_min_below_max(lo: Sequence[float], hi: Sequence[float]) -> Iterator[Vi
     if bad:
         yield ("min",), f"min must be less than max on every axis ({', '.join(bad)})"
 
+
+
+def boxes_overlap(lo_a: Sequence[float], hi_a: Sequence[float], lo_b: Sequence[float], hi_b: Sequence[float]) -> bool:
+    """Whether two axis-aligned boxes share interior volume (touching faces do not count)."""
+    return all(a0 < b1 and b0 < a1 for a0, a1, b0, b1 in zip(lo_a, hi_a, lo_b, hi_b))

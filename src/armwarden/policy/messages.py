@@ -79,6 +79,14 @@ _TYPE_WORDS = {
 }
 
 
+_BOUND_WORDS = {
+    "greater_than": ("gt", "greater than"),
+    "greater_than_equal": ("ge", "at least"),
+    "less_than": ("lt", "less than"),
+    "less_than_equal": ("le", "at most"),
+}
+
+
 def _humanise(error: Mapping[str, Any], root: type[BaseModel]) -> str:
     """Turn a pydantic error into a message for the person editing the YAML file."""
     kind, loc, value = error["type"], tuple(error["loc"]), error.get("input")
@@ -104,6 +112,11 @@ def _humanise(error: Mapping[str, Any], root: type[BaseModel]) -> str:
         return f"must be a name without whitespace (got {show_value(value)})"
     if kind == "string_too_short":
         return "must not be empty"
+    if kind in _BOUND_WORDS:
+        key, words = _BOUND_WORDS[kind]
+        field = _field_at(root, loc)
+        about = f" ({field.description})" if field is not None and field.description else ""
+        return f"must be {words} {error['ctx'][key]} (got {show_value(value)}){about}"
     if kind == "value_error":
         return str(error["msg"]).removeprefix("Value error, ")
     message = str(error["msg"]).replace("Input should", "must").replace("Tuple should", "must")

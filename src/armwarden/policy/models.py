@@ -46,7 +46,13 @@ class Policy(BaseModel):
 
     @model_validator(mode="after")
     def _rules(self) -> Policy:
-        enforce([self._gripper_section_when_gripper_enabled(), self._limit_margin_leaves_room()])
+        enforce(
+            [
+                self._gripper_section_when_gripper_enabled(),
+                self._limit_margin_leaves_room(),
+                self._outside_envelope_approval_has_something_to_ask_about(),
+            ]
+        )
         return self
 
     def _gripper_section_when_gripper_enabled(self) -> Iterator[Violation]:
@@ -62,6 +68,20 @@ class Policy(BaseModel):
                     f"joint_limit_margin_rad ({self.motion.joint_limit_margin_rad:g}) leaves no room in the range "
                     f"of {name} [{limits.min:g}, {limits.max:g}]"
                 )
+
+    def _outside_envelope_approval_has_something_to_ask_about(self) -> Iterator[Violation]:
+        """`outside_envelope` asks only on soft violations; with none configured it silently never asks."""
+        motion = self.motion
+        if (
+            self.approval.mode == "outside_envelope"
+            and motion.soft_joint_step_rad is None
+            and motion.joint_limit_margin_rad == 0
+        ):
+            yield ("approval", "mode"), (
+                "mode outside_envelope asks a human only about soft violations, but motion configures none "
+                "(soft_joint_step_rad is null and joint_limit_margin_rad is 0), so it would never ask: set one "
+                "of them, or write mode: never if that is what you mean"
+            )
 
     @property
     def enabled_tools(self) -> tuple[str, ...]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Annotated
@@ -24,6 +25,14 @@ from armwarden.policy.fields import (
 )
 
 
+#: Fastest joint speed a policy may allow [rad/s]: one turn per second, above any arm joint
+#: ArmWarden drives (FR3: 2.62–5.26). More is a unit slip (°/s) or no velocity limit at all.
+MAX_JOINT_VELOCITY = round(2 * math.pi, 4)
+#: Largest joint acceleration a policy may allow [rad/s²] (FR3: 7.5–20). More is a unit slip
+#: (°/s²) or no acceleration limit at all.
+MAX_JOINT_ACCELERATION = 50.0
+
+
 class JointLimits(BaseModel):
     """Limits of one joint. The envelope refuses any plan that leaves them."""
 
@@ -31,9 +40,16 @@ class JointLimits(BaseModel):
 
     min: FiniteFloat = Field(description="Lower position limit [rad] (metres for a prismatic joint).")
     max: FiniteFloat = Field(description="Upper position limit [rad] (metres for a prismatic joint).")
-    max_velocity: float = finite(gt=0, description="Maximum joint speed [rad/s] (m/s for a prismatic joint).")
+    max_velocity: float = finite(
+        gt=0,
+        le=MAX_JOINT_VELOCITY,
+        description=f"Maximum joint speed [rad/s] (m/s for a prismatic joint), in (0, {MAX_JOINT_VELOCITY:g}].",
+    )
     max_acceleration: float = finite(
-        gt=0, description="Maximum joint acceleration [rad/s²] (m/s² for a prismatic joint)."
+        gt=0,
+        le=MAX_JOINT_ACCELERATION,
+        description="Maximum joint acceleration [rad/s²] (m/s² for a prismatic joint), "
+        f"in (0, {MAX_JOINT_ACCELERATION:g}].",
     )
 
     @model_validator(mode="after")

@@ -14,6 +14,7 @@ from armwarden.policy.fields import (
     UniqueNames,
     Vector3,
     Violation,
+    boxes_overlap,
     check_min_below_max,
     enforce,
     finite,
@@ -26,8 +27,8 @@ class Box(BaseModel):
 
     model_config = MODEL_CONFIG
 
-    min: Vector3 = Field(description="Lower corner [x, y, z] in metres, base frame.")
-    max: Vector3 = Field(description="Upper corner [x, y, z] in metres, base frame.")
+    min: Vector3 = Field(description="Lower corner [x, y, z] in metres, base frame; each within ±5 m.")
+    max: Vector3 = Field(description="Upper corner [x, y, z] in metres, base frame; each within ±5 m.")
 
     @model_validator(mode="after")
     def _rules(self) -> Box:
@@ -41,8 +42,8 @@ class KeepOutZone(BaseModel):
     model_config = MODEL_CONFIG
 
     name: Name = Field(description="Zone name (no unit), unique, quoted in violations.")
-    min: Vector3 = Field(description="Lower corner [x, y, z] in metres, base frame.")
-    max: Vector3 = Field(description="Upper corner [x, y, z] in metres, base frame.")
+    min: Vector3 = Field(description="Lower corner [x, y, z] in metres, base frame; each within ±5 m.")
+    max: Vector3 = Field(description="Upper corner [x, y, z] in metres, base frame; each within ±5 m.")
 
     @model_validator(mode="after")
     def _rules(self) -> KeepOutZone:
@@ -71,8 +72,17 @@ class WorkspaceConfig(BaseModel):
 
     @model_validator(mode="after")
     def _rules(self) -> WorkspaceConfig:
-        enforce([self._keep_out_names_unique()])
+        enforce([self._keep_out_names_unique(), self._keep_out_zones_overlap_the_box()])
         return self
+
+    def _keep_out_zones_overlap_the_box(self) -> Iterator[Violation]:
+        """A zone entirely outside the workspace box protects nothing (usually a wrong sign, frame or unit)."""
+        for index, zone in enumerate(self.keep_out):
+            if not boxes_overlap(zone.min, zone.max, self.box.min, self.box.max):
+                yield ("keep_out", index), (
+                    f"keep-out zone {zone.name!r} lies entirely outside the workspace box, so it would protect "
+                    "nothing; check its coordinates (metres, base frame)"
+                )
 
     def _keep_out_names_unique(self) -> Iterator[Violation]:
         """Violations quote the zone name; two zones with one name would make reports ambiguous."""
