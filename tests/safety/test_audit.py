@@ -114,7 +114,7 @@ def test_deleting_a_middle_line_fails(tmp_path: Path) -> None:
     path.write_bytes(b"".join(lines[:3] + lines[4:]))
     report = verify_file(path)
     assert not report.ok and report.first_bad_line == 4
-    assert "sequence" in report.reason
+    assert report.reason is not None and "sequence" in report.reason
 
 
 def test_reordering_two_lines_fails(tmp_path: Path) -> None:
@@ -208,6 +208,7 @@ def test_torn_last_line_is_reported_then_recovered_on_reopen(tmp_path: Path) -> 
         recovery = log.recovery_record
         assert recovery is not None and recovery.event == "recovery"
         assert recovery.seq == 4 and recovery.prev == good[-1].hash
+        assert recovery.extra is not None
         assert recovery.extra["torn_line"] == 4 and recovery.extra["torn_bytes"] == len(fragment)
         after = log.append("startup")
     assert after.seq == 5 and after.prev == recovery.hash
@@ -227,7 +228,9 @@ def test_complete_record_missing_only_its_newline_is_treated_as_torn(tmp_path: P
     path.write_bytes(path.read_bytes()[:-1])  # the fsync never confirmed this record
     assert verify_file(path).reason == "torn last line"
     with AuditLog(path) as log:
-        assert log.recovery_record.seq == 3 and log.recovery_record.extra["torn_line"] == 3
+        recovery = log.recovery_record
+        assert recovery is not None and recovery.extra is not None
+        assert recovery.seq == 3 and recovery.extra["torn_line"] == 3
     report = verify_file(path)
     assert report.ok and report.recovered_lines == [3] and report.records == 3
 

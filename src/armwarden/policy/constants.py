@@ -30,15 +30,13 @@ ALL_TOOLS: tuple[str, ...] = tuple(tool for tools in TOOL_GROUPS.values() for to
 #: Tools the rate limiter never throttles: stopping must always work (docs/architecture.md, "Concurrency model").
 RATE_LIMIT_EXEMPT_TOOLS: tuple[str, ...] = ("stop_motion", "estop", "get_safety_status")
 #: Actions that can be put behind human approval; `reset_estop` is always among them.
-APPROVAL_ACTIONS: tuple[str, ...] = (
+APPROVAL_ACTIONS: tuple[ApprovalAction, ...] = (
     "execute",
     "switch_controllers",
     "reset_estop",
     "error_recovery",
     "set_collision_thresholds",
 )
-
-
 #: Policy files larger than this are refused before parsing.
 MAX_POLICY_BYTES = 1024 * 1024
 #: The path reported for problems with the document as a whole (unreadable, not YAML, not a mapping).

@@ -126,7 +126,6 @@ def check_min_below_max(lo: Sequence[float], hi: Sequence[float]) -> Iterator[Vi
         yield ("min",), f"min must be less than max on every axis ({', '.join(bad)})"
 
 
-
 def boxes_overlap(lo_a: Sequence[float], hi_a: Sequence[float], lo_b: Sequence[float], hi_b: Sequence[float]) -> bool:
     """Whether two axis-aligned boxes share interior volume (touching faces do not count)."""
     return all(a0 < b1 and b0 < a1 for a0, a1, b0, b1 in zip(lo_a, hi_a, lo_b, hi_b))
