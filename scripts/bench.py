@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from armwarden.cli import bundled_policy  # noqa: E402
+from armwarden.policy import bundled_policy  # noqa: E402
 from armwarden.policy import load_policy  # noqa: E402
 from armwarden.preflight import load_runtime_model  # noqa: E402
 

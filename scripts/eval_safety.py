@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from armwarden.backends.counting import CountingBackend  # noqa: E402
 from armwarden.backends.fake import FakeBackend  # noqa: E402
-from armwarden.cli import bundled_policy  # noqa: E402
+from armwarden.policy import bundled_policy  # noqa: E402
 from armwarden.guard import Guard  # noqa: E402
 from armwarden.policy import Policy, apply_overrides, parse_policy  # noqa: E402
 from armwarden.preflight import load_runtime_model  # noqa: E402

@@ -206,7 +206,7 @@ def _policy_models() -> dict[str, type[BaseModel]]:
     return {
         obj.__name__: obj
         for obj in vars(policy_module).values()
-        if isinstance(obj, type) and issubclass(obj, BaseModel) and obj.__module__ == policy_module.__name__
+        if isinstance(obj, type) and issubclass(obj, BaseModel) and obj.__module__.startswith(policy_module.__name__ + ".")
     }
 
 
@@ -352,7 +352,7 @@ async def list_registered_tools() -> list[dict[str, Any]]:
     from mcp import Client
 
     from armwarden.backends.fake import FakeBackend
-    from armwarden.cli import bundled_policy
+    from armwarden.policy import bundled_policy
     from armwarden.guard import Guard
     from armwarden.policy import load_policy
     from armwarden.preflight import load_runtime_model

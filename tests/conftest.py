@@ -1,4 +1,4 @@
-"""Shared fixtures: the bundled FR3 policy, robot model, envelope and planner."""
+"""Shared fixtures: the bundled FR3 policy, robot model, envelope and planner; a clean audit-key environment."""
 
 from __future__ import annotations
 
@@ -11,9 +11,26 @@ import pytest
 from armwarden.planning.planners import Planner, PlannerSettings
 from armwarden.policy import Policy, load_policy
 from armwarden.robot import RobotModel, build_robot
+from armwarden.safety.audit import AUDIT_KEY_ENV
 from armwarden.safety.envelope import Envelope, EnvelopeLimits
 
 READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+
+
+@pytest.fixture
+def anyio_backend() -> str:
+    """`@pytest.mark.anyio` tests run on asyncio (the daemon's loop)."""
+    return "asyncio"
+
+
+@pytest.fixture(autouse=True)
+def _no_audit_key_from_the_developer(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A developer's own ARMWARDEN_AUDIT_KEY must not key the logs tests write or verify.
+
+    Tests that want a key set it themselves (`monkeypatch.setenv`), after this has run; child
+    processes started from a test inherit the cleaned environment.
+    """
+    monkeypatch.delenv(AUDIT_KEY_ENV, raising=False)
 
 
 def bundled_policy_path(name: str) -> Path:

@@ -196,8 +196,8 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_sections(JOINT),
     *_floats(f"{JOINT}.min"),
     *_floats(f"{JOINT}.max"),
-    *_floats(f"{JOINT}.max_velocity", 0, -1.0),
-    *_floats(f"{JOINT}.max_acceleration", 0, -10),
+    *_floats(f"{JOINT}.max_velocity", 0, -1.0, 150.0),
+    *_floats(f"{JOINT}.max_acceleration", 0, -10, 573.0),
     ("robot.home_joint_positions", "ready", "robot.home_joint_positions"),
     ("robot.home_joint_positions", None, "robot.home_joint_positions"),
     ("robot.home_joint_positions", [NAN, 0, 0, -2, 0, 1.5, 0], "robot.home_joint_positions[0]"),
@@ -210,6 +210,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_sections("workspace"),
     *_sections("workspace.box"),
     *_vectors("workspace.box.min"),
+    ("workspace.box.min", [-5.01, 0.0, 0.0], "workspace.box.min[0]"),
     *_vectors("workspace.box.max"),
     ("workspace.keep_out", "monitor", "workspace.keep_out"),
     ("workspace.keep_out", [5], "workspace.keep_out[0]"),
@@ -217,6 +218,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_names(f"{KEEP_OUT}.name"),
     *_vectors(f"{KEEP_OUT}.min"),
     *_vectors(f"{KEEP_OUT}.max"),
+    (f"{KEEP_OUT}.max", [0.7, 0.65, 45.0], f"{KEEP_OUT}.max[2]"),
     *_floats("workspace.link_padding_m", -0.01),
     *_name_lists("workspace.check_links", nullable=True),
     ("workspace.check_links", [], "workspace.check_links"),  # would silently check no link
@@ -226,25 +228,25 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_floats("motion.max_acceleration_scaling", 0, -0.1, 1.5),
     *_floats("motion.default_velocity_scaling", 0, -0.1, 2),
     *_floats("motion.default_acceleration_scaling", 0, -0.1, 2),
-    *_floats("motion.max_joint_step_rad", 0, -1.5),
+    *_floats("motion.max_joint_step_rad", 0, -1.5, 3.2),
     *_floats("motion.soft_joint_step_rad", 0, -0.8, nullable=True),
-    *_floats("motion.max_cartesian_step_m", 0, -0.5),
+    *_floats("motion.max_cartesian_step_m", 0, -0.5, 5.1),
     *_floats("motion.plan_ttl_s", 0, -1, 3600.5),
     *_floats("motion.joint_limit_margin_rad", -0.01),
-    *_floats("motion.start_tolerance_rad", 0, -0.01),
-    *_floats("motion.check_resolution_rad", 0, -0.02),
-    *_floats("motion.sweep_resolution_m", 0, -0.01, 0.051),
+    *_floats("motion.start_tolerance_rad", 0, -0.01, 0.11, 10),
+    *_floats("motion.check_resolution_rad", 0, -0.02, 0.0009, 0.11),
+    *_floats("motion.sweep_resolution_m", 0, -0.01, 0.051, 0.0009),
     *_sections("force"),
-    *_floats("force.max_contact_force_n", 0, -30),
-    *_floats("force.max_contact_torque_nm", 0, -10),
-    *_floats("force.monitor_rate_hz", 0, -200, 5001),
+    *_floats("force.max_contact_force_n", 0, -30, 150.1),
+    *_floats("force.max_contact_torque_nm", 0, -10, 30.1),
+    *_floats("force.monitor_rate_hz", 0, -200, 5001, 9.9, 0.001),
     *_bools("force.require_wrench"),
-    *_floats("force.wrench_timeout_s", 0, -0.1, 2.5),
+    *_floats("force.wrench_timeout_s", 0, -0.1, 0.51, 2.5),
     *_sections("gripper"),
     *_floats("gripper.min_width_m", -0.01),
-    *_floats("gripper.max_width_m", 0, -0.08),
-    *_floats("gripper.max_grasp_force_n", 0, -70),
-    *_floats("gripper.max_speed_mps", 0, -0.1),
+    *_floats("gripper.max_width_m", 0, -0.08, 0.51),
+    *_floats("gripper.max_grasp_force_n", 0, -70, 250.1),
+    *_floats("gripper.max_speed_mps", 0, -0.1, 0.51),
     *_sections("controllers"),
     *_name_lists("controllers.allowlist"),
     *_sections("perception"),
@@ -567,6 +569,7 @@ def test_keep_out_min_not_below_max_is_rejected(doc: dict[str, Any]) -> None:
 def test_box_is_accepted_exactly_when_min_below_max_on_every_axis(lo: tuple, hi: tuple) -> None:
     doc = full_mapping()
     doc["workspace"]["box"] = {"min": list(lo), "max": list(hi)}
+    doc["workspace"]["keep_out"] = []  # zones outside a random box are a separate rule
     if all(a < b for a, b in zip(lo, hi)):
         box = parse_policy(doc).workspace.box
         assert (box.min, box.max) == (lo, hi)
@@ -659,6 +662,125 @@ def test_limit_for_tool_without_override_is_the_default() -> None:
     policy = load_policy(FR3_YAML)
     assert policy.rate_limits.limit_for("execute_plan") == 20
     assert policy.rate_limits.limit_for("get_robot_state") == 60
+
+
+# ====================================================================== values that would switch a protection off
+
+#: (YAML path, a value that would quietly disable what the field protects, text the message must
+#: carry). Each is refused with its path; the value just inside the bound is accepted.
+DISABLING_VALUES: list[tuple[str, Any, Any, str]] = [
+    (f"{JOINT}.max_velocity", 150.0, 6.2832, "at most 6.2832"),  # °/s written as rad/s
+    (f"{JOINT}.max_acceleration", 573.0, 50, "at most 50"),
+    ("workspace.box.max", [85, 70, 115], [5, 5, 5], "at most 5"),  # centimetres written as metres
+    (f"{KEEP_OUT}.min", [45, 40, 0], [-5, -5, -5], "at most 5"),
+    ("motion.max_joint_step_rad", 100.0, 3.1416, "at most 3.1416"),
+    ("motion.max_cartesian_step_m", 1000.0, 5.0, "at most 5"),
+    ("motion.start_tolerance_rad", 10.0, 0.1, "at most 0.1"),  # would switch the start check off
+    ("motion.check_resolution_rad", 10.0, 0.1, "at most 0.1"),
+    ("motion.check_resolution_rad", 1e-9, 0.001, "at least 0.001"),  # planning would never finish
+    ("motion.sweep_resolution_m", 1e-9, 0.001, "at least 0.001"),
+    ("force.max_contact_force_n", 10_000.0, 150, "at most 150"),
+    ("force.max_contact_torque_nm", 1000.0, 30, "at most 30"),
+    ("force.monitor_rate_hz", 0.001, 10, "at least 10"),  # the 999 N run: one poll per 1000 s
+    ("force.wrench_timeout_s", 2.0, 0.5, "at most 0.5"),
+    ("gripper.max_width_m", 80.0, 0.5, "at most 0.5"),  # millimetres written as metres
+    ("gripper.max_grasp_force_n", 10_000.0, 250, "at most 250"),
+    ("gripper.max_speed_mps", 100.0, 0.5, "at most 0.5"),
+]
+
+
+def _disabling_id(row: tuple[str, Any, Any, str]) -> str:
+    return f"{row[0]}={row[1]!r}"
+
+
+@pytest.mark.parametrize("row", DISABLING_VALUES, ids=_disabling_id)
+def test_value_that_would_switch_a_protection_off_is_refused_at_its_path(
+    doc: dict[str, Any], row: tuple[str, Any, Any, str]
+) -> None:
+    path, bad, _, expected = row
+    errors = errors_of(set_at(doc, path, bad))
+    assert errors
+    for error_path, message in errors:  # a vector reports each bad item at its own index
+        assert error_path == path or error_path.startswith(f"{path}["), errors
+        assert expected in message and "got" in message
+
+
+@pytest.mark.parametrize("row", DISABLING_VALUES, ids=lambda row: f"{row[0]}={row[2]!r}")
+def test_value_at_the_bound_is_accepted(doc: dict[str, Any], row: tuple[str, Any, Any, str]) -> None:
+    path, _, at_bound, _ = row
+    if path.endswith("min"):  # a corner at the bound needs the other corner beyond it
+        set_at(doc, path.removesuffix("min") + "max", [5, 5, 5])
+    if path.endswith("wrench_timeout_s") or path.endswith("monitor_rate_hz"):
+        doc["force"].update(monitor_rate_hz=10, wrench_timeout_s=0.5)
+    set_at(doc, path, at_bound)
+    if path == "motion.max_joint_step_rad":
+        doc["motion"]["soft_joint_step_rad"] = None
+    parse_policy(doc)
+
+
+def test_force_monitor_polling_slower_than_the_wrench_timeout_is_refused(doc: dict[str, Any]) -> None:
+    doc["force"].update(monitor_rate_hz=10, wrench_timeout_s=0.05)  # one poll per 0.1 s, samples stale after 0.05 s
+    errors = errors_of(doc)
+    assert [p for p, _ in errors] == ["force.monitor_rate_hz"]
+    assert "wrench_timeout_s (0.05 s)" in errors[0][1] and "at least 20 Hz" in errors[0][1]
+
+
+def test_force_monitor_period_equal_to_the_wrench_timeout_is_accepted(doc: dict[str, Any]) -> None:
+    doc["force"].update(monitor_rate_hz=10, wrench_timeout_s=0.1)
+    assert parse_policy(doc).force.monitor_rate_hz == 10
+
+
+def test_keep_out_zone_outside_the_workspace_box_is_refused(doc: dict[str, Any]) -> None:
+    doc["workspace"]["keep_out"][1].update(min=[0.6, -0.65, -1.0], max=[0.7, -0.55, -0.5])  # below the table
+    errors = errors_of(doc)
+    assert [p for p, _ in errors] == ["workspace.keep_out[1]"]
+    assert "camera_mast" in errors[0][1] and "protect nothing" in errors[0][1]
+
+
+def test_keep_out_zone_only_touching_the_box_is_refused(doc: dict[str, Any]) -> None:
+    doc["workspace"]["keep_out"][0].update(min=[0.85, 0.4, 0.0], max=[1.0, 0.65, 0.45])  # shares the x = 0.85 face
+    assert paths_of(doc) == ["workspace.keep_out[0]"]
+
+
+def test_keep_out_zone_reaching_outside_the_box_is_accepted(doc: dict[str, Any]) -> None:
+    doc["workspace"]["keep_out"][0].update(min=[0.45, 0.4, -1.0], max=[2.0, 2.0, 0.45])
+    assert parse_policy(doc).workspace.keep_out[0].max == (2.0, 2.0, 0.45)
+
+
+def test_outside_envelope_approval_with_no_soft_threshold_is_refused(doc: dict[str, Any]) -> None:
+    doc["motion"].update(soft_joint_step_rad=None, joint_limit_margin_rad=0)
+    errors = errors_of(doc)
+    assert [p for p, _ in errors] == ["approval.mode"]
+    assert "never ask" in errors[0][1]
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"motion": {"soft_joint_step_rad": None}},
+        {"motion": {"joint_limit_margin_rad": 0}},
+        {"motion": {"soft_joint_step_rad": None, "joint_limit_margin_rad": 0}, "approval": {"mode": "never"}},
+        {"motion": {"soft_joint_step_rad": None, "joint_limit_margin_rad": 0}, "approval": {"mode": "always"}},
+    ],
+)
+def test_approval_mode_that_can_still_ask_or_says_never_is_accepted(doc: dict[str, Any], change: dict) -> None:
+    for section, values in change.items():
+        doc[section].update(values)
+    parse_policy(doc)
+
+
+@pytest.mark.parametrize("shipped", [FR3_YAML, READONLY_YAML], ids=lambda p: p.name)
+def test_shipped_policy_is_inside_every_bound(shipped: Path) -> None:
+    policy = load_policy(shipped)
+    assert policy.motion.start_tolerance_rad <= 0.1
+    assert 1 / policy.force.monitor_rate_hz <= policy.force.wrench_timeout_s
+
+
+def test_bound_error_names_the_bound_the_value_and_the_field(doc: dict[str, Any]) -> None:
+    doc["motion"]["start_tolerance_rad"] = 10
+    ((path, message),) = errors_of(doc)
+    assert path == "motion.start_tolerance_rad"
+    assert message.startswith("must be at most 0.1 (got 10) (Largest joint deviation [rad]")
 
 
 # ====================================================================== strict typing details

@@ -12,20 +12,15 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
-from importlib import resources
 from pathlib import Path
 
 from armwarden import __version__
 from armwarden.errors import ArmWardenError, PolicyError
+from armwarden.policy import bundled_policy  # also re-exported here for older importers
 
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_REFUSED = 2
-
-
-def bundled_policy(name: str = "fr3") -> Path:
-    """Path of a policy shipped inside the package (`fr3` or `readonly`)."""
-    return Path(str(resources.files("armwarden") / "policies" / f"{name}.yaml"))
 
 
 def _build_parser() -> argparse.ArgumentParser:

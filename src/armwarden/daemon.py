@@ -205,7 +205,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: an
 
 
 def serve_command(args: argparse.Namespace) -> int:
-    from armwarden.cli import bundled_policy
+    from armwarden.policy import bundled_policy
 
     policy_path = Path(args.policy) if args.policy else bundled_policy()
     try:

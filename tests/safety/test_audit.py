@@ -20,6 +20,8 @@ from armwarden.errors import ConfigurationError
 from armwarden.safety.audit import (
     GENESIS_HASH,
     RECORD_FIELDS,
+    AUDIT_KEY_ENV,
+    AuditEntry,
     AuditLog,
     AuditRecord,
     AuditWriteError,
@@ -112,7 +114,7 @@ def test_deleting_a_middle_line_fails(tmp_path: Path) -> None:
     path.write_bytes(b"".join(lines[:3] + lines[4:]))
     report = verify_file(path)
     assert not report.ok and report.first_bad_line == 4
-    assert "sequence" in report.reason
+    assert report.reason is not None and "sequence" in report.reason
 
 
 def test_reordering_two_lines_fails(tmp_path: Path) -> None:
@@ -206,6 +208,7 @@ def test_torn_last_line_is_reported_then_recovered_on_reopen(tmp_path: Path) -> 
         recovery = log.recovery_record
         assert recovery is not None and recovery.event == "recovery"
         assert recovery.seq == 4 and recovery.prev == good[-1].hash
+        assert recovery.extra is not None
         assert recovery.extra["torn_line"] == 4 and recovery.extra["torn_bytes"] == len(fragment)
         after = log.append("startup")
     assert after.seq == 5 and after.prev == recovery.hash
@@ -225,7 +228,9 @@ def test_complete_record_missing_only_its_newline_is_treated_as_torn(tmp_path: P
     path.write_bytes(path.read_bytes()[:-1])  # the fsync never confirmed this record
     assert verify_file(path).reason == "torn last line"
     with AuditLog(path) as log:
-        assert log.recovery_record.seq == 3 and log.recovery_record.extra["torn_line"] == 3
+        recovery = log.recovery_record
+        assert recovery is not None and recovery.extra is not None
+        assert recovery.seq == 3 and recovery.extra["torn_line"] == 3
     report = verify_file(path)
     assert report.ok and report.recovered_lines == [3] and report.records == 3
 
@@ -289,12 +294,79 @@ def test_new_log_file_is_private_and_close_is_idempotent_and_silent(tmp_path: Pa
         log.append("tool_call")
 
 
+@pytest.fixture(scope="module")
+def developer_key_in_the_environment():
+    """The developer's shell exported a key before the test run started."""
+    previous = os.environ.get(AUDIT_KEY_ENV)
+    os.environ[AUDIT_KEY_ENV] = "a developer's own key"
+    yield
+    if previous is None:
+        os.environ.pop(AUDIT_KEY_ENV, None)
+    else:
+        os.environ[AUDIT_KEY_ENV] = previous
+
+
+def test_a_developers_audit_key_does_not_reach_a_test(developer_key_in_the_environment: None) -> None:
+    assert AUDIT_KEY_ENV not in os.environ
+    assert hmac_key_from_env() is None
+
+
+def test_a_test_may_set_the_audit_key_itself(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(AUDIT_KEY_ENV, "test key")
+    assert hmac_key_from_env() == b"test key"
+
+
 def test_event_must_be_a_short_non_empty_string(tmp_path: Path) -> None:
     with AuditLog(tmp_path / "audit.jsonl") as log:
         for bad in ("", "x" * 65, None, 3):
             with pytest.raises(ValueError):
                 log.append(bad)  # type: ignore[arg-type]
         assert log.append("x" * 64).seq == 1
+
+
+# --- entries ------------------------------------------------------------------------------------
+
+
+def test_append_takes_an_audit_entry(tmp_path: Path) -> None:
+    entry = AuditEntry("tool_call", session="s1", tool="estop", arguments={"reason": "x"}, outcome="ok")
+    with AuditLog(tmp_path / "audit.jsonl") as log:
+        record = log.append(entry)
+    assert (record.event, record.session, record.tool, record.arguments, record.outcome) == (
+        "tool_call", "s1", "estop", {"reason": "x"}, "ok"
+    )
+
+
+def test_an_entry_and_the_same_keywords_write_the_same_fields(tmp_path: Path) -> None:
+    fields = {"principal": "alice", "detail": "d", "operator": "bob", "extra": {"k": 1}}
+    with AuditLog(tmp_path / "audit.jsonl") as log:
+        by_entry = log.append(AuditEntry("refusal", **fields)).to_dict()
+        by_keywords = log.append("refusal", **fields).to_dict()
+    changing = {"seq", "wall_time", "mono_time", "prev", "hash"}
+    assert {k: v for k, v in by_entry.items() if k not in changing} == {
+        k: v for k, v in by_keywords.items() if k not in changing
+    }
+
+
+def test_an_entry_with_extra_keywords_is_refused(tmp_path: Path) -> None:
+    with AuditLog(tmp_path / "audit.jsonl") as log:
+        with pytest.raises(TypeError, match="not both"):
+            log.append(AuditEntry("tool_call"), tool="estop")
+        assert log.last_seq == 0
+
+
+def test_an_unknown_keyword_is_refused(tmp_path: Path) -> None:
+    with AuditLog(tmp_path / "audit.jsonl") as log:
+        with pytest.raises(TypeError):
+            log.append("tool_call", toll="estop")
+        assert log.last_seq == 0
+
+
+@pytest.mark.anyio
+async def test_append_async_takes_an_audit_entry(tmp_path: Path) -> None:
+    with AuditLog(tmp_path / "audit.jsonl") as log:
+        record = await log.append_async(AuditEntry("shutdown", outcome="ok", detail="bye"))
+    assert (record.seq, record.event, record.outcome, record.detail) == (1, "shutdown", "ok", "bye")
+    assert verify_file(tmp_path / "audit.jsonl").ok
 
 
 # --- HMAC ---------------------------------------------------------------------------------------
@@ -573,7 +645,7 @@ def test_a_failed_group_fsync_fails_every_caller_of_the_batch(tmp_path: Path, mo
             def broken_fsync(fd: int) -> None:
                 raise OSError(5, "simulated I/O error")
 
-            monkeypatch.setattr("armwarden.safety.audit.os.fsync", broken_fsync)
+            monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", broken_fsync)
 
             async def one(i: int) -> None:
                 try:

@@ -18,7 +18,7 @@ from mcp import Client
 
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import FakeBackend
-from armwarden.cli import bundled_policy
+from armwarden.policy import bundled_policy
 from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, load_policy, parse_policy
 from armwarden.preflight import load_runtime_model

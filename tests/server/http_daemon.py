@@ -30,7 +30,7 @@ HOST = "127.0.0.1"  # never anything else
 
 def child_env() -> dict[str, str]:
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    env.pop("ARMWARDEN_AUDIT_HMAC_KEY", None)
+    env.pop("ARMWARDEN_AUDIT_KEY", None)
     return env
 
 

@@ -24,7 +24,7 @@ HUGE = "A" * 50_000
 
 def audit_cli(*args: str) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
-    env.pop("ARMWARDEN_AUDIT_HMAC_KEY", None)
+    env.pop("ARMWARDEN_AUDIT_KEY", None)
     return subprocess.run([sys.executable, "-m", "armwarden.cli", "audit", *args], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=60)
 

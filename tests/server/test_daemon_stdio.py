@@ -33,7 +33,7 @@ CLI = [sys.executable, "-m", "armwarden.cli"]
 
 def child_env() -> dict[str, str]:
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    env.pop("ARMWARDEN_AUDIT_HMAC_KEY", None)
+    env.pop("ARMWARDEN_AUDIT_KEY", None)
     return env
 
 

@@ -1,0 +1,97 @@
+"""The `workspace` section: the box the arm must stay in and the keep-out zones it must avoid."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated, Optional
+
+from pydantic import AfterValidator, BaseModel, Field, model_validator
+
+from armwarden.policy.fields import (
+    MODEL_CONFIG,
+    Name,
+    StrictBool,
+    UniqueNames,
+    Vector3,
+    Violation,
+    boxes_overlap,
+    check_min_below_max,
+    enforce,
+    finite,
+    not_empty,
+)
+
+
+class Box(BaseModel):
+    """An axis-aligned box in the robot base frame."""
+
+    model_config = MODEL_CONFIG
+
+    min: Vector3 = Field(description="Lower corner [x, y, z] in metres, base frame; each within ±5 m.")
+    max: Vector3 = Field(description="Upper corner [x, y, z] in metres, base frame; each within ±5 m.")
+
+    @model_validator(mode="after")
+    def _rules(self) -> Box:
+        enforce([check_min_below_max(self.min, self.max)])
+        return self
+
+
+class KeepOutZone(BaseModel):
+    """A named box no part of the arm (TCP or padded link geometry) may enter."""
+
+    model_config = MODEL_CONFIG
+
+    name: Name = Field(description="Zone name (no unit), unique, quoted in violations.")
+    min: Vector3 = Field(description="Lower corner [x, y, z] in metres, base frame; each within ±5 m.")
+    max: Vector3 = Field(description="Upper corner [x, y, z] in metres, base frame; each within ±5 m.")
+
+    @model_validator(mode="after")
+    def _rules(self) -> KeepOutZone:
+        enforce([check_min_below_max(self.min, self.max)])
+        return self
+
+
+class WorkspaceConfig(BaseModel):
+    """Where the arm may be: inside `box`, outside every `keep_out` zone, links padded."""
+
+    model_config = MODEL_CONFIG
+
+    box: Box = Field(description="Workspace box (metres, base frame) the TCP and every checked link must stay in.")
+    keep_out: tuple[KeepOutZone, ...] = Field(
+        default=(), description="Keep-out boxes (metres, base frame) the TCP and every checked link must avoid."
+    )
+    link_padding_m: float = finite(
+        ge=0, default=0.01, description="Padding [m] added to every link's collision geometry."
+    )
+    check_links: Optional[Annotated[UniqueNames, AfterValidator(not_empty)]] = Field(
+        default=None,
+        description="Links (no unit) whose collision geometry is checked; null means every link that moves. "
+        "An empty list is an error: it would silently check no link at all.",
+    )
+    self_collision: StrictBool = Field(default=True, description="Check links against each other (boolean).")
+
+    @model_validator(mode="after")
+    def _rules(self) -> WorkspaceConfig:
+        enforce([self._keep_out_names_unique(), self._keep_out_zones_overlap_the_box()])
+        return self
+
+    def _keep_out_zones_overlap_the_box(self) -> Iterator[Violation]:
+        """A zone entirely outside the workspace box protects nothing (usually a wrong sign, frame or unit)."""
+        for index, zone in enumerate(self.keep_out):
+            if not boxes_overlap(zone.min, zone.max, self.box.min, self.box.max):
+                yield ("keep_out", index), (
+                    f"keep-out zone {zone.name!r} lies entirely outside the workspace box, so it would protect "
+                    "nothing; check its coordinates (metres, base frame)"
+                )
+
+    def _keep_out_names_unique(self) -> Iterator[Violation]:
+        """Violations quote the zone name; two zones with one name would make reports ambiguous."""
+        first: dict[str, int] = {}
+        for index, zone in enumerate(self.keep_out):
+            if zone.name in first:
+                yield ("keep_out", index, "name"), (
+                    f"duplicate keep-out name {zone.name!r} (already used by keep_out[{first[zone.name]}])"
+                )
+            else:
+                first[zone.name] = index
+

@@ -1,0 +1,43 @@
+"""`armwarden audit verify|tail`: a one-line verdict on a log, and its last records as JSON."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+from armwarden.errors import ConfigurationError
+from armwarden.safety.audit.chain import AUDIT_KEY_ENV
+from armwarden.safety.audit.verify import read_tail, verify_file
+
+def verify_command(path: str | os.PathLike[str], key: bytes | None = None) -> int:
+    """Print a one-line verdict for the log at ``path``; 0 if the chain is intact, else 1."""
+    try:
+        report = verify_file(path, key)
+    except (OSError, ConfigurationError) as exc:
+        print(f"FAILED: cannot read {os.fspath(path)}: {exc}")
+        return 1
+    if report.ok:
+        note = ""
+        if report.recovered_lines:
+            listed = ", ".join(str(n) for n in report.recovered_lines)
+            note = f" (recovered torn fragment at line {listed})"
+        print(f"OK: {report.records} records, chain intact{note}")
+        return 0
+    hint = ""
+    if key is None and report.reason == "hash mismatch" and report.first_bad_line == 1:
+        hint = f" (no HMAC key given; set {AUDIT_KEY_ENV} if this log is keyed)"
+    print(f"FAILED at line {report.first_bad_line}: {report.reason}{hint}")
+    return 1
+
+
+def tail_command(path: str | os.PathLike[str], n: int = 20) -> int:
+    """Print the last ``n`` records of the log as indented JSON; 0 on success, 1 if unreadable."""
+    try:
+        records = read_tail(path, n)
+    except OSError as exc:
+        print(f"cannot read {os.fspath(path)}: {exc}", file=sys.stderr)
+        return 1
+    for record in records:
+        print(json.dumps(record, indent=2, ensure_ascii=False, sort_keys=False))
+    return 0

@@ -1,0 +1,430 @@
+"""The `AuditLog` writer: one fsync-ed line per record, a writer thread for the event loop.
+
+Crash handling. A crash can leave a torn last line (no trailing newline, or not JSON). On open
+the log never rewrites history: it terminates the fragment with a newline and appends a
+``recovery`` record, chained from the last good record, whose ``extra`` names the fragment
+(``torn_line``, ``torn_bytes``, ``torn_sha256``). Anything else that does not verify makes the
+open fail with `ConfigurationError` naming the first bad line: the operator must move the file
+aside.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import functools
+import hashlib
+import json
+import os
+import queue
+import stat
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from armwarden.errors import ArmWardenError, ConfigurationError
+from armwarden.safety.audit.chain import (
+    GENESIS_HASH,
+    AuditRecord,
+    canonical_json,
+    check_key,
+    digest,
+    utc_now,
+    with_hash,
+)
+from armwarden.safety.audit.sanitise import Sanitizer, sanitize
+from armwarden.safety.audit.verify import clamp_tail, decode_records, scan, tail_lines
+
+try:  # POSIX advisory lock: one writer per log file.
+    import fcntl
+except ImportError:  # pragma: no cover - non-POSIX
+    fcntl = None  # type: ignore[assignment]
+
+MAX_EVENT_CHARS = 64
+
+
+class AuditWriteError(ArmWardenError):
+    """A record could not be made durable (log closed, disk error). Callers must fail closed."""
+
+
+@dataclass(frozen=True, slots=True)
+class AuditEntry:
+    """What a caller records: the event and its context. The log adds seq, times and the chain.
+
+    Values are sanitised on write (`sanitize`), so anything may be passed; `AuditLog.append`
+    also takes the same fields as keywords after the event name.
+    """
+
+    event: str
+    session: str | None = None
+    principal: str | None = None
+    tool: str | None = None
+    arguments: Any = None
+    outcome: str | None = None
+    detail: str | None = None
+    operator: str | None = None
+    extra: Mapping[str, Any] | None = None
+
+
+def _entry_of(entry: AuditEntry | str, fields: Mapping[str, Any]) -> AuditEntry:
+    """`append(AuditEntry(...))` or `append("event", tool=..., ...)`, never a mix of both."""
+    if isinstance(entry, AuditEntry):
+        if fields:
+            raise TypeError(f"pass either an AuditEntry or an event name with keywords, not both: {sorted(fields)}")
+        return entry
+    return AuditEntry(entry, **fields)
+
+
+class AuditLog:
+    """The daemon's audit log. Thread-safe; one writer process per file (advisory lock).
+
+    ``append`` returns only after the record is written and fsync-ed. Use ``append_async`` from
+    the event loop: it runs ``append`` in a worker thread (FIFO per log and event loop), so the
+    loop never waits for the disk.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        hmac_key: bytes | None = None,
+        max_string_chars: int = 500,
+    ) -> None:
+        self._path = Path(path)
+        self._key = check_key(hmac_key)
+        if isinstance(max_string_chars, bool) or not isinstance(max_string_chars, int) or not (
+            16 <= max_string_chars <= 1_000_000
+        ):
+            raise ConfigurationError(
+                f"audit max_string_chars must be an int in 16..1000000, got {max_string_chars!r}"
+            )
+        self._max_chars = max_string_chars
+        self._texter = Sanitizer(max_string_chars, 1, 1, 1)  # text() only; stateless
+        self._lock = threading.Lock()
+        self._queue: queue.SimpleQueue | None = None  # jobs for the writer thread (started on first use)
+        self._thread: threading.Thread | None = None
+        self._fd: int | None = None
+        self._broken: str | None = None
+        self._seq = 0
+        self._prev = GENESIS_HASH
+        self._recovery: AuditRecord | None = None
+        self._open()
+
+    # -- opening ---------------------------------------------------------------------------
+    def _open(self) -> None:
+        path = self._path
+        parent = path.parent
+        if not parent.is_dir():
+            raise ConfigurationError(
+                f"audit log directory {str(parent)!r} does not exist (create it; it is not created for you)"
+            )
+        created = not path.exists()
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o600)
+        except OSError as exc:
+            raise ConfigurationError(f"cannot open audit log {str(path)!r}: {exc.strerror or exc}") from exc
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise ConfigurationError(f"audit log {str(path)!r} is not a regular file")
+            if fcntl is not None:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError as exc:
+                    if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                        raise ConfigurationError(
+                            f"audit log {str(path)!r} is already open by another writer"
+                        ) from exc
+                    raise
+            if created:
+                _fsync_dir(parent)
+            with os.fdopen(os.dup(fd), "rb") as stream:
+                stream.seek(0)
+                scanned = scan(stream, self._key)
+            self._fd = fd
+            self._seq, self._prev = scanned.last_seq, scanned.last_hash
+            report = scanned.report
+            if not report.ok:
+                assert report.first_bad_line is not None
+                torn = scanned.bad_is_last and (report.reason == "torn last line" or not scanned.bad_parses)
+                if not torn:
+                    raise ConfigurationError(
+                        f"audit log {str(path)!r} does not verify: line {report.first_bad_line}: "
+                        f"{report.reason}. Refusing to continue a damaged chain; move the file "
+                        f"aside (and keep it for investigation), then start again."
+                    )
+                self._recover(report.first_bad_line, scanned.bad_bytes)
+        except BaseException as exc:
+            self._fd = None
+            os.close(fd)
+            if isinstance(exc, OSError):
+                raise ConfigurationError(f"cannot use audit log {str(path)!r}: {exc}") from exc
+            raise
+
+    def _recover(self, lineno: int, fragment: bytes) -> None:
+        """Terminate a torn last line (if needed) and chain a recovery record past it."""
+        record, line = self._build(
+            AuditEntry(
+                "recovery",
+                detail=f"torn last line {lineno} ({len(fragment)} bytes) from an interrupted write; "
+                "left in place, chain continues from the last good record",
+                outcome="recovered",
+                extra={
+                    "torn_line": lineno,
+                    "torn_bytes": len(fragment),
+                    "torn_sha256": hashlib.sha256(fragment).hexdigest(),
+                },
+            )
+        )
+        assert self._fd is not None
+        size = os.fstat(self._fd).st_size
+        needs_newline = size > 0 and _last_byte(self._fd, size) != b"\n"
+        try:
+            self._write((b"\n" if needs_newline else b"") + line)
+        except OSError as exc:
+            raise ConfigurationError(
+                f"cannot write the recovery record to audit log {str(self._path)!r}: {exc}"
+            ) from exc
+        self._seq, self._prev = record.seq, record.hash
+        self._recovery = record
+
+    # -- properties ------------------------------------------------------------------------
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def closed(self) -> bool:
+        return self._fd is None
+
+    @property
+    def last_seq(self) -> int:
+        return self._seq
+
+    @property
+    def last_hash(self) -> str:
+        return self._prev
+
+    @property
+    def broken(self) -> str | None:
+        """Why the log refuses appends after a failed write (None while it is healthy)."""
+        return self._broken
+
+    @property
+    def recovery_record(self) -> AuditRecord | None:
+        """The recovery record written on open, if the file ended with a torn line."""
+        return self._recovery
+
+    # -- writing ---------------------------------------------------------------------------
+    def _text_field(self, value: Any) -> str | None:
+        if value is None:
+            return None
+        if not isinstance(value, str):
+            value = sanitize(value, max_string_chars=self._max_chars)
+            if not isinstance(value, str):
+                value = json.dumps(value, ensure_ascii=False, allow_nan=False)
+        return self._texter.text(value)
+
+    def _build(self, entry: AuditEntry) -> tuple[AuditRecord, bytes]:
+        """Make the next record (caller holds the lock or is the constructor)."""
+        event = entry.event
+        if not isinstance(event, str) or not event or len(event) > MAX_EVENT_CHARS:
+            raise ValueError(f"audit event must be a non-empty str of at most {MAX_EVENT_CHARS} chars")
+        event = self._texter.text(event, MAX_EVENT_CHARS)
+        extra: Any = entry.extra
+        if extra is not None:
+            extra = sanitize(extra, max_string_chars=self._max_chars)
+            if not isinstance(extra, dict):
+                extra = {"value": extra}
+        body: dict[str, Any] = {
+            "seq": self._seq + 1,
+            "wall_time": utc_now(),
+            "mono_time": time.monotonic(),
+            "event": event,
+            "session": self._text_field(entry.session),
+            "principal": self._text_field(entry.principal),
+            "tool": self._text_field(entry.tool),
+            "arguments": sanitize(entry.arguments, max_string_chars=self._max_chars),
+            "outcome": self._text_field(entry.outcome),
+            "detail": self._text_field(entry.detail),
+            "operator": self._text_field(entry.operator),
+            "extra": extra,
+            "prev": self._prev,
+        }
+        body_json = canonical_json(body)
+        body["hash"] = digest(body_json, self._key)
+        line = with_hash(body_json, body["hash"]) + b"\n"
+        return AuditRecord(**body), line
+
+    def _write(self, data: bytes, sync: bool = True) -> None:
+        assert self._fd is not None
+        view = memoryview(data)
+        while view:
+            written = os.write(self._fd, view)
+            view = view[written:]
+        if sync:
+            os.fsync(self._fd)
+
+    def _fsync_written(self) -> None:
+        """fsync what was written without it (a group commit by the writer thread)."""
+        with self._lock:
+            if self._fd is None:
+                raise AuditWriteError(f"audit log {str(self._path)!r} is closed")
+            try:
+                os.fsync(self._fd)
+            except OSError as exc:
+                self._broken = str(exc)
+                raise AuditWriteError(f"cannot fsync audit log {str(self._path)!r}: {exc}") from exc
+
+    def append(self, entry: AuditEntry | str, /, **fields: Any) -> AuditRecord:
+        """Write one record and fsync it; returns the record. Raises AuditWriteError on failure.
+
+        Takes an `AuditEntry`, or an event name with the entry's other fields as keywords.
+        After a write failure the log refuses further appends (the file may now end in a torn
+        line; reopening recovers it), so callers fail closed instead of writing past a hole.
+        """
+        return self._append(_entry_of(entry, fields), sync=True)
+
+    def _append(self, entry: AuditEntry, *, sync: bool) -> AuditRecord:
+        with self._lock:
+            if self._fd is None:
+                raise AuditWriteError(f"audit log {str(self._path)!r} is closed")
+            if self._broken is not None:
+                raise AuditWriteError(
+                    f"audit log {str(self._path)!r} is unusable after an earlier write failure: {self._broken}"
+                )
+            record, line = self._build(entry)
+            try:
+                self._write(line, sync=sync)
+            except OSError as exc:
+                self._broken = str(exc)
+                raise AuditWriteError(f"cannot write audit record to {str(self._path)!r}: {exc}") from exc
+            self._seq, self._prev = record.seq, record.hash
+            return record
+
+    async def append_async(self, entry: AuditEntry | str, /, **fields: Any) -> AuditRecord:
+        """`append` on the log's own writer thread, so the event loop never waits on disk.
+
+        Records are written in the order of the calls. A record handed to the writer is always
+        written — also when the caller is cancelled meanwhile (the event happened; the log must
+        say so). A dedicated thread and a plain queue cost far less per record than a generic
+        thread pool hop, which matters because every tool call writes one.
+        """
+        # the writer thread fsyncs each batch before answering any of its callers
+        call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[AuditRecord] = loop.create_future()
+        self._writer().put((call, loop, future))
+        return await asyncio.shield(future)
+
+    def _writer(self) -> queue.SimpleQueue:
+        with self._lock:
+            if self._queue is None:
+                if self._fd is None:
+                    raise AuditWriteError(f"audit log {self.path} is closed")
+                self._queue = queue.SimpleQueue()
+                self._thread = threading.Thread(target=self._drain, args=(self._queue,), name="armwarden-audit", daemon=True)
+                self._thread.start()
+            return self._queue
+
+    def _drain(self, jobs: queue.SimpleQueue) -> None:
+        """Writer thread: take every queued record, write them in order, fsync once, then answer
+        their callers — each record is on disk before its call returns, and under load one fsync
+        serves many calls."""
+        while True:
+            job = jobs.get()
+            if job is None:
+                return
+            batch, stopping = [job], False
+            while True:
+                try:
+                    more = jobs.get_nowait()
+                except queue.Empty:
+                    break
+                if more is None:
+                    stopping = True
+                    break
+                batch.append(more)
+            outcomes = []
+            for call, loop, future in batch:
+                try:
+                    outcomes.append((loop, future, call(), False))
+                except BaseException as exc:  # handed back to the awaiting caller
+                    outcomes.append((loop, future, exc, True))
+            if any(not failed for *_, failed in outcomes):
+                try:
+                    self._fsync_written()
+                except BaseException as exc:  # nothing of this batch is known to be on disk
+                    outcomes = [(loop, future, exc, True) for loop, future, *_ in outcomes]
+            for loop, future, outcome, failed in outcomes:
+                try:
+                    loop.call_soon_threadsafe(_settle, future, outcome, failed)
+                except RuntimeError:  # the loop is closed: nobody is waiting any more
+                    pass
+            if stopping:
+                return
+
+    # -- reading ---------------------------------------------------------------------------
+    def tail(self, n: int = 20) -> list[dict[str, Any]]:
+        """The last ``n`` records (clamped to 1..1000), oldest first."""
+        with self._lock:
+            if self._fd is None:
+                raise AuditWriteError(f"audit log {str(self._path)!r} is closed")
+            with os.fdopen(os.dup(self._fd), "rb") as stream:
+                lines = tail_lines(stream, clamp_tail(n))
+        return decode_records(lines)
+
+    # -- closing ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Release the file. Idempotent; writes nothing (a ``shutdown`` record is the caller's).
+
+        Records already handed to the writer thread are written first."""
+        with self._lock:
+            jobs, thread, self._queue, self._thread = self._queue, self._thread, None, None
+        if jobs is not None and thread is not None:
+            jobs.put(None)
+            if thread is not threading.current_thread():
+                thread.join()
+        with self._lock:
+            fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)  # closing drops the flock
+
+    def __enter__(self) -> AuditLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self._fd is None else f"seq={self._seq}"
+        keyed = "hmac" if self._key is not None else "sha256"
+        return f"<AuditLog {str(self._path)!r} {keyed} {state}>"
+
+
+def _last_byte(fd: int, size: int) -> bytes:
+    return os.pread(fd, 1, size - 1)
+
+
+def _settle(future: asyncio.Future, outcome: Any, failed: bool) -> None:
+    if future.done():  # the caller went away (cancelled): the record is written regardless
+        return
+    if failed:
+        future.set_exception(outcome)
+    else:
+        future.set_result(outcome)
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        dfd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:
+        pass
+    finally:
+        os.close(dfd)

@@ -1,0 +1,204 @@
+"""Reading a log back: verifying the chain line by line, and reading its last records.
+
+`scan` is shared by `verify_file` and by `AuditLog` when it opens a file (to continue the chain
+or to recover a torn last line).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac as _hmac
+import os
+from dataclasses import dataclass, field
+from typing import IO, Any
+
+from armwarden.safety.audit.chain import (
+    DECODER,
+    FIELD_SET,
+    GENESIS_HASH,
+    RECOVERY_MARK,
+    canonical_json,
+    check_key,
+    digest,
+    with_hash,
+)
+
+MAX_TAIL = 1000
+
+@dataclass(frozen=True)
+class VerifyReport:
+    ok: bool
+    records: int
+    first_bad_line: int | None
+    reason: str | None
+    recovered_lines: list[int] = field(default_factory=list)
+
+
+@dataclass
+class Scan:
+    """Result of walking a log: the report plus what a writer needs to continue the chain."""
+
+    report: VerifyReport
+    last_seq: int
+    last_hash: str
+    bad_is_last: bool = False  # the first bad line is the file's last line
+    bad_parses: bool = False  # ...and it is a JSON object (so not a torn write)
+    bad_bytes: bytes = b""  # its content without the newline
+
+
+def _check_line(
+    content: bytes, expected_seq: int, prev_hash: str, key: bytes | None
+) -> tuple[dict[str, Any] | None, str | None, bool]:
+    """Validate one newline-stripped line. Returns (record, failure reason, parsed as object)."""
+    try:
+        obj = DECODER.decode(content.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        return None, "invalid JSON", False
+    if not isinstance(obj, dict):
+        return None, "not a JSON object", False
+    keys = set(obj)
+    if keys != FIELD_SET:
+        missing = sorted(FIELD_SET - keys)
+        unknown = sorted(keys - FIELD_SET)
+        what = f"missing field(s) {missing}" if missing else f"unknown field(s) {unknown}"
+        return None, what, True
+    claimed = obj["hash"]
+    body = {k: v for k, v in obj.items() if k != "hash"}
+    try:
+        body_json = canonical_json(body)
+    except (ValueError, TypeError, UnicodeEncodeError):
+        return None, "hash mismatch", True
+    expected = digest(body_json, key)
+    if not isinstance(claimed, str) or not _hmac.compare_digest(claimed, expected):
+        return None, "hash mismatch", True
+    if content != with_hash(body_json, expected):
+        return None, "line is not in canonical form", True
+    seq = obj["seq"]
+    if type(seq) is not int or seq != expected_seq:
+        return None, f"sequence break: expected seq {expected_seq}, found {seq!r}", True
+    if obj["prev"] != prev_hash:
+        return None, "prev does not link to the previous record's hash", True
+    if not isinstance(obj["event"], str) or not obj["event"]:
+        return None, "event is not a non-empty string", True
+    return obj, None, True
+
+
+def _fragment_claim(next_content: bytes, lineno: int) -> dict[str, Any] | None:
+    """If the next line is a recovery record naming line ``lineno`` as torn, return its extra."""
+    if RECOVERY_MARK not in next_content:
+        return None
+    try:
+        obj = DECODER.decode(next_content.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        return None
+    if not isinstance(obj, dict) or obj.get("event") != "recovery":
+        return None
+    extra = obj.get("extra")
+    if isinstance(extra, dict) and type(extra.get("torn_line")) is int and extra["torn_line"] == lineno:
+        return extra
+    return None
+
+
+def scan(stream: IO[bytes], key: bytes | None) -> Scan:
+    lines = enumerate(stream, start=1)  # binary iteration splits on b"\n" only
+    records = 0
+    last_seq, last_hash = 0, GENESIS_HASH
+    recovered: list[int] = []
+
+    def fail(lineno: int, reason: str, is_last: bool, parses: bool, content: bytes) -> Scan:
+        return Scan(
+            VerifyReport(False, records, lineno, reason, list(recovered)),
+            last_seq,
+            last_hash,
+            bad_is_last=is_last,
+            bad_parses=parses,
+            bad_bytes=content,
+        )
+
+    cur = next(lines, None)
+    while cur is not None:
+        nxt = next(lines, None)
+        lineno, raw = cur
+        terminated = raw.endswith(b"\n")
+        content = raw[:-1] if terminated else raw
+        claim = _fragment_claim(nxt[1].rstrip(b"\n"), lineno) if nxt is not None else None
+        if claim is not None:
+            if claim.get("torn_bytes") != len(content) or claim.get(
+                "torn_sha256"
+            ) != hashlib.sha256(content).hexdigest():
+                return fail(lineno, "fragment does not match its recovery record", False, False, content)
+            recovered.append(lineno)
+            cur = nxt
+            continue
+        if not terminated:  # only the last line can lack its newline
+            return fail(lineno, "torn last line", True, False, content)
+        obj, reason, parses = _check_line(content, last_seq + 1, last_hash, key)
+        if reason is not None:
+            return fail(lineno, reason, nxt is None, parses, content)
+        assert obj is not None
+        records += 1
+        last_seq, last_hash = obj["seq"], obj["hash"]
+        cur = nxt
+    return Scan(VerifyReport(True, records, None, None, recovered), last_seq, last_hash)
+
+
+def verify_file(path: str | os.PathLike[str], hmac_key: bytes | None = None) -> VerifyReport:
+    """Check every line of the log at ``path``: parse, seq +1, prev link, hash, canonical form.
+
+    A torn last line is reported (``reason == "torn last line"``); a fragment that a following
+    ``recovery`` record names exactly (line number, byte length, SHA-256) is accepted and listed
+    in ``recovered_lines``. Raises OSError if the file cannot be read.
+    """
+    key = check_key(hmac_key)
+    with open(path, "rb") as stream:
+        return scan(stream, key).report
+
+
+# --------------------------------------------------------------------------------------------
+# Tail
+# --------------------------------------------------------------------------------------------
+
+
+def clamp_tail(n: Any) -> int:
+    try:
+        n = int(n)
+    except (TypeError, ValueError):
+        n = 1
+    return min(max(n, 1), MAX_TAIL)
+
+
+def tail_lines(stream: IO[bytes], n: int, block: int = 65536) -> list[bytes]:
+    stream.seek(0, os.SEEK_END)
+    pos = stream.tell()
+    buf = b""
+    while pos > 0 and buf.count(b"\n") <= n:
+        step = min(block, pos)
+        pos -= step
+        stream.seek(pos)
+        buf = stream.read(step) + buf
+    lines = buf.split(b"\n")
+    if pos > 0:
+        lines = lines[1:]  # first piece may be a partial line
+    return [line for line in lines if line.strip()][-n:]
+
+
+def decode_records(lines: list[bytes]) -> list[dict[str, Any]]:
+    """The lines that parse as JSON objects, in order; anything else (a torn fragment) is skipped."""
+    out: list[dict[str, Any]] = []
+    for line in lines:
+        try:
+            obj = DECODER.decode(line.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError, RecursionError):
+            continue
+        if isinstance(obj, dict):
+            out.append(obj)
+    return out
+
+
+def read_tail(path: str | os.PathLike[str], n: int = 20) -> list[dict[str, Any]]:
+    """The last ``n`` (clamped to 1..1000) parseable records of the log at ``path``, oldest first.
+
+    Lines that are not JSON objects (a torn fragment) are skipped, not returned.
+    """
+    with open(path, "rb") as stream:
+        return decode_records(tail_lines(stream, clamp_tail(n)))
