@@ -158,7 +158,11 @@ class RawStdio:
         self.next_id = 0
 
     def send(self, message: dict[str, Any]) -> None:
-        self.process.stdin.write(json.dumps(message).encode() + b"\n")
+        self.send_line(json.dumps(message).encode())
+
+    def send_line(self, line: bytes) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write(line + b"\n")
         self.process.stdin.flush()
 
     def receive(self, timeout: float = 20.0) -> dict[str, Any]:
@@ -341,6 +345,7 @@ def start_raw_daemon(tmp_path: Path, speedup: float) -> tuple[subprocess.Popen, 
 
 
 def stop_raw_daemon(process: subprocess.Popen) -> None:
+    assert process.stdin is not None and process.stdout is not None
     process.stdin.close()
     try:
         process.wait(timeout=20)
@@ -411,11 +416,52 @@ def test_an_open_motion_call_stays_cancellable_after_a_duplicate_id_was_refused(
 def test_an_unreadable_line_gets_a_json_rpc_error_and_the_session_keeps_working(tmp_path, line, code) -> None:
     process, rpc, _ = start_raw_daemon(tmp_path, speedup=20)
     try:
-        process.stdin.write(line + b"\n")
-        process.stdin.flush()
+        rpc.send_line(line)
         error = rpc.receive()
         state = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})
     finally:
         stop_raw_daemon(process)
     assert error == {"jsonrpc": "2.0", "id": None, "error": error["error"]} and error["error"]["code"] == code
     assert state["result"]["structuredContent"]["joint_positions"] == pytest.approx(HOME, abs=1e-6)
+
+
+# ------------------------------------------------------------------ what serving on stdio imports
+WATCH_IMPORTS = """
+import json, sys
+seen = []
+
+class Watch:
+    # records who imports uvicorn/starlette: the first frame outside the import machinery
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("uvicorn", "starlette"):
+            frame = sys._getframe(1)
+            while frame is not None and (frame.f_code.co_filename.startswith("<frozen")
+                                         or "importlib" in frame.f_code.co_filename):
+                frame = frame.f_back
+            seen.append([name, frame.f_globals.get("__name__") if frame is not None else None])
+        return None
+
+sys.meta_path.insert(0, Watch())
+from armwarden.cli import main
+code = main(sys.argv[2:])
+report = {"code": code, "importers": seen, "armwarden": sorted(m for m in sys.modules if m.startswith("armwarden"))}
+open(sys.argv[1], "w").write(json.dumps(report))
+"""
+
+
+def test_serving_on_stdio_imports_no_http_module_of_armwarden(tmp_path) -> None:
+    # The MCP SDK (2.x) imports Starlette and uvicorn itself on `import mcp`; what ArmWarden controls
+    # is that none of its own modules imports them, nor its HTTP transport, on the stdio path.
+    report_path = tmp_path / "imports.json"
+    audit = tmp_path / "audit.jsonl"
+    result = subprocess.run(
+        [sys.executable, "-c", WATCH_IMPORTS, str(report_path), "serve", "--audit-log", str(audit)],
+        cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(report_path.read_text(encoding="utf-8"))
+    assert report["code"] == 0
+    assert [r["event"] for r in records_of(audit)] == ["startup", "shutdown"]  # it served stdio, then stdin ended
+    assert "armwarden.transport.stdio" in report["armwarden"]
+    assert not {"armwarden.transport.http", "armwarden.transport.abandoned"} & set(report["armwarden"])
+    assert [entry for entry in report["importers"] if (entry[1] or "").startswith("armwarden")] == []

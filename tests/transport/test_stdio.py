@@ -59,9 +59,16 @@ class Wire:
     async def client(self, item: SessionMessage | Exception) -> None:
         await self.stdin_send.send(item)
 
-    async def passed(self) -> SessionMessage | Exception:
+    async def passed(self) -> SessionMessage:
         with anyio.fail_after(5):
-            return await self.server_read.receive()
+            item = await self.server_read.receive()
+        assert isinstance(item, SessionMessage)
+        return item
+
+    async def passed_request(self) -> types.JSONRPCRequest:
+        message = (await self.passed()).message
+        assert isinstance(message, types.JSONRPCRequest)
+        return message
 
     def sent(self) -> list[Any]:
         out = []
@@ -82,8 +89,8 @@ async def test_a_request_reusing_an_open_id_is_answered_with_an_error_and_not_pa
     await wire.client(request(7))
     await wire.client(request(7, name="gripper_home"))
     await wire.client(request(8))
-    assert (await wire.passed()).message.id == 7
-    assert (await wire.passed()).message.id == 8  # the duplicate never reached the server
+    assert (await wire.passed_request()).id == 7
+    assert (await wire.passed_request()).id == 8  # the duplicate never reached the server
     [refusal] = wire.sent()
     assert isinstance(refusal, types.JSONRPCError) and refusal.id == 7
     assert refusal.error.code == INVALID_REQUEST and "already in use by an open request" in refusal.error.message
@@ -109,7 +116,7 @@ async def test_ids_the_sdk_matches_as_one_are_one_open_id(reused: str) -> None:
     await wire.client(request(reused))
     await wire.client(request(8))
     await wire.passed()
-    assert (await wire.passed()).message.id == 8
+    assert (await wire.passed_request()).id == 8
     [refusal] = wire.sent()
     assert refusal.id == reused and refusal.error.code == INVALID_REQUEST
 
@@ -121,7 +128,7 @@ async def test_an_id_is_free_again_once_its_answer_is_written() -> None:
     await wire.passed()
     await wire.server_write.send(answer(7))
     await wire.client(request(7))
-    assert (await wire.passed()).message.id == 7
+    assert (await wire.passed_request()).id == 7
     assert [type(m) for m in wire.sent()] == [types.JSONRPCResponse]
 
 
@@ -131,10 +138,10 @@ async def test_an_id_is_free_again_once_its_request_settles_unanswered() -> None
     wire = Wire()
     await wire.client(request(7))
     first = await wire.passed()
-    assert isinstance(first.metadata, ServerMessageMetadata)
+    assert isinstance(first.metadata, ServerMessageMetadata) and first.metadata.on_request_unanswered is not None
     await first.metadata.on_request_unanswered()
     await wire.client(request(7))
-    assert (await wire.passed()).message.id == 7
+    assert (await wire.passed_request()).id == 7
     assert wire.sent() == []
 
 
@@ -144,7 +151,7 @@ async def test_an_unreadable_line_is_answered_with_id_null_and_the_next_message_
     wire = Wire()
     await wire.client(unreadable(line))
     await wire.client(request(1))
-    assert (await wire.passed()).message.id == 1
+    assert (await wire.passed_request()).id == 1
     [error] = wire.sent()
     assert isinstance(error, types.JSONRPCError) and error.id is None and error.error.code == code
 

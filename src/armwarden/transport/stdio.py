@@ -22,19 +22,30 @@ Lean on purpose: serving on stdio imports nothing of the HTTP transport.
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Coroutine, Mapping
 from types import TracebackType
-from typing import Any
+from typing import Any, Self
 
 import anyio
 from mcp.server.mcpserver import MCPServer
 from mcp.server.stdio import stdio_server
 from mcp.shared._stream_protocols import ReadStream, WriteStream
 from mcp.shared.message import ServerMessageMetadata, SessionMessage
-from mcp_types import ErrorData, JSONRPCError, JSONRPCRequest, JSONRPCResponse, RequestId
+from mcp_types import (
+    ErrorData,
+    JSONRPCError,
+    JSONRPCRequest,
+    JSONRPCResponse,
+    RequestId,
+)
 from pydantic import ValidationError
 
-from armwarden.transport.jsonrpc import INVALID_REQUEST, PARSE_ERROR, duplicate_id_message, request_id_key
+from armwarden.transport.jsonrpc import (
+    INVALID_REQUEST,
+    PARSE_ERROR,
+    duplicate_id_message,
+    request_id_key,
+)
 
 __all__ = ["DuplicateCallback", "GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
 
@@ -77,7 +88,7 @@ class GatedWriteStream:
     async def aclose(self) -> None:
         await self._inner.aclose()
 
-    async def __aenter__(self) -> GatedWriteStream:
+    async def __aenter__(self) -> Self:
         return self
 
     async def __aexit__(self, exc_type: type[BaseException] | None, exc_val: BaseException | None,
@@ -160,7 +171,7 @@ class GatedReadStream:
         except anyio.EndOfStream:
             raise StopAsyncIteration from None
 
-    async def __aenter__(self) -> GatedReadStream:
+    async def __aenter__(self) -> Self:
         return self
 
     async def __aexit__(self, exc_type: type[BaseException] | None, exc_val: BaseException | None,
@@ -183,7 +194,10 @@ async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | No
     with the gate in between). Pending duplicate reports finish before this returns."""
     # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
     # between the two; the low-level server is the documented way to serve custom streams.
-    lowlevel = server._lowlevel_server  # noqa: SLF001
+    lowlevel = server._lowlevel_server
     async with stdio_server() as (read_stream, write_stream), anyio.create_task_group() as reports:
-        gated_read, gated_write = gate_streams(read_stream, write_stream, reports.start_soon, on_duplicate)
+        def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
+            reports.start_soon(fn, *args)
+
+        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_duplicate)
         await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
