@@ -226,7 +226,8 @@ def build_http_app(
     """The ASGI app: ``/mcp`` (stateful streamable HTTP) and ``/healthz``.
 
     Build one app per serve: the SDK's session manager it creates can run only once.
-    `health` must be quick, non-blocking and return JSON-able data with nothing secret in it.
+    ``/healthz`` needs no token: `health` must be quick, non-blocking and return JSON-able data that
+    tells anyone on the network nothing but that the server is up (the daemon passes none).
     `on_abandoned(tool, arguments, request_id, cancelled)` is awaited after an authenticated motion
     call's request ended without its response and the call was cancelled (see `abandoned.py`).
     """
