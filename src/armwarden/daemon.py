@@ -12,6 +12,7 @@ import logging
 import os
 import signal
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -174,7 +175,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
 
             group.start_soon(on_signals)
             if args.transport == "stdio":
-                await assembly.server.mcp.run_stdio_async()
+                await _serve_stdio(assembly)
                 why = "end of stdin"
             else:
                 await _serve_http(args, assembly, shutdown)
@@ -183,22 +184,33 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
         await close_assembly(assembly, why)
 
 
+async def _serve_stdio(assembly: Assembly) -> None:
+    from armwarden.transport.jsonrpc import duplicate_id_message
+    from armwarden.transport.stdio import serve_stdio
+
+    async def on_duplicate(method: str, params: Mapping[str, Any] | None, request_id: Any) -> None:
+        tool = params.get("name") if method == "tools/call" and params is not None else None
+        arguments = params.get("arguments") if tool is not None and params is not None else None
+        await assembly.audit.append_async("request_refused", tool=None if tool is None else str(tool),
+                                          arguments=arguments, outcome="duplicate_request_id",
+                                          detail=f"{method} refused: {duplicate_id_message(request_id)}")
+
+    await serve_stdio(assembly.server.mcp, on_duplicate=on_duplicate)
+
+
 async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: anyio.Event) -> None:
     from armwarden.transport.http import build_http_app, current_principal, serve_http
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
 
-    def health() -> dict[str, Any]:
-        status = assembly.guard.safety_status()
-        return {"status": "ok", "estopped": status.estopped, "executing": assembly.guard.motion_status().executing}
-
     async def on_abandoned(tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool | None) -> None:
         principal = current_principal()
         await assembly.guard.abandoned_call(tool, arguments, request_id, cancelled,
                                             principal=None if principal is None else principal.name)
 
-    app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens, health=health,
+    # /healthz answers without a token: it says only that the daemon is up, never the arm's state
+    app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
                          on_abandoned=on_abandoned, allowed_hosts=getattr(args, "allowed_host", []) or [],
                          allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)

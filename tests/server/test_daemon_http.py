@@ -186,6 +186,23 @@ def test_observer_token_sees_no_motion_tools_and_cannot_execute_but_can_stop(dae
     anyio.run(scenario)
 
 
+def test_healthz_without_a_token_says_only_that_the_daemon_is_up_even_while_e_stopped(daemon) -> None:
+    # anyone on the network may ask: whether the arm moves or is stopped is not theirs to know
+    async def scenario() -> dict[str, Any]:
+        http, operator = session(daemon, daemon.operator_token, "legacy", approving("alice"))
+        async with http, operator:
+            assert not (await operator.call_tool("estop", {"reason": "health check test"})).is_error
+            try:
+                async with httpx2.AsyncClient() as anonymous:
+                    response = await anonymous.get(f"{daemon.base}/healthz", timeout=5)
+                assert response.status_code == 200
+                return response.json()
+            finally:
+                assert not (await operator.call_tool("reset_estop", {})).is_error
+
+    assert anyio.run(scenario) == {"status": "ok"}
+
+
 def test_the_audit_session_is_the_one_the_sdk_bound_never_a_session_id_header_the_client_sent(daemon) -> None:
     # under 2026-07-28 the SDK ignores mcp-session-id; a client must not be able to sign its calls
     # with someone else's session id in the audit log

@@ -158,7 +158,11 @@ class RawStdio:
         self.next_id = 0
 
     def send(self, message: dict[str, Any]) -> None:
-        self.process.stdin.write(json.dumps(message).encode() + b"\n")
+        self.send_line(json.dumps(message).encode())
+
+    def send_line(self, line: bytes) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write(line + b"\n")
         self.process.stdin.flush()
 
     def receive(self, timeout: float = 20.0) -> dict[str, Any]:
@@ -322,3 +326,142 @@ def test_serve_refuses_a_non_loopback_http_bind_without_tokens(tmp_path) -> None
     assert result.returncode == 2, result.stderr
     assert "without bearer tokens" in result.stderr
     assert not (tmp_path / "audit.jsonl").exists()
+
+
+# ------------------------------------------------------------------ duplicate ids, unreadable lines
+def start_raw_daemon(tmp_path: Path, speedup: float) -> tuple[subprocess.Popen, RawStdio, Path]:
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(
+        [*CLI, "serve", "--audit-log", str(audit), "--backend-config", str(backend_config(tmp_path, speedup)),
+         "--log-level", "WARNING"],
+        cwd=REPO, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+    )
+    rpc = RawStdio(process)
+    hello = rpc.request("initialize", {"protocolVersion": "2025-11-25", "capabilities": {},
+                                       "clientInfo": {"name": "raw-stdio", "version": "1"}})
+    assert hello["result"]["serverInfo"]["name"] == "armwarden"
+    rpc.send({"jsonrpc": "2.0", "method": "notifications/initialized"})
+    return process, rpc, audit
+
+
+def stop_raw_daemon(process: subprocess.Popen) -> None:
+    assert process.stdin is not None and process.stdout is not None
+    process.stdin.close()
+    try:
+        process.wait(timeout=20)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        process.stdout.close()
+
+
+def start_motion(rpc: RawStdio) -> int:
+    """Plan a motion that needs no approval, start `execute_plan` and return its request id once the
+    arm moves (the call is open: its answer has not been sent)."""
+    plan = rpc.request("tools/call", {"name": "plan_to_pose",
+                                      "arguments": {"position": {"x": 0.3069, "y": 0.0, "z": 0.35}}})
+    assert plan["result"]["structuredContent"]["status"] == "ok", plan
+    progress = rpc.request(
+        "tools/call", {"name": "execute_plan", "arguments": {"plan_id": plan["result"]["structuredContent"]["plan_id"]},
+                       "_meta": {"progressToken": "motion"}},
+        until=lambda m: m.get("method") == "notifications/progress" and m["params"]["progress"] > 0,
+    )
+    assert progress.get("method") == "notifications/progress", progress  # moving, not finished
+    return rpc.next_id
+
+
+def receive_until(rpc: RawStdio, predicate) -> dict[str, Any]:
+    while True:
+        message = rpc.receive()
+        if predicate(message):
+            return message
+
+
+def test_a_request_reusing_the_id_of_an_open_motion_call_is_refused_and_the_motion_completes(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
+    try:
+        motion_id = start_motion(rpc)
+        rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
+                  "params": {"name": "get_robot_state", "arguments": {}}})
+        refusal = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        done = receive_until(rpc, lambda m: m.get("id") == motion_id)
+    finally:
+        stop_raw_daemon(process)
+    assert refusal["error"]["code"] == -32600
+    assert "already in use by an open request" in refusal["error"]["message"]
+    assert done["result"]["structuredContent"]["status"] == "succeeded", done
+    refused = [r for r in records_of(audit) if r["event"] == "request_refused"]
+    assert len(refused) == 1 and refused[0]["tool"] == "get_robot_state"
+
+
+def test_an_open_motion_call_stays_cancellable_after_a_duplicate_id_was_refused(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
+    try:
+        motion_id = start_motion(rpc)
+        rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
+                  "params": {"name": "get_robot_state", "arguments": {}}})
+        refusal = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        rpc.send({"jsonrpc": "2.0", "method": "notifications/cancelled", "params": {"requestId": motion_id}})
+        records = anyio.run(wait_for_record, audit, lambda r: r["event"] == "execution_interrupted")
+        state = rpc.request("tools/call", {"name": "get_motion_status", "arguments": {}})
+    finally:
+        stop_raw_daemon(process)
+    assert "error" in refusal
+    assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
+    assert state["result"]["structuredContent"]["executing"] is False
+
+
+@pytest.mark.parametrize(("line", "code"), [(b"this is not json", -32700), (b'{"jsonrpc": "2.0", "id": [1]}', -32600)])
+def test_an_unreadable_line_gets_a_json_rpc_error_and_the_session_keeps_working(tmp_path, line, code) -> None:
+    process, rpc, _ = start_raw_daemon(tmp_path, speedup=20)
+    try:
+        rpc.send_line(line)
+        error = rpc.receive()
+        state = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})
+    finally:
+        stop_raw_daemon(process)
+    assert error == {"jsonrpc": "2.0", "id": None, "error": error["error"]} and error["error"]["code"] == code
+    assert state["result"]["structuredContent"]["joint_positions"] == pytest.approx(HOME, abs=1e-6)
+
+
+# ------------------------------------------------------------------ what serving on stdio imports
+WATCH_IMPORTS = """
+import json, sys
+seen = []
+
+class Watch:
+    # records who imports uvicorn/starlette: the first frame outside the import machinery
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("uvicorn", "starlette"):
+            frame = sys._getframe(1)
+            while frame is not None and (frame.f_code.co_filename.startswith("<frozen")
+                                         or "importlib" in frame.f_code.co_filename):
+                frame = frame.f_back
+            seen.append([name, frame.f_globals.get("__name__") if frame is not None else None])
+        return None
+
+sys.meta_path.insert(0, Watch())
+from armwarden.cli import main
+code = main(sys.argv[2:])
+report = {"code": code, "importers": seen, "armwarden": sorted(m for m in sys.modules if m.startswith("armwarden"))}
+open(sys.argv[1], "w").write(json.dumps(report))
+"""
+
+
+def test_serving_on_stdio_imports_no_http_module_of_armwarden(tmp_path) -> None:
+    # The MCP SDK (2.x) imports Starlette and uvicorn itself on `import mcp`; what ArmWarden controls
+    # is that none of its own modules imports them, nor its HTTP transport, on the stdio path.
+    report_path = tmp_path / "imports.json"
+    audit = tmp_path / "audit.jsonl"
+    result = subprocess.run(
+        [sys.executable, "-c", WATCH_IMPORTS, str(report_path), "serve", "--audit-log", str(audit)],
+        cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(report_path.read_text(encoding="utf-8"))
+    assert report["code"] == 0
+    assert [r["event"] for r in records_of(audit)] == ["startup", "shutdown"]  # it served stdio, then stdin ended
+    assert "armwarden.transport.stdio" in report["armwarden"]
+    assert not {"armwarden.transport.http", "armwarden.transport.abandoned"} & set(report["armwarden"])
+    assert [entry for entry in report["importers"] if (entry[1] or "").startswith("armwarden")] == []

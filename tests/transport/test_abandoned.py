@@ -174,7 +174,8 @@ def test_a_declared_oversized_body_is_refused_before_it_is_read():
     assert responses[0]["status"] == 413 and read == [] and app.seen == []
 
 
-def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_stays_cancellable():
+@pytest.mark.parametrize("reused", [777, "777", "0777"])
+def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_stays_cancellable(reused):
     class Holding(Recorder):
         """Keeps the first call open until told; answers everything else at once."""
 
@@ -212,7 +213,7 @@ def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_s
         async with anyio.create_task_group() as group:
             group.start_soon(request, rpc("execute_plan", {"plan_id": "p"}, request_id=777))
             await anyio.sleep(0.01)
-            await request(rpc("get_safety_status", request_id="777"))  # same id (7 and "7" are one to the SDK)
+            await request(rpc("get_safety_status", request_id=reused))  # 7, "7" and "07" are one id to the SDK
             await request(rpc("get_safety_status", request_id=778))
             app.release.set()
 

@@ -26,7 +26,7 @@ from armwarden.guard import Guard
 from armwarden.policy import ALL_TOOLS
 from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
-from armwarden.transport.http import current_principal, role_allows
+from armwarden.transport.access import current_principal, role_allows
 
 logger = logging.getLogger(__name__)
 

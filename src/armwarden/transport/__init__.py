@@ -1,10 +1,14 @@
-"""Transports and access control (design §5): bearer tokens and the streamable HTTP app.
+"""Transports and access control (docs/architecture.md, "Transports and access").
 
-`armwarden.transport.tokens` manages the hashed token file and authenticates presented tokens;
-`armwarden.transport.http` builds the Starlette app (``/mcp`` + ``/healthz``) with Host/Origin
-checks and bearer auth, serves it with uvicorn, and exposes the caller's `Principal` to tools
-through `current_principal`. The HTTP names are imported lazily so that ``armwarden tokens ...``
-and stdio serving do not import uvicorn/Starlette.
+- `tokens`: the hashed token file; authenticates presented tokens.
+- `access`: the caller's `Principal` inside a tool (`current_principal`) and what a role may call.
+- `http`: the Starlette app (``/mcp`` + ``/healthz``) with Host/Origin checks and bearer auth,
+  served with uvicorn; `abandoned` cancels the motion call of an HTTP client that went away.
+- `stdio`: MCP on stdin/stdout, with parse errors answered and open request ids kept unique.
+- `jsonrpc`: error codes and the request-id rule both transports share.
+
+Names are imported on first use, so ``armwarden tokens ...`` does not import the MCP SDK and
+serving on stdio imports none of ArmWarden's HTTP modules.
 """
 
 from __future__ import annotations
@@ -22,9 +26,15 @@ from armwarden.transport.tokens import (
     tokens_revoke_command,
 )
 
-_HTTP_NAMES = frozenset(
-    {"build_http_app", "check_bind_safety", "current_principal", "is_loopback_host", "role_allows", "serve_http"}
-)
+#: names imported on first use, from the module that defines them
+_LAZY = {
+    "build_http_app": "armwarden.transport.http",
+    "check_bind_safety": "armwarden.transport.http",
+    "is_loopback_host": "armwarden.transport.http",
+    "serve_http": "armwarden.transport.http",
+    "current_principal": "armwarden.transport.access",
+    "role_allows": "armwarden.transport.access",
+}
 
 __all__ = [
     "Principal",
@@ -44,6 +54,6 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    if name in _HTTP_NAMES:
-        return getattr(importlib.import_module("armwarden.transport.http"), name)
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -31,6 +31,8 @@ from typing import Any
 import anyio
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from armwarden.transport.jsonrpc import INVALID_REQUEST, duplicate_id_message, request_id_key
+
 logger = logging.getLogger(__name__)
 
 #: tools whose call, abandoned by its client, must be cancelled
@@ -104,7 +106,7 @@ def _replaying(body: bytes, afterwards: Callable[[], Awaitable[Message]]) -> Rec
 
 async def _refuse(send: Send, status: int, message: str, request_id: Any = None) -> None:
     """A JSON-RPC error answer that the SDK never saw the request for."""
-    payload = json.dumps({"jsonrpc": "2.0", "id": request_id, "error": {"code": -32600, "message": message}}).encode()
+    payload = json.dumps({"jsonrpc": "2.0", "id": request_id, "error": {"code": INVALID_REQUEST, "message": message}}).encode()
     await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode()),
                             (b"connection", b"close")]})
@@ -125,9 +127,10 @@ def _declared_length(scope: Scope) -> int | None:
 
 def _request_key(scope: Scope, message: dict[str, Any] | None) -> tuple[str, bytes, str] | None:
     """(principal, session, id) of a JSON-RPC request sent in a session: the SDK matches
-    cancellations (and answers) by id, with 7 and "7" the same, so two open requests must never
-    share one. The principal is part of the key: the session header is the client's claim, checked
-    by the SDK only later, so nobody can block (or probe) the ids of another principal's session."""
+    cancellations (and answers) by id, with 7, "7" and "07" the same (`request_id_key`), so two
+    open requests must never share one. The principal is part of the key: the session header is
+    the client's claim, checked by the SDK only later, so nobody can block (or probe) the ids of
+    another principal's session."""
     session = _header(scope, SESSION_HEADER)
     if session is None:
         return None
@@ -135,7 +138,7 @@ def _request_key(scope: Scope, message: dict[str, Any] | None) -> tuple[str, byt
         return None  # a notification, or the client's answer to a server request (other id space)
     user = scope.get("user")
     principal = str(getattr(getattr(user, "access_token", None), "client_id", "") or "")
-    return principal, session, str(message["id"])
+    return principal, session, request_id_key(message["id"])
 
 
 class AbandonedMotionStop:
@@ -163,8 +166,8 @@ class AbandonedMotionStop:
         key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
-            await _refuse(send, 409, f"request id {key[2][:64]} is already in use by an open request of this session",
-                          request_id=message.get("id") if message else None)
+            request_id = message.get("id") if message else None
+            await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
         if key is not None:
             self._open_requests.add(key)

@@ -36,12 +36,12 @@ import hashlib
 import ipaddress
 import logging
 import socket
-from collections.abc import AsyncIterator, Callable, Iterator, Mapping, Sequence
+from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from typing import Any
 
 import anyio
 import uvicorn
-from mcp.server.auth.middleware.auth_context import AuthContextMiddleware, get_access_token
+from mcp.server.auth.middleware.auth_context import AuthContextMiddleware
 from mcp.server.auth.middleware.bearer_auth import AuthenticatedUser
 from mcp.server.auth.provider import AccessToken
 from mcp.server.mcpserver import MCPServer
@@ -56,7 +56,8 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.errors import ConfigurationError
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
-from armwarden.transport.tokens import ROLES, Principal, TokenStore
+from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
+from armwarden.transport.tokens import TokenStore
 
 __all__ = [
     "HEALTH_PATH",
@@ -79,41 +80,7 @@ HEALTH_PATH = "/healthz"
 PUBLIC_PATHS = frozenset({HEALTH_PATH})
 """Paths served without a bearer token (Host/Origin are still checked)."""
 
-OBSERVER_GROUPS = frozenset({"introspect", "perception"})
-OBSERVER_TOOLS = frozenset({"get_safety_status", "stop_motion", "estop"})
-"""Observers may always stop the robot and read the safety status, whatever group those are in."""
-
 _LOOPBACK_NAMES = frozenset({"localhost", "localhost."})
-
-
-# ------------------------------------------------------------------------ roles / principal
-def role_allows(role: str, tool: str, group_of: Mapping[str, str]) -> bool:
-    """May `role` call `tool`? `group_of` maps tool name -> policy group (e.g. 'introspect').
-
-    operator: every tool (the policy decides which exist). observer: the introspect and
-    perception groups plus `OBSERVER_TOOLS`. Unknown roles and, for observers, tools of unknown
-    group are refused.
-    """
-    if role == "operator":
-        return True
-    if role == "observer":
-        return tool in OBSERVER_TOOLS or group_of.get(tool) in OBSERVER_GROUPS
-    return False
-
-
-def current_principal() -> Principal | None:
-    """The principal of the HTTP request being served, or None (stdio, or HTTP without tokens).
-
-    Call it inside a tool (or anything the tool awaits); it works under 2025-11-25 and
-    2026-07-28 because the SDK propagates the request's context into the tool's task.
-    """
-    access = get_access_token()
-    if access is None:
-        return None
-    role = (access.claims or {}).get("armwarden_role")
-    if role not in ROLES:  # a token not minted by BearerAuth (e.g. an SDK verifier): no role
-        return None
-    return Principal(name=access.client_id, role=role)
 
 
 # ------------------------------------------------------------------------ bind safety
@@ -259,7 +226,8 @@ def build_http_app(
     """The ASGI app: ``/mcp`` (stateful streamable HTTP) and ``/healthz``.
 
     Build one app per serve: the SDK's session manager it creates can run only once.
-    `health` must be quick, non-blocking and return JSON-able data with nothing secret in it.
+    ``/healthz`` needs no token: `health` must be quick, non-blocking and return JSON-able data that
+    tells anyone on the network nothing but that the server is up (the daemon passes none).
     `on_abandoned(tool, arguments, request_id, cancelled)` is awaited after an authenticated motion
     call's request ended without its response and the call was cancelled (see `abandoned.py`).
     """

@@ -1,4 +1,4 @@
-"""Bearer tokens for the HTTP transport (design §5 "Transports and access").
+"""Bearer tokens for the HTTP transport (docs/architecture.md, "Transports and access").
 
 The token file holds one entry per token — name, role, SHA-256 of the token, creation time —
 and never the token itself: a token is printed once by ``armwarden tokens add`` and is not

@@ -1,0 +1,49 @@
+"""Who is calling, and which tools their role may call; shared by every transport.
+
+Lean on purpose (no Starlette app, no uvicorn): the tool layer imports it on stdio too, where there
+is never a principal. The HTTP transport (`http.py`) authenticates bearer tokens and publishes the
+principal to the SDK; `current_principal` reads it back inside a tool.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from mcp.server.auth.middleware.auth_context import get_access_token
+
+from armwarden.transport.tokens import ROLES, Principal
+
+__all__ = ["OBSERVER_GROUPS", "OBSERVER_TOOLS", "current_principal", "role_allows"]
+
+OBSERVER_GROUPS = frozenset({"introspect", "perception"})
+OBSERVER_TOOLS = frozenset({"get_safety_status", "stop_motion", "estop"})
+"""Observers may always stop the robot and read the safety status, whatever group those are in."""
+
+
+def role_allows(role: str, tool: str, group_of: Mapping[str, str]) -> bool:
+    """May `role` call `tool`? `group_of` maps tool name -> policy group (e.g. 'introspect').
+
+    operator: every tool (the policy decides which exist). observer: the introspect and
+    perception groups plus `OBSERVER_TOOLS`. Unknown roles and, for observers, tools of unknown
+    group are refused.
+    """
+    if role == "operator":
+        return True
+    if role == "observer":
+        return tool in OBSERVER_TOOLS or group_of.get(tool) in OBSERVER_GROUPS
+    return False
+
+
+def current_principal() -> Principal | None:
+    """The principal of the HTTP request being served, or None (stdio, or HTTP without tokens).
+
+    Call it inside a tool (or anything the tool awaits); it works under 2025-11-25 and
+    2026-07-28 because the SDK propagates the request's context into the tool's task.
+    """
+    access = get_access_token()
+    if access is None:
+        return None
+    role = (access.claims or {}).get("armwarden_role")
+    if role not in ROLES:  # a token not minted by BearerAuth (e.g. an SDK verifier): no role
+        return None
+    return Principal(name=access.client_id, role=role)

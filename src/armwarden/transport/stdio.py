@@ -1,0 +1,203 @@
+"""MCP over stdio, with the two answers the SDK's stdio transport does not give.
+
+The SDK reads stdin line by line and hands each parsed message (or the parse failure) to the
+server. Two gaps, closed here by a thin layer around its streams:
+
+- An unparseable line is dropped in silence (logged at debug level): a client waiting for an
+  answer waits for ever. Here it gets a JSON-RPC error with id null: -32700 for a line that is not
+  JSON, -32600 for JSON that is not a JSON-RPC message. The session goes on.
+- A request whose id is still open (no answer sent yet) replaces the open call's entry in the SDK,
+  so a `notifications/cancelled` could no longer reach that call — an open motion would not be
+  cancellable. Here the second request is answered with a -32600 error under its id and never
+  reaches the SDK, as the HTTP transport refuses it with 409 (`abandoned.py`).
+
+An id is open from its request until the answer is written, or until the SDK settles the request
+without one (it was cancelled: the SDK's `on_request_unanswered` hook). Ids are compared the way
+the SDK matches them (`request_id_key`). Everything else passes unchanged, in order; stdout carries
+only MCP messages.
+
+Lean on purpose: serving on stdio imports nothing of the HTTP transport.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Awaitable, Callable, Coroutine, Mapping
+from types import TracebackType
+from typing import Any, Self
+
+import anyio
+from mcp.server.mcpserver import MCPServer
+from mcp.server.stdio import stdio_server
+from mcp.shared._stream_protocols import ReadStream, WriteStream
+from mcp.shared.message import ServerMessageMetadata, SessionMessage
+from mcp_types import (
+    ErrorData,
+    JSONRPCError,
+    JSONRPCRequest,
+    JSONRPCResponse,
+    RequestId,
+)
+from pydantic import ValidationError
+
+from armwarden.transport.jsonrpc import (
+    INVALID_REQUEST,
+    PARSE_ERROR,
+    duplicate_id_message,
+    request_id_key,
+)
+
+__all__ = ["DuplicateCallback", "GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
+
+logger = logging.getLogger(__name__)
+
+#: (method, params, request id) of a request refused because its id was open; awaited in its own
+#: task, so a slow audit write never holds up the messages behind it (a stop among them)
+DuplicateCallback = Callable[[str, Mapping[str, Any] | None, RequestId], Awaitable[None]]
+
+
+def unreadable_line_error(exc: Exception) -> ErrorData:
+    """The JSON-RPC error for a line the SDK could not read as a message."""
+    if isinstance(exc, ValidationError) and not any(e.get("type") == "json_invalid" for e in exc.errors()):
+        return ErrorData(code=INVALID_REQUEST, message="Invalid Request: the line is not a JSON-RPC 2.0 message")
+    return ErrorData(code=PARSE_ERROR, message="Parse error: the line is not valid JSON")
+
+
+class GatedWriteStream:
+    """Write side: passes every message on; an answer closes its request's id first."""
+
+    def __init__(self, inner: WriteStream[SessionMessage], open_ids: set[str]) -> None:
+        self._inner = inner
+        self._open_ids = open_ids
+
+    async def send(self, item: SessionMessage, /) -> None:
+        message = item.message
+        if isinstance(message, (JSONRPCResponse, JSONRPCError)) and message.id is not None:
+            # before the write: the SDK has already dropped the call, and the client may reuse the id
+            # as soon as it reads the answer
+            self._open_ids.discard(request_id_key(message.id))
+        await self._inner.send(item)
+
+    async def reply(self, message: JSONRPCError) -> None:
+        """An answer of this layer's own; dropped if the session is already closing."""
+        try:
+            await self._inner.send(SessionMessage(message))
+        except (anyio.BrokenResourceError, anyio.ClosedResourceError):
+            logger.debug("dropped an error answer: the stdio session is closing")
+
+    async def aclose(self) -> None:
+        await self._inner.aclose()
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, exc_type: type[BaseException] | None, exc_val: BaseException | None,
+                        exc_tb: TracebackType | None) -> bool | None:
+        await self.aclose()
+        return None
+
+
+class GatedReadStream:
+    """Read side: answers unreadable lines and duplicate open ids itself, passes the rest on."""
+
+    def __init__(self, inner: ReadStream[SessionMessage | Exception], writer: GatedWriteStream, open_ids: set[str],
+                 spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None) -> None:
+        self._inner = inner
+        self._writer = writer
+        self._open_ids = open_ids
+        self._spawn = spawn
+        self._on_duplicate = on_duplicate
+
+    @property
+    def last_context(self) -> Any:
+        """The sender context of the last message (the SDK runs its handler in it)."""
+        return getattr(self._inner, "last_context", None)
+
+    async def receive(self) -> SessionMessage | Exception:
+        while True:
+            item = await self._inner.receive()
+            if isinstance(item, Exception):
+                error = unreadable_line_error(item)
+                logger.warning("stdio: answered an unreadable line with error %d", error.code)
+                await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=error))
+                continue
+            if not isinstance(item.message, JSONRPCRequest):
+                return item
+            request = item.message
+            key = request_id_key(request.id)
+            if key in self._open_ids:
+                logger.warning("stdio: refused %s: request id %r is still open", request.method, request.id)
+                await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=request.id, error=ErrorData(
+                    code=INVALID_REQUEST, message=duplicate_id_message(request.id))))
+                if self._on_duplicate is not None:
+                    self._spawn(self._report_duplicate, request)
+                continue
+            self._open_ids.add(key)
+            return SessionMessage(request, self._closing_on_settle(item.metadata, key))
+
+    def _closing_on_settle(self, metadata: Any, key: str) -> ServerMessageMetadata:
+        """Metadata whose `on_request_unanswered` closes `key`: a cancelled request is never answered."""
+        if metadata is not None and not isinstance(metadata, ServerMessageMetadata):
+            logger.debug("stdio: replacing unexpected metadata %r", metadata)
+            metadata = None
+        earlier = metadata.on_request_unanswered if metadata is not None else None
+
+        async def settled_unanswered() -> None:
+            self._open_ids.discard(key)
+            if earlier is not None:
+                await earlier()
+
+        if metadata is None:
+            return ServerMessageMetadata(on_request_unanswered=settled_unanswered)
+        metadata.on_request_unanswered = settled_unanswered
+        return metadata
+
+    async def _report_duplicate(self, request: JSONRPCRequest) -> None:
+        assert self._on_duplicate is not None
+        try:
+            await self._on_duplicate(request.method, request.params, request.id)
+        except Exception:
+            logger.exception("reporting the refused duplicate request %r failed", request.id)
+
+    async def aclose(self) -> None:
+        await self._inner.aclose()
+
+    def __aiter__(self) -> GatedReadStream:
+        return self
+
+    async def __anext__(self) -> SessionMessage | Exception:
+        try:
+            return await self.receive()
+        except anyio.EndOfStream:
+            raise StopAsyncIteration from None
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, exc_type: type[BaseException] | None, exc_val: BaseException | None,
+                        exc_tb: TracebackType | None) -> bool | None:
+        await self.aclose()
+        return None
+
+
+def gate_streams(read_stream: ReadStream[SessionMessage | Exception], write_stream: WriteStream[SessionMessage],
+                 spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None,
+                 ) -> tuple[GatedReadStream, GatedWriteStream]:
+    """Wrap a server's stream pair (see the module docstring). `spawn(fn, *args)` runs a task."""
+    open_ids: set[str] = set()
+    writer = GatedWriteStream(write_stream, open_ids)
+    return GatedReadStream(read_stream, writer, open_ids, spawn, on_duplicate), writer
+
+
+async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | None = None) -> None:
+    """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
+    with the gate in between). Pending duplicate reports finish before this returns."""
+    # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
+    # between the two; the low-level server is the documented way to serve custom streams.
+    lowlevel = server._lowlevel_server
+    async with stdio_server() as (read_stream, write_stream), anyio.create_task_group() as reports:
+        def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
+            reports.start_soon(fn, *args)
+
+        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_duplicate)
+        await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())

@@ -1,0 +1,168 @@
+"""The stdio gate (`transport/stdio.py`) between the SDK's stdio streams and the server: unreadable
+lines and requests whose id is still open are answered by the gate; everything else passes on."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import anyio
+import mcp_types as types
+import pytest
+from mcp.shared._context_streams import create_context_streams
+from mcp.shared.message import ServerMessageMetadata, SessionMessage
+from pydantic import ValidationError
+
+from armwarden.transport.jsonrpc import INVALID_REQUEST, PARSE_ERROR
+from armwarden.transport.stdio import gate_streams
+
+
+@pytest.fixture
+def anyio_backend() -> str:
+    return "asyncio"
+
+
+def request(request_id: Any, method: str = "tools/call", name: str = "execute_plan") -> SessionMessage:
+    return SessionMessage(types.JSONRPCRequest(jsonrpc="2.0", id=request_id, method=method,
+                                               params={"name": name, "arguments": {"plan_id": "p"}}))
+
+
+def answer(request_id: Any) -> SessionMessage:
+    return SessionMessage(types.JSONRPCResponse(jsonrpc="2.0", id=request_id, result={}))
+
+
+def unreadable(line: str) -> Exception:
+    try:
+        types.jsonrpc_message_adapter.validate_json(line, by_name=False)
+    except ValidationError as exc:
+        return exc
+    raise AssertionError(f"{line!r} is a valid message")
+
+
+class Wire:
+    """The gate between in-memory streams: `client` feeds what stdin would carry, `server` is what
+    the SDK's server reads, `sent` is what went to stdout, `refused` what was reported."""
+
+    def __init__(self) -> None:
+        self.stdin_send, stdin_receive = create_context_streams[SessionMessage | Exception](16)
+        stdout_send, self.stdout_receive = anyio.create_memory_object_stream[SessionMessage](16)
+        self.refused: list[tuple[str, Any, Any]] = []
+
+        async def on_duplicate(method: str, params: Any, request_id: Any) -> None:
+            self.refused.append((method, params, request_id))
+
+        def spawn(fn, *args) -> None:
+            self.spawned.append((fn, args))
+
+        self.spawned: list[tuple[Any, tuple]] = []
+        self.server_read, self.server_write = gate_streams(stdin_receive, stdout_send, spawn, on_duplicate)
+
+    async def client(self, item: SessionMessage | Exception) -> None:
+        await self.stdin_send.send(item)
+
+    async def passed(self) -> SessionMessage:
+        with anyio.fail_after(5):
+            item = await self.server_read.receive()
+        assert isinstance(item, SessionMessage)
+        return item
+
+    async def passed_request(self) -> types.JSONRPCRequest:
+        message = (await self.passed()).message
+        assert isinstance(message, types.JSONRPCRequest)
+        return message
+
+    def sent(self) -> list[Any]:
+        out = []
+        while True:
+            try:
+                out.append(self.stdout_receive.receive_nowait().message)
+            except anyio.WouldBlock:
+                return out
+
+    async def report(self) -> None:
+        for fn, args in self.spawned:
+            await fn(*args)
+
+
+@pytest.mark.anyio
+async def test_a_request_reusing_an_open_id_is_answered_with_an_error_and_not_passed_on() -> None:
+    wire = Wire()
+    await wire.client(request(7))
+    await wire.client(request(7, name="gripper_home"))
+    await wire.client(request(8))
+    assert (await wire.passed_request()).id == 7
+    assert (await wire.passed_request()).id == 8  # the duplicate never reached the server
+    [refusal] = wire.sent()
+    assert isinstance(refusal, types.JSONRPCError) and refusal.id == 7
+    assert refusal.error.code == INVALID_REQUEST and "already in use by an open request" in refusal.error.message
+
+
+@pytest.mark.anyio
+async def test_the_refused_duplicate_is_reported_with_its_method_and_params() -> None:
+    wire = Wire()
+    await wire.client(request(7))
+    await wire.client(request(7, name="gripper_home"))
+    await wire.client(request(8))
+    await wire.passed()
+    await wire.passed()
+    await wire.report()
+    assert wire.refused == [("tools/call", {"name": "gripper_home", "arguments": {"plan_id": "p"}}, 7)]
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("reused", ["7", "07", " 7"])
+async def test_ids_the_sdk_matches_as_one_are_one_open_id(reused: str) -> None:
+    wire = Wire()
+    await wire.client(request(7))
+    await wire.client(request(reused))
+    await wire.client(request(8))
+    await wire.passed()
+    assert (await wire.passed_request()).id == 8
+    [refusal] = wire.sent()
+    assert refusal.id == reused and refusal.error.code == INVALID_REQUEST
+
+
+@pytest.mark.anyio
+async def test_an_id_is_free_again_once_its_answer_is_written() -> None:
+    wire = Wire()
+    await wire.client(request(7))
+    await wire.passed()
+    await wire.server_write.send(answer(7))
+    await wire.client(request(7))
+    assert (await wire.passed_request()).id == 7
+    assert [type(m) for m in wire.sent()] == [types.JSONRPCResponse]
+
+
+@pytest.mark.anyio
+async def test_an_id_is_free_again_once_its_request_settles_unanswered() -> None:
+    # a cancelled request is never answered: the SDK runs the request's on_request_unanswered hook
+    wire = Wire()
+    await wire.client(request(7))
+    first = await wire.passed()
+    assert isinstance(first.metadata, ServerMessageMetadata) and first.metadata.on_request_unanswered is not None
+    await first.metadata.on_request_unanswered()
+    await wire.client(request(7))
+    assert (await wire.passed_request()).id == 7
+    assert wire.sent() == []
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize(("line", "code"), [("this is not json", PARSE_ERROR), ('{"foo": 1}', INVALID_REQUEST)])
+async def test_an_unreadable_line_is_answered_with_id_null_and_the_next_message_passes(line: str, code: int) -> None:
+    wire = Wire()
+    await wire.client(unreadable(line))
+    await wire.client(request(1))
+    assert (await wire.passed_request()).id == 1
+    [error] = wire.sent()
+    assert isinstance(error, types.JSONRPCError) and error.id is None and error.error.code == code
+
+
+@pytest.mark.anyio
+async def test_notifications_and_client_answers_pass_unchanged() -> None:
+    wire = Wire()
+    cancel = SessionMessage(types.JSONRPCNotification(jsonrpc="2.0", method="notifications/cancelled",
+                                                      params={"requestId": 7}))
+    await wire.client(cancel)
+    await wire.client(answer(3))  # the client's answer to a server request (another id space)
+    assert (await wire.passed()) is cancel
+    assert (await wire.passed()).message == answer(3).message
+    assert wire.sent() == []
