@@ -20,7 +20,7 @@ class _Probe(Backend):
     name = "probe"
 
     def __init__(self, published: JointState | None = None, hang_s: float = 0.0, broken: bool = False) -> None:
-        super().__init__(NAMES)
+        super().__init__(NAMES, start_tolerance_rad=0.01)
         self.published, self.hang_s, self.broken = published, hang_s, broken
         self.slow_reads = 0
 
@@ -48,6 +48,9 @@ class _Probe(Backend):
         raise AssertionError("the read tests never execute")
 
     async def _stop(self) -> None:
+        pass
+
+    def _stop_now(self) -> None:
         pass
 
 
