@@ -131,9 +131,8 @@ class BackendContract:
 
     async def test_close_during_execution_ends_it_stopped(self, backend: Backend) -> None:
         q_start = await self.positions(backend)
+        results: list[Any] = []
         async with anyio.create_task_group() as group:
-            results: list[Any] = []
-
             async def run() -> None:
                 results.append(await backend.execute(await self.motion(backend, self.long_motion_s)))
 
@@ -196,13 +195,16 @@ class BackendContract:
         names, n = backend.joint_names, len(backend.joint_names)
         bad_q = q.copy()
         bad_q[0] = np.nan
+        def trajectory(joint_names, times, positions) -> JointTrajectory:
+            return JointTrajectory(tuple(joint_names), np.array(times, dtype=float), np.array(positions, dtype=float))
+
         return {
-            "other joints": JointTrajectory(tuple(f"other_{name}" for name in names), [0.0, 0.1], [q, q]),
-            "wrong width": JointTrajectory(names, [0.0, 0.1], np.zeros((2, n + 1))),
-            "no waypoints": JointTrajectory(names, np.zeros(0), np.zeros((0, n))),
-            "not a number": JointTrajectory(names, [0.0, 0.1], [q, bad_q]),
-            "late start": JointTrajectory(names, [0.1, 0.2], [q, q]),
-            "time runs back": JointTrajectory(names, [0.0, 0.2, 0.1], [q, q, q]),
+            "other joints": trajectory([f"other_{name}" for name in names], [0.0, 0.1], [q, q]),
+            "wrong width": trajectory(names, [0.0, 0.1], np.zeros((2, n + 1))),
+            "no waypoints": trajectory(names, np.zeros(0), np.zeros((0, n))),
+            "not a number": trajectory(names, [0.0, 0.1], [q, bad_q]),
+            "late start": trajectory(names, [0.1, 0.2], [q, q]),
+            "time runs back": trajectory(names, [0.0, 0.2, 0.1], [q, q, q]),
         }
 
     @pytest.mark.parametrize(
@@ -248,14 +250,14 @@ class BackendContract:
         q_start = await self.positions(backend)
         trajectory = await self.motion(backend, self.long_motion_s)
         results: list[Any] = []
+        held_in_thread: list[Any] = []
+        stopped = threading.Event()
         async with anyio.create_task_group() as group:
             async def run() -> None:
                 results.append(await backend.execute(trajectory))
 
             group.start_soon(run)
             await wait_until(lambda: self.has_moved(backend, q_start))
-            stopped = threading.Event()
-            held_in_thread: list[Any] = []
 
             def stop_from_elsewhere() -> None:
                 backend.stop_now()

@@ -86,7 +86,7 @@ def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
     return subprocess.run(
         [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), *args],
-        cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
+        check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
     )
 
 
