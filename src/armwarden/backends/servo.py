@@ -242,13 +242,14 @@ class ServoLoop:
                 failure = None
                 self._latest = setpoint
                 self.last_hold_stamp = setpoint.stamp
-        self._wake.set()  # the idle period starts now
         if failure is not None:
             for execution in stopped:
                 settle_threadsafe(execution.loop, execution.future, error=BackendError(f"{self.name}: stop failed: {failure}"))
+            self._wake.set()
             raise failure
         for execution in stopped:
             settle_threadsafe(execution.loop, execution.future, ExecutionResult(False, "stopped", setpoint.positions.copy()))
+        self._wake.set()  # the idle period starts now
         return setpoint
 
     def fail_executions(self, error: BackendError) -> None:
