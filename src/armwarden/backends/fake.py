@@ -26,7 +26,6 @@ object between the fingers). All of them are plain attributes that can be change
 from __future__ import annotations
 
 import asyncio
-import io
 import logging
 import math
 import threading
@@ -51,6 +50,12 @@ from armwarden.backends.base import (
     ProgressCallback,
     Wrench,
 )
+from armwarden.backends.fake_camera import (
+    CAMERA_HEIGHT_PX,
+    CAMERA_WIDTH_PX,
+    HAVE_PILLOW,
+    render_top_view,
+)
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
@@ -59,12 +64,6 @@ from armwarden.robot.model import RobotModel
 if TYPE_CHECKING:
     from armwarden.policy import Policy
 
-try:  # pillow is optional: without it the fake has no cameras
-    from PIL import Image, ImageDraw
-
-    HAVE_PILLOW = True
-except ImportError:  # pragma: no cover - exercised only where pillow is missing
-    HAVE_PILLOW = False
 
 logger = logging.getLogger(__name__)
 
@@ -75,8 +74,6 @@ FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi
 GRIPPER_HOMING_SPEED_MPS = 0.1
 #: the controller that executes trajectories; arm motion is refused while it is inactive
 TRAJECTORY_CONTROLLER = "fr3_arm_controller"
-#: camera image size [px]
-CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX = 320, 240
 
 DEFAULT_CONTROLLERS = (
     ControllerInfo("fr3_arm_controller", "joint_trajectory_controller/JointTrajectoryController", "active"),
@@ -440,7 +437,7 @@ class FakeBackend(Backend, ServoHooks):
         stamp, tcp = setpoint.stamp, setpoint.extra[0]
         width = self._gripper_width_m if self._gripper_motion is None else self._gripper_motion.width_at(time.perf_counter())
         force_z = self._wrench[0]
-        png = await anyio.to_thread.run_sync(_render_top_view, camera, frame, tcp.copy(), width, force_z, self.table_height_m)
+        png = await anyio.to_thread.run_sync(render_top_view, camera, frame, tcp.copy(), width, force_z, self.table_height_m)
         return CameraImage(camera, CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX, png, stamp)
 
     # ================================================================ controllers, thresholds, recovery, graph
@@ -511,50 +508,6 @@ _ZERO3 = frozen(np.zeros(3))
 def _require(condition: bool, message: str) -> None:
     if not condition:
         raise ValueError(message)
-
-
-def _render_top_view(
-    camera: str, frame: int, tcp: np.ndarray, gripper_width_m: float, force_z_n: float, table_height_m: float | None
-) -> bytes:
-    """A deterministic top view (x up, y left): the table and workspace, the base and the TCP dot.
-
-    "scene" shows the whole workspace at 200 px/m; any other camera ("wrist") is centred on the
-    TCP at 800 px/m and also draws the fingers at the current opening.
-    """
-    if camera == "scene":
-        centre_x, centre_y, scale = 0.4, 0.0, 200.0
-    else:
-        centre_x, centre_y, scale = float(tcp[0]), float(tcp[1]), 800.0
-
-    def to_px(x: float, y: float) -> tuple[float, float]:
-        return (CAMERA_WIDTH_PX / 2 - (y - centre_y) * scale, CAMERA_HEIGHT_PX / 2 - (x - centre_x) * scale)
-
-    image = Image.new("RGB", (CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX), (200, 170, 130) if table_height_m is not None else (90, 90, 90))
-    draw = ImageDraw.Draw(image)
-    grid_m = 0.1 if camera == "scene" else 0.05
-    half_w, half_h = CAMERA_WIDTH_PX / 2 / scale, CAMERA_HEIGHT_PX / 2 / scale
-    for k in range(math.floor((centre_y - half_w) / grid_m), math.ceil((centre_y + half_w) / grid_m) + 1):
-        u, _ = to_px(0.0, k * grid_m)
-        draw.line([(u, 0), (u, CAMERA_HEIGHT_PX)], fill=(150, 130, 100))
-    for k in range(math.floor((centre_x - half_h) / grid_m), math.ceil((centre_x + half_h) / grid_m) + 1):
-        _, v = to_px(k * grid_m, 0.0)
-        draw.line([(0, v), (CAMERA_WIDTH_PX, v)], fill=(150, 130, 100))
-    bu, bv = to_px(0.0, 0.0)
-    base_r = 0.08 * scale
-    draw.ellipse([bu - base_r, bv - base_r, bu + base_r, bv + base_r], fill=(230, 230, 230), outline=(40, 40, 40))
-    tu, tv = to_px(float(tcp[0]), float(tcp[1]))
-    if camera != "scene":  # the fingers, seen from above, across y
-        for side in (-1, 1):
-            fu = tu + side * (gripper_width_m / 2 + 0.005) * scale
-            draw.rectangle([fu - 0.005 * scale, tv - 0.01 * scale, fu + 0.005 * scale, tv + 0.01 * scale], fill=(60, 60, 60))
-    dot_r = 5
-    colour = (220, 30, 30) if force_z_n > 0 else (30, 90, 220)
-    draw.ellipse([tu - dot_r, tv - dot_r, tu + dot_r, tv + dot_r], fill=colour, outline=(0, 0, 0))
-    draw.text((4, 4), f"{camera} #{frame}", fill=(0, 0, 0))
-    draw.text((4, CAMERA_HEIGHT_PX - 14), f"tcp {tcp[0]:+.3f} {tcp[1]:+.3f} {tcp[2]:+.3f} m", fill=(0, 0, 0))
-    buffer = io.BytesIO()
-    image.save(buffer, format="PNG")
-    return buffer.getvalue()
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> FakeBackend:
