@@ -26,13 +26,11 @@ from mcp import Client
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from armwarden.assembly import build_backend, build_guard  # noqa: E402
 from armwarden.backends.counting import CountingBackend  # noqa: E402
-from armwarden.backends.fake import FakeBackend  # noqa: E402
 from armwarden.policy import bundled_policy  # noqa: E402
-from armwarden.guard import Guard  # noqa: E402
 from armwarden.policy import Policy, apply_overrides, parse_policy  # noqa: E402
 from armwarden.preflight import load_runtime_model  # noqa: E402
-from armwarden.robot import build_robot  # noqa: E402
 from armwarden.safety.audit import AuditLog, verify_file  # noqa: E402
 from armwarden.server.app import ArmWardenServer  # noqa: E402
 
@@ -126,13 +124,11 @@ class Evaluation:
 
     async def arm(self, policy: Policy | None, tag: str):
         policy = policy or _policy()
-        robot = build_robot(policy)
-        fake = FakeBackend(robot=robot, home=list(policy.robot.home_joint_positions), speedup=50.0)
+        fake = build_backend("fake", policy, config={"speedup": 50.0})
         backend = CountingBackend(fake)
         audit = AuditLog(self.directory / f"{tag}.jsonl")
         await fake.open()
-        guard = Guard(policy, load_runtime_model(policy), robot, backend, audit=audit)  # type: ignore[arg-type]
-        return fake, backend, audit, ArmWardenServer(guard)
+        return fake, backend, audit, ArmWardenServer(build_guard(policy, backend, audit))
 
     async def unsafe(self) -> None:
         for index, (name, policy, elicits, action, allowed) in enumerate(UNSAFE):

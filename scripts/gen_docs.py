@@ -346,26 +346,20 @@ def render_policy_doc() -> str:
 async def list_registered_tools() -> list[dict[str, Any]]:
     """`tools/list` of the server built from the bundled FR3 policy on the fake backend.
 
-    Built like tests/server/harness.py builds it (real Guard, real ArmWardenServer), but without an
-    audit log: listing tools writes nothing.
+    Built like the daemon builds it (`armwarden.assembly`: real Guard, real ArmWardenServer), but
+    without an audit log: listing tools writes nothing.
     """
     from mcp import Client
 
-    from armwarden.backends.fake import FakeBackend
     from armwarden.policy import bundled_policy
-    from armwarden.guard import Guard
     from armwarden.policy import load_policy
-    from armwarden.preflight import load_runtime_model
-    from armwarden.robot import build_robot
     from armwarden.server.app import ArmWardenServer
 
     policy = load_policy(bundled_policy("fr3"))
-    runtime = load_runtime_model(policy)
-    robot = build_robot(policy)
-    fake = FakeBackend(robot=robot, home=list(policy.robot.home_joint_positions), speedup=10.0)
+    fake = build_backend("fake", policy, config={"speedup": 10.0})
     await fake.open()
     try:
-        guard = Guard(policy, runtime, robot, fake, audit=None)
+        guard = build_guard(policy, fake, None)
         server = ArmWardenServer(guard)
         async with Client(server.mcp, mode="legacy") as client:
             result = await client.list_tools()

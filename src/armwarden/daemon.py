@@ -18,17 +18,15 @@ from pathlib import Path
 from typing import Any
 
 import anyio
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from armwarden import __version__
-from armwarden.backends import create_backend
+from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
-from armwarden.errors import ArmWardenError, BackendUnavailable, ConfigurationError, PolicyError
+from armwarden.errors import ArmWardenError, BackendUnavailable, PolicyError
 from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy
-from armwarden.preflight import load_runtime_model
-from armwarden.robot import build_robot
+from armwarden.preflight import RuntimeModel, load_runtime_model
+from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import AuditLog, hmac_key_from_env
 from armwarden.server.app import ArmWardenServer
 
@@ -42,16 +40,6 @@ SWITCH_INTERVAL_S = 0.0005
 SIGNAL_GRACE_S = 0.3
 
 
-class FakeBackendConfig(BaseModel):
-    """`--backend-config` for the fake backend (strict, like every config file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    speedup: float = Field(default=1.0, gt=0, le=1000, description="Time scaling of execution (2 = twice as fast)")
-    table_height_m: float | None = Field(default=None, description="Virtual table plane z [m] producing contact force")
-    table_stiffness_n_per_m: float = Field(default=20000.0, gt=0, description="Table stiffness [N/m]")
-    wrench: bool = Field(default=True, description="Provide an external wrench estimate")
-
-
 @dataclass
 class Assembly:
     policy: Policy
@@ -61,60 +49,25 @@ class Assembly:
     server: ArmWardenServer
 
 
-def _load_backend_config(name: str, path: str | None) -> dict[str, Any]:
-    if path is None:
-        return {}
-    try:
-        document = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigurationError(f"cannot read backend config {path}: {exc}") from exc
-    if name == "fake":
-        try:
-            return FakeBackendConfig.model_validate(document).model_dump()
-        except ValidationError as exc:
-            raise ConfigurationError(f"invalid fake backend config {path}: {exc}") from exc
-    return {"config_path": path}
-
-
-def assemble(policy: Policy, backend_name: str, backend_config: str | None, audit_path: str,
-             **backend_overrides: Any) -> tuple[Policy, Backend, AuditLog, Any, Any]:
+def assemble(policy: Policy, backend_name: str, backend_config: str | None,
+             audit_path: str) -> tuple[Policy, Backend, AuditLog, RuntimeModel, RobotModel]:
     """Build everything that can fail before serving (each failure is a clean exit 2)."""
     runtime = load_runtime_model(policy)
     state_robot = build_robot(policy)
-    options = _load_backend_config(backend_name, backend_config) | backend_overrides
-    robot_cfg = policy.robot
-    backend = create_backend(
-        backend_name,
-        robot=state_robot,
-        policy=policy,
-        description=robot_cfg.description,
-        home=list(robot_cfg.home_joint_positions),
-        **options,
-    )
+    backend = build_backend(backend_name, policy, robot=state_robot, config_path=backend_config)
     audit = AuditLog(audit_path, hmac_key=hmac_key_from_env())
     return policy, backend, audit, runtime, state_robot
 
 
-def _previewer():
-    try:
-        from armwarden.server.preview import render_plan_preview
-    except ImportError:  # pragma: no cover - the preview module is part of the package
-        return None
-
-    def preview(runtime, trajectory, report):
-        return render_plan_preview(runtime.robot, runtime.envelope.limits, trajectory, report)
-
-    return preview
-
-
-async def open_assembly(policy: Policy, backend: Backend, audit: AuditLog, runtime: Any, state_robot: Any) -> Assembly:
+async def open_assembly(policy: Policy, backend: Backend, audit: AuditLog, runtime: RuntimeModel,
+                        state_robot: RobotModel) -> Assembly:
     try:
         await backend.open()
     except ArmWardenError:
         raise
     except Exception as exc:
         raise BackendUnavailable(f"backend {backend.name} could not be opened: {exc}") from exc
-    guard = Guard(policy, runtime, state_robot, backend, audit=audit, previewer=_previewer())
+    guard = build_guard(policy, backend, audit, previewer=plan_previewer(), runtime=runtime, robot=state_robot)
     server = ArmWardenServer(guard)
     return Assembly(policy, backend, audit, guard, server)
 

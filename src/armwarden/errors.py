@@ -6,7 +6,7 @@ ArmWardenError
 │   └── PolicyError           the safety policy failed validation (carries every error with its path)
 ├── BackendUnavailable        the chosen backend cannot be imported or opened (exit 2 at start-up)
 ├── BackendError              a backend operation failed while running
-│   └── BackendTimeout        a backend operation did not answer in time
+│   └── BackendTimeout        a backend operation did not answer in time (also a TimeoutError)
 ├── RobotModelError           the robot description cannot be loaded or a frame is unknown
 └── SafetyRefusal             the Guard refused a request (becomes an `isError` tool result)
 ```
@@ -49,8 +49,9 @@ class BackendError(ArmWardenError):
     """A backend operation failed while the daemon was running."""
 
 
-class BackendTimeout(BackendError):
-    """A backend operation did not complete within its deadline."""
+class BackendTimeout(BackendError, TimeoutError):
+    """A backend operation did not complete within its deadline (also a `TimeoutError`, so code
+    that bounds a call with its own deadline treats both alike)."""
 
 
 class SafetyRefusal(ArmWardenError):

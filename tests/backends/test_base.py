@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from armwarden.backends.base import Backend, Capabilities, ExecutionResult, JointState
-from armwarden.errors import BackendError
+from armwarden.errors import BackendError, BackendTimeout
 
 NAMES = ("j1", "j2")
 
@@ -20,7 +20,7 @@ class _Probe(Backend):
     name = "probe"
 
     def __init__(self, published: JointState | None = None, hang_s: float = 0.0, broken: bool = False) -> None:
-        super().__init__(NAMES)
+        super().__init__(NAMES, start_tolerance_rad=0.01)
         self.published, self.hang_s, self.broken = published, hang_s, broken
         self.slow_reads = 0
 
@@ -48,6 +48,9 @@ class _Probe(Backend):
         raise AssertionError("the read tests never execute")
 
     async def _stop(self) -> None:
+        pass
+
+    def _stop_now(self) -> None:
         pass
 
 
@@ -85,3 +88,68 @@ def test_a_backend_whose_snapshot_source_died_fails_the_read():
 def test_reads_before_open_are_refused():
     with pytest.raises(BackendError, match="not open"):
         asyncio.run(_Probe().read_joint_state())
+
+
+# ---------------------------------------------------------------------------- optional-call deadlines
+class _SlowGripper(_Probe):
+    """A probe with a gripper whose move never finishes and whose stop is recorded."""
+
+    def __init__(self) -> None:
+        super().__init__(published=JointState(NAMES, np.zeros(2), np.zeros(2), 0.0))
+        self.stops = 0
+
+    @property
+    def capabilities(self) -> Capabilities:
+        return Capabilities(gripper=True, graph=True)
+
+    async def _gripper_move(self, width_m: float, speed_mps: float):
+        await asyncio.sleep(3600)
+
+    async def _graph(self):
+        await asyncio.sleep(3600)
+
+    async def _stop(self) -> None:
+        self.stops += 1
+
+
+def _call(backend: _Probe, call):
+    async def scenario():
+        await backend.open()
+        try:
+            return await call(backend)
+        finally:
+            await backend.close()
+
+    return asyncio.run(scenario())
+
+
+def test_an_actuating_call_past_its_deadline_is_a_backend_timeout_after_a_stop():
+    backend = _SlowGripper()
+    backend.gripper_timeout_s, backend.gripper_travel_m = 0.05, 0.0
+    with pytest.raises(BackendTimeout, match="gripper move did not finish within 0.05 s"):
+        _call(backend, lambda b: b.gripper_move(0.01, 0.1))
+    assert backend.stops == 2  # the one after the missed deadline, then the one of close()
+
+
+def test_a_reading_call_past_its_deadline_is_a_backend_timeout_without_a_stop():
+    backend = _SlowGripper()
+    backend.graph_timeout_s = 0.05
+    with pytest.raises(BackendTimeout, match="graph description"):
+        _call(backend, lambda b: b.graph())
+    assert backend.stops == 1  # only close()'s
+
+
+def test_the_gripper_deadline_grows_with_the_travel_time_at_the_requested_speed():
+    backend = _SlowGripper()
+    backend.gripper_timeout_s, backend.gripper_travel_m = 5.0, 0.08
+    assert backend._gripper_deadline_s(0.01) == pytest.approx(13.0)
+    assert backend._gripper_deadline_s(float("nan")) == 5.0
+
+
+def test_a_missing_capability_is_refused_before_anything_is_sent():
+    with pytest.raises(BackendError, match="has no camera 'wrist'"):
+        _call(_Probe(), lambda b: b.camera_snapshot("wrist"))
+
+
+def test_a_backend_timeout_is_also_a_timeout_error():
+    assert issubclass(BackendTimeout, TimeoutError) and issubclass(BackendTimeout, BackendError)

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from armwarden.backends import create_backend
-from armwarden.backends.base import ControllerInfo
+from armwarden.backends.base import Backend, ControllerInfo
 from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
+from tests.backends.contract import BackendContract
 
 Q_READY = np.array(FR3_READY)
 # joint 2 forward: the TCP goes down (≈ 3 cm per 0.1 rad near "ready")
@@ -73,6 +73,11 @@ async def has_moved(backend: FakeBackend, q_from=Q_READY, by_rad: float = 0.01):
         return np.max(np.abs(state.positions - q_from)) > by_rad
 
     return predicate
+
+
+class TestFakeBackendContract(BackendContract):
+    def build(self) -> Backend:
+        return FakeBackend()
 
 
 # ---------------------------------------------------------------------------- execution
@@ -131,35 +136,7 @@ def test_a_second_execution_while_one_runs_is_refused():
     assert run_with_backend(scenario).reason == "stopped"
 
 
-def test_refuses_a_trajectory_that_does_not_start_where_the_arm_is():
-    async def scenario(backend: FakeBackend):
-        with pytest.raises(BackendError, match="rad away from the arm on fr3_joint"):
-            await backend.execute(straight_line(Q_REACH, Q_READY, 0.1))
-        return await backend.read_joint_state()
-
-    assert np.array_equal(run_with_backend(scenario).positions, Q_READY)
-
-
 # ---------------------------------------------------------------------------- stop
-def test_stop_mid_motion_halts_at_once_and_the_arm_stays_still():
-    async def scenario(backend: FakeBackend):
-        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
-        await wait_until(await has_moved(backend))
-        await backend.stop()
-        after_stop = await backend.read_joint_state()
-        await asyncio.sleep(0.1)
-        later = await backend.read_joint_state()
-        return await task, after_stop, later
-
-    result, after_stop, later = run_with_backend(scenario)
-    assert not result.completed and result.reason == "stopped"
-    assert np.array_equal(after_stop.positions, later.positions)
-    assert np.array_equal(result.final_positions, later.positions)
-    assert later.stamp > after_stop.stamp  # the control loop keeps running, holding position
-    assert np.all(later.velocities == 0.0)
-    assert not np.allclose(later.positions, Q_REACH)
-
-
 def test_stop_holds_the_arm_before_it_returns_and_records_when():
     async def scenario(backend: FakeBackend):
         assert backend.last_stop_stamp is None
@@ -173,7 +150,8 @@ def test_stop_holds_the_arm_before_it_returns_and_records_when():
 
     requested, returned, held, stamp, result = run_with_backend(scenario)
     assert requested <= stamp <= returned
-    assert held.stamp == stamp and np.all(held.velocities == 0.0)
+    # the hold was published before stop() returned (an idle tick may have re-stamped it since)
+    assert held.stamp >= stamp and np.all(held.velocities == 0.0)
     assert np.array_equal(result.final_positions, held.positions)
 
 
@@ -224,34 +202,6 @@ def test_stop_issued_as_the_execution_is_handed_over_is_never_lost():
     results = run_with_backend(scenario)
     assert [r.reason for r in results] == ["stopped"] * 20
     assert not np.allclose(results[-1].final_positions, Q_REACH)
-
-
-def test_stop_before_execute_does_not_block_the_next_motion():
-    async def scenario(backend: FakeBackend):
-        await backend.stop()
-        return await backend.execute(straight_line(Q_READY, Q_REACH, 0.2))
-
-    assert run_with_backend(scenario).completed
-
-
-def test_cancelling_the_awaiting_task_stops_the_arm():
-    async def scenario(backend: FakeBackend):
-        task = asyncio.create_task(backend.execute(straight_line(Q_READY, Q_REACH, 2.0)))
-        await wait_until(await has_moved(backend))
-        task.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await task
-        first = await backend.read_joint_state()
-        await asyncio.sleep(0.1)
-        second = await backend.read_joint_state()
-        # the execution slot is free again: a new motion from here runs
-        again = await backend.execute(straight_line(second.positions, Q_READY, 0.2))
-        return first, second, again
-
-    first, second, again = run_with_backend(scenario)
-    assert np.array_equal(first.positions, second.positions)
-    assert not np.allclose(second.positions, Q_REACH)
-    assert again.completed
 
 
 def test_fail_stop_makes_stop_raise():
@@ -514,27 +464,9 @@ def test_a_dead_control_thread_fails_the_running_execution_and_refuses_new_ones(
         backend._compute_tcp = broken_compute_tcp
         with pytest.raises(BackendError, match="control thread"):
             await asyncio.wait_for(task, 5.0)
-        q_now = backend._state[0]
+        q_now = backend.servo.latest.positions
         with pytest.raises(BackendError, match="control thread"):
             await asyncio.wait_for(backend.execute(straight_line(q_now, Q_READY, 0.2)), 5.0)
-
-    run_with_backend(scenario)
-
-
-def test_an_execution_submitted_just_as_the_control_thread_dies_is_refused_not_left_hanging():
-    async def scenario(backend: FakeBackend):
-        check = backend._check_trajectory
-
-        def check_then_lose_the_thread(trajectory):
-            check(trajectory)
-            backend._shutdown = True  # the thread ends (and fails what it owns) between check and submit
-            backend._wake.set()
-            backend.control_thread.join(2.0)
-
-        backend._check_trajectory = check_then_lose_the_thread
-        # refused at submission, with the reason the thread gave (not found out later by a stop)
-        with pytest.raises(BackendError, match="control thread stopped"):
-            await asyncio.wait_for(backend.execute(straight_line(Q_READY, Q_REACH, 0.2)), 3.0)
 
     run_with_backend(scenario)
 
@@ -629,9 +561,3 @@ def test_refuses_a_control_period_above_one_millisecond(period_s):
 def test_refuses_a_home_outside_the_joint_limits():
     with pytest.raises(ValueError, match="outside the joint limits"):
         FakeBackend(home=[0.0] * 7)
-
-
-def test_registry_builds_the_fake_backend_from_keyword_arguments():
-    backend = create_backend("fake", speedup=5.0, table_height_m=0.1, policy=None)
-    assert isinstance(backend, FakeBackend)
-    assert backend.speedup == 5.0 and backend.table_height_m == 0.1

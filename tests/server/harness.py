@@ -1,8 +1,9 @@
 """An in-memory ArmWarden for end-to-end tests through the official MCP SDK client.
 
-`ArmHarness` builds the real Guard and server on the fake backend, wrapped in a
-`CountingBackend` (armwarden.backends.counting) that counts every actuation command that reaches it — the proof that a
-refusal moved nothing. Tests talk to it only through `mcp.Client`, in either protocol mode.
+`ArmHarness` builds the real Guard and server (`armwarden.assembly.build_guard`, as the daemon
+does) on a backend — the fake by default, or the tiny example backend ("minimal") — wrapped in a
+`CountingBackend` that counts every actuation command that reaches it: the proof that a refusal
+moved nothing. Tests talk to it only through `mcp.Client`, in either protocol mode.
 """
 
 from __future__ import annotations
@@ -16,17 +17,22 @@ import anyio
 import mcp_types as types
 from mcp import Client
 
+from armwarden.assembly import build_backend, build_guard
+from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
+from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake import FakeBackend
 from armwarden.policy import bundled_policy
 from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, load_policy, parse_policy
-from armwarden.preflight import load_runtime_model
 from armwarden.robot import build_robot
 from armwarden.safety.audit import AuditLog, verify_file
 from armwarden.server.app import ArmWardenServer
+from tests.backends.minimal_backend import MinimalBackend
 
 MODES = ("legacy", "2026-07-28")
+#: backends a scenario can run on: parametrise with `@pytest.mark.parametrize("backend", BACKENDS)`
+BACKENDS = ("fake", "minimal")
 
 ElicitationCallback = Callable[[Any, types.ElicitRequestParams], Awaitable[types.ElicitResult]]
 
@@ -69,10 +75,16 @@ def policy_with(**overrides: Any) -> Policy:
 
 
 class ArmHarness:
-    def __init__(self, guard: Guard, server: ArmWardenServer, backend: CountingBackend, fake: FakeBackend,
+    def __init__(self, guard: Guard, server: ArmWardenServer, backend: CountingBackend, inner: Backend,
                  audit: AuditLog, audit_path: Path) -> None:
-        self.guard, self.server, self.backend, self.fake = guard, server, backend, fake
+        self.guard, self.server, self.backend, self.inner = guard, server, backend, inner
         self.audit, self.audit_path = audit, audit_path
+
+    @property
+    def fake(self) -> FakeBackend:
+        """The fake backend behind the counter (for fault injection); only on the fake."""
+        assert isinstance(self.inner, FakeBackend), f"this scenario runs on the {self.inner.name} backend, not the fake"
+        return self.inner
 
     @property
     def actuations(self) -> list[str]:
@@ -84,23 +96,51 @@ class ArmHarness:
             yield client
 
 
-@contextlib.asynccontextmanager
-async def arm_harness(tmp_path: Path, policy: Policy | None = None, **fake_options: Any) -> AsyncIterator[ArmHarness]:
-    policy = policy or load_policy(bundled_policy("fr3"))
-    runtime = load_runtime_model(policy)
+def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
+    """The backend `name` for `policy`. Fake options that are `Config` fields configure it; the
+    rest are its fault-injection attributes (`fail_stop=True`, `stall_wrench_s=0.3`, ...)."""
     robot = build_robot(policy)
-    options = {"speedup": 10.0} | fake_options
-    fake = FakeBackend(robot=robot, home=list(policy.robot.home_joint_positions), **options)
-    backend = CountingBackend(fake)
+    if name == "minimal":
+        if options:
+            raise TypeError(f"the minimal backend takes no options, got {sorted(options)}")
+        return MinimalBackend(robot.joint_names, policy.robot.home_joint_positions,
+                              start_tolerance_rad=policy.motion.start_tolerance_rad, speedup=10.0)
+    if name != "fake":
+        raise ValueError(f"unknown harness backend {name!r}; choose one of {BACKENDS}")
+    config = {key: value for key, value in options.items() if key in FakeConfig.model_fields}
+    fake = build_backend("fake", policy, robot=robot, config={"speedup": 10.0} | config)
+    assert isinstance(fake, FakeBackend)
+    for key, value in options.items():
+        if key not in config:
+            if not hasattr(fake, key):
+                raise TypeError(f"the fake backend has no option or attribute {key!r}")
+            setattr(fake, key, value)
+    return fake
+
+
+def _policy_for(backend: str) -> Policy:
+    """The bundled policy, adapted to what `backend` has: without a wrench estimate, execution
+    runs without force enforcement (the gripper and camera tools are simply not registered)."""
+    if backend == "minimal":
+        return policy_with(**{"force.require_wrench": False})
+    return load_policy(bundled_policy("fr3"))
+
+
+@contextlib.asynccontextmanager
+async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: str = "fake",
+                      **fake_options: Any) -> AsyncIterator[ArmHarness]:
+    policy = policy or _policy_for(backend)
+    inner = _backend(backend, policy, fake_options)
+    counting = CountingBackend(inner)
     audit_path = tmp_path / "audit.jsonl"
     audit = AuditLog(audit_path)
-    await fake.open()
-    guard = Guard(policy, runtime, robot, backend, audit=audit)  # type: ignore[arg-type]
+    await inner.open()
+    guard = build_guard(policy, counting, audit)
     server = ArmWardenServer(guard)
     try:
-        yield ArmHarness(guard, server, backend, fake, audit, audit_path)
+        yield ArmHarness(guard, server, counting, inner, audit, audit_path)
     finally:
-        await fake.close()
+        await inner.close()
         audit.close()
     report = verify_file(audit_path)  # whatever the scenario did, the chain it left must verify
     assert report.ok, f"audit chain broken at line {report.first_bad_line}: {report.reason}"

@@ -1,34 +1,112 @@
-"""Robot backends behind one async protocol, looked up lazily by name.
+"""Robot backends behind one contract (`armwarden.backends.base`), looked up lazily by name.
 
-Only the chosen backend's module is imported, so `--backend fake` never imports mujoco, rclpy
-or python-can; a backend whose dependency is missing raises `BackendUnavailable` (exit 2).
+Each backend module owns a strict pydantic `Config` and a factory
+`create_backend(robot, policy, config) -> Backend`. Only the chosen backend's module is imported,
+so `--backend fake` never imports mujoco, rclpy or python-can; a backend whose dependency is
+missing raises `BackendUnavailable` (exit 2 at start-up), as python-can's interface registry does.
+`--backend-config` files are read and validated here, in one place.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from collections.abc import Mapping
+from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
-from armwarden.errors import BackendUnavailable
+import yaml
+from pydantic import BaseModel, ValidationError
 
-# name -> (module, factory function); the factory takes (robot, policy, config_path, **options)
-BACKENDS: dict[str, tuple[str, str]] = {
-    "fake": ("armwarden.backends.fake", "create_backend"),
-    "mujoco": ("armwarden.backends.mujoco", "create_backend"),
-    "ros2": ("armwarden.backends.ros2", "create_backend"),
-    "can": ("armwarden.backends.can", "create_backend"),
+from armwarden.errors import BackendUnavailable, ConfigurationError
+
+if TYPE_CHECKING:
+    from armwarden.backends.base import Backend
+    from armwarden.policy import Policy
+    from armwarden.robot.model import RobotModel
+
+#: backends that exist: name -> module (which defines `Config` and `create_backend`)
+BACKENDS: dict[str, str] = {
+    "fake": "armwarden.backends.fake",
 }
+#: backends announced in the design whose module is not written yet (each has its own issue)
+PLANNED: tuple[str, ...] = ("mujoco", "ros2", "can")
+#: a backend config file larger than this is refused unread [bytes]
+MAX_CONFIG_BYTES = 1_000_000
 
 
-def create_backend(name: str, **kwargs: Any):  # -> Backend (import cycle kept out of the hot path)
-    """Import and build the backend called `name`; a clear `BackendUnavailable` otherwise."""
+def backend_names() -> tuple[str, ...]:
+    """Every name `--backend` accepts: the built backends, then the planned ones (refused clearly)."""
+    return (*BACKENDS, *PLANNED)
+
+
+def backend_module(name: str) -> ModuleType:
+    """Import the module of backend `name`; `BackendUnavailable` says why it cannot be used."""
+    if name in PLANNED:
+        raise BackendUnavailable(f"the {name} backend is not built yet; available backends: {', '.join(BACKENDS)}")
     if name not in BACKENDS:
         raise BackendUnavailable(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")
-    module_name, factory_name = BACKENDS[name]
     try:
-        module = importlib.import_module(module_name)
+        return importlib.import_module(BACKENDS[name])
     except ImportError as exc:
         raise BackendUnavailable(
-            f"backend {name!r} is not available: {exc}. Install its extra, e.g. pip install 'armwarden[{name}]'"
+            f"the {name} backend is not available: {exc}; install armwarden[{name}]"
         ) from exc
-    return getattr(module, factory_name)(**kwargs)
+
+
+def backend_config_model(name: str) -> type[BaseModel]:
+    """The strict `Config` model of backend `name`."""
+    return backend_module(name).Config
+
+
+def parse_backend_config(name: str, document: Any, source: str = "<memory>") -> BaseModel:
+    """Validate a backend config document (None or empty: all defaults). `ConfigurationError`
+    lists every problem with its YAML path."""
+    model = backend_config_model(name)
+    if document is None:
+        document = {}
+    if not isinstance(document, Mapping):
+        raise ConfigurationError(f"invalid {name} backend config {source}:\n  (document): must be a mapping of options")
+    try:
+        return model.model_validate(document)
+    except ValidationError as exc:
+        from armwarden.policy import validation_errors
+
+        lines = "\n".join(f"  {path}: {message}" for path, message in validation_errors(exc, model))
+        raise ConfigurationError(f"invalid {name} backend config {source}:\n{lines}") from None
+
+
+def load_backend_config(name: str, path: str | Path | None) -> BaseModel:
+    """Read and validate `--backend-config` for backend `name` (None: the defaults)."""
+    if path is None:
+        return parse_backend_config(name, None)
+    source = str(path)
+    try:
+        raw = Path(path).expanduser().read_bytes()
+        if len(raw) > MAX_CONFIG_BYTES:
+            raise ConfigurationError(f"backend config {source} is larger than {MAX_CONFIG_BYTES} bytes")
+        document = yaml.safe_load(raw.decode("utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ConfigurationError(f"cannot read backend config {source}: {exc}") from exc
+    return parse_backend_config(name, document, source)
+
+
+def create_backend(name: str, robot: RobotModel, policy: Policy, config: BaseModel | Mapping[str, Any] | None = None) -> Backend:
+    """Build backend `name` for `robot` under `policy`. `config` is the backend's `Config`, a
+    mapping validated into one, or None for the defaults."""
+    module = backend_module(name)
+    if not isinstance(config, module.Config):
+        config = parse_backend_config(name, dict(config) if isinstance(config, Mapping) else config)
+    return module.create_backend(robot, policy, config)
+
+
+__all__ = [
+    "BACKENDS",
+    "PLANNED",
+    "backend_config_model",
+    "backend_module",
+    "backend_names",
+    "create_backend",
+    "load_backend_config",
+    "parse_backend_config",
+]

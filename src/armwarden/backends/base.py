@@ -1,30 +1,53 @@
-"""The async backend contract every robot backend implements (fake, MuJoCo, ROS 2, CAN).
+"""The backend contract: what a robot backend (fake, MuJoCo, ROS 2, CAN) implements.
 
-The base class owns what is common — the open/closed lifecycle, deadlines, logging, and the
-stop semantics — and calls small `_hooks` that each backend implements (template methods, as
-python-can's `BusABC.recv` calls `_recv_internal`). Backends only talk to hardware or
-simulation: they never decide whether a motion is allowed. The Guard is the only caller.
+The base class `Backend` owns what is common — the open/closed lifecycle, deadlines, logging,
+trajectory checks and the stop semantics — and calls small `_hooks` that each backend implements
+(template methods, as python-can's `BusABC.recv` calls `_recv_internal`). Backends only talk to
+hardware or simulation: they never decide whether a motion is allowed; the Guard is the only
+caller. `tests/backends/contract.py` (`BackendContract`) checks every rule below; a new backend
+subclasses it with one fixture. See docs/architecture.md, section "Backends".
 
-Rules every backend follows:
-- `stop()` is fast, idempotent, safe to call at any time from the event loop (also while an
-  execution is in progress or nothing is open) and stops the arm *and* the gripper.
-- `execute()` runs exactly the trajectory it is given (same waypoints, same timing), reports
-  progress in [0, 1], returns when the arm has finished or stopped, and stops the arm if the
-  awaiting task is cancelled.
+Writing a backend
+- Subclass `Backend`; call `super().__init__(joint_names, start_tolerance_rad=...)` with the
+  policy's `motion.start_tolerance_rad`. Implement `capabilities`, `_open`, `_close`,
+  `_read_joint_state`, `_execute`, `_stop` and `_stop_now`; implement the optional hooks
+  (`_read_wrench`, `_gripper_*`, `_camera_snapshot`, `_list_controllers`, ...) only for the
+  capabilities you declare. A call to a capability you do not declare raises `BackendError`.
+- In the backend's module: a strict pydantic `Config` (extra="forbid", frozen, units in names and
+  descriptions) and `create_backend(robot, policy, config: Config) -> Backend`; then add the
+  module to `armwarden.backends.BACKENDS`.
+
+Rules every backend follows
+- `stop()` is fast, idempotent, safe at any time from the event loop (also during an execution,
+  before `open` and after `close`: then it does nothing) and stops the arm *and* the gripper.
+- `stop_now()` is the same stop, synchronous and thread-safe: any thread may call it while the
+  event loop is busy or blocked, and the arm is held before it returns (a servo loop commands a
+  hold under its lock; see `armwarden.backends.servo`). It must not await the event loop.
+- `execute()` runs exactly the trajectory it is given (same waypoints, same timing, not
+  modified), ends at its goal, reports progress in [0, 1] never decreasing, returns when the arm
+  has finished ("completed") or was stopped ("stopped"), and stops the arm if the awaiting task is
+  cancelled. The base class refuses, before `_execute` runs, a malformed trajectory and one that
+  does not start within `start_tolerance_rad` of the measured joint positions.
+- State samples carry their stamp (monotonic clock [s]); stamps never go backwards and advance
+  with new samples. Freshness is never assumed: the Guard refuses stale ones.
 - Blocking work (hardware I/O, simulation stepping) lives on the backend's own thread; results
-  cross into asyncio with `loop.call_soon_threadsafe`.
-- A backend whose thread publishes every new sample (a servo loop, a receive thread, a topic
-  subscription) answers `_latest_joint_state` / `_latest_wrench` from that snapshot without
-  awaiting anything; the template then skips the read deadline, which costs more than the read.
-  Freshness is never assumed: every sample carries its stamp and the Guard refuses stale ones.
+  cross into asyncio with `armwarden.handoff.settle_threadsafe`. A backend whose thread publishes
+  every sample answers `_latest_joint_state` / `_latest_wrench` from that snapshot without
+  awaiting; the read deadline is then skipped.
+- Deadlines (class attributes, seconds): reads `read_timeout_s`, stops `stop_timeout_s`, and one
+  per optional capability (`*_timeout_s`; gripper motions get `gripper_timeout_s` plus the time
+  `gripper_travel_m` takes at the requested speed). A missed deadline raises `BackendTimeout`;
+  an actuating call that misses it is followed by a stop.
 """
 
 from __future__ import annotations
 
 import abc
 import logging
-from collections.abc import Callable, Sequence
+import math
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import anyio
 import numpy as np
@@ -35,6 +58,7 @@ from armwarden.planning.trajectory import JointTrajectory
 logger = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[float], None]
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -120,21 +144,53 @@ class Capabilities:
 
 
 class Backend(abc.ABC):
-    """Base class: lifecycle, deadlines and logging; subclasses implement the `_hooks`."""
+    """Base class: lifecycle, deadlines, checks and logging; subclasses implement the `_hooks`."""
 
     name: str = "abstract"
     #: deadline for a stop command to be issued [s]; a stop that misses it is a failure
     stop_timeout_s: float = 0.5
     #: deadline for state/wrench reads [s]
     read_timeout_s: float = 0.5
+    #: deadline for a gripper state read [s]
+    gripper_state_timeout_s: float = 0.5
+    #: fixed part of a gripper move/grasp deadline [s]; the travel time at the requested speed is added
+    gripper_timeout_s: float = 5.0
+    #: the longest finger travel [m] a move or grasp may need (the gripper's full opening)
+    gripper_travel_m: float = 0.1
+    #: deadline for homing the gripper [s]
+    gripper_home_timeout_s: float = 30.0
+    #: deadline for a camera snapshot [s]
+    camera_timeout_s: float = 2.0
+    #: deadline for listing or switching controllers [s]
+    controllers_timeout_s: float = 5.0
+    #: deadline for setting collision thresholds [s]
+    thresholds_timeout_s: float = 2.0
+    #: deadline for error recovery [s]
+    error_recovery_timeout_s: float = 10.0
+    #: deadline for describing the graph [s]
+    graph_timeout_s: float = 2.0
 
-    def __init__(self, joint_names: Sequence[str]) -> None:
+    def __init__(self, joint_names: Sequence[str], *, start_tolerance_rad: float) -> None:
+        if not (isinstance(start_tolerance_rad, (int, float)) and math.isfinite(start_tolerance_rad)
+                and start_tolerance_rad > 0):
+            raise ValueError(f"start_tolerance_rad must be a positive angle [rad], got {start_tolerance_rad!r}")
         self.joint_names = tuple(joint_names)
-        #: monotonic time [s] at which the latest stop took effect (no motion commanded after it),
-        #: for backends that can tell (the fake, servo loops); None otherwise
-        self.last_stop_stamp: float | None = None
+        #: largest deviation [rad] between a trajectory's start and the measured joints (policy
+        #: `motion.start_tolerance_rad`)
+        self.start_tolerance_rad = float(start_tolerance_rad)
+        self._last_stop_stamp: float | None = None
         self._opened = False
         self._closed = False
+
+    @property
+    def last_stop_stamp(self) -> float | None:
+        """Monotonic time [s] at which the latest stop took effect (no motion commanded after it),
+        for backends that can tell (the fake, servo loops); None otherwise."""
+        return self._last_stop_stamp
+
+    @last_stop_stamp.setter
+    def last_stop_stamp(self, stamp: float | None) -> None:
+        self._last_stop_stamp = stamp
 
     # ---------------------------------------------------------------- lifecycle
     @property
@@ -179,8 +235,7 @@ class Backend(abc.ABC):
         published = self._latest_joint_state()
         if published is not None:
             return published
-        with anyio.fail_after(self.read_timeout_s):
-            return await self._read_joint_state()
+        return await self._bounded("joint state read", self.read_timeout_s, self._read_joint_state)
 
     async def read_wrench(self) -> Wrench | None:
         """The latest wrench estimate, or None if this backend has none."""
@@ -190,16 +245,15 @@ class Backend(abc.ABC):
         published = self._latest_wrench()
         if published is not None:
             return published
-        with anyio.fail_after(self.read_timeout_s):
-            return await self._read_wrench()
+        return await self._bounded("wrench read", self.read_timeout_s, self._read_wrench)
 
     # ---------------------------------------------------------------- motion
     async def execute(self, trajectory: JointTrajectory, progress: ProgressCallback | None = None) -> ExecutionResult:
-        """Run `trajectory` exactly. If the caller is cancelled, the arm is stopped first."""
+        """Run `trajectory` exactly. Any failure or cancellation stops the arm before it propagates."""
         self._require_open()
-        if trajectory.joint_names != self.joint_names:
-            raise BackendError(f"trajectory joints {trajectory.joint_names} do not match backend joints {self.joint_names}")
         try:
+            self.check_trajectory(trajectory)
+            await self._check_start(trajectory)
             return await self._execute(trajectory, progress or (lambda _fraction: None))
         except BaseException:
             with anyio.CancelScope(shield=True):
@@ -208,6 +262,32 @@ class Backend(abc.ABC):
                 except BackendError:  # keep the original exception: the caller stops again and latches
                     logger.exception("backend %s: stop after an interrupted execution failed", self.name)
             raise
+
+    def check_trajectory(self, trajectory: JointTrajectory) -> None:
+        """Refuse (`BackendError`) a trajectory this backend cannot run as given: other joints, a
+        wrong shape, non-finite values, or times that do not start at 0 and never decrease."""
+        if tuple(trajectory.joint_names) != self.joint_names:
+            raise BackendError(f"trajectory joints {trajectory.joint_names} do not match backend joints {self.joint_names}")
+        times, positions = np.asarray(trajectory.times), np.asarray(trajectory.positions)
+        n = len(self.joint_names)
+        if times.ndim != 1 or len(times) == 0 or positions.shape != (len(times), n):
+            raise BackendError(f"malformed trajectory: times {times.shape}, positions {positions.shape}, {n} joints")
+        if not (np.all(np.isfinite(times)) and np.all(np.isfinite(positions))):
+            raise BackendError("malformed trajectory: non-finite time or position")
+        if times[0] != 0.0 or np.any(np.diff(times) < 0):
+            raise BackendError("malformed trajectory: times must start at 0 and never decrease")
+
+    async def _check_start(self, trajectory: JointTrajectory) -> None:
+        """Refuse a trajectory that does not start where the arm is (within `start_tolerance_rad`)."""
+        q_now = (await self.read_joint_state()).positions
+        deviation = np.abs(trajectory.start - q_now)
+        worst = int(np.argmax(deviation))
+        if not deviation[worst] <= self.start_tolerance_rad:
+            raise BackendError(
+                f"trajectory starts {deviation[worst]:.4f} rad away from the arm on {self.joint_names[worst]} "
+                f"(start {trajectory.start[worst]:.4f}, measured {q_now[worst]:.4f}, "
+                f"tolerance {self.start_tolerance_rad:g} rad)"
+            )
 
     async def stop(self) -> None:
         """Stop arm and gripper now. Raises `BackendError` if the stop could not be issued."""
@@ -223,54 +303,97 @@ class Backend(abc.ABC):
         except Exception as exc:
             raise BackendError(f"backend {self.name}: stop failed: {exc}") from exc
 
+    def stop_now(self) -> None:
+        """Stop arm and gripper from any thread, without the event loop; the arm is held when it
+        returns. Raises `BackendError` if the stop could not be issued. No-op unless open."""
+        if not self._opened or self._closed:
+            return
+        try:
+            self._stop_now()
+        except BackendError:
+            raise
+        except Exception as exc:
+            raise BackendError(f"backend {self.name}: stop failed: {exc}") from exc
+
     # ---------------------------------------------------------------- optional capabilities
     async def gripper_state(self) -> GripperState | None:
         self._require_open()
-        return await self._gripper_state() if self.capabilities.gripper else None
+        if not self.capabilities.gripper:
+            return None
+        return await self._bounded("gripper state read", self.gripper_state_timeout_s, self._gripper_state)
 
     async def gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
         self._require_capability(self.capabilities.gripper, "gripper")
-        return await self._gripper_move(width_m, speed_mps)
+        return await self._bounded("gripper move", self._gripper_deadline_s(speed_mps),
+                                   lambda: self._gripper_move(width_m, speed_mps), actuating=True)
 
     async def gripper_grasp(
         self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
     ) -> GripperResult:
         self._require_capability(self.capabilities.gripper, "gripper")
-        return await self._gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
+        return await self._bounded(
+            "gripper grasp", self._gripper_deadline_s(speed_mps),
+            lambda: self._gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m), actuating=True,
+        )
 
     async def gripper_home(self) -> GripperResult:
         self._require_capability(self.capabilities.gripper, "gripper")
-        return await self._gripper_home()
+        return await self._bounded("gripper homing", self.gripper_home_timeout_s, self._gripper_home, actuating=True)
 
     async def camera_snapshot(self, camera: str) -> CameraImage:
         self._require_capability(camera in self.capabilities.cameras, f"camera {camera!r}")
-        with anyio.fail_after(2.0):
-            return await self._camera_snapshot(camera)
+        return await self._bounded(f"camera {camera!r} snapshot", self.camera_timeout_s,
+                                   lambda: self._camera_snapshot(camera))
 
     async def list_controllers(self) -> list[ControllerInfo]:
         self._require_capability(self.capabilities.controllers, "controllers")
-        return await self._list_controllers()
+        return await self._bounded("controller listing", self.controllers_timeout_s, self._list_controllers)
 
     async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str]) -> None:
         self._require_capability(self.capabilities.controllers, "controllers")
-        await self._switch_controllers(tuple(activate), tuple(deactivate))
+        await self._bounded("controller switch", self.controllers_timeout_s,
+                            lambda: self._switch_controllers(tuple(activate), tuple(deactivate)), actuating=True)
 
     async def set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
         self._require_capability(self.capabilities.collision_thresholds, "collision thresholds")
-        await self._set_collision_thresholds(force_n, torque_nm)
+        await self._bounded("collision threshold change", self.thresholds_timeout_s,
+                            lambda: self._set_collision_thresholds(force_n, torque_nm), actuating=True)
 
     async def error_recovery(self) -> None:
         self._require_capability(self.capabilities.error_recovery, "error recovery")
-        await self._error_recovery()
+        await self._bounded("error recovery", self.error_recovery_timeout_s, self._error_recovery, actuating=True)
 
     async def graph(self) -> dict[str, list[str]]:
         self._require_capability(self.capabilities.graph, "graph")
-        return await self._graph()
+        return await self._bounded("graph description", self.graph_timeout_s, self._graph)
 
     def _require_capability(self, present: bool, what: str) -> None:
         self._require_open()
         if not present:
             raise BackendError(f"backend {self.name} has no {what}")
+
+    def _gripper_deadline_s(self, speed_mps: float) -> float:
+        """Deadline [s] of a gripper move/grasp at `speed_mps`: the full travel plus a fixed margin
+        (an invalid speed gets the margin alone; the backend refuses it)."""
+        if not (isinstance(speed_mps, (int, float)) and math.isfinite(speed_mps) and speed_mps > 0):
+            return self.gripper_timeout_s
+        return self.gripper_timeout_s + self.gripper_travel_m / speed_mps
+
+    async def _bounded(self, what: str, timeout_s: float, call: Callable[[], Awaitable[T]], *, actuating: bool = False) -> T:
+        """Await `call()` under a deadline; a miss is a `BackendTimeout` (after a stop if `actuating`)."""
+        try:
+            with anyio.fail_after(timeout_s):
+                return await call()
+        except BackendTimeout:
+            raise
+        except TimeoutError as exc:
+            if actuating:  # whatever it started may still be moving: fail closed
+                with anyio.CancelScope(shield=True):
+                    try:
+                        await self.stop()
+                    except BackendError:
+                        logger.exception("backend %s: stop after a missed %s deadline failed", self.name, what)
+            raise BackendTimeout(f"backend {self.name}: {what} did not finish within {timeout_s:g} s") from exc
 
     # ---------------------------------------------------------------- hooks
     @abc.abstractmethod
@@ -299,6 +422,10 @@ class Backend(abc.ABC):
 
     @abc.abstractmethod
     async def _stop(self) -> None: ...
+
+    @abc.abstractmethod
+    def _stop_now(self) -> None:
+        """Synchronous, thread-safe stop (see `stop_now`); must not touch the event loop."""
 
     async def _gripper_state(self) -> GripperState | None:
         return None

@@ -1,13 +1,31 @@
-"""A wrapper that counts every actuation command reaching a backend.
+"""A backend that counts every actuation command reaching the backend it wraps.
 
 Evidence for "a refusal moves nothing": tests and `scripts/eval_safety.py` put it between the
-Guard and the real backend and assert that refused requests added no command. It forwards
-everything unchanged.
+Guard and the real backend and assert that refused requests added no command. It is a real
+`Backend`: each public call is recorded (actuations by method name, stops by count) *before* it is
+forwarded unchanged, so a command the inner backend refuses still counts as one that reached it.
+Lifecycle, capabilities, `last_stop_stamp` and any other attribute are the inner backend's.
 """
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Sequence
 from typing import Any
+
+from armwarden.backends.base import (
+    Backend,
+    CameraImage,
+    Capabilities,
+    ControllerInfo,
+    ExecutionResult,
+    GripperResult,
+    GripperState,
+    JointState,
+    ProgressCallback,
+    Wrench,
+)
+from armwarden.planning.trajectory import JointTrajectory
 
 #: the Backend methods that can move or change the robot
 ACTUATING_METHODS = (
@@ -16,26 +34,129 @@ ACTUATING_METHODS = (
 )
 
 
-class CountingBackend:
-    """Wraps a backend: every actuating call is recorded (by method name) before it is forwarded."""
+class CountingBackend(Backend):
+    """Wraps `inner`: `actuations` lists every actuating call, `stops` counts `stop`/`stop_now`."""
 
-    def __init__(self, inner: Any) -> None:
-        self._inner = inner
+    def __init__(self, inner: Backend) -> None:
+        super().__init__(inner.joint_names, start_tolerance_rad=inner.start_tolerance_rad)
+        self.inner = inner
+        self.name = inner.name
         self.actuations: list[str] = []
         self.stops = 0
+        self._count_lock = threading.Lock()  # stop_now may come from another thread
 
-    def __getattr__(self, name: str) -> Any:
-        attribute = getattr(self._inner, name)
-        if name in ACTUATING_METHODS:
-            async def counted(*args: Any, **kwargs: Any) -> Any:
-                self.actuations.append(name)
-                return await attribute(*args, **kwargs)
+    def __getattr__(self, name: str) -> Any:  # anything beyond the contract (e.g. fault injection)
+        if name == "inner":  # not set yet (during construction)
+            raise AttributeError(name)
+        return getattr(self.inner, name)
 
-            return counted
-        if name == "stop":
-            async def stop() -> None:
-                self.stops += 1
-                await attribute()
+    def _actuating(self, method: str) -> None:
+        with self._count_lock:
+            self.actuations.append(method)
 
-            return stop
-        return attribute
+    def _stopping(self) -> None:
+        with self._count_lock:
+            self.stops += 1
+
+    # ---------------------------------------------------------------- lifecycle and state
+    @property
+    def capabilities(self) -> Capabilities:
+        return self.inner.capabilities
+
+    @property
+    def is_open(self) -> bool:
+        return self.inner.is_open
+
+    @property
+    def last_stop_stamp(self) -> float | None:
+        return self.inner.last_stop_stamp
+
+    @last_stop_stamp.setter
+    def last_stop_stamp(self, stamp: float | None) -> None:  # the inner backend records it
+        pass
+
+    async def open(self) -> None:
+        await self.inner.open()
+
+    async def close(self) -> None:
+        await self.inner.close()
+
+    async def read_joint_state(self) -> JointState:
+        return await self.inner.read_joint_state()
+
+    async def read_wrench(self) -> Wrench | None:
+        return await self.inner.read_wrench()
+
+    # ---------------------------------------------------------------- motion and stops
+    async def execute(self, trajectory: JointTrajectory, progress: ProgressCallback | None = None) -> ExecutionResult:
+        self._actuating("execute")
+        return await self.inner.execute(trajectory, progress)
+
+    async def stop(self) -> None:
+        self._stopping()
+        await self.inner.stop()
+
+    def stop_now(self) -> None:
+        self._stopping()
+        self.inner.stop_now()
+
+    # ---------------------------------------------------------------- optional capabilities
+    async def gripper_state(self) -> GripperState | None:
+        return await self.inner.gripper_state()
+
+    async def gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
+        self._actuating("gripper_move")
+        return await self.inner.gripper_move(width_m, speed_mps)
+
+    async def gripper_grasp(
+        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
+    ) -> GripperResult:
+        self._actuating("gripper_grasp")
+        return await self.inner.gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
+
+    async def gripper_home(self) -> GripperResult:
+        self._actuating("gripper_home")
+        return await self.inner.gripper_home()
+
+    async def camera_snapshot(self, camera: str) -> CameraImage:
+        return await self.inner.camera_snapshot(camera)
+
+    async def list_controllers(self) -> list[ControllerInfo]:
+        return await self.inner.list_controllers()
+
+    async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str]) -> None:
+        self._actuating("switch_controllers")
+        await self.inner.switch_controllers(activate, deactivate)
+
+    async def set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
+        self._actuating("set_collision_thresholds")
+        await self.inner.set_collision_thresholds(force_n, torque_nm)
+
+    async def error_recovery(self) -> None:
+        self._actuating("error_recovery")
+        await self.inner.error_recovery()
+
+    async def graph(self) -> dict[str, list[str]]:
+        return await self.inner.graph()
+
+    # ---------------------------------------------------------------- hooks (the public calls above forward instead)
+    async def _open(self) -> None:
+        await self.inner.open()
+
+    async def _close(self) -> None:
+        await self.inner.close()
+
+    async def _read_joint_state(self) -> JointState:
+        return await self.inner.read_joint_state()
+
+    async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        return await self.inner.execute(trajectory, progress)
+
+    async def _stop(self) -> None:
+        await self.inner.stop()
+
+    def _stop_now(self) -> None:
+        self.inner.stop_now()
+
+
+__all__ = ["ACTUATING_METHODS", "CountingBackend"]

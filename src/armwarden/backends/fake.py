@@ -1,27 +1,21 @@
 """The fake backend: a kinematic FR3 + Franka Hand, deterministic, no dependency beyond the core.
 
-The arm is kinematic: on its own daemon thread a control loop ticks every `control_period_s`
-(≤ 1 ms) and sets the joint positions to `trajectory.sample(elapsed × speedup)`, the same linear
-interpolation the envelope checked, so the final positions equal the goal exactly. Everything
-that crosses from that thread into asyncio goes through `loop.call_soon_threadsafe`.
-
-Stop semantics. A stop takes effect in the thread that issues it, before `_stop()` returns:
-under the lock it ends the running (or just submitted) execution as "stopped" and republishes the
-last commanded positions with zero velocity, so no later position is ever commanded. The control
-thread computes each step outside the lock and publishes it under the lock only if no stop landed
-meanwhile (a stop sequence number tells), so a stop racing a tick can never be overtaken by it. A
-kinematic arm has no inertia: it is still from that instant, which `last_stop_stamp` records
-(monotonic clock). Nothing therefore waits for the control thread to be scheduled, which under
-load (the thread needs the interpreter lock) could take several milliseconds.
+The arm is kinematic and driven by a `ServoLoop` (armwarden.backends.servo) ticking every
+`control_period_s` (≤ 1 ms) on its own thread: each tick commands `trajectory.sample(elapsed ×
+speedup)`, the same linear interpolation the envelope checked, so the final positions equal the
+goal exactly. The fake's "command" is publishing the sample; a stop publishes the hold in the
+thread that issues it, before `stop()`/`stop_now()` returns, and no tick computed before it is
+published after it. A kinematic arm has no inertia: it is still from that instant, which
+`last_stop_stamp` records (monotonic clock).
 
 Contact. With `table_height_m` set, the estimated wrench is a force of `stiffness × penetration`
-along +z, where penetration = max(0, table_height_m − tcp_z) and tcp_z comes from the thread's own
-`RobotModel` (Pinocchio data is not thread safe, so the loop side never shares it). The wrench is
-computed on the control thread and stamped with that tick's monotonic time.
+along +z, where penetration = max(0, table_height_m − tcp_z) and tcp_z comes from the servo
+thread's own `RobotModel` (Pinocchio data is not thread safe, so the loop side never shares it).
+The wrench is computed on the servo thread and stamped with that tick's monotonic time.
 
 The gripper is a width model driven on the event loop (no thread): it moves at the requested
-speed (time-scaled) and `_stop()` halts it where it is. Cameras render a small top view with
-Pillow when it is installed.
+speed (time-scaled); a stop freezes it where it is (`stop_now` from any thread, the loop-side
+bookkeeping follows). Cameras render a small top view with Pillow when it is installed.
 
 Fault injection for tests: `fail_stop` (stop raises and is not delivered), `freeze_wrench` (the
 wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that
@@ -32,17 +26,17 @@ object between the fingers). All of them are plain attributes that can be change
 from __future__ import annotations
 
 import asyncio
-import io
 import logging
 import math
 import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 import anyio
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.base import (
     Backend,
@@ -56,36 +50,30 @@ from armwarden.backends.base import (
     ProgressCallback,
     Wrench,
 )
+from armwarden.backends.fake_camera import (
+    CAMERA_HEIGHT_PX,
+    CAMERA_WIDTH_PX,
+    HAVE_PILLOW,
+    render_top_view,
+)
+from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 
-try:  # pillow is optional: without it the fake has no cameras
-    from PIL import Image, ImageDraw
+if TYPE_CHECKING:
+    from armwarden.policy import Policy
 
-    HAVE_PILLOW = True
-except ImportError:  # pragma: no cover - exercised only where pillow is missing
-    HAVE_PILLOW = False
 
 logger = logging.getLogger(__name__)
 
 FR3_JOINT_NAMES = tuple(f"fr3_joint{i}" for i in range(1, 8))
 FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
 
-#: minimum interval between two progress callbacks [s] (≤ 50 Hz)
-PROGRESS_PERIOD_S = 0.02
-#: control-loop period while the arm is idle [s]; stops and executions wake it immediately
-IDLE_PERIOD_S = 0.01
-#: how long `_close` waits for the control thread to finish [s]
-JOIN_TIMEOUT_S = 2.0
-#: `open` fails if the control thread has not published its first state by then [s]
-FIRST_TICK_TIMEOUT_S = 5.0
 #: speed of the homing motion (fully open) [m/s]
 GRIPPER_HOMING_SPEED_MPS = 0.1
 #: the controller that executes trajectories; arm motion is refused while it is inactive
 TRAJECTORY_CONTROLLER = "fr3_arm_controller"
-#: camera image size [px]
-CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX = 320, 240
 
 DEFAULT_CONTROLLERS = (
     ControllerInfo("fr3_arm_controller", "joint_trajectory_controller/JointTrajectoryController", "active"),
@@ -97,17 +85,6 @@ ARM_COMMAND_CONTROLLER_TYPES = ("joint_trajectory_controller/", "franka_example_
 
 
 @dataclass(eq=False)
-class _Execution:
-    """One trajectory handed to the control thread, and how the thread reports back."""
-
-    trajectory: JointTrajectory
-    loop: asyncio.AbstractEventLoop
-    future: asyncio.Future
-    start_time: float | None = None  # perf_counter of the tick that started it
-    fraction: float = 0.0  # progress in [0, 1], written by the thread
-
-
-@dataclass(eq=False)
 class _GripperMotion:
     """A gripper motion in progress: the width is a function of time until it ends or is halted."""
 
@@ -115,49 +92,37 @@ class _GripperMotion:
     target_width_m: float
     speed_mps: float  # already time-scaled
     start_time: float
-    halted: anyio.Event = field(default_factory=anyio.Event)
+    halted: anyio.Event = field(default_factory=anyio.Event)  # set on the event loop once halted
+    halted_at: float | None = None  # perf_counter of the stop that froze it (set from any thread)
 
     @property
     def duration_s(self) -> float:
         return abs(self.target_width_m - self.start_width_m) / self.speed_mps
 
     def width_at(self, now: float) -> float:
-        travel = min(abs(self.target_width_m - self.start_width_m), self.speed_mps * max(0.0, now - self.start_time))
+        """Finger opening [m] at perf_counter time `now` (frozen from `halted_at` on)."""
+        halted_at = self.halted_at
+        until = now if halted_at is None else min(now, halted_at)
+        travel = min(abs(self.target_width_m - self.start_width_m), self.speed_mps * max(0.0, until - self.start_time))
         return self.start_width_m + math.copysign(travel, self.target_width_m - self.start_width_m)
 
 
-def _resolve(future: asyncio.Future, result: Any = None, error: BaseException | None = None) -> None:
-    """Complete `future` unless its awaiter already gave up on it (runs on the event loop)."""
-    if future.done():
-        return
-    if error is not None:
-        future.set_exception(error)
-    else:
-        future.set_result(result)
+class Config(BaseModel):
+    """`--backend-config` for the fake backend (strict, like every config file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    speedup: float = Field(default=1.0, gt=0, le=1000, description="Time scaling of execution, no unit (2 = twice as fast).")
+    table_height_m: float | None = Field(
+        default=None, allow_inf_nan=False, description="Height [m] of a virtual table plane producing contact force; null: none."
+    )
+    table_stiffness_n_per_m: float = Field(
+        default=20000.0, gt=0, allow_inf_nan=False, description="Stiffness of the virtual table [N/m]."
+    )
+    wrench: bool = Field(default=True, description="Provide an external wrench estimate (boolean).")
 
 
-def _post(loop: asyncio.AbstractEventLoop, future: asyncio.Future, result: Any = None, error: BaseException | None = None) -> None:
-    """From any thread: complete `future` on its loop (ignored if that loop is gone)."""
-    try:
-        loop.call_soon_threadsafe(_resolve, future, result, error)
-    except RuntimeError:  # the loop was closed: nobody is waiting any more
-        pass
-
-
-def _segment_velocity(trajectory: JointTrajectory, t: float) -> np.ndarray:
-    """Joint velocity [rad/s] of the linear segment the trajectory is on at time `t`."""
-    times = trajectory.times
-    if t <= 0.0 or t >= times[-1] or len(times) < 2:
-        return np.zeros(trajectory.positions.shape[1])
-    k = int(np.searchsorted(times, t, side="right")) - 1
-    span = times[k + 1] - times[k]
-    if span <= 0:
-        return np.zeros(trajectory.positions.shape[1])
-    return (trajectory.positions[k + 1] - trajectory.positions[k]) / span
-
-
-class FakeBackend(Backend):
-    """Kinematic FR3 + Franka Hand with a real-time control thread (see the module docstring)."""
+class FakeBackend(Backend, ServoHooks):
+    """Kinematic FR3 + Franka Hand driven by a servo loop (see the module docstring)."""
 
     name = "fake"
 
@@ -184,7 +149,7 @@ class FakeBackend(Backend):
         start_tolerance_rad: float = 0.05,
     ) -> None:
         joint_names = tuple(joint_names if joint_names is not None else (robot.joint_names if robot else FR3_JOINT_NAMES))
-        super().__init__(joint_names)
+        super().__init__(joint_names, start_tolerance_rad=start_tolerance_rad)
         base_frame = base_frame or (robot.base_frame if robot else "fr3_link0")
         tcp_frame = tcp_frame or (robot.tcp_frame if robot else "fr3_hand_tcp")
         _require(math.isfinite(speedup) and speedup > 0, f"speedup must be a positive number, got {speedup}")
@@ -202,7 +167,6 @@ class FakeBackend(Backend):
             f"gripper_max_width_m must be positive, got {gripper_max_width_m}",
         )
         _require(math.isfinite(stall_wrench_s) and stall_wrench_s >= 0, f"stall_wrench_s must be ≥ 0, got {stall_wrench_s}")
-        _require(start_tolerance_rad >= 0, f"start_tolerance_rad must be ≥ 0, got {start_tolerance_rad}")
 
         # The thread's own kinematics (Pinocchio data is not thread safe); `robot` stays on the loop side.
         self._model = RobotModel.from_description(description, joint_names, base_frame, tcp_frame)
@@ -215,12 +179,11 @@ class FakeBackend(Backend):
             f"home {q_home.tolist()} is outside the joint limits {self._model.lower.tolist()} .. {self._model.upper.tolist()}",
         )
 
-        self.speedup = float(speedup)
         self.control_period_s = float(control_period_s)
         self.table_height_m = table_height_m
         self.table_stiffness_n_per_m = float(table_stiffness_n_per_m)
         self.gripper_max_width_m = float(gripper_max_width_m)
-        self.start_tolerance_rad = float(start_tolerance_rad)
+        self.gripper_travel_m = self.gripper_max_width_m
         self.fail_stop = fail_stop
         self.freeze_wrench = freeze_wrench
         self.stall_wrench_s = stall_wrench_s
@@ -231,10 +194,6 @@ class FakeBackend(Backend):
         self.object_width_m: float | None = None
         #: every call that could move something (refused or not) increments this
         self.actuation_commands = 0
-        #: monotonic time the latest stop's hold was published [s]
-        self.last_stop_stamp: float | None = None
-        #: control ticks run so far (the thread's heartbeat)
-        self.tick_count = 0
         self.collision_thresholds: tuple[float, float] | None = None
         self.last_grasp_force_n: float | None = None
 
@@ -254,25 +213,13 @@ class FakeBackend(Backend):
         }
         self._camera_frames = dict.fromkeys(self._capabilities.cameras, 0)
 
-        # ---- shared with the control thread. Published snapshots are whole tuples, replaced by a
-        # single assignment, so reads need no lock; the handoff (pending, stop requests) uses the lock.
-        self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._shutdown = False
-        self._pending: _Execution | None = None
-        self._active: _Execution | None = None  # the running execution (changed under the lock)
-        self._stop_seq = 0  # bumped by every stop: a tick computed before it is not published
-        self._refusing_executions: str | None = None  # set once the control thread is gone (why)
-        self._thread_error: BaseException | None = None
+        # ---- the servo thread's kinematics cache (`_compute_tcp`), then the loop itself
+        self._tcp_q: np.ndarray | None = None
+        self._tcp_position = np.zeros(3)
         now = time.monotonic()
-        self._still = _frozen(np.zeros(len(joint_names)))
-        q_start = _frozen(q_home)
-        self._tcp_q = None
-        self._tcp_position = self._compute_tcp(q_start)
-        #: (commanded positions, velocities, stamp, TCP position): published arrays are read-only
-        self._state = (q_start, self._still, now, self._tcp_position)
-        self._wrench = (self._contact_force_n(self._tcp_position), now)
-        self.control_thread: threading.Thread | None = None
+        self._wrench = (self._contact_force_n(self._compute_tcp(q_home)), now)
+        self.servo = ServoLoop(self, q_home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
+        self._loop: asyncio.AbstractEventLoop | None = None
 
         # ---- gripper (event loop only)
         self._gripper_width_m = self.gripper_max_width_m
@@ -284,41 +231,46 @@ class FakeBackend(Backend):
     def capabilities(self) -> Capabilities:
         return self._capabilities
 
+    @property
+    def speedup(self) -> float:
+        """Time scaling of arm and gripper motion, no unit (2 = twice as fast)."""
+        return self.servo.speedup
+
+    @property
+    def control_thread(self) -> threading.Thread | None:
+        """The servo thread (None before open)."""
+        return self.servo.thread
+
+    @property
+    def tick_count(self) -> int:
+        """Servo ticks run so far (the thread's heartbeat)."""
+        return self.servo.tick_count
+
+    @property
+    def last_stop_stamp(self) -> float | None:  # the hold is published by the stopping thread
+        return self.servo.last_hold_stamp
+
+    @last_stop_stamp.setter
+    def last_stop_stamp(self, stamp: float | None) -> None:  # the servo loop records it
+        pass
+
     async def _open(self) -> None:
-        """Start the control thread and return once it has published a state of its own (until
+        """Start the servo thread and return once it has published a state of its own (until
         then the only sample is the one taken at construction, which may already be stale)."""
-        self.control_thread = threading.Thread(target=self._run, name="armwarden-fake-control", daemon=True)
-        self.control_thread.start()
-        deadline = time.monotonic() + FIRST_TICK_TIMEOUT_S
-        while self.tick_count == 0:
-            self._require_running()
-            if time.monotonic() > deadline:
-                raise BackendError(f"fake backend: the control thread did not tick within {FIRST_TICK_TIMEOUT_S} s")
-            await asyncio.sleep(0.0005)
+        self._loop = asyncio.get_running_loop()
+        await self.servo.start("armwarden-fake-control")
 
     async def _close(self) -> None:
-        self._shutdown = True
-        self._wake.set()
-        thread = self.control_thread
-        if thread is not None and thread.is_alive():
-            await anyio.to_thread.run_sync(thread.join, JOIN_TIMEOUT_S)
-            if thread.is_alive():
-                logger.error("fake backend: control thread did not stop within %.1f s", JOIN_TIMEOUT_S)
-        # whoever still waits is told the backend is gone (normally nobody: close stopped everything)
-        self._fail_executions(BackendError("fake backend closed"))
+        await self.servo.shutdown()
 
     def _require_running(self) -> None:
-        thread = self.control_thread
-        if self._thread_error is not None:
-            raise BackendError(f"fake backend control thread failed: {self._thread_error!r}")
-        if thread is None or not thread.is_alive():
-            raise BackendError("fake backend control thread is not running")
+        self.servo.require_running()
 
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
         self._require_running()
-        q, dq, stamp, _tcp = self._state  # read-only arrays, replaced whole by each tick
-        return JointState(self.joint_names, q, dq, stamp)
+        setpoint = self.servo.latest  # read-only arrays, replaced whole by each tick
+        return JointState(self.joint_names, setpoint.positions, setpoint.velocities, setpoint.stamp)
 
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
@@ -347,146 +299,49 @@ class FakeBackend(Backend):
         arm_controller = self._controllers.get(TRAJECTORY_CONTROLLER)
         if arm_controller is not None and arm_controller.state != "active":
             raise BackendError(f"{TRAJECTORY_CONTROLLER} is not active; the arm cannot follow a trajectory")
-        self._check_trajectory(trajectory)
-
-        loop = asyncio.get_running_loop()
-        execution = _Execution(trajectory, loop, loop.create_future())
-        with self._lock:
-            if self._refusing_executions is not None:  # the thread died after the check above
-                raise BackendError(f"fake backend: {self._refusing_executions}")
-            if self._pending is not None or self._active is not None:
-                raise BackendError("fake backend is already executing a trajectory; one execution at a time")
-            self._pending = execution
-        self._wake.set()
-
-        reported = -1.0
-        try:
-            while True:
-                done, _ = await asyncio.wait((execution.future,), timeout=PROGRESS_PERIOD_S)
-                if done:
-                    break
-                self._require_running()  # never wait on a thread that is gone
-                if execution.fraction != reported:
-                    reported = execution.fraction
-                    progress(reported)
-            result: ExecutionResult = execution.future.result()
-            if result.completed and reported != 1.0:
-                progress(1.0)
-            return result
-        except BaseException:
-            # cancelled (or the progress callback raised): hold the arm now, even before the base
-            # class's stop() runs, and do not leave the future dangling (unless the injected fault
-            # says stops are lost: then the arm keeps going, as a real one would)
-            if not self.fail_stop:
-                self._hold()
-            execution.future.cancel()
-            raise
-
-    def _check_trajectory(self, trajectory: JointTrajectory) -> None:
-        times, positions = trajectory.times, trajectory.positions
-        n = len(self.joint_names)
-        if times.ndim != 1 or len(times) == 0 or positions.shape != (len(times), n):
-            raise BackendError(f"malformed trajectory: times {times.shape}, positions {positions.shape}, {n} joints")
-        if not (np.all(np.isfinite(times)) and np.all(np.isfinite(positions))):
-            raise BackendError("malformed trajectory: non-finite time or position")
-        if times[0] != 0.0 or np.any(np.diff(times) < 0):
-            raise BackendError("malformed trajectory: times must start at 0 and never decrease")
-        q_now = self._state[0]
-        deviation = np.abs(trajectory.start - q_now)
-        worst = int(np.argmax(deviation))
-        if deviation[worst] > self.start_tolerance_rad:
-            raise BackendError(
-                f"trajectory starts {deviation[worst]:.4f} rad away from the arm on {self.joint_names[worst]} "
-                f"(start {trajectory.start[worst]:.4f}, measured {q_now[worst]:.4f}, tolerance {self.start_tolerance_rad} rad)"
-            )
+        # a cancelled caller is held at once, unless the injected fault says stops are lost
+        return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop)
 
     async def _stop(self) -> None:
         if self.fail_stop:  # neither the arm nor the gripper hears this stop
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
-        self._hold()
+        self.servo.hold()
         self._halt_gripper()
         self._require_running()  # held either way; a dead control thread is still reported as a failure
 
-    def _hold(self) -> None:
-        """Stop commanding motion, now, from the calling thread (see the module docstring)."""
-        with self._lock:
-            self._stop_seq += 1
-            stopped = [e for e in (self._active, self._pending) if e is not None]
-            self._active = self._pending = None
-            q, _dq, _stamp, tcp = self._state
-            stamp = time.monotonic()
-            self._state = (q, self._still, stamp, tcp)
-            self.last_stop_stamp = stamp
-        for execution in stopped:
-            _post(execution.loop, execution.future, ExecutionResult(False, "stopped", q.copy()))
-        self._wake.set()  # the idle period starts now
+    def _stop_now(self) -> None:
+        if self.fail_stop:
+            raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
+        self.servo.hold()
+        motion = self._gripper_motion
+        if motion is not None and motion.halted_at is None:
+            motion.halted_at = time.perf_counter()  # frozen now; the loop does the bookkeeping later
+            loop = self._loop
+            if loop is not None:
+                try:
+                    loop.call_soon_threadsafe(self._halt_gripper)
+                except RuntimeError:  # the loop is closed
+                    pass
+        self._require_running()
 
-    # ================================================================ the control thread
-    def _run(self) -> None:
-        period = self.control_period_s
-        next_tick = time.perf_counter()
-        try:
-            while not self._shutdown:
-                self._tick()
-                # while nothing moves, tick slowly: a stop or a new execution wakes the loop at once,
-                # and the idle loop then takes the interpreter lock from planning 10× less often
-                busy = self._active is not None or self._pending is not None
-                next_tick += period if busy else max(period, IDLE_PERIOD_S)
-                delay = next_tick - time.perf_counter()
-                if delay < -10 * period:  # fell far behind (machine stalled): resynchronise
-                    next_tick = time.perf_counter()
-                elif delay > 0 and self._wake.wait(delay):
-                    self._wake.clear()  # woken early by a stop or a new execution: tick now
-                    next_tick = time.perf_counter()
-        except BaseException as exc:  # a dead control loop must never look like a healthy one
-            logger.exception("fake backend: control thread failed")
-            self._thread_error = exc
-            self.fault, self.fault_reason = True, f"control thread failed: {exc!r}"
-        finally:
-            self._fail_executions(BackendError("fake backend control thread stopped"))
+    # ================================================================ servo hooks (servo thread)
+    def servo_prepare(self, setpoint: Setpoint) -> tuple[np.ndarray, float]:
+        """The TCP position and the contact force [N] at the setpoint (forward kinematics)."""
+        tcp = self._compute_tcp(setpoint.positions)
+        return tcp, self._contact_force_n(tcp)
 
-    def _tick(self) -> None:
-        with self._lock:
-            if self._active is None and self._pending is not None:
-                self._active, self._pending = self._pending, None
-            execution = self._active
-            stop_seq = self._stop_seq
-        now = time.perf_counter()
-        stamp = time.monotonic()
-        self.tick_count += 1
+    def servo_command(self, setpoint: Setpoint) -> None:
+        if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
+            self._wrench = (setpoint.extra[1], setpoint.stamp)
 
-        q, dq, completed = self._state[0], self._still, False  # held where the last tick (or hold) left it
-        if execution is not None:
-            if execution.start_time is None:
-                execution.start_time = now
-            trajectory = execution.trajectory
-            t = (now - execution.start_time) * self.speedup
-            duration = trajectory.duration_s
-            if t >= duration:
-                q, completed = _frozen(trajectory.goal), True
-            else:
-                q, dq = _frozen(trajectory.sample(t)), _frozen(_segment_velocity(trajectory, t))
-        tcp = self._compute_tcp(q)
-        force_n = self._contact_force_n(tcp)
-
-        with self._lock:
-            if self._stop_seq != stop_seq:
-                return  # a stop landed while this step was computed: it already published the hold
-            self._state = (q, dq, stamp, tcp)
-            if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
-                self._wrench = (force_n, stamp)
-            if execution is not None:
-                execution.fraction = 1.0 if completed else t / duration
-                if completed:
-                    self._active = None
-        if completed:
-            _post(execution.loop, execution.future, ExecutionResult(True, "completed", q.copy()))
+    def servo_failed(self, error: BaseException) -> None:
+        self.fault, self.fault_reason = True, f"control thread failed: {error!r}"
 
     def _compute_tcp(self, q: np.ndarray) -> np.ndarray:
         """TCP position in the base frame; forward kinematics only when q changed (thread side)."""
         if self._tcp_q is None or not np.array_equal(q, self._tcp_q):
-            self._tcp_q = q.copy()
-            self._tcp_position = self._model.tcp_pose(q).position
+            self._tcp_q = np.array(q, dtype=float)
+            self._tcp_position = frozen(self._model.tcp_pose(q).position)
         return self._tcp_position
 
     def _contact_force_n(self, tcp_position: np.ndarray) -> float:
@@ -495,20 +350,12 @@ class FakeBackend(Backend):
         penetration_m = max(0.0, self.table_height_m - float(tcp_position[2]))
         return self.table_stiffness_n_per_m * penetration_m
 
-    def _fail_executions(self, error: BackendError) -> None:
-        """Fail every submitted execution and refuse later ones (the control thread is gone)."""
-        with self._lock:
-            self._refusing_executions = str(error)
-            pending = [e for e in (self._pending, self._active) if e is not None]
-            self._pending = self._active = None
-        for execution in pending:
-            _post(execution.loop, execution.future, error=error)
-
     # ================================================================ gripper (event loop side)
     async def _gripper_state(self) -> GripperState:
         motion = self._gripper_motion
         width = motion.width_at(time.perf_counter()) if motion is not None else self._gripper_width_m
-        return GripperState(width, self._gripper_grasped, motion is not None, time.monotonic())
+        moving = motion is not None and motion.halted_at is None
+        return GripperState(width, self._gripper_grasped, moving, time.monotonic())
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
         self.actuation_commands += 1
@@ -564,16 +411,20 @@ class FakeBackend(Backend):
                 await motion.halted.wait()
             finished = True
         finally:
-            if self._gripper_motion is motion:  # not halted by _stop: it arrived, or our caller was cancelled
+            if self._gripper_motion is motion:  # not halted on the loop: it arrived, or our caller was cancelled
                 self._gripper_motion = None
-                self._gripper_width_m = target_m if finished else motion.width_at(time.perf_counter())
+                arrived = finished and motion.halted_at is None
+                self._gripper_width_m = target_m if arrived else motion.width_at(time.perf_counter())
         # a stop that lands after the fingers arrived (before this task resumed) did not interrupt it
-        interrupted = motion.halted.is_set() and not math.isclose(self._gripper_width_m, target_m, abs_tol=1e-9)
+        interrupted = motion.halted_at is not None and not math.isclose(self._gripper_width_m, target_m, abs_tol=1e-9)
         return self._gripper_width_m, interrupted
 
     def _halt_gripper(self) -> None:
+        """Event loop: freeze the fingers where they are and end the motion's wait."""
         motion = self._gripper_motion
         if motion is not None:
+            if motion.halted_at is None:
+                motion.halted_at = time.perf_counter()
             self._gripper_width_m = motion.width_at(time.perf_counter())
             self._gripper_motion = None
             motion.halted.set()
@@ -582,10 +433,11 @@ class FakeBackend(Backend):
     async def _camera_snapshot(self, camera: str) -> CameraImage:
         self._camera_frames[camera] += 1
         frame = self._camera_frames[camera]
-        _q, _dq, stamp, tcp = self._state
+        setpoint = self.servo.latest
+        stamp, tcp = setpoint.stamp, setpoint.extra[0]
         width = self._gripper_width_m if self._gripper_motion is None else self._gripper_motion.width_at(time.perf_counter())
         force_z = self._wrench[0]
-        png = await anyio.to_thread.run_sync(_render_top_view, camera, frame, tcp.copy(), width, force_z, self.table_height_m)
+        png = await anyio.to_thread.run_sync(render_top_view, camera, frame, tcp.copy(), width, force_z, self.table_height_m)
         return CameraImage(camera, CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX, png, stamp)
 
     # ================================================================ controllers, thresholds, recovery, graph
@@ -600,7 +452,7 @@ class FakeBackend(Backend):
         both = sorted(set(activate) & set(deactivate))
         if both:
             raise BackendError(f"controller(s) {both} both activated and deactivated")
-        if (activate or deactivate) and (self._pending is not None or self._active is not None):
+        if (activate or deactivate) and self.servo.busy:
             raise BackendError("cannot switch controllers while a trajectory is executing")
         states = {name: info.state for name, info in self._controllers.items()}
         states.update(dict.fromkeys(deactivate, "inactive"))
@@ -650,13 +502,7 @@ class FakeBackend(Backend):
         }
 
 
-def _frozen(array: np.ndarray) -> np.ndarray:
-    out = np.array(array, dtype=float)
-    out.setflags(write=False)
-    return out
-
-
-_ZERO3 = _frozen(np.zeros(3))
+_ZERO3 = frozen(np.zeros(3))
 
 
 def _require(condition: bool, message: str) -> None:
@@ -664,55 +510,17 @@ def _require(condition: bool, message: str) -> None:
         raise ValueError(message)
 
 
-def _render_top_view(
-    camera: str, frame: int, tcp: np.ndarray, gripper_width_m: float, force_z_n: float, table_height_m: float | None
-) -> bytes:
-    """A deterministic top view (x up, y left): the table and workspace, the base and the TCP dot.
-
-    "scene" shows the whole workspace at 200 px/m; any other camera ("wrist") is centred on the
-    TCP at 800 px/m and also draws the fingers at the current opening.
-    """
-    if camera == "scene":
-        centre_x, centre_y, scale = 0.4, 0.0, 200.0
-    else:
-        centre_x, centre_y, scale = float(tcp[0]), float(tcp[1]), 800.0
-
-    def to_px(x: float, y: float) -> tuple[float, float]:
-        return (CAMERA_WIDTH_PX / 2 - (y - centre_y) * scale, CAMERA_HEIGHT_PX / 2 - (x - centre_x) * scale)
-
-    image = Image.new("RGB", (CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX), (200, 170, 130) if table_height_m is not None else (90, 90, 90))
-    draw = ImageDraw.Draw(image)
-    grid_m = 0.1 if camera == "scene" else 0.05
-    half_w, half_h = CAMERA_WIDTH_PX / 2 / scale, CAMERA_HEIGHT_PX / 2 / scale
-    for k in range(math.floor((centre_y - half_w) / grid_m), math.ceil((centre_y + half_w) / grid_m) + 1):
-        u, _ = to_px(0.0, k * grid_m)
-        draw.line([(u, 0), (u, CAMERA_HEIGHT_PX)], fill=(150, 130, 100))
-    for k in range(math.floor((centre_x - half_h) / grid_m), math.ceil((centre_x + half_h) / grid_m) + 1):
-        _, v = to_px(k * grid_m, 0.0)
-        draw.line([(0, v), (CAMERA_WIDTH_PX, v)], fill=(150, 130, 100))
-    bu, bv = to_px(0.0, 0.0)
-    base_r = 0.08 * scale
-    draw.ellipse([bu - base_r, bv - base_r, bu + base_r, bv + base_r], fill=(230, 230, 230), outline=(40, 40, 40))
-    tu, tv = to_px(float(tcp[0]), float(tcp[1]))
-    if camera != "scene":  # the fingers, seen from above, across y
-        for side in (-1, 1):
-            fu = tu + side * (gripper_width_m / 2 + 0.005) * scale
-            draw.rectangle([fu - 0.005 * scale, tv - 0.01 * scale, fu + 0.005 * scale, tv + 0.01 * scale], fill=(60, 60, 60))
-    dot_r = 5
-    colour = (220, 30, 30) if force_z_n > 0 else (30, 90, 220)
-    draw.ellipse([tu - dot_r, tv - dot_r, tu + dot_r, tv + dot_r], fill=colour, outline=(0, 0, 0))
-    draw.text((4, 4), f"{camera} #{frame}", fill=(0, 0, 0))
-    draw.text((4, CAMERA_HEIGHT_PX - 14), f"tcp {tcp[0]:+.3f} {tcp[1]:+.3f} {tcp[2]:+.3f} m", fill=(0, 0, 0))
-    buffer = io.BytesIO()
-    image.save(buffer, format="PNG")
-    return buffer.getvalue()
+def create_backend(robot: RobotModel, policy: Policy, config: Config) -> FakeBackend:
+    """Registry factory: the fake arm for `policy`'s robot, with `config`'s options."""
+    return FakeBackend(
+        robot=robot,
+        description=policy.robot.description,
+        home=list(policy.robot.home_joint_positions),
+        start_tolerance_rad=policy.motion.start_tolerance_rad,
+        **config.model_dump(),
+    )
 
 
-def create_backend(**kwargs: Any) -> FakeBackend:
-    """Registry factory. `policy` and `config_path` are accepted for uniformity and unused here."""
-    kwargs.pop("policy", None)
-    kwargs.pop("config_path", None)
-    return FakeBackend(**kwargs)
+FakeBackendConfig = Config  # the name the daemon used
 
-
-__all__ = ["FakeBackend", "create_backend"]
+__all__ = ["Config", "FakeBackend", "FakeBackendConfig", "create_backend"]

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from armwarden.errors import ArmWardenError, ConfigurationError
+from armwarden.handoff import settle_threadsafe
 from armwarden.safety.audit.chain import (
     GENESIS_HASH,
     AuditRecord,
@@ -358,11 +359,11 @@ class AuditLog:
                     self._fsync_written()
                 except BaseException as exc:  # nothing of this batch is known to be on disk
                     outcomes = [(loop, future, exc, True) for loop, future, *_ in outcomes]
-            for loop, future, outcome, failed in outcomes:
-                try:
-                    loop.call_soon_threadsafe(_settle, future, outcome, failed)
-                except RuntimeError:  # the loop is closed: nobody is waiting any more
-                    pass
+            for loop, future, outcome, failed in outcomes:  # a closed loop: nobody waits any more
+                if failed:
+                    settle_threadsafe(loop, future, error=outcome)
+                else:
+                    settle_threadsafe(loop, future, outcome)
             if stopping:
                 return
 
@@ -406,15 +407,6 @@ class AuditLog:
 
 def _last_byte(fd: int, size: int) -> bytes:
     return os.pread(fd, 1, size - 1)
-
-
-def _settle(future: asyncio.Future, outcome: Any, failed: bool) -> None:
-    if future.done():  # the caller went away (cancelled): the record is written regardless
-        return
-    if failed:
-        future.set_exception(outcome)
-    else:
-        future.set_result(outcome)
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -1,0 +1,80 @@
+"""Putting a Guard together: the one place that wires policy, models, backend and audit log.
+
+The daemon, the test harness, `scripts/eval_safety.py` and `scripts/gen_docs.py` all build their
+Guard here, so what the tests exercise is what `armwarden serve` runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from armwarden.backends import create_backend, load_backend_config
+from armwarden.preflight import RuntimeModel, load_runtime_model
+from armwarden.robot import build_robot
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+    from armwarden.backends.base import Backend
+    from armwarden.guard import Guard
+    from armwarden.planning.trajectory import JointTrajectory
+    from armwarden.policy import Policy
+    from armwarden.robot.model import RobotModel
+    from armwarden.safety.audit import AuditLog
+
+#: renders the preview picture of a checked plan (runtime model, trajectory, envelope report)
+Previewer = Callable[[RuntimeModel, "JointTrajectory", Any], Any]
+
+
+def plan_previewer() -> Previewer:
+    """The plan preview renderer the daemon attaches to every plan summary."""
+    from armwarden.server.preview import render_plan_preview
+
+    def preview(runtime: RuntimeModel, trajectory: JointTrajectory, report: Any) -> Any:
+        return render_plan_preview(runtime.robot, runtime.envelope.limits, trajectory, report)
+
+    return preview
+
+
+def build_backend(
+    name: str, policy: Policy, *, robot: RobotModel | None = None,
+    config: BaseModel | dict[str, Any] | None = None, config_path: str | Path | None = None,
+) -> Backend:
+    """Backend `name` for `policy` (not opened). `config` (a mapping or the backend's `Config`)
+    or `config_path` (a `--backend-config` file) give its options; neither: the defaults."""
+    if config is not None and config_path is not None:
+        raise ValueError("give the backend options either as config or as config_path, not both")
+    if config_path is not None:
+        config = load_backend_config(name, config_path)
+    return create_backend(name, robot if robot is not None else build_robot(policy), policy, config)
+
+
+def build_guard(
+    policy: Policy,
+    backend: Backend,
+    audit: AuditLog | None,
+    *,
+    previewer: Previewer | None = None,
+    runtime: RuntimeModel | None = None,
+    robot: RobotModel | None = None,
+) -> Guard:
+    """The Guard for `policy` in front of `backend`, recording to `audit` (None: no audit log).
+
+    `runtime` (the planning thread's model) and `robot` (the loop-side state model) are built
+    from the policy unless given; `previewer` draws plan previews (None: plans carry none).
+    """
+    from armwarden.guard import Guard
+
+    return Guard(
+        policy,
+        runtime if runtime is not None else load_runtime_model(policy),
+        robot if robot is not None else build_robot(policy),
+        backend,
+        audit=audit,
+        previewer=previewer,
+    )
+
+
+__all__ = ["Previewer", "build_backend", "build_guard", "plan_previewer"]

@@ -1,0 +1,339 @@
+"""The servo core: a control thread that follows a trajectory tick by tick, and its asyncio side.
+
+A backend whose arm is driven by a periodic loop (the fake's kinematic arm, a MuJoCo physics
+thread, a CAN servo loop) composes one `ServoLoop` and implements the few `ServoHooks` that
+differ: what a tick prepares (kinematics, a physics step), how a setpoint is commanded (publish
+it, write actuator targets, send frames) and how the arm is held still.
+
+Each tick, on the servo thread: take the submitted execution, sample its trajectory at
+`elapsed × speedup` (the same linear interpolation the envelope checked, so the last setpoint
+is exactly the goal), let the backend prepare it outside the lock, then command and publish it
+under the lock *only if no stop landed meanwhile*. A stop (`hold`) runs in whichever thread
+calls it: under the lock it bumps the stop sequence number, ends the running or submitted
+execution as "stopped", and commands a hold at the last commanded positions with zero velocity.
+So no tick computed before a stop can be commanded after it, and nothing waits for the servo
+thread to be scheduled (under load, it may wait milliseconds for the interpreter lock).
+
+Results cross into asyncio only through `armwarden.handoff.settle_threadsafe`. If the servo
+thread dies, every submitted execution fails and later ones are refused with the reason.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import anyio
+import numpy as np
+
+from armwarden.backends.base import ExecutionResult, ProgressCallback
+from armwarden.errors import BackendError
+from armwarden.handoff import settle_threadsafe
+from armwarden.planning.trajectory import JointTrajectory
+
+logger = logging.getLogger(__name__)
+
+#: minimum interval between two progress callbacks [s] (≤ 50 Hz)
+PROGRESS_PERIOD_S = 0.02
+#: servo period while nothing moves [s]; stops and executions wake the loop at once
+IDLE_PERIOD_S = 0.01
+#: how long `shutdown` waits for the servo thread to finish [s]
+JOIN_TIMEOUT_S = 2.0
+#: `start` fails if the servo thread has not completed its first tick by then [s]
+FIRST_TICK_TIMEOUT_S = 5.0
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """What the servo loop commands at one tick; arrays are read-only.
+
+    `positions` [rad], `velocities` [rad/s], `stamp` on the monotonic clock [s]; `extra` is what
+    `ServoHooks.servo_prepare` computed for it (e.g. the TCP position), kept with the sample.
+    """
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    stamp: float
+    extra: Any = None
+
+
+class ServoHooks:
+    """The backend side of a `ServoLoop`. Defaults do nothing; override what the backend needs."""
+
+    def servo_prepare(self, setpoint: Setpoint) -> Any:
+        """Servo thread, outside the lock: the slow part of a tick (kinematics, a physics step).
+        The result is stored as `setpoint.extra`. May be skipped if a stop lands meanwhile."""
+        return None
+
+    def servo_command(self, setpoint: Setpoint) -> None:
+        """Servo thread, under the lock, only if no stop landed since the tick began: command
+        `setpoint` (publish it, write actuator targets, send frames). Must be quick."""
+
+    def servo_hold(self, setpoint: Setpoint) -> None:
+        """Any thread, under the lock, on every stop: command standing still at
+        `setpoint.positions` (velocities are zero). Must be quick; raising reports a failed stop."""
+
+    def servo_failed(self, error: BaseException) -> None:
+        """Servo thread: the loop died with `error` (called once, before executions are failed)."""
+
+
+@dataclass(eq=False)
+class _Execution:
+    """One trajectory handed to the servo thread, and the future the thread settles."""
+
+    trajectory: JointTrajectory
+    loop: asyncio.AbstractEventLoop
+    future: asyncio.Future[ExecutionResult]
+    start_time: float | None = None  # perf_counter of the tick that started it
+    fraction: float = 0.0  # progress in [0, 1], written by the servo thread
+
+
+def segment_velocity(trajectory: JointTrajectory, t: float) -> np.ndarray:
+    """Joint velocity [rad/s] of the linear segment the trajectory is on at time `t` [s]."""
+    times = trajectory.times
+    if t <= 0.0 or len(times) < 2 or t >= times[-1]:
+        return np.zeros(trajectory.positions.shape[1])
+    k = int(np.searchsorted(times, t, side="right")) - 1
+    span = times[k + 1] - times[k]
+    if span <= 0:
+        return np.zeros(trajectory.positions.shape[1])
+    return (trajectory.positions[k + 1] - trajectory.positions[k]) / span
+
+
+def frozen(array: Any) -> np.ndarray:
+    """A read-only float copy: published samples can be shared across threads without a lock."""
+    out = np.array(array, dtype=float)
+    out.setflags(write=False)
+    return out
+
+
+class ServoLoop:
+    """A periodic servo thread following at most one trajectory at a time (see the module docstring).
+
+    `q_start` [rad] is the first held position; `period_s` the tick period while moving [s];
+    `speedup` scales trajectory time (2 = twice as fast); `name` prefixes error messages.
+    """
+
+    def __init__(
+        self, hooks: ServoHooks, q_start: Any, *, period_s: float, speedup: float = 1.0, name: str = "servo"
+    ) -> None:
+        if not (np.isfinite(period_s) and period_s > 0):
+            raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
+        if not (np.isfinite(speedup) and speedup > 0):
+            raise ValueError(f"speedup must be a positive number, got {speedup}")
+        self.hooks = hooks
+        self.period_s = float(period_s)
+        self.speedup = float(speedup)
+        self.name = name
+        #: ticks run so far (the thread's heartbeat)
+        self.tick_count = 0
+        #: monotonic time [s] at which the latest hold was commanded
+        self.last_hold_stamp: float | None = None
+        #: why the thread died, if it did
+        self.error: BaseException | None = None
+        self.thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._shutdown = False
+        self._pending: _Execution | None = None
+        self._active: _Execution | None = None
+        self._stop_seq = 0  # bumped by every hold: a tick computed before it is not commanded
+        self._refusing: str | None = None  # set once the thread is gone (why)
+        q = frozen(q_start)
+        self._still = frozen(np.zeros(q.shape))
+        setpoint = Setpoint(q, self._still, time.monotonic())
+        self._latest = replace(setpoint, extra=hooks.servo_prepare(setpoint))
+
+    # ---------------------------------------------------------------- reading
+    @property
+    def latest(self) -> Setpoint:
+        """The last commanded setpoint (replaced whole by each tick or hold; no lock needed)."""
+        return self._latest
+
+    @property
+    def busy(self) -> bool:
+        """An execution is submitted or running."""
+        return self._pending is not None or self._active is not None
+
+    def require_running(self) -> None:
+        """Raise `BackendError` unless the servo thread is alive and healthy."""
+        if self.error is not None:
+            raise BackendError(f"{self.name} control thread failed: {self.error!r}")
+        thread = self.thread
+        if thread is None or not thread.is_alive():
+            raise BackendError(f"{self.name} control thread is not running")
+
+    # ---------------------------------------------------------------- lifecycle (event loop)
+    async def start(self, thread_name: str | None = None) -> None:
+        """Start the servo thread; return once it has completed a tick of its own."""
+        self.thread = threading.Thread(target=self._run, name=thread_name or f"armwarden-{self.name}-servo", daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + FIRST_TICK_TIMEOUT_S
+        while self.tick_count == 0:
+            self.require_running()
+            if time.monotonic() > deadline:
+                raise BackendError(f"{self.name}: the control thread did not tick within {FIRST_TICK_TIMEOUT_S} s")
+            await asyncio.sleep(0.0005)
+
+    async def shutdown(self) -> None:
+        """Stop the servo thread (without holding: stop first) and fail whatever still waits."""
+        self._shutdown = True
+        self._wake.set()
+        thread = self.thread
+        if thread is not None and thread.is_alive():
+            await anyio.to_thread.run_sync(thread.join, JOIN_TIMEOUT_S)
+            if thread.is_alive():
+                logger.error("%s: control thread did not stop within %.1f s", self.name, JOIN_TIMEOUT_S)
+        self.fail_executions(BackendError(f"{self.name} closed"))
+
+    # ---------------------------------------------------------------- motion
+    async def run(self, trajectory: JointTrajectory, progress: ProgressCallback, *, hold_on_exit: bool = True) -> ExecutionResult:
+        """Follow `trajectory` until it completes or a stop ends it; report progress ≤ 50 Hz.
+
+        If the caller is cancelled (or `progress` raises), the arm is held before the exception
+        propagates, unless `hold_on_exit` is false (a fault injection that loses stops).
+        """
+        self.require_running()
+        loop = asyncio.get_running_loop()
+        execution = _Execution(trajectory, loop, loop.create_future())
+        with self._lock:
+            if self._refusing is not None:  # the thread died after the check above
+                raise BackendError(f"{self.name}: {self._refusing}")
+            if self.busy:
+                raise BackendError(f"{self.name} is already executing a trajectory; one execution at a time")
+            self._pending = execution
+        self._wake.set()
+        reported = -1.0
+        try:
+            while True:
+                done, _ = await asyncio.wait((execution.future,), timeout=PROGRESS_PERIOD_S)
+                if done:
+                    break
+                self.require_running()  # never wait on a thread that is gone
+                if execution.fraction != reported:
+                    reported = execution.fraction
+                    progress(reported)
+            result = execution.future.result()
+            if result.completed and reported != 1.0:
+                progress(1.0)
+            return result
+        except BaseException:
+            if hold_on_exit:
+                self.hold()
+            execution.future.cancel()
+            raise
+
+    def hold(self) -> Setpoint:
+        """Stop commanding motion, now, from the calling thread (any thread). Returns the hold."""
+        with self._lock:
+            self._stop_seq += 1
+            stopped = [e for e in (self._active, self._pending) if e is not None]
+            self._active = self._pending = None
+            setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic())
+            try:
+                self.hooks.servo_hold(setpoint)
+            except BaseException as exc:
+                failure = exc
+            else:
+                failure = None
+                self._latest = setpoint
+                self.last_hold_stamp = setpoint.stamp
+        if failure is not None:
+            for execution in stopped:
+                settle_threadsafe(execution.loop, execution.future, error=BackendError(f"{self.name}: stop failed: {failure}"))
+            self._wake.set()
+            raise failure
+        for execution in stopped:
+            settle_threadsafe(execution.loop, execution.future, ExecutionResult(False, "stopped", setpoint.positions.copy()))
+        self._wake.set()  # the idle period starts now
+        return setpoint
+
+    def fail_executions(self, error: BackendError) -> None:
+        """Fail every submitted execution and refuse later ones (the servo thread is gone)."""
+        with self._lock:
+            self._refusing = str(error)
+            pending = [e for e in (self._pending, self._active) if e is not None]
+            self._pending = self._active = None
+        for execution in pending:
+            settle_threadsafe(execution.loop, execution.future, error=error)
+
+    # ---------------------------------------------------------------- the servo thread
+    def _run(self) -> None:
+        period = self.period_s
+        next_tick = time.perf_counter()
+        try:
+            while not self._shutdown:
+                self._tick()
+                # idle: tick slowly; a stop or a new execution wakes the loop at once, and the idle
+                # loop takes the interpreter lock from planning less often
+                next_tick += period if self.busy else max(period, IDLE_PERIOD_S)
+                delay = next_tick - time.perf_counter()
+                if delay < -10 * period:  # fell far behind (machine stalled): resynchronise
+                    next_tick = time.perf_counter()
+                elif delay > 0 and self._wake.wait(delay):
+                    self._wake.clear()  # woken early by a stop or a new execution: tick now
+                    next_tick = time.perf_counter()
+        except BaseException as exc:  # a dead servo loop must never look like a healthy one
+            logger.exception("%s: control thread failed", self.name)
+            self.error = exc
+            try:
+                self.hooks.servo_failed(exc)
+            except Exception:  # pragma: no cover - reporting must not hide the failure
+                logger.exception("%s: servo_failed hook raised", self.name)
+        finally:
+            self.fail_executions(BackendError(f"{self.name} control thread stopped"))
+
+    def _tick(self) -> None:
+        with self._lock:
+            if self._active is None and self._pending is not None:
+                self._active, self._pending = self._pending, None
+            execution = self._active
+            stop_seq = self._stop_seq
+            held = self._latest
+        now = time.perf_counter()
+        stamp = time.monotonic()
+        self.tick_count += 1
+
+        positions, velocities, completed, fraction = held.positions, self._still, False, 0.0
+        if execution is not None:
+            if execution.start_time is None:
+                execution.start_time = now
+            trajectory = execution.trajectory
+            t = (now - execution.start_time) * self.speedup
+            duration = trajectory.duration_s
+            if t >= duration:
+                positions, completed, fraction = frozen(trajectory.goal), True, 1.0
+            else:
+                positions, velocities = frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t))
+                fraction = t / duration
+        setpoint = Setpoint(positions, velocities, stamp)
+        setpoint = replace(setpoint, extra=self.hooks.servo_prepare(setpoint))
+
+        with self._lock:
+            if self._stop_seq != stop_seq:
+                return  # a stop landed while this tick was computed: it already commanded the hold
+            self.hooks.servo_command(setpoint)
+            self._latest = setpoint
+            if execution is not None:
+                execution.fraction = fraction
+                if completed:
+                    self._active = None
+        if completed and execution is not None:
+            settle_threadsafe(execution.loop, execution.future, ExecutionResult(True, "completed", positions.copy()))
+
+
+__all__ = [
+    "FIRST_TICK_TIMEOUT_S",
+    "IDLE_PERIOD_S",
+    "JOIN_TIMEOUT_S",
+    "PROGRESS_PERIOD_S",
+    "ServoHooks",
+    "ServoLoop",
+    "Setpoint",
+    "frozen",
+    "segment_velocity",
+]

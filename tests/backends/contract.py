@@ -1,0 +1,300 @@
+"""`BackendContract`: the conformance suite every backend passes (python-can back-to-back style).
+
+A backend's test module subclasses it and implements `build()` (a new, unopened backend):
+
+    class TestMyBackendContract(BackendContract):
+        def build(self) -> Backend:
+            return MyBackend(...)
+
+The suite checks the rules in `armwarden.backends.base`: lifecycle, stop at any time (also from
+another thread while the event loop is blocked), exact execution, progress, cancel → stop,
+refused trajectories move nothing, stamps, and capabilities against the optional calls.
+Assertions are about order and outcome, never about how fast something happened.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any
+
+import anyio
+import numpy as np
+import pytest
+
+from armwarden.backends.base import Backend, Capabilities
+from armwarden.errors import BackendError
+from armwarden.planning.trajectory import JointTrajectory
+
+
+def straight_line(joint_names, q_start, q_goal, duration_s: float, dt_s: float = 0.01) -> JointTrajectory:
+    """Linear joint motion from `q_start` to `q_goal` in `duration_s` [s], sampled every `dt_s`."""
+    times = np.linspace(0.0, duration_s, max(2, round(duration_s / dt_s) + 1))
+    alpha = times / duration_s
+    return JointTrajectory(tuple(joint_names), times, np.outer(1 - alpha, q_start) + np.outer(alpha, q_goal))
+
+
+async def wait_until(predicate: Callable[[], Awaitable[bool]], timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not await predicate():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        await anyio.sleep(0.002)
+
+
+#: optional call → (capability test, the call with arguments a backend having it must accept)
+OPTIONAL_CALLS: dict[str, tuple[Callable[[Capabilities], bool], Callable[[Backend, Any], Awaitable[Any]]]] = {
+    "gripper_move": (lambda c: c.gripper, lambda b, s: b.gripper_move(s.gripper_width_m, 0.1)),
+    "gripper_grasp": (lambda c: c.gripper, lambda b, s: b.gripper_grasp(s.gripper_width_m, 10.0, 0.1, 0.01, 0.01)),
+    "gripper_home": (lambda c: c.gripper, lambda b, s: b.gripper_home()),
+    "camera_snapshot": (lambda c: bool(c.cameras), lambda b, s: b.camera_snapshot((b.capabilities.cameras or ("none",))[0])),
+    "list_controllers": (lambda c: c.controllers, lambda b, s: b.list_controllers()),
+    "switch_controllers": (lambda c: c.controllers, lambda b, s: b.switch_controllers([], [])),
+    "set_collision_thresholds": (lambda c: c.collision_thresholds, lambda b, s: b.set_collision_thresholds(20.0, 20.0)),
+    "error_recovery": (lambda c: c.error_recovery, lambda b, s: b.error_recovery()),
+    "graph": (lambda c: c.graph, lambda b, s: b.graph()),
+}
+
+
+class BackendContract:
+    """Subclass as `Test<Name>Contract` and implement `build`; override the knobs below if needed."""
+
+    pytestmark = [pytest.mark.anyio]
+
+    #: joint offsets [rad] of the test motion from the arm's initial position
+    reach_rad: float = 0.2
+    #: trajectory time [s] of motions meant to finish, and of motions meant to be interrupted
+    short_motion_s: float = 0.2
+    long_motion_s: float = 4.0
+    #: how far the final position may be from the goal [rad] (0: kinematic backends hit it exactly)
+    goal_tolerance_rad: float = 0.0
+    #: a gripper opening [m] the backend accepts, when it has a gripper
+    gripper_width_m: float = 0.04
+
+    def build(self) -> Backend:
+        raise NotImplementedError("a BackendContract subclass returns a new, unopened backend")
+
+    @pytest.fixture
+    async def backend(self) -> AsyncIterator[Backend]:
+        backend = self.build()
+        await backend.open()
+        try:
+            yield backend
+        finally:
+            await backend.close()
+
+    # ------------------------------------------------------------------ helpers
+    async def positions(self, backend: Backend) -> np.ndarray:
+        return (await backend.read_joint_state()).positions.copy()
+
+    async def motion(self, backend: Backend, duration_s: float) -> JointTrajectory:
+        q_start = await self.positions(backend)
+        return straight_line(backend.joint_names, q_start, q_start + self.reach_rad, duration_s)
+
+    async def has_moved(self, backend: Backend, q_from: np.ndarray) -> bool:
+        return bool(np.max(np.abs(await self.positions(backend) - q_from)) > 1e-3)
+
+    async def assert_still(self, backend: Backend) -> np.ndarray:
+        first = await backend.read_joint_state()
+        await anyio.sleep(0.05)
+        second = await backend.read_joint_state()
+        assert np.array_equal(first.positions, second.positions)
+        assert np.all(second.velocities == 0.0)
+        return second.positions
+
+    # ------------------------------------------------------------------ lifecycle
+    async def test_open_twice_and_close_twice_are_harmless(self) -> None:
+        backend = self.build()
+        await backend.open()
+        await backend.open()
+        assert backend.is_open
+        await backend.close()
+        await backend.close()
+        assert not backend.is_open
+
+    async def test_stop_before_open_and_after_close_does_nothing(self) -> None:
+        backend = self.build()
+        await backend.stop()
+        backend.stop_now()
+        await backend.open()
+        await backend.close()
+        await backend.stop()
+        backend.stop_now()
+
+    async def test_calls_after_close_are_refused(self, backend: Backend) -> None:
+        trajectory = await self.motion(backend, self.short_motion_s)
+        await backend.close()
+        with pytest.raises(BackendError, match="not open"):
+            await backend.read_joint_state()
+        with pytest.raises(BackendError, match="not open"):
+            await backend.execute(trajectory)
+
+    async def test_close_during_execution_ends_it_stopped(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        results: list[Any] = []
+        async with anyio.create_task_group() as group:
+            async def run() -> None:
+                results.append(await backend.execute(await self.motion(backend, self.long_motion_s)))
+
+            group.start_soon(run)
+            await wait_until(lambda: self.has_moved(backend, q_start))
+            await backend.close()
+        assert results[0].reason == "stopped"
+
+    # ------------------------------------------------------------------ state and stamps
+    async def test_state_names_the_backend_joints_with_finite_values(self, backend: Backend) -> None:
+        state = await backend.read_joint_state()
+        n = len(backend.joint_names)
+        assert state.names == backend.joint_names
+        assert state.positions.shape == state.velocities.shape == (n,)
+        assert np.all(np.isfinite(state.positions)) and np.all(np.isfinite(state.velocities))
+        assert state.stamp <= time.monotonic()
+
+    async def test_stamps_never_go_backwards_and_advance_over_time(self, backend: Backend) -> None:
+        stamps = []
+        for _ in range(5):
+            stamps.append((await backend.read_joint_state()).stamp)
+            await anyio.sleep(0.02)
+        assert stamps == sorted(stamps)
+        assert stamps[-1] > stamps[0]
+
+    async def test_wrench_is_none_without_the_capability_and_stamped_with_it(self, backend: Backend) -> None:
+        wrench = await backend.read_wrench()
+        if not backend.capabilities.wrench:
+            assert wrench is None
+        else:
+            assert wrench is not None and np.isfinite(wrench.stamp) and wrench.stamp <= time.monotonic()
+
+    # ------------------------------------------------------------------ execution
+    async def test_execute_ends_exactly_at_the_goal_and_leaves_the_trajectory_unchanged(self, backend: Backend) -> None:
+        trajectory = await self.motion(backend, self.short_motion_s)
+        times, positions, digest = trajectory.times.copy(), trajectory.positions.copy(), trajectory.digest
+        result = await backend.execute(trajectory)
+        assert result.completed and result.reason == "completed"
+        np.testing.assert_allclose(result.final_positions, trajectory.goal, rtol=0, atol=self.goal_tolerance_rad)
+        np.testing.assert_allclose(await self.assert_still(backend), trajectory.goal, rtol=0, atol=self.goal_tolerance_rad)
+        assert np.array_equal(trajectory.times, times) and np.array_equal(trajectory.positions, positions)
+        assert trajectory.digest == digest
+
+    async def test_progress_stays_in_0_1_never_decreases_and_ends_at_1(self, backend: Backend) -> None:
+        fractions: list[float] = []
+        await backend.execute(await self.motion(backend, self.short_motion_s), fractions.append)
+        assert fractions and fractions[-1] == 1.0
+        assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions)
+
+    async def test_execute_returns_to_where_it_started(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        there = await self.motion(backend, self.short_motion_s)
+        assert (await backend.execute(there)).completed
+        back = straight_line(backend.joint_names, there.goal, q_start, self.short_motion_s)
+        assert (await backend.execute(back)).completed
+        np.testing.assert_allclose(await self.positions(backend), q_start, rtol=0, atol=self.goal_tolerance_rad)
+
+    # ------------------------------------------------------------------ refused trajectories
+    def malformed(self, backend: Backend, q: np.ndarray) -> dict[str, JointTrajectory]:
+        names, n = backend.joint_names, len(backend.joint_names)
+        bad_q = q.copy()
+        bad_q[0] = np.nan
+        def trajectory(joint_names, times, positions) -> JointTrajectory:
+            return JointTrajectory(tuple(joint_names), np.array(times, dtype=float), np.array(positions, dtype=float))
+
+        return {
+            "other joints": trajectory([f"other_{name}" for name in names], [0.0, 0.1], [q, q]),
+            "wrong width": trajectory(names, [0.0, 0.1], np.zeros((2, n + 1))),
+            "no waypoints": trajectory(names, np.zeros(0), np.zeros((0, n))),
+            "not a number": trajectory(names, [0.0, 0.1], [q, bad_q]),
+            "late start": trajectory(names, [0.1, 0.2], [q, q]),
+            "time runs back": trajectory(names, [0.0, 0.2, 0.1], [q, q, q]),
+        }
+
+    @pytest.mark.parametrize(
+        "case", ["other joints", "wrong width", "no waypoints", "not a number", "late start", "time runs back"]
+    )
+    async def test_a_malformed_trajectory_is_refused_and_nothing_moves(self, backend: Backend, case: str) -> None:
+        q_start = await self.positions(backend)
+        with pytest.raises(BackendError, match="trajectory"):
+            await backend.execute(self.malformed(backend, q_start)[case])
+        assert np.array_equal(await self.assert_still(backend), q_start)
+
+    async def test_a_trajectory_that_does_not_start_at_the_arm_is_refused_and_nothing_moves(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        elsewhere = q_start + 2 * backend.start_tolerance_rad
+        with pytest.raises(BackendError, match="rad away from the arm"):
+            await backend.execute(straight_line(backend.joint_names, elsewhere, q_start, self.short_motion_s))
+        assert np.array_equal(await self.assert_still(backend), q_start)
+
+    # ------------------------------------------------------------------ stops
+    async def test_stop_when_idle_keeps_the_arm_still_and_the_next_motion_runs(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        await backend.stop()
+        assert np.array_equal(await self.assert_still(backend), q_start)
+        assert (await backend.execute(await self.motion(backend, self.short_motion_s))).completed
+
+    async def test_stop_during_execute_ends_it_stopped_short_of_the_goal_and_holds(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        trajectory = await self.motion(backend, self.long_motion_s)
+        results: list[Any] = []
+        async with anyio.create_task_group() as group:
+            async def run() -> None:
+                results.append(await backend.execute(trajectory))
+
+            group.start_soon(run)
+            await wait_until(lambda: self.has_moved(backend, q_start))
+            await backend.stop()
+        held = await self.assert_still(backend)
+        assert not results[0].completed and results[0].reason == "stopped"
+        assert np.array_equal(results[0].final_positions, held)
+        assert not np.allclose(held, trajectory.goal)
+
+    async def test_stop_now_from_another_thread_while_the_loop_is_blocked_holds_the_arm(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        trajectory = await self.motion(backend, self.long_motion_s)
+        results: list[Any] = []
+        held_in_thread: list[Any] = []
+        stopped = threading.Event()
+        async with anyio.create_task_group() as group:
+            async def run() -> None:
+                results.append(await backend.execute(trajectory))
+
+            group.start_soon(run)
+            await wait_until(lambda: self.has_moved(backend, q_start))
+
+            def stop_from_elsewhere() -> None:
+                backend.stop_now()
+                held_in_thread.append(backend._latest_joint_state())  # a published sample, if the backend has one
+                stopped.set()
+
+            threading.Thread(target=stop_from_elsewhere).start()
+            assert stopped.wait(10.0)  # the event loop is blocked the whole time
+            time.sleep(0.1)  # and stays blocked a little longer
+        held = await self.assert_still(backend)
+        assert results[0].reason == "stopped" and np.array_equal(results[0].final_positions, held)
+        assert not np.allclose(held, trajectory.goal)
+        if held_in_thread[0] is not None:  # held in the stopping thread, not when the loop came back
+            assert np.array_equal(held_in_thread[0].positions, held)
+
+    async def test_cancelling_execute_stops_the_arm_and_frees_the_backend(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        trajectory = await self.motion(backend, self.long_motion_s)
+        async with anyio.create_task_group() as group:
+            group.start_soon(backend.execute, trajectory)
+            await wait_until(lambda: self.has_moved(backend, q_start))
+            group.cancel_scope.cancel()
+        held = await self.assert_still(backend)
+        assert not np.allclose(held, trajectory.goal)
+        again = straight_line(backend.joint_names, held, q_start, self.short_motion_s)
+        assert (await backend.execute(again)).completed
+
+    # ------------------------------------------------------------------ capabilities
+    @pytest.mark.parametrize("call", sorted(OPTIONAL_CALLS))
+    async def test_an_optional_call_works_when_declared_and_is_refused_otherwise(self, backend: Backend, call: str) -> None:
+        declared, invoke = OPTIONAL_CALLS[call]
+        if declared(backend.capabilities):
+            await invoke(backend, self)
+        else:
+            with pytest.raises(BackendError, match="has no"):
+                await invoke(backend, self)
+
+    async def test_gripper_state_matches_the_gripper_capability(self, backend: Backend) -> None:
+        state = await backend.gripper_state()
+        assert (state is not None) == backend.capabilities.gripper

@@ -1,0 +1,77 @@
+"""The smallest backend that keeps the contract: a kinematic arm stepped on the event loop.
+
+Written from `armwarden.backends.base` alone (no thread, no gripper, no camera, no wrench), as
+the proof that a backend author need not read the fake. `BackendContract` runs against it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import anyio
+import numpy as np
+
+from armwarden.backends.base import Backend, Capabilities, ExecutionResult, JointState
+from armwarden.errors import BackendError
+
+STEP_S = 0.002  # how often the arm moves to the next sample [s]
+
+
+class MinimalBackend(Backend):
+    name = "minimal"
+
+    def __init__(self, joint_names, home, *, start_tolerance_rad: float, speedup: float = 1.0) -> None:
+        super().__init__(joint_names, start_tolerance_rad=start_tolerance_rad)
+        self.speedup = speedup
+        self._lock = threading.Lock()  # stop_now may come from any thread
+        self._stops = 0  # bumped by every stop: a step computed before it is not published
+        self._state = JointState(self.joint_names, np.array(home, dtype=float), np.zeros(len(home)), time.monotonic())
+        self._busy = False
+
+    @property
+    def capabilities(self) -> Capabilities:
+        return Capabilities()
+
+    async def _open(self) -> None:
+        pass
+
+    async def _close(self) -> None:
+        pass
+
+    async def _read_joint_state(self) -> JointState:
+        with self._lock:  # a resting arm is re-sampled now
+            state = self._state
+            self._state = JointState(self.joint_names, state.positions, state.velocities, time.monotonic())
+            return self._state
+
+    async def _execute(self, trajectory, progress) -> ExecutionResult:
+        if self._busy:
+            raise BackendError("one execution at a time")
+        self._busy, stops, start = True, self._stops, time.monotonic()
+        try:
+            while True:
+                t = (time.monotonic() - start) * self.speedup
+                done = t >= trajectory.duration_s
+                q = trajectory.goal.copy() if done else trajectory.sample(t)
+                with self._lock:
+                    if self._stops != stops:
+                        return ExecutionResult(False, "stopped", self._state.positions.copy())
+                    velocity = np.zeros_like(q) if done else (q - self._state.positions) / STEP_S
+                    self._state = JointState(self.joint_names, q, velocity, time.monotonic())
+                progress(1.0 if done else t / trajectory.duration_s)
+                if done:
+                    return ExecutionResult(True, "completed", q.copy())
+                await anyio.sleep(STEP_S)
+        finally:
+            self._busy = False
+
+    async def _stop(self) -> None:
+        self._stop_now()
+
+    def _stop_now(self) -> None:
+        with self._lock:
+            self._stops += 1
+            state = self._state
+            self._state = JointState(self.joint_names, state.positions, np.zeros_like(state.positions), time.monotonic())
+            self.last_stop_stamp = self._state.stamp

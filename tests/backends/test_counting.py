@@ -1,0 +1,72 @@
+"""CountingBackend: a real Backend that counts actuations and stops and forwards everything."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from armwarden.backends.base import Backend
+from armwarden.backends.counting import ACTUATING_METHODS, CountingBackend
+from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
+from armwarden.errors import BackendError
+from tests.backends.contract import BackendContract, straight_line
+from tests.backends.minimal_backend import MinimalBackend
+
+pytestmark = pytest.mark.anyio
+
+
+class TestCountingBackendContract(BackendContract):
+    """Wrapped, a backend still keeps the whole contract."""
+
+    def build(self) -> Backend:
+        return CountingBackend(MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01))
+
+
+async def test_every_actuating_call_is_counted_even_when_the_backend_refuses_it() -> None:
+    fake = FakeBackend(speedup=10.0)
+    counting = CountingBackend(fake)
+    await counting.open()
+    try:
+        await counting.read_joint_state()
+        await counting.gripper_state()
+        await counting.list_controllers()
+        await counting.graph()
+        await counting.camera_snapshot("scene")
+        assert counting.actuations == [] and counting.stops == 0
+        q = np.array(FR3_READY)
+        await counting.execute(straight_line(FR3_JOINT_NAMES, q, q + 0.05, 0.05))
+        await counting.gripper_move(0.05, 0.1)
+        await counting.gripper_grasp(0.04, 10.0, 0.1, 0.01, 0.01)
+        await counting.gripper_home()
+        await counting.switch_controllers([], [])
+        await counting.set_collision_thresholds(20.0, 20.0)
+        await counting.error_recovery()
+        with pytest.raises(BackendError):
+            await counting.gripper_move(1.0, 0.1)  # refused by the fake, still a command that reached it
+        await counting.stop()
+        thread = threading.Thread(target=counting.stop_now)
+        thread.start()
+        thread.join()
+    finally:
+        await counting.close()
+    assert counting.actuations == [*ACTUATING_METHODS, "gripper_move"]
+    assert counting.stops == 2
+
+
+async def test_it_forwards_capabilities_stop_stamp_and_backend_specific_attributes() -> None:
+    fake = FakeBackend()
+    counting = CountingBackend(fake)
+    assert counting.capabilities is fake.capabilities and counting.name == "fake"
+    assert counting.start_tolerance_rad == fake.start_tolerance_rad
+    await counting.open()
+    try:
+        assert counting.is_open and fake.is_open
+        await counting.stop()
+        assert counting.last_stop_stamp is not None and counting.last_stop_stamp == fake.last_stop_stamp
+        assert counting.fail_stop is fake.fail_stop  # not part of the contract: read from the fake
+        assert counting.tick_count > 0
+    finally:
+        await counting.close()
+    assert not fake.is_open

@@ -1,0 +1,106 @@
+"""The backend registry: built vs planned backends, strict backend configs, and what the CLI says."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from armwarden import backends
+from armwarden.backends import backend_names, create_backend, load_backend_config
+from armwarden.backends.fake import Config, FakeBackend
+from armwarden.errors import BackendUnavailable, ConfigurationError
+from armwarden.policy import Policy
+from armwarden.robot import RobotModel
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_the_cli_choices_are_the_built_backends_then_the_planned_ones() -> None:
+    assert backend_names() == ("fake", "mujoco", "ros2", "can")
+    assert list(backends.BACKENDS) == ["fake"]
+
+
+def test_create_backend_builds_the_fake_for_the_policy_robot(fr3_policy: Policy, robot: RobotModel) -> None:
+    backend = create_backend("fake", robot, fr3_policy, {"speedup": 5.0, "table_height_m": 0.1})
+    assert isinstance(backend, FakeBackend)
+    assert backend.speedup == 5.0 and backend.table_height_m == 0.1
+    assert backend.joint_names == fr3_policy.robot.joint_names
+    assert backend.start_tolerance_rad == fr3_policy.motion.start_tolerance_rad
+    assert backend.servo.latest.positions.tolist() == list(fr3_policy.robot.home_joint_positions)
+
+
+def test_create_backend_takes_the_config_model_itself(fr3_policy: Policy, robot: RobotModel) -> None:
+    backend = create_backend("fake", robot, fr3_policy, Config(wrench=False))
+    assert not backend.capabilities.wrench
+
+
+@pytest.mark.parametrize("name", ["mujoco", "ros2", "can"])
+def test_a_planned_backend_says_it_is_not_built_yet(name: str, fr3_policy: Policy, robot: RobotModel) -> None:
+    with pytest.raises(BackendUnavailable, match=f"the {name} backend is not built yet"):
+        create_backend(name, robot, fr3_policy)
+
+
+def test_an_unknown_backend_lists_the_available_ones(fr3_policy: Policy, robot: RobotModel) -> None:
+    with pytest.raises(BackendUnavailable, match="unknown backend 'warp'; choose one of fake"):
+        create_backend("warp", robot, fr3_policy)
+
+
+def test_a_backend_whose_dependency_is_missing_names_the_extra(monkeypatch, fr3_policy: Policy, robot: RobotModel) -> None:
+    monkeypatch.setitem(backends.BACKENDS, "warp", "armwarden.backends.no_such_module")
+    with pytest.raises(BackendUnavailable, match=r"the warp backend is not available: .*install armwarden\[warp\]"):
+        create_backend("warp", robot, fr3_policy)
+
+
+def test_a_backend_config_file_is_validated_by_the_backend_config_model(tmp_path: Path) -> None:
+    path = tmp_path / "fake.yaml"
+    path.write_text("speedup: 4\ntable_height_m: 0.05\n", encoding="utf-8")
+    assert load_backend_config("fake", path) == Config(speedup=4.0, table_height_m=0.05)
+    assert load_backend_config("fake", None) == Config()
+
+
+def test_every_error_of_a_backend_config_is_reported_with_its_yaml_path(tmp_path: Path) -> None:
+    path = tmp_path / "fake.yaml"
+    path.write_text("speedup: -1\ntable_stiffnes_n_per_m: 5\nwrench: maybe\n", encoding="utf-8")
+    with pytest.raises(ConfigurationError) as caught:
+        load_backend_config("fake", path)
+    message = str(caught.value)
+    assert f"invalid fake backend config {path}" in message
+    assert "  speedup: " in message and "greater than 0" in message
+    assert "  table_stiffnes_n_per_m: unknown key" in message and "did you mean 'table_stiffness_n_per_m'" in message
+    assert "  wrench: " in message
+
+
+@pytest.mark.parametrize("text", ["[1, 2]\n", "speedup: [\n"])
+def test_a_backend_config_that_is_not_a_mapping_is_refused(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "fake.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigurationError, match="backend config"):
+        load_backend_config("fake", path)
+
+
+def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    return subprocess.run(
+        [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), *args],
+        check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
+    )
+
+
+def test_serve_with_a_backend_not_built_yet_exits_2_before_serving(tmp_path: Path) -> None:
+    result = _serve(tmp_path, "--backend", "mujoco")
+    assert result.returncode == 2, result.stderr
+    assert "the mujoco backend is not built yet" in result.stderr
+    assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
+
+
+def test_serve_with_an_invalid_backend_config_exits_2_naming_the_key(tmp_path: Path) -> None:
+    config = tmp_path / "fake.yaml"
+    config.write_text("speedup: 0\n", encoding="utf-8")
+    result = _serve(tmp_path, "--backend-config", str(config))
+    assert result.returncode == 2, result.stderr
+    assert "speedup: " in result.stderr
+    assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
