@@ -351,6 +351,7 @@ async def list_registered_tools() -> list[dict[str, Any]]:
     """
     from mcp import Client
 
+    from armwarden.assembly import build_backend, build_guard
     from armwarden.policy import bundled_policy
     from armwarden.policy import load_policy
     from armwarden.server.app import ArmWardenServer
