@@ -83,6 +83,17 @@ def robot_state(robot: RobotModel, state: JointState, wrench: Wrench | None, gri
     )
 
 
+def plan_notes(planner_notes: Sequence[str], force_monitoring: bool, require_wrench: bool, dry_run: bool) -> list[str]:
+    """The planner's notes plus what the server will (not) do when the plan is executed."""
+    notes = list(planner_notes)
+    if not force_monitoring:
+        notes.append("no wrench estimate: execute_plan will refuse (force.require_wrench is true)" if require_wrench
+                     else "no wrench estimate: the contact force limit is NOT enforced")
+    if dry_run:
+        notes.append("dry run: execute_plan will validate and ask, but nothing will move")
+    return notes
+
+
 def plan_summary(violations: Sequence[Violation], notes: list[str], force_monitoring: bool, *,
                  report: EnvelopeReport | None = None, plan_id: str | None = None,
                  status: str = "rejected", requires_approval: bool = False, duration_s: float = 0.0,

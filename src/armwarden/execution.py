@@ -80,13 +80,14 @@ class MotionRunner:
             return None
         monitor = ForceMonitor(self.force_limits, self.backend.read_wrench, clock=self._clock,
                                carried_ceiling=self._contact_ceiling)
-        if await monitor.baseline() is None:
+        baseline = await monitor.baseline()
+        if baseline is None:
             raise SafetyRefusal(RefusalCode.NO_WRENCH,
                                 "the wrench estimate is missing, slow, stale or invalid right now; refusing to move")
         if monitor.baseline_excessive:
-            raise SafetyRefusal(RefusalCode.IN_CONTACT, f"the arm already presses with {monitor.baseline_wrench.force_norm_n:.1f} "
-                                f"N / {monitor.baseline_wrench.torque_norm_nm:.2f} N·m, more than twice the limit; a human "
-                                "must relieve the contact before anything moves")
+            raise SafetyRefusal(RefusalCode.IN_CONTACT, f"the arm already presses with {baseline.force_norm_n:.1f} N / "
+                                f"{baseline.torque_norm_nm:.2f} N·m, more than twice the limit; a human must relieve the "
+                                "contact before anything moves")
         self._contact_ceiling = monitor.contact_ceiling  # kept until a baseline is back under the limit
         return monitor
 

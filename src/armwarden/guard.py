@@ -1,20 +1,24 @@
 """The Guard: the one door to the robot.
 
 Every actuation (trajectory, gripper, controller switch, threshold change, error recovery) and
-every backend read goes through a Guard method; the backend is reachable from nowhere else. The
-Guard holds no check logic of its own. It keeps the shared safety state (rate limiter, e-stop
-latch, plan store, execution slot, stop generation) and runs the components in this order,
-refusing with a `SafetyRefusal` at the first one that says no:
+every backend read goes through a Guard method; the tool layer never touches the backend. The
+Guard holds no check logic of its own: it owns the shared safety state (rate limiter, e-stop
+latch, plan store, execution slot) and runs the components in order, refusing with a
+`SafetyRefusal` at the first one that says no:
 
-    rate limiter → audit writable → e-stop latch → arguments (`safety.checks`) / plan (`safety.plans`,
-    owner, expiry, e-stop generation) → approval (`safety.approval`) → re-validation (envelope,
-    start position) → execution slot → `execution.MotionRunner`
+    rate limit → audit writable → e-stop latch → arguments (`safety.checks`) or the plan
+    (`safety.plans`: exists, unexpired, this caller's, made since the last e-stop) → approval
+    (`safety.approval`, prompts in `safety.prompts`) → re-validation (envelope now, arm still at
+    the plan's start) → force monitor and audit record (`execution`) → no stop since → move
+
+Its helpers each do one job: `readings` answers the read-only tools, `stopping` stops and
+latches, `execution` runs one approved trajectory under the force monitor, `actions` describes
+the control actions, `conversions` builds the results.
 
 Concurrency model. The Guard lives on the event loop. Planning and envelope checks run on one
 worker thread with their own Pinocchio data (`RuntimeModel`), so a long IK search never delays
-a stop; state queries use a second, loop-side model. `stop_motion()`/`emergency_stop()` never
-wait for anything but the backend's stop: they bump the stop generation and latch synchronously,
-then await the backend. An execution claims the slot synchronously and checks the stop
+a stop; state queries use a second, loop-side model. Stops never wait for anything but the
+backend's stop (see `stopping`). An execution claims the slot synchronously and checks the stop
 generation and the latch right before handing the trajectory over, so a stop that arrives during
 its checks wins.
 
@@ -26,53 +30,52 @@ in the action methods, which the tool body calls once.
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any, Literal
 
 import anyio
-import numpy as np
 
 from armwarden import conversions
-from armwarden.backends.base import Backend, Capabilities, JointState
-from armwarden.callcontext import current_caller, note_approval, note_stop_timing
-from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.actions import ControlAction, ControlTool, control_action
+from armwarden.backends.base import Backend, Capabilities
+from armwarden.callcontext import current_caller, note_approval
+from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
 from armwarden.policy import Policy
 from armwarden.preflight import RuntimeModel
+from armwarden.readings import MAX_STATE_AGE_S, Readings
 from armwarden.results import (
-    ActionResult, ControllerList, ControllerModel, EnvelopeModel, EStopResult, ExecutionReport, GraphModel,
-    GripperResultModel, MotionStatus, PlanSummary, ResetResult, RobotState, SafetyStatus, StopResult, TransformResult,
+    ActionResult,
+    ControllerList,
+    EnvelopeModel,
+    EStopResult,
+    ExecutionReport,
+    GraphModel,
+    GripperResultModel,
+    MotionStatus,
+    PlanSummary,
+    ResetResult,
+    RobotState,
+    SafetyStatus,
+    StopResult,
+    TransformResult,
 )
-from armwarden.robot.model import Pose, RobotModel
+from armwarden.robot.model import RobotModel
 from armwarden.safety import checks, prompts
 from armwarden.safety.approval import Approval, Prompt, ServerDecision, approval_required, client_decision, interpret
 from armwarden.safety.envelope import EnvelopeReport
-from armwarden.safety.estop import EStopEvent, EStopLatch, flatten_reason
+from armwarden.safety.estop import EStopLatch
 from armwarden.safety.plans import PlanRefusal, PlanStore
 from armwarden.safety.ratelimit import RateLimiter
 from armwarden.safety.violations import Violation
+from armwarden.stopping import Stopper
 
 PlanKind = Literal["joints", "pose", "cartesian"]
 Previewer = Callable[[RuntimeModel, Any, EnvelopeReport], bytes | None]
-ControlTool = Literal["switch_controllers", "set_collision_thresholds", "error_recovery"]
-
-#: how stale a joint state may be before planning/execution refuses it [s]
-MAX_STATE_AGE_S = 0.5
 
 
 def refuse(code: RefusalCode | str, message: str) -> SafetyRefusal:
     return SafetyRefusal(code, message)
-
-
-@dataclass(frozen=True)
-class _Action:
-    """One approvable control action: its argument check, its prompt, and what it does."""
-
-    check: Callable[[], None]
-    prompt: Callable[[], Prompt]
-    actuate: Callable[[], Awaitable[Any]]
-    done: str
 
 
 class Guard:
@@ -90,17 +93,18 @@ class Guard:
         self.limiter = RateLimiter.from_policy(policy, clock=clock)
         self.latch = EStopLatch(clock=clock)
         self.plans = PlanStore.from_policy(policy, clock=clock)
-        self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit, emergency_stop=self.emergency_stop,
-                                   stop_for=self._stop_for, record=self._record)
+        self.readings = Readings(policy, state_robot, backend, clock)
+        self.stopper = Stopper(backend, self.latch, self.plans)
+        self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
+        self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
+                                   emergency_stop=self.stopper.emergency_stop, stop_for=self.stopper.stop_for,
+                                   record=self._record)
         self._planning_slot = anyio.CapacityLimiter(1)  # one planning thread, one Pinocchio Data
         self._execution: Execution | None = None
         self._gripper_busy = False
         self._actions_done: dict[str, int] = {}  # completed approvable actions per tool (see action_round)
-        self._stop_generation = 0
         self.last_violation: Violation | None = None
-        self.faults: list[str] = []
         self.last_result: ExecutionReport | None = None
-        self.force_violation_latched = False
 
     # ================================================================== admission
     @property
@@ -116,6 +120,11 @@ class Guard:
         decision = self.limiter.try_acquire(tool)
         if not decision.allowed:
             raise refuse(RefusalCode.RATE_LIMITED, decision.message)
+
+    def charge(self, tool: str) -> None:
+        """Take a rate token for a call refused before its body ran (bad arguments): floods of
+        invalid calls still cost tokens."""
+        self.limiter.try_acquire(tool)
 
     def _peek_rate(self, tool: str) -> ServerDecision | None:
         decision = self.limiter.peek(tool)
@@ -138,55 +147,24 @@ class Guard:
         if (refusal := self._estop_refusal(what)) is not None:
             raise refusal
 
-    async def _joint_state(self) -> JointState:
-        try:
-            state = await self.backend.read_joint_state()
-        except (BackendError, TimeoutError) as exc:
-            raise refuse(RefusalCode.NO_STATE, f"cannot read the joint state from the backend: {exc}") from exc
-        age = self._clock() - state.stamp
-        if not np.all(np.isfinite(state.positions)) or age > MAX_STATE_AGE_S:
-            raise refuse(RefusalCode.STALE_STATE, f"the joint state is invalid or {age:.3f} s old; refusing to plan or move on it")
-        return state
-
-    async def _backend_call(self, what: str, awaitable: Awaitable[Any]) -> Any:
-        try:
-            return await awaitable
-        except (BackendError, TimeoutError, NotImplementedError) as exc:
-            raise refuse(RefusalCode.BACKEND_ERROR, f"the backend could not {what}: {exc}") from exc
-
-    # ================================================================== introspection (reads only)
+    # ================================================================== introspection (reads only, see readings.py)
     async def robot_state(self) -> RobotState:
-        state = await self._joint_state()
-        try:
-            wrench = await self.backend.read_wrench()
-        except (BackendError, TimeoutError):
-            wrench = None
-        gripper = await self.backend.gripper_state() if self.backend.capabilities.gripper else None
-        return conversions.robot_state(self.robot, state, wrench, gripper)
+        return await self.readings.robot_state()
 
     def safety_envelope(self, registered_tools: list[str]) -> EnvelopeModel:
-        return conversions.envelope_model(self.policy, self.robot, registered_tools)
+        return self.readings.safety_envelope(registered_tools)
 
     async def lookup_transform(self, target_frame: str, source_frame: str) -> TransformResult:
-        frames = set(self.robot.frame_names())
-        for name in (target_frame, source_frame):
-            if name not in frames:
-                shown = ", ".join(sorted(frames)[:40])
-                raise refuse(RefusalCode.UNKNOWN_FRAME, f"unknown frame {flatten_reason(name, 80)!r}; known frames: {shown}")
-        q = (await self._joint_state()).positions
-        relative = self.robot.frame_pose(q, target_frame).as_se3().inverse() * self.robot.frame_pose(q, source_frame).as_se3()
-        pose = conversions.pose_model(Pose(relative.translation.copy(), relative.rotation.copy()))
-        return TransformResult(target_frame=target_frame, source_frame=source_frame, pose=pose)
+        return await self.readings.lookup_transform(target_frame, source_frame)
 
     async def list_controllers(self) -> ControllerList:
-        allowed = set(self.policy.controllers.allowlist)
-        controllers = await self._backend_call("list controllers", self.backend.list_controllers())
-        return ControllerList(controllers=[ControllerModel(name=c.name, type=c.type, state=c.state,
-                                                           switchable=c.name in allowed) for c in controllers])
+        return await self.readings.list_controllers()
 
     async def graph(self) -> GraphModel:
-        graph = await self._backend_call("read the graph", self.backend.graph())
-        return GraphModel(**{key: sorted(graph.get(key, [])) for key in ("nodes", "topics", "services", "actions")})
+        return await self.readings.graph()
+
+    async def camera(self, camera: str) -> tuple[int, int, float, bytes]:
+        return await self.readings.camera(camera)
 
     def motion_status(self) -> MotionStatus:
         execution = self._execution
@@ -207,20 +185,6 @@ class Guard:
             faults=list(self.faults),
         )
 
-    async def camera(self, camera: str) -> tuple[int, int, float, bytes]:
-        checks.check_camera(self.policy, camera)
-        image = await self._backend_call("take a snapshot", self.backend.camera_snapshot(camera))
-        png, width, height = image.png, image.width, image.height
-        limit = self.policy.perception.max_image_width
-        if width > limit:
-            from armwarden.server.images import downscale_png, pillow_available
-
-            if not pillow_available():
-                raise refuse(RefusalCode.IMAGE_TOO_WIDE, f"the image is {width} px wide (limit {limit}) and Pillow "
-                             "is not installed to shrink it")
-            png, width, height = await anyio.to_thread.run_sync(downscale_png, png, limit)
-        return width, height, image.stamp, png
-
     # ================================================================== planning
     async def _run_planning(self, fn: Callable[[], Any]) -> Any:
         """Run `fn` on the planning thread (its own Pinocchio data); one at a time."""
@@ -231,8 +195,8 @@ class Guard:
         summary and an optional preview PNG."""
         self.require_not_estopped("planning")
         generation = self.latch.generation  # an e-stop while planning voids the result
-        start = (await self._joint_state()).positions.copy()
-        planner, envelope = self.planning.planner, self.planning.envelope
+        start = (await self.readings.joint_state()).positions.copy()
+        planner, envelope, previewer = self.planning.planner, self.planning.envelope, self._previewer
         vel, acc = request.get("velocity_scaling"), request.get("acceleration_scaling")
 
         def work() -> tuple[Any, EnvelopeReport | None, bytes | None]:
@@ -245,8 +209,8 @@ class Guard:
             if outcome.trajectory is None:
                 return outcome, None, None
             report = envelope.check(outcome.trajectory)
-            wants_preview = request.get("preview", True) and self._previewer is not None
-            preview = self._previewer(self.planning, outcome.trajectory, report) if wants_preview else None
+            wants_preview = request.get("preview", True) and previewer is not None
+            preview = previewer(self.planning, outcome.trajectory, report) if wants_preview and previewer else None
             return outcome, report, preview
 
         outcome, report, preview = await self._run_planning(work)
@@ -258,12 +222,7 @@ class Guard:
         if violations:
             self.last_violation = hard[0] if hard else violations[0]
         monitoring = self.backend.capabilities.wrench
-        notes = list(outcome.notes)
-        if not monitoring:
-            notes.append("no wrench estimate: the contact force limit is NOT enforced" if not self.policy.force.require_wrench
-                         else "no wrench estimate: execute_plan will refuse (force.require_wrench is true)")
-        if self.dry_run:
-            notes.append("dry run: execute_plan will validate and ask, but nothing will move")
+        notes = conversions.plan_notes(outcome.notes, monitoring, self.policy.force.require_wrench, self.dry_run)
         if outcome.trajectory is None or report is None:
             return conversions.plan_summary(violations, notes, monitoring), preview
         needs = not hard and approval_required(self.policy, "execute", any(not v.is_hard for v in violations))
@@ -288,7 +247,7 @@ class Guard:
         if isinstance(plan, PlanRefusal):
             return ServerDecision.refused(plan.code, plan.message)
         try:
-            state = await self._joint_state()
+            state = await self.readings.joint_state()
         except SafetyRefusal as exc:
             return ServerDecision.refusal(exc)
         if (stale := self.plans.check_start(plan, state.positions)) is not None:
@@ -309,12 +268,14 @@ class Guard:
 
     async def execute(self, plan_id: str, approval_outcome: Any, shown_digest: str | None,
                       report_progress: ProgressReporter | None = None) -> ExecutionReport:
-        """Run a stored plan: the only way the arm moves. See the module docstring for the order."""
+        """Run a stored plan: the only way the arm moves. The tool layer has admitted the call (rate
+        limit); the rest of the order is the module docstring's. Each check here re-checks, at the
+        last moment, something that may have changed since planning or while a human decided."""
         self.require_audit("execute_plan")
         if self._execution is not None:
             raise refuse(RefusalCode.BUSY, f"plan {self._execution.plan_id} is still executing; the plan {plan_id} stays usable")
         execution = self._execution = Execution(plan_id=str(plan_id))  # claimed synchronously
-        stop_generation = self._stop_generation
+        stop_generation = self.stopper.generation
         try:
             # from here on the plan is spent, whatever happens (unless it is not this caller's)
             plan = self.plans.consume(plan_id, self.latch.generation, current_caller())
@@ -330,13 +291,13 @@ class Guard:
             if recheck.hard:
                 self.last_violation = recheck.hard[0]
                 raise refuse(RefusalCode.ENVELOPE, f"re-validation failed: {recheck.hard[0].code.value}: {recheck.hard[0].detail}")
-            state = await self._joint_state()  # the arm may have moved while a human was deciding
+            state = await self.readings.joint_state()  # the arm may have moved while a human was deciding
             if (stale := self.plans.check_start(plan, state.positions)) is not None:
                 raise refuse(stale.code, stale.message)
             monitor = await self.runner.force_monitor()
             if not self.dry_run:
                 await self.runner.audit_start(plan, approval)
-            if self._stop_generation != stop_generation or self.latch.is_latched:
+            if self.stopper.generation != stop_generation or self.latch.is_latched:
                 raise refuse(RefusalCode.STOPPED, "a stop or e-stop arrived while the plan was being checked; nothing moved")
             if self.dry_run:
                 return self._record(ExecutionReport(
@@ -365,7 +326,7 @@ class Guard:
             running = (self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
                        if tool == "execute_plan" else self._gripper_busy)
             if running:
-                event = await self._stop_for("stop after a client disconnected")
+                event = await self.stopper.stop_for("stop after a client disconnected")
                 if event is None:
                     outcome, detail = "stopped", detail + "; the cancellation failed, so the robot was stopped"
                 else:
@@ -374,58 +335,18 @@ class Guard:
             await self.audit.append_async("client_disconnected", principal=principal, tool=tool, arguments=arguments,
                                           outcome=outcome, detail=detail)
 
-    # ================================================================== stop and e-stop
+    # ================================================================== stop and e-stop (see stopping.py)
     async def stop_motion(self) -> StopResult:
         """Stop arm and gripper now. Never rate limited, never needs approval."""
-        self._stop_generation += 1
-        try:
-            await self._timed_stop()
-        except BackendError as exc:
-            event = self._latch_failed_stop("stop_motion", exc)
-            raise refuse(RefusalCode.STOP_FAILED, f"the stop command failed ({exc}); the software e-stop #{event.number} "
-                         "is latched. Use the hardware e-stop if the robot is still moving.") from exc
-        return StopResult(stopped=True, detail="stop commanded for arm and gripper")
+        return await self.stopper.stop_motion()
 
     async def emergency_stop(self, reason: object, source: str = "estop", force: dict | None = None) -> EStopResult:
         """Latch, invalidate every plan and stop arm and gripper. Accepts any reason."""
-        self._stop_generation += 1
-        event = self.latch.latch(reason, source, force_violation=force)
-        if source == "force_monitor":
-            self.force_violation_latched = True
-        self.plans.invalidate_all(f"e-stop #{event.number}")
-        try:
-            await self._timed_stop()
-        except BackendError as exc:
-            self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
-            event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
-        return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
+        return await self.stopper.emergency_stop(reason, source, force)
 
-    async def _stop_for(self, what: str) -> EStopEvent | None:
-        """Stop arm and gripper for a call that can no longer do it itself (cancelled, abandoned).
-        Returns None when the stop was issued, else the e-stop event latched because it failed."""
-        self._stop_generation += 1
-        try:
-            await self.backend.stop()
-        except BackendError as exc:
-            return self._latch_failed_stop(what, exc)
-        return None
-
-    def _latch_failed_stop(self, what: str, exc: BaseException) -> EStopEvent:
-        """A stop that could not be issued: latch the e-stop, void every plan, report the fault."""
-        event = self.latch.latch(f"{what} failed: {exc}", "stop_failed")
-        self.plans.invalidate_all("stop failed")
-        self.faults.append(f"{what} failed: {exc}")
-        return event
-
-    async def _timed_stop(self) -> None:
-        """The backend stop, with when it was issued and confirmed noted on the call's audit record."""
-        issued = time.monotonic()
-        stopped = False
-        try:
-            await self.backend.stop()
-            stopped = True
-        finally:
-            note_stop_timing(issued, time.monotonic(), self.backend.last_stop_stamp, stopped)
+    @property
+    def force_violation_latched(self) -> bool:
+        return self.stopper.force_violation_latched
 
     def precheck_reset(self, can_elicit: bool) -> ServerDecision | Prompt:
         event = self.latch.current_event
@@ -446,30 +367,13 @@ class Guard:
         result = self.latch.release(shown)
         if not result.released:
             raise refuse(RefusalCode.RESET_REFUSED, f"reset_estop refused: {result.message}")
-        self.force_violation_latched = False
+        self.stopper.force_violation_latched = False
         return ResetResult(estopped=self.latch.is_latched, released_event=shown, detail=result.message)
 
     # ================================================================== control actions
-    def _action(self, tool: ControlTool, arguments: dict[str, Any]) -> _Action:
-        round_ = self.action_round(tool)
-        if tool == "switch_controllers":
-            activate, deactivate = arguments["activate"], arguments["deactivate"]
-            return _Action(lambda: checks.check_controllers(self.policy, activate, deactivate),
-                           lambda: prompts.switch_prompt(round_, activate, deactivate, self.dry_run),
-                           lambda: self.backend.switch_controllers(activate, deactivate),
-                           f"activated {activate or 'none'}, deactivated {deactivate or 'none'}")
-        if tool == "set_collision_thresholds":
-            force_n, torque_nm = arguments["force_n"], arguments["torque_nm"]
-            return _Action(lambda: checks.check_thresholds(self.policy, force_n, torque_nm),
-                           lambda: prompts.thresholds_prompt(round_, self.policy, force_n, torque_nm),
-                           lambda: self.backend.set_collision_thresholds(force_n, torque_nm),
-                           f"collision thresholds set to {force_n:g} N / {torque_nm:g} N·m")
-        return _Action(lambda: None, lambda: prompts.recovery_prompt(round_, self.faults), self._error_recovery,
-                       "error recovery done")
-
-    async def _error_recovery(self) -> None:
-        await self.backend.error_recovery()
-        self.faults.clear()
+    def _action(self, tool: ControlTool, arguments: dict[str, Any]) -> ControlAction:
+        return control_action(tool, arguments, policy=self.policy, backend=self.backend, round_=self.action_round(tool),
+                              faults=self.faults, dry_run=self.dry_run)
 
     def action_round(self, tool: str) -> str:
         """Part of every action's approval digest and prompt: it changes after each completed action
@@ -504,7 +408,7 @@ class Guard:
         self._actions_done[tool] = self._actions_done.get(tool, 0) + 1  # this approval is now spent
         if self.dry_run:
             return ActionResult(status="dry_run", approval=approval.info(), detail=f"dry run: {action.done} would be done; nothing changed")
-        await self._backend_call(tool.replace("_", " "), action.actuate())
+        await self.readings.backend_call(tool.replace("_", " "), action.actuate())
         return ActionResult(status="succeeded", approval=approval.info(), detail=action.done)
 
     # ================================================================== gripper
@@ -527,7 +431,7 @@ class Guard:
             else:
                 call = self.backend.gripper_home()
             try:
-                result = await self._backend_call(tool.replace("_", " "), call)
+                result = await self.readings.backend_call(tool.replace("_", " "), call)
             except anyio.get_cancelled_exc_class():
                 with anyio.CancelScope(shield=True):
                     await self.stop_motion()
@@ -540,4 +444,4 @@ class Guard:
         )
 
 
-__all__ = ["Approval", "Guard", "Prompt", "refuse"]
+__all__ = ["MAX_STATE_AGE_S", "Approval", "Guard", "Prompt", "refuse"]

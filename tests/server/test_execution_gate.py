@@ -10,12 +10,17 @@ the time the arm actually moved.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from typing import Any
 
 import anyio
 import mcp_types as types
 import pytest
+from mcp.server.auth.middleware.auth_context import auth_context_var
+from mcp.server.auth.middleware.bearer_auth import AuthenticatedUser
+from mcp.server.auth.provider import AccessToken
 
 from armwarden.preflight import load_runtime_model
 from tests.server.harness import approve, arm_harness, policy_with
@@ -168,3 +173,31 @@ async def test_a_cancelled_execution_reports_the_time_the_arm_moved(tmp_path) ->
         last = arm.guard.motion_status().last_result
         assert last is not None and last.status == "aborted" and "interrupted" in last.detail
         assert 0.0 < last.duration_s < summary["duration_s"]  # it moved, and stopped before the end
+
+
+@contextlib.contextmanager
+def bearer(name: str, fingerprint: str) -> Iterator[None]:
+    """Calls made inside carry this operator token, as the HTTP transport's auth middleware sets it
+    (in-memory 2026-07-28 calls run in the caller's context)."""
+    user = AuthenticatedUser(AccessToken(token=f"redacted:{name}", client_id=name, subject=fingerprint,
+                                         scopes=["operator"], claims={"armwarden_role": "operator"}))
+    reset = auth_context_var.set(user)
+    try:
+        yield
+    finally:
+        auth_context_var.reset(reset)
+
+
+@pytest.mark.anyio
+async def test_a_token_owns_its_plans_across_connections_and_a_new_token_of_the_same_name_does_not(tmp_path) -> None:
+    async with arm_harness(tmp_path) as arm, arm.client("2026-07-28", approve()) as first, \
+            arm.client("2026-07-28", approve()) as second:
+        with bearer("alice", "fingerprint-1"):
+            summary = await plan_down(first, z=0.40)
+        with bearer("alice", "fingerprint-2"):  # alice's token was revoked and a new one issued
+            taken = await second.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+        assert taken.is_error and "NOT_PLAN_OWNER" in text_of(taken), text_of(taken)
+        assert arm.actuations == []
+        with bearer("alice", "fingerprint-1"):
+            done = await second.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+        assert not done.is_error and done.structured_content["status"] == "succeeded", text_of(done)

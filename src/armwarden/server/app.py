@@ -13,15 +13,14 @@ from __future__ import annotations
 import logging
 import secrets
 import weakref
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 from mcp import MCPError
 from mcp.server.context import CallNext, ServerRequestContext
-from mcp.server.auth.middleware.auth_context import get_access_token
 from mcp.server.mcpserver import MCPServer
-from mcp_types.version import is_version_at_least
 from mcp_types import CallToolResult, InputRequiredResult, ListToolsResult, TextContent
+from mcp_types.version import is_version_at_least
 
 from armwarden import __version__
 from armwarden.errors import RefusalCode
@@ -30,6 +29,9 @@ from armwarden.policy import ALL_TOOLS
 from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
 from armwarden.transport.http import current_principal, role_allows
+
+if TYPE_CHECKING:
+    from armwarden.transport.tokens import Principal
 
 logger = logging.getLogger(__name__)
 
@@ -83,7 +85,7 @@ class ArmWardenServer:
             session=session,
             principal=None if principal is None else principal.name,
             role=None if principal is None else principal.role,
-            caller=_caller(ctx, session),
+            caller=_caller(ctx, session, principal),
         )
         token = CURRENT_CALL.set(record)
         try:
@@ -148,7 +150,7 @@ class ArmWardenServer:
                 record.code = record.code or (RefusalCode.INVALID_ARGUMENTS.value if not record.body_ran else "ERROR")
                 record.detail = _text_of(result)
                 if not record.body_ran and record.tool in ALL_TOOLS:
-                    self.guard.limiter.try_acquire(record.tool)  # floods of invalid calls still cost tokens
+                    self.guard.charge(record.tool)
                 if result.structured_content is not None and record.tool not in _UNRECORDED_RESULTS:
                     record.extra["result"] = result.structured_content
             else:
@@ -226,14 +228,17 @@ class SessionNames:
         return client if name is None else f"{client}#{name}"
 
 
-def _caller(ctx: ServerRequestContext, session: str | None) -> str:
+def _caller(ctx: ServerRequestContext, session: str | None, principal: Principal | None) -> str:
     """Who plans are bound to (see `CallRecord.caller`). A bearer token: its name and the
-    fingerprint the transport bound (every session of that token). Otherwise the connection, when
-    the protocol has one. A sessionless (2026-07-28) client without a token has no identity to bind
-    to, so all such clients are one caller: on stdio that is the one client at the other end."""
-    access = get_access_token()
-    if access is not None:
-        return f"token:{access.client_id}:{access.subject}"
+    fingerprint the transport bound (every session of that token, and no other token of that
+    name). Otherwise the connection, when the protocol has one. A sessionless (2026-07-28) client
+    without a token has no identity to bind to, so all such clients are one caller: on stdio that
+    is the one client at the other end."""
+    if principal is not None:
+        from mcp.server.auth.middleware.auth_context import get_access_token  # loaded with the HTTP transport
+
+        access = get_access_token()
+        return f"token:{principal.name}:{access.subject if access is not None else ''}"
     if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
         return "unauthenticated"
     return f"session:{session}"

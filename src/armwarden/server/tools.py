@@ -3,12 +3,13 @@
 Tools are built per server from the policy, so input schemas publish the policy's bounds (joint
 count, gripper ranges, force caps, scaling range), and only enabled groups and supported
 capabilities are registered. Every numeric argument is a strict, finite number (no strings, no
-booleans, no NaN/Inf); strings are length-bounded. A refusal from the Guard becomes an `isError`
-result saying why and what a human must do.
+booleans, no NaN/Inf); strings are length-bounded. `ToolBuilder.tool` registers each one under
+its function's name, admits every call through the Guard's rate limiter, and turns a refusal into
+an `isError` result saying why and what a human must do. Tools talk to the Guard only.
 
-Approval uses the SDK's `Resolve`-injected parameters (hidden from the input schema: an
-`approval` argument sent by a client is ignored). The resolvers only read state; the body runs
-once and does all the consuming, moving and recording.
+Approval uses the SDK's `Resolve`-injected parameters, built by `approval_parameters` (hidden
+from the input schema: an `approval` argument sent by a client is ignored). The resolvers only
+read state; the body runs once and does all the consuming, moving and recording.
 """
 
 
@@ -58,8 +59,8 @@ POSITION_BOUND_M = 10.0  # sanity bound on any position argument; the envelope e
 #: sanity bound on any joint target [rad] (a 1e6 rad target made the time parameterisation allocate
 #: until the daemon was OOM-killed); the envelope enforces the real joint limits
 JOINT_BOUND = 10.0
-#: a tool body: returns its result model (or a finished result), raises `SafetyRefusal` to refuse
-ToolBody = Callable[..., Awaitable[Any]]
+#: a tool body: returns its result (see `ok`), raises `SafetyRefusal` to refuse
+ToolBody = Callable[..., Awaitable[CallToolResult]]
 
 
 class Point(BaseModel):
@@ -128,8 +129,8 @@ class ToolBuilder:
     def tool(self, description: str, annotations: ToolAnnotations) -> Callable[[ToolBody], ToolBody]:
         """Register the decorated function as the tool of the same name. The one place where a tool
         is named and admitted: each call is rate limited (`Guard.admit`) before the body runs, and
-        the body's result (a result model, or a finished `CallToolResult`) or refusal is answered
-        through `_answer`. The body keeps its signature: it is the tool's input schema."""
+        a refusal from either becomes the tool's `isError` answer (`_answer`). The body keeps its
+        signature: it is the tool's input and output schema."""
 
         def register(body: ToolBody) -> ToolBody:
             name = body.__name__
@@ -138,8 +139,7 @@ class ToolBuilder:
             async def call(*args: Any, **kwargs: Any) -> CallToolResult:
                 async def admitted() -> CallToolResult:
                     self.guard.admit(name)
-                    result = await body(*args, **kwargs)
-                    return result if isinstance(result, CallToolResult) else ok(result)
+                    return await body(*args, **kwargs)
 
                 return await self._answer(name, admitted)
 
@@ -202,12 +202,12 @@ class ToolBuilder:
         @tool("Current joint positions [rad] and velocities, TCP pose [m, quaternion xyzw] in the base frame "
               f"{robot.base_frame}, estimated external wrench [N, N·m] and gripper state.", READ_ONLY)
         async def get_robot_state() -> Annotated[CallToolResult, RobotState]:
-            return await guard.robot_state()
+            return ok(await guard.robot_state())
 
         @tool("The limits the server enforces: joint limits, workspace box, keep-out zones, speed/step caps, force "
               "limits, gripper limits, allowlists and approval mode. Read this before planning.", READ_ONLY_LOCAL)
         async def get_safety_envelope() -> Annotated[CallToolResult, EnvelopeModel]:
-            return guard.safety_envelope(list(self.registered))
+            return ok(guard.safety_envelope(list(self.registered)))
 
         frames_hint = ", ".join(f for f in (robot.base_frame, robot.tcp_frame))
 
@@ -215,22 +215,22 @@ class ToolBuilder:
               f"{robot.base_frame}, source_frame={robot.tcp_frame}). Frames include {frames_hint} and every link of "
               "the robot description.", READ_ONLY)
         async def lookup_transform(target_frame: Name, source_frame: Name) -> Annotated[CallToolResult, TransformResult]:
-            return await guard.lookup_transform(target_frame, source_frame)
+            return ok(await guard.lookup_transform(target_frame, source_frame))
 
         if self.capabilities.controllers:
             @tool("Controllers with their type and state, and which ones the policy lets switch_controllers touch.",
                   READ_ONLY)
             async def list_controllers() -> Annotated[CallToolResult, ControllerList]:
-                return await guard.list_controllers()
+                return ok(await guard.list_controllers())
 
         if self.capabilities.graph:
             @tool("Nodes, topics, services and actions visible to the backend.", READ_ONLY)
             async def list_ros_graph() -> Annotated[CallToolResult, GraphModel]:
-                return await guard.graph()
+                return ok(await guard.graph())
 
         @tool("The last n (1..100) audit-log records: tool calls, refusals, approvals, e-stops.", READ_ONLY_LOCAL)
         async def get_audit_tail(n: Annotated[int, Strict(), Field(ge=1, le=100)] = 20) -> Annotated[CallToolResult, AuditTail]:
-            return AuditTail(records=guard.audit.tail(n) if guard.audit is not None else [])
+            return ok(AuditTail(records=guard.audit.tail(n) if guard.audit is not None else []))
 
     # ------------------------------------------------------------------ perception
     def _perception(self) -> None:
@@ -333,7 +333,7 @@ class ToolBuilder:
 
         @tool("Whether a plan is executing, its progress (0..1) and the last execution result.", READ_ONLY_LOCAL)
         async def get_motion_status() -> Annotated[CallToolResult, MotionStatus]:
-            return guard.motion_status()
+            return ok(guard.motion_status())
 
     # ------------------------------------------------------------------ gripper
     def _gripper(self) -> None:
@@ -346,7 +346,7 @@ class ToolBuilder:
 
         @tool("Move the fingers to an opening width [m] without grasp force.", ACTUATING)
         async def gripper_move(width_m: Width, speed_mps: Speed = None) -> Annotated[CallToolResult, GripperResultModel]:
-            return await guard.gripper("gripper_move", width_m=width_m, speed_mps=speed_mps)
+            return ok(await guard.gripper("gripper_move", width_m=width_m, speed_mps=speed_mps))
 
         @tool("Close the fingers on an object of about width_m [m] with force_n [N].", ACTUATING)
         async def gripper_grasp(
@@ -354,12 +354,12 @@ class ToolBuilder:
             force_n: Annotated[Finite, Field(gt=0.0, le=cfg.max_grasp_force_n, description=f"[N], at most {cfg.max_grasp_force_n:g}")],
             speed_mps: Speed = None, epsilon_inner_m: Epsilon = 0.005, epsilon_outer_m: Epsilon = 0.005,
         ) -> Annotated[CallToolResult, GripperResultModel]:
-            return await guard.gripper("gripper_grasp", width_m=width_m, force_n=force_n, speed_mps=speed_mps,
-                                       epsilon_inner_m=epsilon_inner_m, epsilon_outer_m=epsilon_outer_m)
+            return ok(await guard.gripper("gripper_grasp", width_m=width_m, force_n=force_n, speed_mps=speed_mps,
+                                          epsilon_inner_m=epsilon_inner_m, epsilon_outer_m=epsilon_outer_m))
 
         @tool("Home the gripper (open fully and calibrate).", ACTUATING)
         async def gripper_home() -> Annotated[CallToolResult, GripperResultModel]:
-            return await guard.gripper("gripper_home")
+            return ok(await guard.gripper("gripper_home"))
 
     # ------------------------------------------------------------------ control
     def _control(self) -> None:
@@ -377,7 +377,7 @@ class ToolBuilder:
                   f"{list(self.policy.controllers.allowlist)}.", ACTUATING)
             async def switch_controllers(approval: SwitchApproved, shown: SwitchShown, activate: Names,
                                          deactivate: Names) -> Annotated[CallToolResult, ActionResult]:
-                return await guard.run_action("switch_controllers", approval, shown, activate=activate, deactivate=deactivate)
+                return ok(await guard.run_action("switch_controllers", approval, shown, activate=activate, deactivate=deactivate))
 
         if self.capabilities.collision_thresholds:
             async def precheck_thresholds(ctx: Context, force_n: float, torque_nm: float) -> ServerDecision | Prompt:
@@ -392,7 +392,7 @@ class ToolBuilder:
                 torque_nm: Annotated[Finite, Field(gt=0.0, le=force.max_contact_torque_nm, description=f"[N·m], at most {force.max_contact_torque_nm:g}")],
                 approval: ThresholdsApproved, shown: ThresholdsShown,
             ) -> Annotated[CallToolResult, ActionResult]:
-                return await guard.run_action("set_collision_thresholds", approval, shown, force_n=force_n, torque_nm=torque_nm)
+                return ok(await guard.run_action("set_collision_thresholds", approval, shown, force_n=force_n, torque_nm=torque_nm))
 
     # ------------------------------------------------------------------ safety (always registered)
     def _safety(self) -> None:
@@ -401,7 +401,7 @@ class ToolBuilder:
         @tool("Stop the current motion now: the arm trajectory and any gripper action. Never rate limited, never needs "
               "approval.", STOPPING)
         async def stop_motion() -> Annotated[CallToolResult, StopResult]:
-            return await guard.stop_motion()
+            return ok(await guard.stop_motion())
 
         @tool("SOFTWARE E-STOP: stop all motion (arm and gripper), invalidate every plan and refuse motion, gripper and "
               "control tools until a human approves reset_estop. Accepts any reason. Not a substitute for the hardware "
@@ -418,7 +418,7 @@ class ToolBuilder:
         @tool("Release the software e-stop (and a latched force violation). Always asks a human, who approves the "
               "specific e-stop event they were shown.", RELEASING)
         async def reset_estop(approval: ResetApproved, shown: ResetShown) -> Annotated[CallToolResult, ResetResult]:
-            return guard.reset_estop(approval, shown)
+            return ok(guard.reset_estop(approval, shown))
 
         if self.capabilities.error_recovery:
             async def precheck_recovery(ctx: Context) -> ServerDecision | Prompt:
@@ -429,12 +429,12 @@ class ToolBuilder:
             @tool("Clear the robot's error/reflex state (e.g. after a collision reflex). Refused while the e-stop is "
                   "latched.", RELEASING)
             async def error_recovery(approval: RecoveryApproved, shown: RecoveryShown) -> Annotated[CallToolResult, ActionResult]:
-                return await guard.run_action("error_recovery", approval, shown)
+                return ok(await guard.run_action("error_recovery", approval, shown))
 
         @tool("E-stop state and event, latched force violation, dry-run flag, the last envelope violation and backend "
               "faults. Never rate limited.", READ_ONLY_LOCAL)
         async def get_safety_status() -> Annotated[CallToolResult, SafetyStatus]:
-            return guard.safety_status()
+            return ok(guard.safety_status())
 
 
 def approval_parameters(precheck: Callable[..., Any]) -> tuple[Any, Any]:
