@@ -320,7 +320,7 @@ class ToolBuilder:
 
         @tool("EXECUTE a previously planned motion on the robot (the only tool that moves the arm). The server re-checks "
               "the plan, may ask a human to approve, watches the contact force while moving and streams progress. Each "
-              "plan_id runs at most once, and only for the client that planned it.", ACTUATING)
+              "plan_id runs at most once.", ACTUATING)
         async def execute_plan(
             plan_id: Annotated[str, Field(min_length=1, max_length=64, description="The plan_id from a plan_* result")],
             ctx: Context, approval: Approved, shown: Shown,
