@@ -8,7 +8,8 @@ ArmWardenError
 ├── BackendError              a backend operation failed while running
 │   └── BackendTimeout        a backend operation did not answer in time (also a TimeoutError)
 ├── RobotModelError           the robot description cannot be loaded or a frame is unknown
-└── SafetyRefusal             the Guard refused a request (becomes an `isError` tool result)
+└── SafetyRefusal             the Guard refused a request (becomes an `isError` tool result);
+                              its `code` is a `RefusalCode`
 ```
 Messages carry the facts (joint, value, limit, valid names) so that a human reading
 the audit log or a tool result knows what happened and what to do.
@@ -17,6 +18,7 @@ the audit log or a tool result knows what happened and what to do.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from enum import StrEnum
 
 
 class ArmWardenError(Exception):
@@ -54,9 +56,58 @@ class BackendTimeout(BackendError, TimeoutError):
     that bounds a call with its own deadline treats both alike)."""
 
 
-class SafetyRefusal(ArmWardenError):
-    """The Guard refused a request. `code` is stable and machine-readable; the message is for humans."""
+class RefusalCode(StrEnum):
+    """Every reason the server refuses a call. The value is what clients see (`REFUSED [CODE]`, the
+    audit record's `code`); values never change, new reasons get new members."""
 
-    def __init__(self, code: str, message: str) -> None:
-        self.code = code
+    # admission and state
+    RATE_LIMITED = "RATE_LIMITED"
+    ESTOPPED = "ESTOPPED"
+    NOT_ESTOPPED = "NOT_ESTOPPED"
+    RESET_REFUSED = "RESET_REFUSED"
+    AUDIT_UNAVAILABLE = "AUDIT_UNAVAILABLE"
+    BUSY = "BUSY"
+    NO_STATE = "NO_STATE"
+    STALE_STATE = "STALE_STATE"
+    FORBIDDEN = "FORBIDDEN"
+    # arguments
+    INVALID = "INVALID"
+    INVALID_ARGUMENTS = "INVALID_ARGUMENTS"
+    OUT_OF_RANGE = "OUT_OF_RANGE"
+    NOT_ALLOWED = "NOT_ALLOWED"
+    NOT_CONFIGURED = "NOT_CONFIGURED"
+    UNKNOWN_FRAME = "UNKNOWN_FRAME"
+    IMAGE_TOO_WIDE = "IMAGE_TOO_WIDE"
+    # plans
+    UNKNOWN_PLAN = "UNKNOWN_PLAN"
+    EXPIRED_PLAN = "EXPIRED_PLAN"
+    USED_PLAN = "USED_PLAN"
+    REJECTED_PLAN = "REJECTED_PLAN"
+    STALE_PLAN = "STALE_PLAN"
+    INVALIDATED_PLAN = "INVALIDATED_PLAN"
+    NOT_PLAN_OWNER = "NOT_PLAN_OWNER"
+    ENVELOPE = "ENVELOPE"
+    # approval
+    APPROVAL_UNAVAILABLE = "APPROVAL_UNAVAILABLE"
+    APPROVAL_DENIED = "APPROVAL_DENIED"
+    APPROVAL_INVALID = "APPROVAL_INVALID"
+    APPROVAL_MISMATCH = "APPROVAL_MISMATCH"
+    # force and motion
+    NO_WRENCH = "NO_WRENCH"
+    IN_CONTACT = "IN_CONTACT"
+    FORCE_LIMIT = "FORCE_LIMIT"
+    STOPPED = "STOPPED"
+    STOP_FAILED = "STOP_FAILED"
+    # backend and server
+    BACKEND_ERROR = "BACKEND_ERROR"
+    BACKEND_FAULT = "BACKEND_FAULT"
+    INTERNAL_ERROR = "INTERNAL_ERROR"
+
+
+class SafetyRefusal(ArmWardenError):
+    """The server refused a request. `code` is stable and machine-readable; the message is for humans.
+    A code that is not a `RefusalCode` is a programming error (ValueError), never a new wire value."""
+
+    def __init__(self, code: RefusalCode | str, message: str) -> None:
+        self.code = RefusalCode(code)
         super().__init__(message)

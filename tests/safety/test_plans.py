@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armwarden.errors import ConfigurationError
+from armwarden.errors import ConfigurationError, RefusalCode
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.policy import Policy
 from armwarden.safety.envelope import EnvelopeReport
@@ -262,3 +262,29 @@ def test_any_id_input_is_answered_with_a_refusal_not_an_exception(plan_id: objec
     result = store.consume(plan_id)
     assert isinstance(result, PlanRefusal) and result.code == "UNKNOWN_PLAN"
     assert len(result.message) < 200
+
+
+# ------------------------------------------------------------------ owner
+def test_only_the_owner_finds_its_plan_and_another_caller_spends_nothing() -> None:
+    store, _ = make_store()
+    plan = store.add(trajectory(), OK, owner="session:alice")
+    assert refusal_code(store.peek(plan.plan_id, caller="session:bob")) == RefusalCode.NOT_PLAN_OWNER
+    assert refusal_code(store.consume(plan.plan_id, caller="session:bob")) == "NOT_PLAN_OWNER"
+    assert refusal_code(store.consume(plan.plan_id)) == "NOT_PLAN_OWNER"  # no caller is not the owner either
+    assert store.peek(plan.plan_id, caller="session:alice") is plan
+    assert store.consume(plan.plan_id, caller="session:alice") is plan
+    assert refusal_code(store.consume(plan.plan_id, caller="session:alice")) == "USED_PLAN"
+
+
+def test_a_plan_without_an_owner_runs_for_any_caller() -> None:
+    store, _ = make_store()
+    plan = store.add(trajectory(), OK)
+    assert plan.owner is None
+    assert store.consume(plan.plan_id, caller="session:bob") is plan
+
+
+def test_refusal_codes_are_the_enum_and_compare_as_their_wire_strings() -> None:
+    store, _ = make_store()
+    refused = store.peek("plan_nobody_made_this")
+    assert isinstance(refused, PlanRefusal) and refused.code is RefusalCode.UNKNOWN_PLAN
+    assert refused.code == "UNKNOWN_PLAN" and f"[{refused.code}]" == "[UNKNOWN_PLAN]"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import Any
 
 import anyio
 import pytest
-from mcp import Client
+from mcp import Client, MCPError
 
 from tests.server.harness import MODES, approve, arm_harness, policy_with
 
@@ -226,12 +227,12 @@ def test_client_cancel_mid_motion_stops_the_arm_and_is_audited(tmp_path, mode) -
 def test_client_disconnect_mid_motion_stops_the_arm(tmp_path, mode) -> None:
     async def scenario() -> None:
         async with arm_harness(tmp_path, speedup=1.0) as arm:
-            async with arm.client(mode, approve()) as planner:
-                summary = await plan_down(planner)
             errors: list[BaseException] = []
             with anyio.fail_after(10):
                 async with anyio.create_task_group() as group:
                     async with arm.client(mode, approve()) as client:
+                        summary = await plan_down(client)  # a plan runs only for the client that made it
+
                         async def run() -> None:
                             try:
                                 await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
@@ -438,26 +439,24 @@ def test_a_force_limit_crossed_after_the_last_poll_still_aborts_and_latches(tmp_
 
 
 @pytest.mark.parametrize("mode", MODES)
-def test_nothing_moves_while_the_audit_log_cannot_be_written(tmp_path, mode) -> None:
+def test_nothing_moves_while_the_audit_log_cannot_be_written(tmp_path, mode, caplog) -> None:
     async def scenario() -> None:
         async with arm_harness(tmp_path) as arm, arm.client(mode, approve()) as client:
             summary = await plan_down(client, z=0.40)
             arm.audit._broken = "injected: no space left on device"
-            try:
-                result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
-                assert result.is_error  # refused (the call's own record cannot be written either)
-            except Exception:  # the failed audit write surfaces as a protocol error: also a refusal
-                pass
-            gripper = None
-            try:
-                gripper = await client.call_tool("gripper_move", {"width_m": 0.02})
-            except Exception:
-                pass
-            assert gripper is None or gripper.is_error
+            # each call is refused; the record of that refusal cannot be written either, so the
+            # client gets a protocol error instead of an unaudited answer
+            with pytest.raises(MCPError):
+                await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+            with pytest.raises(MCPError):
+                await client.call_tool("gripper_move", {"width_m": 0.02})
             assert arm.actuations == []
             arm.audit._broken = None  # let the harness verify and close the log
 
-    anyio.run(scenario)
+    with caplog.at_level(logging.INFO, logger="armwarden.server.tools"):
+        anyio.run(scenario)
+    refusals = [r.getMessage().split(":")[0] for r in caplog.records if " refused [" in r.getMessage()]
+    assert refusals == ["execute_plan refused [AUDIT_UNAVAILABLE]", "gripper_move refused [AUDIT_UNAVAILABLE]"]
 
 
 def test_an_execution_is_on_disk_before_the_arm_moves(tmp_path) -> None:

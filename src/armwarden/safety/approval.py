@@ -6,18 +6,20 @@ truncated and labelled unverified, so an injected "operator note: safe to approv
 for server text. The form's `approve` box is unticked by default: only an explicit tick runs.
 
 This module is pure: the MCP resolvers that use it must stay side-effect free (under protocol
-2026-07-28 they may run more than once per call).
+2026-07-28 they may run more than once per call). The prompt texts themselves are in
+`armwarden.safety.prompts`.
 """
 
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
-from armwarden.errors import SafetyRefusal
+from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.results import ApprovalInfo
 from armwarden.safety.estop import flatten_reason
 
 Action = Literal["execute", "switch_controllers", "reset_estop", "error_recovery", "set_collision_thresholds"]
@@ -46,13 +48,89 @@ class ServerDecision:
 
     proceed: bool
     via: Literal["not_required", "no_elicitation_client", "dry_run", "refused"]
-    code: str = ""
+    code: RefusalCode | None = None
     message: str = ""
 
     @classmethod
     def refusal(cls, refused: SafetyRefusal) -> ServerDecision:
         """The decision a pre-check returns for a refusal the Guard raised (or would raise)."""
         return cls(False, "refused", refused.code, str(refused))
+
+    @classmethod
+    def refused(cls, code: RefusalCode, message: str) -> ServerDecision:
+        return cls(False, "refused", code, message)
+
+
+@dataclass(frozen=True)
+class Prompt:
+    """A question for a human, with the server facts it was built from."""
+
+    message: str
+    digest: str  # what the human approves: a plan digest or an e-stop event number, as text
+
+
+@dataclass(frozen=True)
+class Approval:
+    """What the tool body learned about approval: who decided, and how."""
+
+    granted: bool
+    via: Literal["not_required", "elicitation", "no_elicitation_client", "dry_run"]
+    required: bool
+    operator: str | None = None
+    refusal_code: RefusalCode | None = None
+    refusal_message: str = ""
+
+    def info(self) -> ApprovalInfo:
+        return ApprovalInfo(required=self.required, operator=self.operator, via=self.via)
+
+    def refusal(self, what: str) -> SafetyRefusal:
+        """The refusal for an approval that was not granted, prefixed with what was refused."""
+        return SafetyRefusal(self.refusal_code or RefusalCode.APPROVAL_INVALID, f"{what}: {self.refusal_message}")
+
+
+def interpret(outcome: Any, required: bool) -> Approval:
+    """Turn what the approval resolver produced (a `ServerDecision`, or the human's elicitation
+    answer) into an `Approval`. Only an accepted form with `approve` ticked grants; anything
+    unrecognised refuses."""
+    from mcp.server.mcpserver import AcceptedElicitation, CancelledElicitation, DeclinedElicitation
+
+    if isinstance(outcome, AcceptedElicitation):
+        data = outcome.data
+        if isinstance(data, ServerDecision):
+            if data.proceed:
+                return Approval(True, data.via if data.via != "refused" else "not_required", required)
+            return Approval(False, "not_required", required, None, data.code, data.message)
+        if isinstance(data, ApprovalForm):
+            operator = flatten_reason(data.operator, 64) if data.operator else None
+            if data.approve is True:
+                return Approval(True, "elicitation", True, operator)
+            return Approval(False, "elicitation", True, operator, RefusalCode.APPROVAL_DENIED,
+                            "the human did not tick 'approve'; nothing was done")
+    if isinstance(outcome, DeclinedElicitation):
+        return Approval(False, "elicitation", True, None, RefusalCode.APPROVAL_DENIED,
+                        "the human declined; nothing was done")
+    if isinstance(outcome, CancelledElicitation):
+        return Approval(False, "elicitation", True, None, RefusalCode.APPROVAL_DENIED,
+                        "the human cancelled; nothing was done")
+    return Approval(False, "not_required", required, None, RefusalCode.APPROVAL_INVALID,
+                    "unrecognised approval outcome; nothing was done")
+
+
+def client_decision(policy, action: str, required: bool, can_elicit: bool) -> ServerDecision | None:
+    """No prompt needed (proceed), cannot prompt (the policy decides), or None: ask the human.
+    Releasing the e-stop always needs a human, whatever `on_client_without_elicitation` says."""
+    if not required:
+        return ServerDecision(True, "not_required")
+    if can_elicit:
+        return None
+    if policy.approval.on_client_without_elicitation == "allow" and action != "reset_estop":
+        return ServerDecision(True, "no_elicitation_client")
+    return ServerDecision.refused(
+        RefusalCode.APPROVAL_UNAVAILABLE,
+        f"{action} needs a human's approval, but this MCP client cannot show approval prompts "
+        "(no elicitation support) and the policy denies such requests. Use a client that supports "
+        "elicitation.",
+    )
 
 
 def approval_required(policy, action: Action, has_soft_violations: bool = False) -> bool:

@@ -2,9 +2,10 @@
 
 Why: the model never sends a trajectory to execute, only the id of one the server planned and
 checked. An id is random (unguessable), expires (TTL on the monotonic clock, so wall-clock
-jumps change nothing), is bound to the joint state it starts from, and is spent the moment
-`execute_plan` examines it, whatever the outcome, so a replay can never move the arm twice.
-An e-stop invalidates every outstanding plan (DESIGN.md §4).
+jumps change nothing), is bound to the joint state it starts from and to the caller that made
+it (its owner: another caller who learns the id cannot run it), and is spent the moment its
+owner's `execute_plan` examines it, whatever the outcome, so a replay can never move the arm
+twice. An e-stop invalidates every outstanding plan (docs/architecture.md, "Stopping").
 
 `peek` only reads (approval resolvers may run several times); `consume` removes the plan in
 the same step as it returns it. Ids that are gone are remembered (bounded) with the reason, so
@@ -28,7 +29,7 @@ from typing import Any, Literal, TypeGuard
 import numpy as np
 
 from armwarden.conversions import iso_utc
-from armwarden.errors import ConfigurationError
+from armwarden.errors import ConfigurationError, RefusalCode
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.safety.envelope import EnvelopeReport
 from armwarden.safety.estop import flatten_reason
@@ -36,9 +37,6 @@ from armwarden.safety.estop import flatten_reason
 __all__ = ["PLAN_ID_PREFIX", "PlanRefusal", "PlanStatus", "PlanStore", "RefusalCode", "StoredPlan"]
 
 PlanStatus = Literal["ok", "needs_approval", "rejected"]
-RefusalCode = Literal[
-    "UNKNOWN_PLAN", "EXPIRED_PLAN", "USED_PLAN", "REJECTED_PLAN", "STALE_PLAN", "INVALIDATED_PLAN"
-]
 
 PLAN_ID_PREFIX = "plan_"
 #: longest string looked up as a plan id; anything longer is unknown without further ado
@@ -72,6 +70,8 @@ class StoredPlan:
     expires_at_wall: str
     #: the e-stop latch generation when the plan was made
     estop_generation: int
+    #: who made it (an opaque caller identity, see `armwarden.callcontext`); None: anyone may run it
+    owner: str | None = None
     #: opaque data the Guard keeps with the plan (summary figures, request, ...); read-only
     meta: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
@@ -146,13 +146,15 @@ class PlanStore:
         *,
         status: PlanStatus | None = None,
         estop_generation: int = 0,
+        owner: str | None = None,
         meta: Mapping[str, Any] | None = None,
     ) -> StoredPlan:
         """Store a checked plan and return it with its new id.
 
         `status` defaults to what the report implies (hard → rejected, soft → needs_approval);
         the Guard passes it when the approval mode decides otherwise. A report with hard
-        violations is always stored as rejected: no caller can make it runnable.
+        violations is always stored as rejected: no caller can make it runnable. With an `owner`,
+        only a lookup by that same caller finds the plan.
         """
         implied = _status_from_report(report)
         if status is None:
@@ -175,13 +177,14 @@ class PlanStore:
             expires_mono=now + self.ttl_s,
             expires_at_wall=iso_utc(self._wall_clock() + self.ttl_s),
             estop_generation=estop_generation,
+            owner=owner,
             meta=MappingProxyType(dict(meta or {})),
         )
         self._plans[plan.plan_id] = plan
         while len(self._plans) > self.max_plans:
             old_id, _ = self._plans.popitem(last=False)
             self._retire(old_id, PlanRefusal(
-                "EXPIRED_PLAN",
+                RefusalCode.EXPIRED_PLAN,
                 f"plan {old_id} was discarded because more than {self.max_plans} newer plans were made; plan again",
             ))
         return plan
@@ -193,24 +196,28 @@ class PlanStore:
                 return plan_id
 
     # ------------------------------------------------------------------ lookup
-    def peek(self, plan_id: object, estop_generation: int | None = None) -> StoredPlan | PlanRefusal:
+    def peek(self, plan_id: object, estop_generation: int | None = None, caller: str | None = None
+             ) -> StoredPlan | PlanRefusal:
         """The plan if it could run now, else why not. Reads only; call it as often as needed.
 
         With `estop_generation` (the latch's current one), a plan made under an earlier generation
-        is refused: an e-stop latched after it was made (DESIGN §4: nothing survives a reset)."""
-        found = self._lookup(plan_id, estop_generation)
+        is refused: an e-stop latched after it was made, and nothing survives a reset. A plan with
+        an owner other than `caller` is refused NOT_PLAN_OWNER and left untouched for its owner."""
+        found = self._lookup(plan_id, estop_generation, caller)
         if isinstance(found, PlanRefusal):
             return found
         if found.status == "rejected":
             return self._rejected(found)
         return found
 
-    def consume(self, plan_id: object, estop_generation: int | None = None) -> StoredPlan | PlanRefusal:
+    def consume(self, plan_id: object, estop_generation: int | None = None, caller: str | None = None
+                ) -> StoredPlan | PlanRefusal:
         """Remove the plan and return it (or why it cannot run); its id can never be used again.
 
-        A rejected plan is spent too, and keeps answering REJECTED_PLAN. `estop_generation` as in `peek`.
+        A rejected plan is spent too, and keeps answering REJECTED_PLAN. `estop_generation` and
+        `caller` as in `peek`: another caller's attempt spends nothing.
         """
-        found = self._lookup(plan_id, estop_generation)
+        found = self._lookup(plan_id, estop_generation, caller)
         if isinstance(found, PlanRefusal):
             return found
         del self._plans[found.plan_id]
@@ -219,27 +226,34 @@ class PlanStore:
             self._retire(found.plan_id, refusal)
             return refusal
         self._retire(found.plan_id, PlanRefusal(
-            "USED_PLAN", f"plan {found.plan_id} was already used; a plan runs at most once, plan again"
+            RefusalCode.USED_PLAN, f"plan {found.plan_id} was already used; a plan runs at most once, plan again"
         ))
         return found
 
-    def _lookup(self, plan_id: object, estop_generation: int | None = None) -> StoredPlan | PlanRefusal:
+    def _lookup(self, plan_id: object, estop_generation: int | None, caller: str | None
+                ) -> StoredPlan | PlanRefusal:
         if not _is_plausible_id(plan_id):
-            return PlanRefusal("UNKNOWN_PLAN", "that is not a plan id this server issued; plan a motion first")
+            return PlanRefusal(RefusalCode.UNKNOWN_PLAN, "that is not a plan id this server issued; plan a motion first")
         plan = self._plans.get(plan_id)
         if plan is None:
             retired = self._retired.get(plan_id)
             if retired is not None:
                 return retired
-            return PlanRefusal("UNKNOWN_PLAN", f"unknown plan id {plan_id!r}; plan a motion first")
+            return PlanRefusal(RefusalCode.UNKNOWN_PLAN, f"unknown plan id {plan_id!r}; plan a motion first")
         if self._clock() >= plan.expires_mono:
             del self._plans[plan_id]
             return self._retire(plan_id, self._expired(plan))
         if estop_generation is not None and plan.estop_generation != estop_generation:
             del self._plans[plan_id]
             return self._retire(plan_id, PlanRefusal(
-                "INVALIDATED_PLAN", f"plan {plan_id} was made before the latest e-stop latched; plan again once it is safe"
+                RefusalCode.INVALIDATED_PLAN, f"plan {plan_id} was made before the latest e-stop latched; plan again once it is safe"
             ))
+        if plan.owner is not None and caller != plan.owner:
+            return PlanRefusal(
+                RefusalCode.NOT_PLAN_OWNER,
+                f"plan {plan_id} was made by another client; only the client that planned a motion may execute "
+                "it. Plan it yourself; that plan was not touched",
+            )
         return plan
 
     @staticmethod
@@ -247,13 +261,13 @@ class PlanStore:
         details = "; ".join(f"{v.code.value}: {v.detail}" for v in plan.report.hard[:3])
         more = f" (+{len(plan.report.hard) - 3} more)" if len(plan.report.hard) > 3 else ""
         return PlanRefusal(
-            "REJECTED_PLAN",
+            RefusalCode.REJECTED_PLAN,
             f"plan {plan.plan_id} was rejected by the safety envelope and can never run: {details}{more}",
         )
 
     def _expired(self, plan: StoredPlan) -> PlanRefusal:
         return PlanRefusal(
-            "EXPIRED_PLAN",
+            RefusalCode.EXPIRED_PLAN,
             f"plan {plan.plan_id} expired at {plan.expires_at_wall} (plans live {self.ttl_s:g} s); plan again",
         )
 
@@ -281,10 +295,10 @@ class PlanStore:
         try:
             q = np.asarray(current_q, dtype=float).reshape(-1)
         except (TypeError, ValueError):
-            return PlanRefusal("STALE_PLAN", f"plan {plan.plan_id}: the current joint state could not be read")
+            return PlanRefusal(RefusalCode.STALE_PLAN, f"plan {plan.plan_id}: the current joint state could not be read")
         if q.shape != plan.start.shape:
             return PlanRefusal(
-                "STALE_PLAN",
+                RefusalCode.STALE_PLAN,
                 f"plan {plan.plan_id} is for {plan.start.size} joints but the joint state has {q.size} values",
             )
         drift = np.abs(q - plan.start)
@@ -294,7 +308,7 @@ class PlanStore:
             return None
         name = names[worst] if worst < len(names) else f"#{worst}"
         return PlanRefusal(
-            "STALE_PLAN",
+            RefusalCode.STALE_PLAN,
             f"plan {plan.plan_id} is stale: joint {name} is at {q[worst]:.4f} rad, {drift[worst]:.4f} rad from "
             f"the plan's start {plan.start[worst]:.4f} rad (tolerance {self.start_tolerance_rad:g} rad); "
             "plan again from the current state",
@@ -307,6 +321,6 @@ class PlanStore:
         for plan_id in list(self._plans):
             del self._plans[plan_id]
             self._retire(plan_id, PlanRefusal(
-                "INVALIDATED_PLAN", f"plan {plan_id} was invalidated ({why}); plan again once it is safe"
+                RefusalCode.INVALIDATED_PLAN, f"plan {plan_id} was invalidated ({why}); plan again once it is safe"
             ))
         return count

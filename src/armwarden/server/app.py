@@ -13,24 +13,29 @@ from __future__ import annotations
 import logging
 import secrets
 import weakref
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 from mcp import MCPError
 from mcp.server.context import CallNext, ServerRequestContext
 from mcp.server.mcpserver import MCPServer
 from mcp_types import CallToolResult, InputRequiredResult, ListToolsResult, TextContent
+from mcp_types.version import is_version_at_least
 
 from armwarden import __version__
+from armwarden.errors import RefusalCode
 from armwarden.guard import Guard
 from armwarden.policy import ALL_TOOLS
 from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
 from armwarden.transport.access import current_principal, role_allows
 
+if TYPE_CHECKING:
+    from armwarden.transport.tokens import Principal
+
 logger = logging.getLogger(__name__)
 
-#: tools that must work whatever they are sent (DESIGN.md §4: stopping always works)
+#: tools that must work whatever they are sent: stopping always works (docs/architecture.md, "Stopping")
 _ACCEPTS_ANY_ARGUMENTS = frozenset({"stop_motion", "estop"})
 #: read-only tools whose results are observations, not decisions: the call is recorded, the
 #: (large, frequent) result is not — it would make every state poll cost a big audit record
@@ -73,20 +78,22 @@ class ArmWardenServer:
         if ctx.method != "tools/call":
             return await call_next(ctx)
         params = ctx.params or {}
+        session = self._sessions.of(ctx)
         record = CallRecord(
             tool=str(params.get("name"))[:128],
             arguments=params.get("arguments"),
-            session=self._sessions.of(ctx),
+            session=session,
             principal=None if principal is None else principal.name,
             role=None if principal is None else principal.role,
+            caller=_caller(ctx, session, principal),
         )
         token = CURRENT_CALL.set(record)
         try:
             if principal is not None and not role_allows(principal.role, record.tool, self.group_of):
-                record.outcome, record.code = "refused", "FORBIDDEN"
+                record.outcome, record.code = "refused", RefusalCode.FORBIDDEN.value
                 record.detail = f"the {principal.role} role may not call {record.tool}"
                 result: Any = CallToolResult(
-                    content=[TextContent(type="text", text=f"REFUSED [FORBIDDEN]: {record.detail}")], is_error=True
+                    content=[TextContent(type="text", text=f"REFUSED [{RefusalCode.FORBIDDEN.value}]: {record.detail}")], is_error=True
                 )
             elif (unknown := await self._unknown_arguments(record.tool, record.arguments)) is not None:
                 result = unknown
@@ -122,7 +129,7 @@ class ArmWardenServer:
         unknown = sorted(str(key)[:64] for key in arguments if key not in declared and key not in _IGNORED_ARGUMENTS)
         if not unknown:
             return None
-        text = (f"REFUSED [INVALID_ARGUMENTS]: {tool} has no argument(s) {unknown[:8]}; it accepts "
+        text = (f"REFUSED [{RefusalCode.INVALID_ARGUMENTS.value}]: {tool} has no argument(s) {unknown[:8]}; it accepts "
                 f"{sorted(declared) or 'no arguments'}. Nothing was done.")
         return CallToolResult(content=[TextContent(type="text", text=text)], is_error=True)
 
@@ -140,10 +147,10 @@ class ArmWardenServer:
         if isinstance(result, CallToolResult):
             if result.is_error and record.outcome is None:
                 record.outcome = "invalid" if not record.body_ran else "error"
-                record.code = record.code or ("INVALID_ARGUMENTS" if not record.body_ran else "ERROR")
+                record.code = record.code or (RefusalCode.INVALID_ARGUMENTS.value if not record.body_ran else "ERROR")
                 record.detail = _text_of(result)
                 if not record.body_ran and record.tool in ALL_TOOLS:
-                    self.guard.limiter.try_acquire(record.tool)  # floods of invalid calls still cost tokens
+                    self.guard.charge(record.tool)
                 if result.structured_content is not None and record.tool not in _UNRECORDED_RESULTS:
                     record.extra["result"] = result.structured_content
             else:
@@ -219,6 +226,22 @@ class SessionNames:
         info = getattr(getattr(session, "client_params", None), "client_info", None)
         client = "unknown-client" if info is None else f"{info.name}/{info.version}"[:48]
         return client if name is None else f"{client}#{name}"
+
+
+def _caller(ctx: ServerRequestContext, session: str | None, principal: Principal | None) -> str:
+    """Who plans are bound to (see `CallRecord.caller`). A bearer token: its name and the
+    fingerprint the transport bound (every session of that token, and no other token of that
+    name). Otherwise the connection, when the protocol has one. A sessionless (2026-07-28) client
+    without a token has no identity to bind to, so all such clients are one caller: on stdio that
+    is the one client at the other end."""
+    if principal is not None:
+        from mcp.server.auth.middleware.auth_context import get_access_token  # loaded with the HTTP transport
+
+        access = get_access_token()
+        return f"token:{principal.name}:{access.subject if access is not None else ''}"
+    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
+        return "unauthenticated"
+    return f"session:{session}"
 
 
 def _as_model(result: Any) -> Any:

@@ -32,6 +32,6 @@ def refused(exc: SafetyRefusal) -> CallToolResult:
     record = current_call()
     if record is not None:
         record.outcome = "refused"
-        record.code = exc.code
+        record.code = exc.code.value  # the plain string, as on the wire
         record.detail = str(exc)
-    return CallToolResult(content=[TextContent(type="text", text=f"REFUSED [{exc.code}]: {exc}")], is_error=True)
+    return CallToolResult(content=[TextContent(type="text", text=f"REFUSED [{exc.code.value}]: {exc}")], is_error=True)

@@ -1,0 +1,196 @@
+"""Running one checked, approved plan on the backend: the only place a trajectory is handed over.
+
+The Guard decides *whether* a plan may run (admission, ordering, the execution slot); this
+module *runs* it: it arms the force monitor (refusing to move without a usable wrench, or from
+a contact already over twice the limit), writes `execution_started` to the audit log before the
+arm moves (a crash mid-motion still leaves a trace), then executes while the monitor watches and
+progress streams, and ends every path with the arm stopped or the e-stop latched:
+
+- force limit crossed (while moving or in one last sample after) → e-stop, FORCE_LIMIT;
+- backend fault mid-motion → e-stop, BACKEND_FAULT;
+- the call cancelled (client cancel, disconnect, timeout) → stop (e-stop if the stop fails),
+  recorded as aborted with the time the arm actually moved.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+import anyio
+
+from armwarden.backends.base import Backend, ExecutionResult
+from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.policy import Policy
+from armwarden.results import ExecutionReport
+from armwarden.safety.approval import Approval
+from armwarden.safety.estop import EStopEvent, EStopLatch
+from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
+from armwarden.safety.plans import StoredPlan
+
+logger = logging.getLogger(__name__)
+
+ProgressReporter = Callable[[float], Awaitable[None]]
+#: latch the e-stop: (reason, source, force violation details)
+EStop = Callable[..., Awaitable[Any]]
+#: stop arm and gripper for a call that cannot; None if the stop was issued, else the e-stop it latched
+StopFor = Callable[[str], Awaitable["EStopEvent | None"]]
+
+NO_WRENCH_MESSAGE = (
+    "this backend provides no wrench estimate, so the contact force limit cannot be enforced, and the "
+    "policy requires it (force.require_wrench: true); nothing was moved"
+)
+
+
+@dataclass
+class Execution:
+    """The occupant of the Guard's execution slot: which plan, how far, since when."""
+
+    plan_id: str
+    progress: float = 0.0
+    #: clock time the trajectory was handed to the backend; None until the arm may move
+    started: float | None = None
+
+
+class MotionRunner:
+    """Arms the force monitor, then runs a trajectory to its end, a stop or an e-stop."""
+
+    def __init__(self, backend: Backend, policy: Policy, latch: EStopLatch, *, clock: Callable[[], float], audit: Any,
+                 emergency_stop: EStop, stop_for: StopFor, record: Callable[[ExecutionReport], ExecutionReport]) -> None:
+        self.backend = backend
+        self.latch = latch
+        self.require_wrench = policy.force.require_wrench
+        self.force_limits = ForceLimits.from_policy(policy)
+        self.audit = audit
+        self._clock = clock
+        self._emergency_stop = emergency_stop
+        self._stop_for = stop_for
+        self._record = record
+        #: force/torque thresholds carried between executions while resting above a limit (see force.py)
+        self._contact_ceiling: tuple[float | None, float | None] = (None, None)
+
+    # ------------------------------------------------------------------ before moving
+    async def force_monitor(self) -> ForceMonitor | None:
+        """A monitor with a fresh baseline, or None when the policy allows moving without one."""
+        if not self.backend.capabilities.wrench:
+            if self.require_wrench:
+                raise SafetyRefusal(RefusalCode.NO_WRENCH, NO_WRENCH_MESSAGE)
+            return None
+        monitor = ForceMonitor(self.force_limits, self.backend.read_wrench, clock=self._clock,
+                               carried_ceiling=self._contact_ceiling)
+        baseline = await monitor.baseline()
+        if baseline is None:
+            raise SafetyRefusal(RefusalCode.NO_WRENCH,
+                                "the wrench estimate is missing, slow, stale or invalid right now; refusing to move")
+        if monitor.baseline_excessive:
+            raise SafetyRefusal(RefusalCode.IN_CONTACT, f"the arm already presses with {baseline.force_norm_n:.1f} N / "
+                                f"{baseline.torque_norm_nm:.2f} N·m, more than twice the limit; a human must relieve the "
+                                "contact before anything moves")
+        self._contact_ceiling = monitor.contact_ceiling  # kept until a baseline is back under the limit
+        return monitor
+
+    async def audit_start(self, plan: StoredPlan, approval: Approval) -> None:
+        """`execution_started` on disk, or no motion."""
+        if self.audit is None:
+            return
+        try:
+            await self.audit.append_async(
+                "execution_started", tool="execute_plan", arguments={"plan_id": plan.plan_id}, outcome="starting",
+                operator=approval.operator, detail=f"{plan.trajectory.duration_s:.2f} s, approval via {approval.via}",
+            )
+        except Exception as exc:
+            raise SafetyRefusal(RefusalCode.AUDIT_UNAVAILABLE, f"execute_plan refused: the audit log cannot be "
+                                f"written ({exc}); nothing moved") from exc
+
+    # ------------------------------------------------------------------ moving
+    async def run(self, plan: StoredPlan, execution: Execution, approval: Approval,
+                  monitor: ForceMonitor | None, report_progress: ProgressReporter | None) -> ExecutionReport:
+        violation: ForceViolation | None = None
+        result: ExecutionResult | None = None
+        execution.started = self._clock()
+
+        def on_progress(fraction: float) -> None:
+            execution.progress = fraction
+
+        async def on_violation(found: ForceViolation) -> None:
+            nonlocal violation
+            violation = found
+            await self._emergency_stop(f"force monitor: {found.detail}", source="force_monitor", force=found.to_dict())
+
+        async def forward_progress() -> None:
+            sent = -1.0
+            while True:
+                await anyio.sleep(0.1)
+                if report_progress is not None and execution.progress != sent:
+                    sent = execution.progress
+                    await report_progress(sent)
+
+        fault: BackendError | None = None
+        try:
+            async with anyio.create_task_group() as group:
+                if monitor is not None:
+                    async def watch() -> None:
+                        await monitor.run(on_violation)
+                        group.cancel_scope.cancel()
+                    group.start_soon(watch)
+                group.start_soon(forward_progress)
+                try:
+                    result = await self.backend.execute(plan.trajectory, on_progress)
+                except BackendError as exc:  # caught here: out of the task group it would be an ExceptionGroup
+                    fault = exc
+                group.cancel_scope.cancel()
+            if monitor is not None and violation is None and fault is None:
+                # one more sample now that the motion ended: a crossing after the last poll still counts
+                if (final := await monitor.check_once()) is not None:
+                    with anyio.CancelScope(shield=True):
+                        await on_violation(final)
+        except anyio.get_cancelled_exc_class():
+            with anyio.CancelScope(shield=True):
+                await self._stop_after_interruption(plan.plan_id, execution, approval)
+            raise
+        if fault is not None:
+            with anyio.CancelScope(shield=True):
+                await self._emergency_stop(f"backend fault during execution: {fault}", source="backend_fault")
+            raise SafetyRefusal(RefusalCode.BACKEND_FAULT, f"the backend failed during execution ({fault}); the e-stop "
+                                "is latched, a human must inspect the robot and approve reset_estop") from fault
+        duration = self._clock() - execution.started
+        max_force = None if monitor is None else monitor.max_observed_force_n
+        if violation is not None:
+            self._record(ExecutionReport(
+                plan_id=plan.plan_id, status="aborted", approval=approval.info(), duration_s=duration,
+                max_observed_force_n=max_force, detail=f"force monitor: {violation.detail}",
+            ))
+            event = self.latch.current_event
+            raise SafetyRefusal(
+                RefusalCode.FORCE_LIMIT,
+                f"motion aborted: {violation.detail}. The arm was stopped and the software e-stop "
+                f"#{event.number if event else '?'} is latched; a human must check the robot and approve "
+                "reset_estop before anything can move again.",
+            )
+        completed = result is not None and result.completed
+        report = ExecutionReport(
+            plan_id=plan.plan_id,
+            status="succeeded" if completed else "aborted",
+            approval=approval.info(),
+            duration_s=duration,
+            max_observed_force_n=max_force,
+            detail=("completed" if completed else f"stopped before the goal: {result.reason if result else 'no result'}")
+            + ("" if monitor is not None else "; no wrench estimate: the contact force limit was NOT enforced"),
+        )
+        execution.progress = 1.0 if completed else execution.progress
+        return self._record(report)
+
+    async def _stop_after_interruption(self, plan_id: str, execution: Execution, approval: Approval) -> None:
+        """The execute call was cancelled (client cancel, disconnect, timeout): stop, then record."""
+        stop_failed = await self._stop_for("stop after an interrupted execution") is not None
+        moved = 0.0 if execution.started is None else self._clock() - execution.started
+        self._record(ExecutionReport(
+            plan_id=plan_id, status="aborted", approval=approval.info(), duration_s=moved,
+            max_observed_force_n=None, detail="interrupted: the call was cancelled",
+        ))
+        if self.audit is not None:
+            outcome, what = ("stop_failed", "the stop FAILED (e-stop latched)") if stop_failed else ("stopped", "the arm was stopped")
+            await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome=outcome,
+                                          detail=f"plan {plan_id}: the call was cancelled; {what}")

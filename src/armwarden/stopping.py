@@ -1,0 +1,85 @@
+"""Stopping: the one path that must always work.
+
+`stop_motion` and `emergency_stop` never wait for anything but the backend's stop: they bump the
+stop generation (an execution still being checked sees it and does not start) and latch
+synchronously, then await the backend. A stop that fails latches the software e-stop and voids
+every plan; the human is told to use the hardware e-stop. Each stop's timing (issued, confirmed,
+arm still) goes on the call's audit record.
+"""
+
+from __future__ import annotations
+
+import time
+
+from armwarden import conversions
+from armwarden.backends.base import Backend
+from armwarden.callcontext import note_stop_timing
+from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.results import EStopResult, StopResult
+from armwarden.safety.estop import EStopEvent, EStopLatch
+from armwarden.safety.plans import PlanStore
+
+
+class Stopper:
+    """Stops arm and gripper, latches the e-stop, and keeps the faults a failed stop leaves."""
+
+    def __init__(self, backend: Backend, latch: EStopLatch, plans: PlanStore) -> None:
+        self.backend = backend
+        self.latch = latch
+        self.plans = plans
+        #: bumped by every stop; an execution that saw another value before moving does not move
+        self.generation = 0
+        self.faults: list[str] = []
+        self.force_violation_latched = False
+
+    async def stop_motion(self) -> StopResult:
+        """Stop arm and gripper now. Never rate limited, never needs approval."""
+        self.generation += 1
+        try:
+            await self._timed_stop()
+        except BackendError as exc:
+            event = self._latch_failed_stop("stop_motion", exc)
+            raise SafetyRefusal(RefusalCode.STOP_FAILED, f"the stop command failed ({exc}); the software e-stop "
+                                f"#{event.number} is latched. Use the hardware e-stop if the robot is still moving.") from exc
+        return StopResult(stopped=True, detail="stop commanded for arm and gripper")
+
+    async def emergency_stop(self, reason: object, source: str = "estop", force: dict | None = None) -> EStopResult:
+        """Latch, invalidate every plan and stop arm and gripper. Accepts any reason."""
+        self.generation += 1
+        event = self.latch.latch(reason, source, force_violation=force)
+        if source == "force_monitor":
+            self.force_violation_latched = True
+        self.plans.invalidate_all(f"e-stop #{event.number}")
+        try:
+            await self._timed_stop()
+        except BackendError as exc:
+            self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
+            event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
+        return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
+
+    async def stop_for(self, what: str) -> EStopEvent | None:
+        """Stop arm and gripper for a call that can no longer do it itself (cancelled, abandoned).
+        Returns None when the stop was issued, else the e-stop event latched because it failed."""
+        self.generation += 1
+        try:
+            await self.backend.stop()
+        except BackendError as exc:
+            return self._latch_failed_stop(what, exc)
+        return None
+
+    def _latch_failed_stop(self, what: str, exc: BaseException) -> EStopEvent:
+        """A stop that could not be issued: latch the e-stop, void every plan, report the fault."""
+        event = self.latch.latch(f"{what} failed: {exc}", "stop_failed")
+        self.plans.invalidate_all("stop failed")
+        self.faults.append(f"{what} failed: {exc}")
+        return event
+
+    async def _timed_stop(self) -> None:
+        """The backend stop, with when it was issued and confirmed noted on the call's audit record."""
+        issued = time.monotonic()
+        stopped = False
+        try:
+            await self.backend.stop()
+            stopped = True
+        finally:
+            note_stop_timing(issued, time.monotonic(), self.backend.last_stop_stamp, stopped)
