@@ -13,7 +13,6 @@ from typing import Any
 import anyio
 from mcp import Client
 
-from armwarden.backends.base import Capabilities
 from tests.server.harness import ArmHarness
 
 READY = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]  # the bundled policy's home pose [rad]
@@ -64,7 +63,7 @@ async def execute(client: Client, plan_id: str) -> Any:
 # ------------------------------------------------------------------ motion in the background
 async def wait_until(predicate: Callable[[], bool], timeout_s: float = 10.0) -> None:
     with anyio.fail_after(timeout_s):
-        while not predicate():
+        while not predicate():  # noqa: ASYNC110 (the Guard's motion status and the audit file have no event to wait on)
             await anyio.sleep(0.002)
 
 
@@ -122,13 +121,15 @@ def events(arm: ArmHarness, event: str) -> list[dict[str, Any]]:
     return [r for r in audit_records(arm) if r["event"] == event]
 
 
-def assert_refused(arm: ArmHarness, result: Any, code: str, tool: str = "execute_plan") -> dict[str, Any]:
-    """Refused with `code` on the wire and in the call's audit record; nothing actuated, ever."""
+def assert_refused(arm: ArmHarness, result: Any, code: str, tool: str = "execute_plan",
+                   moved_before: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Refused with `code` on the wire and in the call's audit record; the backend received no
+    actuation beyond `moved_before` (what the scenario legitimately ran first)."""
     text = text_of(result)
     assert result.is_error and f"REFUSED [{code}]" in text, text[:500]
     record = calls(arm, tool)[-1]
     assert (record["outcome"], (record["extra"] or {}).get("code")) == ("refused", code), record
-    assert arm.actuations == []
+    assert arm.actuations == list(moved_before)
     return record
 
 
@@ -140,6 +141,3 @@ def assert_invalid(arm: ArmHarness, result: Any, tool: str) -> dict[str, Any]:
     assert arm.actuations == []
     return record
 
-
-def declares(capabilities: Capabilities, name: str) -> bool:
-    return bool(getattr(capabilities, name))
