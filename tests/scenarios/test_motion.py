@@ -130,7 +130,7 @@ async def test_stop_motion_during_motion_holds_the_arm_without_latching(arm) -> 
 
         result = outcome["result"]
         assert not result.is_error, text_of(result)
-        assert result.structured_content["status"] == "aborted"
+        assert result.structured_content["status"] == "aborted" and result.structured_content["duration_s"] > 0.0
         assert between(await assert_still(client), start, goal)
         assert (await safety(client))["estopped"] is False
         assert arm.actuations == ["execute"] and arm.backend.stops >= 1
