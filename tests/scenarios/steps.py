@@ -16,26 +16,21 @@ from mcp import Client
 from tests.server.harness import ArmHarness
 
 READY = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]  # the bundled policy's home pose [rad]
-#: how far the final joint positions may be from the plan's goal [rad]: the backend contract's
-#: `goal_tolerance_rad` (0 for kinematic backends), plus JSON's float round trip
-GOAL_TOLERANCE_RAD = 1e-9
 #: scalings for a motion long enough to interrupt (~6 s of trajectory; the harness runs it faster)
 SLOW = {"velocity_scaling": 0.02, "acceleration_scaling": 0.02}
 
 
-def joints(**deltas: float) -> list[float]:
-    """The ready pose with joint offsets [rad], e.g. `joints(j1=0.2)`."""
-    q = list(READY)
-    for name, delta in deltas.items():
-        q[int(name[1:]) - 1] += delta
-    return q
-
-
 def offset(q: list[float], **deltas: float) -> list[float]:
+    """`q` with joint offsets [rad], e.g. `offset(q, j1=0.2)` adds 0.2 rad to the first joint."""
     q = list(q)
     for name, delta in deltas.items():
         q[int(name[1:]) - 1] += delta
     return q
+
+
+def joints(**deltas: float) -> list[float]:
+    """The ready pose with joint offsets [rad], e.g. `joints(j1=0.2)`."""
+    return offset(READY, **deltas)
 
 
 def text_of(result: Any) -> str:

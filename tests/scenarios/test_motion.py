@@ -12,7 +12,6 @@ import pytest
 from mcp import Client
 
 from tests.scenarios.steps import (
-    GOAL_TOLERANCE_RAD,
     SLOW,
     assert_refused,
     assert_still,
@@ -53,7 +52,7 @@ async def estop_mid_motion(arm: ArmHarness, mover: Client, other: Client) -> tup
 # ------------------------------------------------------------------ a safe plan
 @pytest.mark.policy(**{"approval.mode": "always"})
 @pytest.mark.parametrize("mode", MODES)
-async def test_an_approved_safe_plan_runs_to_its_goal_with_the_operator_on_record(arm, mode) -> None:
+async def test_an_approved_safe_plan_runs_to_its_goal_with_the_operator_on_record(arm, mode, goal_tolerance_rad) -> None:
     human = approve("alice")
     goal = joints(j1=0.2, j4=0.1)
     async with arm.client(mode, human) as client:
@@ -66,7 +65,7 @@ async def test_an_approved_safe_plan_runs_to_its_goal_with_the_operator_on_recor
         assert done.structured_content["status"] == "succeeded"
         assert len(human.prompts) == 1 and summary["plan_id"] in human.prompts[0]
         assert arm.actuations == ["execute"]
-        assert await assert_still(client) == pytest.approx(goal, abs=GOAL_TOLERANCE_RAD)
+        assert await assert_still(client) == pytest.approx(goal, abs=goal_tolerance_rad)
     record = calls(arm, "execute_plan")[-1]
     assert (record["outcome"], record["operator"]) == ("ok", "alice")
     assert record["extra"]["approval"]["via"] == "elicitation"
@@ -96,7 +95,7 @@ async def test_an_estop_during_motion_holds_the_arm_latches_and_invalidates_ever
     assert moved["arguments"] == {"plan_id": summary["plan_id"]} and moved["extra"]["result"]["status"] == "aborted"
 
 
-async def test_after_an_estop_during_motion_only_a_human_releases_it_and_motion_works_again(arm) -> None:
+async def test_after_an_estop_during_motion_only_a_human_releases_it_and_motion_works_again(arm, goal_tolerance_rad) -> None:
     async with arm.client() as mover, arm.client() as other:
         await estop_mid_motion(arm, mover, other)
 
@@ -110,7 +109,7 @@ async def test_after_an_estop_during_motion_only_a_human_releases_it_and_motion_
         summary = await plan_joints(client, goal)
         done = await execute(client, summary["plan_id"])
         assert done.structured_content["status"] == "succeeded", text_of(done)
-        assert await assert_still(client) == pytest.approx(goal, abs=GOAL_TOLERANCE_RAD)
+        assert await assert_still(client) == pytest.approx(goal, abs=goal_tolerance_rad)
         assert arm.actuations == ["execute", "execute"]
     reset = calls(arm, "reset_estop")[-1]
     assert (reset["outcome"], reset["operator"]) == ("ok", "bob")
@@ -168,7 +167,7 @@ async def test_a_client_cancel_during_motion_stops_the_arm_and_is_audited(arm, m
 
 
 # ------------------------------------------------------------------ one execution at a time
-async def test_a_second_execution_while_one_runs_is_refused_busy_and_its_plan_stays_usable(arm) -> None:
+async def test_a_second_execution_while_one_runs_is_refused_busy_and_its_plan_stays_usable(arm, goal_tolerance_rad) -> None:
     async with arm.client() as client:
         start = await joint_positions(client)
         first = await plan_joints(client, offset(start, j1=0.3), **SLOW)
@@ -184,7 +183,7 @@ async def test_a_second_execution_while_one_runs_is_refused_busy_and_its_plan_st
         done = await execute(client, second["plan_id"])  # back at its start, the refused plan runs
 
         assert done.structured_content["status"] == "succeeded", text_of(done)
-        assert await assert_still(client) == pytest.approx(offset(start, j2=-0.1), abs=GOAL_TOLERANCE_RAD)
+        assert await assert_still(client) == pytest.approx(offset(start, j2=-0.1), abs=goal_tolerance_rad)
         assert arm.actuations == ["execute", "execute", "execute"]
     outcomes = [(r["arguments"]["plan_id"], r["outcome"]) for r in calls(arm, "execute_plan")]
     assert outcomes == [(second["plan_id"], "refused"), (first["plan_id"], "ok"), (back["plan_id"], "ok"),
