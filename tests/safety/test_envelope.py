@@ -17,6 +17,7 @@ from armwarden.robot import RobotModel
 from armwarden.safety.envelope import Box, Envelope, EnvelopeLimits
 from armwarden.safety.violations import Code, Severity
 from tests.helpers import DOWN, READY
+from tests.safety.coal_shapes import coal_capsule
 
 
 def _codes(report) -> set[Code]:
@@ -246,8 +247,8 @@ class DenseOracle:
         ws = self.limits.workspace
         for a, b in self.pairs:
             (a0, a1, ra), (b0, b1, rb) = segments[a], segments[b]
-            shape_a, tf_a = _coal_capsule(a0, a1, ra)
-            shape_b, tf_b = _coal_capsule(b0, b1, rb)
+            shape_a, tf_a = coal_capsule(a0, a1, ra)
+            shape_b, tf_b = coal_capsule(b0, b1, rb)
             result = coal.CollisionResult()
             coal.collide(shape_a, tf_a, shape_b, tf_b, coal.CollisionRequest(), result)
             if result.isCollision():
@@ -269,16 +270,6 @@ class DenseOracle:
                 )
                 if result.isCollision():
                     found.append(f"{capsule.name} inside {zone.name} at t={t:.4f}")
-
-
-def _coal_capsule(p0: np.ndarray, p1: np.ndarray, radius: float):
-    length = float(np.linalg.norm(p1 - p0))
-    if length < 1e-12:
-        return coal.Sphere(radius), coal.Transform3s(np.eye(3), p0)
-    z = (p1 - p0) / length
-    x = np.cross([1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    return coal.Capsule(radius, length), coal.Transform3s(np.column_stack([x, np.cross(z, x), z]), (p0 + p1) / 2)
 
 
 @pytest.fixture(scope="module")

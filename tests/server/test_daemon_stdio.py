@@ -355,13 +355,19 @@ def receive_until(rpc: RawStdio, predicate) -> dict[str, Any]:
             return message
 
 
+def reuse_the_id_of_an_open_motion(rpc: RawStdio) -> tuple[int, dict[str, Any]]:
+    """Start a motion, then send `get_robot_state` under the motion call's still-open id: the id
+    and the answer to that second request."""
+    motion_id = start_motion(rpc)
+    rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
+              "params": {"name": "get_robot_state", "arguments": {}}})
+    return motion_id, receive_until(rpc, lambda m: m.get("id") == motion_id)
+
+
 def test_a_request_reusing_the_id_of_an_open_motion_call_is_refused_and_the_motion_completes(tmp_path) -> None:
     process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
     try:
-        motion_id = start_motion(rpc)
-        rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
-                  "params": {"name": "get_robot_state", "arguments": {}}})
-        refusal = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        motion_id, refusal = reuse_the_id_of_an_open_motion(rpc)
         done = receive_until(rpc, lambda m: m.get("id") == motion_id)
     finally:
         stop_raw_daemon(process)
@@ -376,10 +382,7 @@ def test_a_request_reusing_the_id_of_an_open_motion_call_is_refused_and_the_moti
 def test_an_open_motion_call_stays_cancellable_after_a_duplicate_id_was_refused(tmp_path) -> None:
     process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
     try:
-        motion_id = start_motion(rpc)
-        rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
-                  "params": {"name": "get_robot_state", "arguments": {}}})
-        refusal = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        motion_id, refusal = reuse_the_id_of_an_open_motion(rpc)
         rpc.send({"jsonrpc": "2.0", "method": "notifications/cancelled", "params": {"requestId": motion_id}})
         records = anyio.run(wait_for_record, audit, lambda r: r["event"] == "execution_interrupted")
         state = rpc.request("tools/call", {"name": "get_motion_status", "arguments": {}})
