@@ -1,4 +1,18 @@
-"""Shared fixtures: the bundled FR3 policy, robot model, envelope and planner; a clean audit-key environment."""
+"""Shared fixtures: the bundled FR3 policy, robot model, envelope and planner; a clean audit-key environment.
+
+Habits of this suite:
+
+- Async tests are `async def` with `@pytest.mark.anyio` (anyio's pytest plugin) on the asyncio
+  backend (`anyio_backend` below); no test calls `anyio.run` itself unless it must stay sync
+  (a comment says why there).
+- Shared helpers are in `tests/helpers.py` (poses, `text_of`, `records_of`, `FakeClock`, child
+  process environment) and `tests/server/harness.py` (an in-memory ArmWarden and its SDK clients).
+- Hypothesis budgets: the default run (`pytest -m "not slow"`) must stay fast, so the slowest
+  properties run there with a small `max_examples`, and again under the same name with a
+  `_full_budget` suffix, marked `slow`, with the full budget: `pytest -m slow` runs the full
+  budgets (see the dense-resampling properties in `safety/test_envelope.py`). A property is given
+  a quick/full pair when one example costs more than about 0.1 s.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +27,7 @@ from armwarden.policy import Policy, load_policy
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import AUDIT_KEY_ENV
 from armwarden.safety.envelope import Envelope, EnvelopeLimits
-
-READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+from tests.helpers import READY
 
 
 @pytest.fixture

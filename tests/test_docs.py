@@ -34,7 +34,7 @@ def gen_docs():
 
 
 def _first_difference(expected: str, actual: str) -> str:
-    for number, (want, got) in enumerate(zip(expected.splitlines(), actual.splitlines()), start=1):
+    for number, (want, got) in enumerate(zip(expected.splitlines(), actual.splitlines(), strict=False), start=1):
         if want != got:
             return f"first difference at line {number}:\n  generated: {want!r}\n  on disk:   {got!r}"
     return f"generated {len(expected.splitlines())} lines, the file has {len(actual.splitlines())}"

@@ -11,9 +11,7 @@ import pytest
 from armwarden.planning.planners import Planner, PoseTarget
 from armwarden.robot import RobotModel
 from armwarden.safety.violations import Code
-from tests.conftest import READY
-
-DOWN = np.diag([1.0, -1.0, -1.0])
+from tests.helpers import DOWN, READY
 
 
 def test_joint_plan_starts_at_the_state_and_ends_exactly_at_the_goal(planner: Planner) -> None:

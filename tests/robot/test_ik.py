@@ -6,7 +6,7 @@ import numpy as np
 
 from armwarden.robot import RobotModel
 from armwarden.robot.ik import IkSolver
-from tests.conftest import READY
+from tests.helpers import READY
 
 
 def _random_reachable_poses(robot: RobotModel, count: int, seed: int):

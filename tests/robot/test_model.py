@@ -8,7 +8,7 @@ import pytest
 
 from armwarden.errors import RobotModelError
 from armwarden.robot import RobotModel, build_robot, resolve_description
-from tests.conftest import READY
+from tests.helpers import READY
 
 JOINTS = [f"fr3_joint{i}" for i in range(1, 8)]
 
@@ -28,7 +28,7 @@ def test_zero_configuration_matches_the_published_golden_vectors(robot: RobotMod
 
 def test_zero_configuration_is_outside_the_fr3_limits_on_joints_4_and_6(robot: RobotModel) -> None:
     assert not robot.within_limits(np.zeros(7))
-    outside = [name for name, lo, hi in zip(robot.joint_names, robot.lower, robot.upper) if not lo <= 0.0 <= hi]
+    outside = [name for name, lo, hi in zip(robot.joint_names, robot.lower, robot.upper, strict=True) if not lo <= 0.0 <= hi]
     assert outside == ["fr3_joint4", "fr3_joint6"]
 
 
@@ -78,7 +78,7 @@ def test_tcp_jacobian_matches_finite_differences(robot: RobotModel) -> None:
 
 
 def test_unknown_frame_error_lists_the_valid_frames(robot: RobotModel) -> None:
-    with pytest.raises(RobotModelError, match="valid frames: .*fr3_hand_tcp"):
+    with pytest.raises(RobotModelError, match=r"valid frames: .*fr3_hand_tcp"):
         robot.frame_pose(READY, "no_such_frame")
 
 

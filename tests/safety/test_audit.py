@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -18,9 +19,9 @@ from hypothesis import strategies as st
 
 from armwarden.errors import ConfigurationError
 from armwarden.safety.audit import (
+    AUDIT_KEY_ENV,
     GENESIS_HASH,
     RECORD_FIELDS,
-    AUDIT_KEY_ENV,
     AuditEntry,
     AuditLog,
     AuditRecord,
@@ -63,7 +64,7 @@ def test_chain_verifies_after_many_appends(tmp_path: Path) -> None:
     assert report.first_bad_line is None and report.reason is None and report.recovered_lines == []
     assert [r.seq for r in records] == list(range(1, 501))
     assert records[0].prev == GENESIS_HASH
-    assert all(b.prev == a.hash for a, b in zip(records, records[1:]))
+    assert all(b.prev == a.hash for a, b in itertools.pairwise(records))
 
 
 def test_each_line_is_the_canonical_json_of_a_record_with_every_field(tmp_path: Path) -> None:
@@ -500,22 +501,18 @@ def test_long_strings_are_truncated_with_a_marker(tmp_path: Path) -> None:
 # --- concurrency and async ----------------------------------------------------------------------
 
 
-def test_append_async_writes_in_call_order_under_anyio(tmp_path: Path) -> None:
+@pytest.mark.anyio
+async def test_append_async_writes_in_call_order_under_anyio(tmp_path: Path) -> None:
     path = tmp_path / "audit.jsonl"
+    with AuditLog(path) as log:
+        first = await log.append_async("startup", detail="async")
+        results: list[AuditRecord] = [first]
+        async with anyio.create_task_group() as tg:
+            for i in range(20):
+                async def one(i: int = i) -> None:
+                    results.append(await log.append_async("tool_call", arguments={"i": i}))
 
-    async def main() -> list[AuditRecord]:
-        with AuditLog(path) as log:
-            first = await log.append_async("startup", detail="async")
-            results: list[AuditRecord] = [first]
-            async with anyio.create_task_group() as tg:
-                for i in range(20):
-                    async def one(i: int = i) -> None:
-                        results.append(await log.append_async("tool_call", arguments={"i": i}))
-
-                    tg.start_soon(one)
-            return results
-
-    results = anyio.run(main)
+                tg.start_soon(one)
     assert results[0].seq == 1 and len(results) == 21
     written = [json.loads(line) for line in lines_of(path)]
     assert [r["arguments"]["i"] for r in written[1:]] == list(range(20))  # FIFO: call order
@@ -622,41 +619,37 @@ def test_a_failed_write_makes_the_log_refuse_further_appends(tmp_path: Path, mon
     log.close()
 
 
-def test_concurrent_async_appends_share_fsyncs_and_keep_the_chain(tmp_path: Path) -> None:
+@pytest.mark.anyio
+async def test_concurrent_async_appends_share_fsyncs_and_keep_the_chain(tmp_path: Path) -> None:
     path = tmp_path / "audit.jsonl"
 
-    async def scenario() -> None:
-        with AuditLog(path) as log:
-            async with anyio.create_task_group() as group:
-                for i in range(60):
-                    group.start_soon(functools.partial(log.append_async, "tool_call", arguments={"i": i}))
-
-    anyio.run(scenario)
+    with AuditLog(path) as log:
+        async with anyio.create_task_group() as group:
+            for i in range(60):
+                group.start_soon(functools.partial(log.append_async, "tool_call", arguments={"i": i}))
     report = verify_file(path)
     assert report.ok and report.records == 60
 
 
-def test_a_failed_group_fsync_fails_every_caller_of_the_batch(tmp_path: Path, monkeypatch) -> None:
+@pytest.mark.anyio
+async def test_a_failed_group_fsync_fails_every_caller_of_the_batch(tmp_path: Path, monkeypatch) -> None:
     path = tmp_path / "audit.jsonl"
     errors: list[BaseException] = []
 
-    async def scenario() -> None:
-        with AuditLog(path) as log:
-            def broken_fsync(fd: int) -> None:
-                raise OSError(5, "simulated I/O error")
+    with AuditLog(path) as log:
+        def broken_fsync(fd: int) -> None:
+            raise OSError(5, "simulated I/O error")
 
-            monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", broken_fsync)
+        monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", broken_fsync)
 
-            async def one(i: int) -> None:
-                try:
-                    await log.append_async("tool_call", arguments={"i": i})
-                except AuditWriteError as exc:
-                    errors.append(exc)
+        async def one(i: int) -> None:
+            try:
+                await log.append_async("tool_call", arguments={"i": i})
+            except AuditWriteError as exc:
+                errors.append(exc)
 
-            async with anyio.create_task_group() as group:
-                for i in range(5):
-                    group.start_soon(one, i)
-            monkeypatch.undo()
-
-    anyio.run(scenario)
+        async with anyio.create_task_group() as group:
+            for i in range(5):
+                group.start_soon(one, i)
+        monkeypatch.undo()
     assert len(errors) == 5

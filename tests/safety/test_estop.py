@@ -9,14 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from armwarden.safety.estop import NO_REASON, REASON_LIMIT, EStopLatch, flatten_reason
-
-
-class FakeClock:
-    def __init__(self, now: float) -> None:
-        self.now = now
-
-    def __call__(self) -> float:
-        return self.now
+from tests.helpers import FakeClock
 
 
 def make_latch() -> tuple[EStopLatch, FakeClock, FakeClock]:

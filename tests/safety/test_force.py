@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import anyio
+import anyio.lowlevel
 import numpy as np
 import pytest
 
@@ -12,16 +13,9 @@ from armwarden.backends.base import Wrench
 from armwarden.errors import BackendError, ConfigurationError
 from armwarden.policy import Policy
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
+from tests.helpers import FakeClock
 
 LIMITS = ForceLimits(max_force_n=20.0, max_torque_nm=3.0, monitor_rate_hz=1000.0, wrench_timeout_s=0.05)
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 10.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 def wrench(force_z: float = 0.0, torque_z: float = 0.0, stamp: float = 0.0) -> Wrench:
@@ -55,55 +49,57 @@ class WrenchScript:
 def monitor(
     script: Sequence[object], limits: ForceLimits = LIMITS, dt_s: float = 0.005
 ) -> tuple[ForceMonitor, WrenchScript]:
-    clock = FakeClock()
+    clock = FakeClock(10.0)
     source = WrenchScript(clock, script, dt_s)
     return ForceMonitor(limits, source, clock=clock), source
 
 
-def run_until_violation(mon: ForceMonitor, on_violation: Callable | None = None) -> ForceViolation:
-    async def main() -> ForceViolation:
-        with anyio.fail_after(5):  # a safety net for the test itself, never reached when correct
-            return await mon.run(on_violation)
-
-    return anyio.run(main)
+async def run_until_violation(mon: ForceMonitor, on_violation: Callable | None = None) -> ForceViolation:
+    with anyio.fail_after(5):  # a safety net for the test itself, never reached when correct
+        return await mon.run(on_violation)
 
 
-def test_stops_when_force_exceeds_the_limit() -> None:
+@pytest.mark.anyio
+async def test_stops_when_force_exceeds_the_limit() -> None:
     mon, source = monitor([(5.0, 0.0), (19.9, 0.0), (20.5, 0.0)])
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "force_limit" and violation.force_n == pytest.approx(20.5)
     assert "20.50 N" in violation.detail and "limit of 20 N" in violation.detail
     assert source.reads == 3
     assert violation.at_mono == pytest.approx(10.015)
 
 
-def test_stops_when_torque_exceeds_the_limit() -> None:
+@pytest.mark.anyio
+async def test_stops_when_torque_exceeds_the_limit() -> None:
     mon, _ = monitor([(1.0, 1.0), (1.0, 3.5)])
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "torque_limit" and violation.torque_nm == pytest.approx(3.5)
 
 
-def test_tracks_the_largest_force_and_torque_observed() -> None:
+@pytest.mark.anyio
+async def test_tracks_the_largest_force_and_torque_observed() -> None:
     mon, _ = monitor([(3.0, 0.5), (12.0, 0.1), (7.0, 2.0), None])
-    run_until_violation(mon)
+    await run_until_violation(mon)
     assert mon.max_observed_force_n == pytest.approx(12.0)
     assert mon.max_observed_torque_nm == pytest.approx(2.0)
     assert mon.samples == 3
 
 
-def test_calls_on_violation_before_returning() -> None:
+@pytest.mark.anyio
+async def test_calls_on_violation_before_returning() -> None:
     mon, _ = monitor([(25.0, 0.0)])
     seen: list[ForceViolation] = []
 
     async def on_violation(violation: ForceViolation) -> None:
-        await anyio.sleep(0)
+        await anyio.lowlevel.checkpoint()
         seen.append(violation)
 
-    violation = run_until_violation(mon, on_violation)
+    violation = await run_until_violation(mon, on_violation)
     assert seen == [violation]
 
 
-def test_on_violation_completes_even_if_the_monitor_is_cancelled_meanwhile() -> None:
+@pytest.mark.anyio
+async def test_on_violation_completes_even_if_the_monitor_is_cancelled_meanwhile() -> None:
     mon, _ = monitor([(25.0, 0.0)])
     finished: list[str] = []
 
@@ -111,100 +107,105 @@ def test_on_violation_completes_even_if_the_monitor_is_cancelled_meanwhile() -> 
         await anyio.sleep(0.02)
         finished.append("stopped")
 
-    async def main() -> None:
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(mon.run, slow_stop)
-            await anyio.sleep(0.005)
-            tg.cancel_scope.cancel()  # e.g. the execution finished at the same moment
-
-    anyio.run(main)
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(mon.run, slow_stop)
+        await anyio.sleep(0.005)
+        tg.cancel_scope.cancel()  # e.g. the execution finished at the same moment
     assert finished == ["stopped"]
 
 
-def test_runs_until_cancelled_when_everything_is_fine() -> None:
+@pytest.mark.anyio
+async def test_runs_until_cancelled_when_everything_is_fine() -> None:
     mon, source = monitor([(2.0, 0.1)])
 
-    async def main() -> None:
-        with anyio.move_on_after(0.05):
-            await mon.run()
-            pytest.fail("the monitor returned without a violation")
-
-    anyio.run(main)
+    with anyio.move_on_after(0.05):
+        await mon.run()
+        pytest.fail("the monitor returned without a violation")
     assert source.reads > 3
 
 
-def test_missing_wrench_fails_closed() -> None:
+@pytest.mark.anyio
+async def test_missing_wrench_fails_closed() -> None:
     mon, _ = monitor([(1.0, 0.0), None])
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_missing" and violation.force_n is None
 
 
-def test_failing_wrench_read_fails_closed_as_missing() -> None:
+@pytest.mark.anyio
+async def test_failing_wrench_read_fails_closed_as_missing() -> None:
     mon, _ = monitor([(1.0, 0.0), BackendError("sensor bus down\nretrying")])
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_missing" and "BackendError: sensor bus down retrying" in violation.detail
 
 
-def test_slow_wrench_read_fails_closed_as_timeout() -> None:
+@pytest.mark.anyio
+async def test_slow_wrench_read_fails_closed_as_timeout() -> None:
     async def hang() -> Wrench:
         await anyio.sleep_forever()
         raise AssertionError("unreachable")
 
     mon, _ = monitor([(1.0, 0.0), hang])
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_timeout" and "0.05 s" in violation.detail
 
 
-def test_frozen_stamp_fails_closed_once_older_than_the_timeout() -> None:
+@pytest.mark.anyio
+async def test_frozen_stamp_fails_closed_once_older_than_the_timeout() -> None:
     frozen = wrench(1.0, 0.0, stamp=10.02)  # fresh when first read, then never again
     mon, source = monitor([frozen], dt_s=0.02)  # 20 ms per read, timeout 50 ms
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_frozen"
     assert source.reads == 4  # first read sets the stamp; 20, 40 ms are tolerated; 60 ms is not
     assert violation.force_n == pytest.approx(1.0)
 
 
-def test_fresh_samples_read_slowly_are_neither_frozen_nor_stale() -> None:
+@pytest.mark.anyio
+async def test_fresh_samples_read_slowly_are_neither_frozen_nor_stale() -> None:
     mon, _ = monitor([(1.0, 0.0)] * 30 + [None], dt_s=0.04)  # each stamped at its read, 40 ms apart
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_missing"  # only the scripted end
 
 
-def test_a_stamp_that_keeps_advancing_but_lags_the_clock_is_stale() -> None:
+@pytest.mark.anyio
+async def test_a_stamp_that_keeps_advancing_but_lags_the_clock_is_stale() -> None:
     stamps = iter(np.arange(0.0, 1.0, 0.001))  # advancing, but seconds behind the monotonic clock
     mon, _ = monitor([lambda: _async(wrench(1.0, 0.0, float(next(stamps))))] * 30 + [None], dt_s=0.04)
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_stale" and "s old" in violation.detail
 
 
-def test_a_baseline_read_from_an_old_sample_is_refused() -> None:
+@pytest.mark.anyio
+async def test_a_baseline_read_from_an_old_sample_is_refused() -> None:
     mon, _ = monitor([wrench(1.0, 0.0, stamp=5.0)])  # 5 s old at the first read
-    assert anyio.run(mon.baseline) is None
+    assert await mon.baseline() is None
 
 
-def test_an_above_limit_baseline_cannot_ratchet_up_across_executions() -> None:
+@pytest.mark.anyio
+async def test_an_above_limit_baseline_cannot_ratchet_up_across_executions() -> None:
     # resting on a surface above the limit: the first motion may rise 1 N; the next one, starting
     # higher, is held to the first one's ceiling
     first, _ = monitor([(LIMITS.max_force_n + 4.0, 0.0)])
-    anyio.run(first.baseline)
+    await first.baseline()
     ceiling = first.contact_ceiling
     assert ceiling[0] == pytest.approx(LIMITS.max_force_n + 5.0) and ceiling[1] is None
-    clock = FakeClock()
+    clock = FakeClock(10.0)
     later = ForceMonitor(LIMITS, WrenchScript(clock, [(LIMITS.max_force_n + 4.9, 0.0)]), clock=clock,
                          carried_ceiling=ceiling)
-    anyio.run(later.baseline)
+    await later.baseline()
     assert later.force_threshold_n == pytest.approx(LIMITS.max_force_n + 5.0)  # not 4.9 + 1
 
 
-def test_a_baseline_far_above_the_limit_is_excessive() -> None:
+@pytest.mark.anyio
+async def test_a_baseline_far_above_the_limit_is_excessive() -> None:
     mon, _ = monitor([(3.0 * LIMITS.max_force_n, 0.0)])
-    anyio.run(mon.baseline)
+    await mon.baseline()
     assert mon.baseline_excessive
 
 
-def test_check_once_catches_a_crossing_after_the_last_poll() -> None:
+@pytest.mark.anyio
+async def test_check_once_catches_a_crossing_after_the_last_poll() -> None:
     mon, _ = monitor([(LIMITS.max_force_n + 3.0, 0.0)])
-    violation = anyio.run(mon.check_once)
+    violation = await mon.check_once()
     assert violation is not None and violation.kind == "force_limit"
 
 
@@ -212,6 +213,7 @@ async def _async(value: Wrench) -> Wrench:
     return value
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize(
     "bad",
     [
@@ -222,60 +224,54 @@ async def _async(value: Wrench) -> Wrench:
         "not a wrench",
     ],
 )
-def test_invalid_wrench_fails_closed(bad: object) -> None:
+async def test_invalid_wrench_fails_closed(bad: object) -> None:
     mon, _ = monitor([(1.0, 0.0), bad])
-    violation = run_until_violation(mon)
+    violation = await run_until_violation(mon)
     assert violation.kind == "wrench_invalid"
 
 
-def test_baseline_reads_one_wrench() -> None:
+@pytest.mark.anyio
+async def test_baseline_reads_one_wrench() -> None:
     mon, source = monitor([(4.0, 0.2)])
-    base = anyio.run(mon.baseline)
+    base = await mon.baseline()
     assert base is not None and base.force_norm_n == pytest.approx(4.0)
     assert mon.baseline_wrench is base and source.reads == 1
     assert mon.force_threshold_n == LIMITS.max_force_n  # a baseline below the limit changes nothing
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("bad", [None, wrench(float("nan")), BackendError("x")])
-def test_baseline_is_none_when_the_wrench_is_unusable(bad: object) -> None:
+async def test_baseline_is_none_when_the_wrench_is_unusable(bad: object) -> None:
     mon, _ = monitor([bad])
-    assert anyio.run(mon.baseline) is None and mon.baseline_wrench is None
+    assert await mon.baseline() is None and mon.baseline_wrench is None
 
 
-def test_baseline_above_the_limit_allows_moving_but_not_pushing_more_than_1_n() -> None:
+@pytest.mark.anyio
+async def test_baseline_above_the_limit_allows_moving_but_not_pushing_more_than_1_n() -> None:
     mon, _ = monitor([(25.0, 0.0), (25.9, 0.0), (24.0, 0.0), (26.1, 0.0)])
-
-    async def main() -> ForceViolation:
-        await mon.baseline()
-        return await mon.run()
-
-    violation = anyio.run(main)
+    await mon.baseline()
+    violation = await mon.run()
     assert mon.force_threshold_n == pytest.approx(26.0)
     assert violation.kind == "force_limit" and violation.force_n == pytest.approx(26.1)
     assert "baseline above the 20 N limit" in violation.detail
 
 
-def test_baseline_above_the_torque_limit_allows_a_rise_of_0_2_nm() -> None:
+@pytest.mark.anyio
+async def test_baseline_above_the_torque_limit_allows_a_rise_of_0_2_nm() -> None:
     mon, _ = monitor([(0.0, 4.0), (0.0, 4.15), (0.0, 4.25)])
-
-    async def main() -> ForceViolation:
-        await mon.baseline()
-        return await mon.run()
-
-    violation = anyio.run(main)
+    await mon.baseline()
+    violation = await mon.run()
     assert mon.torque_threshold_nm == pytest.approx(4.2)
     assert violation.kind == "torque_limit" and violation.torque_nm == pytest.approx(4.25)
 
 
-def test_polls_at_the_configured_rate() -> None:
+@pytest.mark.anyio
+async def test_polls_at_the_configured_rate() -> None:
     slow = ForceLimits(max_force_n=20.0, max_torque_nm=3.0, monitor_rate_hz=50.0, wrench_timeout_s=0.05)
     mon, source = monitor([(1.0, 0.0)], limits=slow)
 
-    async def main() -> None:
-        with anyio.move_on_after(0.1):
-            await mon.run()
-
-    anyio.run(main)
+    with anyio.move_on_after(0.1):
+        await mon.run()
     assert 2 <= source.reads <= 7  # 50 Hz for 0.1 s, with generous slack for a busy machine
 
 
@@ -296,8 +292,9 @@ def test_limits_reject_non_positive_or_non_finite_values(field: str, bad: float)
         ForceLimits(**values)
 
 
-def test_violation_converts_to_plain_data_for_the_estop_event() -> None:
+@pytest.mark.anyio
+async def test_violation_converts_to_plain_data_for_the_estop_event() -> None:
     mon, _ = monitor([(30.0, 0.0)])
-    data = run_until_violation(mon).to_dict()
+    data = (await run_until_violation(mon)).to_dict()
     assert data["kind"] == "force_limit" and data["force_n"] == pytest.approx(30.0)
     assert set(data) == {"kind", "detail", "force_n", "torque_nm", "at_mono"}

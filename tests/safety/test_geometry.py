@@ -8,28 +8,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from armwarden.safety import geometry
+from tests.safety.coal_shapes import coal_capsule
 
 coords = st.floats(-1.0, 1.0, allow_nan=False)
 point = st.tuples(coords, coords, coords).map(np.array)
-
-
-def _coal_capsule(p0: np.ndarray, p1: np.ndarray, radius: float):
-    axis = p1 - p0
-    length = float(np.linalg.norm(axis))
-    if length < 1e-12:
-        return coal.Sphere(radius), coal.Transform3s(np.eye(3), p0)
-    z = axis / length
-    x = np.cross([1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    return coal.Capsule(radius, length), coal.Transform3s(np.column_stack([x, np.cross(z, x), z]), (p0 + p1) / 2)
 
 
 @settings(max_examples=300, deadline=None)
 @given(point, point, point, point)
 def test_segment_distance_matches_coal_capsule_distance(p0, p1, q0, q1) -> None:
     radius = 0.01
-    a, ta = _coal_capsule(p0, p1, radius)
-    b, tb = _coal_capsule(q0, q1, radius)
+    a, ta = coal_capsule(p0, p1, radius)
+    b, tb = coal_capsule(q0, q1, radius)
     result = coal.DistanceResult()
     coal.distance(a, ta, b, tb, coal.DistanceRequest(), result)
     expected = result.min_distance + 2 * radius

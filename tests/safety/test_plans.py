@@ -15,20 +15,13 @@ from armwarden.policy import Policy
 from armwarden.safety.envelope import EnvelopeReport
 from armwarden.safety.plans import RETIRED_MEMORY, PlanRefusal, PlanStore, StoredPlan
 from armwarden.safety.violations import Code, Violation
+from tests.helpers import FakeClock
 
 JOINTS = ("j1", "j2", "j3")
 START = np.array([0.1, -0.2, 0.3])
 OK = EnvelopeReport(violations=())
 SOFT = EnvelopeReport(violations=(Violation(Code.NEAR_JOINT_LIMIT, "j2 within 0.03 rad of its limit"),))
 HARD = EnvelopeReport(violations=(Violation(Code.KEEP_OUT, "link fr3_link7 enters keep-out 'table'"),))
-
-
-class FakeClock:
-    def __init__(self, now: float) -> None:
-        self.now = now
-
-    def __call__(self) -> float:
-        return self.now
 
 
 def trajectory(start: np.ndarray = START) -> JointTrajectory:
@@ -48,7 +41,7 @@ def refusal_code(result: StoredPlan | PlanRefusal) -> str:
 
 
 def test_add_returns_a_plan_with_random_id_digest_start_and_expiry() -> None:
-    store, clock = make_store()
+    store, _clock = make_store()
     traj = trajectory()
     plan = store.add(traj, OK, estop_generation=4, meta={"summary": "move"})
     assert re.fullmatch(r"plan_[A-Za-z0-9_-]{22}", plan.plan_id)

@@ -11,17 +11,7 @@ from hypothesis import strategies as st
 from armwarden.errors import ConfigurationError
 from armwarden.policy import RATE_LIMIT_EXEMPT_TOOLS, Policy
 from armwarden.safety.ratelimit import RateLimiter
-
-
-class FakeClock:
-    def __init__(self, now: float = 1000.0) -> None:
-        self.now = now
-
-    def __call__(self) -> float:
-        return self.now
-
-    def advance(self, seconds: float) -> None:
-        self.now += seconds
+from tests.helpers import FakeClock
 
 
 def limiter(clock: FakeClock, *, global_pm: int = 1000, default_pm: int = 60, **per_tool: int) -> RateLimiter:
@@ -29,7 +19,7 @@ def limiter(clock: FakeClock, *, global_pm: int = 1000, default_pm: int = 60, **
 
 
 def test_allows_a_burst_of_capacity_then_refuses_with_retry_time() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, plan_to_pose=6)
     assert all(rl.try_acquire("plan_to_pose").allowed for _ in range(6))
     refused = rl.try_acquire("plan_to_pose")
@@ -40,7 +30,7 @@ def test_allows_a_burst_of_capacity_then_refuses_with_retry_time() -> None:
 
 
 def test_refills_continuously_one_token_per_period() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, default_pm=60)
     for _ in range(60):
         rl.try_acquire("get_robot_state")
@@ -52,14 +42,14 @@ def test_refills_continuously_one_token_per_period() -> None:
 
 
 def test_refill_never_exceeds_capacity_after_a_long_pause() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, default_pm=5)
     clock.advance(3600)
     assert sum(rl.try_acquire("lookup_transform").allowed for _ in range(20)) == 5
 
 
 def test_tools_have_separate_buckets() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, default_pm=2)
     assert rl.try_acquire("a").allowed and rl.try_acquire("a").allowed
     assert not rl.try_acquire("a").allowed
@@ -67,7 +57,7 @@ def test_tools_have_separate_buckets() -> None:
 
 
 def test_global_bucket_limits_all_tools_together() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, global_pm=3, default_pm=60)
     assert [rl.try_acquire(tool).allowed for tool in ("a", "b", "c", "d")] == [True, True, True, False]
     refused = rl.try_acquire("e")
@@ -77,7 +67,7 @@ def test_global_bucket_limits_all_tools_together() -> None:
 
 
 def test_a_call_refused_by_the_global_bucket_leaves_the_tool_bucket_untouched() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, global_pm=1, default_pm=2)
     assert rl.try_acquire("other").allowed  # drains the global bucket
     for _ in range(5):
@@ -87,7 +77,7 @@ def test_a_call_refused_by_the_global_bucket_leaves_the_tool_bucket_untouched() 
 
 
 def test_a_call_refused_by_the_tool_bucket_leaves_the_global_bucket_untouched() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, global_pm=3, default_pm=1)
     assert rl.try_acquire("execute_plan").allowed
     for _ in range(10):
@@ -96,7 +86,7 @@ def test_a_call_refused_by_the_tool_bucket_leaves_the_global_bucket_untouched() 
 
 
 def test_reports_the_longer_wait_when_both_buckets_are_empty() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, global_pm=1, default_pm=1)
     assert rl.try_acquire("a").allowed
     refused = rl.try_acquire("a")
@@ -105,7 +95,7 @@ def test_reports_the_longer_wait_when_both_buckets_are_empty() -> None:
 
 @pytest.mark.parametrize("tool", RATE_LIMIT_EXEMPT_TOOLS)
 def test_exempt_tools_are_always_allowed_and_consume_nothing(tool: str) -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, global_pm=1, default_pm=1)
     assert all(rl.try_acquire(tool).allowed for _ in range(1000))
     assert rl.try_acquire("get_robot_state").allowed  # the global token is still there
@@ -113,7 +103,7 @@ def test_exempt_tools_are_always_allowed_and_consume_nothing(tool: str) -> None:
 
 
 def test_a_clock_stepping_back_adds_no_tokens() -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     rl = limiter(clock, default_pm=1)
     assert rl.try_acquire("a").allowed
     clock.advance(-500)
@@ -123,7 +113,7 @@ def test_a_clock_stepping_back_adds_no_tokens() -> None:
 
 
 def test_from_policy_uses_overrides_and_exemptions(fr3_policy: Policy) -> None:
-    clock = FakeClock()
+    clock = FakeClock(1000.0)
     policy = fr3_policy.model_copy(
         update={"rate_limits": fr3_policy.rate_limits.model_copy(update={"per_tool": {"plan_to_pose": 2}})}
     )

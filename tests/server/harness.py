@@ -22,15 +22,16 @@ from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake import FakeBackend
-from armwarden.policy import bundled_policy
 from armwarden.guard import Guard
-from armwarden.policy import Policy, apply_overrides, load_policy, parse_policy
+from armwarden.policy import Policy, apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.robot import build_robot
 from armwarden.safety.audit import AuditLog, verify_file
 from armwarden.server.app import ArmWardenServer
 from tests.backends.minimal_backend import MinimalBackend
+from tests.helpers import text_of
 
 MODES = ("legacy", "2026-07-28")
+HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
 #: backends a scenario can run on: parametrise with `@pytest.mark.parametrize("backend", BACKENDS)`
 BACKENDS = ("fake", "minimal")
 
@@ -64,6 +65,26 @@ class MotionStarted:
     async def __call__(self, progress: float, total: float | None, message: str | None) -> None:
         if progress > 0:
             self.event.set()
+
+
+async def plan_down(client: Client, z: float, *, status: str | None = None) -> dict[str, Any]:
+    """`plan_to_pose` straight down (or up) from the home TCP to height `z` m; the plan summary.
+    The call must not be refused; with `status`, the summary must have that status too."""
+    result = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": z}})
+    assert not result.is_error, text_of(result)
+    summary = result.structured_content
+    if status is not None:
+        assert summary["status"] == status, summary
+    return summary
+
+
+async def wait_until(predicate: Callable[[], bool], timeout_s: float = 5.0, what: str = "condition") -> None:
+    """Poll `predicate` every 5 ms until it holds; fail naming `what` after `timeout_s`. (The state
+    polled, e.g. `guard.motion_status()`, is moved by the backend's thread: there is no event to await.)"""
+    deadline = anyio.current_time() + timeout_s
+    while not predicate():
+        assert anyio.current_time() < deadline, f"{what}: not reached within {timeout_s} s"
+        await anyio.sleep(0.005)
 
 
 def policy_with(**overrides: Any) -> Policy:

@@ -5,13 +5,11 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import re
 import signal
 import socket
 import struct
 import subprocess
-import sys
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -22,22 +20,9 @@ import httpx2
 from mcp import Client
 from mcp.client.streamable_http import streamable_http_client
 
-REPO = Path(__file__).resolve().parents[2]
-SRC = REPO / "src"
-CLI = [sys.executable, "-m", "armwarden.cli"]
+from tests.helpers import CLI, REPO, child_env, free_port
+
 HOST = "127.0.0.1"  # never anything else
-
-
-def child_env() -> dict[str, str]:
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    env.pop("ARMWARDEN_AUDIT_KEY", None)
-    return env
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind((HOST, 0))
-        return sock.getsockname()[1]
 
 
 def add_token(path: Path, role: str, name: str) -> str:
@@ -76,7 +61,7 @@ def http_daemon(tmp: Path, speedup: float, extra_args: Sequence[str] = ()) -> It
     config = tmp / "fake.yaml"
     config.write_text(f"speedup: {speedup}\n", encoding="utf-8")
     audit = tmp / "audit.jsonl"
-    port = free_port()
+    port = free_port(HOST)
     stderr_path = tmp / "stderr.log"
     with open(stderr_path, "wb") as stderr:
         process = subprocess.Popen(
@@ -151,7 +136,7 @@ class RawSession:
                 return json.loads(line[len("data: "):])
         raise AssertionError(response.text)
 
-    def open_call(self, tool: str, arguments: dict[str, Any]) -> "DroppableCall":
+    def open_call(self, tool: str, arguments: dict[str, Any]) -> DroppableCall:
         return DroppableCall(self, {"jsonrpc": "2.0", "id": self._id(), "method": "tools/call",
                                     "params": {"name": tool, "arguments": arguments}})
 

@@ -10,14 +10,12 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
 
-import anyio
 import pytest
 
+from tests.helpers import REPO, records_of
 from tests.server.harness import MODES, answer, approve, arm_harness, policy_with
 
-REPO = Path(__file__).resolve().parents[2]
 IMAGE_BYTES = os.urandom(6000)
 HUGE = "A" * 50_000
 
@@ -27,10 +25,6 @@ def audit_cli(*args: str) -> subprocess.CompletedProcess[str]:
     env.pop("ARMWARDEN_AUDIT_KEY", None)
     return subprocess.run([sys.executable, "-m", "armwarden.cli", "audit", *args], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=60)
-
-
-def records_of(path: Path) -> list[dict[str, Any]]:
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
 
 
 async def run_session(tmp_path: Path, mode: str) -> tuple[Path, list[str], list[str]]:
@@ -67,9 +61,10 @@ async def run_session(tmp_path: Path, mode: str) -> tuple[Path, list[str], list[
     return arm.audit_path, alice.prompts + bob.prompts, declined.prompts
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_audit_chain_of_a_real_session_verifies_and_a_one_byte_edit_is_located(tmp_path, mode) -> None:
-    path, _, _ = anyio.run(run_session, tmp_path, mode)
+async def test_audit_chain_of_a_real_session_verifies_and_a_one_byte_edit_is_located(tmp_path, mode) -> None:
+    path, _, _ = await run_session(tmp_path, mode)
     verdict = audit_cli("verify", str(path))
     assert verdict.returncode == 0, verdict.stdout + verdict.stderr
     assert verdict.stdout.startswith("OK:")
@@ -89,9 +84,10 @@ def test_audit_chain_of_a_real_session_verifies_and_a_one_byte_edit_is_located(t
     assert f"line {middle + 1}" in verdict.stdout, verdict.stdout
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_every_approval_question_and_answer_is_on_record_with_the_operator(tmp_path, mode) -> None:
-    path, approved_prompts, declined_prompts = anyio.run(run_session, tmp_path, mode)
+async def test_every_approval_question_and_answer_is_on_record_with_the_operator(tmp_path, mode) -> None:
+    path, approved_prompts, declined_prompts = await run_session(tmp_path, mode)
     records = records_of(path)
     calls = [r for r in records if r["event"] == "tool_call"]
 
@@ -124,9 +120,10 @@ def test_every_approval_question_and_answer_is_on_record_with_the_operator(tmp_p
     assert any(r["tool"] == "plan_to_pose" and (r["extra"] or {}).get("code") == "ESTOPPED" for r in calls)
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_image_bytes_and_huge_strings_in_arguments_are_redacted_and_truncated(tmp_path, mode) -> None:
-    path, _, _ = anyio.run(run_session, tmp_path, mode)
+async def test_image_bytes_and_huge_strings_in_arguments_are_redacted_and_truncated(tmp_path, mode) -> None:
+    path, _, _ = await run_session(tmp_path, mode)
     text = path.read_text(encoding="utf-8")
     encoded = base64.b64encode(IMAGE_BYTES).decode()
     assert encoded[:200] not in text  # no image payload, in arguments or anywhere else

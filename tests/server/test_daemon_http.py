@@ -8,12 +8,10 @@ e-stop) put it back; the SIGTERM test comes last and makes its own calls first.
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import anyio
@@ -22,11 +20,10 @@ import pytest
 from mcp import Client, MCPError
 from mcp.client.streamable_http import streamable_http_client
 
+from tests.helpers import CLI, HOME, REPO, child_env, records_of, text_of
 from tests.server.harness import MODES
 from tests.server.harness import approve as approving
-from tests.server.http_daemon import CLI, REPO, Daemon, RawSession, add_token, child_env, http_daemon, session
-
-HOME = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
+from tests.server.http_daemon import Daemon, RawSession, add_token, http_daemon, session
 
 
 @pytest.fixture(scope="module")
@@ -45,14 +42,6 @@ def leaves(error: BaseException) -> list[BaseException]:
     return [error]
 
 
-def text_of(result) -> str:
-    return " ".join(getattr(block, "text", "") for block in result.content)
-
-
-def records_of(path: Path) -> list[dict[str, Any]]:
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-
-
 # ------------------------------------------------------------------ authentication and Host
 @pytest.mark.parametrize("token", [None, "aw_not-a-real-token"], ids=["no_token", "wrong_token"])
 def test_http_requests_without_a_valid_bearer_token_are_rejected_with_401(daemon, token) -> None:
@@ -66,17 +55,18 @@ def test_http_requests_without_a_valid_bearer_token_are_rejected_with_401(daemon
     assert response.headers["www-authenticate"].startswith("Bearer")
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("token", [None, "aw_not-a-real-token"], ids=["no_token", "wrong_token"])
-def test_sdk_client_without_a_valid_token_cannot_use_the_server(daemon, mode, token) -> None:
+async def test_sdk_client_without_a_valid_token_cannot_use_the_server(daemon, mode, token) -> None:
     async def scenario() -> None:
         http, client = session(daemon, token, mode)
         with anyio.fail_after(15):
             async with http, client:
                 await client.list_tools()
 
-    with pytest.raises(BaseException) as caught:  # noqa: PT011 - the SDK wraps it in an ExceptionGroup
-        anyio.run(scenario)
+    with pytest.raises(BaseException) as caught:  # the SDK wraps it in an ExceptionGroup
+        await scenario()
     assert not isinstance(caught.value, (TimeoutError, KeyboardInterrupt))
     assert any(isinstance(leaf, (MCPError, httpx2.HTTPStatusError)) for leaf in leaves(caught.value)), caught.value
 
@@ -123,70 +113,67 @@ def test_a_new_token_under_a_revoked_tokens_name_cannot_take_over_its_session(tm
 
 
 # ------------------------------------------------------------------ operator
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_operator_token_plans_and_executes_with_approval(daemon, mode) -> None:
+async def test_operator_token_plans_and_executes_with_approval(daemon, mode) -> None:
     on_elicit = approving("alice-at-the-desk")
 
-    async def scenario() -> None:
-        http, client = session(daemon, daemon.operator_token, mode, on_elicit)
-        async with http, client:
-            tools = {t.name for t in (await client.list_tools()).tools}
-            assert {"execute_plan", "plan_to_joints", "reset_estop"} <= tools
-            state = (await client.call_tool("get_robot_state", {})).structured_content
-            start = state["joint_positions"]
-            # joint 1 swings 1 rad from wherever it is (towards 0): above the soft step, so a human is asked
-            goal = [start[0] - 1.0 if start[0] > 0 else start[0] + 1.0, *start[1:]]
-            plan = await client.call_tool("plan_to_joints", {"joint_positions": goal})
-            assert plan.structured_content["status"] == "needs_approval", plan.structured_content
-            done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
-            assert not done.is_error, text_of(done)
-            assert done.structured_content["status"] == "succeeded"
-            assert done.structured_content["approval"]["operator"] == "alice-at-the-desk"
-            after = (await client.call_tool("get_robot_state", {})).structured_content
-            assert after["joint_positions"] == pytest.approx(goal, abs=1e-6)
-
-    anyio.run(scenario)
+    http, client = session(daemon, daemon.operator_token, mode, on_elicit)
+    async with http, client:
+        tools = {t.name for t in (await client.list_tools()).tools}
+        assert {"execute_plan", "plan_to_joints", "reset_estop"} <= tools
+        state = (await client.call_tool("get_robot_state", {})).structured_content
+        start = state["joint_positions"]
+        # joint 1 swings 1 rad from wherever it is (towards 0): above the soft step, so a human is asked
+        goal = [start[0] - 1.0 if start[0] > 0 else start[0] + 1.0, *start[1:]]
+        plan = await client.call_tool("plan_to_joints", {"joint_positions": goal})
+        assert plan.structured_content["status"] == "needs_approval", plan.structured_content
+        done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
+        assert not done.is_error, text_of(done)
+        assert done.structured_content["status"] == "succeeded"
+        assert done.structured_content["approval"]["operator"] == "alice-at-the-desk"
+        after = (await client.call_tool("get_robot_state", {})).structured_content
+        assert after["joint_positions"] == pytest.approx(goal, abs=1e-6)
     assert len(on_elicit.prompts) == 1 and "APPROVE ROBOT MOTION?" in on_elicit.prompts[0]
 
 
 # ------------------------------------------------------------------ observer
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_observer_token_sees_no_motion_tools_and_cannot_execute_but_can_stop(daemon, mode) -> None:
-    async def scenario() -> None:
-        http, operator = session(daemon, daemon.operator_token, mode, approving("alice"))
-        async with http, operator:
-            plan = await operator.call_tool("plan_to_joints", {"joint_positions": HOME})
-            plan_id = plan.structured_content["plan_id"]
+async def test_observer_token_sees_no_motion_tools_and_cannot_execute_but_can_stop(daemon, mode) -> None:
+    http, operator = session(daemon, daemon.operator_token, mode, approving("alice"))
+    async with http, operator:
+        plan = await operator.call_tool("plan_to_joints", {"joint_positions": HOME})
+        plan_id = plan.structured_content["plan_id"]
 
-            http2, observer = session(daemon, daemon.observer_token, mode)
-            async with http2, observer:
-                tools = {t.name for t in (await observer.list_tools()).tools}
-                assert "execute_plan" not in tools and "plan_to_pose" not in tools and "reset_estop" not in tools
-                assert {"get_robot_state", "get_safety_status", "stop_motion", "estop"} <= tools
+        http2, observer = session(daemon, daemon.observer_token, mode)
+        async with http2, observer:
+            tools = {t.name for t in (await observer.list_tools()).tools}
+            assert "execute_plan" not in tools and "plan_to_pose" not in tools and "reset_estop" not in tools
+            assert {"get_robot_state", "get_safety_status", "stop_motion", "estop"} <= tools
 
-                before = (await observer.call_tool("get_robot_state", {})).structured_content
-                refused = await observer.call_tool("execute_plan", {"plan_id": plan_id})
-                assert refused.is_error and "FORBIDDEN" in text_of(refused)
-                after = (await observer.call_tool("get_robot_state", {})).structured_content
-                assert after["joint_positions"] == before["joint_positions"]
-                assert after["joint_velocities"] == [0.0] * len(HOME)
-                stop = await observer.call_tool("stop_motion", {})
-                assert not stop.is_error and stop.structured_content["stopped"] is True
-                estop = await observer.call_tool("estop", {"reason": "observer saw a hand near the gripper"})
-                assert not estop.is_error and estop.structured_content["estopped"] is True
-                assert (await observer.call_tool("get_safety_status", {})).structured_content["estopped"] is True
+            before = (await observer.call_tool("get_robot_state", {})).structured_content
+            refused = await observer.call_tool("execute_plan", {"plan_id": plan_id})
+            assert refused.is_error and "FORBIDDEN" in text_of(refused)
+            after = (await observer.call_tool("get_robot_state", {})).structured_content
+            assert after["joint_positions"] == before["joint_positions"]
+            assert after["joint_velocities"] == [0.0] * len(HOME)
+            stop = await observer.call_tool("stop_motion", {})
+            assert not stop.is_error and stop.structured_content["stopped"] is True
+            estop = await observer.call_tool("estop", {"reason": "observer saw a hand near the gripper"})
+            assert not estop.is_error and estop.structured_content["estopped"] is True
+            assert (await observer.call_tool("get_safety_status", {})).structured_content["estopped"] is True
 
-            # the observer's e-stop holds for the operator too; the operator's approved reset releases it
-            blocked = await operator.call_tool("execute_plan", {"plan_id": plan_id})
-            assert blocked.is_error and ("ESTOPPED" in text_of(blocked) or "INVALIDATED_PLAN" in text_of(blocked))
-            reset = await operator.call_tool("reset_estop", {})
-            assert not reset.is_error, text_of(reset)
-            assert reset.structured_content["estopped"] is False
-
-    anyio.run(scenario)
+        # the observer's e-stop holds for the operator too; the operator's approved reset releases it
+        blocked = await operator.call_tool("execute_plan", {"plan_id": plan_id})
+        assert blocked.is_error and ("ESTOPPED" in text_of(blocked) or "INVALIDATED_PLAN" in text_of(blocked))
+        reset = await operator.call_tool("reset_estop", {})
+        assert not reset.is_error, text_of(reset)
+        assert reset.structured_content["estopped"] is False
 
 
-def test_healthz_without_a_token_says_only_that_the_daemon_is_up_even_while_e_stopped(daemon) -> None:
+@pytest.mark.anyio
+async def test_healthz_without_a_token_says_only_that_the_daemon_is_up_even_while_e_stopped(daemon) -> None:
     # anyone on the network may ask: whether the arm moves or is stopped is not theirs to know
     async def scenario() -> dict[str, Any]:
         http, operator = session(daemon, daemon.operator_token, "legacy", approving("alice"))
@@ -200,34 +187,31 @@ def test_healthz_without_a_token_says_only_that_the_daemon_is_up_even_while_e_st
             finally:
                 assert not (await operator.call_tool("reset_estop", {})).is_error
 
-    assert anyio.run(scenario) == {"status": "ok"}
+    assert await scenario() == {"status": "ok"}
 
 
-def test_the_audit_session_is_the_one_the_sdk_bound_never_a_session_id_header_the_client_sent(daemon) -> None:
+@pytest.mark.anyio
+async def test_the_audit_session_is_the_one_the_sdk_bound_never_a_session_id_header_the_client_sent(daemon) -> None:
     # under 2026-07-28 the SDK ignores mcp-session-id; a client must not be able to sign its calls
     # with someone else's session id in the audit log
-    async def scenario() -> None:
-        http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {daemon.observer_token}",
-                                           "mcp-session-id": "someone-elses-session"})
-        async with http, Client(streamable_http_client(daemon.url, http_client=http), mode="2026-07-28") as client:
-            assert not (await client.call_tool("get_safety_status", {})).is_error
-
-    anyio.run(scenario)
+    http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {daemon.observer_token}",
+                                       "mcp-session-id": "someone-elses-session"})
+    async with http, Client(streamable_http_client(daemon.url, http_client=http), mode="2026-07-28") as client:
+        assert not (await client.call_tool("get_safety_status", {})).is_error
     mine = [r for r in records_of(daemon.audit) if r.get("principal") == "bob" and r.get("tool") == "get_safety_status"]
     assert mine and all(r["session"] != "someone-elses-session" for r in mine)
 
 
 # ------------------------------------------------------------------ shutdown (keep last: it ends the daemon)
-def test_sigterm_ends_the_http_daemon_with_principals_and_a_shutdown_record_in_a_verified_audit_log(daemon) -> None:
-    async def calls() -> None:
-        for token, name in ((daemon.operator_token, "alice"), (daemon.observer_token, "bob")):
-            http, client = session(daemon, token, "legacy")
-            async with http, client:
-                assert not (await client.call_tool("get_safety_status", {})).is_error
-
-    anyio.run(calls)
+@pytest.mark.anyio
+async def test_sigterm_ends_the_http_daemon_with_principals_and_a_shutdown_record_in_a_verified_audit_log(daemon) -> None:
+    for token in (daemon.operator_token, daemon.observer_token):  # alice's, then bob's
+        http, client = session(daemon, token, "legacy")
+        async with http, client:
+            assert not (await client.call_tool("get_safety_status", {})).is_error
     daemon.process.send_signal(signal.SIGTERM)
-    assert daemon.process.wait(timeout=15) == 0, daemon.stderr_path.read_text()
+    exit_code = await anyio.to_thread.run_sync(lambda: daemon.process.wait(timeout=15))
+    assert exit_code == 0, daemon.stderr_path.read_text()
 
     records = records_of(daemon.audit)
     principals = {r["principal"] for r in records if r["event"] == "tool_call"}
@@ -235,8 +219,8 @@ def test_sigterm_ends_the_http_daemon_with_principals_and_a_shutdown_record_in_a
     assert None not in principals  # every HTTP call is attributed
     assert records[0]["event"] == "startup"
     assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "signal SIGTERM"
-    verdict = subprocess.run([*CLI, "audit", "verify", str(daemon.audit)], cwd=REPO, env=child_env(),
-                             capture_output=True, text=True, timeout=60)
-    assert verdict.returncode == 0, verdict.stdout
+    with anyio.fail_after(60):
+        verdict = await anyio.run_process([*CLI, "audit", "verify", str(daemon.audit)], cwd=REPO, env=child_env(), check=False)
+    assert verdict.returncode == 0, verdict.stdout.decode()
     assert daemon.operator_token not in daemon.audit.read_text()
     assert daemon.observer_token not in daemon.audit.read_text()

@@ -6,6 +6,7 @@ client exit (also mid-motion), SIGTERM, and the start-up refusals (exit 2 before
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -21,22 +22,11 @@ import anyio
 import pytest
 from mcp import Client, StdioServerParameters
 
+from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, text_of
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
 
-REPO = Path(__file__).resolve().parents[2]
-SRC = REPO / "src"
-HOME = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
 BUNDLED_TOOL_COUNT = 22
-CLI = [sys.executable, "-m", "armwarden.cli"]
-
-
-def child_env() -> dict[str, str]:
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    env.pop("ARMWARDEN_AUDIT_KEY", None)
-    return env
-
-
 def backend_config(tmp_path: Path, speedup: float) -> Path:
     path = tmp_path / f"fake-{speedup:g}.yaml"
     path.write_text(f"speedup: {speedup}\n", encoding="utf-8")
@@ -53,99 +43,86 @@ def serve_params(audit: Path, config: Path) -> StdioServerParameters:
     )
 
 
-def records_of(path: Path) -> list[dict[str, Any]]:
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-
-
-async def wait_for_record(path: Path, predicate, timeout: float = 10.0) -> list[dict[str, Any]]:
-    with anyio.fail_after(timeout):
+async def wait_for_record(path: Path, predicate, timeout_s: float = 10.0) -> list[dict[str, Any]]:
+    """Every record of the daemon's audit log, once one of them satisfies `predicate`."""
+    with anyio.fail_after(timeout_s):
         while True:
-            if path.exists():
+            if await anyio.Path(path).exists():
                 records = records_of(path)
                 if any(predicate(r) for r in records):
                     return records
             await anyio.sleep(0.05)
 
 
-def text_of(result) -> str:
-    return " ".join(getattr(block, "text", "") for block in result.content)
-
-
 # ------------------------------------------------------------------ a session over stdio
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_stdio_daemon_serves_a_session_and_writes_a_shutdown_record_when_the_client_exits(tmp_path, mode) -> None:
+async def test_stdio_daemon_serves_a_session_and_writes_a_shutdown_record_when_the_client_exits(tmp_path, mode) -> None:
     audit = tmp_path / "audit.jsonl"
     on_elicit = approving("carol")
 
-    async def scenario() -> None:
-        async with Client(serve_params(audit, backend_config(tmp_path, 20)), mode=mode, elicitation_callback=on_elicit) as client:
-            tools = await client.list_tools()
-            assert len(tools.tools) == BUNDLED_TOOL_COUNT
-            assert {"execute_plan", "estop", "stop_motion", "get_robot_state"} <= {t.name for t in tools.tools}
+    async with Client(serve_params(audit, backend_config(tmp_path, 20)), mode=mode, elicitation_callback=on_elicit) as client:
+        tools = await client.list_tools()
+        assert len(tools.tools) == BUNDLED_TOOL_COUNT
+        assert {"execute_plan", "estop", "stop_motion", "get_robot_state"} <= {t.name for t in tools.tools}
 
-            state = await client.call_tool("get_robot_state", {})
-            assert not state.is_error
-            assert state.structured_content["joint_positions"] == pytest.approx(HOME, abs=1e-6)
+        state = await client.call_tool("get_robot_state", {})
+        assert not state.is_error
+        assert state.structured_content["joint_positions"] == pytest.approx(HOME, abs=1e-6)
 
-            # a refusal: the plan id is unknown
-            refused = await client.call_tool("execute_plan", {"plan_id": "plan_does_not_exist"})
-            assert refused.is_error and "UNKNOWN_PLAN" in text_of(refused)
+        # a refusal: the plan id is unknown
+        refused = await client.call_tool("execute_plan", {"plan_id": "plan_does_not_exist"})
+        assert refused.is_error and "UNKNOWN_PLAN" in text_of(refused)
 
-            # 1 rad on joint 1 is above the soft step threshold: a human must approve
-            goal = [1.0, *HOME[1:]]
-            plan = await client.call_tool("plan_to_joints", {"joint_positions": goal})
-            assert plan.structured_content["status"] == "needs_approval"
-            done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
-            assert not done.is_error, text_of(done)
-            assert done.structured_content["status"] == "succeeded"
-            assert done.structured_content["approval"] == {"required": True, "operator": "carol", "via": "elicitation"}
-            after = await client.call_tool("get_robot_state", {})
-            assert after.structured_content["joint_positions"] == pytest.approx(goal, abs=1e-6)
+        # 1 rad on joint 1 is above the soft step threshold: a human must approve
+        goal = [1.0, *HOME[1:]]
+        plan = await client.call_tool("plan_to_joints", {"joint_positions": goal})
+        assert plan.structured_content["status"] == "needs_approval"
+        done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
+        assert not done.is_error, text_of(done)
+        assert done.structured_content["status"] == "succeeded"
+        assert done.structured_content["approval"] == {"required": True, "operator": "carol", "via": "elicitation"}
+        after = await client.call_tool("get_robot_state", {})
+        assert after.structured_content["joint_positions"] == pytest.approx(goal, abs=1e-6)
 
-        records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
-        assert records[0]["event"] == "startup"
-        assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "end of stdin"
-        executed = [r for r in records if r["tool"] == "execute_plan" and r["outcome"] == "ok"]
-        assert len(executed) == 1 and executed[0]["operator"] == "carol"
-
-    anyio.run(scenario)
+    records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
+    assert records[0]["event"] == "startup"
+    assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "end of stdin"
+    executed = [r for r in records if r["tool"] == "execute_plan" and r["outcome"] == "ok"]
+    assert len(executed) == 1 and executed[0]["operator"] == "carol"
     assert len(on_elicit.prompts) == 1 and on_elicit.prompts[0].startswith("APPROVE ROBOT MOTION?")
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exits(tmp_path, mode) -> None:
+async def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exits(tmp_path, mode) -> None:
     audit = tmp_path / "audit.jsonl"
 
-    async def scenario() -> None:
-        on_progress = MotionStarted()
+    on_progress = MotionStarted()
 
-        with anyio.fail_after(30):
-            async with anyio.create_task_group() as group:
-                async with Client(serve_params(audit, backend_config(tmp_path, 0.5)), mode=mode,
-                                  elicitation_callback=approving("dave")) as client:
-                    plan = await client.call_tool("plan_to_pose", {"position": {"x": 0.3069, "y": 0.0, "z": 0.35}})
-                    assert plan.structured_content["status"] == "ok"
+    with anyio.fail_after(30):
+        async with anyio.create_task_group() as group:
+            async with Client(serve_params(audit, backend_config(tmp_path, 0.5)), mode=mode,
+                              elicitation_callback=approving("dave")) as client:
+                plan = await client.call_tool("plan_to_pose", {"position": {"x": 0.3069, "y": 0.0, "z": 0.35}})
+                assert plan.structured_content["status"] == "ok"
 
-                    async def run() -> None:
-                        try:
-                            await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]},
-                                                   progress_callback=on_progress)
-                        except Exception:  # the connection goes away under the call
-                            pass
+                async def run() -> None:
+                    with contextlib.suppress(Exception):  # the connection goes away under the call
+                        await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]},
+                                               progress_callback=on_progress)
 
-                    group.start_soon(run)
-                    await on_progress.event.wait()
-                # the client (and the daemon's stdin) is gone while the arm moves
+                group.start_soon(run)
+                await on_progress.event.wait()
+            # the client (and the daemon's stdin) is gone while the arm moves
 
-        records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
-        events = [r["event"] for r in records]
-        assert "execution_interrupted" in events
-        assert events.index("execution_interrupted") < events.index("shutdown")
-        assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
-        assert records[-1]["event"] == "shutdown"
-        assert not any(r["tool"] == "execute_plan" and r["outcome"] == "ok" for r in records)
-
-    anyio.run(scenario)
+    records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
+    events = [r["event"] for r in records]
+    assert "execution_interrupted" in events
+    assert events.index("execution_interrupted") < events.index("shutdown")
+    assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
+    assert records[-1]["event"] == "shutdown"
+    assert not any(r["tool"] == "execute_plan" and r["outcome"] == "ok" for r in records)
 
 
 # ------------------------------------------------------------------ SIGTERM
@@ -252,13 +229,13 @@ def test_literal_non_finite_json_numbers_over_stdio_are_refused_and_nothing_move
         before = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})["result"]["structuredContent"]
         answers = []
         for name, arguments in [
-            ("plan_to_joints", '{"joint_positions": [%s, -0.78, 0, -2.35, 0, 1.57, 0.78]}' % literal),
-            ("plan_to_pose", '{"position": {"x": %s, "y": 0.0, "z": 0.4}}' % literal),
-            ("gripper_move", '{"width_m": %s}' % literal),
+            ("plan_to_joints", f'{{"joint_positions": [{literal}, -0.78, 0, -2.35, 0, 1.57, 0.78]}}'),
+            ("plan_to_pose", f'{{"position": {{"x": {literal}, "y": 0.0, "z": 0.4}}}}'),
+            ("gripper_move", f'{{"width_m": {literal}}}'),
         ]:
             rpc.next_id += 1
-            wire = '{"jsonrpc": "2.0", "id": %d, "method": "tools/call", "params": {"name": "%s", "arguments": %s}}' % (
-                rpc.next_id, name, arguments)
+            wire = (f'{{"jsonrpc": "2.0", "id": {rpc.next_id}, "method": "tools/call", '
+                    f'"params": {{"name": "{name}", "arguments": {arguments}}}}}')
             process.stdin.write(wire.encode() + b"\n")
             process.stdin.flush()
             answer = rpc.receive()
@@ -378,13 +355,19 @@ def receive_until(rpc: RawStdio, predicate) -> dict[str, Any]:
             return message
 
 
+def reuse_the_id_of_an_open_motion(rpc: RawStdio) -> tuple[int, dict[str, Any]]:
+    """Start a motion, then send `get_robot_state` under the motion call's still-open id: the id
+    and the answer to that second request."""
+    motion_id = start_motion(rpc)
+    rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
+              "params": {"name": "get_robot_state", "arguments": {}}})
+    return motion_id, receive_until(rpc, lambda m: m.get("id") == motion_id)
+
+
 def test_a_request_reusing_the_id_of_an_open_motion_call_is_refused_and_the_motion_completes(tmp_path) -> None:
     process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
     try:
-        motion_id = start_motion(rpc)
-        rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
-                  "params": {"name": "get_robot_state", "arguments": {}}})
-        refusal = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        motion_id, refusal = reuse_the_id_of_an_open_motion(rpc)
         done = receive_until(rpc, lambda m: m.get("id") == motion_id)
     finally:
         stop_raw_daemon(process)
@@ -395,13 +378,11 @@ def test_a_request_reusing_the_id_of_an_open_motion_call_is_refused_and_the_moti
     assert len(refused) == 1 and refused[0]["tool"] == "get_robot_state"
 
 
+# sync on purpose, like the other raw-daemon tests: the daemon is driven through blocking pipe reads
 def test_an_open_motion_call_stays_cancellable_after_a_duplicate_id_was_refused(tmp_path) -> None:
     process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
     try:
-        motion_id = start_motion(rpc)
-        rpc.send({"jsonrpc": "2.0", "id": motion_id, "method": "tools/call",
-                  "params": {"name": "get_robot_state", "arguments": {}}})
-        refusal = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        motion_id, refusal = reuse_the_id_of_an_open_motion(rpc)
         rpc.send({"jsonrpc": "2.0", "method": "notifications/cancelled", "params": {"requestId": motion_id}})
         records = anyio.run(wait_for_record, audit, lambda r: r["event"] == "execution_interrupted")
         state = rpc.request("tools/call", {"name": "get_motion_status", "arguments": {}})

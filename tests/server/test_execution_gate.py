@@ -23,24 +23,8 @@ from mcp.server.auth.middleware.bearer_auth import AuthenticatedUser
 from mcp.server.auth.provider import AccessToken
 
 from armwarden.preflight import load_runtime_model
-from tests.server.harness import approve, arm_harness, policy_with
-
-HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
-
-
-@pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
-
-
-def text_of(result: Any) -> str:
-    return " ".join(getattr(block, "text", "") for block in result.content)
-
-
-async def plan_down(client: Any, z: float) -> dict[str, Any]:
-    result = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": z}})
-    assert not result.is_error, text_of(result)
-    return result.structured_content
+from tests.helpers import text_of
+from tests.server.harness import approve, arm_harness, plan_down, policy_with, wait_until
 
 
 def approving_after(action: Any) -> Any:
@@ -162,13 +146,9 @@ async def test_a_cancelled_execution_reports_the_time_the_arm_moved(tmp_path) ->
         with anyio.move_on_after(10):
             async with anyio.create_task_group() as group:
                 group.start_soon(client.call_tool, "execute_plan", {"plan_id": summary["plan_id"]})
-                with anyio.fail_after(5):
-                    while arm.guard.motion_status().progress < 0.3:
-                        await anyio.sleep(0.005)
+                await wait_until(lambda: arm.guard.motion_status().progress >= 0.3, what="30 % of the motion")
                 group.cancel_scope.cancel()
-        with anyio.fail_after(5):
-            while arm.guard.motion_status().executing:
-                await anyio.sleep(0.005)
+        await wait_until(lambda: not arm.guard.motion_status().executing, what="execution ended")
 
         last = arm.guard.motion_status().last_result
         assert last is not None and last.status == "aborted" and "interrupted" in last.detail

@@ -6,32 +6,24 @@ the motion is still running when the client goes away."""
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import anyio
 import pytest
 
 from armwarden.transport.abandoned import MAX_BODY_BYTES
-
-from tests.server.harness import MODES, MotionStarted
+from tests.helpers import records_of
+from tests.server.harness import HOME_TCP_X, MODES, MotionStarted
 from tests.server.harness import approve as approving
 from tests.server.http_daemon import Daemon, RawSession, http_daemon, session
-
-HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
 
 
 @pytest.fixture(scope="module")
 def slow_daemon(tmp_path_factory) -> Iterator[Daemon]:
     with http_daemon(tmp_path_factory.mktemp("http-disconnect"), speedup=0.5) as running:
         yield running
-
-
-def records_of(path: Path) -> list[dict[str, Any]]:
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
 
 
 async def plan_a_slow_move(client: Any) -> dict[str, Any]:
@@ -51,35 +43,33 @@ async def state_and_motion(daemon: Daemon, mode: str) -> tuple[list[float], dict
     return state["joint_positions"], motion
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_a_client_that_disconnects_mid_motion_leaves_the_arm_stopped(slow_daemon, mode) -> None:
-    async def scenario() -> tuple[str, list[float], list[float], dict[str, Any]]:
-        on_progress = MotionStarted()
+async def test_a_client_that_disconnects_mid_motion_leaves_the_arm_stopped(slow_daemon, mode) -> None:
+    on_progress = MotionStarted()
 
-        with anyio.fail_after(30):
-            async with anyio.create_task_group() as group:
-                http, client = session(slow_daemon, slow_daemon.operator_token, mode, approving())
-                async with http, client:
-                    plan = await plan_a_slow_move(client)
+    with anyio.fail_after(30):
+        async with anyio.create_task_group() as group:
+            http, client = session(slow_daemon, slow_daemon.operator_token, mode, approving())
+            async with http, client:
+                plan = await plan_a_slow_move(client)
 
-                    async def execute() -> None:
-                        await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]}, progress_callback=on_progress)
+                async def execute() -> None:
+                    await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]}, progress_callback=on_progress)
 
-                    group.start_soon(execute)
-                    await on_progress.event.wait()
-                    group.cancel_scope.cancel()  # the whole client goes: streams closed, connection dropped
+                group.start_soon(execute)
+                await on_progress.event.wait()
+                group.cancel_scope.cancel()  # the whole client goes: streams closed, connection dropped
 
-            # the arm must come to rest well before the plan's end (2 × duration at speedup 0.5)
-            for _ in range(100):
-                first, motion = await state_and_motion(slow_daemon, mode)
-                if not motion["executing"]:
-                    break
-                await anyio.sleep(0.05)
-            await anyio.sleep(0.1)
-            second, motion = await state_and_motion(slow_daemon, mode)
-        return plan["plan_id"], first, second, motion
-
-    plan_id, first, second, motion = anyio.run(scenario)
+        # the arm must come to rest well before the plan's end (2 × duration at speedup 0.5)
+        for _ in range(100):
+            first, motion = await state_and_motion(slow_daemon, mode)
+            if not motion["executing"]:
+                break
+            await anyio.sleep(0.05)
+        await anyio.sleep(0.1)
+        second, motion = await state_and_motion(slow_daemon, mode)
+    plan_id = plan["plan_id"]
     assert first == second  # still
     assert motion["last_result"]["plan_id"] == plan_id
     assert motion["last_result"]["status"] == "aborted"
@@ -91,33 +81,31 @@ def test_a_client_that_disconnects_mid_motion_leaves_the_arm_stopped(slow_daemon
         ("alice", "cancelled" if mode == "legacy" else "ended_with_request")], gone  # 2026-07-28: the SDK cancelled it
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_a_client_that_cancels_execute_plan_mid_motion_leaves_the_arm_stopped(slow_daemon, mode) -> None:
-    async def scenario() -> tuple[str, list[float], list[float], dict[str, Any]]:
-        on_progress = MotionStarted()
+async def test_a_client_that_cancels_execute_plan_mid_motion_leaves_the_arm_stopped(slow_daemon, mode) -> None:
+    on_progress = MotionStarted()
 
-        with anyio.fail_after(30):
-            http, client = session(slow_daemon, slow_daemon.operator_token, mode, approving())
-            async with http, client:
-                plan = await plan_a_slow_move(client)
-                async with anyio.create_task_group() as group:
-                    async def execute() -> None:
-                        await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]}, progress_callback=on_progress)
+    with anyio.fail_after(30):
+        http, client = session(slow_daemon, slow_daemon.operator_token, mode, approving())
+        async with http, client:
+            plan = await plan_a_slow_move(client)
+            async with anyio.create_task_group() as group:
+                async def execute() -> None:
+                    await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]}, progress_callback=on_progress)
 
-                    group.start_soon(execute)
-                    await on_progress.event.wait()
-                    group.cancel_scope.cancel()  # this call only: the session stays open
-                for _ in range(100):
-                    motion = (await client.call_tool("get_motion_status", {})).structured_content
-                    if not motion["executing"]:
-                        break
-                    await anyio.sleep(0.05)
-                first = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
-                await anyio.sleep(0.1)
-                second = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
-        return plan["plan_id"], first, second, motion
-
-    plan_id, first, second, motion = anyio.run(scenario)
+                group.start_soon(execute)
+                await on_progress.event.wait()
+                group.cancel_scope.cancel()  # this call only: the session stays open
+            for _ in range(100):
+                motion = (await client.call_tool("get_motion_status", {})).structured_content
+                if not motion["executing"]:
+                    break
+                await anyio.sleep(0.05)
+            first = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+            await anyio.sleep(0.1)
+            second = (await client.call_tool("get_robot_state", {})).structured_content["joint_positions"]
+    plan_id = plan["plan_id"]
     assert first == second
     assert motion["last_result"]["plan_id"] == plan_id and motion["last_result"]["status"] == "aborted"
 
@@ -144,26 +132,24 @@ def test_an_approval_answered_after_its_client_dropped_the_call_moves_nothing(sl
                and r["arguments"] == {"plan_id": plan["plan_id"]} for r in records)
 
 
-def test_a_call_abandoned_by_another_client_does_not_stop_this_motion(slow_daemon) -> None:
-    async def scenario() -> dict[str, Any]:
-        http, client = session(slow_daemon, slow_daemon.operator_token, "legacy", approving())
-        async with http, client:
-            plan = await plan_a_slow_move(client)
-            outcome: dict[str, Any] = {}
-            on_progress = MotionStarted()
+@pytest.mark.anyio
+async def test_a_call_abandoned_by_another_client_does_not_stop_this_motion(slow_daemon) -> None:
+    http, client = session(slow_daemon, slow_daemon.operator_token, "legacy", approving())
+    async with http, client:
+        plan = await plan_a_slow_move(client)
+        outcome: dict[str, Any] = {}
+        on_progress = MotionStarted()
 
-            async def execute() -> None:
-                outcome["result"] = await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]},
-                                                           progress_callback=on_progress)
+        async def execute() -> None:
+            outcome["result"] = await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]},
+                                                       progress_callback=on_progress)
 
-            async with anyio.create_task_group() as group:
-                group.start_soon(execute)
-                await on_progress.event.wait()
-                observer = RawSession(slow_daemon, slow_daemon.observer_token)  # names the same plan, hangs up
-                await anyio.to_thread.run_sync(lambda: observer.open_call("execute_plan", {"plan_id": plan["plan_id"]}).drop())
-        return outcome["result"].structured_content
-
-    result = anyio.run(scenario)
+        async with anyio.create_task_group() as group:
+            group.start_soon(execute)
+            await on_progress.event.wait()
+            observer = RawSession(slow_daemon, slow_daemon.observer_token)  # names the same plan, hangs up
+            await anyio.to_thread.run_sync(lambda: observer.open_call("execute_plan", {"plan_id": plan["plan_id"]}).drop())
+    result = outcome["result"].structured_content
     assert result["status"] == "succeeded", result
 
 

@@ -27,9 +27,9 @@ from hypothesis import strategies as st
 
 from armwarden.safety.audit import read_tail, verify_file
 from armwarden.safety.estop import REASON_LIMIT
+from tests.helpers import HOME, text_of
 from tests.server.harness import MODES, approve, arm_harness, policy_with
 
-READY = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
 NAN, INF = float("nan"), float("inf")
 HUGE_TEXT = "x" * 100_000
 POINT = {"x": 0.4, "y": 0.1, "z": 0.35}
@@ -54,7 +54,7 @@ BASELINE: dict[str, dict[str, Any]] = {
     "list_ros_graph": {},
     "get_audit_tail": {"n": 5},
     "camera_snapshot": {"camera": "wrist"},
-    "plan_to_joints": {"joint_positions": [0.1, *READY[1:]]},
+    "plan_to_joints": {"joint_positions": [0.1, *HOME[1:]]},
     "plan_to_pose": {"position": POINT},
     "plan_cartesian_path": {"waypoints": [{"position": {"x": 0.35, "y": 0.0, "z": 0.45}}]},
     "execute_plan": {"plan_id": "plan_from_the_baseline_test"},
@@ -100,8 +100,8 @@ BAD_VALUES: dict[str, list[Any]] = {
     "count": ["5", 5.0, 5.5, True, NAN, INF, -INF, 10**30, -1, 0, 101, [5], {"n": 5}, HUGE_TEXT, None],
     "name": ["", HUGE_TEXT, 42, 0.3, True, NAN, ["wrist"], {"name": "wrist"}, "no such thing \u202e\n", None, NESTED],
     "frame": ["world", HUGE_TEXT, 42, True, ["fr3_link0"], {"frame": "fr3_link0"}, "fr3_link0 ", NESTED],
-    "joints": [[0.0] * 6, [*READY, 0.0], [], [NAN, *READY[1:]], [*READY[:6], INF], [*READY[:6], -INF],
-               [*READY[:6], 1e308], ["0.0"] * 7, [True] * 7, [None] * 7, [READY], HUGE_LIST, [0.1] * 100_000,
+    "joints": [[0.0] * 6, [*HOME, 0.0], [], [NAN, *HOME[1:]], [*HOME[:6], INF], [*HOME[:6], -INF],
+               [*HOME[:6], 1e308], ["0.0"] * 7, [True] * 7, [None] * 7, [HOME], HUGE_LIST, [0.1] * 100_000,
                NESTED, "0.0", 0.0, {"fr3_joint1": 0.0}, HUGE_TEXT, None],
     "point": [{**POINT, "w": 1.0}, {"x": 0.4, "y": 0.1}, {**POINT, "x": NAN}, {**POINT, "z": INF},
               {**POINT, "x": "0.4"}, {**POINT, "y": True}, {**POINT, "x": 1e308}, {**POINT, "x": {"x": 0.4}},
@@ -118,10 +118,6 @@ BAD_VALUES: dict[str, list[Any]] = {
               ["fr3_arm_controller"] * 17, "joint_impedance_controller", 7, {"a": 1}, ["name"] * 10_000,
               ["evil_controller"], NESTED],
 }
-
-
-def text_of(result: Any) -> str:
-    return " ".join(getattr(block, "text", "") for block in result.content)
 
 
 def fuzz_policy():
@@ -143,86 +139,80 @@ def _shown(value: Any) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- coverage
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_the_fuzz_tables_cover_every_registered_tool_and_argument_and_the_baselines_are_valid(tmp_path, mode) -> None:
+async def test_the_fuzz_tables_cover_every_registered_tool_and_argument_and_the_baselines_are_valid(tmp_path, mode) -> None:
     """Guards the fuzzing below: a new tool or argument must be added here, and each baseline call
     is accepted, so every refusal below is caused by the one broken argument."""
 
-    async def scenario() -> None:
-        async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode, approve()) as client:
-            tools = (await client.list_tools()).tools
-            assert {tool.name for tool in tools} == set(BASELINE)
-            for tool in tools:
-                assert set(tool.input_schema.get("properties", {})) == set(FIELDS.get(tool.name, {})), tool.name
-            planned = await client.call_tool("plan_to_joints", BASELINE["plan_to_joints"])
-            calls = dict(BASELINE, execute_plan={"plan_id": planned.structured_content["plan_id"]})
-            del calls["estop"], calls["reset_estop"]  # checked elsewhere (latching changes everything after)
-            for name, arguments in calls.items():
-                result = await client.call_tool(name, arguments)
-                assert not result.is_error, f"{name}: {text_of(result)[:300]}"
-            orientation = await client.call_tool("plan_to_pose", {"position": POINT, "orientation": None})
-            assert not orientation.is_error
-
-    anyio.run(scenario)
+    async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode, approve()) as client:
+        tools = (await client.list_tools()).tools
+        assert {tool.name for tool in tools} == set(BASELINE)
+        for tool in tools:
+            assert set(tool.input_schema.get("properties", {})) == set(FIELDS.get(tool.name, {})), tool.name
+        planned = await client.call_tool("plan_to_joints", BASELINE["plan_to_joints"])
+        calls = dict(BASELINE, execute_plan={"plan_id": planned.structured_content["plan_id"]})
+        del calls["estop"], calls["reset_estop"]  # checked elsewhere (latching changes everything after)
+        for name, arguments in calls.items():
+            result = await client.call_tool(name, arguments)
+            assert not result.is_error, f"{name}: {text_of(result)[:300]}"
+        orientation = await client.call_tool("plan_to_pose", {"position": POINT, "orientation": None})
+        assert not orientation.is_error
 
 
 # ---------------------------------------------------------------------------------------------- table-driven fuzz
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_bad_arguments_on_every_tool_are_refused_and_nothing_actuates(tmp_path, mode) -> None:
-    async def scenario() -> None:
-        async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode, approve()) as client:
-            accepted: list[str] = []
-            calls = 0
-            for tool, fields in FIELDS.items():
-                if tool == "estop":
-                    continue
-                for field, kind in fields.items():
-                    for bad in BAD_VALUES[kind]:
-                        arguments = dict(BASELINE[tool], **{field: bad})
-                        result = await client.call_tool(tool, arguments)
-                        calls += 1
-                        if not result.is_error:
-                            accepted.append(f"{tool}.{field}={_shown(bad)}: {text_of(result)[:150]}")
-            assert accepted == [], "\n".join(accepted)
-            assert arm.actuations == []
-            # refused before any tool body ran, and every one of them is in the audit log
-            records = [r for r in read_tail(arm.audit_path, 1000) if r["event"] == "tool_call"]
-            assert len(records) == calls
-            assert all(r["outcome"] in ("invalid", "refused") for r in records)
-            assert sum(r["outcome"] == "invalid" for r in records) > calls // 2
-            status = await client.call_tool("get_safety_status", {})
-            assert not status.is_error and status.structured_content["estopped"] is False
-        assert verify_file(arm.audit_path).ok
-
-    anyio.run(scenario)
+async def test_bad_arguments_on_every_tool_are_refused_and_nothing_actuates(tmp_path, mode) -> None:
+    async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode, approve()) as client:
+        accepted: list[str] = []
+        calls = 0
+        for tool, fields in FIELDS.items():
+            if tool == "estop":
+                continue
+            for field, kind in fields.items():
+                for bad in BAD_VALUES[kind]:
+                    arguments = dict(BASELINE[tool], **{field: bad})
+                    result = await client.call_tool(tool, arguments)
+                    calls += 1
+                    if not result.is_error:
+                        accepted.append(f"{tool}.{field}={_shown(bad)}: {text_of(result)[:150]}")
+        assert accepted == [], "\n".join(accepted)
+        assert arm.actuations == []
+        # refused before any tool body ran, and every one of them is in the audit log
+        records = [r for r in read_tail(arm.audit_path, 1000) if r["event"] == "tool_call"]
+        assert len(records) == calls
+        assert all(r["outcome"] in ("invalid", "refused") for r in records)
+        assert sum(r["outcome"] == "invalid" for r in records) > calls // 2
+        status = await client.call_tool("get_safety_status", {})
+        assert not status.is_error and status.structured_content["estopped"] is False
+    assert verify_file(arm.audit_path).ok
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_unknown_and_missing_arguments_are_refused_on_every_tool(tmp_path, mode) -> None:
-    async def scenario() -> None:
-        async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode, approve()) as client:
-            tools = (await client.list_tools()).tools
-            for tool in tools:
-                junk = dict(BASELINE[tool.name], dry_run=True, approval={"approve": True}, unexpected=[NAN])
-                result = await client.call_tool(tool.name, junk)
-                if tool.name in ("stop_motion", "estop"):
-                    assert not result.is_error, text_of(result)  # stopping works whatever it is sent
-                    continue
-                assert result.is_error, f"{tool.name} accepted unknown arguments: {text_of(result)[:200]}"
-                assert "INVALID_ARGUMENTS" in text_of(result) and "dry_run" in text_of(result)
-                for required in tool.input_schema.get("required", []):
-                    missing = {k: v for k, v in BASELINE[tool.name].items() if k != required}
-                    result = await client.call_tool(tool.name, missing)
-                    assert result.is_error and required in text_of(result), text_of(result)[:200]
-            assert arm.actuations == []
-            unknown = await client.call_tool("no_such_tool", {"x": 1})
-            assert unknown.is_error
-            invalid = [r for r in read_tail(arm.audit_path, 1000) if r["outcome"] == "invalid"]
-            assert {r["tool"] for r in invalid} >= {"execute_plan", "gripper_home", "reset_estop", "no_such_tool"}
-            assert not (await client.call_tool("get_safety_status", {})).is_error
-        assert verify_file(arm.audit_path).ok
-
-    anyio.run(scenario)
+async def test_unknown_and_missing_arguments_are_refused_on_every_tool(tmp_path, mode) -> None:
+    async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode, approve()) as client:
+        tools = (await client.list_tools()).tools
+        for tool in tools:
+            junk = dict(BASELINE[tool.name], dry_run=True, approval={"approve": True}, unexpected=[NAN])
+            result = await client.call_tool(tool.name, junk)
+            if tool.name in ("stop_motion", "estop"):
+                assert not result.is_error, text_of(result)  # stopping works whatever it is sent
+                continue
+            assert result.is_error, f"{tool.name} accepted unknown arguments: {text_of(result)[:200]}"
+            assert "INVALID_ARGUMENTS" in text_of(result) and "dry_run" in text_of(result)
+            for required in tool.input_schema.get("required", []):
+                missing = {k: v for k, v in BASELINE[tool.name].items() if k != required}
+                result = await client.call_tool(tool.name, missing)
+                assert result.is_error and required in text_of(result), text_of(result)[:200]
+        assert arm.actuations == []
+        unknown = await client.call_tool("no_such_tool", {"x": 1})
+        assert unknown.is_error
+        invalid = [r for r in read_tail(arm.audit_path, 1000) if r["outcome"] == "invalid"]
+        assert {r["tool"] for r in invalid} >= {"execute_plan", "gripper_home", "reset_estop", "no_such_tool"}
+        assert not (await client.call_tool("get_safety_status", {})).is_error
+    assert verify_file(arm.audit_path).ok
 
 
 # ---------------------------------------------------------------------------------------------- hypothesis
@@ -242,7 +232,7 @@ _bad_name_text = _not_json_text.filter(lambda s: s not in _valid_names and not s
 
 
 def _bad_point(keys: str) -> st.SearchStrategy[Any]:
-    good = {k: 0.0 for k in keys}
+    good = dict.fromkeys(keys, 0.0)
     return st.one_of(
         st.builds(lambda k, v: {**good, k: v}, st.sampled_from(list(keys)), st.one_of(_bad_float, _junk, st.none())),
         st.builds(lambda k, v: {**good, k: v}, st.text(min_size=1, max_size=8).filter(lambda k: k not in keys), st.floats()),
@@ -299,6 +289,7 @@ def test_random_bad_arguments_are_refused_and_nothing_actuates(mode, cases) -> N
             assert arm.actuations == []
             assert not (await client.call_tool("get_safety_status", {})).is_error
 
+    # sync on purpose: hypothesis does not run async tests; each example runs its own event loop
     with tempfile.TemporaryDirectory() as directory:
         anyio.run(scenario, Path(directory))
 
@@ -327,6 +318,7 @@ def test_any_estop_input_latches_and_records_a_one_line_reason(mode, reasons) ->
             assert arm.actuations == []
         assert verify_file(arm.audit_path).ok
 
+    # sync on purpose: hypothesis does not run async tests; each example runs its own event loop
     with tempfile.TemporaryDirectory() as directory:
         anyio.run(scenario, Path(directory))
 
@@ -338,7 +330,7 @@ def _numeric_slots() -> list[tuple[str, dict[str, Any]]]:
         for field, kind in fields.items():
             if kind in ("number", "optional_number", "count"):
                 slots.append((tool, dict(BASELINE[tool], **{field: "<bad>"})))
-    slots.append(("plan_to_joints", {"joint_positions": [*READY[:3], "<bad>", *READY[4:]]}))
+    slots.append(("plan_to_joints", {"joint_positions": [*HOME[:3], "<bad>", *HOME[4:]]}))
     for axis in "xyz":
         slots.append(("plan_to_pose", {"position": {**POINT, axis: "<bad>"}}))
         slots.append(("plan_cartesian_path", {"waypoints": [{"position": {**POINT, axis: "<bad>"}}]}))
@@ -357,44 +349,43 @@ def _fill(value: Any, bad: float) -> Any:
     return value
 
 
-def test_real_nan_and_inf_reaching_the_tool_layer_are_refused_in_every_numeric_slot(tmp_path) -> None:
+@pytest.mark.anyio
+async def test_real_nan_and_inf_reaching_the_tool_layer_are_refused_in_every_numeric_slot(tmp_path) -> None:
     """No transport in between (so NaN is not turned into null): the tool's own validation refuses."""
     from mcp.server.mcpserver.exceptions import ToolError
 
-    async def scenario() -> None:
-        async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm:
-            accepted = []
-            for tool, template in _numeric_slots():
-                for bad in (NAN, INF, -INF):
-                    arguments = _fill(template, bad)
-                    try:
-                        result = await arm.server.mcp.call_tool(tool, arguments)
-                    except ToolError as exc:
-                        assert "finite" in str(exc) or "integer" in str(exc), str(exc)[:300]
-                        continue
-                    if not getattr(result, "is_error", False):
-                        accepted.append(f"{tool} {_shown(arguments)}")
-            assert accepted == [], "\n".join(accepted)
-            estop = await arm.server.mcp.call_tool("estop", {"reason": NAN})  # the e-stop takes anything
-            assert not estop.is_error and arm.guard.latch.is_latched
-            assert arm.actuations == []
+    async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm:
+        accepted = []
+        for tool, template in _numeric_slots():
+            for bad in (NAN, INF, -INF):
+                arguments = _fill(template, bad)
+                try:
+                    result = await arm.server.mcp.call_tool(tool, arguments)
+                except ToolError as exc:
+                    refused = str(exc)
+                    result = None
+                if result is None:
+                    assert "finite" in refused or "integer" in refused, refused[:300]
+                    continue
+                if not getattr(result, "is_error", False):
+                    accepted.append(f"{tool} {_shown(arguments)}")
+        assert accepted == [], "\n".join(accepted)
+        estop = await arm.server.mcp.call_tool("estop", {"reason": NAN})  # the e-stop takes anything
+        assert not estop.is_error and arm.guard.latch.is_latched
+        assert arm.actuations == []
 
-    anyio.run(scenario)
 
-
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_a_huge_joint_target_is_refused_up_front_and_the_server_keeps_serving(tmp_path, mode) -> None:
+async def test_a_huge_joint_target_is_refused_up_front_and_the_server_keeps_serving(tmp_path, mode) -> None:
     """Regression: a 1e6 rad joint target used to reach the time parameterisation, which subdivided
     the path until the daemon was OOM-killed (e-stop gone with it). Now the schema bounds it."""
 
-    async def scenario() -> None:
-        async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode) as client:
-            for value in (1e6, -1e6, 1e20, 11.0):
-                result = await client.call_tool("plan_to_joints", {"joint_positions": [*READY[:6], value]})
-                assert result.is_error
-                assert "joint_positions" in text_of(result) and "10" in text_of(result), text_of(result)[:300]
-            status = await client.call_tool("get_safety_status", {})
-            assert not status.is_error
-            assert arm.actuations == []
-
-    anyio.run(scenario)
+    async with arm_harness(tmp_path, fuzz_policy(), speedup=50.0) as arm, arm.client(mode) as client:
+        for value in (1e6, -1e6, 1e20, 11.0):
+            result = await client.call_tool("plan_to_joints", {"joint_positions": [*HOME[:6], value]})
+            assert result.is_error
+            assert "joint_positions" in text_of(result) and "10" in text_of(result), text_of(result)[:300]
+        status = await client.call_tool("get_safety_status", {})
+        assert not status.is_error
+        assert arm.actuations == []

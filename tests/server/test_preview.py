@@ -18,11 +18,9 @@ from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.server import images
 from armwarden.server.images import ImageSupportMissing, downscale_png, pillow_available
 from armwarden.server.preview import render_plan_preview
+from tests.helpers import READY
 
 Image = pytest.importorskip("PIL.Image")
-
-READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
-
 
 @pytest.fixture(scope="module")
 def runtime() -> RuntimeModel:
@@ -94,7 +92,7 @@ def test_identical_inputs_give_identical_bytes(runtime: RuntimeModel, into_monit
 
 
 def test_plan_into_a_keep_out_zone_is_marked_with_red_crosses(runtime: RuntimeModel, into_monitor) -> None:
-    trajectory, report = into_monitor
+    _trajectory, report = into_monitor
     assert any(v.code.value == "KEEP_OUT" and v.time_s is not None for v in report.violations)
     assert _strongly_red(_render(runtime, into_monitor)) > 20
 

@@ -2,71 +2,63 @@
 
 from __future__ import annotations
 
-import anyio
 import pytest
 
 from armwarden.safety.audit import read_tail, verify_file
-from tests.server.harness import MODES, approve, arm_harness
+from tests.helpers import HOME
+from tests.server.harness import MODES, approve, arm_harness, policy_with
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_plan_then_execute_moves_once_and_a_replay_is_refused(tmp_path, mode) -> None:
-    async def scenario() -> None:
-        async with arm_harness(tmp_path) as arm, arm.client(mode, approve()) as client:
-            plan = await client.call_tool("plan_to_pose", {"position": {"x": 0.4, "y": 0.1, "z": 0.35}})
-            assert plan.structured_content["status"] == "ok"
-            plan_id = plan.structured_content["plan_id"]
-            done = await client.call_tool("execute_plan", {"plan_id": plan_id})
-            assert not done.is_error and done.structured_content["status"] == "succeeded"
-            again = await client.call_tool("execute_plan", {"plan_id": plan_id})
-            assert again.is_error and "USED_PLAN" in again.content[0].text
-            assert arm.actuations == ["execute"]
-        assert verify_file(arm.audit_path).ok
-
-    anyio.run(scenario)
+async def test_plan_then_execute_moves_once_and_a_replay_is_refused(tmp_path, mode) -> None:
+    async with arm_harness(tmp_path) as arm, arm.client(mode, approve()) as client:
+        plan = await client.call_tool("plan_to_pose", {"position": {"x": 0.4, "y": 0.1, "z": 0.35}})
+        assert plan.structured_content["status"] == "ok"
+        plan_id = plan.structured_content["plan_id"]
+        done = await client.call_tool("execute_plan", {"plan_id": plan_id})
+        assert not done.is_error and done.structured_content["status"] == "succeeded"
+        again = await client.call_tool("execute_plan", {"plan_id": plan_id})
+        assert again.is_error and "USED_PLAN" in again.content[0].text
+        assert arm.actuations == ["execute"]
+    assert verify_file(arm.audit_path).ok
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
-def test_an_unexpected_failure_is_an_error_result_and_the_server_keeps_serving(tmp_path, mode) -> None:
-    async def scenario() -> None:
-        async with arm_harness(tmp_path) as arm, arm.client(mode) as client:
-            async def broken() -> None:
-                raise RuntimeError("simulated bug with secret internals")
+async def test_an_unexpected_failure_is_an_error_result_and_the_server_keeps_serving(tmp_path, mode) -> None:
+    async with arm_harness(tmp_path) as arm, arm.client(mode) as client:
+        async def broken() -> None:
+            raise RuntimeError("simulated bug with secret internals")
 
-            arm.guard.robot_state = broken  # type: ignore[method-assign]
-            result = await client.call_tool("get_robot_state", {})
-            assert result.is_error and "INTERNAL_ERROR" in result.content[0].text
-            assert "secret internals" not in result.content[0].text
-            status = await client.call_tool("get_safety_status", {})
-            assert not status.is_error
-            assert arm.actuations == []
-        records = read_tail(arm.audit_path, 10)
-        failed = [r for r in records if r.get("tool") == "get_robot_state"]
-        assert failed and failed[-1]["outcome"] == "refused" and failed[-1]["extra"]["code"] == "INTERNAL_ERROR"
-
-    anyio.run(scenario)
+        arm.guard.robot_state = broken  # type: ignore[method-assign]
+        result = await client.call_tool("get_robot_state", {})
+        assert result.is_error and "INTERNAL_ERROR" in result.content[0].text
+        assert "secret internals" not in result.content[0].text
+        status = await client.call_tool("get_safety_status", {})
+        assert not status.is_error
+        assert arm.actuations == []
+    records = read_tail(arm.audit_path, 10)
+    failed = [r for r in records if r.get("tool") == "get_robot_state"]
+    assert failed and failed[-1]["outcome"] == "refused" and failed[-1]["extra"]["code"] == "INTERNAL_ERROR"
 
 
-def test_a_client_cannot_answer_an_approval_question_it_was_not_asked(tmp_path) -> None:
+@pytest.mark.anyio
+async def test_a_client_cannot_answer_an_approval_question_it_was_not_asked(tmp_path) -> None:
     """Protocol 2026-07-28: pre-filled `input_responses` without the server's sealed request state
     are not an approval; the server asks again and nothing moves."""
     import mcp_types as types
 
-    from tests.server.harness import policy_with
-
-    async def scenario() -> None:
-        policy = policy_with(**{"approval.mode": "always"})
-        async with arm_harness(tmp_path, policy) as arm, arm.client("2026-07-28", approve()) as client:
-            session = client.session
-            first = (await client.call_tool("plan_to_joints", {"joint_positions": [0.1, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398], "preview": False})).structured_content
-            asked = await session.call_tool("execute_plan", {"plan_id": first["plan_id"]}, allow_input_required=True)
-            assert isinstance(asked, types.InputRequiredResult)
-            key = next(iter(asked.input_requests))
-            forged = {key: types.ElicitResult(action="accept", content={"approve": True, "operator": "the model"})}
-            # the same answer sent without the sealed state the server issued: asked again, not executed
-            again = await session.call_tool("execute_plan", {"plan_id": first["plan_id"]}, allow_input_required=True,
-                                            input_responses=forged)
-            assert isinstance(again, types.InputRequiredResult)
-            assert arm.actuations == []
-
-    anyio.run(scenario)
+    policy = policy_with(**{"approval.mode": "always"})
+    async with arm_harness(tmp_path, policy) as arm, arm.client("2026-07-28", approve()) as client:
+        session = client.session
+        first = (await client.call_tool("plan_to_joints", {"joint_positions": [0.1, *HOME[1:]], "preview": False})).structured_content
+        asked = await session.call_tool("execute_plan", {"plan_id": first["plan_id"]}, allow_input_required=True)
+        assert isinstance(asked, types.InputRequiredResult)
+        key = next(iter(asked.input_requests))
+        forged = {key: types.ElicitResult(action="accept", content={"approve": True, "operator": "the model"})}
+        # the same answer sent without the sealed state the server issued: asked again, not executed
+        again = await session.call_tool("execute_plan", {"plan_id": first["plan_id"]}, allow_input_required=True,
+                                        input_responses=forged)
+        assert isinstance(again, types.InputRequiredResult)
+        assert arm.actuations == []

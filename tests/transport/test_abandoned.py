@@ -5,6 +5,7 @@ refused before the app sees them."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 from typing import Any
 
@@ -50,7 +51,7 @@ class Recorder:
             await send({"type": "http.response.body", "body": b"event: result", "more_body": False})
 
 
-def run(body: bytes, app: Recorder, *, path: str = "/mcp", method: str = "POST", headers=(SESSION,),
+async def run(body: bytes, app: Recorder, *, path: str = "/mcp", method: str = "POST", headers=(SESSION,),
         chunk: int | None = None) -> tuple[list[tuple], list[dict]]:
     reports: list[tuple] = []
     responses: list[dict] = []
@@ -70,13 +71,8 @@ def run(body: bytes, app: Recorder, *, path: str = "/mcp", method: str = "POST",
 
     middleware = AbandonedMotionStop(app, "/mcp", on_abandoned)
 
-    async def main() -> None:
-        try:
-            await middleware({"type": "http", "method": method, "path": path, "headers": list(headers)}, receive, send)
-        except RuntimeError:
-            pass
-
-    anyio.run(main)
+    with contextlib.suppress(RuntimeError):  # a recorder told to fail mid-stream
+        await middleware({"type": "http", "method": method, "path": path, "headers": list(headers)}, receive, send)
     return reports, responses
 
 
@@ -84,66 +80,75 @@ def cancellations(app: Recorder) -> list[dict]:
     return [json.loads(body) for _scope, body in app.seen if json.loads(body).get("method") == "notifications/cancelled"]
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("tool", ["execute_plan", "gripper_move", "gripper_grasp", "gripper_home"])
-def test_an_unanswered_motion_call_is_cancelled_in_its_session_and_reported(tool):
+async def test_an_unanswered_motion_call_is_cancelled_in_its_session_and_reported(tool):
     app = Recorder(answer=False)
-    reports, _ = run(rpc(tool, {"plan_id": "plan_x"}, request_id="r-1"), app)
+    reports, _ = await run(rpc(tool, {"plan_id": "plan_x"}, request_id="r-1"), app)
     assert [c["params"]["requestId"] for c in cancellations(app)] == ["r-1"]
     cancel_scope = app.seen[-1][0]
     assert SESSION in cancel_scope["headers"]  # the same session, so only this client's call is touched
     assert reports == [(tool, {"plan_id": "plan_x"}, "r-1", True)]
 
 
-def test_a_motion_call_whose_stream_broke_is_cancelled():
+@pytest.mark.anyio
+async def test_a_motion_call_whose_stream_broke_is_cancelled():
     app = Recorder(answer=False, fail=True)
-    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app)
+    reports, _ = await run(rpc("execute_plan", {"plan_id": "p"}), app)
     assert len(cancellations(app)) == 1 and reports == [("execute_plan", {"plan_id": "p"}, 7, True)]
 
 
-def test_a_body_that_arrives_in_pieces_reaches_the_app_whole():
+@pytest.mark.anyio
+async def test_a_body_that_arrives_in_pieces_reaches_the_app_whole():
     app = Recorder(answer=True)
     body = rpc("execute_plan", {"plan_id": "p"})
-    run(body, app, chunk=5)
+    await run(body, app, chunk=5)
     assert app.seen[0][1] == body
 
 
-def test_an_answered_motion_call_is_left_alone():
+@pytest.mark.anyio
+async def test_an_answered_motion_call_is_left_alone():
     app = Recorder(answer=True)
-    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app)
+    reports, _ = await run(rpc("execute_plan", {"plan_id": "p"}), app)
     assert reports == [] and cancellations(app) == []
 
 
-def test_a_refused_cancellation_is_reported_as_not_delivered():
+@pytest.mark.anyio
+async def test_a_refused_cancellation_is_reported_as_not_delivered():
     app = Recorder(answer=False, cancel_status=404)
-    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app)
+    reports, _ = await run(rpc("execute_plan", {"plan_id": "p"}), app)
     assert reports == [("execute_plan", {"plan_id": "p"}, 7, False)]
 
 
-def test_without_a_session_nothing_is_injected_and_the_call_is_reported_as_ended_with_its_request():
+@pytest.mark.anyio
+async def test_without_a_session_nothing_is_injected_and_the_call_is_reported_as_ended_with_its_request():
     # 2026-07-28 requests carry no session: the SDK cancels the call itself when its request ends
     app = Recorder(answer=False)
-    reports, _ = run(rpc("execute_plan", {"plan_id": "p"}), app, headers=())
+    reports, _ = await run(rpc("execute_plan", {"plan_id": "p"}), app, headers=())
     assert cancellations(app) == [] and reports == [("execute_plan", {"plan_id": "p"}, 7, None)]
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("body", [rpc("get_robot_state"), rpc("plan_to_pose"), rpc("execute_plan", method="tools/list"),
                                   rpc("execute_plan", request_id=None), rpc("execute_plan", request_id=True)])
-def test_other_messages_are_never_cancelled(body):
+async def test_other_messages_are_never_cancelled(body):
     app = Recorder(answer=False)
-    reports, _ = run(body, app)
+    reports, _ = await run(body, app)
     assert reports == [] and cancellations(app) == []
 
 
-def test_other_paths_and_methods_are_passed_through_untouched():
+@pytest.mark.anyio
+async def test_other_paths_and_methods_are_passed_through_untouched():
     app = Recorder(answer=False)
-    assert run(rpc("execute_plan", {"plan_id": "p"}), app, path="/healthz")[0] == []
-    assert run(rpc("execute_plan", {"plan_id": "p"}), app, method="GET")[0] == []
+    assert (await run(rpc("execute_plan", {"plan_id": "p"}), app, path="/healthz"))[0] == []
+    assert (await run(rpc("execute_plan", {"plan_id": "p"}), app, method="GET"))[0] == []
     assert cancellations(app) == []
 
 
-def test_an_oversized_body_is_refused_with_413_and_never_reaches_the_app():
+@pytest.mark.anyio
+async def test_an_oversized_body_is_refused_with_413_and_never_reaches_the_app():
     app = Recorder(answer=True)
-    reports, responses = run(rpc("execute_plan", {"plan_id": "p", "pad": "x" * MAX_BODY_BYTES}), app, chunk=65536)
+    reports, responses = await run(rpc("execute_plan", {"plan_id": "p", "pad": "x" * MAX_BODY_BYTES}), app, chunk=65536)
     assert responses[0]["status"] == 413 and app.seen == [] and reports == []
 
 
@@ -156,7 +161,8 @@ def test_non_object_arguments_become_an_empty_mapping():
     assert motion_call(decode_message(rpc("execute_plan", ["plan_x"]))) == ("execute_plan", {}, 7)
 
 
-def test_a_declared_oversized_body_is_refused_before_it_is_read():
+@pytest.mark.anyio
+async def test_a_declared_oversized_body_is_refused_before_it_is_read():
     app = Recorder(answer=True)
     read: list[dict] = []
     responses: list[dict] = []
@@ -170,12 +176,13 @@ def test_a_declared_oversized_body_is_refused_before_it_is_read():
 
     scope = {"type": "http", "method": "POST", "path": "/mcp",
              "headers": [SESSION, (b"content-length", str(50 * MAX_BODY_BYTES).encode())]}
-    anyio.run(AbandonedMotionStop(app, "/mcp"), scope, receive, send)
+    await AbandonedMotionStop(app, "/mcp")(scope, receive, send)
     assert responses[0]["status"] == 413 and read == [] and app.seen == []
 
 
+@pytest.mark.anyio
 @pytest.mark.parametrize("reused", [777, "777", "0777"])
-def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_stays_cancellable(reused):
+async def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_stays_cancellable(reused):
     class Holding(Recorder):
         """Keeps the first call open until told; answers everything else at once."""
 
@@ -209,15 +216,12 @@ def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_call_s
 
         return middleware({"type": "http", "method": "POST", "path": "/mcp", "headers": [SESSION]}, receive, send)
 
-    async def main() -> None:
-        async with anyio.create_task_group() as group:
-            group.start_soon(request, rpc("execute_plan", {"plan_id": "p"}, request_id=777))
-            await anyio.sleep(0.01)
-            await request(rpc("get_safety_status", request_id=reused))  # 7, "7" and "07" are one id to the SDK
-            await request(rpc("get_safety_status", request_id=778))
-            app.release.set()
-
-    anyio.run(main)
+    async with anyio.create_task_group() as group:
+        group.start_soon(request, rpc("execute_plan", {"plan_id": "p"}, request_id=777))
+        await anyio.sleep(0.01)
+        await request(rpc("get_safety_status", request_id=reused))  # 7, "7" and "07" are one id to the SDK
+        await request(rpc("get_safety_status", request_id=778))
+        app.release.set()
     assert statuses[:2] == [409, 200]
     assert [c["params"]["requestId"] for c in cancellations(app)] == [777]
     assert reports == [("execute_plan", {"plan_id": "p"}, 777, True)]

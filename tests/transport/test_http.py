@@ -12,6 +12,7 @@ from typing import Annotated, Any
 
 import anyio
 import anyio.from_thread
+import anyio.lowlevel
 import httpx2
 import pytest
 from mcp import Client
@@ -29,6 +30,7 @@ from armwarden.transport.http import (
     serve_http,
 )
 from armwarden.transport.tokens import TokenStore
+from tests.helpers import free_port
 
 GROUP_OF = {"read_thing": "introspect", "move_thing": "motion"}
 PROTOCOL_MODES = {"legacy": "2025-11-25", "2026-07-28": "2026-07-28"}
@@ -39,11 +41,6 @@ INIT_BODY = {
     "params": {"protocolVersion": "2025-11-25", "capabilities": {}, "clientInfo": {"name": "t", "version": "0"}},
 }
 MCP_HEADERS = {"Accept": "application/json, text/event-stream", "Content-Type": "application/json"}
-
-
-@pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
 
 
 class Approval(BaseModel):
@@ -61,7 +58,7 @@ def make_server() -> MCPServer:
 
     async def read_thing(ctx: Context) -> dict[str, Any]:
         """Report who is calling."""
-        await anyio.sleep(0)  # the principal must survive an await
+        await anyio.lowlevel.checkpoint()  # the principal must survive an await
         principal = current_principal()
         return {
             "name": principal.name if principal else None,
@@ -86,12 +83,6 @@ def make_server() -> MCPServer:
     server.add_tool(move_thing)
     server.add_tool(approve_thing)
     return server
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @contextlib.contextmanager

@@ -16,11 +16,6 @@ from armwarden.transport.jsonrpc import INVALID_REQUEST, PARSE_ERROR
 from armwarden.transport.stdio import gate_streams
 
 
-@pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
-
-
 def request(request_id: Any, method: str = "tools/call", name: str = "execute_plan") -> SessionMessage:
     return SessionMessage(types.JSONRPCRequest(jsonrpc="2.0", id=request_id, method=method,
                                                params={"name": name, "arguments": {"plan_id": "p"}}))

@@ -1,0 +1,66 @@
+"""Small helpers shared by the test modules: poses, tool-result text, audit files, child processes.
+
+Helpers that need a running ArmWarden (the in-memory harness, elicitation callbacks, plans through
+the SDK client) live in `tests/server/harness.py`; the daemon-as-a-subprocess ones in
+`tests/server/http_daemon.py`. This module imports nothing from `armwarden`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+#: the CLI as a child process runs it (with `child_env()`, so this worktree's `src` wins)
+CLI = [sys.executable, "-m", "armwarden.cli"]
+
+#: the FR3 ready pose, exact (rad)
+READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+#: the bundled fr3 policy's `robot.home_joint_positions`, as written there (rad; where the fake starts)
+HOME = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
+#: a tool-flange orientation pointing straight down (rotation matrix)
+DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+class FakeClock:
+    """A clock the test moves by hand: call it for the time, set `now` or `advance` it."""
+
+    def __init__(self, now: float) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+    def advance(self, seconds: float) -> None:
+        self.now += seconds
+
+
+def text_of(result: Any) -> str:
+    """All the text of a `CallToolResult`, one string (refusal codes and messages are in it)."""
+    return " ".join(getattr(block, "text", "") for block in result.content)
+
+
+def records_of(path: Path) -> list[dict[str, Any]]:
+    """Every record of a JSON-lines audit log."""
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+def child_env() -> dict[str, str]:
+    """The environment for a child `armwarden` process: this checkout's `src` first, no audit key."""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env.pop("ARMWARDEN_AUDIT_KEY", None)
+    return env
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port nothing listens on right now (for a server the test starts)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return sock.getsockname()[1]
