@@ -35,9 +35,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from armwarden.policy import bundled_policy  # noqa: E402
-from armwarden.policy import load_policy  # noqa: E402
-from armwarden.preflight import load_runtime_model  # noqa: E402
+from armwarden.policy import bundled_policy, load_policy
+from armwarden.preflight import load_runtime_model
+
+SRC = Path(__file__).resolve().parents[1] / "src"
 
 READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
 TYPICAL_DELTA = np.array([0.5, 0.25, -0.2, 0.3, 0.2, -0.3, 0.4])  # largest joint travel 0.5 rad
@@ -232,7 +233,7 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
                 command=sys.executable,
                 args=["-m", "armwarden.cli", "serve", "--policy", str(policy_path),
                       "--audit-log", str(directory / "stdio-audit.jsonl"), "--log-level", "WARNING"],
-                env={"PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")},
+                env={"PYTHONPATH": str(SRC)},
             )
             floor_params = StdioServerParameters(command=sys.executable, args=[trivial_server.__file__])
             series: dict[str, list[float]] = {"armwarden": [], "shape": [], "trivial": []}
@@ -313,7 +314,7 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
         with socket.socket() as probe:
             probe.bind(("127.0.0.1", 0))
             port = probe.getsockname()[1]
-        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+        env = dict(os.environ, PYTHONPATH=str(SRC))
         daemon = subprocess.Popen(
             [sys.executable, "-m", "armwarden.cli", "serve", "--transport", "http", "--host", "127.0.0.1",
              "--port", str(port), "--policy", str(policy_path), "--auth-tokens", str(token_file),

@@ -29,14 +29,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel
+
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT / "src") not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(ROOT / "src"))
 
-from pydantic import BaseModel
-
-from armwarden import policy as policy_module
-from armwarden.policy import TOOL_GROUPS, Policy
+from armwarden import policy as policy_module  # noqa: E402 - needs the sys.path set-up above
+from armwarden.policy import TOOL_GROUPS, Policy  # noqa: E402 - needs the sys.path set-up above
 
 POLICY_DOC = ROOT / "docs" / "policy.md"
 TOOLS_DOC = ROOT / "docs" / "tools.md"
@@ -352,8 +352,7 @@ async def list_registered_tools() -> list[dict[str, Any]]:
     from mcp import Client
 
     from armwarden.assembly import build_backend, build_guard
-    from armwarden.policy import bundled_policy
-    from armwarden.policy import load_policy
+    from armwarden.policy import bundled_policy, load_policy
     from armwarden.server.app import ArmWardenServer
 
     policy = load_policy(bundled_policy("fr3"))

@@ -15,8 +15,8 @@ from pydantic import BaseModel
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 
-from armwarden.results import RobotState  # noqa: E402
-from armwarden.server.tools import inline_refs  # noqa: E402
+from armwarden.results import RobotState
+from armwarden.server.tools import inline_refs
 
 
 class Trivial(BaseModel):

@@ -10,6 +10,7 @@ envelope's dynamics check.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,7 +69,7 @@ def time_parameterize(
     times: list[np.ndarray] = []
     positions: list[np.ndarray] = []
     offset = 0.0
-    for start, end in zip(bounds[:-1], bounds[1:]):
+    for start, end in itertools.pairwise(bounds):
         leg = time_leg(joint_names, path[start : end + 1], max_velocity, max_acceleration, dt_s)
         skip = 1 if times else 0  # the junction waypoint is shared by both legs
         times.append(leg.times[skip:] + offset)

@@ -55,7 +55,7 @@ def capsule_from_geometry(obj: pin.GeometryObject) -> tuple[np.ndarray, np.ndarr
     rotation = placement.rotation
     center = placement.translation
     geometry = obj.geometry
-    if isinstance(geometry, coal.Capsule) or isinstance(geometry, coal.Cylinder):
+    if isinstance(geometry, (coal.Capsule, coal.Cylinder)):
         half = rotation[:, 2] * geometry.halfLength
         return center - half, center + half, float(geometry.radius)
     if isinstance(geometry, coal.Sphere):

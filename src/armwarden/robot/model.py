@@ -79,7 +79,7 @@ class RobotModel:
         names = list(full_model.names)
         unknown = [name for name in joint_names if name not in names]
         if unknown:
-            movable = [n for n in names[1:]]
+            movable = names[1:]
             raise RobotModelError(f"unknown joint(s) {unknown}; the description has {movable}")
         reference = pin.neutral(full_model)
         for name, value in (locked_positions or {}).items():

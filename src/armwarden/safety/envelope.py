@@ -459,7 +459,7 @@ class Envelope:
         """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments."""
         confirmed = np.zeros_like(overlap)
         tcp_body = radius.shape[1] - 1
-        for k, body, zone in zip(*np.nonzero(overlap)):
+        for k, body, zone in zip(*np.nonzero(overlap), strict=True):
             zone_lo, zone_hi = self._ko_lo[zone], self._ko_hi[zone]
             r = radius[k, body]
             hit = geometry.capsule_box_distance(p0[k, body], p1[k, body], r, zone_lo, zone_hi) <= 0.0
