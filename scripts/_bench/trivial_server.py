@@ -49,6 +49,8 @@ def build() -> MCPServer:
     server.add_tool(trivial, name="trivial")
     server.add_tool(robot_state_shape, name="robot_state_shape")
     tool = server._tool_manager.get_tool("robot_state_shape")  # publish the schema ArmWarden publishes
+    if tool is None or tool.output_schema is None:
+        raise RuntimeError("the SDK registered robot_state_shape without an output schema")
     inlined = inline_refs(tool.output_schema)
     tool.output_schema.clear()
     tool.output_schema.update(inlined)

@@ -114,6 +114,7 @@ def time_leg(
     base_times = profile.time_at(s)
     base_times[0], base_times[-1] = 0.0, profile.duration
     stretch = 1.0
+    acc = float("nan")  # the last acceleration ratio tried, for the error
     for _ in range(_MAX_STRETCHES):
         times = base_times * stretch
         vel = np.max(np.abs(estimate_velocities(times, positions)) / max_velocity)

@@ -461,7 +461,7 @@ class Envelope:
         tcp_body = radius.shape[1] - 1
         for k, body, zone in zip(*np.nonzero(overlap), strict=True):
             zone_lo, zone_hi = self._ko_lo[zone], self._ko_hi[zone]
-            r = radius[k, body]
+            r = float(radius[k, body])
             hit = geometry.capsule_box_distance(p0[k, body], p1[k, body], r, zone_lo, zone_hi) <= 0.0
             if not hit and body == tcp_body and k > 0:
                 hit = bool(geometry.segments_hit_boxes(tcp[k - 1], tcp[k], zone_lo - r, zone_hi + r))

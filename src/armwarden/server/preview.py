@@ -149,8 +149,8 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
     path_index = np.unique(np.round(np.linspace(0, n_way - 1, min(n_way, MAX_PATH_POINTS))).astype(int))
     duration = trajectory.duration_s
     sweep_q = [trajectory.sample(t) for t in np.linspace(0.0, duration, SWEEP_SAMPLES)]
-    timed = [v for v in report.violations if v.time_s is not None and math.isfinite(v.time_s)]
-    mark_q = [trajectory.sample(float(v.time_s)) for v in timed]
+    timed = [(v, v.time_s) for v in report.violations if v.time_s is not None and math.isfinite(v.time_s)]
+    mark_q = [trajectory.sample(time_s) for _, time_s in timed]
 
     qs = np.vstack([positions[path_index], *sweep_q, *mark_q]) if mark_q else np.vstack([positions[path_index], *sweep_q])
     p0, p1 = robot.body_points(robot.joint_frames(qs))  # (N, B+1, 3), the TCP last
@@ -162,7 +162,7 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
     centres = (p0[:, :-1] + p1[:, :-1]) / 2.0
     index = _body_index(robot)
     marks = []
-    for k, violation in enumerate(timed):
+    for k, (violation, _) in enumerate(timed):
         row = n_path + n_sweep + k
         bodies = [index.get(part) for part in (violation.body or "").split("|")]
         found = [b for b in bodies if b is not None]

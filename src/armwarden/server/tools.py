@@ -115,7 +115,7 @@ def _unit_rotation(orientation: Orientation | None) -> np.ndarray | None:
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > 0.01:
         raise SafetyRefusal(RefusalCode.INVALID, f"orientation must be a unit quaternion (x, y, z, w); its norm is {norm:.4f}")
-    import pinocchio as pin
+    import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
     return pin.Quaternion(*(q / norm)[[3, 0, 1, 2]]).toRotationMatrix()
 
