@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from armwarden.planning.trajectory import DEFAULT_DT_S, JointTrajectory
-from armwarden.safety.envelope import estimate_accelerations, estimate_velocities
+from armwarden.safety.waypoints import estimate_accelerations, estimate_velocities
 
 _MAX_STRETCHES = 30
 _MIN_STEP_RAD = 1e-9  # smaller joint steps are numerical noise, not motion

@@ -1,4 +1,4 @@
-"""The plan preview picture attached to every `PlanSummary` (DESIGN §3).
+"""The plan preview picture attached to every `PlanSummary`, for the human who approves the plan.
 
 Two panels side by side, in the robot base frame: a TOP view (x right, y up) and a SIDE view
 (x right, z up), both at the same scale. Each shows the workspace box, the keep-out zones

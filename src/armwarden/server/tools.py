@@ -7,7 +7,7 @@ booleans, no NaN/Inf); strings are length-bounded. `ToolBuilder.tool` registers 
 its function's name, admits every call through the Guard's rate limiter, and turns a refusal into
 an `isError` result saying why and what a human must do. Tools talk to the Guard only.
 
-Approval uses the SDK's `Resolve`-injected parameters, whose markers `approval_parameters` builds
+Approval uses the SDK's `Resolve`-injected parameters, whose markers `server.approval` builds
 (hidden from the input schema: an `approval` argument sent by a client is ignored). The resolvers only
 read state; the body runs once and does all the consuming, moving and recording.
 """
@@ -16,13 +16,12 @@ read state; the body runs once and does all the consuming, moving and recording.
 import functools
 import logging
 from collections.abc import Awaitable, Callable
-from typing import Annotated, Any, NamedTuple
+from typing import Annotated, Any
 
 import numpy as np
-from mcp.server.mcpserver import Context, Elicit, ElicitationResult, MCPServer, Resolve
+from mcp.server.mcpserver import Context, MCPServer
 from mcp.server.mcpserver import Image as McpImage
 from mcp_types import CallToolResult, ToolAnnotations
-from mcp_types.version import is_version_at_least
 from pydantic import BaseModel, ConfigDict, Field, Strict
 
 from armwarden.errors import RefusalCode, SafetyRefusal
@@ -47,18 +46,15 @@ from armwarden.results import (
     StopResult,
     TransformResult,
 )
-from armwarden.safety.approval import ApprovalForm, ServerDecision
-from armwarden.server.calls import current_call, mark_body_ran, ok, refused
+from armwarden.safety.approval import ServerDecision
+from armwarden.server.approval import ApprovalAnswer, ApprovalGate, ShownDigest, approval_parameters, can_elicit
+from armwarden.server.calls import mark_body_ran, ok, refused
 
 logger = logging.getLogger(__name__)
 
 Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 Name = Annotated[str, Field(min_length=1, max_length=128)]
 StrictBool = Annotated[bool, Strict()]
-#: a tool's hidden `approval` parameter: the server's decision or the human's answer
-ApprovalAnswer = ElicitationResult[ApprovalForm]
-#: a tool's hidden `shown` parameter: the digest of what the human was shown (None: nobody asked)
-ShownDigest = str | None
 MAX_WAYPOINTS = 50
 POSITION_BOUND_M = 10.0  # sanity bound on any position argument; the envelope enforces the real box
 #: sanity bound on any joint target [rad] (a 1e6 rad target made the time parameterisation allocate
@@ -95,16 +91,6 @@ PLANNING = ToolAnnotations(read_only_hint=True, destructive_hint=False, idempote
 ACTUATING = ToolAnnotations(read_only_hint=False, destructive_hint=True, idempotent_hint=False, open_world_hint=True)
 STOPPING = ToolAnnotations(read_only_hint=False, destructive_hint=False, idempotent_hint=True, open_world_hint=True)
 RELEASING = ToolAnnotations(read_only_hint=False, destructive_hint=False, idempotent_hint=False, open_world_hint=True)
-
-
-def can_elicit(ctx: Context) -> bool:
-    """Whether a human can be asked on this request (capability and a channel to ask on)."""
-    caps = ctx.client_capabilities
-    if caps is None or caps.elicitation is None:
-        return False
-    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
-        return True  # the question rides the InputRequiredResult
-    return bool(ctx.session.can_send_request)
 
 
 def _unit_rotation(orientation: Orientation | None) -> np.ndarray | None:
@@ -454,36 +440,6 @@ class ToolBuilder:
               "faults. Never rate limited.", READ_ONLY_LOCAL)
         async def get_safety_status() -> Annotated[CallToolResult, SafetyStatus]:
             return ok(guard.safety_status())
-
-
-class ApprovalGate(NamedTuple):
-    """The `Resolve` markers of the two hidden parameters of a tool that may need a human:
-    `approval: Annotated[ApprovalAnswer, gate.approval]`, `shown: Annotated[ShownDigest, gate.shown]`."""
-
-    approval: Resolve
-    shown: Resolve
-
-
-def approval_parameters(precheck: Callable[..., Any]) -> ApprovalGate:
-    """The two hidden parameters of a tool that may need a human, both resolved from `precheck`
-    (a read-only `ServerDecision | Prompt`; the SDK runs it once per round and shares it):
-    `approval`, the server's decision or the human's answer to the prompt; `shown`, the digest of
-    what that prompt showed (None when nobody was asked), which the Guard matches against the
-    request it is about to carry out."""
-    check = Resolve(precheck)
-
-    async def ask(result: Annotated[ServerDecision | Prompt, check]) -> ServerDecision | Elicit[ApprovalForm]:
-        if not isinstance(result, Prompt):
-            return result
-        record = current_call()
-        if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
-            record.extra["approval_prompt"] = result.message
-        return Elicit(result.message, ApprovalForm)
-
-    async def shown(result: Annotated[ServerDecision | Prompt, check]) -> str | None:
-        return result.digest if isinstance(result, Prompt) else None
-
-    return ApprovalGate(Resolve(ask), Resolve(shown))
 
 
 def inline_refs(schema: dict[str, Any]) -> dict[str, Any]:
