@@ -19,8 +19,9 @@ a `SafetyRefusal` at the first that says no. The tool layer admits every call fi
 - switch_controllers, set_collision_thresholds, error_recovery (`actions`): arguments → audit
   → e-stop latch → approval, given for this very request;
 - reset_estop: approval → release of the event shown (`stopping.Stopper.release`);
-- stop_motion, emergency_stop (`stopping`): never refused, never wait for anything but the
-  backend's stop; reads (`readings`): fresh data or a refusal.
+- stop_motion, emergency_stop (`stopping`): no rate limit, no approval, no gate; they wait for
+  nothing but the backend's stop, and a stop that fails latches the e-stop;
+- reads (`readings`): fresh data or a refusal.
 
 Approval resolvers call the `precheck_*` methods, which only read state (under protocol
 2026-07-28 a resolver may run more than once per call) and refuse before any human is asked
