@@ -23,6 +23,7 @@ target is reported as met or missed; nothing is asserted.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import statistics
 import sys
@@ -35,9 +36,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from armwarden.policy import bundled_policy  # noqa: E402
-from armwarden.policy import load_policy  # noqa: E402
-from armwarden.preflight import load_runtime_model  # noqa: E402
+from armwarden.policy import bundled_policy, load_policy
+from armwarden.preflight import load_runtime_model
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+TRIVIAL_SERVER = Path(__file__).resolve().parent / "_bench" / "trivial_server.py"
 
 READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
 TYPICAL_DELTA = np.array([0.5, 0.25, -0.2, 0.3, 0.2, -0.3, 0.4])  # largest joint travel 0.5 rad
@@ -58,11 +61,13 @@ def _time_us(fn: Callable[[], object], repeats: int) -> list[float]:
 
 
 def bench_envelope(repeats: int = 400) -> dict[str, float]:
-    import pinocchio as pin
+    import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
     runtime = load_runtime_model(load_policy(bundled_policy("fr3")))
     robot, envelope, planner = runtime.robot, runtime.envelope, runtime.planner
     trajectory = planner.plan_to_joints(READY, READY + TYPICAL_DELTA, velocity_scaling=0.15).trajectory
+    if trajectory is None:
+        raise RuntimeError("the benchmark motion could not be planned")
     report = envelope.check(trajectory)
     assert not report.violations, report.violations
     # the samples the sweep bound requires (fine), and those a clean plan actually evaluates (the
@@ -180,8 +185,9 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
     from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs
-    sys.path.insert(0, str(Path(__file__).resolve().parent / "_bench"))
-    import trivial_server  # the SDK's own floor: constant tools, nothing of ArmWarden behind them
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    # the SDK's own floor: constant tools, nothing of ArmWarden behind them
+    trivial_server = importlib.import_module("trivial_server")
 
     results: dict[str, Any] = {}
     rounds = max(1, repeats // BLOCK)
@@ -232,9 +238,9 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
                 command=sys.executable,
                 args=["-m", "armwarden.cli", "serve", "--policy", str(policy_path),
                       "--audit-log", str(directory / "stdio-audit.jsonl"), "--log-level", "WARNING"],
-                env={"PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")},
+                env={"PYTHONPATH": str(SRC)},
             )
-            floor_params = StdioServerParameters(command=sys.executable, args=[trivial_server.__file__])
+            floor_params = StdioServerParameters(command=sys.executable, args=[str(TRIVIAL_SERVER)])
             series: dict[str, list[float]] = {"armwarden": [], "shape": [], "trivial": []}
             async with Client(armwarden_params) as armwarden, Client(floor_params) as floor:
                 for _ in range(rounds):
@@ -313,7 +319,7 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
         with socket.socket() as probe:
             probe.bind(("127.0.0.1", 0))
             port = probe.getsockname()[1]
-        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+        env = dict(os.environ, PYTHONPATH=str(SRC))
         daemon = subprocess.Popen(
             [sys.executable, "-m", "armwarden.cli", "serve", "--transport", "http", "--host", "127.0.0.1",
              "--port", str(port), "--policy", str(policy_path), "--auth-tokens", str(token_file),

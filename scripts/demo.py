@@ -141,10 +141,10 @@ async def run_session(out: Path, mode: str) -> None:
         say(f"preview saved to {preview} ({preview.stat().st_size} bytes)", 2)
 
         step(3, "execute: the server asks for approval, the operator approves")
-        progress: list[float] = []
+        progress_seen: list[float] = []
 
-        async def on_progress(value: float, total: float | None, message: str | None) -> None:
-            progress.append(value)
+        async def on_progress(progress: float, total: float | None, message: str | None) -> None:
+            progress_seen.append(progress)
 
         report = structured(await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]},
                                                     progress_callback=on_progress), "execute_plan")

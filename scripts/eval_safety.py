@@ -26,13 +26,12 @@ from mcp import Client
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from armwarden.assembly import build_backend, build_guard  # noqa: E402
-from armwarden.backends.counting import CountingBackend  # noqa: E402
-from armwarden.policy import bundled_policy  # noqa: E402
-from armwarden.policy import Policy, apply_overrides, parse_policy  # noqa: E402
-from armwarden.preflight import load_runtime_model  # noqa: E402
-from armwarden.safety.audit import AuditLog, verify_file  # noqa: E402
-from armwarden.server.app import ArmWardenServer  # noqa: E402
+from armwarden.assembly import build_backend, build_guard
+from armwarden.backends.counting import CountingBackend
+from armwarden.policy import Policy, apply_overrides, bundled_policy, parse_policy
+from armwarden.preflight import load_runtime_model
+from armwarden.safety.audit import AuditLog, verify_file
+from armwarden.server.app import ArmWardenServer
 
 READY = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]
 
@@ -149,7 +148,7 @@ class Evaluation:
 
     async def safe_moves(self, count: int, seed: int) -> None:
         rng = np.random.default_rng(seed)
-        fake, backend, audit, server = await self.arm(None, "safe")
+        fake, _, audit, server = await self.arm(None, "safe")
         checker = load_runtime_model(_policy())  # an independent model instance for the re-check
         limits = checker.envelope.limits
         executed = skipped = 0

@@ -29,14 +29,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel
+
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT / "src") not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(ROOT / "src"))
 
-from pydantic import BaseModel
-
-from armwarden import policy as policy_module
-from armwarden.policy import TOOL_GROUPS, Policy
+from armwarden import policy as policy_module  # noqa: E402 - needs the sys.path set-up above
+from armwarden.policy import TOOL_GROUPS, Policy  # noqa: E402 - needs the sys.path set-up above
 
 POLICY_DOC = ROOT / "docs" / "policy.md"
 TOOLS_DOC = ROOT / "docs" / "tools.md"
@@ -85,8 +85,9 @@ def _flow(value: Any) -> str:
 class SchemaText:
     """Turns JSON-schema nodes into short human-readable types and constraint lists."""
 
-    def __init__(self, defs: dict[str, Any], *, link_refs: bool = False) -> None:
+    def __init__(self, defs: dict[str, Any], *, link_refs: bool = False, root: dict[str, Any] | None = None) -> None:
         self.defs = defs
+        self.root = root if root is not None else {}  # the schema the `$defs` belong to
         self.link_refs = link_refs  # render `$ref`s as links to a "### Name" heading
 
     def ref_name(self, node: dict[str, Any]) -> str | None:
@@ -287,8 +288,7 @@ TABLE_HEAD = ["| YAML path | type | default | constraints | description |", "|--
 def render_policy_doc() -> str:
     """The full text of docs/policy.md."""
     root = Policy.model_json_schema(mode="validation")
-    schema = SchemaText(root.get("$defs", {}))
-    schema.root = root  # type: ignore[attr-defined]
+    schema = SchemaText(root.get("$defs", {}), root=root)
     models = _policy_models()
     lines = [
         "# Policy reference",
@@ -352,8 +352,7 @@ async def list_registered_tools() -> list[dict[str, Any]]:
     from mcp import Client
 
     from armwarden.assembly import build_backend, build_guard
-    from armwarden.policy import bundled_policy
-    from armwarden.policy import load_policy
+    from armwarden.policy import bundled_policy, load_policy
     from armwarden.server.app import ArmWardenServer
 
     policy = load_policy(bundled_policy("fr3"))
@@ -541,7 +540,7 @@ def stale_docs() -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--check", action="store_true", help="exit 1 if a generated file is stale; write nothing")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)

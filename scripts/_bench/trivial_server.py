@@ -15,8 +15,8 @@ from pydantic import BaseModel
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 
-from armwarden.results import RobotState  # noqa: E402
-from armwarden.server.tools import inline_refs  # noqa: E402
+from armwarden.results import RobotState
+from armwarden.server.tools import inline_refs
 
 
 class Trivial(BaseModel):
@@ -49,6 +49,8 @@ def build() -> MCPServer:
     server.add_tool(trivial, name="trivial")
     server.add_tool(robot_state_shape, name="robot_state_shape")
     tool = server._tool_manager.get_tool("robot_state_shape")  # publish the schema ArmWarden publishes
+    if tool is None or tool.output_schema is None:
+        raise RuntimeError("the SDK registered robot_state_shape without an output schema")
     inlined = inline_refs(tool.output_schema)
     tool.output_schema.clear()
     tool.output_schema.update(inlined)

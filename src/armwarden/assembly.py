@@ -6,11 +6,12 @@ Guard here, so what the tests exercise is what `armwarden serve` runs.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from armwarden.backends import create_backend, load_backend_config
+from armwarden.guard import Guard
+from armwarden.guard.planning import Previewer
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import build_robot
 
@@ -18,21 +19,17 @@ if TYPE_CHECKING:
     from pydantic import BaseModel
 
     from armwarden.backends.base import Backend
-    from armwarden.guard import Guard
     from armwarden.planning.trajectory import JointTrajectory
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
     from armwarden.safety.audit import AuditLog
-
-#: renders the preview picture of a checked plan (runtime model, trajectory, envelope report)
-Previewer = Callable[[RuntimeModel, "JointTrajectory", Any], Any]
-
+    from armwarden.safety.envelope import EnvelopeReport
 
 def plan_previewer() -> Previewer:
     """The plan preview renderer the daemon attaches to every plan summary."""
     from armwarden.server.preview import render_plan_preview
 
-    def preview(runtime: RuntimeModel, trajectory: JointTrajectory, report: Any) -> Any:
+    def preview(runtime: RuntimeModel, trajectory: JointTrajectory, report: EnvelopeReport) -> bytes | None:
         return render_plan_preview(runtime.robot, runtime.envelope.limits, trajectory, report)
 
     return preview
@@ -65,8 +62,6 @@ def build_guard(
     `runtime` (the planning thread's model) and `robot` (the loop-side state model) are built
     from the policy unless given; `previewer` draws plan previews (None: plans carry none).
     """
-    from armwarden.guard import Guard
-
     return Guard(
         policy,
         runtime if runtime is not None else load_runtime_model(policy),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import datetime as _dt
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
@@ -62,7 +62,12 @@ def iso_utc(wall_time: float) -> str:
     return stamp.replace("+00:00", "Z")
 
 
+@overload
+def estop_info(event: EStopEvent) -> EStopInfo: ...
+@overload
+def estop_info(event: EStopEvent | None) -> EStopInfo | None: ...
 def estop_info(event: EStopEvent | None) -> EStopInfo | None:
+    """An e-stop event as the wire model; an event in, an event out (None: no event)."""
     if event is None:
         return None
     return EStopInfo(number=event.number, reason=event.reason, source=event.source, wall_time=iso_utc(event.wall_time))

@@ -17,8 +17,17 @@ the audit log or a tool result knows what happened and what to do.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
-from enum import StrEnum
+
+if sys.version_info >= (3, 11):
+    from enum import StrEnum
+else:  # Python 3.10 (still supported): a str enum whose str() is its value, as 3.11's StrEnum
+    from enum import Enum
+
+    class StrEnum(str, Enum):
+        def __str__(self) -> str:
+            return str(self.value)
 
 
 class ArmWardenError(Exception):

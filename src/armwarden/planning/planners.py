@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.planning.timing import TimingError, time_parameterize
 from armwarden.planning.trajectory import JointTrajectory
@@ -114,7 +114,8 @@ class Planner:
 
     # ------------------------------------------------------------------ planners
     def plan_to_joints(
-        self, start: np.ndarray, goal: Sequence[float], velocity_scaling: float | None = None, acceleration_scaling: float | None = None
+        self, start: np.ndarray, goal: Sequence[float] | np.ndarray, velocity_scaling: float | None = None,
+        acceleration_scaling: float | None = None,
     ) -> PlanOutcome:
         vel, acc, notes, problems = self._scaling(velocity_scaling, acceleration_scaling)
         goal_arr = np.asarray(goal, dtype=float)

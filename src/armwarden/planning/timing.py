@@ -10,12 +10,13 @@ envelope's dynamics check.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
 
 from armwarden.planning.trajectory import DEFAULT_DT_S, JointTrajectory
-from armwarden.safety.envelope import estimate_accelerations, estimate_velocities
+from armwarden.safety.waypoints import estimate_accelerations, estimate_velocities
 
 _MAX_STRETCHES = 30
 _MIN_STEP_RAD = 1e-9  # smaller joint steps are numerical noise, not motion
@@ -68,7 +69,7 @@ def time_parameterize(
     times: list[np.ndarray] = []
     positions: list[np.ndarray] = []
     offset = 0.0
-    for start, end in zip(bounds[:-1], bounds[1:]):
+    for start, end in itertools.pairwise(bounds):
         leg = time_leg(joint_names, path[start : end + 1], max_velocity, max_acceleration, dt_s)
         skip = 1 if times else 0  # the junction waypoint is shared by both legs
         times.append(leg.times[skip:] + offset)
@@ -113,6 +114,7 @@ def time_leg(
     base_times = profile.time_at(s)
     base_times[0], base_times[-1] = 0.0, profile.duration
     stretch = 1.0
+    acc = float("nan")  # the last acceleration ratio tried, for the error
     for _ in range(_MAX_STRETCHES):
         times = base_times * stretch
         vel = np.max(np.abs(estimate_velocities(times, positions)) / max_velocity)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-
 #: Tool group → tool names, in the order of the tool reference (docs/tools.md). The names are a public contract.
 TOOL_GROUPS: dict[str, tuple[str, ...]] = {
     "introspect": (

@@ -8,7 +8,6 @@ from pydantic import BaseModel, Field, model_validator
 
 from armwarden.policy.fields import MODEL_CONFIG, UniqueNames, Violation, enforce, finite
 
-
 #: Widest opening a policy may allow [m] (the Franka Hand opens 0.08 m; long-stroke parallel
 #: grippers about 0.14 m).
 MAX_GRIPPER_WIDTH_M = 0.5

@@ -7,10 +7,9 @@ raises them all at once so `messages.validation_errors` can report each at its o
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from typing import Annotated, Any, TypeVar, Union
+from typing import Annotated, Any, TypeVar
 
 from pydantic import AfterValidator, ConfigDict, Field
-
 
 _K = TypeVar("_K")
 _V = TypeVar("_V")
@@ -96,7 +95,7 @@ MODEL_CONFIG = ConfigDict(extra="forbid", frozen=True)
 
 # ====================================================================== cross-field rule plumbing
 
-Violation = tuple[tuple[Union[str, int], ...], str]
+Violation = tuple[tuple[str | int, ...], str]
 """A rule violation: the path of the offending value relative to the model, and a message."""
 
 
@@ -121,11 +120,11 @@ def enforce(rules: Iterable[Iterable[Violation]]) -> None:
 
 def check_min_below_max(lo: Sequence[float], hi: Sequence[float]) -> Iterator[Violation]:
     """An axis-aligned box needs min < max on every axis; an empty or flat box is a typo."""
-    bad = [f"{axis}: {a:g} >= {b:g}" for axis, a, b in zip("xyz", lo, hi) if not a < b]
+    bad = [f"{axis}: {a:g} >= {b:g}" for axis, a, b in zip("xyz", lo, hi, strict=True) if not a < b]
     if bad:
         yield ("min",), f"min must be less than max on every axis ({', '.join(bad)})"
 
 
 def boxes_overlap(lo_a: Sequence[float], hi_a: Sequence[float], lo_b: Sequence[float], hi_b: Sequence[float]) -> bool:
     """Whether two axis-aligned boxes share interior volume (touching faces do not count)."""
-    return all(a0 < b1 and b0 < a1 for a0, a1, b0, b1 in zip(lo_a, hi_a, lo_b, hi_b))
+    return all(a0 < b1 and b0 < a1 for a0, a1, b0, b1 in zip(lo_a, hi_a, lo_b, hi_b, strict=True))

@@ -75,7 +75,7 @@ def load_policy(path: str | os.PathLike[str]) -> Policy:
     except UnicodeDecodeError as exc:
         raise PolicyError(source, [(DOCUMENT_PATH, f"the policy file is not UTF-8 text: {exc}")]) from exc
     try:
-        document = yaml.load(text, Loader=_PolicyLoader)  # noqa: S506 - _PolicyLoader is a SafeLoader
+        document = yaml.load(text, Loader=_PolicyLoader)  # safe: _PolicyLoader is a SafeLoader
     except yaml.YAMLError as exc:
         raise PolicyError(source, [(DOCUMENT_PATH, _yaml_error_message(exc))]) from exc
     return parse_policy(document, source=source, base_dir=path.resolve().parent)

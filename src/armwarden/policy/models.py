@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any, Literal, Optional
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field, field_validator, model_validator
 
@@ -27,7 +27,7 @@ class Policy(BaseModel):
     workspace: WorkspaceConfig = Field(description="Workspace box and keep-out zones (metres, base frame).")
     motion: MotionConfig = Field(description="Motion caps (scalings, joint/Cartesian steps, timing, resolutions).")
     force: ForceConfig = Field(description="Contact force/torque limits (N, N·m) and monitoring.")
-    gripper: Optional[GripperConfig] = Field(
+    gripper: GripperConfig | None = Field(
         default=None, description="Gripper bounds (m, N, m/s); required when the gripper group is enabled."
     )
     controllers: ControllersConfig = Field(default_factory=ControllersConfig, description="Controller allowlist.")

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from typing import Any, Optional
+from typing import Any
 
 from pydantic import BaseModel, Field, model_validator
 
 from armwarden.policy.constants import DEFAULT_SCALING
 from armwarden.policy.fields import MODEL_CONFIG, StrictBool, Violation, enforce, finite
-
 
 #: Largest hard cap on one joint's travel per plan [rad]: half a turn. A larger cap lets one
 #: plan swing a joint through most of its range without any human seeing it first.
@@ -59,7 +58,7 @@ class MotionConfig(BaseModel):
         le=MAX_JOINT_STEP_RAD,
         description=f"Hard cap on any joint's travel in one plan [rad], in (0, {MAX_JOINT_STEP_RAD:g}].",
     )
-    soft_joint_step_rad: Optional[float] = finite(
+    soft_joint_step_rad: float | None = finite(
         gt=0,
         default=None,
         description="Joint travel in one plan [rad] above which approval is needed; ≤ max_joint_step_rad. "

@@ -24,7 +24,6 @@ from armwarden.policy.fields import (
     serialize_map,
 )
 
-
 #: Fastest joint speed a policy may allow [rad/s]: one turn per second, above any arm joint
 #: ArmWarden drives (FR3: 2.62–5.26). More is a unit slip (°/s) or no velocity limit at all.
 MAX_JOINT_VELOCITY = round(2 * math.pi, 4)
@@ -139,7 +138,8 @@ class RobotConfig(BaseModel):
 
     def _home_within_limits(self) -> Iterator[Violation]:
         """Home is a motion target; it must be reachable without leaving the limits."""
-        for index, (name, value) in enumerate(zip(self.joint_names, self.home_joint_positions)):
+        # a count mismatch is its own rule (_home_has_one_value_per_joint)
+        for index, (name, value) in enumerate(zip(self.joint_names, self.home_joint_positions, strict=False)):
             limits = self.joint_limits.get(name)
             if limits is not None and not limits.min <= value <= limits.max:
                 yield ("home_joint_positions", index), (

@@ -15,7 +15,7 @@ def _deg(value: float) -> float:
 
 
 def _box_text(lo: Sequence[float], hi: Sequence[float]) -> str:
-    return "  ".join(f"{axis} [{a:+.3f}, {b:+.3f}]" for axis, a, b in zip("xyz", lo, hi)) + " m"
+    return "  ".join(f"{axis} [{a:+.3f}, {b:+.3f}]" for axis, a, b in zip("xyz", lo, hi, strict=True)) + " m"
 
 
 def summarize_policy(policy: Policy) -> str:
@@ -32,7 +32,7 @@ def summarize_policy(policy: Policy) -> str:
         f"    {'joint':<{width}}  {'position [rad]':<20}  {'position [deg]':<18}  {'vel [rad/s]':>11}"
         f"  {'acc [rad/s²]':>12}  {'home [rad]':>10}"
     )
-    for name, home in zip(robot.joint_names, robot.home_joint_positions):
+    for name, home in zip(robot.joint_names, robot.home_joint_positions, strict=True):
         lim = robot.joint_limits[name]
         lines.append(
             f"    {name:<{width}}  [{lim.min:+8.4f}, {lim.max:+8.4f}]  [{_deg(lim.min):+7.1f}, {_deg(lim.max):+7.1f}]"

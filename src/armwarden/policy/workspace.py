@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Annotated, Optional
+from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, Field, model_validator
 
@@ -63,7 +63,7 @@ class WorkspaceConfig(BaseModel):
     link_padding_m: float = finite(
         ge=0, default=0.01, description="Padding [m] added to every link's collision geometry."
     )
-    check_links: Optional[Annotated[UniqueNames, AfterValidator(not_empty)]] = Field(
+    check_links: Annotated[UniqueNames, AfterValidator(not_empty)] | None = Field(
         default=None,
         description="Links (no unit) whose collision geometry is checked; null means every link that moves. "
         "An empty list is an error: it would silently check no link at all.",

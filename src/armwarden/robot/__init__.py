@@ -27,7 +27,7 @@ def build_robot(policy) -> RobotModel:
     lower = np.array(robot_cfg.lower_limits)
     upper = np.array(robot_cfg.upper_limits)
     tolerance = 1e-6
-    for name, lo, hi, urdf_lo, urdf_hi in zip(robot_cfg.joint_names, lower, upper, robot.lower, robot.upper):
+    for name, lo, hi, urdf_lo, urdf_hi in zip(robot_cfg.joint_names, lower, upper, robot.lower, robot.upper, strict=True):
         if lo < urdf_lo - tolerance or hi > urdf_hi + tolerance:
             raise RobotModelError(
                 f"policy limits of {name} [{lo}, {hi}] exceed the description's [{urdf_lo}, {urdf_hi}]"

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import coal
+import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import numpy as np
-import pinocchio as pin
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.errors import RobotModelError
 
@@ -55,7 +55,7 @@ def capsule_from_geometry(obj: pin.GeometryObject) -> tuple[np.ndarray, np.ndarr
     rotation = placement.rotation
     center = placement.translation
     geometry = obj.geometry
-    if isinstance(geometry, coal.Capsule) or isinstance(geometry, coal.Cylinder):
+    if isinstance(geometry, (coal.Capsule, coal.Cylinder)):
         half = rotation[:, 2] * geometry.halfLength
         return center - half, center + half, float(geometry.radius)
     if isinstance(geometry, coal.Sphere):

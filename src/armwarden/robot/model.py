@@ -16,7 +16,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.errors import RobotModelError
 from armwarden.robot.capsules import Capsule, capsule_from_geometry
@@ -79,7 +79,7 @@ class RobotModel:
         names = list(full_model.names)
         unknown = [name for name in joint_names if name not in names]
         if unknown:
-            movable = [n for n in names[1:]]
+            movable = names[1:]
             raise RobotModelError(f"unknown joint(s) {unknown}; the description has {movable}")
         reference = pin.neutral(full_model)
         for name, value in (locked_positions or {}).items():
@@ -181,8 +181,8 @@ class RobotModel:
                     name=obj.name,
                     link=link,
                     joint_index=int(obj.parentJoint),
-                    p0_m=tuple(float(x) for x in p0),
-                    p1_m=tuple(float(x) for x in p1),
+                    p0_m=(float(p0[0]), float(p0[1]), float(p0[2])),
+                    p1_m=(float(p1[0]), float(p1[1]), float(p1[2])),
                     radius_m=radius,
                 )
             )

@@ -1,11 +1,11 @@
 """The envelope: every static and geometric check a trajectory must pass before it may run.
 
 Input: a timed joint trajectory. Output: an `EnvelopeReport` with violations and the figures a
-human needs to judge the motion. The checks (DESIGN §4):
+human needs to judge the motion. The checks (docs/architecture.md, "Where each limit is enforced"):
 
-- per waypoint, without kinematics: malformed input, joint limits (exact between waypoints,
-  since the path is linear in joint space), near-limit margin, joint travel, peak velocity and
-  acceleration from the waypoint timing;
+- per waypoint, without kinematics (`safety.waypoints`): malformed input, joint limits (exact
+  between waypoints, since the path is linear in joint space), near-limit margin, joint travel,
+  peak velocity and acceleration from the waypoint timing;
 - geometry, with Pinocchio FK at conservatively chosen samples: every checked link's capsule
   (padded) inside the workspace box and out of every keep-out box, the TCP likewise (its
   segments between samples too), and capsule pairs apart (self-collision).
@@ -28,13 +28,12 @@ import numpy as np
 
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import Pose, RobotModel
-from armwarden.safety import geometry
+from armwarden.safety import geometry, waypoints
 from armwarden.safety.violations import Code, Violation
+from armwarden.safety.waypoints import ACCELERATION_TOLERANCE, estimate_accelerations, estimate_velocities
 
-ACCELERATION_TOLERANCE = 1.10  # the 10 % tolerance on acceleration estimated from waypoint timing
 #: the first geometry pass samples this many times more sparsely (bodies inflated to match)
 COARSE_FACTOR = 4.0
-_VELOCITY_TOLERANCE = 1.0 + 1e-9
 
 
 @dataclass(frozen=True)
@@ -115,25 +114,6 @@ class EnvelopeReport:
         return tuple(v for v in self.violations if not v.is_hard)
 
 
-def estimate_velocities(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Per-segment joint velocities (K-1, n) from the waypoint timing."""
-    return np.diff(positions, axis=0) / np.diff(times)[:, None]
-
-
-def estimate_accelerations(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Joint accelerations (K, n) from the waypoint timing, the trajectory at rest at both ends.
-
-    Interior waypoints: change of segment velocity over the mean of the two segment durations.
-    Ends: from rest to the first segment velocity over half its duration (and back to rest).
-    """
-    dt = np.diff(times)
-    vel = np.diff(positions, axis=0) / dt[:, None]
-    padded_v = np.vstack([np.zeros((1, positions.shape[1])), vel, np.zeros((1, positions.shape[1]))])
-    padded_dt = np.concatenate([[0.0], dt, [0.0]])
-    span = (padded_dt[:-1] + padded_dt[1:]) / 2.0
-    return np.diff(padded_v, axis=0) / span[:, None]
-
-
 class Envelope:
     """Checks trajectories against the limits for one robot model. Not thread safe (shares Pinocchio data)."""
 
@@ -196,15 +176,16 @@ class Envelope:
 
     # ------------------------------------------------------------------ entry point
     def check(self, trajectory: JointTrajectory) -> EnvelopeReport:
-        malformed = self._check_malformed(trajectory)
+        malformed = waypoints.check_malformed(trajectory, self.robot.joint_names, self.robot.nq)
         if malformed:
             return EnvelopeReport(violations=tuple(malformed))
         times, positions = trajectory.times, trajectory.positions
         violations: list[Violation] = []
-        violations += self._check_joint_limits(times, positions)
+        names = self.robot.joint_names
+        violations += waypoints.check_joint_limits(self.limits, names, times, positions)
         travel = np.sum(np.abs(np.diff(positions, axis=0)), axis=0) if len(positions) > 1 else np.zeros(positions.shape[1])
-        violations += self._check_travel(travel)
-        vel_ratio, acc_ratio, dyn = self._check_dynamics(times, positions)
+        violations += waypoints.check_travel(self.limits, names, travel)
+        vel_ratio, acc_ratio, dyn = waypoints.check_dynamics(self.limits, names, times, positions)
         violations += dyn
         geo, tcp_length, final_pose, n_samples = self._check_geometry(times, positions)
         violations += geo
@@ -226,117 +207,6 @@ class Envelope:
             final_tcp_pose=final_pose,
             samples_checked=n_samples,
         )
-
-    # ------------------------------------------------------------------ per-waypoint checks
-    def _check_malformed(self, trajectory: JointTrajectory) -> list[Violation]:
-        robot = self.robot
-        times, positions = trajectory.times, trajectory.positions
-        problems = []
-        if tuple(trajectory.joint_names) != robot.joint_names:
-            problems.append(f"joint names {list(trajectory.joint_names)} do not match the robot's {list(robot.joint_names)}")
-        if times.ndim != 1 or positions.ndim != 2 or positions.shape[0] != times.shape[0]:
-            problems.append(f"shape mismatch: times {times.shape}, positions {positions.shape}")
-        elif positions.shape[1] != robot.nq:
-            problems.append(f"{positions.shape[1]} joint values per waypoint, expected {robot.nq}")
-        elif len(times) < 2:
-            problems.append("a trajectory needs at least two waypoints")
-        if not problems:
-            if not (np.all(np.isfinite(times)) and np.all(np.isfinite(positions))):
-                problems.append("non-finite value (NaN or Inf) in the trajectory")
-            elif times[0] != 0.0:
-                problems.append(f"the first waypoint must be at t = 0 (got {times[0]})")
-            elif np.any(np.diff(times) <= 0.0):
-                problems.append("waypoint times must strictly increase")
-        return [Violation(Code.MALFORMED, p) for p in problems]
-
-    def _check_joint_limits(self, times: np.ndarray, positions: np.ndarray) -> list[Violation]:
-        lim = self.limits
-        out: list[Violation] = []
-        names = self.robot.joint_names
-        below = positions < lim.lower_rad
-        above = positions > lim.upper_rad
-        for j in np.flatnonzero(np.any(below | above, axis=0)):
-            k = int(np.flatnonzero(below[:, j] | above[:, j])[0])
-            out.append(
-                Violation(
-                    Code.JOINT_LIMIT,
-                    f"{names[j]} = {positions[k, j]:.4f} rad is outside [{lim.lower_rad[j]:.4f}, {lim.upper_rad[j]:.4f}]",
-                    float(times[k]),
-                    names[j],
-                )
-            )
-        margin = lim.joint_limit_margin_rad
-        if margin > 0:
-            near = ((positions < lim.lower_rad + margin) | (positions > lim.upper_rad - margin)) & ~(below | above)
-            for j in np.flatnonzero(np.any(near, axis=0)):
-                if np.any(below[:, j] | above[:, j]):
-                    continue
-                k = int(np.flatnonzero(near[:, j])[0])
-                out.append(
-                    Violation(
-                        Code.NEAR_JOINT_LIMIT,
-                        f"{names[j]} = {positions[k, j]:.4f} rad is within {margin:.3f} rad of its limit "
-                        f"[{lim.lower_rad[j]:.4f}, {lim.upper_rad[j]:.4f}]",
-                        float(times[k]),
-                        names[j],
-                    )
-                )
-        return out
-
-    def _check_travel(self, travel: np.ndarray) -> list[Violation]:
-        lim = self.limits
-        names = self.robot.joint_names
-        j = int(np.argmax(travel))
-        if travel[j] > lim.max_joint_step_rad:
-            return [
-                Violation(
-                    Code.STEP_TOO_LARGE,
-                    f"{names[j]} travels {travel[j]:.3f} rad, over max_joint_step_rad {lim.max_joint_step_rad:.3f}",
-                    None,
-                    names[j],
-                )
-            ]
-        if lim.soft_joint_step_rad is not None and travel[j] > lim.soft_joint_step_rad:
-            return [
-                Violation(
-                    Code.LARGE_MOTION,
-                    f"{names[j]} travels {travel[j]:.3f} rad, over soft_joint_step_rad {lim.soft_joint_step_rad:.3f}",
-                    None,
-                    names[j],
-                )
-            ]
-        return []
-
-    def _check_dynamics(self, times: np.ndarray, positions: np.ndarray) -> tuple[float, float, list[Violation]]:
-        lim = self.limits
-        names = self.robot.joint_names
-        out: list[Violation] = []
-        vel = np.abs(estimate_velocities(times, positions)) / lim.max_velocity_rad_s
-        acc = np.abs(estimate_accelerations(times, positions)) / lim.max_acceleration_rad_s2
-        vel_ratio = float(np.max(vel)) if vel.size else 0.0
-        acc_ratio = float(np.max(acc)) if acc.size else 0.0
-        if vel_ratio > lim.max_velocity_scaling * _VELOCITY_TOLERANCE:
-            k, j = np.unravel_index(int(np.argmax(vel)), vel.shape)
-            out.append(
-                Violation(
-                    Code.VELOCITY_LIMIT,
-                    f"{names[j]} peaks at {vel_ratio:.3f} × its velocity limit; the cap is {lim.max_velocity_scaling:.3f}",
-                    float(times[k]),
-                    names[j],
-                )
-            )
-        if acc_ratio > lim.max_acceleration_scaling * ACCELERATION_TOLERANCE:
-            k, j = np.unravel_index(int(np.argmax(acc)), acc.shape)
-            out.append(
-                Violation(
-                    Code.ACCELERATION_LIMIT,
-                    f"{names[j]} peaks at {acc_ratio:.3f} × its acceleration limit; the cap is "
-                    f"{lim.max_acceleration_scaling:.3f} (+10 % tolerance)",
-                    float(times[k]),
-                    names[j],
-                )
-            )
-        return vel_ratio, acc_ratio, out
 
     # ------------------------------------------------------------------ geometry
     def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:
@@ -459,9 +329,9 @@ class Envelope:
         """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments."""
         confirmed = np.zeros_like(overlap)
         tcp_body = radius.shape[1] - 1
-        for k, body, zone in zip(*np.nonzero(overlap)):
+        for k, body, zone in zip(*np.nonzero(overlap), strict=True):
             zone_lo, zone_hi = self._ko_lo[zone], self._ko_hi[zone]
-            r = radius[k, body]
+            r = float(radius[k, body])
             hit = geometry.capsule_box_distance(p0[k, body], p1[k, body], r, zone_lo, zone_hi) <= 0.0
             if not hit and body == tcp_body and k > 0:
                 hit = bool(geometry.segments_hit_boxes(tcp[k - 1], tcp[k], zone_lo - r, zone_hi + r))
@@ -568,3 +438,15 @@ def _link_has_many(robot: RobotModel, link: str) -> bool:
 
 def _fmt(p: np.ndarray) -> str:
     return "(" + ", ".join(f"{x:.3f}" for x in p) + ")"
+
+
+__all__ = [  # with the per-waypoint estimates, which the planner's timing verifies against too
+    "ACCELERATION_TOLERANCE",
+    "COARSE_FACTOR",
+    "Box",
+    "Envelope",
+    "EnvelopeLimits",
+    "EnvelopeReport",
+    "estimate_accelerations",
+    "estimate_velocities",
+]

@@ -4,7 +4,7 @@ Why: the envelope keeps planned motion away from what the policy knows about, bu
 what it does not (a person, a misplaced box). The contact force is the last line of defence, so
 the monitor treats "cannot tell" exactly like "too much": a wrench that is missing, slow to
 read, frozen (its stamp stops advancing) or not finite ends the motion just as a force over the
-limit does (DESIGN.md §4).
+limit does (docs/architecture.md, "Where each limit is enforced").
 
 How: `baseline()` reads the wrench once before the motion starts. `run()` then polls it at
 `monitor_rate_hz`, each read bounded by `wrench_timeout_s`, until it finds a violation (which

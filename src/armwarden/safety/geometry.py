@@ -8,7 +8,7 @@ predicates are exact for capsules except `segments_hit_boxes`, which is a conser
 
 from __future__ import annotations
 
-import coal
+import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import numpy as np
 
 _EPS = 1e-12

@@ -3,7 +3,7 @@
 Every prompt leads with facts the server computed; the only model-written text (an e-stop
 reason) is quoted and labelled by `compose_prompt`. Each digest names exactly what is approved:
 a plan's trajectory digest, an e-stop event number, or an action with its arguments and its
-round (see `Guard.action_round`), so an answer given for one request never approves another.
+round (see `guard.actions.ControlActions.round`), so an answer given for one request never approves another.
 Pure functions: the approval resolvers call them, possibly more than once per call.
 """
 

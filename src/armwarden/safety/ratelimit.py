@@ -2,7 +2,7 @@
 
 Why: a model in a loop can issue calls far faster than a human can follow them, and every
 planning call costs real CPU (IK, dense geometry). The limits bound how fast any client can
-drive the daemon, whatever the model does (DESIGN.md §4).
+drive the daemon, whatever the model does (docs/architecture.md, "Where each limit is enforced").
 
 How: each bucket holds at most `capacity` tokens (the per-minute count) and refills
 continuously at `capacity / 60` tokens per second, so a burst of `capacity` calls is possible

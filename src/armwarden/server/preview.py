@@ -1,4 +1,4 @@
-"""The plan preview picture attached to every `PlanSummary` (DESIGN §3).
+"""The plan preview picture attached to every `PlanSummary`, for the human who approves the plan.
 
 Two panels side by side, in the robot base frame: a TOP view (x right, y up) and a SIDE view
 (x right, z up), both at the same scale. Each shows the workspace box, the keep-out zones
@@ -125,7 +125,7 @@ def render_plan_preview(
 
 # ---------------------------------------------------------------------------- geometry of the plan
 class _PlanGeometry:
-    __slots__ = ("tcp_path", "capsules", "radii", "marks")
+    __slots__ = ("capsules", "marks", "radii", "tcp_path")
 
     def __init__(self, tcp_path: np.ndarray, capsules: np.ndarray, radii: np.ndarray, marks: np.ndarray) -> None:
         self.tcp_path = tcp_path  # (P, 3)
@@ -149,8 +149,8 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
     path_index = np.unique(np.round(np.linspace(0, n_way - 1, min(n_way, MAX_PATH_POINTS))).astype(int))
     duration = trajectory.duration_s
     sweep_q = [trajectory.sample(t) for t in np.linspace(0.0, duration, SWEEP_SAMPLES)]
-    timed = [v for v in report.violations if v.time_s is not None and math.isfinite(v.time_s)]
-    mark_q = [trajectory.sample(float(v.time_s)) for v in timed]
+    timed = [(v, v.time_s) for v in report.violations if v.time_s is not None and math.isfinite(v.time_s)]
+    mark_q = [trajectory.sample(time_s) for _, time_s in timed]
 
     qs = np.vstack([positions[path_index], *sweep_q, *mark_q]) if mark_q else np.vstack([positions[path_index], *sweep_q])
     p0, p1 = robot.body_points(robot.joint_frames(qs))  # (N, B+1, 3), the TCP last
@@ -162,7 +162,7 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
     centres = (p0[:, :-1] + p1[:, :-1]) / 2.0
     index = _body_index(robot)
     marks = []
-    for k, violation in enumerate(timed):
+    for k, (violation, _) in enumerate(timed):
         row = n_path + n_sweep + k
         bodies = [index.get(part) for part in (violation.body or "").split("|")]
         found = [b for b in bodies if b is not None]
@@ -219,7 +219,7 @@ class _View:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         x = self.ox + (points[:, 0] - self.cu) * self.scale
         y = self.oy - (points[:, self.axis_v] - self.cv) * self.scale
-        return list(zip(np.round(x, 2).tolist(), np.round(y, 2).tolist()))
+        return list(zip(np.round(x, 2).tolist(), np.round(y, 2).tolist(), strict=True))
 
     def rect(self, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float, float, float]:
         x0, y1 = self.px(lo[0], lo[self.axis_v])
@@ -304,10 +304,10 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
     if not xs:
         return
     # work only on the pixels the sweep can cover (within the plot)
-    x0 = max(view.box[0], int(math.floor(min(xs) - r_max)) - 2)
-    y0 = max(view.box[1], int(math.floor(min(ys) - r_max)) - 2)
-    x1 = min(view.box[2], int(math.ceil(max(xs) + r_max)) + 2)
-    y1 = min(view.box[3], int(math.ceil(max(ys) + r_max)) + 2)
+    x0 = max(view.box[0], math.floor(min(xs) - r_max) - 2)
+    y0 = max(view.box[1], math.floor(min(ys) - r_max) - 2)
+    x1 = min(view.box[2], math.ceil(max(xs) + r_max) + 2)
+    y1 = min(view.box[3], math.ceil(max(ys) + r_max) + 2)
     if x1 <= x0 or y1 <= y0:
         return
     w, h = x1 - x0 + 1, y1 - y0 + 1
@@ -319,9 +319,9 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
         pen = ImageDraw.Draw(mask)
         ends = [(px - x0, py - y0) for px, py in ends]
         for b, radius in enumerate(radii):
-            r_px = max(1.0, radius * view.scale)
+            r_px = float(max(1.0, radius * view.scale))  # a Python float: round() below gives an int on any numpy
             a, c = ends[2 * b], ends[2 * b + 1]
-            pen.line([a, c], fill=255, width=max(1, int(round(2 * r_px))))
+            pen.line([a, c], fill=255, width=max(1, round(2 * r_px)))
             for px, py in (a, c):
                 pen.ellipse((px - r_px, py - r_px, px + r_px, py + r_px), fill=255)
         union = ImageChops.lighter(union, mask)
@@ -336,7 +336,7 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
 
 
 def _draw_ticks(draw: Any, font: Any, text_h: int, view: _View, step: float) -> None:
-    x0, y0, x1, y1 = view.box
+    x0, _, x1, y1 = view.box
     u_lo, u_hi = view.u_range()
     for k in range(math.ceil(u_lo / step), math.floor(u_hi / step) + 1):
         px, _ = view.px(k * step, 0.0)

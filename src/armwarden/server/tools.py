@@ -7,8 +7,8 @@ booleans, no NaN/Inf); strings are length-bounded. `ToolBuilder.tool` registers 
 its function's name, admits every call through the Guard's rate limiter, and turns a refusal into
 an `isError` result saying why and what a human must do. Tools talk to the Guard only.
 
-Approval uses the SDK's `Resolve`-injected parameters, built by `approval_parameters` (hidden
-from the input schema: an `approval` argument sent by a client is ignored). The resolvers only
+Approval uses the SDK's `Resolve`-injected parameters, whose markers `server.approval` builds
+(hidden from the input schema: an `approval` argument sent by a client is ignored). The resolvers only
 read state; the body runs once and does all the consuming, moving and recording.
 """
 
@@ -19,10 +19,9 @@ from collections.abc import Awaitable, Callable
 from typing import Annotated, Any
 
 import numpy as np
-from mcp.server.mcpserver import Context, Elicit, ElicitationResult, MCPServer, Resolve
+from mcp.server.mcpserver import Context, MCPServer
 from mcp.server.mcpserver import Image as McpImage
 from mcp_types import CallToolResult, ToolAnnotations
-from mcp_types.version import is_version_at_least
 from pydantic import BaseModel, ConfigDict, Field, Strict
 
 from armwarden.errors import RefusalCode, SafetyRefusal
@@ -47,13 +46,15 @@ from armwarden.results import (
     StopResult,
     TransformResult,
 )
-from armwarden.safety.approval import ApprovalForm, ServerDecision
-from armwarden.server.calls import current_call, mark_body_ran, ok, refused
+from armwarden.safety.approval import ServerDecision
+from armwarden.server.approval import ApprovalAnswer, ApprovalGate, ShownDigest, approval_parameters, can_elicit
+from armwarden.server.calls import mark_body_ran, ok, refused
 
 logger = logging.getLogger(__name__)
 
 Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 Name = Annotated[str, Field(min_length=1, max_length=128)]
+StrictBool = Annotated[bool, Strict()]
 MAX_WAYPOINTS = 50
 POSITION_BOUND_M = 10.0  # sanity bound on any position argument; the envelope enforces the real box
 #: sanity bound on any joint target [rad] (a 1e6 rad target made the time parameterisation allocate
@@ -92,16 +93,6 @@ STOPPING = ToolAnnotations(read_only_hint=False, destructive_hint=False, idempot
 RELEASING = ToolAnnotations(read_only_hint=False, destructive_hint=False, idempotent_hint=False, open_world_hint=True)
 
 
-def can_elicit(ctx: Context) -> bool:
-    """Whether a human can be asked on this request (capability and a channel to ask on)."""
-    caps = ctx.client_capabilities
-    if caps is None or caps.elicitation is None:
-        return False
-    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
-        return True  # the question rides the InputRequiredResult
-    return bool(ctx.session.can_send_request)
-
-
 def _unit_rotation(orientation: Orientation | None) -> np.ndarray | None:
     """Rotation matrix of a unit quaternion; refuses (not normalises) a clearly non-unit one."""
     if orientation is None:
@@ -110,7 +101,7 @@ def _unit_rotation(orientation: Orientation | None) -> np.ndarray | None:
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > 0.01:
         raise SafetyRefusal(RefusalCode.INVALID, f"orientation must be a unit quaternion (x, y, z, w); its norm is {norm:.4f}")
-    import pinocchio as pin
+    import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
     return pin.Quaternion(*(q / norm)[[3, 0, 1, 2]]).toRotationMatrix()
 
@@ -255,20 +246,16 @@ class ToolBuilder:
             f"{name} [{robot.joint_limits[name].min:g}, {robot.joint_limits[name].max:g}]" for name in robot.joint_names
         )
         motion = policy.motion
-        Scaling = Annotated[
-            Finite | None,
-            Field(gt=0.0, le=1.0, description=f"Fraction of the joint limits in (0, 1]; values above the policy cap are "
-                  f"clamped to it (velocity cap {motion.max_velocity_scaling:g}, acceleration cap "
-                  f"{motion.max_acceleration_scaling:g}); default from the policy"),
-        ]
-        JointVector = Annotated[
-            list[Annotated[Finite, Field(ge=-JOINT_BOUND, le=JOINT_BOUND)]],
-            Field(min_length=n, max_length=n, description=f"{n} joint positions [rad] in the order {list(robot.joint_names)}; "
-                  f"limits: {limits_text}"),
-        ]
-        FrameId = Annotated[str | None, Field(default=None, max_length=128, description=f"Must be {robot.base_frame} (the default)")]
-        Preview = Annotated[bool, Strict(), Field(description="Attach a PNG preview (top and side views of the swept "
-                                                    "links against the workspace and keep-out zones); ~20 ms")]
+        # the parameters' schema metadata depends on the policy (type checkers want the types spelled out
+        # at each parameter; the metadata may be any value)
+        scaling = Field(gt=0.0, le=1.0, description=f"Fraction of the joint limits in (0, 1]; values above the policy cap "
+                        f"are clamped to it (velocity cap {motion.max_velocity_scaling:g}, acceleration cap "
+                        f"{motion.max_acceleration_scaling:g}); default from the policy")
+        joints = Field(min_length=n, max_length=n, description=f"{n} joint positions [rad] in the order "
+                       f"{list(robot.joint_names)}; limits: {limits_text}")
+        frame = Field(default=None, max_length=128, description=f"Must be {robot.base_frame} (the default)")
+        preview_png = Field(description="Attach a PNG preview (top and side views of the swept links against the "
+                            "workspace and keep-out zones); ~20 ms")
 
         async def planned(kind: PlanKind, request: dict[str, Any]) -> CallToolResult:
             summary, preview = await guard.plan(kind, request)
@@ -282,18 +269,24 @@ class ToolBuilder:
         @tool("Plan (does NOT move) a joint-space motion from the current state to joint_positions [rad]. Returns a plan "
               "summary with a single-use plan_id, the envelope's findings and a preview image. Only execute_plan moves "
               "the arm.", PLANNING)
-        async def plan_to_joints(joint_positions: JointVector, velocity_scaling: Scaling = None,
-                                 acceleration_scaling: Scaling = None, preview: Preview = True,
-                                 ) -> Annotated[CallToolResult, PlanSummary]:
+        async def plan_to_joints(
+            joint_positions: Annotated[list[Annotated[Finite, Field(ge=-JOINT_BOUND, le=JOINT_BOUND)]], joints],
+            velocity_scaling: Annotated[Finite | None, scaling] = None,
+            acceleration_scaling: Annotated[Finite | None, scaling] = None,
+            preview: Annotated[StrictBool, preview_png] = True,
+        ) -> Annotated[CallToolResult, PlanSummary]:
             return await planned("joints", {"joint_positions": np.array(joint_positions), "velocity_scaling": velocity_scaling,
                                             "acceleration_scaling": acceleration_scaling, "preview": preview})
 
         @tool(f"Plan (does NOT move) a motion that brings the TCP ({robot.tcp_frame}) to a pose in {robot.base_frame}: "
               "position [m] and optional orientation (unit quaternion xyzw; omitted = any). Uses IK, then a joint-space "
               "motion.", PLANNING)
-        async def plan_to_pose(position: Point, orientation: Orientation | None = None, frame_id: FrameId = None,
-                               velocity_scaling: Scaling = None, acceleration_scaling: Scaling = None,
-                               preview: Preview = True) -> Annotated[CallToolResult, PlanSummary]:
+        async def plan_to_pose(
+            position: Point, orientation: Orientation | None = None, frame_id: Annotated[str | None, frame] = None,
+            velocity_scaling: Annotated[Finite | None, scaling] = None,
+            acceleration_scaling: Annotated[Finite | None, scaling] = None,
+            preview: Annotated[StrictBool, preview_png] = True,
+        ) -> Annotated[CallToolResult, PlanSummary]:
             check_frame(frame_id)
             target = PoseTarget(np.array([position.x, position.y, position.z]), _unit_rotation(orientation))
             return await planned("pose", {"target": target, "velocity_scaling": velocity_scaling,
@@ -304,8 +297,10 @@ class ToolBuilder:
               f"{motion.max_cartesian_step_m:g} m.", PLANNING)
         async def plan_cartesian_path(
             waypoints: Annotated[list[Waypoint], Field(min_length=1, max_length=MAX_WAYPOINTS)],
-            frame_id: FrameId = None, velocity_scaling: Scaling = None, acceleration_scaling: Scaling = None,
-            preview: Preview = True,
+            frame_id: Annotated[str | None, frame] = None,
+            velocity_scaling: Annotated[Finite | None, scaling] = None,
+            acceleration_scaling: Annotated[Finite | None, scaling] = None,
+            preview: Annotated[StrictBool, preview_png] = True,
         ) -> Annotated[CallToolResult, PlanSummary]:
             check_frame(frame_id)
             targets = [PoseTarget(np.array([w.position.x, w.position.y, w.position.z]), _unit_rotation(w.orientation))
@@ -316,14 +311,14 @@ class ToolBuilder:
         async def precheck_execute(ctx: Context, plan_id: str) -> ServerDecision | Prompt:
             return await guard.precheck_execute(plan_id, can_elicit(ctx))
 
-        Approved, Shown = approval_parameters(precheck_execute)
+        gate = approval_parameters(precheck_execute)
 
         @tool("EXECUTE a previously planned motion on the robot (the only tool that moves the arm). The server re-checks "
               "the plan, may ask a human to approve, watches the contact force while moving and streams progress. Each "
               "plan_id runs at most once.", ACTUATING)
         async def execute_plan(
             plan_id: Annotated[str, Field(min_length=1, max_length=64, description="The plan_id from a plan_* result")],
-            ctx: Context, approval: Approved, shown: Shown,
+            ctx: Context, approval: Annotated[ApprovalAnswer, gate.approval], shown: Annotated[ShownDigest, gate.shown],
         ) -> Annotated[CallToolResult, ExecutionReport]:
             async def progress(fraction: float) -> None:
                 await ctx.report_progress(fraction, 1.0, "moving")
@@ -340,19 +335,21 @@ class ToolBuilder:
         guard, tool = self.guard, self.tool
         cfg = self.policy.gripper
         assert cfg is not None
-        Width = Annotated[Finite, Field(ge=cfg.min_width_m, le=cfg.max_width_m, description=f"[m], {cfg.min_width_m:g}..{cfg.max_width_m:g}")]
-        Speed = Annotated[Finite | None, Field(gt=0.0, le=cfg.max_speed_mps, description=f"[m/s], at most {cfg.max_speed_mps:g} (the default)")]
-        Epsilon = Annotated[Finite, Field(ge=0.0, le=cfg.max_width_m, description="[m] tolerance on the grasp width")]
+        width = Field(ge=cfg.min_width_m, le=cfg.max_width_m, description=f"[m], {cfg.min_width_m:g}..{cfg.max_width_m:g}")
+        speed = Field(gt=0.0, le=cfg.max_speed_mps, description=f"[m/s], at most {cfg.max_speed_mps:g} (the default)")
+        epsilon = Field(ge=0.0, le=cfg.max_width_m, description="[m] tolerance on the grasp width")
+        grasp_force = Field(gt=0.0, le=cfg.max_grasp_force_n, description=f"[N], at most {cfg.max_grasp_force_n:g}")
 
         @tool("Move the fingers to an opening width [m] without grasp force.", ACTUATING)
-        async def gripper_move(width_m: Width, speed_mps: Speed = None) -> Annotated[CallToolResult, GripperResultModel]:
+        async def gripper_move(width_m: Annotated[Finite, width], speed_mps: Annotated[Finite | None, speed] = None,
+                               ) -> Annotated[CallToolResult, GripperResultModel]:
             return ok(await guard.gripper("gripper_move", width_m=width_m, speed_mps=speed_mps))
 
         @tool("Close the fingers on an object of about width_m [m] with force_n [N].", ACTUATING)
         async def gripper_grasp(
-            width_m: Width,
-            force_n: Annotated[Finite, Field(gt=0.0, le=cfg.max_grasp_force_n, description=f"[N], at most {cfg.max_grasp_force_n:g}")],
-            speed_mps: Speed = None, epsilon_inner_m: Epsilon = 0.005, epsilon_outer_m: Epsilon = 0.005,
+            width_m: Annotated[Finite, width], force_n: Annotated[Finite, grasp_force],
+            speed_mps: Annotated[Finite | None, speed] = None,
+            epsilon_inner_m: Annotated[Finite, epsilon] = 0.005, epsilon_outer_m: Annotated[Finite, epsilon] = 0.005,
         ) -> Annotated[CallToolResult, GripperResultModel]:
             return ok(await guard.gripper("gripper_grasp", width_m=width_m, force_n=force_n, speed_mps=speed_mps,
                                           epsilon_inner_m=epsilon_inner_m, epsilon_outer_m=epsilon_outer_m))
@@ -365,32 +362,37 @@ class ToolBuilder:
     def _control(self) -> None:
         guard, tool = self.guard, self.tool
         force = self.policy.force
-        Names = Annotated[list[Name], Field(default_factory=list, max_length=16)]
+        names = Field(default_factory=list, max_length=16)
+        contact_force = Field(gt=0.0, le=force.max_contact_force_n, description=f"[N], at most {force.max_contact_force_n:g}")
+        contact_torque = Field(gt=0.0, le=force.max_contact_torque_nm,
+                               description=f"[N·m], at most {force.max_contact_torque_nm:g}")
 
         if self.capabilities.controllers:
             async def precheck_switch(ctx: Context, activate: list[str], deactivate: list[str]) -> ServerDecision | Prompt:
                 return guard.precheck_action("switch_controllers", can_elicit(ctx), activate=activate, deactivate=deactivate)
 
-            SwitchApproved, SwitchShown = approval_parameters(precheck_switch)
+            switch_gate = approval_parameters(precheck_switch)
 
             @tool("Activate/deactivate controllers named in the policy's allowlist: "
                   f"{list(self.policy.controllers.allowlist)}.", ACTUATING)
-            async def switch_controllers(approval: SwitchApproved, shown: SwitchShown, activate: Names,
-                                         deactivate: Names) -> Annotated[CallToolResult, ActionResult]:
+            async def switch_controllers(
+                approval: Annotated[ApprovalAnswer, switch_gate.approval], shown: Annotated[ShownDigest, switch_gate.shown],
+                activate: Annotated[list[Name], names], deactivate: Annotated[list[Name], names],
+            ) -> Annotated[CallToolResult, ActionResult]:
                 return ok(await guard.run_action("switch_controllers", approval, shown, activate=activate, deactivate=deactivate))
 
         if self.capabilities.collision_thresholds:
             async def precheck_thresholds(ctx: Context, force_n: float, torque_nm: float) -> ServerDecision | Prompt:
                 return guard.precheck_action("set_collision_thresholds", can_elicit(ctx), force_n=force_n, torque_nm=torque_nm)
 
-            ThresholdsApproved, ThresholdsShown = approval_parameters(precheck_thresholds)
+            thresholds_gate = approval_parameters(precheck_thresholds)
 
             @tool("Set the robot's collision (reflex) thresholds, at most the policy's contact force/torque limits.",
                   ACTUATING)
             async def set_collision_thresholds(
-                force_n: Annotated[Finite, Field(gt=0.0, le=force.max_contact_force_n, description=f"[N], at most {force.max_contact_force_n:g}")],
-                torque_nm: Annotated[Finite, Field(gt=0.0, le=force.max_contact_torque_nm, description=f"[N·m], at most {force.max_contact_torque_nm:g}")],
-                approval: ThresholdsApproved, shown: ThresholdsShown,
+                force_n: Annotated[Finite, contact_force], torque_nm: Annotated[Finite, contact_torque],
+                approval: Annotated[ApprovalAnswer, thresholds_gate.approval],
+                shown: Annotated[ShownDigest, thresholds_gate.shown],
             ) -> Annotated[CallToolResult, ActionResult]:
                 return ok(await guard.run_action("set_collision_thresholds", approval, shown, force_n=force_n, torque_nm=torque_nm))
 
@@ -413,50 +415,31 @@ class ToolBuilder:
         def precheck_reset(ctx: Context) -> ServerDecision | Prompt:
             return guard.precheck_reset(can_elicit(ctx))
 
-        ResetApproved, ResetShown = approval_parameters(precheck_reset)
+        reset_gate = approval_parameters(precheck_reset)
 
         @tool("Release the software e-stop (and a latched force violation). Always asks a human, who approves the "
               "specific e-stop event they were shown.", RELEASING)
-        async def reset_estop(approval: ResetApproved, shown: ResetShown) -> Annotated[CallToolResult, ResetResult]:
+        async def reset_estop(approval: Annotated[ApprovalAnswer, reset_gate.approval],
+                              shown: Annotated[ShownDigest, reset_gate.shown]) -> Annotated[CallToolResult, ResetResult]:
             return ok(guard.reset_estop(approval, shown))
 
         if self.capabilities.error_recovery:
             async def precheck_recovery(ctx: Context) -> ServerDecision | Prompt:
                 return guard.precheck_action("error_recovery", can_elicit(ctx))
 
-            RecoveryApproved, RecoveryShown = approval_parameters(precheck_recovery)
+            recovery_gate = approval_parameters(precheck_recovery)
 
             @tool("Clear the robot's error/reflex state (e.g. after a collision reflex). Refused while the e-stop is "
                   "latched.", RELEASING)
-            async def error_recovery(approval: RecoveryApproved, shown: RecoveryShown) -> Annotated[CallToolResult, ActionResult]:
+            async def error_recovery(
+                approval: Annotated[ApprovalAnswer, recovery_gate.approval], shown: Annotated[ShownDigest, recovery_gate.shown],
+            ) -> Annotated[CallToolResult, ActionResult]:
                 return ok(await guard.run_action("error_recovery", approval, shown))
 
         @tool("E-stop state and event, latched force violation, dry-run flag, the last envelope violation and backend "
               "faults. Never rate limited.", READ_ONLY_LOCAL)
         async def get_safety_status() -> Annotated[CallToolResult, SafetyStatus]:
             return ok(guard.safety_status())
-
-
-def approval_parameters(precheck: Callable[..., Any]) -> tuple[Any, Any]:
-    """The two hidden parameters of a tool that may need a human, both resolved from `precheck`
-    (a read-only `ServerDecision | Prompt`; the SDK runs it once per round and shares it):
-    `approval`, the server's decision or the human's answer to the prompt; `shown`, the digest of
-    what that prompt showed (None when nobody was asked), which the Guard matches against the
-    request it is about to carry out."""
-    check = Resolve(precheck)
-
-    async def ask(result: Annotated[ServerDecision | Prompt, check]) -> ServerDecision | Elicit[ApprovalForm]:
-        if not isinstance(result, Prompt):
-            return result
-        record = current_call()
-        if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
-            record.extra["approval_prompt"] = result.message
-        return Elicit(result.message, ApprovalForm)
-
-    async def shown(result: Annotated[ServerDecision | Prompt, check]) -> str | None:
-        return result.digest if isinstance(result, Prompt) else None
-
-    return (Annotated[ElicitationResult[ApprovalForm], Resolve(ask)], Annotated[str | None, Resolve(shown)])
 
 
 def inline_refs(schema: dict[str, Any]) -> dict[str, Any]:
@@ -477,4 +460,4 @@ def inline_refs(schema: dict[str, Any]) -> dict[str, Any]:
     return resolve(schema)
 
 
-__all__ = ["ToolBuilder", "approval_parameters", "can_elicit", "inline_refs"]
+__all__ = ["ApprovalGate", "ToolBuilder", "approval_parameters", "can_elicit", "inline_refs"]

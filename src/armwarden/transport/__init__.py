@@ -14,7 +14,7 @@ serving on stdio imports none of ArmWarden's HTTP modules.
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from armwarden.transport.tokens import (
     Principal,
@@ -25,6 +25,10 @@ from armwarden.transport.tokens import (
     tokens_list_command,
     tokens_revoke_command,
 )
+
+if TYPE_CHECKING:  # for type checkers only; at run time these come from __getattr__ below
+    from armwarden.transport.access import current_principal, role_allows
+    from armwarden.transport.http import build_http_app, check_bind_safety, is_loopback_host, serve_http
 
 #: names imported on first use, from the module that defines them
 _LAZY = {

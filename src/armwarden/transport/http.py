@@ -311,7 +311,7 @@ async def serve_http(
     *,
     ready: anyio.Event | None = None,
     shutdown: anyio.Event | None = None,
-    graceful_shutdown_s: float = 3.0,
+    graceful_shutdown_s: int = 3,  # whole seconds, as uvicorn takes them
     log_level: str = "warning",
 ) -> None:
     """Serve `app` on host:port until `shutdown` is set (or the task is cancelled).

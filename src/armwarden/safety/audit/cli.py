@@ -10,6 +10,7 @@ from armwarden.errors import ConfigurationError
 from armwarden.safety.audit.chain import AUDIT_KEY_ENV
 from armwarden.safety.audit.verify import read_tail, verify_file
 
+
 def verify_command(path: str | os.PathLike[str], key: bytes | None = None) -> int:
     """Print a one-line verdict for the log at ``path``; 0 if the chain is intact, else 1."""
     try:

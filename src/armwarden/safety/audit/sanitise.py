@@ -28,7 +28,7 @@ _IMAGE_KEY_MIN_CHARS = 64  # shorter strings under an image-ish key are names, n
 
 
 class Sanitizer:
-    __slots__ = ("max_chars", "max_depth", "max_items", "budget")
+    __slots__ = ("budget", "max_chars", "max_depth", "max_items")
 
     def __init__(self, max_chars: int, max_depth: int, max_items: int, max_nodes: int) -> None:
         self.max_chars = max(1, int(max_chars))
@@ -222,7 +222,7 @@ def sanitize(
     """
     try:
         return Sanitizer(max_string_chars, max_depth, max_items, max_nodes).walk(value, 0)
-    except BaseException as exc:  # noqa: BLE001 - documented: never raises (bar interrupts)
+    except BaseException as exc:
         if isinstance(exc, (KeyboardInterrupt, SystemExit, GeneratorExit)):
             raise
         return "<unserializable>"

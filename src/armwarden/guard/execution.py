@@ -141,11 +141,11 @@ class MotionRunner:
                 except BackendError as exc:  # caught here: out of the task group it would be an ExceptionGroup
                     fault = exc
                 group.cancel_scope.cancel()
-            if monitor is not None and violation is None and fault is None:
-                # one more sample now that the motion ended: a crossing after the last poll still counts
-                if (final := await monitor.check_once()) is not None:
-                    with anyio.CancelScope(shield=True):
-                        await on_violation(final)
+            # one more sample now that the motion ended: a crossing after the last poll still counts
+            if (monitor is not None and violation is None and fault is None
+                    and (final := await monitor.check_once()) is not None):
+                with anyio.CancelScope(shield=True):
+                    await on_violation(final)
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True):
                 await self._stop_after_interruption(plan.plan_id, execution, approval)

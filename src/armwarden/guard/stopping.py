@@ -10,12 +10,13 @@ arm still) goes on the call's audit record.
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from armwarden import conversions
 from armwarden.backends.base import Backend
 from armwarden.callcontext import note_stop_timing
 from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
-from armwarden.results import EStopResult, StopResult
+from armwarden.results import EStopResult, ResetResult, StopResult
 from armwarden.safety.estop import EStopEvent, EStopLatch
 from armwarden.safety.plans import PlanStore
 
@@ -66,6 +67,35 @@ class Stopper:
         except BackendError as exc:
             return self._latch_failed_stop(what, exc)
         return None
+
+    async def after_abandoned_call(self, tool: str, request_id: Any, cancelled: bool | None,
+                                   running: bool) -> tuple[str, str]:
+        """A client went away before its motion call answered (see `Guard.abandoned_call`): stop
+        what that call still moves (`running`, only when its cancellation failed). Returns the
+        audit outcome and detail."""
+        outcome = {True: "cancelled", None: "ended_with_request", False: "nothing_running"}[cancelled]
+        detail = f"the client of {tool} (request {str(request_id)[:64]}) went away before the answer"
+        if running:
+            event = await self.stop_for("stop after a client disconnected")
+            if event is None:
+                outcome, detail = "stopped", detail + "; the cancellation failed, so the robot was stopped"
+            else:
+                outcome, detail = "stop_failed", detail + f"; the stop FAILED, e-stop #{event.number} latched ({event.reason})"
+        return outcome, detail
+
+    def release(self, shown_event: str | None) -> ResetResult:
+        """Release the e-stop a human approved resetting: only the event they were shown (none
+        shown: the current one), and only if it is still the one latched."""
+        current = self.latch.current_event
+        try:
+            shown = int(shown_event) if shown_event is not None else (current.number if current else -1)
+        except ValueError:
+            shown = -1
+        result = self.latch.release(shown)
+        if not result.released:
+            raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {result.message}")
+        self.force_violation_latched = False
+        return ResetResult(estopped=self.latch.is_latched, released_event=shown, detail=result.message)
 
     def _latch_failed_stop(self, what: str, exc: BaseException) -> EStopEvent:
         """A stop that could not be issued: latch the e-stop, void every plan, report the fault."""

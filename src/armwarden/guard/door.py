@@ -1,0 +1,315 @@
+"""The Guard: the one door to the robot.
+
+Every actuation (trajectory, gripper, controller switch, threshold change, error recovery) and
+every backend read goes through a Guard method; the tool layer never touches the backend. The
+Guard holds no check logic of its own: it owns the shared safety state (rate limiter, e-stop
+latch, plan store, execution slot) and its gates (`admit`, `require_audit`,
+`require_not_estopped`, `interpret_approval`), and each flow runs them in its order, refusing with
+a `SafetyRefusal` at the first that says no. The tool layer admits every call first (rate limit,
+`server/tools.py`); then:
+
+- execute_plan (here): audit writable → execution slot free (claimed) → the plan
+  (`safety.plans`: exists, unexpired, this caller's, made since the last e-stop; spent from here
+  on) → approval granted, and given for this plan (`safety.approval`) → e-stop latch →
+  re-validation on the planning thread (envelope) → arm still at the plan's start → force
+  monitor armed and `execution_started` audited (`execution`) → no stop or e-stop since the slot
+  was claimed → dry run ends here → move (`execution.MotionRunner.run`);
+- plan_* (`planning`): e-stop latch → fresh state → plan and envelope check → no e-stop since;
+- gripper_* (`gripper`): audit → e-stop latch → arguments (`safety.checks`) → one at a time;
+- switch_controllers, set_collision_thresholds, error_recovery (`actions`): arguments → audit
+  → e-stop latch → approval, given for this very request;
+- reset_estop: approval → release of the event shown (`stopping.Stopper.release`);
+- stop_motion, emergency_stop (`stopping`): no rate limit, no approval, no gate; they wait for
+  nothing but the backend's stop, and a stop that fails latches the e-stop;
+- reads (`readings`): fresh data or a refusal.
+
+Approval resolvers call the `precheck_*` methods, which only read state (under protocol
+2026-07-28 a resolver may run more than once per call) and refuse before any human is asked
+(prompts in `safety.prompts`); everything that changes state happens in the action methods,
+which the tool body calls once.
+
+Concurrency model. The Guard lives on the event loop. Planning and envelope checks run on one
+worker thread with their own Pinocchio data (`planning`), so a long IK search never delays a
+stop; state queries use a second, loop-side model. An execution claims the slot synchronously
+and checks the stop generation and the latch right before handing the trajectory over, so a
+stop that arrives during its checks wins.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from armwarden import conversions, results
+from armwarden.backends.base import Backend, Capabilities
+from armwarden.callcontext import current_caller, note_approval
+from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.guard.actions import ControlActions, ControlTool
+from armwarden.guard.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
+from armwarden.guard.gripper import GripperFlow, GripperTool
+from armwarden.guard.planning import PlanKind, PlanningFlow, Previewer
+from armwarden.guard.readings import Readings
+from armwarden.guard.stopping import Stopper
+from armwarden.policy import Policy
+from armwarden.preflight import RuntimeModel
+from armwarden.robot.model import RobotModel
+from armwarden.safety import prompts
+from armwarden.safety.approval import Approval, Prompt, ServerDecision, approval_required, client_decision, interpret
+from armwarden.safety.estop import EStopLatch
+from armwarden.safety.plans import PlanRefusal, PlanStore
+from armwarden.safety.ratelimit import RateLimiter
+from armwarden.safety.violations import Violation
+
+
+def refuse(code: RefusalCode | str, message: str) -> SafetyRefusal:
+    return SafetyRefusal(code, message)
+
+
+class Guard:
+    """The safety pipeline; see the module docstring."""
+
+    def __init__(self, policy: Policy, planning: RuntimeModel, state_robot: RobotModel, backend: Backend, *,
+                 audit=None, previewer: Previewer | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.policy = policy
+        self.planning = planning
+        self.robot = state_robot
+        self.backend = backend
+        self.audit = audit
+        self._clock = clock
+        self.limiter = RateLimiter.from_policy(policy, clock=clock)
+        self.latch = EStopLatch(clock=clock)
+        self.plans = PlanStore.from_policy(policy, clock=clock)
+        self.readings = Readings(policy, state_robot, backend, clock)
+        self.stopper = Stopper(backend, self.latch, self.plans)
+        self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
+        self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
+                                   emergency_stop=self.stopper.emergency_stop, stop_for=self.stopper.stop_for,
+                                   record=self._record)
+        self.planning_flow = PlanningFlow(self, previewer)
+        self._execution: Execution | None = None
+        self.actions = ControlActions(self)
+        self.gripper_flow = GripperFlow(self)
+        self.last_violation: Violation | None = None
+        self.last_result: results.ExecutionReport | None = None
+
+    # ================================================================== admission
+    @property
+    def dry_run(self) -> bool:
+        return self.policy.dry_run
+
+    @property
+    def capabilities(self) -> Capabilities:
+        return self.backend.capabilities
+
+    def admit(self, tool: str) -> None:
+        """Rate limit (exempt tools always pass). Raises RATE_LIMITED."""
+        decision = self.limiter.try_acquire(tool)
+        if not decision.allowed:
+            raise refuse(RefusalCode.RATE_LIMITED, decision.message)
+
+    def charge(self, tool: str) -> None:
+        """Take a rate token for a call refused before its body ran (bad arguments): floods of
+        invalid calls still cost tokens."""
+        self.limiter.try_acquire(tool)
+
+    def peek_rate(self, tool: str) -> ServerDecision | None:
+        decision = self.limiter.peek(tool)
+        return None if decision.allowed else ServerDecision.refused(RefusalCode.RATE_LIMITED, decision.message)
+
+    def estop_refusal(self, what: str) -> SafetyRefusal | None:
+        event = self.latch.current_event
+        if event is None:
+            return None
+        return refuse(RefusalCode.ESTOPPED, f"{what} refused: the software e-stop #{event.number} is latched "
+                      f"({event.source}: {event.reason}). A human must approve reset_estop before anything can move again.")
+
+    def require_audit(self, what: str) -> None:
+        """Nothing actuates unless it can be audited: a log that failed a write refuses, and so do we."""
+        if self.audit is not None and (self.audit.closed or self.audit.broken is not None):
+            raise refuse(RefusalCode.AUDIT_UNAVAILABLE, f"{what} refused: the audit log cannot be written "
+                         f"({self.audit.broken or 'closed'}); nothing moves until it is repaired and the daemon restarted")
+
+    def require_not_estopped(self, what: str) -> None:
+        if (refusal := self.estop_refusal(what)) is not None:
+            raise refusal
+
+    # ================================================================== introspection (reads only, see readings.py)
+    async def robot_state(self) -> results.RobotState:
+        return await self.readings.robot_state()
+
+    def safety_envelope(self, registered_tools: list[str]) -> results.EnvelopeModel:
+        return self.readings.safety_envelope(registered_tools)
+
+    async def lookup_transform(self, target_frame: str, source_frame: str) -> results.TransformResult:
+        return await self.readings.lookup_transform(target_frame, source_frame)
+
+    async def list_controllers(self) -> results.ControllerList:
+        return await self.readings.list_controllers()
+
+    async def graph(self) -> results.GraphModel:
+        return await self.readings.graph()
+
+    async def camera(self, camera: str) -> tuple[int, int, float, bytes]:
+        return await self.readings.camera(camera)
+
+    def motion_status(self) -> results.MotionStatus:
+        execution = self._execution
+        return results.MotionStatus(
+            executing=execution is not None,
+            plan_id=None if execution is None else execution.plan_id,
+            progress=0.0 if execution is None else min(1.0, max(0.0, execution.progress)),
+            last_result=self.last_result,
+        )
+
+    def safety_status(self) -> results.SafetyStatus:
+        return results.SafetyStatus(
+            estopped=self.latch.is_latched,
+            estop_event=conversions.estop_info(self.latch.current_event or self.latch.last_event),
+            force_violation_latched=self.force_violation_latched and self.latch.is_latched,
+            dry_run=self.dry_run,
+            last_violation=None if self.last_violation is None else conversions.violation_model(self.last_violation),
+            faults=list(self.faults),
+        )
+
+    # ================================================================== planning (see planning.py)
+    async def plan(self, kind: PlanKind, request: dict[str, Any]) -> tuple[results.PlanSummary, bytes | None]:
+        """Plan and check a motion (never moves); the plan belongs to the caller. Returns the
+        summary and an optional preview PNG."""
+        return await self.planning_flow.plan(kind, request)
+
+    # ================================================================== execution
+    async def precheck_execute(self, plan_id: object, can_elicit: bool) -> ServerDecision | Prompt:
+        """Everything that would refuse execute_plan, checked before any human is asked. Read-only."""
+        if (d := self.peek_rate("execute_plan")) is not None:
+            return d
+        if (r := self.estop_refusal("execute_plan")) is not None:
+            return ServerDecision.refusal(r)
+        if self._execution is not None:
+            return ServerDecision.refused(RefusalCode.BUSY, f"plan {self._execution.plan_id} is still executing")
+        plan = self.plans.peek(plan_id, self.latch.generation, current_caller())
+        if isinstance(plan, PlanRefusal):
+            return ServerDecision.refused(plan.code, plan.message)
+        try:
+            state = await self.readings.joint_state()
+        except SafetyRefusal as exc:
+            return ServerDecision.refusal(exc)
+        if (stale := self.plans.check_start(plan, state.positions)) is not None:
+            return ServerDecision.refused(stale.code, stale.message)
+        if not self.backend.capabilities.wrench and self.policy.force.require_wrench:
+            return ServerDecision.refused(RefusalCode.NO_WRENCH, NO_WRENCH_MESSAGE)
+        required = approval_required(self.policy, "execute", bool(plan.report.soft))
+        decision = client_decision(self.policy, "execute_plan", required, can_elicit)
+        if decision is not None:
+            return decision
+        return prompts.execute_prompt(self.policy, plan, self.backend.name, self.backend.capabilities.wrench, self.dry_run)
+
+    def interpret_approval(self, outcome: Any, required: bool) -> Approval:
+        """The resolver's outcome as an Approval, noted on the call's audit record."""
+        approval = interpret(outcome, required)
+        note_approval(approval.granted, approval.via, approval.operator, type(outcome).__name__)
+        return approval
+
+    async def execute(self, plan_id: str, approval_outcome: Any, shown_digest: str | None,
+                      report_progress: ProgressReporter | None = None) -> results.ExecutionReport:
+        """Run a stored plan: the only way the arm moves. The tool layer has admitted the call (rate
+        limit); the rest of the order is the module docstring's. Each check here re-checks, at the
+        last moment, something that may have changed since planning or while a human decided."""
+        self.require_audit("execute_plan")
+        if self._execution is not None:
+            raise refuse(RefusalCode.BUSY, f"plan {self._execution.plan_id} is still executing; the plan {plan_id} stays usable")
+        execution = self._execution = Execution(plan_id=str(plan_id))  # claimed synchronously
+        stop_generation = self.stopper.generation
+        try:
+            # from here on the plan is spent, whatever happens (unless it is not this caller's)
+            plan = self.plans.consume(plan_id, self.latch.generation, current_caller())
+            if isinstance(plan, PlanRefusal):
+                raise refuse(plan.code, plan.message)
+            approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
+            if not approval.granted:
+                raise approval.refusal(f"execute_plan {plan.plan_id}")
+            if approval.via == "elicitation" and shown_digest != plan.digest:
+                raise refuse(RefusalCode.APPROVAL_MISMATCH, "the approval was given for a different plan; nothing was done")
+            self.require_not_estopped("execute_plan")
+            recheck = await self.planning_flow.on_thread(lambda: self.planning.envelope.check(plan.trajectory))
+            if recheck.hard:
+                self.last_violation = recheck.hard[0]
+                raise refuse(RefusalCode.ENVELOPE, f"re-validation failed: {recheck.hard[0].code.value}: {recheck.hard[0].detail}")
+            state = await self.readings.joint_state()  # the arm may have moved while a human was deciding
+            if (stale := self.plans.check_start(plan, state.positions)) is not None:
+                raise refuse(stale.code, stale.message)
+            monitor = await self.runner.force_monitor()
+            if not self.dry_run:
+                await self.runner.audit_start(plan, approval)
+            if self.stopper.generation != stop_generation or self.latch.is_latched:
+                raise refuse(RefusalCode.STOPPED, "a stop or e-stop arrived while the plan was being checked; nothing moved")
+            if self.dry_run:
+                return self._record(results.ExecutionReport(
+                    plan_id=plan.plan_id, status="dry_run", approval=approval.info(), duration_s=0.0,
+                    max_observed_force_n=None, detail="dry run: validated and approved, nothing moved"))
+            return await self.runner.run(plan, execution, approval, monitor, report_progress)
+        finally:
+            if self._execution is execution:
+                self._execution = None
+
+    def _record(self, report: results.ExecutionReport) -> results.ExecutionReport:
+        self.last_result = report
+        return report
+
+    async def abandoned_call(self, tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool | None,
+                             principal: str | None = None) -> None:
+        """An HTTP client went away before its motion call answered (`transport/abandoned.py`).
+
+        `cancelled` True: the call was cancelled in its session and the cancellation path stopped
+        whatever it moved. None: a sessionless (2026-07-28) call, which the SDK ends with its
+        request. False: the cancellation could not be delivered; if that call's motion still runs
+        (same plan id; the one gripper action), it is stopped here. Audited in every case."""
+        running = cancelled is False and (
+            self._execution is not None and self._execution.plan_id == arguments.get("plan_id")
+            if tool == "execute_plan" else self.gripper_flow.busy)
+        outcome, detail = await self.stopper.after_abandoned_call(tool, request_id, cancelled, running)
+        if self.audit is not None:
+            await self.audit.append_async("client_disconnected", principal=principal, tool=tool, arguments=arguments,
+                                          outcome=outcome, detail=detail)
+
+    # ================================================================== stop and e-stop (see stopping.py)
+    async def stop_motion(self) -> results.StopResult:
+        """Stop arm and gripper now. Never rate limited, never needs approval."""
+        return await self.stopper.stop_motion()
+
+    async def emergency_stop(self, reason: object, source: str = "estop", force: dict | None = None) -> results.EStopResult:
+        """Latch, invalidate every plan and stop arm and gripper. Accepts any reason."""
+        return await self.stopper.emergency_stop(reason, source, force)
+
+    @property
+    def force_violation_latched(self) -> bool:
+        return self.stopper.force_violation_latched
+
+    def precheck_reset(self, can_elicit: bool) -> ServerDecision | Prompt:
+        event = self.latch.current_event
+        if event is None:
+            return ServerDecision.refused(RefusalCode.NOT_ESTOPPED, "the e-stop is not latched; nothing to reset")
+        decision = client_decision(self.policy, "reset_estop", True, can_elicit)
+        return decision if decision is not None else prompts.reset_prompt(event)
+
+    def reset_estop(self, approval_outcome: Any, shown_event: str | None) -> results.ResetResult:
+        approval = self.interpret_approval(approval_outcome, True)
+        if not approval.granted:
+            raise approval.refusal("reset_estop")
+        return self.stopper.release(shown_event)
+
+    # ================================================================== control actions and gripper (own modules)
+    def precheck_action(self, tool: ControlTool, can_elicit: bool, **arguments: Any) -> ServerDecision | Prompt:
+        """Pre-check for switch_controllers, set_collision_thresholds, error_recovery. Read-only."""
+        return self.actions.precheck(tool, can_elicit, arguments)
+
+    async def run_action(self, tool: ControlTool, approval_outcome: Any, shown: str | None, **arguments: Any) -> results.ActionResult:
+        return await self.actions.run(tool, approval_outcome, shown, arguments)
+
+    async def gripper(self, tool: GripperTool, width_m: float | None = None, force_n: float | None = None,
+                      speed_mps: float | None = None, epsilon_inner_m: float = 0.005,
+                      epsilon_outer_m: float = 0.005) -> results.GripperResultModel:
+        return await self.gripper_flow.run(tool, width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
+
+
+__all__ = ["Guard", "refuse"]

@@ -1,0 +1,64 @@
+"""The approval side of the tool layer: the two hidden parameters of every tool that may need a
+human, and whether a human can be asked on a request.
+
+Each such tool declares `approval: Annotated[ApprovalAnswer, gate.approval]` and
+`shown: Annotated[ShownDigest, gate.shown]` with `gate = approval_parameters(precheck)`. The SDK
+resolves both (they never appear in the input schema); the resolvers only read state.
+"""
+
+from collections.abc import Callable
+from typing import Annotated, Any, NamedTuple
+
+from mcp.server.mcpserver import Context, Elicit, ElicitationResult, Resolve
+from mcp_types.version import is_version_at_least
+
+from armwarden.safety.approval import ApprovalForm, Prompt, ServerDecision
+from armwarden.server.calls import current_call
+
+#: a tool's hidden `approval` parameter: the server's decision or the human's answer
+ApprovalAnswer = ElicitationResult[ApprovalForm]
+#: a tool's hidden `shown` parameter: the digest of what the human was shown (None: nobody asked)
+ShownDigest = str | None
+
+
+def can_elicit(ctx: Context) -> bool:
+    """Whether a human can be asked on this request (capability and a channel to ask on)."""
+    caps = ctx.client_capabilities
+    if caps is None or caps.elicitation is None:
+        return False
+    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
+        return True  # the question rides the InputRequiredResult
+    return bool(ctx.session.can_send_request)
+
+
+class ApprovalGate(NamedTuple):
+    """The `Resolve` markers of the two hidden parameters of a tool that may need a human:
+    `approval: Annotated[ApprovalAnswer, gate.approval]`, `shown: Annotated[ShownDigest, gate.shown]`."""
+
+    approval: Resolve
+    shown: Resolve
+
+
+def approval_parameters(precheck: Callable[..., Any]) -> ApprovalGate:
+    """The two hidden parameters of a tool that may need a human, both resolved from `precheck`
+    (a read-only `ServerDecision | Prompt`; the SDK runs it once per round and shares it):
+    `approval`, the server's decision or the human's answer to the prompt; `shown`, the digest of
+    what that prompt showed (None when nobody was asked), which the Guard matches against the
+    request it is about to carry out."""
+    check = Resolve(precheck)
+
+    async def ask(result: Annotated[ServerDecision | Prompt, check]) -> ServerDecision | Elicit[ApprovalForm]:
+        if not isinstance(result, Prompt):
+            return result
+        record = current_call()
+        if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
+            record.extra["approval_prompt"] = result.message
+        return Elicit(result.message, ApprovalForm)
+
+    async def shown(result: Annotated[ServerDecision | Prompt, check]) -> str | None:
+        return result.digest if isinstance(result, Prompt) else None
+
+    return ApprovalGate(Resolve(ask), Resolve(shown))
+
+
+__all__ = ["ApprovalAnswer", "ApprovalGate", "ShownDigest", "approval_parameters", "can_elicit"]
