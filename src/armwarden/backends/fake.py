@@ -300,7 +300,7 @@ class FakeBackend(Backend, ServoHooks):
         if arm_controller is not None and arm_controller.state != "active":
             raise BackendError(f"{TRAJECTORY_CONTROLLER} is not active; the arm cannot follow a trajectory")
         # a cancelled caller is held at once, unless the injected fault says stops are lost
-        return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop)
+        return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop, preempted=self._stop_landed)
 
     async def _stop(self) -> None:
         if self.fail_stop:  # neither the arm nor the gripper hears this stop
