@@ -58,7 +58,7 @@ class Stopper:
             event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
 
-    def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], None]], None]) -> EStopEvent:
+    def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent:
         """The e-stop from any thread, without the event loop (stop channel, SIGUSR1): latch, then
         stop arm and gripper with the backend's thread-safe `stop_now`; the plans are voided on the
         loop afterwards through `schedule` (until then they are refused anyway: each carries the

@@ -17,7 +17,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Any
+from typing import Any, ClassVar
 
 import anyio
 import numpy as np
@@ -63,7 +63,7 @@ OPTIONAL_CALLS: dict[str, tuple[Callable[[Capabilities], bool], Callable[[Backen
 class BackendContract:
     """Subclass as `Test<Name>Contract` and implement `build`; override the knobs below if needed."""
 
-    pytestmark = [pytest.mark.anyio]
+    pytestmark: ClassVar[list[pytest.MarkDecorator]] = [pytest.mark.anyio]
 
     #: joint offsets [rad] of the test motion from the arm's initial position
     reach_rad: float = 0.2
@@ -270,7 +270,7 @@ class BackendContract:
 
             threading.Thread(target=stop_from_elsewhere).start()
             assert stopped.wait(10.0)  # the event loop is blocked the whole time
-            time.sleep(0.1)  # and stays blocked a little longer
+            time.sleep(0.1)  # noqa: ASYNC251 - the loop stays blocked a little longer, on purpose
         held = await self.assert_still(backend)
         assert results[0].reason == "stopped" and np.array_equal(results[0].final_positions, held)
         assert not np.allclose(held, trajectory.goal)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-__all__ = ["EStopEvent", "EStopLatch", "ReleaseResult", "flatten_reason", "REASON_LIMIT", "NO_REASON"]
+__all__ = ["NO_REASON", "REASON_LIMIT", "EStopEvent", "EStopLatch", "ReleaseResult", "flatten_reason"]
 
 #: longest reason kept on an event [characters]
 REASON_LIMIT = 500

@@ -19,7 +19,7 @@ from armwarden.stopchannel.server import ChannelStop
 
 
 class ThreadSafeStopper(Protocol):
-    def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], None]], None]) -> EStopEvent: ...
+    def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent: ...
 
 
 class ExternalStops:
@@ -53,7 +53,7 @@ class ExternalStops:
             extra={"peer": stop.peer, "estop_event": stop.event, "stop_issued_ms": stop.stop_issued_ms},
         )
 
-    def _on_loop(self, work: Callable[[], None]) -> None:
+    def _on_loop(self, work: Callable[[], object]) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed (shutting down): the plans die with it
             self._loop.call_soon_threadsafe(work)
 
