@@ -18,6 +18,7 @@ from armwarden import __version__
 from armwarden.backends import BACKENDS, backend_names
 from armwarden.errors import ArmWardenError, PolicyError
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
+from armwarden.stopchannel.client import add_estop_arguments, estop_command
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -44,8 +45,14 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="extra Host header value clients may use (repeatable; e.g. the LAN name of this machine)")
     serve.add_argument("--allowed-origin", action="append", default=[], metavar="ORIGIN",
                        help="extra browser Origin allowed (repeatable; e.g. http://console.local:8080)")
+    serve.add_argument("--estop-port", type=int, default=None, metavar="PORT",
+                       help="serve the independent stop channel (POST /estop, any token) on this port; needs --auth-tokens")
+    serve.add_argument("--estop-host", default="127.0.0.1", help="address of the stop channel (default loopback)")
     serve.add_argument("--dry-run", action="store_true", help="validate and ask, never actuate")
     serve.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+
+    add_estop_arguments(commands.add_parser(
+        "estop", help="e-stop a running daemon through its stop channel (--url) or SIGUSR1 (--pid)"))
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")
@@ -117,6 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.tokens_command == "list":
                 return tokens.tokens_list_command(args.file)
             return tokens.tokens_revoke_command(args.file, args.name)
+        if args.command == "estop":
+            return estop_command(args)
         if args.command == "serve":
             from armwarden.daemon import serve_command
 

@@ -3,11 +3,15 @@
 Start-up refuses (exit 2, before serving) on an invalid policy, an unavailable backend, an audit
 log that cannot be opened, or an unsafe bind. On SIGTERM, SIGINT or end of stdin the daemon
 stops the arm and the gripper, closes the backend and writes a final audit record.
+
+Two stops bypass MCP and the event loop (docs/architecture.md, "Independent stop channel"):
+SIGUSR1 always, and with `--estop-port` the stop channel (`POST /estop`, any token's role).
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
 import os
 import signal
@@ -22,13 +26,16 @@ import anyio
 from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
-from armwarden.errors import ArmWardenError, BackendUnavailable, PolicyError
+from armwarden.errors import ArmWardenError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import AuditLog, hmac_key_from_env
 from armwarden.server.app import ArmWardenServer
+from armwarden.stopchannel import StopChannel, token_store_authenticator
+from armwarden.stopchannel.external import ExternalStops
+from armwarden.stopchannel.signals import SignalStop
 
 logger = logging.getLogger("armwarden")
 
@@ -87,18 +94,42 @@ async def close_assembly(assembly: Assembly, why: str) -> None:
             assembly.audit.close()
 
 
+def _start_external_stops(args: argparse.Namespace, assembly: Assembly) -> tuple[SignalStop, StopChannel | None]:
+    """SIGUSR1 and (with --estop-port) the stop channel, each on its own thread."""
+    external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
+    signals = SignalStop(external.latch_and_stop_for("signal"), on_event=external.record).start()
+    if getattr(args, "estop_port", None) is None:
+        return signals, None
+    from armwarden.transport.tokens import TokenStore
+
+    try:
+        channel = StopChannel(
+            authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
+            latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
+            host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
+        ).start()
+    except BaseException:
+        signals.close()
+        raise
+    logger.warning("stop channel listening: POST %s", channel.url)
+    return signals, channel
+
+
 async def _run(args: argparse.Namespace, parts: tuple) -> None:
     assembly = await open_assembly(*parts)
-    await assembly.audit.append_async(
-        "startup",
-        outcome="ok",
-        detail=f"armwarden {__version__} serving {args.transport} with the {args.backend} backend",
-        extra={"policy": str(args.policy or "bundled fr3"), "dry_run": assembly.policy.dry_run,
-               "tools": assembly.server.tools},
-    )
     why = "shutdown"
     shutdown = anyio.Event()
+    signal_stop, channel = None, None
     try:
+        signal_stop, channel = _start_external_stops(args, assembly)
+        await assembly.audit.append_async(
+            "startup",
+            outcome="ok",
+            detail=f"armwarden {__version__} serving {args.transport} with the {args.backend} backend",
+            extra={"policy": str(args.policy or "bundled fr3"), "dry_run": assembly.policy.dry_run,
+                   "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
+                   "pid": os.getpid()},
+        )
         async with anyio.create_task_group() as group:
             async def on_signals() -> None:
                 nonlocal why
@@ -134,6 +165,10 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                 await _serve_http(args, assembly, shutdown)
             group.cancel_scope.cancel()
     finally:
+        if channel is not None:
+            channel.close()
+        if signal_stop is not None:
+            signal_stop.close()
         await close_assembly(assembly, why)
 
 
@@ -180,6 +215,9 @@ def serve_command(args: argparse.Namespace) -> int:
             from armwarden.transport.tokens import TokenStore
 
             check_bind_safety(args.host, TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
+        if getattr(args, "estop_port", None) is not None and not args.auth_tokens:
+            raise ConfigurationError("--estop-port needs --auth-tokens: the stop channel accepts any role's token, "
+                                     "and none without one")
         parts = assemble(policy, args.backend, args.backend_config, args.audit_log)
     except PolicyError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)

@@ -17,13 +17,13 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Any
+from typing import Any, ClassVar
 
 import anyio
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import PREEMPTED, Backend, Capabilities
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 
@@ -40,6 +40,10 @@ async def wait_until(predicate: Callable[[], Awaitable[bool]], timeout_s: float 
     while not await predicate():
         assert time.monotonic() < deadline, "condition not reached in time"
         await anyio.sleep(0.002)
+
+
+async def _true_when(condition: bool) -> bool:
+    return condition
 
 
 #: optional call → (capability test, the call with arguments a backend having it must accept)
@@ -59,7 +63,7 @@ OPTIONAL_CALLS: dict[str, tuple[Callable[[Capabilities], bool], Callable[[Backen
 class BackendContract:
     """Subclass as `Test<Name>Contract` and implement `build`; override the knobs below if needed."""
 
-    pytestmark = [pytest.mark.anyio]
+    pytestmark: ClassVar[list[pytest.MarkDecorator]] = [pytest.mark.anyio]
 
     #: joint offsets [rad] of the test motion from the arm's initial position
     reach_rad: float = 0.2
@@ -266,12 +270,51 @@ class BackendContract:
 
             threading.Thread(target=stop_from_elsewhere).start()
             assert stopped.wait(10.0)  # the event loop is blocked the whole time
-            time.sleep(0.1)  # and stays blocked a little longer
+            time.sleep(0.1)  # noqa: ASYNC251 - the loop stays blocked a little longer, on purpose
         held = await self.assert_still(backend)
         assert results[0].reason == "stopped" and np.array_equal(results[0].final_positions, held)
         assert not np.allclose(held, trajectory.goal)
         if held_in_thread[0] is not None:  # held in the stopping thread, not when the loop came back
             assert np.array_equal(held_in_thread[0].positions, held)
+
+    async def test_every_stop_bumps_the_stop_epoch(self, backend: Backend) -> None:
+        before = backend.stop_epoch
+        await backend.stop()
+        backend.stop_now()
+        threading.Thread(target=backend.stop_now).start()
+        await wait_until(lambda: _true_when(backend.stop_epoch == before + 3))
+
+    async def test_a_stop_after_the_decision_to_move_means_nothing_moves(self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        decided = backend.stop_epoch
+        thread = threading.Thread(target=backend.stop_now)
+        thread.start()
+        thread.join()
+        result = await backend.execute(await self.motion(backend, self.short_motion_s), stop_epoch=decided)
+        assert not result.completed and result.reason == PREEMPTED
+        assert np.array_equal(await self.assert_still(backend), q_start)
+
+    @pytest.mark.parametrize("delay_ms", [0.0, 0.05, 0.2, 0.5, 1.0, 2.0])
+    async def test_a_stop_racing_the_hand_over_is_never_overtaken(self, backend: Backend, delay_ms: float) -> None:
+        # The stop is issued from another thread after the decision to move, at some moment around
+        # the hand-over: whichever wins, the motion must not run on after the stop.
+        q_start = await self.positions(backend)
+        trajectory = await self.motion(backend, self.long_motion_s)
+        decided = backend.stop_epoch
+
+        def stop_soon() -> None:
+            time.sleep(delay_ms / 1000)
+            backend.stop_now()
+
+        thread = threading.Thread(target=stop_soon)
+        thread.start()
+        result = await backend.execute(trajectory, stop_epoch=decided)
+        thread.join()
+        assert not result.completed and result.reason in ("stopped", PREEMPTED)
+        held = await self.assert_still(backend)
+        assert not np.allclose(held, trajectory.goal)
+        again = straight_line(backend.joint_names, held, q_start, self.short_motion_s)
+        assert (await backend.execute(again)).completed
 
     async def test_cancelling_execute_stops_the_arm_and_frees_the_backend(self, backend: Backend) -> None:
         q_start = await self.positions(backend)

@@ -12,7 +12,7 @@ import time
 import anyio
 import numpy as np
 
-from armwarden.backends.base import Backend, Capabilities, ExecutionResult, JointState
+from armwarden.backends.base import PREEMPTED, Backend, Capabilities, ExecutionResult, JointState
 from armwarden.errors import BackendError
 
 STEP_S = 0.002  # how often the arm moves to the next sample [s]
@@ -48,7 +48,11 @@ class MinimalBackend(Backend):
     async def _execute(self, trajectory, progress) -> ExecutionResult:
         if self._busy:
             raise BackendError("one execution at a time")
-        self._busy, stops, start = True, self._stops, time.monotonic()
+        with self._lock:  # handed over atomically with the check: a stop that came first wins
+            if self._stop_landed():
+                return ExecutionResult(False, PREEMPTED, self._state.positions.copy())
+            stops = self._stops
+        self._busy, start = True, time.monotonic()
         try:
             while True:
                 t = (time.monotonic() - start) * self.speedup

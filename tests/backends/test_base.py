@@ -126,7 +126,7 @@ def _call(backend: _Probe, call):
 def test_an_actuating_call_past_its_deadline_is_a_backend_timeout_after_a_stop():
     backend = _SlowGripper()
     backend.gripper_timeout_s, backend.gripper_travel_m = 0.05, 0.0
-    with pytest.raises(BackendTimeout, match="gripper move did not finish within 0.05 s"):
+    with pytest.raises(BackendTimeout, match=r"gripper move did not finish within 0\.05 s"):
         _call(backend, lambda b: b.gripper_move(0.01, 0.1))
     assert backend.stops == 2  # the one after the missed deadline, then the one of close()
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import itertools
 import threading
 import time
 
@@ -52,7 +53,7 @@ def straight_line(q_start, q_goal, duration_s: float, dt_s: float = 0.01) -> Joi
 def distance_to_polyline(q: np.ndarray, vertices: np.ndarray) -> float:
     """Euclidean distance in joint space from `q` to the piecewise linear path through `vertices`."""
     best = np.inf
-    for a, b in zip(vertices[:-1], vertices[1:]):
+    for a, b in itertools.pairwise(vertices):
         ab = b - a
         denom = float(ab @ ab)
         s = 0.0 if denom == 0 else float(np.clip((q - a) @ ab / denom, 0.0, 1.0))
@@ -441,7 +442,7 @@ def test_state_read_right_after_open_is_a_sample_of_the_running_control_loop():
     async def scenario():
         backend = FakeBackend()
         constructed = time.monotonic()
-        time.sleep(0.2)
+        time.sleep(0.2)  # noqa: ASYNC251 - the first sample must age while nothing else runs
         opened = time.monotonic()
         await backend.open()
         try:
@@ -475,7 +476,7 @@ def test_a_stop_after_the_fingers_arrived_does_not_report_the_move_as_interrupte
     async def scenario(backend: FakeBackend):
         task = asyncio.create_task(backend.gripper_move(0.02, 0.1))  # 0.6 s of travel
         await asyncio.sleep(0.01)  # the move has started
-        time.sleep(0.7)  # the loop is blocked past the arrival: the move's task has not resumed yet
+        time.sleep(0.7)  # noqa: ASYNC251 - the loop is blocked past the arrival: the move's task has not resumed yet
         await backend.stop()  # lands between the arrival and the task noticing it
         return await task
 

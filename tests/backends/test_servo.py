@@ -63,7 +63,7 @@ async def test_a_hold_from_another_thread_ends_the_run_stopped_where_it_was_comm
     servo = await started(hooks)
     try:
         task = asyncio.create_task(servo.run(line(10.0), lambda fraction: None))
-        while not servo.latest.positions.any():
+        while not servo.latest.positions.any():  # noqa: ASYNC110 - polls what the servo thread publishes
             await asyncio.sleep(0.002)
         thread = threading.Thread(target=servo.hold)
         thread.start()
@@ -121,7 +121,7 @@ async def test_a_hold_whose_command_fails_raises_and_fails_the_run() -> None:
     servo = await started(Unheard())
     try:
         task = asyncio.create_task(servo.run(line(10.0), lambda fraction: None, hold_on_exit=False))
-        while not servo.busy or not servo.latest.positions.any():
+        while not servo.busy or not servo.latest.positions.any():  # noqa: ASYNC110 - polls the servo thread
             await asyncio.sleep(0.002)
         with pytest.raises(OSError, match="bus off"):
             servo.hold()

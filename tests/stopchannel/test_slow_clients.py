@@ -6,7 +6,7 @@ import collections
 import socket
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 import pytest
 
@@ -27,10 +27,8 @@ def slow_connections(port: int, count: int) -> Iterator[list[socket.socket]]:
         position = 0
         while not stop_dripping.is_set() and position < len(SLOW_REQUEST):
             for sock in sockets[::2]:
-                try:
+                with suppress(OSError):  # evicted or timed out by the channel: that is its job
                     sock.send(SLOW_REQUEST[position : position + 1])
-                except OSError:
-                    pass  # evicted or timed out by the channel: that is its job
             position += 1
             if position == 20:
                 mid_request.set()
@@ -91,10 +89,8 @@ def test_stops_are_served_while_new_silent_connections_keep_arriving(make_channe
     def flood() -> None:
         held: collections.deque[socket.socket] = collections.deque()
         while not stop_flooding.is_set():
-            try:
+            with suppress(OSError):
                 held.append(socket.create_connection(("127.0.0.1", channel.port), timeout=NETWORK_TIMEOUT_S))
-            except OSError:
-                pass
             if len(held) > 300:
                 held.popleft().close()
             if len(held) == 100:

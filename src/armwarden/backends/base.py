@@ -23,6 +23,12 @@ Rules every backend follows
 - `stop_now()` is the same stop, synchronous and thread-safe: any thread may call it while the
   event loop is busy or blocked, and the arm is held before it returns (a servo loop commands a
   hold under its lock; see `armwarden.backends.servo`). It must not await the event loop.
+- A stop is never overtaken by an execution that was decided before it. Every stop (`stop`,
+  `stop_now`, any thread) first bumps `stop_epoch`; `execute(..., stop_epoch=E)` refuses to start
+  ("stopped before it started", nothing moved) once the epoch is no longer E, and the `_execute`
+  hook checks `_stop_landed()` again *under the same lock its stop takes* when it hands the
+  trajectory over (the servo core does this for you). So either the trajectory was handed over
+  first and the stop ends it, or the stop came first and the trajectory never starts.
 - `execute()` runs exactly the trajectory it is given (same waypoints, same timing, not
   modified), ends at its goal, reports progress in [0, 1] never decreasing, returns when the arm
   has finished ("completed") or was stopped ("stopped"), and stops the arm if the awaiting task is
@@ -45,6 +51,7 @@ from __future__ import annotations
 import abc
 import logging
 import math
+import threading
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TypeVar
@@ -58,6 +65,8 @@ from armwarden.planning.trajectory import JointTrajectory
 logger = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[float], None]
+#: `ExecutionResult.reason` of an execution a stop preempted before anything moved
+PREEMPTED = "stopped before it started"
 T = TypeVar("T")
 
 
@@ -179,6 +188,9 @@ class Backend(abc.ABC):
         #: `motion.start_tolerance_rad`)
         self.start_tolerance_rad = float(start_tolerance_rad)
         self._last_stop_stamp: float | None = None
+        self._stop_epoch = 0
+        self._stop_epoch_lock = threading.Lock()  # stops come from any thread
+        self._execution_epoch = 0  # the stop epoch the running execution was decided under
         self._opened = False
         self._closed = False
 
@@ -191,6 +203,21 @@ class Backend(abc.ABC):
     @last_stop_stamp.setter
     def last_stop_stamp(self, stamp: float | None) -> None:
         self._last_stop_stamp = stamp
+
+    @property
+    def stop_epoch(self) -> int:
+        """How many stops have been issued (any path, any thread). A caller that decides to move
+        notes it and passes it to `execute`, so a stop after its decision always wins."""
+        return self._stop_epoch
+
+    def _bump_stop_epoch(self) -> None:
+        with self._stop_epoch_lock:
+            self._stop_epoch += 1
+
+    def _stop_landed(self) -> bool:
+        """A stop was issued since the running execution was decided. `_execute` hooks check it
+        under the lock their stop takes, atomically with handing the trajectory over."""
+        return self._stop_epoch != self._execution_epoch
 
     # ---------------------------------------------------------------- lifecycle
     @property
@@ -248,12 +275,21 @@ class Backend(abc.ABC):
         return await self._bounded("wrench read", self.read_timeout_s, self._read_wrench)
 
     # ---------------------------------------------------------------- motion
-    async def execute(self, trajectory: JointTrajectory, progress: ProgressCallback | None = None) -> ExecutionResult:
-        """Run `trajectory` exactly. Any failure or cancellation stops the arm before it propagates."""
+    async def execute(
+        self, trajectory: JointTrajectory, progress: ProgressCallback | None = None, *, stop_epoch: int | None = None
+    ) -> ExecutionResult:
+        """Run `trajectory` exactly. Any failure or cancellation stops the arm before it propagates.
+
+        `stop_epoch` is the `stop_epoch` the caller saw when it decided to move (default: now): if
+        any stop was issued since, nothing moves and the result is "stopped before it started".
+        """
         self._require_open()
+        self._execution_epoch = self._stop_epoch if stop_epoch is None else stop_epoch
         try:
             self.check_trajectory(trajectory)
             await self._check_start(trajectory)
+            if self._stop_landed():
+                return ExecutionResult(False, PREEMPTED, (await self.read_joint_state()).positions.copy())
             return await self._execute(trajectory, progress or (lambda _fraction: None))
         except BaseException:
             with anyio.CancelScope(shield=True):
@@ -291,6 +327,7 @@ class Backend(abc.ABC):
 
     async def stop(self) -> None:
         """Stop arm and gripper now. Raises `BackendError` if the stop could not be issued."""
+        self._bump_stop_epoch()
         if not self._opened or self._closed:
             return
         try:
@@ -306,6 +343,7 @@ class Backend(abc.ABC):
     def stop_now(self) -> None:
         """Stop arm and gripper from any thread, without the event loop; the arm is held when it
         returns. Raises `BackendError` if the stop could not be issued. No-op unless open."""
+        self._bump_stop_epoch()
         if not self._opened or self._closed:
             return
         try:

@@ -88,9 +88,15 @@ class CountingBackend(Backend):
         return await self.inner.read_wrench()
 
     # ---------------------------------------------------------------- motion and stops
-    async def execute(self, trajectory: JointTrajectory, progress: ProgressCallback | None = None) -> ExecutionResult:
+    async def execute(
+        self, trajectory: JointTrajectory, progress: ProgressCallback | None = None, *, stop_epoch: int | None = None
+    ) -> ExecutionResult:
         self._actuating("execute")
-        return await self.inner.execute(trajectory, progress)
+        return await self.inner.execute(trajectory, progress, stop_epoch=stop_epoch)
+
+    @property
+    def stop_epoch(self) -> int:
+        return self.inner.stop_epoch
 
     async def stop(self) -> None:
         self._stopping()

@@ -26,6 +26,7 @@ object between the fingers). All of them are plain attributes that can be change
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import threading
@@ -300,7 +301,7 @@ class FakeBackend(Backend, ServoHooks):
         if arm_controller is not None and arm_controller.state != "active":
             raise BackendError(f"{TRAJECTORY_CONTROLLER} is not active; the arm cannot follow a trajectory")
         # a cancelled caller is held at once, unless the injected fault says stops are lost
-        return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop)
+        return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop, preempted=self._stop_landed)
 
     async def _stop(self) -> None:
         if self.fail_stop:  # neither the arm nor the gripper hears this stop
@@ -318,10 +319,8 @@ class FakeBackend(Backend, ServoHooks):
             motion.halted_at = time.perf_counter()  # frozen now; the loop does the bookkeeping later
             loop = self._loop
             if loop is not None:
-                try:
+                with contextlib.suppress(RuntimeError):  # the loop is closed
                     loop.call_soon_threadsafe(self._halt_gripper)
-                except RuntimeError:  # the loop is closed
-                    pass
         self._require_running()
 
     # ================================================================ servo hooks (servo thread)
@@ -382,7 +381,8 @@ class FakeBackend(Backend, ServoHooks):
             return GripperResult(False, width, False, "stopped")
         grasped = width_m - epsilon_inner_m <= width <= width_m + epsilon_outer_m
         self._gripper_grasped = grasped
-        detail = "" if grasped else f"final width {width:.4f} m outside [{width_m - epsilon_inner_m:.4f}, {width_m + epsilon_outer_m:.4f}] m"
+        low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
+        detail = "" if grasped else f"final width {width:.4f} m outside [{low:.4f}, {high:.4f}] m"
         return GripperResult(grasped, width, grasped, detail)
 
     async def _gripper_home(self) -> GripperResult:

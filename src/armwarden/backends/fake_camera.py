@@ -5,17 +5,14 @@ Pillow is optional: without it `HAVE_PILLOW` is false and the fake declares no c
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import math
 
 import numpy as np
 
-try:  # pillow is optional: without it the fake has no cameras
-    from PIL import Image, ImageDraw
-
-    HAVE_PILLOW = True
-except ImportError:  # pragma: no cover - exercised only where pillow is missing
-    HAVE_PILLOW = False
+#: pillow is optional: without it the fake has no cameras (imported where an image is drawn)
+HAVE_PILLOW = importlib.util.find_spec("PIL") is not None
 
 #: camera image size [px]
 CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX = 320, 240
@@ -36,6 +33,8 @@ def render_top_view(
 
     def to_px(x: float, y: float) -> tuple[float, float]:
         return (CAMERA_WIDTH_PX / 2 - (y - centre_y) * scale, CAMERA_HEIGHT_PX / 2 - (x - centre_x) * scale)
+
+    from PIL import Image, ImageDraw  # only with Pillow installed: the fake declares no cameras otherwise
 
     image = Image.new("RGB", (CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX), (200, 170, 130) if table_height_m is not None else (90, 90, 90))
     draw = ImageDraw.Draw(image)

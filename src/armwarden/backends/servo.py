@@ -24,13 +24,14 @@ import asyncio
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
 import anyio
 import numpy as np
 
-from armwarden.backends.base import ExecutionResult, ProgressCallback
+from armwarden.backends.base import PREEMPTED, ExecutionResult, ProgressCallback
 from armwarden.errors import BackendError
 from armwarden.handoff import settle_threadsafe
 from armwarden.planning.trajectory import JointTrajectory
@@ -191,9 +192,14 @@ class ServoLoop:
         self.fail_executions(BackendError(f"{self.name} closed"))
 
     # ---------------------------------------------------------------- motion
-    async def run(self, trajectory: JointTrajectory, progress: ProgressCallback, *, hold_on_exit: bool = True) -> ExecutionResult:
+    async def run(
+        self, trajectory: JointTrajectory, progress: ProgressCallback, *, hold_on_exit: bool = True,
+        preempted: Callable[[], bool] | None = None,
+    ) -> ExecutionResult:
         """Follow `trajectory` until it completes or a stop ends it; report progress ≤ 50 Hz.
 
+        `preempted` (the backend's `_stop_landed`) is asked under the lock every hold takes, as the
+        trajectory is handed over: if a stop came first, nothing moves and the result is "stopped".
         If the caller is cancelled (or `progress` raises), the arm is held before the exception
         propagates, unless `hold_on_exit` is false (a fault injection that loses stops).
         """
@@ -205,6 +211,8 @@ class ServoLoop:
                 raise BackendError(f"{self.name}: {self._refusing}")
             if self.busy:
                 raise BackendError(f"{self.name} is already executing a trajectory; one execution at a time")
+            if preempted is not None and preempted():
+                return ExecutionResult(False, PREEMPTED, self._latest.positions.copy())
             self._pending = execution
         self._wake.set()
         reported = -1.0

@@ -10,6 +10,7 @@ arm still) goes on the call's audit record.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from armwarden import conversions
@@ -57,6 +58,25 @@ class Stopper:
             self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
             event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
+
+    def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent:
+        """The e-stop from any thread, without the event loop (stop channel, SIGUSR1): latch, then
+        stop arm and gripper with the backend's thread-safe `stop_now`; the plans are voided on the
+        loop afterwards through `schedule` (until then they are refused anyway: each carries the
+        latch generation it was made under). Raises `BackendError`, with a `stop_failed` e-stop
+        latched on top, when the stop could not be issued."""
+        event = self.latch.latch(reason, source)
+        self.generation += 1
+        try:
+            self.backend.stop_now()
+        except BackendError as exc:
+            self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
+            event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
+            raise BackendError(f"e-stop #{event.number}: the stop could not be issued: {exc}") from exc
+        finally:
+            voided = event
+            schedule(lambda: self.plans.invalidate_all(f"e-stop #{voided.number}"))
+        return event
 
     async def stop_for(self, what: str) -> EStopEvent | None:
         """Stop arm and gripper for a call that can no longer do it itself (cancelled, abandoned).

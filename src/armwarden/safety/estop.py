@@ -4,7 +4,8 @@ Why: an e-stop must not be undone by accident or by a race. Every latch (the `es
 force violation, a stop command that failed, a backend fault) creates a new numbered event,
 also while already latched. A reset names the event it releases; the human is shown that
 event, and if another latch happened while they were deciding, the reset is refused, so
-nobody ever releases a stop they have not seen (DESIGN.md §4).
+nobody ever releases a stop they have not seen (docs/architecture.md, "Where each limit is
+enforced": releasing an e-stop).
 
 `generation` counts latches. The Guard records it before validating or asking and compares it
 afterwards: anything that started before a latch must not run after the reset.
@@ -12,12 +13,15 @@ afterwards: anything that started before a latch must not run after the reset.
 Reasons come from models and from hardware, so `flatten_reason` accepts any value and turns it
 into one printable line of bounded length; it never raises.
 
-The clocks are injected so tests never sleep. Not thread safe: used from the event loop only.
+The clocks are injected so tests never sleep. Latching and releasing are thread safe (the
+independent stop channel and SIGUSR1 latch from their own thread while the event loop may be
+busy); reads are single attribute loads.
 """
 
 from __future__ import annotations
 
 import reprlib
+import threading
 import time
 import unicodedata
 from collections.abc import Callable, Mapping
@@ -25,7 +29,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-__all__ = ["EStopEvent", "EStopLatch", "ReleaseResult", "flatten_reason", "REASON_LIMIT", "NO_REASON"]
+__all__ = ["NO_REASON", "REASON_LIMIT", "EStopEvent", "EStopLatch", "ReleaseResult", "flatten_reason"]
 
 #: longest reason kept on an event [characters]
 REASON_LIMIT = 500
@@ -138,6 +142,7 @@ class EStopLatch:
         self._generation = 0
         self._current: EStopEvent | None = None
         self._last: EStopEvent | None = None
+        self._lock = threading.Lock()
 
     @property
     def is_latched(self) -> bool:
@@ -159,7 +164,11 @@ class EStopLatch:
         return self._generation
 
     def latch(self, reason: object, source: str, force_violation: Mapping[str, Any] | None = None) -> EStopEvent:
-        """Latch (again): always a new event with the next number; never fails."""
+        """Latch (again): always a new event with the next number; never fails. Any thread."""
+        with self._lock:
+            return self._latch_locked(reason, source, force_violation)
+
+    def _latch_locked(self, reason: object, source: str, force_violation: Mapping[str, Any] | None) -> EStopEvent:
         self._generation += 1
         event = EStopEvent(
             number=self._generation,
@@ -174,6 +183,10 @@ class EStopLatch:
 
     def release(self, event_number: object) -> ReleaseResult:
         """Release the latch if `event_number` is the newest latched event; otherwise refuse and say why."""
+        with self._lock:
+            return self._release_locked(event_number)
+
+    def _release_locked(self, event_number: object) -> ReleaseResult:
         current = self._current
         if current is None:
             done = f" (the last one, #{self._last.number}, was already reset)" if self._last is not None else ""

@@ -30,7 +30,7 @@ def open_listener(host: str, port: int, *, allow_non_loopback: bool = False) -> 
         )[0]
     except OSError as exc:
         raise ConfigurationError(f"stop channel cannot resolve host {host!r}: {exc}") from exc
-    if not allow_non_loopback and not is_loopback(address[0]):
+    if not allow_non_loopback and not is_loopback(str(address[0])):
         raise ConfigurationError(
             f"stop channel refuses to listen on non-loopback address {address[0]} "
             "(allowed only with allow_non_loopback=True, i.e. with bearer tokens configured)"

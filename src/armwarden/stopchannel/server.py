@@ -37,7 +37,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Self
+from typing import Any
 
 from armwarden.errors import ConfigurationError
 from armwarden.safety.estop import flatten_reason
@@ -171,7 +171,7 @@ class StopChannel:
             if thread.is_alive():
                 logger.error("stop channel thread did not finish within 5 s (a callback is blocking it)")
 
-    def __enter__(self) -> Self:
+    def __enter__(self) -> StopChannel:
         if self._thread is None:
             self.start()
         return self

@@ -15,6 +15,7 @@ import errno
 import functools
 import hashlib
 import json
+import logging
 import os
 import queue
 import stat
@@ -45,6 +46,9 @@ except ImportError:  # pragma: no cover - non-POSIX
     fcntl = None  # type: ignore[assignment]
 
 MAX_EVENT_CHARS = 64
+
+
+logger = logging.getLogger(__name__)
 
 
 class AuditWriteError(ArmWardenError):
@@ -320,6 +324,14 @@ class AuditLog:
         self._writer().put((call, loop, future))
         return await asyncio.shield(future)
 
+    def submit(self, entry: AuditEntry | str, /, **fields: Any) -> None:
+        """From any thread, without waiting: hand a record to the writer thread (after the ones
+        already queued). For paths that must never wait on the disk or the event loop, such as the
+        independent stop channel; a record that cannot be written is logged, and the log is then
+        broken like after any failed write. Raises `AuditWriteError` if the log is closed."""
+        call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
+        self._writer().put((call, None, None))
+
     def _writer(self) -> queue.SimpleQueue:
         with self._lock:
             if self._queue is None:
@@ -360,7 +372,10 @@ class AuditLog:
                 except BaseException as exc:  # nothing of this batch is known to be on disk
                     outcomes = [(loop, future, exc, True) for loop, future, *_ in outcomes]
             for loop, future, outcome, failed in outcomes:  # a closed loop: nobody waits any more
-                if failed:
+                if loop is None:  # handed over by `submit`: nobody waits, a failure is only logged
+                    if failed:
+                        logger.error("audit record from another thread could not be written: %s", outcome)
+                elif failed:
                     settle_threadsafe(loop, future, error=outcome)
                 else:
                     settle_threadsafe(loop, future, outcome)

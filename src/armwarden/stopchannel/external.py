@@ -1,0 +1,61 @@
+"""The stops that do not come through MCP — the stop channel and SIGUSR1 — wired to the Guard.
+
+Both run on threads of their own while the event loop may be busy. `ExternalStops` gives them
+one thread-safe `latch_and_stop` per source (the Guard's, which latches and calls the
+backend's `stop_now` directly) and one `record` that hands the audit record to the audit
+writer without waiting (`AuditLog.submit`): the stop never waits for the disk or the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Callable
+from typing import Protocol
+
+from armwarden.safety.audit import AuditLog
+from armwarden.safety.estop import NO_REASON, EStopEvent
+from armwarden.stopchannel.server import ChannelStop
+
+
+class ThreadSafeStopper(Protocol):
+    def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent: ...
+
+
+class ExternalStops:
+    """`latch_and_stop(reason, principal)` callables for the stop channel and signals, and their audit."""
+
+    def __init__(self, stopper: ThreadSafeStopper, audit: AuditLog, loop: asyncio.AbstractEventLoop) -> None:
+        self._stopper = stopper
+        self._audit = audit
+        self._loop = loop
+
+    def latch_and_stop_for(self, source: str) -> Callable[[str, str], int]:
+        """The channel's `latch_and_stop` for `source` ("stop_channel", "signal")."""
+
+        def latch_and_stop(reason: str, principal: str) -> int:
+            return self._stopper.latch_and_stop(reason or NO_REASON, source, self._on_loop).number
+
+        return latch_and_stop
+
+    def record(self, stop: ChannelStop) -> None:
+        """Audit one external e-stop, after the fact and without waiting (any thread)."""
+        if self._audit.closed:
+            return
+        failed = stop.error is not None
+        self._audit.submit(
+            "estop",
+            principal=stop.principal,
+            outcome="stop_failed" if failed else "latched",
+            detail=(f"external e-stop from {stop.peer}: the stop may NOT have been issued: {stop.error}" if failed
+                    else f"external e-stop #{stop.event} from {stop.peer}"),
+            arguments={"reason": stop.reason},
+            extra={"peer": stop.peer, "estop_event": stop.event, "stop_issued_ms": stop.stop_issued_ms},
+        )
+
+    def _on_loop(self, work: Callable[[], object]) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop is closed (shutting down): the plans die with it
+            self._loop.call_soon_threadsafe(work)
+
+
+__all__ = ["ExternalStops"]

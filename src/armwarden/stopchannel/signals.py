@@ -1,0 +1,101 @@
+"""SIGUSR1 → e-stop: for a physical button wired to a script, or `kill -USR1 <pid>`.
+
+Python runs signal handlers on the main thread, which is also the event loop's thread; a handler
+that did the stop there would wait its turn behind whatever the loop is running. So the handler
+does nothing but set an event, and a thread of our own waits for it and calls the same
+thread-safe latch-and-stop as the stop channel (see docs/architecture.md, "Independent stop
+channel"). The handler never takes a lock the interrupted code might hold: it only sets a
+`threading.Event` no one else sets.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from types import FrameType
+
+from armwarden.stopchannel.server import ChannelStop
+
+logger = logging.getLogger(__name__)
+
+#: (reason, principal) → e-stop event number; the stop channel's `latch_and_stop`
+LatchAndStop = Callable[[str, str], int]
+
+SIGNAL_PRINCIPAL = "signal:SIGUSR1"
+
+
+class SignalStop:
+    """Turns each SIGUSR1 into one e-stop on a dedicated thread; `close()` restores the old handler."""
+
+    def __init__(self, latch_and_stop: LatchAndStop, *, on_event: Callable[[ChannelStop], None] | None = None,
+                 signum: int = signal.SIGUSR1) -> None:
+        self._latch_and_stop = latch_and_stop
+        self._on_event = on_event
+        self._signum = signum
+        self._raised = threading.Event()
+        self._closing = False
+        self._thread: threading.Thread | None = None
+        self._previous: Callable[[int, FrameType | None], object] | int | None = None
+
+    def start(self) -> SignalStop:
+        """Install the handler (main thread only, as Python requires) and start the stop thread."""
+        if self._thread is not None:
+            raise RuntimeError("SignalStop already started")
+        self._thread = threading.Thread(target=self._run, name="armwarden-sigusr1", daemon=True)
+        self._thread.start()
+        self._previous = signal.signal(self._signum, self._handle)
+        return self
+
+    def close(self) -> None:
+        """Restore the previous handler and stop the thread. Idempotent."""
+        if self._thread is None or self._closing:
+            return
+        self._closing = True
+        if self._previous is not None:
+            signal.signal(self._signum, self._previous)
+        self._raised.set()
+        self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> SignalStop:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self._raised.set()
+
+    def _run(self) -> None:
+        while True:
+            self._raised.wait()
+            self._raised.clear()
+            if self._closing:
+                return
+            self._stop()
+
+    def _stop(self) -> None:
+        name = signal.Signals(self._signum).name
+        received = time.monotonic()
+        try:
+            number = self._latch_and_stop(f"{name} received", SIGNAL_PRINCIPAL)
+        except Exception as exc:
+            logger.critical("%s: the e-stop may NOT have been issued: %s", name, exc, exc_info=True)
+            self._report(ChannelStop(SIGNAL_PRINCIPAL, f"{name} received", "signal", None, None, str(exc)))
+            return
+        issued_ms = round((time.monotonic() - received) * 1e3, 4)
+        logger.warning("%s: e-stop #%d latched and the robot stopped", name, number)
+        self._report(ChannelStop(SIGNAL_PRINCIPAL, f"{name} received", "signal", number, issued_ms, None))
+
+    def _report(self, stop: ChannelStop) -> None:
+        if self._on_event is None:
+            return
+        try:
+            self._on_event(stop)
+        except Exception:
+            logger.exception("recording the %s e-stop failed", signal.Signals(self._signum).name)
+
+
+__all__ = ["SIGNAL_PRINCIPAL", "SignalStop"]
