@@ -5,6 +5,7 @@ the audit log recorded."""
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import anyio
@@ -188,3 +189,25 @@ async def test_a_second_execution_while_one_runs_is_refused_busy_and_its_plan_st
     outcomes = [(r["arguments"]["plan_id"], r["outcome"]) for r in calls(arm, "execute_plan")]
     assert outcomes == [(second["plan_id"], "refused"), (first["plan_id"], "ok"), (back["plan_id"], "ok"),
                         (second["plan_id"], "ok")]
+
+
+# ------------------------------------------------------------------ a stop from another thread
+async def test_a_stop_from_another_thread_just_before_the_hand_over_keeps_the_arm_still(arm, monkeypatch) -> None:
+    """The stop channel and SIGUSR1 stop from their own thread; one that lands after the Guard's
+    last check but before the backend receives the trajectory must still win."""
+    hand_over = arm.backend.execute
+
+    async def stopped_from_elsewhere_first(trajectory, progress=None, *, stop_epoch=None):
+        thread = threading.Thread(target=arm.inner.stop_now)
+        thread.start()
+        thread.join()
+        return await hand_over(trajectory, progress, stop_epoch=stop_epoch)
+
+    monkeypatch.setattr(arm.backend, "execute", stopped_from_elsewhere_first)
+    async with arm.client() as client:
+        start = await joint_positions(client)
+        summary = await plan_joints(client, offset(start, j1=0.2))
+        result = await execute(client, summary["plan_id"])
+        report = result.structured_content
+        assert report["status"] == "aborted" and "stopped before it started" in report["detail"], report
+        assert await assert_still(client) == start

@@ -183,16 +183,15 @@ async def test_an_approval_given_for_one_plan_does_not_run_another(arm) -> None:
         assert arm.actuations == ["execute"]
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: the SDK rejects a requestState bound to another request (plan A's round "
-                   "replayed under plan B's id) before ArmWarden's middleware runs, so this refused execute_plan "
-                   "attempt leaves no audit record at all")
 @pytest.mark.policy(**ALWAYS_ASK)
 async def test_an_approval_replayed_for_another_plan_is_on_the_audit_record(arm) -> None:
     async with arm.client("2026-07-28", answer("decline")) as client:
         b = await reuse_the_approval_of_a_for_b(client)
 
         assert arm.actuations == []
-        assert [r["arguments"]["plan_id"] for r in calls(arm, "execute_plan")][-1] == b
+        refused = calls(arm, "execute_plan")[-1]
+        assert refused["arguments"]["plan_id"] == b
+        assert refused["outcome"] == "error" and "requestState" in refused["detail"], refused
 
 
 @pytest.mark.parametrize("mode", MODES)

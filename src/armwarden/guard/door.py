@@ -218,7 +218,8 @@ class Guard:
         self.require_audit("execute_plan")
         if self._execution is not None:
             raise refuse(RefusalCode.BUSY, f"plan {self._execution.plan_id} is still executing; the plan {plan_id} stays usable")
-        execution = self._execution = Execution(plan_id=str(plan_id))  # claimed synchronously
+        # claimed synchronously; a stop from any path or thread after this moment wins (stop epoch)
+        execution = self._execution = Execution(plan_id=str(plan_id), stop_epoch=self.backend.stop_epoch)
         stop_generation = self.stopper.generation
         try:
             # from here on the plan is spent, whatever happens (unless it is not this caller's)

@@ -52,6 +52,9 @@ class Execution:
     progress: float = 0.0
     #: clock time the trajectory was handed to the backend; None until the arm may move
     started: float | None = None
+    #: the backend's stop epoch when the slot was claimed: any stop after it, from any thread,
+    #: keeps this trajectory from starting (see `Backend.execute`)
+    stop_epoch: int | None = None
 
 
 class MotionRunner:
@@ -137,7 +140,7 @@ class MotionRunner:
                     group.start_soon(watch)
                 group.start_soon(forward_progress)
                 try:
-                    result = await self.backend.execute(plan.trajectory, on_progress)
+                    result = await self.backend.execute(plan.trajectory, on_progress, stop_epoch=execution.stop_epoch)
                 except BackendError as exc:  # caught here: out of the task group it would be an ExceptionGroup
                     fault = exc
                 group.cancel_scope.cancel()

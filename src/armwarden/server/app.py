@@ -19,6 +19,7 @@ import anyio
 from mcp import MCPError
 from mcp.server.context import CallNext, ServerRequestContext
 from mcp.server.mcpserver import MCPServer
+from mcp.server.request_state import RequestStateBoundary
 from mcp_types import CallToolResult, InputRequiredResult, ListToolsResult, TextContent
 from mcp_types.version import is_version_at_least
 
@@ -67,7 +68,11 @@ class ArmWardenServer:
         self.group_of = builder.group_of
         self._sessions = SessionNames()
         self._declared: dict[str, frozenset[str]] | None = None  # tool -> argument names, built on first call
-        self.mcp.middleware.append(self._middleware)
+        # Outside the SDK's request-state boundary: a forged, replayed or expired 2026-07-28 request
+        # state is refused there, and that refusal must reach the audit log like any other.
+        chain = self.mcp.middleware
+        boundary = next((i for i, layer in enumerate(chain) if isinstance(layer, RequestStateBoundary)), len(chain))
+        chain.insert(boundary, self._middleware)
 
     # ------------------------------------------------------------------ middleware
     async def _middleware(self, ctx: ServerRequestContext, call_next: CallNext) -> Any:
