@@ -94,9 +94,8 @@ async def close_assembly(assembly: Assembly, why: str) -> None:
             assembly.audit.close()
 
 
-def _start_external_stops(args: argparse.Namespace, assembly: Assembly) -> tuple[SignalStop, StopChannel | None]:
+def _start_external_stops(args: argparse.Namespace, external: ExternalStops) -> tuple[SignalStop, StopChannel | None]:
     """SIGUSR1 and (with --estop-port) the stop channel, each on its own thread."""
-    external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     signals = SignalStop(external.latch_and_stop_for("signal"), on_event=external.record).start()
     if getattr(args, "estop_port", None) is None:
         return signals, None
@@ -120,8 +119,9 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     why = "shutdown"
     shutdown = anyio.Event()
     signal_stop, channel = None, None
+    external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
-        signal_stop, channel = _start_external_stops(args, assembly)
+        signal_stop, channel = _start_external_stops(args, external)
         await assembly.audit.append_async(
             "startup",
             outcome="ok",
@@ -159,10 +159,10 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
 
             group.start_soon(on_signals)
             if args.transport == "stdio":
-                await _serve_stdio(assembly)
+                await _serve_stdio(assembly, external)
                 why = "end of stdin"
             else:
-                await _serve_http(args, assembly, shutdown)
+                await _serve_http(args, assembly, external, shutdown)
             group.cancel_scope.cancel()
     finally:
         if channel is not None:
@@ -172,7 +172,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
         await close_assembly(assembly, why)
 
 
-async def _serve_stdio(assembly: Assembly) -> None:
+async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
     from armwarden.transport.jsonrpc import duplicate_id_message
     from armwarden.transport.stdio import serve_stdio
 
@@ -183,10 +183,10 @@ async def _serve_stdio(assembly: Assembly) -> None:
                                           arguments=arguments, outcome="duplicate_request_id",
                                           detail=f"{method} refused: {duplicate_id_message(request_id)}")
 
-    await serve_stdio(assembly.server.mcp, on_duplicate=on_duplicate)
+    await serve_stdio(assembly.server.mcp, on_duplicate=on_duplicate, on_stop_request=external.stop_on_receipt)
 
 
-async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: anyio.Event) -> None:
+async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event) -> None:
     from armwarden.transport.http import build_http_app, current_principal, serve_http
     from armwarden.transport.tokens import TokenStore
 
@@ -199,7 +199,8 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, shutdown: an
 
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
-                         on_abandoned=on_abandoned, allowed_hosts=getattr(args, "allowed_host", []) or [],
+                         on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt,
+                         allowed_hosts=getattr(args, "allowed_host", []) or [],
                          allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)
 

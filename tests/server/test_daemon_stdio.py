@@ -446,3 +446,20 @@ def test_serving_on_stdio_imports_no_http_module_of_armwarden(tmp_path) -> None:
     assert "armwarden.transport.stdio" in report["armwarden"]
     assert not {"armwarden.transport.http", "armwarden.transport.abandoned"} & set(report["armwarden"])
     assert [entry for entry in report["importers"] if (entry[1] or "").startswith("armwarden")] == []
+
+
+def test_an_estop_request_holds_the_arm_as_it_is_read_and_the_call_then_latches(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
+    try:
+        motion_id = start_motion(rpc)
+        estop = rpc.request("tools/call", {"name": "estop", "arguments": {"reason": "hand in the cell"}})
+        done = receive_until(rpc, lambda m: m.get("id") == motion_id)
+    finally:
+        stop_raw_daemon(process)
+    assert estop["result"]["structuredContent"]["estopped"] is True
+    assert done["result"]["structuredContent"]["status"] == "aborted", done
+    records = records_of(audit)
+    held = [r for r in records if r["event"] == "stop_on_receipt"]
+    assert len(held) == 1 and held[0]["tool"] == "estop" and held[0]["outcome"] == "stopped"
+    call = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "estop")
+    assert held[0]["seq"] < call["seq"]  # held before the call itself ran and was recorded

@@ -142,3 +142,17 @@ def test_an_estop_port_without_tokens_is_refused_at_start_up(tmp_path: Path) -> 
     result = subprocess.run([*CLI, "serve", "--estop-port", str(free_port()), "--audit-log", str(tmp_path / "a.jsonl")],
                             cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and "--estop-port needs --auth-tokens" in result.stderr
+
+
+async def test_an_mcp_estop_holds_the_arm_as_its_request_is_read(channel_daemon: ChannelDaemon) -> None:
+    daemon = channel_daemon.daemon
+    http, client = session(daemon, daemon.observer_token, "legacy")
+    async with http, client:
+        result = await client.call_tool("estop", {"reason": "over http"})
+        assert result.structured_content["estopped"] is True
+    records = records_of(daemon.audit)
+    held = [r for r in records if r["event"] == "stop_on_receipt"]
+    call = [r for r in records if r["event"] == "tool_call" and r["tool"] == "estop"]
+    assert len(held) == 1 and held[0]["principal"] == "bob" and held[0]["outcome"] == "stopped"
+    assert len(call) == 1 and held[0]["seq"] < call[0]["seq"]
+    await reset(daemon)

@@ -41,6 +41,7 @@ class Wire:
         self.stdin_send, stdin_receive = create_context_streams[SessionMessage | Exception](16)
         stdout_send, self.stdout_receive = anyio.create_memory_object_stream[SessionMessage](16)
         self.refused: list[tuple[str, Any, Any]] = []
+        self.stops: list[tuple[str, Any]] = []
 
         async def on_duplicate(method: str, params: Any, request_id: Any) -> None:
             self.refused.append((method, params, request_id))
@@ -49,7 +50,8 @@ class Wire:
             self.spawned.append((fn, args))
 
         self.spawned: list[tuple[Any, tuple]] = []
-        self.server_read, self.server_write = gate_streams(stdin_receive, stdout_send, spawn, on_duplicate)
+        self.server_read, self.server_write = gate_streams(stdin_receive, stdout_send, spawn, on_duplicate,
+                                                           lambda tool, principal: self.stops.append((tool, principal)))
 
     async def client(self, item: SessionMessage | Exception) -> None:
         await self.stdin_send.send(item)
@@ -161,3 +163,34 @@ async def test_notifications_and_client_answers_pass_unchanged() -> None:
     assert (await wire.passed()) is cancel
     assert (await wire.passed()).message == answer(3).message
     assert wire.sent() == []
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("tool", ["estop", "stop_motion"])
+async def test_a_stop_request_holds_the_robot_as_it_is_read(tool: str) -> None:
+    wire = Wire()
+    await wire.client(request(1, name=tool))
+    assert wire.stops == []  # nothing before the gate reads it
+    assert (await wire.passed_request()).params["name"] == tool  # and it still reaches the server
+    assert wire.stops == [(tool, None)]
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize(("method", "name"), [("tools/call", "execute_plan"), ("tools/call", "get_safety_status"),
+                                              ("tools/list", "estop")])
+async def test_other_requests_do_not_stop_the_robot(method: str, name: str) -> None:
+    wire = Wire()
+    await wire.client(request(1, method=method, name=name))
+    await wire.passed_request()
+    assert wire.stops == []
+
+
+@pytest.mark.anyio
+async def test_a_refused_duplicate_stop_request_holds_nothing_more() -> None:
+    wire = Wire()
+    await wire.client(request(1, name="estop"))
+    await wire.passed_request()
+    await wire.client(request(1, name="estop"))  # same open id: refused by the gate
+    await wire.client(request(2, name="get_robot_state"))
+    await wire.passed_request()
+    assert wire.stops == [("estop", None)]

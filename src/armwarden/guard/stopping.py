@@ -78,6 +78,18 @@ class Stopper:
             schedule(lambda: self.plans.invalidate_all(f"e-stop #{voided.number}"))
         return event
 
+    def hold_now(self) -> BackendError | None:
+        """From any thread: stop arm and gripper now with the backend's `stop_now`, without latching.
+        For a stop or e-stop request the transport has just read: the arm is held before the request
+        waits its turn, and the tool, when it runs, stops again, latches and records. Returns the
+        failure, if the stop could not be issued (the tool's own stop then fails and latches too)."""
+        self.generation += 1
+        try:
+            self.backend.stop_now()
+        except BackendError as exc:
+            return exc
+        return None
+
     async def stop_for(self, what: str) -> EStopEvent | None:
         """Stop arm and gripper for a call that can no longer do it itself (cancelled, abandoned).
         Returns None when the stop was issued, else the e-stop event latched because it failed."""

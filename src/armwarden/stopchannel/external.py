@@ -1,4 +1,5 @@
-"""The stops that do not come through MCP — the stop channel and SIGUSR1 — wired to the Guard.
+"""The stops that do not wait for the MCP event loop — the stop channel, SIGUSR1, and the hold
+the transports issue the moment they read an `estop`/`stop_motion` request — wired to the Guard.
 
 Both run on threads of their own while the event loop may be busy. `ExternalStops` gives them
 one thread-safe `latch_and_stop` per source (the Guard's, which latches and calls the
@@ -20,6 +21,8 @@ from armwarden.stopchannel.server import ChannelStop
 
 class ThreadSafeStopper(Protocol):
     def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent: ...
+
+    def hold_now(self) -> Exception | None: ...
 
 
 class ExternalStops:
@@ -52,6 +55,18 @@ class ExternalStops:
             arguments={"reason": stop.reason},
             extra={"peer": stop.peer, "estop_event": stop.event, "stop_issued_ms": stop.stop_issued_ms},
         )
+
+    def stop_on_receipt(self, tool: str, principal: str | None) -> None:
+        """A transport has just read an `estop`/`stop_motion` request: hold the robot before the
+        request waits its turn behind other work; the tool itself latches and records when it runs.
+        Audited (without waiting) as `stop_on_receipt`."""
+        failure = self._stopper.hold_now()
+        if self._audit.closed:
+            return
+        self._audit.submit("stop_on_receipt", tool=tool, principal=principal,
+                           outcome="stop_failed" if failure is not None else "stopped",
+                           detail=f"robot held as the {tool} request was read" if failure is None
+                           else f"holding the robot as the {tool} request was read FAILED: {failure}")
 
     def _on_loop(self, work: Callable[[], object]) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed (shutting down): the plans die with it

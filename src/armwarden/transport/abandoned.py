@@ -31,7 +31,7 @@ from typing import Any
 import anyio
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from armwarden.transport.jsonrpc import INVALID_REQUEST, duplicate_id_message, request_id_key
+from armwarden.transport.jsonrpc import INVALID_REQUEST, StopOnReceipt, duplicate_id_message, request_id_key, stop_call
 
 logger = logging.getLogger(__name__)
 
@@ -136,18 +136,24 @@ def _request_key(scope: Scope, message: dict[str, Any] | None) -> tuple[str, byt
         return None
     if message is None or "method" not in message or "id" not in message:
         return None  # a notification, or the client's answer to a server request (other id space)
+    return _principal(scope), session, request_id_key(message["id"])
+
+
+def _principal(scope: Scope) -> str:
+    """The authenticated principal's name ("" without tokens)."""
     user = scope.get("user")
-    principal = str(getattr(getattr(user, "access_token", None), "client_id", "") or "")
-    return principal, session, request_id_key(message["id"])
+    return str(getattr(getattr(user, "access_token", None), "client_id", "") or "")
 
 
 class AbandonedMotionStop:
     """ASGI middleware: see the module docstring."""
 
-    def __init__(self, app: ASGIApp, path: str, on_abandoned: AbandonedCallback | None = None) -> None:
+    def __init__(self, app: ASGIApp, path: str, on_abandoned: AbandonedCallback | None = None,
+                 on_stop_request: StopOnReceipt | None = None) -> None:
         self.app = app
         self.path = path.rstrip("/")
         self.on_abandoned = on_abandoned
+        self.on_stop_request = on_stop_request
         self._open_requests: set[tuple[str, bytes, str]] = set()  # (principal, session, id) of POSTs not ended
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -169,6 +175,10 @@ class AbandonedMotionStop:
             request_id = message.get("id") if message else None
             await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
+        if self.on_stop_request is not None and message is not None:
+            tool = stop_call(message.get("method"), message.get("params"))
+            if tool is not None:  # hold the robot now; the call then waits its turn like any other
+                self.on_stop_request(tool, _principal(scope) or None)
         if key is not None:
             self._open_requests.add(key)
         try:

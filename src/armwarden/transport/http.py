@@ -57,6 +57,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from armwarden.errors import ConfigurationError
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
+from armwarden.transport.jsonrpc import StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
@@ -222,6 +223,7 @@ def build_http_app(
     allowed_hosts: Sequence[str] = (),
     health: Callable[[], dict[str, Any]] | None = None,
     on_abandoned: AbandonedCallback | None = None,
+    on_stop_request: StopOnReceipt | None = None,
 ) -> Starlette:
     """The ASGI app: ``/mcp`` (stateful streamable HTTP) and ``/healthz``.
 
@@ -230,6 +232,8 @@ def build_http_app(
     tells anyone on the network nothing but that the server is up (the daemon passes none).
     `on_abandoned(tool, arguments, request_id, cancelled)` is awaited after an authenticated motion
     call's request ended without its response and the call was cancelled (see `abandoned.py`).
+    `on_stop_request(tool, principal)` is called the moment an `estop`/`stop_motion` request is read,
+    before the SDK queues it: it must be quick and thread-safe (it holds the robot).
     """
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     mcp_app = server.streamable_http_app(
@@ -260,7 +264,8 @@ def build_http_app(
     if token_store is not None:
         middleware.append(Middleware(BearerAuth, token_store=token_store))
     # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
-    middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned))
+    middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned,
+                                 on_stop_request=on_stop_request))
     return Starlette(
         routes=[Route(HEALTH_PATH, healthz, methods=["GET"]), Mount("/", app=mcp_app)],
         middleware=middleware,

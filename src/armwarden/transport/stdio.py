@@ -43,8 +43,10 @@ from pydantic import ValidationError
 from armwarden.transport.jsonrpc import (
     INVALID_REQUEST,
     PARSE_ERROR,
+    StopOnReceipt,
     duplicate_id_message,
     request_id_key,
+    stop_call,
 )
 
 __all__ = ["DuplicateCallback", "GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
@@ -101,12 +103,14 @@ class GatedReadStream:
     """Read side: answers unreadable lines and duplicate open ids itself, passes the rest on."""
 
     def __init__(self, inner: ReadStream[SessionMessage | Exception], writer: GatedWriteStream, open_ids: set[str],
-                 spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None) -> None:
+                 spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None,
+                 on_stop_request: StopOnReceipt | None = None) -> None:
         self._inner = inner
         self._writer = writer
         self._open_ids = open_ids
         self._spawn = spawn
         self._on_duplicate = on_duplicate
+        self._on_stop_request = on_stop_request
 
     @property
     def last_context(self) -> Any:
@@ -133,6 +137,8 @@ class GatedReadStream:
                     self._spawn(self._report_duplicate, request)
                 continue
             self._open_ids.add(key)
+            if self._on_stop_request is not None and (tool := stop_call(request.method, request.params)) is not None:
+                self._on_stop_request(tool, None)  # hold the robot now; the call then waits its turn
             return SessionMessage(request, self._closing_on_settle(item.metadata, key))
 
     def _closing_on_settle(self, metadata: Any, key: str) -> ServerMessageMetadata:
@@ -182,14 +188,15 @@ class GatedReadStream:
 
 def gate_streams(read_stream: ReadStream[SessionMessage | Exception], write_stream: WriteStream[SessionMessage],
                  spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None,
-                 ) -> tuple[GatedReadStream, GatedWriteStream]:
+                 on_stop_request: StopOnReceipt | None = None) -> tuple[GatedReadStream, GatedWriteStream]:
     """Wrap a server's stream pair (see the module docstring). `spawn(fn, *args)` runs a task."""
     open_ids: set[str] = set()
     writer = GatedWriteStream(write_stream, open_ids)
-    return GatedReadStream(read_stream, writer, open_ids, spawn, on_duplicate), writer
+    return GatedReadStream(read_stream, writer, open_ids, spawn, on_duplicate, on_stop_request), writer
 
 
-async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | None = None) -> None:
+async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | None = None,
+                      on_stop_request: StopOnReceipt | None = None) -> None:
     """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
     with the gate in between). Pending duplicate reports finish before this returns."""
     # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
@@ -199,5 +206,5 @@ async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | No
         def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
             reports.start_soon(fn, *args)
 
-        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_duplicate)
+        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_duplicate, on_stop_request)
         await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
