@@ -32,7 +32,6 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import anyio
@@ -57,6 +56,7 @@ from armwarden.backends.fake_camera import (
     HAVE_PILLOW,
     render_top_view,
 )
+from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, GripperMotion
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
@@ -71,8 +71,6 @@ logger = logging.getLogger(__name__)
 FR3_JOINT_NAMES = tuple(f"fr3_joint{i}" for i in range(1, 8))
 FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
 
-#: speed of the homing motion (fully open) [m/s]
-GRIPPER_HOMING_SPEED_MPS = 0.1
 #: the controller that executes trajectories; arm motion is refused while it is inactive
 TRAJECTORY_CONTROLLER = "fr3_arm_controller"
 
@@ -83,29 +81,6 @@ DEFAULT_CONTROLLERS = (
 )
 #: controllers that command the arm joints; at most one of them may be active (ros2_control claims)
 ARM_COMMAND_CONTROLLER_TYPES = ("joint_trajectory_controller/", "franka_example_controllers/")
-
-
-@dataclass(eq=False)
-class _GripperMotion:
-    """A gripper motion in progress: the width is a function of time until it ends or is halted."""
-
-    start_width_m: float
-    target_width_m: float
-    speed_mps: float  # already time-scaled
-    start_time: float
-    halted: anyio.Event = field(default_factory=anyio.Event)  # set on the event loop once halted
-    halted_at: float | None = None  # perf_counter of the stop that froze it (set from any thread)
-
-    @property
-    def duration_s(self) -> float:
-        return abs(self.target_width_m - self.start_width_m) / self.speed_mps
-
-    def width_at(self, now: float) -> float:
-        """Finger opening [m] at perf_counter time `now` (frozen from `halted_at` on)."""
-        halted_at = self.halted_at
-        until = now if halted_at is None else min(now, halted_at)
-        travel = min(abs(self.target_width_m - self.start_width_m), self.speed_mps * max(0.0, until - self.start_time))
-        return self.start_width_m + math.copysign(travel, self.target_width_m - self.start_width_m)
 
 
 class Config(BaseModel):
@@ -225,7 +200,7 @@ class FakeBackend(Backend, ServoHooks):
         # ---- gripper (event loop only)
         self._gripper_width_m = self.gripper_max_width_m
         self._gripper_grasped = False
-        self._gripper_motion: _GripperMotion | None = None
+        self._gripper_motion: GripperMotion | None = None
 
     # ================================================================ lifecycle
     @property
@@ -403,7 +378,7 @@ class FakeBackend(Backend, ServoHooks):
         if self._gripper_motion is not None:
             raise BackendError("the gripper is already moving; one gripper action at a time")
         self._gripper_grasped = False  # any motion releases what was held
-        motion = _GripperMotion(self._gripper_width_m, target_m, speed_mps * self.speedup, time.perf_counter())
+        motion = GripperMotion(self._gripper_width_m, target_m, speed_mps * self.speedup, time.perf_counter())
         self._gripper_motion = motion
         finished = False
         try:
