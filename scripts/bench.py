@@ -406,13 +406,13 @@ def _report_estop(r: dict[str, Any]) -> None:
 
 # ------------------------------------------------------------------------------------ e-stop under a flood
 #: the flood's counted window [s]; the e-stop cycles run inside it (≥ 20 s asked by the issue)
-FLOOD_WINDOW_S = 40.0
+FLOOD_WINDOW_S = 60.0
 #: e-stop cycles start every this many seconds (later when the reset before took longer)
 FLOOD_CYCLE_S = 0.5
-#: which stop each cycle sends, in turn: the channel twice for each MCP `estop`
-FLOOD_PATTERN = ("channel", "channel", "mcp")
+#: which stop each cycle sends, in turn: `send_estop`, the same request timed step by step, MCP `estop`
+FLOOD_PATTERN = ("channel", "probe", "mcp")
 #: cycles on the idle daemon before the flood starts: the same figures without load, for comparison
-QUIET_CYCLES = 24
+QUIET_CYCLES = 30
 
 
 def _percentiles(values_ms: list[float]) -> dict[str, float]:
@@ -422,21 +422,29 @@ def _percentiles(values_ms: list[float]) -> dict[str, float]:
             "max_ms": max(values_ms)}
 
 
-def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[str, Any]:
+def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool = False) -> dict[str, Any]:
     """E-stops while `scripts/_bench/flood.py` floods the daemon (its docstring says with what).
 
     Every cycle stops the arm once — through the stop channel (`send_estop` on a worker thread,
-    timed around the call) or through the MCP `estop` tool on a session opened before the flood —
-    then releases the latch with `reset_estop` (an elicitation callback approves), so each stop
+    timed around the call; or the same request through `http.client`, timed step by step, to
+    see where a slow one waited) or through the MCP `estop` tool on a session opened before the
+    flood — then releases the latch with `reset_estop` (an elicitation callback approves), so each stop
     finds the e-stop released and the flood's motions running or refused like any other time.
-    The same cycles run first on the idle daemon ("quiet"). `daemon_nice` starts the daemon under
-    `nice -n` (negative: ahead of the flood and everything else on the machine; needs root).
+    The same cycles run first on the idle daemon ("quiet"). Meanwhile a thread times a 256-byte
+    write + fsync every 0.1 s next to the audit log: every MCP call waits for its audit record's
+    fsync, the channel's stop does not. `nice` N ≠ 0 runs the daemon and this
+    measuring process (the e-stop's sender) at niceness N while the flood keeps the niceness it
+    would have had (negative N puts both stop ends ahead of the flood and of everything else on
+    the machine; needs root). `gc_freeze` (an experiment) has the daemon's wrapper collect once and
+    `gc.freeze()` everything alive when it is ready, before any cycle.
     """
+    import http.client
     import os
     import signal
     import socket
     import subprocess
     import tempfile
+    import threading
 
     import anyio
     import httpx2
@@ -463,9 +471,12 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
 
     phases = ("quiet", "flood")
     cpu: dict[str, float] = {}
-    samples: dict[str, dict[str, list[float]]] = {p: {"channel_rt": [], "mcp_rt": [], "reset_rt": []} for p in phases}
+    series = ("channel_rt", "probe_rt", "probe_connect", "probe_send", "probe_wait", "mcp_rt", "reset_rt", "fsync")
+    samples: dict[str, dict[str, list[float]]] = {p: {name: [] for name in series} for p in phases}
     channel_events: dict[str, set[int]] = {p: set() for p in phases}
     mcp_estops: dict[str, int] = dict.fromkeys(phases, 0)
+    spans: list[tuple[str, str, float, float, float]] = []  # phase, kind, monotonic start and end, round trip [ms]
+    flood_window: list[float] = []  # monotonic start and end of the cycles under the flood
     failures: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
         directory = Path(tmp)
@@ -475,11 +486,15 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
         fake_config = directory / "fake.yaml"
         fake_config.write_text(yaml.safe_dump({"speedup": 2.0}))
         port, estop_port = free_port(), free_port()
-        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
-        niced = ["nice", "-n", str(daemon_nice)] if daemon_nice else []
+        gc_log = directory / "gc.jsonl"
+        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"), ARMWARDEN_BENCH_GC_LOG=str(gc_log))
+        gc_watch = str(Path(__file__).resolve().parent / "_bench" / "gc_watch.py")  # `armwarden`, with its GC pauses logged
+        if nice:
+            os.nice(nice)  # this thread, and the threads it starts from now on (Linux niceness is per thread)
+        unniced = ["nice", "-n", str(-nice)] if nice else []  # the flood: back where it would have been
         with open(stderr_path, "wb") as stderr:
             daemon = subprocess.Popen(
-                [*niced, sys.executable, "-m", "armwarden.cli", "serve", "--transport", "http", "--host", "127.0.0.1",
+                [sys.executable, gc_watch, "serve", "--transport", "http", "--host", "127.0.0.1",
                  "--port", str(port), "--estop-port", str(estop_port), "--policy", str(policy_path),
                  "--auth-tokens", str(directory / "tokens.json"), "--backend-config", str(fake_config),
                  "--audit-log", str(audit_path), "--log-level", "WARNING"],
@@ -513,9 +528,58 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
                 return time.perf_counter() - start, None, f"{type(exc).__name__}: {exc}"
             return time.perf_counter() - start, answer, None
 
+        def probe_stop(reason: str) -> tuple[dict[str, float] | None, str | None]:
+            """`send_estop`'s request, timed at each step: connect (the kernel answers; only this
+            side's scheduling shows), send, then waiting for the answer (the channel's thread)."""
+            body = json.dumps({"reason": reason}).encode()
+            headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json", "Connection": "close"}
+            connection = http.client.HTTPConnection("127.0.0.1", estop_port, timeout=2.0)
+            start = time.perf_counter()
+            try:
+                connection.connect()
+                connected = time.perf_counter()
+                connection.request("POST", "/estop", body=body, headers=headers)
+                sent = time.perf_counter()
+                response = connection.getresponse()
+                answered = time.perf_counter()
+                answer = json.loads(response.read(65536))
+                done = time.perf_counter()
+            except (OSError, http.client.HTTPException, ValueError) as exc:
+                return None, f"{type(exc).__name__}: {exc} after {(time.perf_counter() - start) * 1e3:.0f} ms"
+            finally:
+                connection.close()
+            if response.status != 200 or not isinstance(answer, dict) or answer.get("estopped") is not True:
+                return None, f"answered {response.status}: {answer}"
+            return {"event": answer["event"], "probe_rt": done - start, "probe_connect": connected - start,
+                    "probe_send": sent - connected, "probe_wait": answered - sent}, None
+
+        fsync_stop = threading.Event()
+
+        def fsync_probe(phase: str) -> None:
+            fd = os.open(directory / f"fsync-{phase}.bin", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+            try:
+                while not fsync_stop.wait(0.1):
+                    start = time.perf_counter()
+                    os.write(fd, b"x" * 256)
+                    os.fsync(fd)
+                    samples[phase]["fsync"].append((time.perf_counter() - start) * 1e3)
+            finally:
+                os.close(fd)
+
         async def cycles(session: Client, phase: str, until: float, max_cycles: int, period_s: float) -> None:
             """Stop (by `FLOOD_PATTERN`), then reset, every `period_s` until `until` (monotonic)."""
             taken = samples[phase]
+            fsync_stop.clear()
+            fsyncs = threading.Thread(target=fsync_probe, args=(phase,), name="fsync-probe", daemon=True)
+            fsyncs.start()
+            try:
+                await run_cycles(session, phase, taken, until, max_cycles, period_s)
+            finally:
+                fsync_stop.set()
+                fsyncs.join(timeout=10)
+
+        async def run_cycles(session: Client, phase: str, taken: dict[str, list[float]], until: float, max_cycles: int,
+                             period_s: float) -> None:
             next_start = time.monotonic()
             for cycle in range(max_cycles):
                 await anyio.sleep(max(0.0, next_start - time.monotonic()))
@@ -523,13 +587,24 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
                     return
                 next_start = time.monotonic() + period_s
                 reason = f"benchmark {phase} cycle {cycle}"
-                if FLOOD_PATTERN[cycle % len(FLOOD_PATTERN)] == "channel":
+                kind = FLOOD_PATTERN[cycle % len(FLOOD_PATTERN)]
+                began = time.monotonic()
+                if kind == "channel":
                     elapsed, answer, error = await anyio.to_thread.run_sync(channel_stop, reason)
                     if answer is None:
                         failures.append(f"{phase} channel: {error} after {elapsed * 1e3:.0f} ms")
                     else:
                         taken["channel_rt"].append(elapsed * 1e3)
                         channel_events[phase].add(int(answer["event"]))
+                elif kind == "probe":
+                    steps, error = await anyio.to_thread.run_sync(probe_stop, reason)
+                    if steps is None:
+                        failures.append(f"{phase} channel probe: {error}")
+                    else:
+                        for name, seconds in steps.items():
+                            if name != "event":
+                                taken[name].append(seconds * 1e3)
+                        channel_events[phase].add(int(steps["event"]))
                 else:
                     start = time.perf_counter()
                     result = await session.call_tool("estop", {"reason": reason})
@@ -539,6 +614,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
                     else:
                         taken["mcp_rt"].append(elapsed * 1e3)
                         mcp_estops[phase] += 1
+                spans.append((phase, kind, began, time.monotonic(), (time.monotonic() - began) * 1e3))
                 for _ in range(3):  # release the latch for the next cycle (a human approves: here the callback)
                     start = time.perf_counter()
                     result = await session.call_tool("reset_estop", {})
@@ -550,12 +626,15 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
         async def main() -> None:
             nonlocal flood
             await wait_ready()
+            if gc_freeze:
+                daemon.send_signal(signal.SIGUSR2)
+                await anyio.sleep(1.0)
             http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {token}"}, timeout=30)
             async with http, Client(streamable_http_client(url, http_client=http), elicitation_callback=approve) as session:
                 home = (await session.call_tool("get_robot_state", {})).structured_content["joint_positions"]
                 await cycles(session, "quiet", time.monotonic() + 60, QUIET_CYCLES, 0.1)
                 flood = subprocess.Popen(  # noqa: ASYNC220 - once, before anything is timed
-                    [sys.executable, flood_script, "--mcp-port", str(port), "--estop-port", str(estop_port),
+                    [*unniced, sys.executable, flood_script, "--mcp-port", str(port), "--estop-port", str(estop_port),
                      "--token", token, "--home", *map(str, home), "--duration", str(window_s), "--out", str(flood_out)],
                     env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True,
                 )
@@ -568,6 +647,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
                 await anyio.sleep(1.0)  # and so is its first
                 before = time.monotonic(), cpu_s(daemon.pid), cpu_s(flood.pid), time.process_time()
                 await cycles(session, "flood", window_end, 10_000, FLOOD_CYCLE_S)
+                flood_window.extend((before[0], time.monotonic()))
                 wall = time.monotonic() - before[0]
                 cpu.update(daemon=(cpu_s(daemon.pid) - before[1]) / wall, flood=(cpu_s(flood.pid) - before[2]) / wall,
                            measuring=(time.process_time() - before[3]) / wall)
@@ -587,8 +667,13 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
                     except subprocess.TimeoutExpired:
                         process.kill()
                         process.wait()
+            if nice:
+                os.nice(-nice)  # back to where this thread was (raising niceness needs no privilege)
         load = json.loads(flood_out.read_text()) if flood_out.exists() else {}
         records = [json.loads(line) for line in audit_path.read_text().splitlines() if line.strip()]
+        logged = [json.loads(line) for line in gc_log.read_text().splitlines() if line.strip()] if gc_log.exists() else []
+    pauses = [entry for entry in logged if "ms" in entry]
+    frozen = [entry["frozen"] for entry in logged if "frozen" in entry]
     mcp_issued = [r["extra"]["stop_timing_ms"]["issued_after_receipt"] for r in records
                   if r.get("tool") == "estop" and "stop_timing_ms" in (r.get("extra") or {})]
     issued = {
@@ -609,10 +694,14 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
             "mcp_estop_round_trip": _percentiles(samples[phase]["mcp_rt"]),
             "mcp_estop_issued": _percentiles(issued[phase]["mcp"]),
             "reset_round_trip": _percentiles(samples[phase]["reset_rt"]),
+            "fsync": _percentiles(samples[phase]["fsync"]),
+            **{name: _percentiles(samples[phase][name]) for name in ("probe_rt", "probe_connect", "probe_send", "probe_wait")},
         }
     return {
         "window_s": window_s,
-        "daemon_nice": daemon_nice,
+        "nice": nice,
+        "gc_frozen_objects": frozen[0] if frozen else None,
+        "gc": _gc_pauses(pauses, flood_window, spans),
         **figures,
         "failures": failures,
         "load": load,
@@ -623,14 +712,40 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, daemon_nice: int = 0) -> dict[
     }
 
 
+def _gc_pauses(pauses: list[dict[str, Any]], window: list[float], spans: list[tuple[str, str, float, float, float]]) -> dict[str, Any]:
+    """The daemon's logged garbage collections during the flood cycles, and the slow stops they overlapped."""
+    if len(window) != 2:
+        return {}
+    inside = [p for p in pauses if window[0] <= p["start"] <= window[1]]
+
+    def overlapping(start: float, end: float) -> list[float]:
+        return [p["ms"] for p in inside if p["start"] < end and p["start"] + p["ms"] / 1e3 > start]
+
+    slow = {"channel": 20.0, "probe": 20.0, "mcp": 100.0}
+    stops = []
+    for phase, kind, start, end, ms in spans:
+        if phase == "flood" and ms > slow[kind]:
+            stops.append({"kind": kind, "ms": round(ms, 1), "gc_ms": [round(v, 1) for v in overlapping(start, end)]})
+    return {
+        "full_collections": sum(1 for p in inside if p["gen"] == 2),
+        "long_collections": len(inside),
+        "max_ms": max((p["ms"] for p in inside), default=0.0),
+        "total_ms": sum(p["ms"] for p in inside),
+        "window_s": window[1] - window[0],
+        "slow_stops": stops,
+    }
+
+
 def _report_flood(r: dict[str, Any]) -> None:
     load = r["load"]
 
     def cell(f: dict[str, float]) -> str:
         return f"{f['p50_ms']:7.2f} {f['p99_ms']:8.2f} {f['max_ms']:8.2f} {f['n']:4d}" if f["n"] else f"{'-':>30}"
 
-    nice = f", daemon under nice {r['daemon_nice']}" if r["daemon_nice"] else ""
-    print(f"## e-stop under a flood ({r['window_s']:g} s window{nice})")
+    niced = f", daemon and e-stop sender at nice {r['nice']}, the flood at 0" if r["nice"] else ""
+    if r["gc_frozen_objects"] is not None:
+        niced += f", gc.freeze() in the daemon when ready ({r['gc_frozen_objects']} objects)"
+    print(f"## e-stop under a flood ({r['window_s']:g} s window{niced})")
     if load:
         answered = ", ".join(f"{kind} {rate:.1f}" for kind, rate in load["calls_per_s"].items())
         print(f"load: {load['clients_started']}/{load['clients']} MCP clients (planners, readers, cameras, movers, "
@@ -648,9 +763,14 @@ def _report_flood(r: dict[str, Any]) -> None:
     for label, key in (
         ("stop channel, request read -> backend stop issued (server side)", "channel_issued"),
         ("stop channel, client round trip (send_estop)", "channel_round_trip"),
+        ("stop channel, same request by http.client, round trip", "probe_rt"),
+        ("  of which connect (kernel handshake; this side's scheduling)", "probe_connect"),
+        ("  of which sending the request", "probe_send"),
+        ("  of which waiting for the answer (the channel's thread)", "probe_wait"),
         ("MCP estop on an open session, client round trip", "mcp_estop_round_trip"),
         ("MCP estop, request at the middleware -> backend stop issued (server)", "mcp_estop_issued"),
         ("reset_estop with approval (MCP)", "reset_round_trip"),
+        ("256-byte write + fsync next to the audit log, every 0.1 s", "fsync"),
     ):
         print(f"{label:72} {cell(r['quiet'][key])} | {cell(r['flood'][key])}")
     channel = r["flood"]["channel_round_trip"]
@@ -658,6 +778,12 @@ def _report_flood(r: dict[str, Any]) -> None:
         print(f"goal: stop channel client round trip p99 <= 20 ms under the flood: "
               f"{'met' if channel['p99_ms'] <= 20 else 'MISSED'} ({channel['p99_ms']:.2f} ms)")
     print(f"failures: {r['failures'] or 'none'}")
+    gc = r["gc"]
+    if gc:
+        print(f"daemon garbage collections during the flood cycles ({gc['window_s']:.0f} s): {gc['full_collections']} full, "
+              f"{gc['long_collections']} full or > 2 ms; longest {gc['max_ms']:.1f} ms, {gc['total_ms']:.0f} ms in all")
+        for stop in gc["slow_stops"]:
+            print(f"  slow stop ({stop['kind']}, {stop['ms']} ms) overlapped collections of {stop['gc_ms'] or 'none'} ms")
     if r["cpu_cores_used"]:
         print("CPU used during the flood cycles, in cores of 2: "
               + ", ".join(f"{name} {cores:.2f}" for name, cores in r["cpu_cores_used"].items()))
@@ -684,8 +810,10 @@ def main() -> int:
     parser.add_argument("sections", nargs="*",
                         help=f"any of {', '.join(SECTIONS)} (default: {', '.join(DEFAULT_SECTIONS)})")
     parser.add_argument("--json", default=None, help="write the raw figures to this file")
-    parser.add_argument("--daemon-nice", type=int, default=0,
-                        help="flood only: start the daemon under `nice -n N` (negative needs root)")
+    parser.add_argument("--gc-freeze", action="store_true",
+                        help="flood only, an experiment: the daemon collects once and gc.freeze()s when ready")
+    parser.add_argument("--nice", type=int, default=0,
+                        help="flood only: run the daemon and the e-stop sender at niceness N, the flood not (negative needs root)")
     args = parser.parse_args()
     chosen = args.sections or list(DEFAULT_SECTIONS)
     unknown = [name for name in chosen if name not in SECTIONS]
@@ -694,7 +822,7 @@ def main() -> int:
     results = {}
     for name in chosen:
         run, report = SECTIONS[name]
-        results[name] = run(daemon_nice=args.daemon_nice) if name == "flood" else run()
+        results[name] = run(nice=args.nice, gc_freeze=args.gc_freeze) if name == "flood" else run()
         report(results[name])
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2))
