@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """ArmWarden benchmarks: every figure is a ratio or a percentile measured in this one run.
 
-    python scripts/bench.py                 # all sections
+    python scripts/bench.py                 # envelope, server, estop (flood only when named)
     python scripts/bench.py envelope        # one section
+    python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
     python scripts/bench.py --json out.json # also write the raw figures
 
 Sections
@@ -15,6 +16,15 @@ Sections
   the request reaching ArmWarden to the backend stop being issued, and to the arm being still
   (the fake holds the arm in the thread that issues the stop; its control thread never commands
   a later position).
+- flood (opt-in: it takes about 80 s and loads the whole machine): e-stops through the stop
+  channel (`POST /estop`, `send_estop`) and through the MCP `estop` tool while a separate process
+  (`scripts/_bench/flood.py`) floods the daemon over loopback with 32 SDK clients (plans with and
+  without previews, state reads, camera images, small executed moves, a new session per call)
+  and 300 slow sockets on the MCP and stop-channel ports, for 60 s; each stop is followed by an
+  approved `reset_estop`. Reports p50/p99/max of the channel's server-side "request read ->
+  backend stop issued", its client round trip (goal: p99 <= 20 ms), the MCP `estop` round trip,
+  the load achieved, and the daemon's garbage-collection pauses lined up with the slow stops
+  (`scripts/_bench/gc_watch.py`). `--nice N` and `--gc-freeze` are experiments (see --help).
 
 Timing thresholds live here, never in unit tests: the machines are shared and noisy. Each
 target is reported as met or missed; nothing is asserted.
@@ -691,6 +701,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
         figures[phase] = {
             "channel_issued": _percentiles(issued[phase]["channel"]),
             "channel_round_trip": _percentiles(samples[phase]["channel_rt"]),
+            "channel_both_round_trip": _percentiles(samples[phase]["channel_rt"] + samples[phase]["probe_rt"]),
             "mcp_estop_round_trip": _percentiles(samples[phase]["mcp_rt"]),
             "mcp_estop_issued": _percentiles(issued[phase]["mcp"]),
             "reset_round_trip": _percentiles(samples[phase]["reset_rt"]),
@@ -767,6 +778,7 @@ def _report_flood(r: dict[str, Any]) -> None:
         ("  of which connect (kernel handshake; this side's scheduling)", "probe_connect"),
         ("  of which sending the request", "probe_send"),
         ("  of which waiting for the answer (the channel's thread)", "probe_wait"),
+        ("stop channel, both clients' round trips together", "channel_both_round_trip"),
         ("MCP estop on an open session, client round trip", "mcp_estop_round_trip"),
         ("MCP estop, request at the middleware -> backend stop issued (server)", "mcp_estop_issued"),
         ("reset_estop with approval (MCP)", "reset_round_trip"),
