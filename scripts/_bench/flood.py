@@ -275,7 +275,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mcp-port", type=int, required=True)
     parser.add_argument("--estop-port", type=int, required=True)
-    parser.add_argument("--token", required=True, help="operator bearer token")
+    parser.add_argument("--token-file", required=True, help="file holding just an operator bearer token")
     parser.add_argument("--home", type=float, nargs=7, required=True, help="the arm's joint positions at start")
     parser.add_argument("--duration", type=float, default=30.0, help="counted window [s] after the ramp-up")
     parser.add_argument("--ramp", type=float, default=20.0, help="at most this long [s] to open everything")
@@ -286,6 +286,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--trickle", type=float, default=2.0, help="seconds between two bytes of a slowloris head")
     parser.add_argument("--out", required=True, help="write the figures here (JSON)")
     args = parser.parse_args(argv)
+    args.token = Path(args.token_file).read_text(encoding="utf-8").strip()  # not on the command line: `ps` shows that
     args.clients = sum(args.mix)
     if not (0 < args.duration <= 600 and 0 < args.ramp <= 120 and args.slow_mcp + args.slow_channel <= 2000):
         parser.error("duration (0, 600] s, ramp (0, 120] s and at most 2000 slow connections")
