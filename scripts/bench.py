@@ -486,7 +486,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
 
     phases = ("quiet", "flood")
     cpu: dict[str, float] = {}
-    series = ("channel_rt", "probe_rt", "probe_connect", "probe_send", "probe_wait", "mcp_rt", "reset_rt", "fsync")
+    series = ("channel_rt", "probe_rt", "probe_connect", "probe_send", "probe_wait", "mcp_rt", "reset_rt", "fsync", "echo")
     samples: dict[str, dict[str, list[float]]] = {p: {name: [] for name in series} for p in phases}
     channel_events: dict[str, set[int]] = {p: set() for p in phases}
     mcp_estops: dict[str, int] = dict.fromkeys(phases, 0)
@@ -503,9 +503,10 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
         audit_path, stderr_path, flood_out = directory / "audit.jsonl", directory / "daemon.err", directory / "flood.json"
         fake_config = directory / "fake.yaml"
         fake_config.write_text(yaml.safe_dump({"speedup": 2.0}))
-        port, estop_port = free_port(), free_port()
+        port, estop_port, echo_port = free_port(), free_port(), free_port()
         gc_log = directory / "gc.jsonl"
-        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"), ARMWARDEN_BENCH_GC_LOG=str(gc_log))
+        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"), ARMWARDEN_BENCH_GC_LOG=str(gc_log),
+                   ARMWARDEN_BENCH_ECHO_PORT=str(echo_port))
         gc_watch = str(Path(__file__).resolve().parent / "_bench" / "gc_watch.py")  # `armwarden`, with its GC pauses logged
         if nice:
             os.nice(nice)  # this thread, and the threads it starts from now on (Linux niceness is per thread)
@@ -581,6 +582,15 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
                     os.write(fd, b"x" * 256)
                     os.fsync(fd)
                     samples[phase]["fsync"].append((time.perf_counter() - start) * 1e3)
+                    start = time.perf_counter()  # the floor: a bare thread in the daemon's interpreter
+                    try:
+                        with socket.create_connection(("127.0.0.1", echo_port), timeout=2.0) as echo:
+                            echo.sendall(b"!")
+                            echo.recv(1)
+                    except OSError as exc:
+                        failures.append(f"{phase} echo probe: {exc}")
+                        continue
+                    samples[phase]["echo"].append((time.perf_counter() - start) * 1e3)
             finally:
                 os.close(fd)
 
@@ -718,6 +728,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
             "mcp_estop_issued": _percentiles(issued[phase]["mcp"]),
             "reset_round_trip": _percentiles(samples[phase]["reset_rt"]),
             "fsync": _percentiles(samples[phase]["fsync"]),
+            "echo": _percentiles(samples[phase]["echo"]),
             **{name: _percentiles(samples[phase][name]) for name in ("probe_rt", "probe_connect", "probe_send", "probe_wait")},
         }
     return {
@@ -795,6 +806,7 @@ def _report_flood(r: dict[str, Any]) -> None:
         ("MCP estop, request at the middleware -> backend stop issued (server)", "mcp_estop_issued"),
         ("reset_estop with approval (MCP)", "reset_round_trip"),
         ("256-byte write + fsync next to the audit log, every 0.1 s", "fsync"),
+        ("floor: a bare thread in the daemon's process echoes a byte, every 0.1 s", "echo"),
     ):
         print(f"{label:72} {cell(r['quiet'][key])} | {cell(r['flood'][key])}")
     channel = r["flood"]["channel_round_trip"]
