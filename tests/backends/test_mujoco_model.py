@@ -1,0 +1,221 @@
+"""The MuJoCo model of the cell: built from the same URDF as the Pinocchio model, and it must not
+drift from it — the same kinematics, the envelope's capsules as collision geometry, and the parts
+the backend will drive (actuators, gripper, flange sensor, cameras, table)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importorskip above
+    ENVELOPE_PREFIX,
+    FLANGE_SITE,
+    FORCE_SENSOR,
+    GRIPPER_ACTUATOR,
+    TABLE_GEOM,
+    TORQUE_SENSOR,
+    MujocoModel,
+    build_model,
+    capsule_contains,
+    scene_for_policy,
+)
+from armwarden.policy import load_policy  # noqa: E402
+from armwarden.policy.loading import bundled_policy  # noqa: E402
+from armwarden.robot import build_robot  # noqa: E402
+from armwarden.robot.model import RobotModel, resolve_description  # noqa: E402
+
+ARM = tuple(f"fr3_joint{i}" for i in range(1, 8))
+FINGERS = ("fr3_finger_joint1", "fr3_finger_joint2")
+CONFIGURATIONS = 200
+
+
+@pytest.fixture(scope="module")
+def policy():
+    return load_policy(bundled_policy("fr3"))
+
+
+@pytest.fixture(scope="module")
+def robot(policy) -> RobotModel:
+    return build_robot(policy)
+
+
+@pytest.fixture(scope="module")
+def cell(policy, robot) -> MujocoModel:
+    return build_model(resolve_description(policy.robot.description), robot, scene_for_policy(policy))
+
+
+@pytest.fixture(scope="module")
+def pinocchio_with_fingers() -> RobotModel:
+    """The same URDF in Pinocchio with the finger joints free too, so every body can be compared."""
+    return RobotModel(resolve_description("builtin:fr3"), ARM + FINGERS, "fr3_link0", "fr3_hand_tcp")
+
+
+@pytest.fixture(scope="module")
+def random_configurations(pinocchio_with_fingers) -> np.ndarray:
+    rng = np.random.default_rng(20261123)
+    return rng.uniform(pinocchio_with_fingers.lower, pinocchio_with_fingers.upper,
+                       size=(CONFIGURATIONS, pinocchio_with_fingers.nq))
+
+
+def mujoco_poses(cell: MujocoModel, q: np.ndarray):
+    data = mujoco.MjData(cell.model)
+    data.qpos[cell.arm_qpos] = q[: len(ARM)]
+    data.qpos[cell.finger_qpos] = q[len(ARM):]
+    mujoco.mj_kinematics(cell.model, data)
+    return data
+
+
+def robot_bodies(cell: MujocoModel) -> list[str]:
+    return [cell.model.body(i).name for i in range(1, cell.model.nbody)]
+
+
+def test_every_urdf_link_is_a_mujoco_body(cell, pinocchio_with_fingers):
+    assert sorted(robot_bodies(cell)) == sorted(pinocchio_with_fingers.link_names())
+
+
+def test_pinocchio_and_mujoco_agree_on_every_body_origin(cell, pinocchio_with_fingers, random_configurations):
+    worst = 0.0
+    for q in random_configurations:
+        data = mujoco_poses(cell, q)
+        for body in robot_bodies(cell):
+            expected = pinocchio_with_fingers.frame_pose(q, body).position
+            worst = max(worst, float(np.linalg.norm(data.body(body).xpos - expected)))
+    assert worst < 1e-6
+
+
+def test_pinocchio_and_mujoco_agree_on_every_body_orientation(cell, pinocchio_with_fingers, random_configurations):
+    worst = 0.0
+    for q in random_configurations:
+        data = mujoco_poses(cell, q)
+        for body in robot_bodies(cell):
+            expected = pinocchio_with_fingers.frame_pose(q, body).rotation
+            worst = max(worst, float(np.abs(data.body(body).xmat.reshape(3, 3) - expected).max()))
+    assert worst < 1e-6
+
+
+def capsule_ends_in_body_frame(model, geom_id: int) -> tuple[np.ndarray, np.ndarray]:
+    rotation = np.zeros(9)
+    mujoco.mju_quat2Mat(rotation, model.geom_quat[geom_id])
+    axis = rotation.reshape(3, 3)[:, 2] * model.geom_size[geom_id][1]
+    center = model.geom_pos[geom_id]
+    return center - axis, center + axis
+
+
+def test_every_envelope_capsule_is_a_geom_with_its_radius_and_end_points(cell, robot):
+    model = cell.model
+    for capsule in robot.capsules:
+        geom = model.geom(ENVELOPE_PREFIX + capsule.name)
+        assert model.body(int(geom.bodyid[0])).name == capsule.link
+        assert geom.type[0] == mujoco.mjtGeom.mjGEOM_CAPSULE
+        assert abs(geom.size[0] - capsule.radius_m) < 1e-9
+        # the capsule's ends are in its joint's frame; the geom's in its link's body frame
+        link_in_joint = robot.model.frames[robot.frame_id(capsule.link)].placement
+        a, b = capsule_ends_in_body_frame(model, geom.id)
+        ends = sorted([link_in_joint.act(a), link_in_joint.act(b)], key=tuple)
+        expected = sorted([np.array(capsule.p0_m), np.array(capsule.p1_m)], key=tuple)
+        assert np.abs(np.array(ends) - np.array(expected)).max() < 1e-9, capsule.name
+
+
+def test_the_robot_collides_only_through_envelope_capsules_and_finger_pads(cell):
+    model = cell.model
+    robot_body_ids = set(range(2, model.nbody))  # 0 is the world, 1 the base welded to it
+    colliding = [model.geom(i).name for i in range(model.ngeom)
+                 if model.geom_bodyid[i] in robot_body_ids and (model.geom_contype[i] or model.geom_conaffinity[i])]
+    assert colliding
+    assert all(name.startswith((ENVELOPE_PREFIX, "pad/")) for name in colliding)
+
+
+def test_only_the_finger_sweep_capsule_is_left_out_of_contacts(cell):
+    model = cell.model
+    silent = [model.geom(i).name for i in range(model.ngeom)
+              if model.geom(i).name.startswith(ENVELOPE_PREFIX) and not model.geom_contype[i]]
+    assert silent == [ENVELOPE_PREFIX + "fr3_hand_1"]  # the fingers capsule of the bundled URDF
+
+
+def test_the_finger_pads_stay_inside_the_finger_sweep_capsule_at_every_opening(cell):
+    model = cell.model
+    sweep = model.geom(ENVELOPE_PREFIX + "fr3_hand_1")
+    for width in np.linspace(0.0, 0.08, 9):
+        data = mujoco.MjData(model)
+        data.qpos[cell.finger_qpos] = width / 2.0
+        mujoco.mj_kinematics(model, data)
+        center, rotation = data.geom(sweep.id).xpos, data.geom(sweep.id).xmat.reshape(3, 3)
+        a, b = center - rotation[:, 2] * sweep.size[1], center + rotation[:, 2] * sweep.size[1]
+        for finger in ("fr3_leftfinger", "fr3_rightfinger"):
+            pad = data.geom(f"pad/{finger}")
+            half = model.geom(f"pad/{finger}").size
+            pad_rotation = pad.xmat.reshape(3, 3)
+            for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3):
+                corner = pad.xpos + pad_rotation @ (signs * half)
+                assert capsule_contains(a, b, float(sweep.size[0]), corner), (width, finger, signs)
+
+
+def test_the_arm_has_one_position_actuator_per_joint_limited_by_the_urdf_effort(cell):
+    model = cell.model
+    assert [model.actuator(int(i)).name for i in cell.arm_actuators] == list(ARM)
+    efforts = [87.0] * 4 + [12.0] * 3
+    for index, name in enumerate(ARM):
+        actuator = model.actuator(name)
+        assert model.joint(int(actuator.trnid[0])).name == name
+        assert actuator.gainprm[0] == pytest.approx(cell.gains.kp[index])
+        assert actuator.biasprm[2] == pytest.approx(-cell.gains.kv[index])
+        assert tuple(model.jnt_actfrcrange[model.joint(name).id]) == (-efforts[index], efforts[index])
+
+
+def test_the_fingers_are_actuated_by_one_width_actuator_capped_at_the_policy_grasp_force(cell, policy):
+    model = cell.model
+    gripper = model.actuator(GRIPPER_ACTUATOR)
+    assert cell.gripper_actuator == gripper.id
+    assert cell.finger_joints == FINGERS
+    assert all(model.joint(name).type[0] == mujoco.mjtJoint.mjJNT_SLIDE for name in FINGERS)
+    limit = policy.gripper.max_grasp_force_n
+    assert tuple(gripper.forcerange) == (-limit, limit)
+    assert tuple(gripper.ctrlrange) == pytest.approx((0.0, 0.08))
+
+
+def test_the_flange_carries_a_site_with_force_and_torque_sensors(cell):
+    model = cell.model
+    site = model.site(FLANGE_SITE)
+    assert model.body(int(site.bodyid[0])).name == "fr3_link8" == cell.flange_body
+    for sensor in (FORCE_SENSOR, TORQUE_SENSOR):
+        assert model.sensor(sensor).objid[0] == site.id
+
+
+def test_the_scene_and_wrist_cameras_exist(cell):
+    model = cell.model
+    assert cell.cameras == ("scene", "wrist")
+    assert model.body(int(model.camera("scene").bodyid[0])).name == "world"
+    assert model.body(int(model.camera("wrist").bodyid[0])).name == "fr3_hand"
+    assert model.nlight >= 1
+
+
+def test_the_table_top_is_the_workspace_floor(cell, policy):
+    data = mujoco.MjData(cell.model)
+    mujoco.mj_kinematics(cell.model, data)
+    top = data.geom(TABLE_GEOM).xpos[2] + cell.model.geom(TABLE_GEOM).size[2]
+    assert top == pytest.approx(policy.workspace.box.min[2], abs=1e-12)
+
+
+def test_the_arm_holds_the_home_pose_against_gravity_without_touching_anything(cell, policy):
+    model = cell.model
+    data = mujoco.MjData(model)
+    home = np.array(policy.robot.home_joint_positions)
+    cell.set_arm_positions(data, home)
+    for _ in range(1000):  # one simulated second
+        mujoco.mj_step(model, data)
+    assert data.ncon == 0
+    assert np.abs(data.qpos[cell.arm_qpos] - home).max() < 1e-6
+
+
+def test_the_flange_sensor_at_rest_reads_the_weight_of_the_hand(cell, policy):
+    model = cell.model
+    data = mujoco.MjData(model)
+    cell.set_arm_positions(data, np.array(policy.robot.home_joint_positions))
+    for _ in range(200):
+        mujoco.mj_step(model, data)
+    flange = model.body(cell.flange_body).id
+    weight_n = model.body_subtreemass[flange] * -model.opt.gravity[2]
+    force = data.sensordata[cell.force_sensor_adr:cell.force_sensor_adr + 3]
+    assert np.linalg.norm(force) == pytest.approx(weight_n, rel=1e-3)
