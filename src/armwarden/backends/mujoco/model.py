@@ -73,9 +73,9 @@ class CameraSpec:
 def default_cameras() -> tuple[CameraSpec, ...]:
     """A scene camera in front of the bundled FR3's table and a wrist camera on its hand."""
     return (
-        CameraSpec("scene", position_m=(1.6, 0.0, 0.9), target_m=(0.35, 0.0, 0.15)),
+        CameraSpec("scene", position_m=(1.9, 0.0, 1.2), target_m=(0.3, 0.0, 0.3), fovy_deg=50.0),
         # beside the palm, looking past the fingertips along the hand's approach axis
-        CameraSpec("wrist", position_m=(0.07, 0.0, 0.03), target_m=(0.0, 0.0, 0.16), body="fr3_hand",
+        CameraSpec("wrist", position_m=(0.07, 0.0, 0.085), target_m=(0.0, 0.0, 0.22), body="fr3_hand",
                    up=(1.0, 0.0, 0.0), fovy_deg=70.0),
     )
 
