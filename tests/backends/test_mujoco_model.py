@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platform before mujoco loads
+
 mujoco = pytest.importorskip("mujoco")
 
 from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importorskip above

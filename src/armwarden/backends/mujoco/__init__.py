@@ -3,4 +3,12 @@
 Built so far: `model` (the MuJoCo model built from the same robot description as the Pinocchio
 model, with the envelope's capsules as collision geometry). The backend class, its `Config` and
 `create_backend` are not written yet, so the registry still lists "mujoco" as planned.
+
+Importing this package chooses MuJoCo's offscreen OpenGL platform when the user has not:
+`MUJOCO_GL=egl` (Mesa's EGL renders on CPU-only, headless machines). MuJoCo reads it once, when
+`mujoco` is first imported, so this package must be imported before `mujoco` is.
 """
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
