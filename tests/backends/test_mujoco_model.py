@@ -19,6 +19,7 @@ from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importor
     TABLE_GEOM,
     TORQUE_SENSOR,
     MujocoModel,
+    SceneObject,
     build_model,
     capsule_contains,
     scene_for_policy,
@@ -221,3 +222,45 @@ def test_the_flange_sensor_at_rest_reads_the_weight_of_the_hand(cell, policy):
     weight_n = model.body_subtreemass[flange] * -model.opt.gravity[2]
     force = data.sensordata[cell.force_sensor_adr:cell.force_sensor_adr + 3]
     assert np.linalg.norm(force) == pytest.approx(weight_n, rel=1e-3)
+
+
+def quintic(start: np.ndarray, goal: np.ndarray, duration_s: float, t: float) -> tuple[np.ndarray, np.ndarray]:
+    s = min(t / duration_s, 1.0)
+    shape = 10 * s**3 - 15 * s**4 + 6 * s**5
+    rate = (30 * s**2 - 60 * s**3 + 30 * s**4) / duration_s
+    return start + (goal - start) * shape, (goal - start) * rate
+
+
+def test_the_servo_with_velocity_feed_forward_tracks_a_smooth_move_and_ends_at_its_goal(cell, policy):
+    model = cell.model
+    data = mujoco.MjData(model)
+    home = np.array(policy.robot.home_joint_positions)
+    goal = home + np.array([0.8, 0.3, -0.4, 0.5, 0.6, -0.4, 1.0])
+    cell.set_arm_positions(data, home)
+    duration_s, worst = 2.0, 0.0
+    for step in range(int(2.5 / model.opt.timestep)):  # the move, then half a second of holding
+        q, qd = quintic(home, goal, duration_s, (step + 1) * model.opt.timestep)
+        data.ctrl[cell.arm_actuators] = cell.arm_ctrl(q, qd)
+        mujoco.mj_step(model, data)
+        worst = max(worst, float(np.abs(data.qpos[cell.arm_qpos] - q).max()))
+    assert worst < 2e-3  # rad, during the move
+    assert np.abs(data.qpos[cell.arm_qpos] - goal).max() < 1e-6
+
+
+def test_a_box_squeezed_between_the_finger_pads_is_held_by_friction_alone(policy, robot):
+    home = np.array(policy.robot.home_joint_positions)
+    box = SceneObject("box", "box", tuple(robot.tcp_pose(home).position), (0.04, 0.04, 0.04), mass_kg=0.2)
+    cell = build_model(resolve_description(policy.robot.description), robot, scene_for_policy(policy, objects=(box,)))
+    model = cell.model
+    assert model.neq == 1  # only the finger coupling: nothing welds the box to the hand
+    data = mujoco.MjData(model)
+    cell.set_arm_positions(data, home)
+    data.qpos[cell.finger_qpos] = 0.04  # open, the box floating between the pads
+    data.ctrl[cell.gripper_actuator] = 0.0  # close on it
+    for _ in range(500):
+        mujoco.mj_step(model, data)
+    gripped_z = data.body("box").xpos[2]
+    for _ in range(1000):
+        mujoco.mj_step(model, data)
+    assert abs(data.body("box").xpos[2] - gripped_z) < 1e-4  # [m] it does not slip out
+    assert data.qpos[cell.finger_qpos].sum() > 0.035  # the pads press on the box, not through it
