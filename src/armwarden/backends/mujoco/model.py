@@ -481,9 +481,14 @@ def _joint_inertia(model: mujoco.MjModel, arm_qpos: np.ndarray, arm_dofs: np.nda
     data = mujoco.MjData(model)
     data.qpos[arm_qpos] = q
     mujoco.mj_forward(model, data)
-    full = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, full)
-    return np.diag(full)[arm_dofs]
+    diagonal = np.zeros(len(arm_dofs))
+    unit, column = np.zeros(model.nv), np.zeros(model.nv)
+    for index, dof in enumerate(arm_dofs):  # M·e_i: the same call across MuJoCo versions, unlike mj_fullM
+        unit[:] = 0.0
+        unit[dof] = 1.0
+        mujoco.mj_mulM(model, data, column, unit)
+        diagonal[index] = column[dof]
+    return diagonal
 
 
 def build_model(urdf_path: Path, robot: RobotModel, scene: SceneSpec, *, gains: ArmGains | None = None,
