@@ -177,9 +177,11 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     finally:
         if channel is not None:
             channel.close()
-        if signal_stop is not None:
-            signal_stop.close()
-        await close_assembly(assembly, why)
+        try:
+            await close_assembly(assembly, why)
+        finally:  # last: a SIGUSR1 during the shutdown still stops the arm instead of killing the process
+            if signal_stop is not None:
+                signal_stop.close()
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
