@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
-from armwarden.safety.audit import AuditLog
+from armwarden.safety.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import NO_REASON, EStopEvent
 from armwarden.stopchannel.server import ChannelStop
+
+logger = logging.getLogger(__name__)
 
 
 class ThreadSafeStopper(Protocol):
@@ -43,10 +46,8 @@ class ExternalStops:
 
     def record(self, stop: ChannelStop) -> None:
         """Audit one external e-stop, after the fact and without waiting (any thread)."""
-        if self._audit.closed:
-            return
         failed = stop.error is not None
-        self._audit.submit(
+        self._submit(
             "estop",
             principal=stop.principal,
             outcome="stop_failed" if failed else "latched",
@@ -61,12 +62,18 @@ class ExternalStops:
         request waits its turn behind other work; the tool itself latches and records when it runs.
         Audited (without waiting) as `stop_on_receipt`."""
         failure = self._stopper.hold_now()
-        if self._audit.closed:
-            return
-        self._audit.submit("stop_on_receipt", tool=tool, principal=principal,
+        self._submit("stop_on_receipt", tool=tool, principal=principal,
                            outcome="stop_failed" if failure is not None else "stopped",
                            detail=f"robot held as the {tool} request was read" if failure is None
                            else f"holding the robot as the {tool} request was read FAILED: {failure}")
+
+    def _submit(self, event: str, **fields: Any) -> None:
+        """Hand a record to the audit writer; a log that is closing or closed is said loudly (the
+        stop itself has happened either way)."""
+        try:
+            self._audit.submit(event, **fields)
+        except AuditWriteError as exc:
+            logger.critical("%s not audited (%s): %s", event, exc, fields.get("detail"))
 
     def _on_loop(self, work: Callable[[], object]) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed (shutting down): the plans die with it
