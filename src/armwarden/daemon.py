@@ -109,6 +109,7 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops) -> 
         channel = StopChannel(
             authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
             latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
+            on_refused=external.record_refusal,
             host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
         ).start()
     except BaseException:

@@ -8,7 +8,7 @@ import struct
 import threading
 from pathlib import Path
 
-from armwarden.stopchannel import send_estop, token_store_authenticator
+from armwarden.stopchannel import ChannelRefusal, send_estop, token_store_authenticator
 from armwarden.transport.tokens import TokenStore
 from tests.stopchannel.conftest import NETWORK_TIMEOUT_S, OPERATOR_TOKEN, post
 
@@ -94,3 +94,14 @@ def test_a_connection_dropped_unanswered_is_retried_by_send_estop() -> None:
         listener.close()
     assert answer == {"estopped": True, "event": 7}
     assert attempts == [0, 1]
+
+
+def test_refused_requests_are_reported_at_most_once_per_host_and_second(make_channel, latch) -> None:
+    reported: list[ChannelRefusal] = []
+    channel = make_channel(on_refused=reported.append)
+    for _ in range(5):
+        status, _, _ = post(channel.port, token="aw_wrong")
+        assert status == 401
+    assert latch.calls == []
+    assert len(reported) == 1 and reported[0].status == 401 and reported[0].peer.startswith("127.0.0.1:")
+    assert "unknown bearer token" in reported[0].message

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 from armwarden.safety.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import NO_REASON, EStopEvent
-from armwarden.stopchannel.server import ChannelStop
+from armwarden.stopchannel.server import ChannelRefusal, ChannelStop
 
 logger = logging.getLogger(__name__)
 
@@ -56,6 +56,14 @@ class ExternalStops:
             arguments={"reason": stop.reason},
             extra={"peer": stop.peer, "estop_event": stop.event, "stop_issued_ms": stop.stop_issued_ms},
         )
+
+    def record_refusal(self, refusal: ChannelRefusal) -> None:
+        """Audit a request the stop channel refused (bad token, malformed, too slow, too large);
+        the channel reports at most one per host and second and counts the rest."""
+        self._submit("stop_channel_refused", outcome="refused",
+                     detail=f"stop channel answered {refusal.status} to {refusal.peer}: {refusal.message}",
+                     extra={"peer": refusal.peer, "status": refusal.status,
+                            "not_reported_since_last": refusal.suppressed})
 
     def stop_on_receipt(self, tool: str, principal: str | None) -> None:
         """A transport has just read an `estop`/`stop_motion` request: hold the robot before the

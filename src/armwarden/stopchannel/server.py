@@ -55,7 +55,7 @@ from armwarden.stopchannel.wire import (
     render_response,
 )
 
-__all__ = ["ChannelStop", "StopChannel", "token_store_authenticator"]
+__all__ = ["ChannelRefusal", "ChannelStop", "StopChannel", "token_store_authenticator"]
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +89,23 @@ def token_store_authenticator(store: Any) -> Callable[[str], str | None]:
     return authenticate
 
 
+@dataclass(frozen=True)
+class ChannelRefusal:
+    """A request the channel refused (4xx/5xx), for the audit log; `suppressed` counts the refusals
+    of the same host not reported since the last one (at most one report per host and second)."""
+
+    peer: str
+    status: int
+    message: str
+    suppressed: int = 0
+
+
+#: at most one refusal report per host in this interval [s]; the others are counted
+REFUSAL_REPORT_INTERVAL_S = 1.0
+#: hosts remembered for that; beyond, the memory starts afresh (source addresses vary on 127/8)
+MAX_REPORTED_HOSTS = 1024
+
+
 @dataclass(eq=False)
 class _Connection:
     sock: socket.socket
@@ -114,6 +131,7 @@ class StopChannel:
         host: str = "127.0.0.1",
         port: int = 0,
         on_event: Callable[[ChannelStop], None] | None = None,
+        on_refused: Callable[[ChannelRefusal], None] | None = None,
         allow_non_loopback: bool = False,
         max_connections: int = 64,
         request_timeout_s: float = 1.0,
@@ -127,6 +145,8 @@ class StopChannel:
         self._authenticate = authenticate
         self._latch_and_stop = latch_and_stop
         self._on_event = on_event
+        self._on_refused = on_refused
+        self._refusals: dict[str, tuple[float, int]] = {}  # host -> (last report, refusals not reported since)
         self._host, self._port = host, port
         self._allow_non_loopback = allow_non_loopback
         self._max_connections = max_connections
@@ -271,6 +291,7 @@ class StopChannel:
             if not conn.answered:
                 with contextlib.suppress(OSError):
                     conn.sock.send(render_response(408, {"error": "request not received in time"}))
+                self._report_refusal(conn.peer, 408, "request not received in time")
             self._drop(conn)
 
     def _on_ready(self, conn: _Connection, mask: int) -> None:
@@ -351,6 +372,25 @@ class StopChannel:
         conn.answered, conn.outgoing = True, render_response(status, payload, headers)
         conn.deadline = time.monotonic() + _LINGER_S
         self._send(conn)
+        if status != 200:
+            self._report_refusal(conn.peer, status, str(payload.get("error", "")))
+
+    def _report_refusal(self, peer: str, status: int, message: str) -> None:
+        """Hand a refusal to `on_refused`, at most once per host and `REFUSAL_REPORT_INTERVAL_S`."""
+        if self._on_refused is None:
+            return
+        host, now = peer.rsplit(":", 1)[0], time.monotonic()
+        last, pending = self._refusals.get(host, (float("-inf"), 0))
+        if now - last < REFUSAL_REPORT_INTERVAL_S:
+            self._refusals[host] = (last, pending + 1)
+            return
+        if len(self._refusals) >= MAX_REPORTED_HOSTS:
+            self._refusals.clear()
+        self._refusals[host] = (now, 0)
+        try:
+            self._on_refused(ChannelRefusal(peer, status, flatten_reason(message, 200), pending))
+        except Exception:
+            logger.exception("stop channel: on_refused failed")
 
     def _send(self, conn: _Connection) -> None:
         try:
