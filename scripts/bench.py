@@ -167,6 +167,25 @@ def _bench_policy_file(directory: Path) -> Path:
 BLOCK = 30
 
 
+async def _wait_healthy(port: int, daemon: Any, *, attempts: int = 400, stderr_path: Path | None = None) -> None:
+    """Poll the daemon's /healthz on 127.0.0.1 every 50 ms until it answers 200 (or it exits)."""
+    import anyio
+    import httpx2
+
+    async with httpx2.AsyncClient() as http:
+        for _ in range(attempts):
+            if daemon.poll() is not None:
+                break
+            try:
+                if (await http.get(f"http://127.0.0.1:{port}/healthz")).status_code == 200:
+                    return
+            except httpx2.HTTPError:
+                pass
+            await anyio.sleep(0.05)
+    tail = f": {stderr_path.read_text()[-2000:]}" if stderr_path is not None else ""  # noqa: ASYNC240 - once, on failure
+    raise RuntimeError(f"the daemon did not become ready{tail}")
+
+
 def _summary(values_s: list[float]) -> dict[str, float]:
     ms = [v * 1e3 for v in values_s]
     return {"median_ms": statistics.median(ms), "p95_ms": _percentile(ms, 95), "n": len(ms)}
@@ -347,15 +366,7 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
             return http, Client(streamable_http_client(url, http_client=http), **kwargs)
 
         async def wait_ready() -> None:
-            async with httpx2.AsyncClient() as http:
-                for _ in range(200):
-                    try:
-                        if (await http.get(f"http://127.0.0.1:{port}/healthz")).status_code == 200:
-                            return
-                    except httpx2.HTTPError:
-                        pass
-                    await anyio.sleep(0.05)
-            raise RuntimeError("the daemon did not become ready")
+            await _wait_healthy(port, daemon, attempts=200)
 
         async def main() -> None:
             nonlocal load_calls
@@ -527,17 +538,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
             return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
 
         async def wait_ready() -> None:
-            async with httpx2.AsyncClient() as http:
-                for _ in range(400):
-                    if daemon.poll() is not None:
-                        break
-                    try:
-                        if (await http.get(f"http://127.0.0.1:{port}/healthz")).status_code == 200:
-                            return
-                    except httpx2.HTTPError:
-                        pass
-                    await anyio.sleep(0.05)
-            raise RuntimeError(f"the daemon did not become ready: {stderr_path.read_text()[-2000:]}")
+            await _wait_healthy(port, daemon, stderr_path=stderr_path)
 
         def channel_stop(reason: str) -> tuple[float, dict[str, Any] | None, str | None]:
             start = time.perf_counter()

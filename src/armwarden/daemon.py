@@ -109,6 +109,7 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops) -> 
         channel = StopChannel(
             authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
             latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
+            on_refused=external.record_refusal,
             host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
         ).start()
     except BaseException:
@@ -177,9 +178,11 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     finally:
         if channel is not None:
             channel.close()
-        if signal_stop is not None:
-            signal_stop.close()
-        await close_assembly(assembly, why)
+        try:
+            await close_assembly(assembly, why)
+        finally:  # last: a SIGUSR1 during the shutdown still stops the arm instead of killing the process
+            if signal_stop is not None:
+                signal_stop.close()
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:

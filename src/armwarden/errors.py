@@ -65,6 +65,10 @@ class BackendTimeout(BackendError, TimeoutError):
     that bounds a call with its own deadline treats both alike)."""
 
 
+class StoppedBeforeStart(BackendError):
+    """An actuation decided before a stop reached the backend after it: nothing was started."""
+
+
 class RefusalCode(StrEnum):
     """Every reason the server refuses a call. The value is what clients see (`REFUSED [CODE]`, the
     audit record's `code`); values never change, new reasons get new members."""

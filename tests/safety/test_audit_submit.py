@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -46,3 +47,30 @@ def test_submit_to_a_closed_log_is_refused(tmp_path: Path) -> None:
 
 def log_records(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def test_a_record_submitted_while_the_log_closes_is_refused_not_reordered_or_lost(tmp_path: Path, monkeypatch) -> None:
+    audit = AuditLog(tmp_path / "audit.jsonl")
+    release = threading.Event()
+    append = audit._append
+
+    def slow_first(entry, *, sync):
+        if entry.event == "slow":
+            release.wait(10)
+        return append(entry, sync=sync)
+
+    monkeypatch.setattr(audit, "_append", slow_first)
+    audit.submit("slow")  # the writer thread is busy with it
+    closer = threading.Thread(target=audit.close)
+    closer.start()
+    deadline = time.monotonic() + 10
+    while audit._queue is not None:  # close() has taken the queue and waits for the writer
+        assert time.monotonic() < deadline
+        time.sleep(0.001)
+    with pytest.raises(AuditWriteError):
+        audit.submit("estop", outcome="latched")
+    release.set()
+    closer.join(10)
+    events = [record["event"] for record in log_records(tmp_path / "audit.jsonl")]
+    assert events[-1] == "slow" and "estop" not in events
+    assert not [t for t in threading.enumerate() if t.name == "armwarden-audit" and t.is_alive()]

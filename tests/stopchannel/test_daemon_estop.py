@@ -83,6 +83,12 @@ async def test_the_channel_refuses_a_request_without_a_valid_token(channel_daemo
     assert (await safety_status(channel_daemon.daemon))["estopped"] is False
     assert external_estops(channel_daemon.daemon) == []
 
+    def refusals() -> list[dict[str, Any]]:
+        return [r for r in records_of(channel_daemon.daemon.audit) if r["event"] == "stop_channel_refused"]
+
+    wait_for(lambda: len(refusals()) == 1)
+    assert refusals()[0]["extra"]["status"] == 401 and refusals()[0]["outcome"] == "refused"
+
 
 async def test_a_channel_stop_during_execute_plan_aborts_that_call_and_latches(channel_daemon: ChannelDaemon) -> None:
     daemon = channel_daemon.daemon

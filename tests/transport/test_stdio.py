@@ -186,11 +186,12 @@ async def test_other_requests_do_not_stop_the_robot(method: str, name: str) -> N
 
 
 @pytest.mark.anyio
-async def test_a_refused_duplicate_stop_request_holds_nothing_more() -> None:
+async def test_a_stop_request_holds_the_robot_even_when_its_id_is_refused() -> None:
     wire = Wire()
-    await wire.client(request(1, name="estop"))
+    await wire.client(request(1, name="execute_plan"))
     await wire.passed_request()
-    await wire.client(request(1, name="estop"))  # same open id: refused by the gate
+    await wire.client(request(1, name="estop"))  # the open motion call's id: refused by the gate, yet it stops
     await wire.client(request(2, name="get_robot_state"))
     await wire.passed_request()
     assert wire.stops == [("estop", None)]
+    assert wire.sent()[0].error.code == INVALID_REQUEST

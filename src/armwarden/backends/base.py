@@ -23,7 +23,8 @@ Rules every backend follows
 - `stop_now()` is the same stop, synchronous and thread-safe: any thread may call it while the
   event loop is busy or blocked, and the arm is held before it returns (a servo loop commands a
   hold under its lock; see `armwarden.backends.servo`). It must not await the event loop.
-- A stop is never overtaken by an execution that was decided before it. Every stop (`stop`,
+- A stop is never overtaken by an actuation that was decided before it (trajectories, gripper
+  actions, controller switches, threshold changes, error recovery all take `stop_epoch`). Every stop (`stop`,
   `stop_now`, any thread) first bumps `stop_epoch`; `execute(..., stop_epoch=E)` refuses to start
   ("stopped before it started", nothing moved) once the epoch is no longer E, and the `_execute`
   hook checks `_stop_landed()` again *under the same lock its stop takes* when it hands the
@@ -59,7 +60,7 @@ from typing import TypeVar
 import anyio
 import numpy as np
 
-from armwarden.errors import BackendError, BackendTimeout
+from armwarden.errors import BackendError, BackendTimeout, StoppedBeforeStart
 from armwarden.planning.trajectory import JointTrajectory
 
 logger = logging.getLogger(__name__)
@@ -191,6 +192,7 @@ class Backend(abc.ABC):
         self._stop_epoch = 0
         self._stop_epoch_lock = threading.Lock()  # stops come from any thread
         self._execution_epoch = 0  # the stop epoch the running execution was decided under
+        self._gripper_epoch = 0  # the stop epoch the running gripper action was decided under
         self._opened = False
         self._closed = False
 
@@ -218,6 +220,19 @@ class Backend(abc.ABC):
         """A stop was issued since the running execution was decided. `_execute` hooks check it
         under the lock their stop takes, atomically with handing the trajectory over."""
         return self._stop_epoch != self._execution_epoch
+
+    def _gripper_stop_landed(self) -> bool:
+        """Like `_stop_landed`, for the running gripper action (gripper hooks check it under the
+        lock their stop takes when they start the fingers)."""
+        return self._stop_epoch != self._gripper_epoch
+
+    def _admit(self, stop_epoch: int | None, what: str) -> int:
+        """The stop epoch an actuation was decided under (now, if the caller gave none); refuses
+        it (`StoppedBeforeStart`, nothing started) when a stop has been issued since."""
+        epoch = self._stop_epoch if stop_epoch is None else stop_epoch
+        if self._stop_epoch != epoch:
+            raise StoppedBeforeStart(f"{what} not started: a stop was issued after it was decided")
+        return epoch
 
     # ---------------------------------------------------------------- lifecycle
     @property
@@ -360,22 +375,27 @@ class Backend(abc.ABC):
             return None
         return await self._bounded("gripper state read", self.gripper_state_timeout_s, self._gripper_state)
 
-    async def gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
+    async def gripper_move(self, width_m: float, speed_mps: float, *, stop_epoch: int | None = None) -> GripperResult:
+        """Actuating calls take the `stop_epoch` their caller decided under, like `execute`."""
         self._require_capability(self.capabilities.gripper, "gripper")
+        self._gripper_epoch = self._admit(stop_epoch, "gripper move")
         return await self._bounded("gripper move", self._gripper_deadline_s(speed_mps),
                                    lambda: self._gripper_move(width_m, speed_mps), actuating=True)
 
     async def gripper_grasp(
-        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
+        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float,
+        *, stop_epoch: int | None = None,
     ) -> GripperResult:
         self._require_capability(self.capabilities.gripper, "gripper")
+        self._gripper_epoch = self._admit(stop_epoch, "gripper grasp")
         return await self._bounded(
             "gripper grasp", self._gripper_deadline_s(speed_mps),
             lambda: self._gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m), actuating=True,
         )
 
-    async def gripper_home(self) -> GripperResult:
+    async def gripper_home(self, *, stop_epoch: int | None = None) -> GripperResult:
         self._require_capability(self.capabilities.gripper, "gripper")
+        self._gripper_epoch = self._admit(stop_epoch, "gripper homing")
         return await self._bounded("gripper homing", self.gripper_home_timeout_s, self._gripper_home, actuating=True)
 
     async def camera_snapshot(self, camera: str) -> CameraImage:
@@ -387,18 +407,22 @@ class Backend(abc.ABC):
         self._require_capability(self.capabilities.controllers, "controllers")
         return await self._bounded("controller listing", self.controllers_timeout_s, self._list_controllers)
 
-    async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str]) -> None:
+    async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str], *,
+                                 stop_epoch: int | None = None) -> None:
         self._require_capability(self.capabilities.controllers, "controllers")
+        self._admit(stop_epoch, "controller switch")
         await self._bounded("controller switch", self.controllers_timeout_s,
                             lambda: self._switch_controllers(tuple(activate), tuple(deactivate)), actuating=True)
 
-    async def set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
+    async def set_collision_thresholds(self, force_n: float, torque_nm: float, *, stop_epoch: int | None = None) -> None:
         self._require_capability(self.capabilities.collision_thresholds, "collision thresholds")
+        self._admit(stop_epoch, "collision threshold change")
         await self._bounded("collision threshold change", self.thresholds_timeout_s,
                             lambda: self._set_collision_thresholds(force_n, torque_nm), actuating=True)
 
-    async def error_recovery(self) -> None:
+    async def error_recovery(self, *, stop_epoch: int | None = None) -> None:
         self._require_capability(self.capabilities.error_recovery, "error recovery")
+        self._admit(stop_epoch, "error recovery")
         await self._bounded("error recovery", self.error_recovery_timeout_s, self._error_recovery, actuating=True)
 
     async def graph(self) -> dict[str, list[str]]:

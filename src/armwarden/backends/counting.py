@@ -110,19 +110,21 @@ class CountingBackend(Backend):
     async def gripper_state(self) -> GripperState | None:
         return await self.inner.gripper_state()
 
-    async def gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
+    async def gripper_move(self, width_m: float, speed_mps: float, *, stop_epoch: int | None = None) -> GripperResult:
         self._actuating("gripper_move")
-        return await self.inner.gripper_move(width_m, speed_mps)
+        return await self.inner.gripper_move(width_m, speed_mps, stop_epoch=stop_epoch)
 
     async def gripper_grasp(
-        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
+        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float,
+        *, stop_epoch: int | None = None,
     ) -> GripperResult:
         self._actuating("gripper_grasp")
-        return await self.inner.gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
+        return await self.inner.gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m,
+                                              stop_epoch=stop_epoch)
 
-    async def gripper_home(self) -> GripperResult:
+    async def gripper_home(self, *, stop_epoch: int | None = None) -> GripperResult:
         self._actuating("gripper_home")
-        return await self.inner.gripper_home()
+        return await self.inner.gripper_home(stop_epoch=stop_epoch)
 
     async def camera_snapshot(self, camera: str) -> CameraImage:
         return await self.inner.camera_snapshot(camera)
@@ -130,17 +132,18 @@ class CountingBackend(Backend):
     async def list_controllers(self) -> list[ControllerInfo]:
         return await self.inner.list_controllers()
 
-    async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str]) -> None:
+    async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str], *,
+                                 stop_epoch: int | None = None) -> None:
         self._actuating("switch_controllers")
-        await self.inner.switch_controllers(activate, deactivate)
+        await self.inner.switch_controllers(activate, deactivate, stop_epoch=stop_epoch)
 
-    async def set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
+    async def set_collision_thresholds(self, force_n: float, torque_nm: float, *, stop_epoch: int | None = None) -> None:
         self._actuating("set_collision_thresholds")
-        await self.inner.set_collision_thresholds(force_n, torque_nm)
+        await self.inner.set_collision_thresholds(force_n, torque_nm, stop_epoch=stop_epoch)
 
-    async def error_recovery(self) -> None:
+    async def error_recovery(self, *, stop_epoch: int | None = None) -> None:
         self._actuating("error_recovery")
-        await self.inner.error_recovery()
+        await self.inner.error_recovery(stop_epoch=stop_epoch)
 
     async def graph(self) -> dict[str, list[str]]:
         return await self.inner.graph()

@@ -201,6 +201,7 @@ class FakeBackend(Backend, ServoHooks):
         self._gripper_width_m = self.gripper_max_width_m
         self._gripper_grasped = False
         self._gripper_motion: GripperMotion | None = None
+        self._gripper_lock = threading.Lock()  # starting the fingers vs a stop from another thread
 
     # ================================================================ lifecycle
     @property
@@ -289,9 +290,12 @@ class FakeBackend(Backend, ServoHooks):
         if self.fail_stop:
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
         self.servo.hold()
-        motion = self._gripper_motion
-        if motion is not None and motion.halted_at is None:
-            motion.halted_at = time.perf_counter()  # frozen now; the loop does the bookkeeping later
+        with self._gripper_lock:  # the fingers are either not started yet (and will not be) or frozen here
+            motion = self._gripper_motion
+            freeze = motion is not None and motion.halted_at is None
+            if freeze and motion is not None:
+                motion.halted_at = time.perf_counter()  # frozen now; the loop does the bookkeeping later
+        if freeze:
             loop = self._loop
             if loop is not None:
                 with contextlib.suppress(RuntimeError):  # the loop is closed
@@ -377,9 +381,12 @@ class FakeBackend(Backend, ServoHooks):
         """Move the fingers to `target_m`; returns (final width, whether a stop interrupted it)."""
         if self._gripper_motion is not None:
             raise BackendError("the gripper is already moving; one gripper action at a time")
-        self._gripper_grasped = False  # any motion releases what was held
         motion = GripperMotion(self._gripper_width_m, target_m, speed_mps * self.speedup, time.perf_counter())
-        self._gripper_motion = motion
+        with self._gripper_lock:  # started atomically with the check: a stop from any thread that came first wins
+            if self._gripper_stop_landed():
+                return self._gripper_width_m, True
+            self._gripper_motion = motion
+        self._gripper_grasped = False  # any motion releases what was held
         finished = False
         try:
             with anyio.move_on_after(motion.duration_s):

@@ -33,7 +33,7 @@ class ControlAction:
 
     check: Callable[[], None]  # raises SafetyRefusal for arguments outside the policy
     prompt: Callable[[], Prompt]  # what the human is asked, and the digest the answer is bound to
-    actuate: Callable[[], Awaitable[Any]]  # the backend command
+    actuate: Callable[[int], Awaitable[Any]]  # the backend command, given the stop epoch it was decided under
     done: str  # what the result says was done
 
 
@@ -44,17 +44,17 @@ def control_action(tool: ControlTool, arguments: dict[str, Any], *, policy: Poli
         on, off = arguments["activate"], arguments["deactivate"]
         return ControlAction(lambda: checks.check_controllers(policy, on, off),
                              lambda: prompts.switch_prompt(round_, on, off, dry_run),
-                             lambda: backend.switch_controllers(on, off),
+                             lambda epoch: backend.switch_controllers(on, off, stop_epoch=epoch),
                              f"activated {on or 'none'}, deactivated {off or 'none'}")
     if tool == "set_collision_thresholds":
         force_n, torque_nm = arguments["force_n"], arguments["torque_nm"]
         return ControlAction(lambda: checks.check_thresholds(policy, force_n, torque_nm),
                              lambda: prompts.thresholds_prompt(round_, policy, force_n, torque_nm),
-                             lambda: backend.set_collision_thresholds(force_n, torque_nm),
+                             lambda epoch: backend.set_collision_thresholds(force_n, torque_nm, stop_epoch=epoch),
                              f"collision thresholds set to {force_n:g} N / {torque_nm:g} N·m")
 
-    async def recover() -> None:
-        await backend.error_recovery()
+    async def recover(epoch: int) -> None:
+        await backend.error_recovery(stop_epoch=epoch)
         faults.clear()
 
     return ControlAction(lambda: None, lambda: prompts.recovery_prompt(round_, faults), recover, "error recovery done")
@@ -100,6 +100,7 @@ class ControlActions:
         action.check()
         door.require_audit(tool)
         door.require_not_estopped(tool)
+        stop_epoch = door.backend.stop_epoch  # decided now: a stop from here on keeps it from starting
         approval = door.interpret_approval(approval_outcome, approval_required(door.policy, tool))
         if not approval.granted:
             raise approval.refusal(tool)
@@ -109,5 +110,5 @@ class ControlActions:
         self._done[tool] = self._done.get(tool, 0) + 1  # this approval is now spent
         if door.dry_run:
             return ActionResult(status="dry_run", approval=approval.info(), detail=f"dry run: {action.done} would be done; nothing changed")
-        await door.readings.backend_call(tool.replace("_", " "), action.actuate())
+        await door.readings.backend_call(tool.replace("_", " "), action.actuate(stop_epoch))
         return ActionResult(status="succeeded", approval=approval.info(), detail=action.done)

@@ -35,6 +35,7 @@ class GripperFlow:
         door = self._door
         door.require_audit(tool)
         door.require_not_estopped(tool)
+        stop_epoch = door.backend.stop_epoch  # decided now: any stop from here on keeps the fingers still
         speed = checks.check_gripper(door.policy, width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
         if self.busy:
             raise SafetyRefusal(RefusalCode.BUSY, "another gripper action is running")
@@ -42,7 +43,7 @@ class GripperFlow:
             return GripperResultModel(status="dry_run", width_m=None, is_grasped=None, detail="dry run: nothing moved")
         self.busy = True
         try:
-            call = self._command(tool, width_m, force_n, speed, epsilon_inner_m, epsilon_outer_m)
+            call = self._command(tool, width_m, force_n, speed, epsilon_inner_m, epsilon_outer_m, stop_epoch)
             try:
                 result = await door.readings.backend_call(tool.replace("_", " "), call)
             except anyio.get_cancelled_exc_class():
@@ -57,16 +58,16 @@ class GripperFlow:
         )
 
     def _command(self, tool: GripperTool, width_m: float | None, force_n: float | None, speed_mps: float,
-                 epsilon_inner_m: float, epsilon_outer_m: float) -> Awaitable[GripperResult]:
+                 epsilon_inner_m: float, epsilon_outer_m: float, stop_epoch: int) -> Awaitable[GripperResult]:
         """The backend command for `tool`. The tool schemas require width (and force for a grasp);
         a caller that bypasses them is refused, not guessed for."""
         backend = self._door.backend
         if tool == "gripper_home":
-            return backend.gripper_home()
+            return backend.gripper_home(stop_epoch=stop_epoch)
         if width_m is None:
             raise SafetyRefusal(RefusalCode.INVALID, f"{tool} needs width_m")
         if tool == "gripper_move":
-            return backend.gripper_move(width_m, speed_mps)
+            return backend.gripper_move(width_m, speed_mps, stop_epoch=stop_epoch)
         if force_n is None:
             raise SafetyRefusal(RefusalCode.INVALID, "gripper_grasp needs force_n")
-        return backend.gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
+        return backend.gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m, stop_epoch=stop_epoch)

@@ -16,7 +16,7 @@ import numpy as np
 
 from armwarden import conversions
 from armwarden.backends.base import Backend, JointState
-from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.errors import BackendError, RefusalCode, SafetyRefusal, StoppedBeforeStart
 from armwarden.policy import Policy
 from armwarden.results import ControllerList, ControllerModel, EnvelopeModel, GraphModel, RobotState, TransformResult
 from armwarden.robot.model import Pose, RobotModel
@@ -50,6 +50,9 @@ class Readings:
     async def backend_call(self, what: str, awaitable: Awaitable[Any]) -> Any:
         try:
             return await awaitable
+        except StoppedBeforeStart as exc:
+            raise SafetyRefusal(RefusalCode.STOPPED, f"{what} refused: a stop or e-stop arrived before it started "
+                                "(nothing moved)") from exc
         except (BackendError, TimeoutError, NotImplementedError) as exc:
             raise SafetyRefusal(RefusalCode.BACKEND_ERROR, f"the backend could not {what}: {exc}") from exc
 

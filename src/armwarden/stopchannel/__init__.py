@@ -15,12 +15,14 @@ from armwarden.stopchannel.client import (
     send_estop,
 )
 from armwarden.stopchannel.server import (
+    ChannelRefusal,
     ChannelStop,
     StopChannel,
     token_store_authenticator,
 )
 
 __all__ = [
+    "ChannelRefusal",
     "ChannelStop",
     "EStopRefused",
     "EStopRequestError",

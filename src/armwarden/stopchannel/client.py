@@ -58,11 +58,17 @@ class EStopRefused(EStopRequestError):
         super().__init__(message)
 
 
+#: how often a connection the channel dropped unanswered is tried again
+RESET_RETRIES = 2
+
+
 def send_estop(url: str, token: str, reason: str = "", timeout_s: float = 2.0) -> dict[str, Any]:
     """POST an e-stop to `url` and return the channel's answer (``{"estopped": true, "event": N, ...}``).
 
     `url` is ``http://HOST:PORT`` or ``http://HOST:PORT/estop``; `timeout_s` bounds each socket
-    operation. Raises an `EStopRequestError` subclass unless the stop was confirmed.
+    operation. A connection the channel dropped before answering (it evicts idle connections when
+    a flood fills it) is tried again, up to `RESET_RETRIES` times; a stop is safe to repeat.
+    Raises an `EStopRequestError` subclass unless the stop was confirmed.
     """
     parts = urlsplit(url)
     if parts.scheme != "http" or not parts.hostname:
@@ -74,29 +80,43 @@ def send_estop(url: str, token: str, reason: str = "", timeout_s: float = 2.0) -
     path = parts.path if parts.path not in ("", "/") else ESTOP_PATH
     body = json.dumps({"reason": reason}).encode("utf-8") if reason else b""
     headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json", "Connection": "close"}
-    connection = http.client.HTTPConnection(parts.hostname, port, timeout=timeout_s)
-    try:
-        connection.request("POST", path, body=body, headers=headers)
-        response = connection.getresponse()
-        raw = response.read(_MAX_ANSWER_BYTES)
-    except TimeoutError as exc:
-        raise EStopTimeout(f"stop channel at {url} did not answer within {timeout_s} s") from exc
-    except (OSError, http.client.HTTPException) as exc:
-        raise EStopUnreachable(f"cannot reach the stop channel at {url}: {exc}") from exc
-    finally:
-        connection.close()
+    for attempt in range(RESET_RETRIES + 1):
+        try:
+            status, status_reason, raw = _post_once(parts.hostname, port, path, body, headers, timeout_s)
+            break
+        except TimeoutError as exc:
+            raise EStopTimeout(f"stop channel at {url} did not answer within {timeout_s} s") from exc
+        except (ConnectionResetError, BrokenPipeError, http.client.RemoteDisconnected) as exc:
+            if attempt == RESET_RETRIES:
+                raise EStopUnreachable(f"the stop channel at {url} dropped the connection {attempt + 1} times: {exc}") from exc
+        except (OSError, http.client.HTTPException) as exc:
+            raise EStopUnreachable(f"cannot reach the stop channel at {url}: {exc}") from exc
+    else:  # pragma: no cover - the loop either breaks or raises
+        raise EStopUnreachable(f"cannot reach the stop channel at {url}")
     try:
         answer = json.loads(raw)
     except ValueError:
         answer = {}
     if not isinstance(answer, dict):
         answer = {}
-    message = flatten_reason(answer.get("error") or response.reason or "no message", 300)
-    if response.status == 401:
+    message = flatten_reason(answer.get("error") or status_reason or "no message", 300)
+    if status == 401:
         raise EStopUnauthorized(f"stop channel refused the token: {message}")
-    if response.status != 200 or answer.get("estopped") is not True:
-        raise EStopRefused(response.status, f"stop channel answered {response.status}: {message}")
+    if status != 200 or answer.get("estopped") is not True:
+        raise EStopRefused(status, f"stop channel answered {status}: {message}")
     return answer
+
+
+def _post_once(host: str, port: int, path: str, body: bytes, headers: dict[str, str],
+               timeout_s: float) -> tuple[int, str, bytes]:
+    """One POST: (status, reason phrase, at most `_MAX_ANSWER_BYTES` of the answer)."""
+    connection = http.client.HTTPConnection(host, port, timeout=timeout_s)
+    try:
+        connection.request("POST", path, body=body, headers=headers)
+        response = connection.getresponse()
+        return response.status, response.reason, response.read(_MAX_ANSWER_BYTES)
+    finally:
+        connection.close()
 
 
 def add_estop_arguments(parser: argparse.ArgumentParser) -> None:

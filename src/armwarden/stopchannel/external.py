@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
-from armwarden.safety.audit import AuditLog
+from armwarden.safety.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import NO_REASON, EStopEvent
-from armwarden.stopchannel.server import ChannelStop
+from armwarden.stopchannel.server import ChannelRefusal, ChannelStop
+
+logger = logging.getLogger(__name__)
 
 
 class ThreadSafeStopper(Protocol):
@@ -43,10 +46,8 @@ class ExternalStops:
 
     def record(self, stop: ChannelStop) -> None:
         """Audit one external e-stop, after the fact and without waiting (any thread)."""
-        if self._audit.closed:
-            return
         failed = stop.error is not None
-        self._audit.submit(
+        self._submit(
             "estop",
             principal=stop.principal,
             outcome="stop_failed" if failed else "latched",
@@ -56,17 +57,31 @@ class ExternalStops:
             extra={"peer": stop.peer, "estop_event": stop.event, "stop_issued_ms": stop.stop_issued_ms},
         )
 
+    def record_refusal(self, refusal: ChannelRefusal) -> None:
+        """Audit a request the stop channel refused (bad token, malformed, too slow, too large);
+        the channel reports at most one per host and second and counts the rest."""
+        self._submit("stop_channel_refused", outcome="refused",
+                     detail=f"stop channel answered {refusal.status} to {refusal.peer}: {refusal.message}",
+                     extra={"peer": refusal.peer, "status": refusal.status,
+                            "not_reported_since_last": refusal.suppressed})
+
     def stop_on_receipt(self, tool: str, principal: str | None) -> None:
         """A transport has just read an `estop`/`stop_motion` request: hold the robot before the
         request waits its turn behind other work; the tool itself latches and records when it runs.
         Audited (without waiting) as `stop_on_receipt`."""
         failure = self._stopper.hold_now()
-        if self._audit.closed:
-            return
-        self._audit.submit("stop_on_receipt", tool=tool, principal=principal,
+        self._submit("stop_on_receipt", tool=tool, principal=principal,
                            outcome="stop_failed" if failure is not None else "stopped",
                            detail=f"robot held as the {tool} request was read" if failure is None
                            else f"holding the robot as the {tool} request was read FAILED: {failure}")
+
+    def _submit(self, event: str, **fields: Any) -> None:
+        """Hand a record to the audit writer; a log that is closing or closed is said loudly (the
+        stop itself has happened either way)."""
+        try:
+            self._audit.submit(event, **fields)
+        except AuditWriteError as exc:
+            logger.critical("%s not audited (%s): %s", event, exc, fields.get("detail"))
 
     def _on_loop(self, work: Callable[[], object]) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed (shutting down): the plans die with it

@@ -55,7 +55,7 @@ from armwarden.stopchannel.wire import (
     render_response,
 )
 
-__all__ = ["ChannelStop", "StopChannel", "token_store_authenticator"]
+__all__ = ["ChannelRefusal", "ChannelStop", "StopChannel", "token_store_authenticator"]
 
 logger = logging.getLogger(__name__)
 
@@ -79,13 +79,31 @@ class ChannelStop:
 
 
 def token_store_authenticator(store: Any) -> Callable[[str], str | None]:
-    """Adapt a `armwarden.transport.tokens.TokenStore` (any role accepted) to the channel."""
+    """Adapt a `armwarden.transport.tokens.TokenStore` (any role accepted) to the channel. A token
+    file that becomes unusable does not refuse stops: the last usable version's tokens still do."""
 
     def authenticate(token: str) -> str | None:
-        principal = store.authenticate(token)
+        principal = store.authenticate(token, last_good_while_unusable=True)
         return None if principal is None else str(principal.name)
 
     return authenticate
+
+
+@dataclass(frozen=True)
+class ChannelRefusal:
+    """A request the channel refused (4xx/5xx), for the audit log; `suppressed` counts the refusals
+    of the same host not reported since the last one (at most one report per host and second)."""
+
+    peer: str
+    status: int
+    message: str
+    suppressed: int = 0
+
+
+#: at most one refusal report per host in this interval [s]; the others are counted
+REFUSAL_REPORT_INTERVAL_S = 1.0
+#: hosts remembered for that; beyond, the memory starts afresh (source addresses vary on 127/8)
+MAX_REPORTED_HOSTS = 1024
 
 
 @dataclass(eq=False)
@@ -113,6 +131,7 @@ class StopChannel:
         host: str = "127.0.0.1",
         port: int = 0,
         on_event: Callable[[ChannelStop], None] | None = None,
+        on_refused: Callable[[ChannelRefusal], None] | None = None,
         allow_non_loopback: bool = False,
         max_connections: int = 64,
         request_timeout_s: float = 1.0,
@@ -126,6 +145,8 @@ class StopChannel:
         self._authenticate = authenticate
         self._latch_and_stop = latch_and_stop
         self._on_event = on_event
+        self._on_refused = on_refused
+        self._refusals: dict[str, tuple[float, int]] = {}  # host -> (last report, refusals not reported since)
         self._host, self._port = host, port
         self._allow_non_loopback = allow_non_loopback
         self._max_connections = max_connections
@@ -205,21 +226,26 @@ class StopChannel:
     def _serve(self) -> None:
         try:
             while not self._closing.is_set():
-                ready = self._selector.select(self._next_timeout())
-                for key, mask in ready:
-                    if isinstance(key.data, _Connection):
-                        self._on_ready(key.data, mask)
-                    elif key.data == "wake":
-                        with contextlib.suppress(OSError):
-                            self._wake_r.recv(64)
-                # accept last: a connection accepted in the previous round is read before newer ones can evict it
-                if any(key.data == "listener" for key, _ in ready):
-                    self._accept()
-                self._expire(time.monotonic())
-        except Exception:
-            logger.critical("stop channel thread failed: e-stops over the channel are no longer served", exc_info=True)
+                try:
+                    self._round()
+                except Exception:  # one bad round must not end the stop path for good
+                    logger.critical("stop channel: a serving round failed; serving on", exc_info=True)
+                    time.sleep(0.01)
         finally:
             self._release()
+
+    def _round(self) -> None:
+        ready = self._selector.select(self._next_timeout())
+        for key, mask in ready:
+            if isinstance(key.data, _Connection):
+                self._on_ready(key.data, mask)
+            elif key.data == "wake":
+                with contextlib.suppress(OSError):
+                    self._wake_r.recv(64)
+        # accept last: a connection accepted in the previous round is read before newer ones can evict it
+        if any(key.data == "listener" for key, _ in ready):
+            self._accept()
+        self._expire(time.monotonic())
 
     def _next_timeout(self) -> float | None:
         if not self._connections:
@@ -227,6 +253,7 @@ class StopChannel:
         return min(1.0, max(0.0, min(c.deadline for c in self._connections) - time.monotonic()))
 
     def _accept(self) -> None:
+        fresh: set[_Connection] = set()  # accepted in this round: none is evicted before it had a read
         for _ in range(self._max_connections):  # bounded, so open connections get their turn too
             try:
                 sock, address = self._listener.accept()  # type: ignore[union-attr]
@@ -234,27 +261,37 @@ class StopChannel:
                 return
             except OSError as exc:  # e.g. out of file descriptors: free one of ours
                 logger.warning("stop channel cannot accept: %s", exc.strerror or exc)
-                if self._connections:
-                    self._drop(self._evictee())
+                if (evictee := self._evictee()) is not None:
+                    self._drop(evictee)
                 else:
                     time.sleep(0.01)
                 return
             sock.setblocking(False)
             if len(self._connections) >= self._max_connections:
-                self._drop(self._evictee())
+                evictee = self._evictee(spare=fresh)
+                if evictee is None:  # full of this round's connections: refuse the newest instead
+                    sock.close()
+                    continue
+                self._drop(evictee)
             conn = _Connection(sock, f"{address[0]}:{address[1]}", time.monotonic() + self._request_timeout_s)
             self._connections[conn] = None
             self._selector.register(sock, selectors.EVENT_READ, conn)
+            # read at once: a stop whose bytes are already here is served before a burst of newer
+            # connections could evict it as an idle one
+            self._on_ready(conn, selectors.EVENT_READ)
+            fresh.add(conn)
 
-    def _evictee(self) -> _Connection:
-        """Answered connections first, then unauthenticated ones; the oldest of those."""
-        return min(self._connections, key=lambda c: (not c.answered, c.principal is not None))
+    def _evictee(self, spare: frozenset[_Connection] | set[_Connection] = frozenset()) -> _Connection | None:
+        """Answered connections first, then unauthenticated ones; the oldest of those; never one in `spare`."""
+        candidates = [c for c in self._connections if c not in spare]
+        return min(candidates, key=lambda c: (not c.answered, c.principal is not None)) if candidates else None
 
     def _expire(self, now: float) -> None:
         for conn in [c for c in self._connections if c.deadline <= now]:
             if not conn.answered:
                 with contextlib.suppress(OSError):
                     conn.sock.send(render_response(408, {"error": "request not received in time"}))
+                self._report_refusal(conn.peer, 408, "request not received in time")
             self._drop(conn)
 
     def _on_ready(self, conn: _Connection, mask: int) -> None:
@@ -335,6 +372,25 @@ class StopChannel:
         conn.answered, conn.outgoing = True, render_response(status, payload, headers)
         conn.deadline = time.monotonic() + _LINGER_S
         self._send(conn)
+        if status != 200:
+            self._report_refusal(conn.peer, status, str(payload.get("error", "")))
+
+    def _report_refusal(self, peer: str, status: int, message: str) -> None:
+        """Hand a refusal to `on_refused`, at most once per host and `REFUSAL_REPORT_INTERVAL_S`."""
+        if self._on_refused is None:
+            return
+        host, now = peer.rsplit(":", 1)[0], time.monotonic()
+        last, pending = self._refusals.get(host, (float("-inf"), 0))
+        if now - last < REFUSAL_REPORT_INTERVAL_S:
+            self._refusals[host] = (last, pending + 1)
+            return
+        if len(self._refusals) >= MAX_REPORTED_HOSTS:
+            self._refusals.clear()
+        self._refusals[host] = (now, 0)
+        try:
+            self._on_refused(ChannelRefusal(peer, status, flatten_reason(message, 200), pending))
+        except Exception:
+            logger.exception("stop channel: on_refused failed")
 
     def _send(self, conn: _Connection) -> None:
         try:

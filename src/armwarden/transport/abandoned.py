@@ -169,16 +169,16 @@ class AbandonedMotionStop:
             await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
             return
         message = decode_message(body)
+        if self.on_stop_request is not None and message is not None:
+            tool = stop_call(message.get("method"), message.get("params"))
+            if tool is not None:  # hold the robot now, even if the request is refused below
+                self.on_stop_request(tool, _principal(scope) or None)
         key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
             request_id = message.get("id") if message else None
             await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
-        if self.on_stop_request is not None and message is not None:
-            tool = stop_call(message.get("method"), message.get("params"))
-            if tool is not None:  # hold the robot now; the call then waits its turn like any other
-                self.on_stop_request(tool, _principal(scope) or None)
         if key is not None:
             self._open_requests.add(key)
         try:

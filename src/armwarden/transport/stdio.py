@@ -128,6 +128,8 @@ class GatedReadStream:
             if not isinstance(item.message, JSONRPCRequest):
                 return item
             request = item.message
+            if self._on_stop_request is not None and (tool := stop_call(request.method, request.params)) is not None:
+                self._on_stop_request(tool, None)  # hold the robot now, even if the request is refused below
             key = request_id_key(request.id)
             if key in self._open_ids:
                 logger.warning("stdio: refused %s: request id %r is still open", request.method, request.id)
@@ -137,8 +139,6 @@ class GatedReadStream:
                     self._spawn(self._report_duplicate, request)
                 continue
             self._open_ids.add(key)
-            if self._on_stop_request is not None and (tool := stop_call(request.method, request.params)) is not None:
-                self._on_stop_request(tool, None)  # hold the robot now; the call then waits its turn
             return SessionMessage(request, self._closing_on_settle(item.metadata, key))
 
     def _closing_on_settle(self, metadata: Any, key: str) -> ServerMessageMetadata:

@@ -235,6 +235,9 @@ class TokenStore:
     def __init__(self, path: Path, content: TokenFile, signature: tuple[int, int, int, int] | None) -> None:
         self.path = path
         self._entries: tuple[TokenEntry, ...] = tuple(content.tokens)
+        #: the tokens of the last version of the file that could be used (see `authenticate`)
+        self._last_good: tuple[TokenEntry, ...] = self._entries
+        self._unusable = False
         self._signature = signature
         self._lock = threading.Lock()
 
@@ -252,14 +255,20 @@ class TokenStore:
         self._refresh()
         return len(self._entries)
 
-    def authenticate(self, presented: str) -> Principal | None:
-        """The principal of `presented`, or None. Constant time in the position of the match."""
+    def authenticate(self, presented: str, *, last_good_while_unusable: bool = False) -> Principal | None:
+        """The principal of `presented`, or None. Constant time in the position of the match.
+
+        While the file is unusable (deleted, invalid, writable by others) every token is refused,
+        unless `last_good_while_unusable`: the e-stop channel must not refuse a stop because the
+        token file broke, so it keeps the tokens of the last usable version (a revocation written to
+        a usable file still takes effect at once)."""
         self._refresh()
         if not presented or len(presented) > MAX_PRESENTED_TOKEN_CHARS:
             return None
         digest = hash_token(presented)
         found: TokenEntry | None = None
-        for entry in self._entries:  # no early exit: every stored hash is compared
+        entries = self._last_good if last_good_while_unusable and self._unusable else self._entries
+        for entry in entries:  # no early exit: every stored hash is compared
             if hmac.compare_digest(entry.token_sha256, digest):
                 found = entry
         return None if found is None else Principal(name=found.name, role=found.role)
@@ -277,10 +286,11 @@ class TokenStore:
                 content, current = _read_file(self.path)
             except ConfigurationError as exc:
                 logger.error("token file changed and cannot be used; refusing every token: %s", exc)
-                self._entries, self._signature = (), current
+                self._entries, self._signature, self._unusable = (), current, True
                 return
             logger.info("token file %s changed: %d token(s) now valid", self.path, len(content.tokens))
-            self._entries, self._signature = tuple(content.tokens), current
+            self._entries, self._signature, self._unusable = tuple(content.tokens), current, False
+            self._last_good = self._entries
 
     # ---------------------------------------------------------------- editing the file
     @classmethod

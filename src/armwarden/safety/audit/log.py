@@ -110,6 +110,7 @@ class AuditLog:
         self._texter = Sanitizer(max_string_chars, 1, 1, 1)  # text() only; stateless
         self._lock = threading.Lock()
         self._queue: queue.SimpleQueue | None = None  # jobs for the writer thread (started on first use)
+        self._closing = False  # set by close(): no new writer thread, no new record
         self._thread: threading.Thread | None = None
         self._fd: int | None = None
         self._broken: str | None = None
@@ -202,7 +203,7 @@ class AuditLog:
 
     @property
     def closed(self) -> bool:
-        return self._fd is None
+        return self._fd is None or self._closing
 
     @property
     def last_seq(self) -> int:
@@ -334,6 +335,8 @@ class AuditLog:
 
     def _writer(self) -> queue.SimpleQueue:
         with self._lock:
+            if self._closing:
+                raise AuditWriteError(f"audit log {self.path} is closing")
             if self._queue is None:
                 if self._fd is None:
                     raise AuditWriteError(f"audit log {self.path} is closed")
@@ -398,6 +401,7 @@ class AuditLog:
 
         Records already handed to the writer thread are written first."""
         with self._lock:
+            self._closing = True  # a record handed over from another thread from now on is refused, not lost
             jobs, thread, self._queue, self._thread = self._queue, self._thread, None, None
         if jobs is not None and thread is not None:
             jobs.put(None)
