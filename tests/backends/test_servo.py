@@ -76,6 +76,32 @@ async def test_a_hold_from_another_thread_ends_the_run_stopped_where_it_was_comm
     assert servo.last_hold_stamp == hooks.held[-1].stamp
 
 
+class MeasuredRecorder(Recorder):
+    """A physical arm: it is measured somewhere else than it was commanded."""
+
+    measured = np.array([0.25, -0.125])
+
+    def servo_hold_positions(self, commanded: np.ndarray) -> np.ndarray:
+        return self.measured
+
+
+async def test_a_hold_stands_still_where_the_hooks_measure_the_arm() -> None:
+    hooks = MeasuredRecorder()
+    servo = await started(hooks)
+    try:
+        task = asyncio.create_task(servo.run(line(10.0), lambda fraction: None))
+        while not servo.latest.positions.any():  # noqa: ASYNC110 - polls what the servo thread publishes
+            await asyncio.sleep(0.002)
+        servo.hold()
+        result = await task
+        await asyncio.sleep(0.02)  # idle ticks keep commanding the hold
+    finally:
+        await servo.shutdown()
+    assert result.reason == "stopped" and result.final_positions.tolist() == [0.25, -0.125]
+    assert hooks.held[-1].positions.tolist() == [0.25, -0.125] and not hooks.held[-1].velocities.any()
+    assert hooks.commanded[-1].positions.tolist() == [0.25, -0.125]
+
+
 async def test_a_run_submitted_as_the_servo_thread_dies_is_refused_not_left_hanging() -> None:
     servo = await started(Recorder())
     check = servo.require_running

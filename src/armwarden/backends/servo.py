@@ -74,6 +74,12 @@ class ServoHooks:
         """Servo thread, under the lock, only if no stop landed since the tick began: command
         `setpoint` (publish it, write actuator targets, send frames). Must be quick."""
 
+    def servo_hold_positions(self, commanded: np.ndarray) -> np.ndarray:
+        """Any thread, under the lock, on every stop: where to hold [rad]. Default: the last
+        commanded positions (a kinematic arm is exactly there); a physical arm returns its
+        measured positions, so a stop does not pull it back to where it was told to be."""
+        return commanded
+
     def servo_hold(self, setpoint: Setpoint) -> None:
         """Any thread, under the lock, on every stop: command standing still at
         `setpoint.positions` (velocities are zero). Must be quick; raising reports a failed stop."""
@@ -243,6 +249,7 @@ class ServoLoop:
             self._active = self._pending = None
             setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic())
             try:
+                setpoint = replace(setpoint, positions=frozen(self.hooks.servo_hold_positions(setpoint.positions)))
                 self.hooks.servo_hold(setpoint)
             except BaseException as exc:
                 failure = exc

@@ -1,0 +1,302 @@
+"""The MuJoCo backend: the FR3 cell simulated with real physics behind the backend contract.
+
+Physics runs on the servo thread (`armwarden.backends.servo.ServoLoop`): each tick first steps the
+simulation up to the tick's time (wall time × `speedup`, in `timestep_s` steps), then commands the
+tick's trajectory sample as actuator targets (`MujocoModel.arm_ctrl`: PD with velocity
+feed-forward). The targets are one tuple, replaced whole, and read before every physics step, so
+a stop issued from any thread reaches the actuators at the next step.
+
+What is published is what the simulation measures, never what was commanded: joint positions and
+velocities (`qpos`/`qvel`) and the external wrench, stamped (monotonic clock) after the step that
+produced them. A stop holds the arm where it is *measured* at that instant (`servo_hold_positions`),
+not where it was last told to be; the arm then decelerates physically under its position servos.
+
+Wrench: the flange force/torque sensor measures what the hand's subtree exerts on the arm. At
+rest that is the hand's own weight (and its moment); the estimate subtracts it, computed from the
+subtree's mass and centre of mass at the current pose, and reports the rest — the force the
+environment applies to the hand — at the TCP, in the base frame.
+
+Not yet: the gripper and the cameras (the model has them; the hooks are not written), so this
+backend does not declare those capabilities.
+"""
+
+# mujoco ships compiled pybind11 modules without type stubs (see model.py)
+# pyright: reportAttributeAccessIssue=false
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import mujoco
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from armwarden.backends.base import (
+    Backend,
+    Capabilities,
+    ExecutionResult,
+    JointState,
+    ProgressCallback,
+    Wrench,
+)
+from armwarden.backends.mujoco.model import (
+    GRAVITY_MPS2,
+    CameraSpec,
+    MujocoModel,
+    SceneObject,
+    build_model,
+    default_cameras,
+    scene_for_policy,
+)
+from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.errors import BackendError
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.model import RobotModel, resolve_description
+
+if TYPE_CHECKING:
+    from armwarden.policy import Policy
+
+logger = logging.getLogger(__name__)
+
+#: servo tick period [s] (wall time); physics catches up to each tick in `timestep_s` steps
+CONTROL_PERIOD_S = 0.001
+#: most physics steps one tick may run; a tick further behind (machine stalled) drops the rest
+MAX_STEPS_PER_TICK = 500
+
+Vector3 = tuple[float, float, float]
+
+
+class CameraConfig(BaseModel):
+    """A named camera: in the base frame (no `body`) or on a body, looking from `position_m` at `target_m`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    name: str = Field(min_length=1, description="Camera name, as `camera_snapshot` takes it.")
+    position_m: Vector3 = Field(description="Camera position [m] in the base frame, or in `body`'s frame.")
+    target_m: Vector3 = Field(description="Point the camera looks at [m], same frame.")
+    body: str | None = Field(default=None, description="Body the camera rides on (e.g. the hand); null: fixed in the cell.")
+    up: Vector3 = Field(default=(0.0, 0.0, 1.0), description="Up direction of the image, no unit, same frame.")
+    fovy_deg: float = Field(default=45.0, gt=0, lt=180, allow_inf_nan=False, description="Vertical field of view [deg].")
+
+    def spec(self) -> CameraSpec:
+        return CameraSpec(self.name, self.position_m, self.target_m, self.body, self.up, self.fovy_deg)
+
+
+class ObjectConfig(BaseModel):
+    """A loose rigid object on the table: a box, or an upright cylinder."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    name: str = Field(min_length=1, description="Body name of the object.")
+    shape: Literal["box", "cylinder"] = Field(description="'box' or 'cylinder'.")
+    position_m: Vector3 = Field(description="Centre [m] in the base frame.")
+    size_m: Vector3 = Field(description="Box: full extents (x, y, z) [m]; cylinder: (diameter, unused, height) [m].")
+    mass_kg: float = Field(gt=0, description="Mass [kg].")
+    yaw_rad: float = Field(default=0.0, description="Rotation about the vertical [rad].")
+    friction: float = Field(default=1.0, gt=0, description="Sliding friction coefficient, no unit.")
+
+    def spec(self) -> SceneObject:
+        return SceneObject(self.name, self.shape, self.position_m, self.size_m, self.mass_kg, self.yaw_rad, self.friction)
+
+
+class Config(BaseModel):
+    """`--backend-config` for the MuJoCo backend (strict, like every config file)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    timestep_s: float = Field(default=0.001, gt=0, le=0.005, allow_inf_nan=False, description="Physics step [s].")
+    speedup: float = Field(default=1.0, gt=0, le=100, allow_inf_nan=False,
+                           description="Simulated time per wall time, no unit (2 = twice as fast as real time).")
+    table_top_z_m: float | None = Field(
+        default=None, allow_inf_nan=False,
+        description="Height of the table top [m] in the base frame; null: the policy's workspace floor.",
+    )
+    cameras: tuple[CameraConfig, ...] | None = Field(
+        default=None, description="Named cameras; null: a scene camera and a wrist camera."
+    )
+    camera_width_px: int = Field(default=640, ge=16, le=1280, description="Rendered image width [px].")
+    camera_height_px: int = Field(default=480, ge=16, le=960, description="Rendered image height [px].")
+    objects: tuple[ObjectConfig, ...] = Field(default=(), description="Loose objects in the cell.")
+
+
+@dataclass(frozen=True)
+class _Measured:
+    """One published simulation sample; arrays are read-only."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    force: np.ndarray  # external force on the hand at the TCP, base frame [N]
+    torque: np.ndarray  # external torque about the TCP, base frame [N·m]
+    stamp: float
+
+
+class MujocoBackend(Backend, ServoHooks):
+    """The simulated arm (see the module docstring)."""
+
+    name = "mujoco"
+
+    def __init__(self, robot: RobotModel, cell: MujocoModel, home: np.ndarray, *, speedup: float = 1.0,
+                 start_tolerance_rad: float = 0.05) -> None:
+        super().__init__(robot.joint_names, start_tolerance_rad=start_tolerance_rad)
+        if tuple(cell.arm_joints) != tuple(robot.joint_names):
+            raise BackendError(f"the MuJoCo model's arm joints {cell.arm_joints} are not the robot's {robot.joint_names}")
+        self.cell = cell
+        model = cell.model
+        self._model = model
+        self._data = mujoco.MjData(model)
+        self.timestep_s = float(model.opt.timestep)
+        home = np.asarray(home, dtype=float)
+        cell.set_arm_positions(self._data, home)
+        if cell.gripper_actuator is not None:  # fingers open, and held open
+            for address, name in zip(cell.finger_qpos, cell.finger_joints, strict=True):
+                self._data.qpos[address] = model.jnt_range[model.joint(name).id][1]
+            self._data.ctrl[cell.gripper_actuator] = model.actuator_ctrlrange[cell.gripper_actuator][1]
+        mujoco.mj_forward(model, self._data)
+        self._flange_body = model.body(cell.flange_body).id
+        self._flange_site = model.site(_site_name(model, self._flange_body)).id
+        self._tcp_body = model.body(robot.tcp_frame).id
+        self._base_body = model.body(robot.base_frame).id
+        self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
+        #: (q, q̇) the actuators track; replaced whole (stops, ticks), read before every physics step
+        self._target: tuple[np.ndarray, np.ndarray] = (frozen(home), frozen(np.zeros_like(home)))
+        self._measured = self._measure()
+        self._last_wall: float | None = None  # perf_counter up to which physics has run; None: not started
+        self._pending_sim_s = 0.0
+        #: physics steps run so far
+        self.step_count = 0
+        self._capabilities = Capabilities(wrench=True, frames=tuple(robot.frame_names()))
+        self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, speedup=speedup, name="mujoco backend")
+
+    # ================================================================ lifecycle
+    @property
+    def capabilities(self) -> Capabilities:
+        return self._capabilities
+
+    @property
+    def last_stop_stamp(self) -> float | None:  # the hold is commanded by the stopping thread
+        return self.servo.last_hold_stamp
+
+    @last_stop_stamp.setter
+    def last_stop_stamp(self, stamp: float | None) -> None:  # the servo loop records it
+        pass
+
+    async def _open(self) -> None:
+        self._last_wall = time.perf_counter()
+        await self.servo.start("armwarden-mujoco-physics")
+
+    async def _close(self) -> None:
+        await self.servo.shutdown()
+
+    # ================================================================ state
+    def _latest_joint_state(self) -> JointState:
+        self.servo.require_running()
+        sample = self._measured
+        return JointState(self.joint_names, sample.positions, sample.velocities, sample.stamp)
+
+    async def _read_joint_state(self) -> JointState:
+        return self._latest_joint_state()
+
+    def _latest_wrench(self) -> Wrench:
+        self.servo.require_running()
+        sample = self._measured
+        return Wrench(sample.force, sample.torque, sample.stamp)
+
+    async def _read_wrench(self) -> Wrench:
+        return self._latest_wrench()
+
+    # ================================================================ motion
+    async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        self.servo.require_running()
+        return await self.servo.run(trajectory, progress, preempted=self._stop_landed)
+
+    async def _stop(self) -> None:
+        self.servo.hold()
+        self.servo.require_running()  # held either way; a dead physics thread is still a failure
+
+    def _stop_now(self) -> None:
+        self.servo.hold()
+        self.servo.require_running()
+
+    # ================================================================ servo hooks
+    def servo_prepare(self, setpoint: Setpoint) -> None:
+        """Servo thread: run the physics up to now (× speedup) with the current targets."""
+        if self._last_wall is None or threading.current_thread() is not self.servo.thread:
+            return  # the loop's first setpoint is prepared at construction, before physics runs
+        now = time.perf_counter()
+        self._pending_sim_s += (now - self._last_wall) * self.servo.speedup
+        self._last_wall = now
+        steps = int(self._pending_sim_s / self.timestep_s)
+        self._pending_sim_s -= steps * self.timestep_s
+        if steps > MAX_STEPS_PER_TICK:
+            logger.warning("mujoco backend: physics fell %d steps behind; dropping them", steps - MAX_STEPS_PER_TICK)
+            steps = MAX_STEPS_PER_TICK
+        if steps == 0:
+            return
+        model, data, cell = self._model, self._data, self.cell
+        for _ in range(steps):
+            q, qd = self._target
+            data.ctrl[cell.arm_actuators] = cell.arm_ctrl(q, qd)
+            mujoco.mj_step(model, data)
+        self.step_count += steps
+        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+            raise BackendError("the simulation diverged (non-finite state)")
+        self._measured = self._measure()
+
+    def servo_command(self, setpoint: Setpoint) -> None:
+        self._target = (setpoint.positions, setpoint.velocities)
+
+    def servo_hold_positions(self, commanded: np.ndarray) -> np.ndarray:
+        return self._measured.positions
+
+    def servo_hold(self, setpoint: Setpoint) -> None:
+        self._target = (setpoint.positions, setpoint.velocities)
+
+    # ================================================================ measurement (servo thread)
+    def _measure(self) -> _Measured:
+        data, cell = self._data, self.cell
+        site_rotation = data.site_xmat[self._flange_site].reshape(3, 3)
+        site_position = data.site_xpos[self._flange_site]
+        # what the hand's subtree exerts on the arm, in the world frame, about the flange site
+        exerted_force = site_rotation @ data.sensordata[cell.force_sensor_adr:cell.force_sensor_adr + 3]
+        exerted_torque = site_rotation @ data.sensordata[cell.torque_sensor_adr:cell.torque_sensor_adr + 3]
+        # the hand's own weight, at its centre of mass: what it exerts at rest with nothing touching it
+        weight = np.array([0.0, 0.0, -self._hand_weight_n])
+        weight_torque = np.cross(data.subtree_com[self._flange_body] - site_position, weight)
+        # the sensor reads the arm's force on the hand: at rest it carries the weight exactly
+        # (arm + weight + environment = 0), so the environment's share is what remains, reversed;
+        # while the hand accelerates, its inertial force shows up here too
+        force = -(exerted_force + weight)
+        torque_site = -(exerted_torque + weight_torque)
+        torque_tcp = torque_site + np.cross(site_position - data.xpos[self._tcp_body], force)
+        base_rotation = data.xmat[self._base_body].reshape(3, 3).T  # world → base
+        return _Measured(
+            positions=frozen(data.qpos[cell.arm_qpos]),
+            velocities=frozen(data.qvel[cell.arm_dofs]),
+            force=frozen(base_rotation @ force),
+            torque=frozen(base_rotation @ torque_tcp),
+            stamp=time.monotonic(),
+        )
+
+
+def _site_name(model: mujoco.MjModel, body_id: int) -> str:
+    for site in range(model.nsite):
+        if model.site_bodyid[site] == body_id:
+            return model.site(site).name
+    raise BackendError("the MuJoCo model has no flange site")
+
+
+def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoBackend:
+    """Registry factory: the simulated cell for `policy`'s robot, with `config`'s options."""
+    overrides: dict[str, object] = {"timestep_s": config.timestep_s}
+    if config.table_top_z_m is not None:
+        overrides["table_top_z_m"] = config.table_top_z_m
+    overrides["cameras"] = default_cameras() if config.cameras is None else tuple(c.spec() for c in config.cameras)
+    overrides["objects"] = tuple(o.spec() for o in config.objects)
+    scene = scene_for_policy(policy, **overrides)
+    cell = build_model(resolve_description(policy.robot.description), robot, scene)
+    return MujocoBackend(robot, cell, np.asarray(policy.robot.home_joint_positions, dtype=float),
+                         speedup=config.speedup, start_tolerance_rad=policy.motion.start_tolerance_rad)
+
+
+__all__ = ["CONTROL_PERIOD_S", "CameraConfig", "Config", "MujocoBackend", "ObjectConfig", "create_backend"]
