@@ -84,17 +84,30 @@ def test_published_state_is_the_measured_one_and_lags_the_command_while_moving()
     assert np.max(np.abs(state.positions - commanded)) < 0.05
 
 
-def test_a_completed_execution_settles_at_the_goal():
+def test_execute_returns_completed_once_the_arm_has_settled_at_the_goal():
     async def scenario(backend: MujocoBackend):
         q_start = (await backend.read_joint_state()).positions.copy()
         trajectory = straight_line(backend.joint_names, q_start, q_start + 0.2, 0.3)
-        assert (await backend.execute(trajectory)).completed
-        await asyncio.sleep(0.5)
-        return trajectory.goal, await backend.read_joint_state()
+        result = await backend.execute(trajectory)
+        return trajectory.goal, result, await backend.read_joint_state()
 
-    goal, settled = run_with_backend(scenario)
-    np.testing.assert_allclose(settled.positions, goal, rtol=0, atol=1e-4)
-    assert np.max(np.abs(settled.velocities)) < 1e-3
+    goal, result, after = run_with_backend(scenario)
+    assert result.completed
+    np.testing.assert_allclose(result.final_positions, goal, rtol=0, atol=1e-3)
+    np.testing.assert_allclose(after.positions, goal, rtol=0, atol=1e-3)
+    assert np.max(np.abs(after.velocities)) <= 1e-3
+
+
+def test_a_stop_while_the_arm_settles_ends_the_execution_stopped():
+    async def scenario(backend: MujocoBackend):
+        q_start = (await backend.read_joint_state()).positions.copy()
+        task = asyncio.create_task(backend.execute(straight_line(backend.joint_names, q_start, q_start + 0.2, 0.2)))
+        while backend.servo.latest.positions.tolist() != (q_start + 0.2).tolist():  # noqa: ASYNC110 - polls the servo
+            await asyncio.sleep(0.001)  # the trajectory's time is up: the goal is commanded, the arm catches up
+        await backend.stop()
+        return await task
+
+    assert run_with_backend(scenario).reason == "stopped"
 
 
 # ---------------------------------------------------------------------------- stop

@@ -25,6 +25,7 @@ backend does not declare those capabilities.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import threading
 import time
@@ -66,6 +67,15 @@ logger = logging.getLogger(__name__)
 CONTROL_PERIOD_S = 0.001
 #: most physics steps one tick may run; a tick further behind (machine stalled) drops the rest
 MAX_STEPS_PER_TICK = 500
+
+#: an execution has finished when the measured arm is this close to the goal [rad] ...
+SETTLE_POSITION_RAD = 1e-3
+#: ... and this slow [rad/s] (the speed below which the arm counts as stopped)
+SETTLE_SPEED_RAD_S = 1e-3
+#: simulated time [s] the arm may take to settle after the trajectory's time is up
+SETTLE_TIMEOUT_S = 1.0
+#: how often the event loop looks at the published sample while waiting to settle [s]
+SETTLE_POLL_S = 0.002
 
 Vector3 = tuple[float, float, float]
 
@@ -208,7 +218,29 @@ class MujocoBackend(Backend, ServoHooks):
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
         self.servo.require_running()
-        return await self.servo.run(trajectory, progress, preempted=self._stop_landed)
+        result = await self.servo.run(trajectory, progress, preempted=self._stop_landed)
+        if not result.completed:
+            return result
+        return await self._settle(trajectory.goal)
+
+    async def _settle(self, goal: np.ndarray) -> ExecutionResult:
+        """The trajectory's time is up and its goal is commanded; the physical arm is still
+        catching up. Finished = at the goal (`SETTLE_POSITION_RAD`) and still (`SETTLE_SPEED_RAD_S`),
+        within `SETTLE_TIMEOUT_S` of simulated time; a stop meanwhile ends it "stopped"."""
+        deadline = time.monotonic() + SETTLE_TIMEOUT_S / self.servo.speedup
+        while True:
+            sample = self._measured
+            if self._stop_landed():
+                return ExecutionResult(False, "stopped", self.servo.latest.positions.copy())
+            if (np.max(np.abs(sample.positions - goal)) <= SETTLE_POSITION_RAD
+                    and np.max(np.abs(sample.velocities)) <= SETTLE_SPEED_RAD_S):
+                return ExecutionResult(True, "completed", sample.positions.copy())
+            if time.monotonic() > deadline:
+                error = float(np.max(np.abs(sample.positions - goal)))
+                return ExecutionResult(False, f"did not settle at the goal within {SETTLE_TIMEOUT_S} s "
+                                       f"(off by {error:.4f} rad)", sample.positions.copy())
+            self.servo.require_running()
+            await asyncio.sleep(SETTLE_POLL_S)
 
     async def _stop(self) -> None:
         self.servo.hold()
