@@ -1,5 +1,6 @@
 """The MuJoCo backend: the backend contract on real physics, measured state, stops that hold the
-arm where it is measured, and a wrench that reads only what the environment does to the hand."""
+arm where it is measured, a wrench that reads only what the environment does to the hand, and
+fingers that hold an object by contact and friction."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ pytest.importorskip("mujoco")
 from pydantic import ValidationError
 
 from armwarden.backends.base import Backend
-from armwarden.backends.mujoco.backend import Config, MujocoBackend, create_backend
+from armwarden.backends.mujoco.backend import Config, MujocoBackend, ObjectConfig, create_backend
+from armwarden.errors import BackendError
 from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy
 from armwarden.robot import build_robot
@@ -163,3 +165,68 @@ def test_pressing_the_hand_into_the_table_reads_an_upward_force():
     wrench = run_with_backend(scenario, table_top_z_m=table_z, speedup=2.0)
     assert wrench is not None
     assert wrench.force[2] > 5.0  # the table pushes the hand up (friction adds a sideways part)
+
+
+# ---------------------------------------------------------------------------- gripper
+def test_the_fingers_move_to_a_width_and_home_to_fully_open():
+    async def scenario(backend: MujocoBackend):
+        moved = await backend.gripper_move(0.04, 0.1)
+        state = await backend.gripper_state()
+        return moved, state, await backend.gripper_home()
+
+    moved, state, homed = run_with_backend(scenario, speedup=4.0)
+    assert moved.success and moved.width_m == pytest.approx(0.04, abs=1e-3)
+    assert state is not None and not state.moving and state.width_m == pytest.approx(0.04, abs=1e-3)
+    assert homed.success and homed.width_m == pytest.approx(0.08, abs=1e-3)
+
+
+def test_a_stop_freezes_the_fingers_where_they_are():
+    async def scenario(backend: MujocoBackend):
+        task = asyncio.create_task(backend.gripper_move(0.0, 0.02))  # 4 s to close
+        await asyncio.sleep(0.3)
+        backend.stop_now()
+        result = await task
+        await asyncio.sleep(0.2)
+        return result, await backend.gripper_state()
+
+    result, later = run_with_backend(scenario)
+    assert not result.success and result.detail == "stopped"
+    assert 0.0 < result.width_m < 0.08
+    assert later is not None and later.width_m == pytest.approx(result.width_m, abs=5e-4)
+
+
+def test_widths_forces_and_speeds_out_of_range_are_refused():
+    async def scenario(backend: MujocoBackend):
+        for call in (lambda: backend.gripper_move(0.09, 0.1), lambda: backend.gripper_move(0.04, float("nan")),
+                     lambda: backend.gripper_grasp(0.03, 71.0, 0.1, 0.005, 0.005)):
+            with pytest.raises(BackendError, match=r"outside|speed"):
+                await call()
+        return await backend.gripper_state()
+
+    state = run_with_backend(scenario)
+    assert state is not None and state.width_m == pytest.approx(0.08, abs=1e-6)
+
+
+def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts():
+    home = np.asarray(POLICY.robot.home_joint_positions, dtype=float)
+    tcp = ROBOT.tcp_pose(home).position
+    table_z = float(tcp[2]) - 0.04  # the fingertips 4 cm above the table, the box between the fingers
+    box = ObjectConfig(name="box", shape="box", position_m=(float(tcp[0]), float(tcp[1]), table_z + 0.035),
+                       size_m=(0.03, 0.03, 0.07), mass_kg=0.2)
+    q_up = home + np.array([0.0, 0.0, 0.0, 0.15, 0.0, -0.15, 0.0])  # the TCP rises 5.6 cm
+    rise_m = float(ROBOT.tcp_pose(q_up).position[2] - tcp[2])
+
+    async def scenario(backend: MujocoBackend):
+        box_id = backend.cell.model.body("box").id
+        await asyncio.sleep(0.1)
+        grasp = await backend.gripper_grasp(0.03, 40.0, 0.1, 0.005, 0.005)
+        z_before = float(backend._data.xpos[box_id][2])
+        q_now = (await backend.read_joint_state()).positions
+        lifted = await backend.execute(straight_line(backend.joint_names, q_now, q_up, 1.0))
+        await asyncio.sleep(0.2)
+        return grasp, lifted, float(backend._data.xpos[box_id][2]) - z_before
+
+    grasp, lifted, box_rise_m = run_with_backend(scenario, speedup=2.0, table_top_z_m=table_z, objects=[box.model_dump()])
+    assert grasp.success and grasp.is_grasped and grasp.width_m == pytest.approx(0.03, abs=5e-3)
+    assert lifted.completed
+    assert box_rise_m > 0.8 * rise_m  # it came along (no weld: contact and friction only)

@@ -16,8 +16,12 @@ rest that is the hand's own weight (and its moment); the estimate subtracts it, 
 subtree's mass and centre of mass at the current pose, and reports the rest — the force the
 environment applies to the hand — at the TCP, in the base frame.
 
-Not yet: the gripper and the cameras (the model has them; the hooks are not written), so this
-backend does not declare those capabilities.
+Gripper: the finger actuator tracks a width ramp at the requested speed, its force capped by the
+grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
+the fingers at their measured width, like the arm.
+
+Not yet: the cameras (the model has them; the hook is not written), so this backend does not
+declare them.
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -40,6 +44,8 @@ from armwarden.backends.base import (
     Backend,
     Capabilities,
     ExecutionResult,
+    GripperResult,
+    GripperState,
     JointState,
     ProgressCallback,
     Wrench,
@@ -76,6 +82,34 @@ SETTLE_SPEED_RAD_S = 1e-3
 SETTLE_TIMEOUT_S = 1.0
 #: how often the event loop looks at the published sample while waiting to settle [s]
 SETTLE_POLL_S = 0.002
+
+#: finger speed [m/s] of `gripper_home`
+GRIPPER_HOMING_SPEED_MPS = 0.05
+#: the fingers count as still below this opening speed [m/s]
+GRIPPER_STILL_MPS = 1e-3
+#: a finger move has arrived within this width [m]
+GRIPPER_ARRIVED_M = 1e-3
+
+
+@dataclass(frozen=True)
+class _FingerTarget:
+    """What the finger actuator tracks: a ramp of the width [m] from `start_m` to `goal_m` at
+    `speed_mps`, begun at simulated time `start_s`, pressing with at most `force_n` [N]."""
+
+    start_m: float
+    goal_m: float
+    speed_mps: float
+    start_s: float
+    force_n: float
+
+    def width_at(self, sim_s: float) -> float:
+        travel = abs(self.goal_m - self.start_m)
+        done = min(travel, self.speed_mps * max(0.0, sim_s - self.start_s))
+        return self.goal_m if done >= travel else self.start_m + np.sign(self.goal_m - self.start_m) * done
+
+    def ramp_done(self, sim_s: float) -> bool:
+        return self.speed_mps * (sim_s - self.start_s) >= abs(self.goal_m - self.start_m)
+
 
 Vector3 = tuple[float, float, float]
 
@@ -138,6 +172,9 @@ class _Measured:
     velocities: np.ndarray
     force: np.ndarray  # external force on the hand at the TCP, base frame [N]
     torque: np.ndarray  # external torque about the TCP, base frame [N·m]
+    gripper_width_m: float
+    gripper_speed_mps: float
+    sim_s: float  # simulated time of the sample [s]
     stamp: float
 
 
@@ -163,6 +200,17 @@ class MujocoBackend(Backend, ServoHooks):
                 self._data.qpos[address] = model.jnt_range[model.joint(name).id][1]
             self._data.ctrl[cell.gripper_actuator] = model.actuator_ctrlrange[cell.gripper_actuator][1]
         mujoco.mj_forward(model, self._data)
+        self._finger_dofs = np.array([model.jnt_dofadr[model.joint(name).id] for name in cell.finger_joints], dtype=np.intp)
+        self._gripper = cell.gripper_actuator
+        #: the full opening [m] (the finger actuator's control range)
+        self.gripper_max_width_m = float(model.actuator_ctrlrange[self._gripper][1]) if self._gripper is not None else 0.0
+        self.gripper_travel_m = self.gripper_max_width_m
+        self._grasp_force_limit_n = float(model.actuator_forcerange[self._gripper][1]) if self._gripper is not None else 0.0
+        #: what the fingers track; replaced whole (gripper actions, stops), read before every physics step
+        self._fingers = _FingerTarget(self.gripper_max_width_m, self.gripper_max_width_m, 1.0, 0.0, self._grasp_force_limit_n)
+        self._gripper_lock = threading.Lock()  # starting the fingers vs a stop from any thread
+        self._gripper_busy = False  # a gripper action runs (event loop only)
+        self._gripper_grasped = False
         self._flange_body = model.body(cell.flange_body).id
         self._flange_site = model.site(_site_name(model, self._flange_body)).id
         self._tcp_body = model.body(robot.tcp_frame).id
@@ -175,7 +223,7 @@ class MujocoBackend(Backend, ServoHooks):
         self._pending_sim_s = 0.0
         #: physics steps run so far
         self.step_count = 0
-        self._capabilities = Capabilities(wrench=True, frames=tuple(robot.frame_names()))
+        self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, frames=tuple(robot.frame_names()))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, speedup=speedup, name="mujoco backend")
 
     # ================================================================ lifecycle
@@ -243,12 +291,90 @@ class MujocoBackend(Backend, ServoHooks):
             await asyncio.sleep(SETTLE_POLL_S)
 
     async def _stop(self) -> None:
-        self.servo.hold()
-        self.servo.require_running()  # held either way; a dead physics thread is still a failure
+        self._stop_now()
 
     def _stop_now(self) -> None:
         self.servo.hold()
+        self._freeze_fingers()
+        self.servo.require_running()  # held either way; a dead physics thread is still a failure
+
+    def _freeze_fingers(self) -> None:
+        """Any thread: the fingers hold their measured width from the next physics step on."""
+        with self._gripper_lock:
+            sample = self._measured
+            width = sample.gripper_width_m
+            self._fingers = _FingerTarget(width, width, 1.0, sample.sim_s, self._fingers.force_n)
+
+    # ================================================================ gripper
+    async def _gripper_state(self) -> GripperState:
+        sample = self._measured
+        moving = self._gripper_busy or abs(sample.gripper_speed_mps) > GRIPPER_STILL_MPS
+        return GripperState(sample.gripper_width_m, self._gripper_grasped, moving, sample.stamp)
+
+    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
+        self._check_gripper_args(width_m, speed_mps)
+        width, stopped = await self._run_fingers(width_m, speed_mps, self._grasp_force_limit_n, arrive=True)
+        if stopped:
+            return GripperResult(False, width, False, "stopped")
+        if abs(width - width_m) > GRIPPER_ARRIVED_M:
+            return GripperResult(False, width, False, f"blocked at {width:.4f} m")
+        return GripperResult(True, width, False, "")
+
+    async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
+                             epsilon_outer_m: float) -> GripperResult:
+        self._check_gripper_args(width_m, speed_mps)
+        for name, value in (("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
+            if not (np.isfinite(value) and value >= 0):
+                raise BackendError(f"gripper grasp: {name} must be finite and ≥ 0, got {value}")
+        if not (np.isfinite(force_n) and 0 < force_n <= self._grasp_force_limit_n):
+            raise BackendError(f"gripper grasp force {force_n} N outside (0, {self._grasp_force_limit_n}] N")
+        # close fully with the force capped: the fingers stop where the object stops them
+        width, stopped = await self._run_fingers(0.0, speed_mps, float(force_n), arrive=False)
+        if stopped:
+            return GripperResult(False, width, False, "stopped")
+        low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
+        grasped = low <= width <= high
+        self._gripper_grasped = grasped
+        detail = "" if grasped else f"final width {width:.4f} m outside [{low:.4f}, {high:.4f}] m"
+        return GripperResult(grasped, width, grasped, detail)
+
+    async def _gripper_home(self) -> GripperResult:
+        return await self._gripper_move(self.gripper_max_width_m, GRIPPER_HOMING_SPEED_MPS)
+
+    def _check_gripper_args(self, width_m: float, speed_mps: float) -> None:
+        if not (np.isfinite(width_m) and 0.0 <= width_m <= self.gripper_max_width_m):
+            raise BackendError(f"gripper width {width_m} m outside [0, {self.gripper_max_width_m}] m")
+        if not (np.isfinite(speed_mps) and speed_mps > 0):
+            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
+
+    async def _run_fingers(self, goal_m: float, speed_mps: float, force_n: float, *, arrive: bool) -> tuple[float, bool]:
+        """Ramp the fingers to `goal_m`; wait until they arrived (`arrive`) or, the ramp done, stand
+        still (against an object or at the goal). Returns (measured width, whether a stop ended it)."""
+        if self._gripper_busy:
+            raise BackendError("the gripper is already moving; one gripper action at a time")
         self.servo.require_running()
+        with self._gripper_lock:  # started atomically with the check: a stop from any thread that came first wins
+            if self._gripper_stop_landed():
+                return self._measured.gripper_width_m, True
+            sample = self._measured
+            target = _FingerTarget(sample.gripper_width_m, goal_m, speed_mps, sample.sim_s, force_n)
+            self._fingers = target
+        self._gripper_busy = True
+        self._gripper_grasped = False  # any motion releases what was held
+        try:
+            while True:
+                await asyncio.sleep(SETTLE_POLL_S)
+                self.servo.require_running()
+                sample = self._measured
+                if self._gripper_stop_landed():
+                    return sample.gripper_width_m, True
+                still = abs(sample.gripper_speed_mps) <= GRIPPER_STILL_MPS
+                if arrive and abs(sample.gripper_width_m - goal_m) <= GRIPPER_ARRIVED_M and still:
+                    return sample.gripper_width_m, False
+                if target.ramp_done(sample.sim_s - 0.05) and still:  # 50 ms simulated past the ramp, still
+                    return sample.gripper_width_m, False
+        finally:
+            self._gripper_busy = False
 
     # ================================================================ servo hooks
     def servo_prepare(self, setpoint: Setpoint) -> None:
@@ -269,6 +395,10 @@ class MujocoBackend(Backend, ServoHooks):
         for _ in range(steps):
             q, qd = self._target
             data.ctrl[cell.arm_actuators] = cell.arm_ctrl(q, qd)
+            if self._gripper is not None:
+                fingers = self._fingers
+                data.ctrl[self._gripper] = fingers.width_at(data.time)
+                model.actuator_forcerange[self._gripper] = (-fingers.force_n, fingers.force_n)
             mujoco.mj_step(model, data)
         self.step_count += steps
         if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
@@ -307,6 +437,9 @@ class MujocoBackend(Backend, ServoHooks):
             velocities=frozen(data.qvel[cell.arm_dofs]),
             force=frozen(base_rotation @ force),
             torque=frozen(base_rotation @ torque_tcp),
+            gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),
+            gripper_speed_mps=float(np.sum(data.qvel[self._finger_dofs])),
+            sim_s=float(data.time),
             stamp=time.monotonic(),
         )
 
