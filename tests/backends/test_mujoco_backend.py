@@ -207,7 +207,8 @@ def test_widths_forces_and_speeds_out_of_range_are_refused():
     assert state is not None and state.width_m == pytest.approx(0.08, abs=1e-6)
 
 
-def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts():
+@pytest.mark.parametrize("stop_after_grasp", [False, True], ids=["grasped", "grasped then stopped"])
+def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts(stop_after_grasp):
     home = np.asarray(POLICY.robot.home_joint_positions, dtype=float)
     tcp = ROBOT.tcp_pose(home).position
     table_z = float(tcp[2]) - 0.04  # the fingertips 4 cm above the table, the box between the fingers
@@ -220,13 +221,17 @@ def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts():
         box_id = backend.cell.model.body("box").id
         await asyncio.sleep(0.1)
         grasp = await backend.gripper_grasp(0.03, 40.0, 0.1, 0.005, 0.005)
+        if stop_after_grasp:  # a stop must not open the hand
+            await backend.stop()
         z_before = float(backend._data.xpos[box_id][2])
         q_now = (await backend.read_joint_state()).positions
-        lifted = await backend.execute(straight_line(backend.joint_names, q_now, q_up, 1.0))
+        lifted = await backend.execute(straight_line(backend.joint_names, q_now, q_up, 1.0), stop_epoch=backend.stop_epoch)
         await asyncio.sleep(0.2)
-        return grasp, lifted, float(backend._data.xpos[box_id][2]) - z_before
+        squeeze_n = -float(backend._data.actuator_force[backend.cell.gripper_actuator])
+        return grasp, lifted, float(backend._data.xpos[box_id][2]) - z_before, squeeze_n
 
-    grasp, lifted, box_rise_m = run_with_backend(scenario, speedup=2.0, table_top_z_m=table_z, objects=[box.model_dump()])
+    grasp, lifted, box_rise_m, squeeze_n = run_with_backend(scenario, speedup=2.0, table_top_z_m=table_z, objects=[box.model_dump()])
     assert grasp.success and grasp.is_grasped and grasp.width_m == pytest.approx(0.03, abs=5e-3)
     assert lifted.completed
     assert box_rise_m > 0.8 * rise_m  # it came along (no weld: contact and friction only)
+    assert squeeze_n == pytest.approx(40.0, rel=0.05)  # still squeezed with the grasp force, stop or not

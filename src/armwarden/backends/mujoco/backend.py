@@ -18,7 +18,7 @@ environment applies to the hand — at the TCP, in the base frame.
 
 Gripper: the finger actuator tracks a width ramp at the requested speed, its force capped by the
 grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
-the fingers at their measured width, like the arm.
+the finger target where its ramp is (fingers on an object keep their grip; see `_freeze_fingers`).
 
 Not yet: the cameras (the model has them; the hook is not written), so this backend does not
 declare them.
@@ -299,11 +299,14 @@ class MujocoBackend(Backend, ServoHooks):
         self.servo.require_running()  # held either way; a dead physics thread is still a failure
 
     def _freeze_fingers(self) -> None:
-        """Any thread: the fingers hold their measured width from the next physics step on."""
+        """Any thread: the finger ramp stops where it is from the next physics step on. The target
+        freezes, not the measured width: fingers closed on an object keep squeezing it (with the
+        grasp's force), so a stop never drops what the hand holds; free fingers stop within the
+        servo's lag of their measured width."""
         with self._gripper_lock:
-            sample = self._measured
-            width = sample.gripper_width_m
-            self._fingers = _FingerTarget(width, width, 1.0, sample.sim_s, self._fingers.force_n)
+            fingers, sim_s = self._fingers, self._measured.sim_s
+            width = fingers.width_at(sim_s)
+            self._fingers = _FingerTarget(width, width, 1.0, sim_s, fingers.force_n)
 
     # ================================================================ gripper
     async def _gripper_state(self) -> GripperState:
