@@ -5,6 +5,7 @@ fingers that hold an object by contact and friction."""
 from __future__ import annotations
 
 import asyncio
+import io
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platfo
 
 pytest.importorskip("mujoco")
 
+from PIL import Image
 from pydantic import ValidationError
 
 from armwarden.backends.base import Backend
@@ -235,3 +237,31 @@ def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts(st
     assert lifted.completed
     assert box_rise_m > 0.8 * rise_m  # it came along (no weld: contact and friction only)
     assert squeeze_n == pytest.approx(40.0, rel=0.05)  # still squeezed with the grasp force, stop or not
+
+
+# ---------------------------------------------------------------------------- cameras
+@pytest.mark.parametrize("camera", ["scene", "wrist"])
+def test_a_camera_snapshot_is_a_png_of_the_configured_size_that_is_not_blank(camera):
+    async def scenario(backend: MujocoBackend):
+        return await backend.camera_snapshot(camera)
+
+    image = run_with_backend(scenario, camera_width_px=320, camera_height_px=240)
+    pixels = np.asarray(Image.open(io.BytesIO(image.png)), dtype=float)
+    assert image.camera == camera and (image.width, image.height) == (320, 240)
+    assert pixels.shape == (240, 320, 3)
+    assert pixels.std() > 10.0  # a scene, not a cleared buffer
+
+
+def test_the_scene_camera_sees_the_simulated_arm_move():
+    async def scenario(backend: MujocoBackend):
+        before = await backend.camera_snapshot("scene")
+        q_start = (await backend.read_joint_state()).positions.copy()
+        turned = q_start + np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+        assert (await backend.execute(straight_line(backend.joint_names, q_start, turned, 1.0))).completed
+        return before, await backend.camera_snapshot("scene")
+
+    before, after = run_with_backend(scenario, speedup=4.0, camera_width_px=320, camera_height_px=240)
+    first, second = (np.asarray(Image.open(io.BytesIO(image.png)), dtype=float) for image in (before, after))
+    changed = np.abs(second - first).max(axis=2) > 30.0
+    assert changed.mean() > 0.01  # over 1 % of the pixels changed clearly
+    assert after.stamp > before.stamp

@@ -20,8 +20,8 @@ Gripper: the finger actuator tracks a width ramp at the requested speed, its for
 grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
 the finger target where its ramp is (fingers on an object keep their grip; see `_freeze_fingers`).
 
-Not yet: the cameras (the model has them; the hook is not written), so this backend does not
-declare them.
+Cameras render offscreen on their own thread (it owns the GL context), from the last published
+configuration of every body, so rendering never holds up the physics.
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -30,9 +30,11 @@ declare them.
 from __future__ import annotations
 
 import asyncio
+import io
 import logging
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -42,6 +44,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.base import (
     Backend,
+    CameraImage,
     Capabilities,
     ExecutionResult,
     GripperResult,
@@ -175,6 +178,7 @@ class _Measured:
     gripper_width_m: float
     gripper_speed_mps: float
     sim_s: float  # simulated time of the sample [s]
+    scene_qpos: np.ndarray  # every body's configuration (arm, fingers, objects), for rendering
     stamp: float
 
 
@@ -184,7 +188,7 @@ class MujocoBackend(Backend, ServoHooks):
     name = "mujoco"
 
     def __init__(self, robot: RobotModel, cell: MujocoModel, home: np.ndarray, *, speedup: float = 1.0,
-                 start_tolerance_rad: float = 0.05) -> None:
+                 start_tolerance_rad: float = 0.05, camera_size_px: tuple[int, int] = (640, 480)) -> None:
         super().__init__(robot.joint_names, start_tolerance_rad=start_tolerance_rad)
         if tuple(cell.arm_joints) != tuple(robot.joint_names):
             raise BackendError(f"the MuJoCo model's arm joints {cell.arm_joints} are not the robot's {robot.joint_names}")
@@ -223,7 +227,14 @@ class MujocoBackend(Backend, ServoHooks):
         self._pending_sim_s = 0.0
         #: physics steps run so far
         self.step_count = 0
-        self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, frames=tuple(robot.frame_names()))
+        #: rendered image size (width, height) [px]
+        self.camera_size_px = camera_size_px
+        # one thread owns the renderer (its GL context is current there), off the physics thread
+        self._render_pool: ThreadPoolExecutor | None = None
+        self._renderer: mujoco.Renderer | None = None
+        self._render_data: mujoco.MjData | None = None
+        self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, cameras=tuple(cell.cameras),
+                                          frames=tuple(robot.frame_names()))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, speedup=speedup, name="mujoco backend")
 
     # ================================================================ lifecycle
@@ -245,6 +256,10 @@ class MujocoBackend(Backend, ServoHooks):
 
     async def _close(self) -> None:
         await self.servo.shutdown()
+        pool, self._render_pool = self._render_pool, None
+        if pool is not None:
+            await asyncio.wrap_future(pool.submit(self._close_renderer))
+            pool.shutdown(wait=False)
 
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
@@ -379,6 +394,38 @@ class MujocoBackend(Backend, ServoHooks):
         finally:
             self._gripper_busy = False
 
+    # ================================================================ cameras
+    async def _camera_snapshot(self, camera: str) -> CameraImage:
+        self.servo.require_running()
+        if self._render_pool is None:
+            self._render_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="armwarden-mujoco-render")
+        sample = self._measured
+        png = await asyncio.wrap_future(self._render_pool.submit(self._render_png, camera, sample.scene_qpos))
+        width, height = self.camera_size_px
+        return CameraImage(camera, width, height, png, sample.stamp)
+
+    def _render_png(self, camera: str, qpos: np.ndarray) -> bytes:
+        """Render thread: the published configuration seen by `camera`, as PNG bytes."""
+        from PIL import Image  # the render path only: pillow is optional for the other backends
+
+        width, height = self.camera_size_px
+        renderer, data = self._renderer, self._render_data
+        if renderer is None or data is None:
+            renderer = self._renderer = mujoco.Renderer(self._model, height, width)
+            data = self._render_data = mujoco.MjData(self._model)
+        data.qpos[:] = qpos
+        mujoco.mj_kinematics(self._model, data)
+        mujoco.mj_camlight(self._model, data)
+        renderer.update_scene(data, camera=camera)
+        buffer = io.BytesIO()
+        Image.fromarray(renderer.render()).save(buffer, format="PNG")
+        return buffer.getvalue()
+
+    def _close_renderer(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
     # ================================================================ servo hooks
     def servo_prepare(self, setpoint: Setpoint) -> None:
         """Servo thread: run the physics up to now (× speedup) with the current targets."""
@@ -443,6 +490,7 @@ class MujocoBackend(Backend, ServoHooks):
             gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),
             gripper_speed_mps=float(np.sum(data.qvel[self._finger_dofs])),
             sim_s=float(data.time),
+            scene_qpos=frozen(data.qpos),
             stamp=time.monotonic(),
         )
 
@@ -464,7 +512,8 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoB
     scene = scene_for_policy(policy, **overrides)
     cell = build_model(resolve_description(policy.robot.description), robot, scene)
     return MujocoBackend(robot, cell, np.asarray(policy.robot.home_joint_positions, dtype=float),
-                         speedup=config.speedup, start_tolerance_rad=policy.motion.start_tolerance_rad)
+                         speedup=config.speedup, start_tolerance_rad=policy.motion.start_tolerance_rad,
+                         camera_size_px=(config.camera_width_px, config.camera_height_px))
 
 
 __all__ = ["CONTROL_PERIOD_S", "CameraConfig", "Config", "MujocoBackend", "ObjectConfig", "create_backend"]
