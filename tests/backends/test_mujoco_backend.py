@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import asyncio
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platform before mujoco loads
 
@@ -26,6 +28,7 @@ from armwarden.robot import build_robot
 from tests.backends.contract import BackendContract, straight_line
 
 POLICY = load_policy(bundled_policy("fr3"))
+EXAMPLE_SCENE = Path(__file__).resolve().parents[2] / "examples" / "mujoco_scene.yaml"
 ROBOT = build_robot(POLICY)
 
 
@@ -265,3 +268,12 @@ def test_the_scene_camera_sees_the_simulated_arm_move():
     changed = np.abs(second - first).max(axis=2) > 30.0
     assert changed.mean() > 0.01  # over 1 % of the pixels changed clearly
     assert after.stamp > before.stamp
+
+
+def test_the_example_scene_config_is_valid_and_puts_a_box_on_the_table():
+    config = Config.model_validate(yaml.safe_load(EXAMPLE_SCENE.read_text()))
+    backend = create_backend(ROBOT, POLICY, config)
+    model = backend.cell.model
+    box = model.body("box").id
+    assert [o.name for o in config.objects] == ["box"]
+    assert model.body_mass[box] == pytest.approx(0.2)
