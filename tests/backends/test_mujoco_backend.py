@@ -277,3 +277,10 @@ def test_the_example_scene_config_is_valid_and_puts_a_box_on_the_table():
     box = model.body("box").id
     assert [o.name for o in config.objects] == ["box"]
     assert model.body_mass[box] == pytest.approx(0.2)
+
+
+def test_a_home_outside_the_joint_limits_is_refused():
+    cell = build().cell
+    outside = np.asarray(POLICY.robot.home_joint_positions, dtype=float) + np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    with pytest.raises(BackendError, match="joint limits"):
+        MujocoBackend(ROBOT, cell, outside)

@@ -198,6 +198,8 @@ class MujocoBackend(Backend, ServoHooks):
         self._data = mujoco.MjData(model)
         self.timestep_s = float(model.opt.timestep)
         home = np.asarray(home, dtype=float)
+        if home.shape != (len(robot.joint_names),) or not np.all(np.isfinite(home)) or not robot.within_limits(home):
+            raise BackendError(f"home {home.tolist()} is not a finite configuration within the joint limits")
         cell.set_arm_positions(self._data, home)
         if cell.gripper_actuator is not None:  # fingers open, and held open
             for address, name in zip(cell.finger_qpos, cell.finger_joints, strict=True):
