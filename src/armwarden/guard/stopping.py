@@ -55,8 +55,7 @@ class Stopper:
         try:
             await self._timed_stop()
         except BackendError as exc:
-            self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
-            event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
+            event = self._latch_estop_stop_failure(event, exc)
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
 
     def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent:
@@ -70,8 +69,7 @@ class Stopper:
         try:
             self.backend.stop_now()
         except BackendError as exc:
-            self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
-            event = self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
+            event = self._latch_estop_stop_failure(event, exc)
             raise BackendError(f"e-stop #{event.number}: the stop could not be issued: {exc}") from exc
         finally:
             voided = event
@@ -128,6 +126,11 @@ class Stopper:
             raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {result.message}")
         self.force_violation_latched = False
         return ResetResult(estopped=self.latch.is_latched, released_event=shown, detail=result.message)
+
+    def _latch_estop_stop_failure(self, event: EStopEvent, exc: BaseException) -> EStopEvent:
+        """The stop of e-stop `event` could not be issued: record the fault and latch again on top."""
+        self.faults.append(f"stop during e-stop #{event.number} failed: {exc}")
+        return self.latch.latch(f"stop failed during e-stop #{event.number}: {exc}", "stop_failed")
 
     def _latch_failed_stop(self, what: str, exc: BaseException) -> EStopEvent:
         """A stop that could not be issued: latch the e-stop, void every plan, report the fault."""

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from armwarden.safety.audit import AuditLog, AuditWriteError
-from armwarden.safety.estop import NO_REASON, EStopEvent
+from armwarden.safety.estop import EStopEvent
 from armwarden.stopchannel.server import ChannelRefusal, ChannelStop
 
 logger = logging.getLogger(__name__)
@@ -40,7 +40,7 @@ class ExternalStops:
         """The channel's `latch_and_stop` for `source` ("stop_channel", "signal")."""
 
         def latch_and_stop(reason: str, principal: str) -> int:
-            return self._stopper.latch_and_stop(reason or NO_REASON, source, self._on_loop).number
+            return self._stopper.latch_and_stop(reason, source, self._on_loop).number  # the latch names an empty reason
 
         return latch_and_stop
 
