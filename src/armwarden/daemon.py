@@ -119,6 +119,16 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops) -> 
     return signals, channel
 
 
+def freeze_long_lived_objects() -> None:
+    """Everything built so far lives as long as the daemon: keep it out of every later garbage
+    collection, and collect the young generation less often. A collection holds the interpreter
+    lock, so its length bounds how long the stop channel's and the servo loop's threads can wait
+    (docs/benchmarks.md, "E-stop under a flood"; a physics backend's clock stalls meanwhile)."""
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(GC_YOUNG_THRESHOLD, *gc.get_threshold()[1:])
+
+
 async def _run(args: argparse.Namespace, parts: tuple) -> None:
     assembly = await open_assembly(*parts)
     why = "shutdown"
@@ -127,12 +137,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
         signal_stop, channel = _start_external_stops(args, external)
-        # Everything built so far lives as long as the daemon: keep it out of every later garbage
-        # collection. A collection holds the interpreter lock, so its length bounds how long even
-        # the stop channel's thread can wait (docs/benchmarks.md, "E-stop under a flood").
-        gc.collect()
-        gc.freeze()
-        gc.set_threshold(GC_YOUNG_THRESHOLD, *gc.get_threshold()[1:])
+        freeze_long_lived_objects()
         await assembly.audit.append_async(
             "startup",
             outcome="ok",

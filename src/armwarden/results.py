@@ -91,6 +91,12 @@ class ExecutionReport(_Result):
     approval: ApprovalInfo
     duration_s: float = Field(description="Time spent moving [s]")
     max_observed_force_n: float | None
+    final_joint_error_rad: float | None = Field(
+        default=None, description="Largest distance of a joint from the plan's goal where the arm ended [rad]; "
+        "null if the backend reported no end position")
+    max_tracking_error_rad: float | None = Field(
+        default=None, description="Largest deviation of a measured joint from the commanded trajectory while it "
+        "ran [rad]; null if the backend does not measure it (a kinematic simulation follows exactly)")
     detail: str = ""
 
 

@@ -42,6 +42,11 @@ async def wait_until(predicate: Callable[[], Awaitable[bool]], timeout_s: float 
         await anyio.sleep(0.002)
 
 
+def assert_near(actual: np.ndarray, expected: np.ndarray, accuracy_rad: float) -> None:
+    """Equal within a backend's declared accuracy [rad] (exactly equal for a kinematic backend)."""
+    np.testing.assert_allclose(actual, expected, rtol=0, atol=accuracy_rad)
+
+
 async def _true_when(condition: bool) -> bool:
     return condition
 
@@ -70,8 +75,6 @@ class BackendContract:
     #: trajectory time [s] of motions meant to finish, and of motions meant to be interrupted
     short_motion_s: float = 0.2
     long_motion_s: float = 4.0
-    #: how far the final position may be from the goal [rad] (0: kinematic backends hit it exactly)
-    goal_tolerance_rad: float = 0.0
     #: a gripper opening [m] the backend accepts, when it has a gripper
     gripper_width_m: float = 0.04
 
@@ -99,11 +102,18 @@ class BackendContract:
         return bool(np.max(np.abs(await self.positions(backend) - q_from)) > 1e-3)
 
     async def assert_still(self, backend: Backend) -> np.ndarray:
+        """Wait for the arm to come to rest (`rest_speed_rad_s`), then check it stays where it
+        rests (`hold_accuracy_rad`) while time passes; return where it rests."""
+        async def at_rest() -> bool:
+            state = await backend.read_joint_state()
+            return bool(np.all(np.abs(state.velocities) <= backend.rest_speed_rad_s))
+
+        await wait_until(at_rest)
         first = await backend.read_joint_state()
         await anyio.sleep(0.05)
         second = await backend.read_joint_state()
-        assert np.array_equal(first.positions, second.positions)
-        assert np.all(second.velocities == 0.0)
+        assert_near(second.positions, first.positions, backend.hold_accuracy_rad)
+        assert np.all(np.abs(second.velocities) <= backend.rest_speed_rad_s)
         return second.positions
 
     # ------------------------------------------------------------------ lifecycle
@@ -175,8 +185,8 @@ class BackendContract:
         times, positions, digest = trajectory.times.copy(), trajectory.positions.copy(), trajectory.digest
         result = await backend.execute(trajectory)
         assert result.completed and result.reason == "completed"
-        np.testing.assert_allclose(result.final_positions, trajectory.goal, rtol=0, atol=self.goal_tolerance_rad)
-        np.testing.assert_allclose(await self.assert_still(backend), trajectory.goal, rtol=0, atol=self.goal_tolerance_rad)
+        np.testing.assert_allclose(result.final_positions, trajectory.goal, rtol=0, atol=backend.goal_accuracy_rad)
+        np.testing.assert_allclose(await self.assert_still(backend), trajectory.goal, rtol=0, atol=backend.goal_accuracy_rad)
         assert np.array_equal(trajectory.times, times) and np.array_equal(trajectory.positions, positions)
         assert trajectory.digest == digest
 
@@ -192,7 +202,7 @@ class BackendContract:
         assert (await backend.execute(there)).completed
         back = straight_line(backend.joint_names, there.goal, q_start, self.short_motion_s)
         assert (await backend.execute(back)).completed
-        np.testing.assert_allclose(await self.positions(backend), q_start, rtol=0, atol=self.goal_tolerance_rad)
+        np.testing.assert_allclose(await self.positions(backend), q_start, rtol=0, atol=backend.goal_accuracy_rad)
 
     # ------------------------------------------------------------------ refused trajectories
     def malformed(self, backend: Backend, q: np.ndarray) -> dict[str, JointTrajectory]:
@@ -218,20 +228,20 @@ class BackendContract:
         q_start = await self.positions(backend)
         with pytest.raises(BackendError, match="trajectory"):
             await backend.execute(self.malformed(backend, q_start)[case])
-        assert np.array_equal(await self.assert_still(backend), q_start)
+        assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
 
     async def test_a_trajectory_that_does_not_start_at_the_arm_is_refused_and_nothing_moves(self, backend: Backend) -> None:
         q_start = await self.positions(backend)
         elsewhere = q_start + 2 * backend.start_tolerance_rad
         with pytest.raises(BackendError, match="rad away from the arm"):
             await backend.execute(straight_line(backend.joint_names, elsewhere, q_start, self.short_motion_s))
-        assert np.array_equal(await self.assert_still(backend), q_start)
+        assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
 
     # ------------------------------------------------------------------ stops
     async def test_stop_when_idle_keeps_the_arm_still_and_the_next_motion_runs(self, backend: Backend) -> None:
         q_start = await self.positions(backend)
         await backend.stop()
-        assert np.array_equal(await self.assert_still(backend), q_start)
+        assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
         assert (await backend.execute(await self.motion(backend, self.short_motion_s))).completed
 
     async def test_stop_during_execute_ends_it_stopped_short_of_the_goal_and_holds(self, backend: Backend) -> None:
@@ -247,7 +257,7 @@ class BackendContract:
             await backend.stop()
         held = await self.assert_still(backend)
         assert not results[0].completed and results[0].reason == "stopped"
-        assert np.array_equal(results[0].final_positions, held)
+        assert_near(results[0].final_positions, held, backend.hold_accuracy_rad)
         assert not np.allclose(held, trajectory.goal)
 
     async def test_stop_now_from_another_thread_while_the_loop_is_blocked_holds_the_arm(self, backend: Backend) -> None:
@@ -272,10 +282,11 @@ class BackendContract:
             assert stopped.wait(10.0)  # the event loop is blocked the whole time
             time.sleep(0.1)  # noqa: ASYNC251 - the loop stays blocked a little longer, on purpose
         held = await self.assert_still(backend)
-        assert results[0].reason == "stopped" and np.array_equal(results[0].final_positions, held)
+        assert results[0].reason == "stopped"
+        assert_near(results[0].final_positions, held, backend.hold_accuracy_rad)
         assert not np.allclose(held, trajectory.goal)
         if held_in_thread[0] is not None:  # held in the stopping thread, not when the loop came back
-            assert np.array_equal(held_in_thread[0].positions, held)
+            assert_near(held_in_thread[0].positions, held, backend.hold_accuracy_rad)
 
     async def test_every_stop_bumps_the_stop_epoch(self, backend: Backend) -> None:
         before = backend.stop_epoch
@@ -292,7 +303,7 @@ class BackendContract:
         thread.join()
         result = await backend.execute(await self.motion(backend, self.short_motion_s), stop_epoch=decided)
         assert not result.completed and result.reason == PREEMPTED
-        assert np.array_equal(await self.assert_still(backend), q_start)
+        assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
 
     @pytest.mark.parametrize("delay_ms", [0.0, 0.05, 0.2, 0.5, 1.0, 2.0])
     async def test_a_stop_racing_the_hand_over_is_never_overtaken(self, backend: Backend, delay_ms: float) -> None:

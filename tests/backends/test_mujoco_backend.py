@@ -51,9 +51,6 @@ def run_with_backend(scenario, **config):
 
 
 class TestMujocoContract(BackendContract):
-    #: what the position servos reach when the trajectory's time is up (measured: about 1.2 mrad)
-    goal_tolerance_rad = 2e-3
-
     def build(self) -> Backend:
         return build()
 

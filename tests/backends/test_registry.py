@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_the_cli_choices_are_the_built_backends_then_the_planned_ones() -> None:
     assert backend_names() == ("fake", "mujoco", "ros2", "can")
-    assert list(backends.BACKENDS) == ["fake"]
+    assert list(backends.BACKENDS) == ["fake", "mujoco"]
 
 
 def test_create_backend_builds_the_fake_for_the_policy_robot(fr3_policy: Policy, robot: RobotModel) -> None:
@@ -38,14 +38,14 @@ def test_create_backend_takes_the_config_model_itself(fr3_policy: Policy, robot:
     assert not backend.capabilities.wrench
 
 
-@pytest.mark.parametrize("name", ["mujoco", "ros2", "can"])
+@pytest.mark.parametrize("name", ["ros2", "can"])
 def test_a_planned_backend_says_it_is_not_built_yet(name: str, fr3_policy: Policy, robot: RobotModel) -> None:
     with pytest.raises(BackendUnavailable, match=f"the {name} backend is not built yet"):
         create_backend(name, robot, fr3_policy)
 
 
 def test_an_unknown_backend_lists_the_available_ones(fr3_policy: Policy, robot: RobotModel) -> None:
-    with pytest.raises(BackendUnavailable, match="unknown backend 'warp'; choose one of fake"):
+    with pytest.raises(BackendUnavailable, match="unknown backend 'warp'; choose one of fake, mujoco"):
         create_backend("warp", robot, fr3_policy)
 
 
@@ -91,9 +91,9 @@ def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_serve_with_a_backend_not_built_yet_exits_2_before_serving(tmp_path: Path) -> None:
-    result = _serve(tmp_path, "--backend", "mujoco")
+    result = _serve(tmp_path, "--backend", "can")
     assert result.returncode == 2, result.stderr
-    assert "the mujoco backend is not built yet" in result.stderr
+    assert "the can backend is not built yet" in result.stderr
     assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
 
 
@@ -103,4 +103,19 @@ def test_serve_with_an_invalid_backend_config_exits_2_naming_the_key(tmp_path: P
     result = _serve(tmp_path, "--backend-config", str(config))
     assert result.returncode == 2, result.stderr
     assert "speedup: " in result.stderr
+    assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
+
+
+def test_serve_with_mujoco_missing_exits_2_with_the_install_hint(tmp_path: Path) -> None:
+    # a sitecustomize that makes `import mujoco` fail, as on a machine without the extra
+    blocker = tmp_path / "site"
+    blocker.mkdir()
+    (blocker / "sitecustomize.py").write_text("import sys\nsys.modules['mujoco'] = None\n", encoding="utf-8")
+    env = dict(os.environ, PYTHONPATH=f"{blocker}{os.pathsep}{REPO / 'src'}")
+    result = subprocess.run(
+        [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), "--backend", "mujoco"],
+        check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    assert "the mujoco backend is not available" in result.stderr and "install armwarden[mujoco]" in result.stderr
     assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()

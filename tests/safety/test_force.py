@@ -177,7 +177,8 @@ async def test_a_stamp_that_keeps_advancing_but_lags_the_clock_is_stale() -> Non
 @pytest.mark.anyio
 async def test_a_baseline_read_from_an_old_sample_is_refused() -> None:
     mon, _ = monitor([wrench(1.0, 0.0, stamp=5.0)])  # 5 s old at the first read
-    assert await mon.baseline() is None
+    refused = await mon.baseline()
+    assert isinstance(refused, ForceViolation) and refused.kind == "wrench_stale"
 
 
 @pytest.mark.anyio
@@ -241,9 +242,11 @@ async def test_baseline_reads_one_wrench() -> None:
 
 @pytest.mark.anyio
 @pytest.mark.parametrize("bad", [None, wrench(float("nan")), BackendError("x")])
-async def test_baseline_is_none_when_the_wrench_is_unusable(bad: object) -> None:
+async def test_baseline_is_the_violation_when_the_wrench_is_unusable(bad: object) -> None:
     mon, _ = monitor([bad])
-    assert await mon.baseline() is None and mon.baseline_wrench is None
+    refused = await mon.baseline()
+    assert isinstance(refused, ForceViolation) and refused.kind in ("wrench_missing", "wrench_invalid")
+    assert mon.baseline_wrench is None
 
 
 @pytest.mark.anyio

@@ -23,11 +23,6 @@ from tests.server.harness import BACKENDS, ArmHarness, arm_harness, policy_with
 # the harness builds its backends here; the suite asks the unopened backend what it declares
 from tests.server.harness import _backend as _unopened_backend
 
-#: how far a backend may end from a plan's goal [rad] where it is not exact (a physics backend);
-#: the kinematic ones are exact, up to JSON's float round trip
-GOAL_TOLERANCE_RAD: dict[str, float] = {}
-
-
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "policy(**overrides): dotted-path changes to the bundled policy for this scenario")
     config.addinivalue_line("markers", "needs(*capabilities): Capabilities fields the scenario needs (skipped without)")
@@ -71,8 +66,10 @@ def capabilities(backend: str, capabilities_of: Callable[[str], Capabilities], r
 
 
 @pytest.fixture
-def goal_tolerance_rad(backend: str) -> float:
-    return max(GOAL_TOLERANCE_RAD.get(backend, 0.0), 1e-9)
+def goal_tolerance_rad(arm: ArmHarness) -> float:
+    """How far the backend may end from a plan's goal [rad]: what it declares
+    (`goal_accuracy_rad`), and never less than JSON's float round trip."""
+    return max(arm.inner.goal_accuracy_rad, 1e-9)
 
 
 def scenario_policy(capabilities: Capabilities, overrides: dict[str, Any]) -> Policy:

@@ -66,7 +66,7 @@ async def test_an_approved_safe_plan_runs_to_its_goal_with_the_operator_on_recor
         assert done.structured_content["status"] == "succeeded"
         assert len(human.prompts) == 1 and summary["plan_id"] in human.prompts[0]
         assert arm.actuations == ["execute"]
-        assert await assert_still(client) == pytest.approx(goal, abs=goal_tolerance_rad)
+        assert await assert_still(arm, client) == pytest.approx(goal, abs=goal_tolerance_rad)
     record = calls(arm, "execute_plan")[-1]
     assert (record["outcome"], record["operator"]) == ("ok", "alice")
     assert record["extra"]["approval"]["via"] == "elicitation"
@@ -84,7 +84,7 @@ async def test_an_estop_during_motion_holds_the_arm_latches_and_invalidates_ever
 
         assert not result.is_error, text_of(result)  # it was moving: aborted, not refused
         assert result.structured_content["status"] == "aborted" and result.structured_content["duration_s"] > 0.0
-        held = await assert_still(other)
+        held = await assert_still(arm, other)
         assert between(held, start, offset(start, j1=0.3)), held
         status = await safety(other)
         assert status["estopped"] is True and status["estop_event"]["source"] == "estop"
@@ -110,7 +110,7 @@ async def test_after_an_estop_during_motion_only_a_human_releases_it_and_motion_
         summary = await plan_joints(client, goal)
         done = await execute(client, summary["plan_id"])
         assert done.structured_content["status"] == "succeeded", text_of(done)
-        assert await assert_still(client) == pytest.approx(goal, abs=goal_tolerance_rad)
+        assert await assert_still(arm, client) == pytest.approx(goal, abs=goal_tolerance_rad)
         assert arm.actuations == ["execute", "execute"]
     reset = calls(arm, "reset_estop")[-1]
     assert (reset["outcome"], reset["operator"]) == ("ok", "bob")
@@ -131,7 +131,7 @@ async def test_stop_motion_during_motion_holds_the_arm_without_latching(arm) -> 
         result = outcome["result"]
         assert not result.is_error, text_of(result)
         assert result.structured_content["status"] == "aborted" and result.structured_content["duration_s"] > 0.0
-        assert between(await assert_still(client), start, goal)
+        assert between(await assert_still(arm, client), start, goal)
         assert (await safety(client))["estopped"] is False
         assert arm.actuations == ["execute"] and arm.backend.stops >= 1
     assert calls(arm, "stop_motion")[-1]["outcome"] == "ok"
@@ -156,7 +156,7 @@ async def test_a_client_cancel_during_motion_stops_the_arm_and_is_audited(arm, m
         await wait_until(lambda: bool(events(arm, "execution_interrupted")))
 
         assert arm.backend.stops > stops_before  # a stop was commanded
-        assert between(await assert_still(client), start, goal)
+        assert between(await assert_still(arm, client), start, goal)
         last = await last_result(client)
         assert last["status"] == "aborted" and 0.0 < last["duration_s"] < summary["duration_s"]
         assert (await safety(client))["estopped"] is False
@@ -184,7 +184,7 @@ async def test_a_second_execution_while_one_runs_is_refused_busy_and_its_plan_st
         done = await execute(client, second["plan_id"])  # back at its start, the refused plan runs
 
         assert done.structured_content["status"] == "succeeded", text_of(done)
-        assert await assert_still(client) == pytest.approx(offset(start, j2=-0.1), abs=goal_tolerance_rad)
+        assert await assert_still(arm, client) == pytest.approx(offset(start, j2=-0.1), abs=goal_tolerance_rad)
         assert arm.actuations == ["execute", "execute", "execute"]
     outcomes = [(r["arguments"]["plan_id"], r["outcome"]) for r in calls(arm, "execute_plan")]
     assert outcomes == [(second["plan_id"], "refused"), (first["plan_id"], "ok"), (back["plan_id"], "ok"),
@@ -210,4 +210,4 @@ async def test_a_stop_from_another_thread_just_before_the_hand_over_keeps_the_ar
         result = await execute(client, summary["plan_id"])
         report = result.structured_content
         assert report["status"] == "aborted" and "stopped before it started" in report["detail"], report
-        assert await assert_still(client) == start
+        assert await assert_still(arm, client) == pytest.approx(start, abs=max(arm.inner.hold_accuracy_rad, 1e-12))

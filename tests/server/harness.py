@@ -1,7 +1,8 @@
 """An in-memory ArmWarden for end-to-end tests through the official MCP SDK client.
 
 `ArmHarness` builds the real Guard and server (`armwarden.assembly.build_guard`, as the daemon
-does) on a backend — the fake by default, or the tiny example backend ("minimal") — wrapped in a
+does) on a backend — the fake by default, the tiny example backend ("minimal"), or the MuJoCo
+simulation ("mujoco", 4× real time) — wrapped in a
 `CountingBackend` that counts every actuation command that reaches it: the proof that a refusal
 moved nothing. Tests talk to it only through `mcp.Client`, in either protocol mode.
 """
@@ -9,6 +10,7 @@ moved nothing. Tests talk to it only through `mcp.Client`, in either protocol mo
 from __future__ import annotations
 
 import contextlib
+import gc
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake import FakeBackend
+from armwarden.daemon import freeze_long_lived_objects
 from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.robot import build_robot
@@ -33,7 +36,13 @@ from tests.helpers import text_of
 MODES = ("legacy", "2026-07-28")
 HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
 #: backends a scenario can run on: parametrise with `@pytest.mark.parametrize("backend", BACKENDS)`
-BACKENDS = ("fake", "minimal")
+BACKENDS = ("fake", "minimal", "mujoco")
+#: simulated time per wall time of the harness's simulated backends (scenarios take seconds)
+SPEEDUP = {"fake": 10.0, "minimal": 10.0, "mujoco": 4.0}
+#: backends whose simulation runs against the wall clock: a long garbage collection (the test
+#: process's heap is large) stalls their physics and makes the wrench stale, as it would in a
+#: daemon that did not freeze its long-lived objects
+REAL_TIME = ("mujoco",)
 
 ElicitationCallback = Callable[[Any, types.ElicitRequestParams], Awaitable[types.ElicitResult]]
 
@@ -125,11 +134,13 @@ def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
         if options:
             raise TypeError(f"the minimal backend takes no options, got {sorted(options)}")
         return MinimalBackend(robot.joint_names, policy.robot.home_joint_positions,
-                              start_tolerance_rad=policy.motion.start_tolerance_rad, speedup=10.0)
+                              start_tolerance_rad=policy.motion.start_tolerance_rad, speedup=SPEEDUP[name])
+    if name == "mujoco":
+        return build_backend("mujoco", policy, robot=robot, config={"speedup": SPEEDUP[name]} | options)
     if name != "fake":
         raise ValueError(f"unknown harness backend {name!r}; choose one of {BACKENDS}")
     config = {key: value for key, value in options.items() if key in FakeConfig.model_fields}
-    fake = build_backend("fake", policy, robot=robot, config={"speedup": 10.0} | config)
+    fake = build_backend("fake", policy, robot=robot, config={"speedup": SPEEDUP[name]} | config)
     assert isinstance(fake, FakeBackend)
     for key, value in options.items():
         if key not in config:
@@ -158,10 +169,16 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: 
     await inner.open()
     guard = build_guard(policy, counting, audit)
     server = ArmWardenServer(guard)
+    threshold = gc.get_threshold()
+    if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
+        freeze_long_lived_objects()
     try:
         yield ArmHarness(guard, server, counting, inner, audit, audit_path)
     finally:
         await inner.close()
         audit.close()
+        if backend in REAL_TIME:
+            gc.unfreeze()
+            gc.set_threshold(*threshold)
     report = verify_file(audit_path)  # whatever the scenario did, the chain it left must verify
     assert report.ok, f"audit chain broken at line {report.first_bad_line}: {report.reason}"

@@ -53,20 +53,24 @@ class Daemon:
 
 
 @contextlib.contextmanager
-def http_daemon(tmp: Path, speedup: float, extra_args: Sequence[str] = ()) -> Iterator[Daemon]:
-    """Start the daemon (fake backend at `speedup`), wait until /healthz answers, SIGTERM it after."""
+def http_daemon(tmp: Path, speedup: float, extra_args: Sequence[str] = (), *, backend: str = "fake",
+                config: Path | None = None) -> Iterator[Daemon]:
+    """Start the daemon (`backend`, the fake by default, at `speedup`; or with the `config` file
+    given), wait until /healthz answers, SIGTERM it after."""
     tokens = tmp / "tokens.json"
     operator_token = add_token(tokens, "operator", "alice")
     observer_token = add_token(tokens, "observer", "bob")
-    config = tmp / "fake.yaml"
-    config.write_text(f"speedup: {speedup}\n", encoding="utf-8")
+    if config is None:
+        config = tmp / f"{backend}.yaml"
+        config.write_text(f"speedup: {speedup}\n", encoding="utf-8")
     audit = tmp / "audit.jsonl"
     port = free_port(HOST)
     stderr_path = tmp / "stderr.log"
     with open(stderr_path, "wb") as stderr:
         process = subprocess.Popen(
             [*CLI, "serve", "--transport", "http", "--host", HOST, "--port", str(port), "--auth-tokens", str(tokens),
-             "--audit-log", str(audit), "--backend-config", str(config), "--log-level", "WARNING", *extra_args],
+             "--audit-log", str(audit), "--backend", backend, "--backend-config", str(config), "--log-level", "WARNING",
+             *extra_args],
             cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=stderr,
         )
     running = Daemon(process, port, audit, operator_token, observer_token, stderr_path)

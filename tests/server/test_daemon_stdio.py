@@ -269,7 +269,7 @@ def _invalid_policy(tmp_path: Path) -> Path:
 START_REFUSALS = {
     "invalid_policy": (lambda tmp: ["--policy", str(_invalid_policy(tmp))], "mystery_section"),
     "unknown_backend": (lambda tmp: ["--backend", "warp-drive"], "invalid choice"),
-    "unavailable_backend": (lambda tmp: ["--backend", "mujoco"], "backend"),
+    "unavailable_backend": (lambda tmp: ["--backend", "ros2"], "backend"),
     "unopenable_audit_log": (lambda tmp: ["--audit-log", str(tmp / "no-such-dir" / "audit.jsonl")], "does not exist"),
 }
 

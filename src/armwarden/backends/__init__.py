@@ -28,9 +28,10 @@ if TYPE_CHECKING:
 #: backends that exist: name -> module (which defines `Config` and `create_backend`)
 BACKENDS: dict[str, str] = {
     "fake": "armwarden.backends.fake",
+    "mujoco": "armwarden.backends.mujoco.backend",
 }
 #: backends announced in the design whose module is not written yet (each has its own issue)
-PLANNED: tuple[str, ...] = ("mujoco", "ros2", "can")
+PLANNED: tuple[str, ...] = ("ros2", "can")
 #: a backend config file larger than this is refused unread [bytes]
 MAX_CONFIG_BYTES = 1_000_000
 

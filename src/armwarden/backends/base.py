@@ -31,9 +31,15 @@ Rules every backend follows
   trajectory over (the servo core does this for you). So either the trajectory was handed over
   first and the stop ends it, or the stop came first and the trajectory never starts.
 - `execute()` runs exactly the trajectory it is given (same waypoints, same timing, not
-  modified), ends at its goal, reports progress in [0, 1] never decreasing, returns when the arm
-  has finished ("completed") or was stopped ("stopped"), and stops the arm if the awaiting task is
-  cancelled. The base class refuses, before `_execute` runs, a malformed trajectory and one that
+  modified), ends at its goal (within `goal_accuracy_rad`), reports progress in [0, 1] never
+  decreasing, returns when the arm has finished ("completed") or was stopped ("stopped"), and stops
+  the arm if the awaiting task is cancelled.
+- Physical arms are never exactly where they were told to be. Each backend declares how close it
+  gets, and the conformance suite holds it to that: `goal_accuracy_rad` (a completed execution's
+  final positions from the goal), `hold_accuracy_rad` (a stopped or idle arm's positions from
+  where it is held, once at rest) and `rest_speed_rad_s` (the joint speed below which the arm is
+  at rest). A stopped execution reports in `final_positions` where the arm is held; the arm comes
+  to rest there. A kinematic backend declares zeros: it is exactly where it is commanded. The base class refuses, before `_execute` runs, a malformed trajectory and one that
   does not start within `start_tolerance_rad` of the measured joint positions.
 - State samples carry their stamp (monotonic clock [s]); stamps never go backwards and advance
   with new samples. Freshness is never assumed: the Guard refuses stale ones.
@@ -137,6 +143,9 @@ class ExecutionResult:
     completed: bool
     reason: str
     final_positions: np.ndarray
+    #: largest deviation [rad] of a measured joint from its commanded trajectory sample while the
+    #: trajectory ran; None: the backend does not measure one (a kinematic arm follows exactly)
+    max_tracking_error_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -157,6 +166,12 @@ class Backend(abc.ABC):
     """Base class: lifecycle, deadlines, checks and logging; subclasses implement the `_hooks`."""
 
     name: str = "abstract"
+    #: how far from the goal a completed execution may end [rad] (see "Rules every backend follows")
+    goal_accuracy_rad: float = 0.0
+    #: how far a resting arm may be from where it is held [rad]
+    hold_accuracy_rad: float = 0.0
+    #: joint speed [rad/s] at or below which the arm counts as at rest
+    rest_speed_rad_s: float = 0.0
     #: deadline for a stop command to be issued [s]; a stop that misses it is a failure
     stop_timeout_s: float = 0.5
     #: deadline for state/wrench reads [s]

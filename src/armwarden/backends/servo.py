@@ -52,13 +52,15 @@ FIRST_TICK_TIMEOUT_S = 5.0
 class Setpoint:
     """What the servo loop commands at one tick; arrays are read-only.
 
-    `positions` [rad], `velocities` [rad/s], `stamp` on the monotonic clock [s]; `extra` is what
-    `ServoHooks.servo_prepare` computed for it (e.g. the TCP position), kept with the sample.
+    `positions` [rad], `velocities` [rad/s], `stamp` on the monotonic clock [s]; `following`: a
+    sample of a running trajectory (not a hold); `extra` is what `ServoHooks.servo_prepare`
+    computed for it (e.g. the TCP position), kept with the sample.
     """
 
     positions: np.ndarray
     velocities: np.ndarray
     stamp: float
+    following: bool = False
     extra: Any = None
 
 
@@ -122,11 +124,14 @@ class ServoLoop:
     """A periodic servo thread following at most one trajectory at a time (see the module docstring).
 
     `q_start` [rad] is the first held position; `period_s` the tick period while moving [s];
-    `speedup` scales trajectory time (2 = twice as fast); `name` prefixes error messages.
+    `speedup` scales trajectory time (2 = twice as fast); `idle_period_s` is the tick period while
+    nothing moves [s] (a physics simulation ticks at `period_s` always: the world keeps moving);
+    `name` prefixes error messages.
     """
 
     def __init__(
-        self, hooks: ServoHooks, q_start: Any, *, period_s: float, speedup: float = 1.0, name: str = "servo"
+        self, hooks: ServoHooks, q_start: Any, *, period_s: float, speedup: float = 1.0,
+        idle_period_s: float = IDLE_PERIOD_S, name: str = "servo",
     ) -> None:
         if not (np.isfinite(period_s) and period_s > 0):
             raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
@@ -135,6 +140,7 @@ class ServoLoop:
         self.hooks = hooks
         self.period_s = float(period_s)
         self.speedup = float(speedup)
+        self.idle_period_s = max(self.period_s, float(idle_period_s))
         self.name = name
         #: ticks run so far (the thread's heartbeat)
         self.tick_count = 0
@@ -247,7 +253,7 @@ class ServoLoop:
             self._stop_seq += 1
             stopped = [e for e in (self._active, self._pending) if e is not None]
             self._active = self._pending = None
-            setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic())
+            setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic(), following=False)
             try:
                 setpoint = replace(setpoint, positions=frozen(self.hooks.servo_hold_positions(setpoint.positions)))
                 self.hooks.servo_hold(setpoint)
@@ -285,7 +291,7 @@ class ServoLoop:
                 self._tick()
                 # idle: tick slowly; a stop or a new execution wakes the loop at once, and the idle
                 # loop takes the interpreter lock from planning less often
-                next_tick += period if self.busy else max(period, IDLE_PERIOD_S)
+                next_tick += period if self.busy else self.idle_period_s
                 delay = next_tick - time.perf_counter()
                 if delay < -10 * period:  # fell far behind (machine stalled): resynchronise
                     next_tick = time.perf_counter()
@@ -325,7 +331,7 @@ class ServoLoop:
             else:
                 positions, velocities = frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t))
                 fraction = t / duration
-        setpoint = Setpoint(positions, velocities, stamp)
+        setpoint = Setpoint(positions, velocities, stamp, following=execution is not None)
         setpoint = replace(setpoint, extra=self.hooks.servo_prepare(setpoint))
 
         with self._lock:

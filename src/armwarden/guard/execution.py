@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import anyio
+import numpy as np
 
 from armwarden.backends.base import Backend, ExecutionResult
 from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
@@ -84,9 +85,9 @@ class MotionRunner:
         monitor = ForceMonitor(self.force_limits, self.backend.read_wrench, clock=self._clock,
                                carried_ceiling=self._contact_ceiling)
         baseline = await monitor.baseline()
-        if baseline is None:
-            raise SafetyRefusal(RefusalCode.NO_WRENCH,
-                                "the wrench estimate is missing, slow, stale or invalid right now; refusing to move")
+        if isinstance(baseline, ForceViolation):
+            raise SafetyRefusal(RefusalCode.NO_WRENCH, f"the wrench estimate cannot be used right now ({baseline.detail}); "
+                                "refusing to move")
         if monitor.baseline_excessive:
             raise SafetyRefusal(RefusalCode.IN_CONTACT, f"the arm already presses with {baseline.force_norm_n:.1f} N / "
                                 f"{baseline.torque_norm_nm:.2f} N·m, more than twice the limit; a human must relieve the "
@@ -179,6 +180,8 @@ class MotionRunner:
             approval=approval.info(),
             duration_s=duration,
             max_observed_force_n=max_force,
+            final_joint_error_rad=None if result is None else _largest_error(result.final_positions, plan.trajectory.goal),
+            max_tracking_error_rad=None if result is None else result.max_tracking_error_rad,
             detail=("completed" if completed else f"stopped before the goal: {result.reason if result else 'no result'}")
             + ("" if monitor is not None else "; no wrench estimate: the contact force limit was NOT enforced"),
         )
@@ -197,3 +200,12 @@ class MotionRunner:
             outcome, what = ("stop_failed", "the stop FAILED (e-stop latched)") if stop_failed else ("stopped", "the arm was stopped")
             await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome=outcome,
                                           detail=f"plan {plan_id}: the call was cancelled; {what}")
+
+
+def _largest_error(positions: np.ndarray, goal: np.ndarray) -> float | None:
+    """max |positions − goal| [rad], or None when the backend's end position is unusable."""
+    positions = np.asarray(positions, dtype=float)
+    if positions.shape != goal.shape or not np.all(np.isfinite(positions)):
+        return None
+    return float(np.max(np.abs(positions - goal)))
+

@@ -178,12 +178,13 @@ class ForceMonitor:
         return self.baseline_wrench.force_norm_n, self.baseline_wrench.torque_norm_nm
 
     # ------------------------------------------------------------------ reading
-    async def baseline(self) -> Wrench | None:
-        """Read the wrench before the motion; None if it is missing, slow, unreadable or not finite."""
+    async def baseline(self) -> Wrench | ForceViolation:
+        """Read the wrench before the motion; the violation (missing, slow, unreadable, not finite,
+        stale) if it cannot be used."""
         self.baseline_wrench = None
         sample = await self._read_sample()
         if isinstance(sample, ForceViolation):
-            return None
+            return sample
         self.baseline_wrench = sample
         return sample
 

@@ -32,10 +32,11 @@ from __future__ import annotations
 import asyncio
 import io
 import logging
+import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Literal
 
 import mujoco
@@ -81,6 +82,9 @@ MAX_STEPS_PER_TICK = 500
 SETTLE_POSITION_RAD = 1e-3
 #: ... and this slow [rad/s] (the speed below which the arm counts as stopped)
 SETTLE_SPEED_RAD_S = 1e-3
+#: a resting arm stays this close to where it is held [rad] (the position servos' stiffness
+#: against gravity-compensation error and contact)
+HOLD_ACCURACY_RAD = 1e-3
 #: simulated time [s] the arm may take to settle after the trajectory's time is up
 SETTLE_TIMEOUT_S = 1.0
 #: how often the event loop looks at the published sample while waiting to settle [s]
@@ -179,6 +183,7 @@ class _Measured:
     gripper_speed_mps: float
     sim_s: float  # simulated time of the sample [s]
     scene_qpos: np.ndarray  # every body's configuration (arm, fingers, objects), for rendering
+    robot_penetration_m: float  # deepest overlap of a robot geom with anything [m]; 0: none
     stamp: float
 
 
@@ -186,6 +191,9 @@ class MujocoBackend(Backend, ServoHooks):
     """The simulated arm (see the module docstring)."""
 
     name = "mujoco"
+    goal_accuracy_rad = SETTLE_POSITION_RAD
+    hold_accuracy_rad = HOLD_ACCURACY_RAD
+    rest_speed_rad_s = SETTLE_SPEED_RAD_S
 
     def __init__(self, robot: RobotModel, cell: MujocoModel, home: np.ndarray, *, speedup: float = 1.0,
                  start_tolerance_rad: float = 0.05, camera_size_px: tuple[int, int] = (640, 480)) -> None:
@@ -221,12 +229,18 @@ class MujocoBackend(Backend, ServoHooks):
         self._flange_site = model.site(_site_name(model, self._flange_body)).id
         self._tcp_body = model.body(robot.tcp_frame).id
         self._base_body = model.body(robot.base_frame).id
+        #: geoms that belong to the robot (the arm's kinematic tree under the world)
+        self._robot_geom = model.body_rootid[model.geom_bodyid] == model.body_rootid[self._base_body]
+        #: deepest robot contact [m] seen since `reset_peak_penetration` (simulation diagnostics)
+        self.peak_robot_penetration_m = 0.0
         self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
         #: (q, q̇) the actuators track; replaced whole (stops, ticks), read before every physics step
         self._target: tuple[np.ndarray, np.ndarray] = (frozen(home), frozen(np.zeros_like(home)))
         self._measured = self._measure()
         self._last_wall: float | None = None  # perf_counter up to which physics has run; None: not started
         self._pending_sim_s = 0.0
+        #: largest |measured − commanded| [rad] over the running trajectory's samples (servo thread)
+        self._tracking_peak_rad = 0.0
         #: physics steps run so far
         self.step_count = 0
         #: rendered image size (width, height) [px]
@@ -237,7 +251,8 @@ class MujocoBackend(Backend, ServoHooks):
         self._render_data: mujoco.MjData | None = None
         self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, cameras=tuple(cell.cameras),
                                           frames=tuple(robot.frame_names()))
-        self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, speedup=speedup, name="mujoco backend")
+        self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
+                               name="mujoco backend")
 
     # ================================================================ lifecycle
     @property
@@ -283,10 +298,11 @@ class MujocoBackend(Backend, ServoHooks):
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
         self.servo.require_running()
+        self._tracking_peak_rad = 0.0  # no tick follows this trajectory before `run` hands it over
         result = await self.servo.run(trajectory, progress, preempted=self._stop_landed)
-        if not result.completed:
-            return result
-        return await self._settle(trajectory.goal)
+        if result.completed:
+            result = await self._settle(trajectory.goal)
+        return replace(result, max_tracking_error_rad=self._tracking_peak_rad)
 
     async def _settle(self, goal: np.ndarray) -> ExecutionResult:
         """The trajectory's time is up and its goal is commanded; the physical arm is still
@@ -413,7 +429,13 @@ class MujocoBackend(Backend, ServoHooks):
         width, height = self.camera_size_px
         renderer, data = self._renderer, self._render_data
         if renderer is None or data is None:
-            renderer = self._renderer = mujoco.Renderer(self._model, height, width)
+            try:
+                renderer = self._renderer = mujoco.Renderer(self._model, height, width)
+            except (mujoco.FatalError, RuntimeError) as exc:
+                raise BackendError(
+                    f"cannot render offscreen ({exc}); MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} when mujoco was "
+                    "imported: import armwarden.backends.mujoco before mujoco, or set MUJOCO_GL=egl"
+                ) from exc
             data = self._render_data = mujoco.MjData(self._model)
         data.qpos[:] = qpos
         mujoco.mj_kinematics(self._model, data)
@@ -456,6 +478,10 @@ class MujocoBackend(Backend, ServoHooks):
         if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
             raise BackendError("the simulation diverged (non-finite state)")
         self._measured = self._measure()
+        self.peak_robot_penetration_m = max(self.peak_robot_penetration_m, self._measured.robot_penetration_m)
+        if setpoint.following:  # the physics has reached this sample's time: how far off is the arm?
+            error = float(np.max(np.abs(self._measured.positions - setpoint.positions)))
+            self._tracking_peak_rad = max(self._tracking_peak_rad, error)
 
     def servo_command(self, setpoint: Setpoint) -> None:
         self._target = (setpoint.positions, setpoint.velocities)
@@ -493,8 +519,19 @@ class MujocoBackend(Backend, ServoHooks):
             gripper_speed_mps=float(np.sum(data.qvel[self._finger_dofs])),
             sim_s=float(data.time),
             scene_qpos=frozen(data.qpos),
+            robot_penetration_m=self._robot_penetration_m(),
             stamp=time.monotonic(),
         )
+
+    def _robot_penetration_m(self) -> float:
+        """How deep the deepest contact involving a robot geom overlaps [m] (0: none)."""
+        data = self._data
+        if data.ncon == 0:
+            return 0.0
+        contacts = data.contact
+        involved = self._robot_geom[contacts.geom1[:data.ncon]] | self._robot_geom[contacts.geom2[:data.ncon]]
+        depths = -contacts.dist[:data.ncon][involved]
+        return float(max(0.0, depths.max())) if depths.size else 0.0
 
 
 def _site_name(model: mujoco.MjModel, body_id: int) -> str:
