@@ -4,6 +4,7 @@
     python scripts/bench.py                 # envelope, server, estop (flood only when named)
     python scripts/bench.py envelope        # one section
     python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
+    python scripts/bench.py mujoco          # the physics backend while the server handles calls
     python scripts/bench.py --json out.json # also write the raw figures
 
 Sections
@@ -25,6 +26,10 @@ Sections
   backend stop issued", its client round trip (goal: p99 <= 20 ms), the MCP `estop` round trip,
   the load achieved, and the daemon's garbage-collection pauses lined up with the slow stops
   (`scripts/_bench/gc_watch.py`). `--nice N` and `--gc-freeze` are experiments (see --help).
+- mujoco: the 1 kHz physics while the server handles calls: real-time factor, e-stop mid-motion
+  → every joint below 1e-3 rad/s (wall and simulated, beside the torque-limited braking floor),
+  640×480 render time, and get_robot_state / plan_to_pose against the fake in the same run
+  (`scripts/_bench/mujoco_cell.py`).
 
 Timing thresholds live here, never in unit tests: the machines are shared and noisy. Each
 target is reported as met or missed; nothing is asserted.
@@ -827,14 +832,24 @@ def _report_flood(r: dict[str, Any]) -> None:
     print(f"host 1-min load average before / after the cycles: {' / '.join(f'{v:.1f}' for v in r['host_load_average_1min'])} "
           f"(2 cores; other work on the machine shows here)")
 
+def bench_mujoco() -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("mujoco_cell").bench_mujoco()
+
+
+def _report_mujoco(r: dict[str, Any]) -> None:
+    importlib.import_module("mujoco_cell").report_mujoco(r)
+
+
 SECTIONS = {
     "envelope": (bench_envelope, _report_envelope),
     "server": (bench_server, _report_server),
     "estop": (bench_estop, _report_estop),
     "flood": (bench_flood, _report_flood),
+    "mujoco": (bench_mujoco, _report_mujoco),
 }
 #: sections run when none is named (flood takes about a minute and a half: ask for it by name)
-DEFAULT_SECTIONS = ("envelope", "server", "estop")
+DEFAULT_SECTIONS = ("envelope", "server", "estop", "mujoco")
 
 
 def main() -> int:

@@ -20,7 +20,7 @@ from PIL import Image
 from pydantic import ValidationError
 
 from armwarden.backends.base import Backend
-from armwarden.backends.mujoco.backend import Config, MujocoBackend, ObjectConfig, create_backend
+from armwarden.backends.mujoco.backend import HOLD_ACCURACY_RAD, Config, MujocoBackend, ObjectConfig, create_backend
 from armwarden.errors import BackendError
 from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy
@@ -115,25 +115,28 @@ def test_a_stop_while_the_arm_settles_ends_the_execution_stopped():
 
 
 # ---------------------------------------------------------------------------- stop
-def test_a_stop_holds_the_arm_where_it_was_measured_not_where_it_was_commanded():
+def test_a_stop_brakes_the_arm_where_it_was_measured_not_where_it_was_commanded():
     async def scenario(backend: MujocoBackend):
         q_start = (await backend.read_joint_state()).positions.copy()
         task = asyncio.create_task(backend.execute(straight_line(backend.joint_names, q_start, q_start + 0.4, 1.0)))
         await asyncio.sleep(0.5)
         measured = (await backend.read_joint_state()).positions.copy()  # no await between this and the stop
         backend.stop_now()
-        target = backend._target[0].copy()
+        braking = backend._target
         result = await task
         await asyncio.sleep(0.3)
-        return measured, target, result, await backend.read_joint_state()
+        return measured, braking, result, await backend.read_joint_state(), backend._target
 
-    measured, target, result, later = run_with_backend(scenario)
+    measured, braking, result, later, holding = run_with_backend(scenario)
     assert result.reason == "stopped"
-    np.testing.assert_allclose(target, measured, rtol=0, atol=5e-3)  # at most a few physics steps apart
-    np.testing.assert_array_equal(result.final_positions, target)
-    # the arm decelerates and comes to rest near the hold, without springing back to the command
-    assert np.max(np.abs(later.velocities)) < 1e-2
-    np.testing.assert_allclose(later.positions, target, rtol=0, atol=2e-2)
+    assert braking.braking and not holding.braking  # braked, then held
+    np.testing.assert_allclose(braking.positions, measured, rtol=0, atol=5e-3)  # at most a few physics steps apart
+    # the arm stopped within its braking distance of where the stop found it, and rests where it stopped:
+    # it does not spring back to the stop's position, let alone to the commanded one
+    np.testing.assert_allclose(result.final_positions, measured, rtol=0, atol=HOLD_ACCURACY_RAD)
+    np.testing.assert_allclose(holding.positions, result.final_positions, rtol=0, atol=1e-6)
+    assert np.max(np.abs(later.velocities)) < 1e-3
+    np.testing.assert_allclose(later.positions, result.final_positions, rtol=0, atol=1e-4)
 
 
 # ---------------------------------------------------------------------------- wrench

@@ -23,6 +23,7 @@ from tests.server.harness import BACKENDS, ArmHarness, arm_harness, policy_with
 # the harness builds its backends here; the suite asks the unopened backend what it declares
 from tests.server.harness import _backend as _unopened_backend
 
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "policy(**overrides): dotted-path changes to the bundled policy for this scenario")
     config.addinivalue_line("markers", "needs(*capabilities): Capabilities fields the scenario needs (skipped without)")

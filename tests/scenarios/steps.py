@@ -95,7 +95,7 @@ async def assert_still(arm: ArmHarness, client: Client) -> list[float]:
         return all(abs(v) <= backend.rest_speed_rad_s for v in sample["joint_velocities"])
 
     with anyio.fail_after(10.0):
-        while not at_rest(first := await state()):
+        while not at_rest(first := await state()):  # noqa: ASYNC110 - the arm's speed, read through the tools
             await anyio.sleep(0.01)
     await anyio.sleep(0.05)
     second = await state()

@@ -33,14 +33,16 @@ Rules every backend follows
 - `execute()` runs exactly the trajectory it is given (same waypoints, same timing, not
   modified), ends at its goal (within `goal_accuracy_rad`), reports progress in [0, 1] never
   decreasing, returns when the arm has finished ("completed") or was stopped ("stopped"), and stops
-  the arm if the awaiting task is cancelled.
+  the arm if the awaiting task is cancelled. The base class refuses, before `_execute` runs, a
+  malformed trajectory and one that does not start within `start_tolerance_rad` of the measured
+  joint positions.
 - Physical arms are never exactly where they were told to be. Each backend declares how close it
   gets, and the conformance suite holds it to that: `goal_accuracy_rad` (a completed execution's
-  final positions from the goal), `hold_accuracy_rad` (a stopped or idle arm's positions from
-  where it is held, once at rest) and `rest_speed_rad_s` (the joint speed below which the arm is
-  at rest). A stopped execution reports in `final_positions` where the arm is held; the arm comes
-  to rest there. A kinematic backend declares zeros: it is exactly where it is commanded. The base class refuses, before `_execute` runs, a malformed trajectory and one that
-  does not start within `start_tolerance_rad` of the measured joint positions.
+  final positions from the goal), `hold_accuracy_rad` (where a stopped arm comes to rest from
+  where the stop found it — its braking distance — and how still a resting arm stays) and
+  `rest_speed_rad_s` (the joint speed below which the arm is at rest). A stopped execution
+  reports in `final_positions` where the arm came to rest and is held. A kinematic backend
+  declares zeros: it is exactly where it is commanded.
 - State samples carry their stamp (monotonic clock [s]); stamps never go backwards and advance
   with new samples. Freshness is never assumed: the Guard refuses stale ones.
 - Blocking work (hardware I/O, simulation stepping) lives on the backend's own thread; results

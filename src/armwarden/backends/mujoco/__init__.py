@@ -1,10 +1,9 @@
-"""The MuJoCo backend (work in progress): real physics behind the backend contract.
+"""The MuJoCo backend: real physics behind the backend contract (`--backend mujoco`).
 
-Built so far: `model` (the MuJoCo model built from the same robot description as the Pinocchio
-model, with the envelope's capsules as collision geometry) and `backend` (`MujocoBackend`, its
-`Config` and `create_backend`: physics on the servo thread, measured state, stops, the wrench,
-the gripper, offscreen cameras). The registry still lists "mujoco" as planned until it passes
-the whole backend contract and the scenario suite.
+`model` builds the cell from the same robot description as the Pinocchio model, with the
+envelope's capsules as collision geometry; `backend` is `MujocoBackend`, its `Config` and
+`create_backend`: physics on the servo thread, measured state, braking stops, the wrench, the
+gripper, offscreen cameras. See docs/architecture.md, "Backends".
 
 Importing this package chooses MuJoCo's offscreen OpenGL platform when the user has not:
 `MUJOCO_GL=egl` (Mesa's EGL renders on CPU-only, headless machines). MuJoCo reads it once, when

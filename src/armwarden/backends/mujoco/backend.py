@@ -8,8 +8,10 @@ a stop issued from any thread reaches the actuators at the next step.
 
 What is published is what the simulation measures, never what was commanded: joint positions and
 velocities (`qpos`/`qvel`) and the external wrench, stamped (monotonic clock) after the step that
-produced them. A stop holds the arm where it is *measured* at that instant (`servo_hold_positions`),
-not where it was last told to be; the arm then decelerates physically under its position servos.
+produced them. A stop brakes the arm from the next physics step on: its actuators become pure
+dampers (saturating at the joint torque limits) until every joint is still, then position servos
+that hold it where it stopped (`_ArmTarget`). It never pulls the arm back to where it was last told
+to be, nor to where the stop found it; a stopped execution reports where the arm came to rest.
 
 Wrench: the flange force/torque sensor measures what the hand's subtree exerts on the arm. At
 rest that is the hand's own weight (and its moment); the estimate subtracts it, computed from the
@@ -82,9 +84,18 @@ MAX_STEPS_PER_TICK = 500
 SETTLE_POSITION_RAD = 1e-3
 #: ... and this slow [rad/s] (the speed below which the arm counts as stopped)
 SETTLE_SPEED_RAD_S = 1e-3
-#: a resting arm stays this close to where it is held [rad] (the position servos' stiffness
-#: against gravity-compensation error and contact)
-HOLD_ACCURACY_RAD = 1e-3
+#: a stopped arm comes to rest, and stays, this close to where it was measured when the stop took
+#: effect [rad]: the braking distance at the contract's test speeds, and the servos' stiffness
+HOLD_ACCURACY_RAD = 5e-3
+#: a stop turns the arm actuators into dampers this many times stiffer than the tracking damping
+#: (saturating at the torque limits). Measured: 5 brings 0.5 rad/s to rest in ~25 ms simulated;
+#: 20 goes unstable at 1 kHz on the light joints (scripts/_bench/mujoco_cell.py, docs/benchmarks.md)
+BRAKE_DAMPING_FACTOR = 5.0
+#: below this joint speed [rad/s] the brake is released into a position hold where the arm stands
+BRAKE_RELEASE_RAD_S = 1e-4
+#: simulated time [s] after which the brake is released into a hold whatever the speed (a brake
+#: never stays on: the position hold is what keeps a stopped arm where it is)
+BRAKE_LIMIT_S = 0.3
 #: simulated time [s] the arm may take to settle after the trajectory's time is up
 SETTLE_TIMEOUT_S = 1.0
 #: how often the event loop looks at the published sample while waiting to settle [s]
@@ -171,6 +182,20 @@ class Config(BaseModel):
     objects: tuple[ObjectConfig, ...] = Field(default=(), description="Loose objects in the cell.")
 
 
+@dataclass
+class _ArmTarget:
+    """What the arm actuators do: track `positions` [rad] with feed-forward `velocities` [rad/s]
+    (a trajectory sample when `following`, else a hold), or brake (`braking`: pure damping until
+    the arm is still, then a hold where it stopped). Replaced whole, never edited, except that the
+    physics thread notes when a brake began (`since_s`, simulated time [s])."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    following: bool = False
+    braking: bool = False
+    since_s: float | None = None
+
+
 @dataclass(frozen=True)
 class _Measured:
     """One published simulation sample; arrays are read-only."""
@@ -234,15 +259,19 @@ class MujocoBackend(Backend, ServoHooks):
         #: deepest robot contact [m] seen since `reset_peak_penetration` (simulation diagnostics)
         self.peak_robot_penetration_m = 0.0
         self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
-        #: (q, q̇) the actuators track; replaced whole (stops, ticks), read before every physics step
-        self._target: tuple[np.ndarray, np.ndarray] = (frozen(home), frozen(np.zeros_like(home)))
+        #: what the arm's actuators do; replaced whole (stops, ticks), read before every physics step
+        self._target = _ArmTarget(frozen(home), frozen(np.zeros_like(home)))
+        self._braking_gains = False  # the actuators' gains are the brake's (physics thread)
+        self._tracking_kv = np.asarray(cell.gains.kv, dtype=float)
+        self._tracking_kp = np.asarray(cell.gains.kp, dtype=float)
         self._measured = self._measure()
         self._last_wall: float | None = None  # perf_counter up to which physics has run; None: not started
         self._pending_sim_s = 0.0
         #: largest |measured − commanded| [rad] over the running trajectory's samples (servo thread)
         self._tracking_peak_rad = 0.0
-        #: physics steps run so far
+        #: physics steps run so far, and steps skipped because the thread fell too far behind
         self.step_count = 0
+        self.dropped_steps = 0
         #: rendered image size (width, height) [px]
         self.camera_size_px = camera_size_px
         # one thread owns the renderer (its GL context is current there), off the physics thread
@@ -302,6 +331,8 @@ class MujocoBackend(Backend, ServoHooks):
         result = await self.servo.run(trajectory, progress, preempted=self._stop_landed)
         if result.completed:
             result = await self._settle(trajectory.goal)
+        elif result.reason == "stopped":
+            result = replace(result, final_positions=await self._rest_position())
         return replace(result, max_tracking_error_rad=self._tracking_peak_rad)
 
     async def _settle(self, goal: np.ndarray) -> ExecutionResult:
@@ -312,7 +343,7 @@ class MujocoBackend(Backend, ServoHooks):
         while True:
             sample = self._measured
             if self._stop_landed():
-                return ExecutionResult(False, "stopped", self.servo.latest.positions.copy())
+                return ExecutionResult(False, "stopped", await self._rest_position())
             if (np.max(np.abs(sample.positions - goal)) <= SETTLE_POSITION_RAD
                     and np.max(np.abs(sample.velocities)) <= SETTLE_SPEED_RAD_S):
                 return ExecutionResult(True, "completed", sample.positions.copy())
@@ -322,6 +353,15 @@ class MujocoBackend(Backend, ServoHooks):
                                        f"(off by {error:.4f} rad)", sample.positions.copy())
             self.servo.require_running()
             await asyncio.sleep(SETTLE_POLL_S)
+
+    async def _rest_position(self) -> np.ndarray:
+        """Where a stopped arm came to rest: once the brake has let go (or after
+        `SETTLE_TIMEOUT_S` of simulated time, or once the physics has stopped: then where it is)."""
+        deadline = time.monotonic() + SETTLE_TIMEOUT_S / self.servo.speedup
+        thread = self.servo.thread
+        while self._target.braking and time.monotonic() < deadline and thread is not None and thread.is_alive():  # noqa: ASYNC110 - released by the physics thread
+            await asyncio.sleep(SETTLE_POLL_S)
+        return self._measured.positions.copy()
 
     async def _stop(self) -> None:
         self._stop_now()
@@ -461,14 +501,25 @@ class MujocoBackend(Backend, ServoHooks):
         steps = int(self._pending_sim_s / self.timestep_s)
         self._pending_sim_s -= steps * self.timestep_s
         if steps > MAX_STEPS_PER_TICK:
+            self.dropped_steps += steps - MAX_STEPS_PER_TICK
             logger.warning("mujoco backend: physics fell %d steps behind; dropping them", steps - MAX_STEPS_PER_TICK)
             steps = MAX_STEPS_PER_TICK
         if steps == 0:
             return
         model, data, cell = self._model, self._data, self.cell
         for _ in range(steps):
-            q, qd = self._target
-            data.ctrl[cell.arm_actuators] = cell.arm_ctrl(q, qd)
+            target = self._target
+            if target.braking:
+                if target.since_s is None:
+                    target.since_s = float(data.time)
+                if (float(np.max(np.abs(data.qvel[cell.arm_dofs]))) < BRAKE_RELEASE_RAD_S
+                        or data.time - target.since_s > BRAKE_LIMIT_S):
+                    self._release_brake(target)
+                    target = self._target
+            if target.braking != self._braking_gains:
+                self._set_brake(target.braking)
+            if not target.braking:
+                data.ctrl[cell.arm_actuators] = cell.arm_ctrl(target.positions, target.velocities)
             if self._gripper is not None:
                 fingers = self._fingers
                 data.ctrl[self._gripper] = fingers.width_at(data.time)
@@ -484,13 +535,35 @@ class MujocoBackend(Backend, ServoHooks):
             self._tracking_peak_rad = max(self._tracking_peak_rad, error)
 
     def servo_command(self, setpoint: Setpoint) -> None:
-        self._target = (setpoint.positions, setpoint.velocities)
+        """Track a trajectory sample; while idle, keep whatever hold (or brake) is in force — it,
+        not the loop's last commanded position, knows where the arm came to rest. The first idle
+        tick after a completed trajectory holds its goal."""
+        if setpoint.following or self._target.following:
+            self._target = _ArmTarget(setpoint.positions, setpoint.velocities, following=setpoint.following)
 
     def servo_hold_positions(self, commanded: np.ndarray) -> np.ndarray:
         return self._measured.positions
 
     def servo_hold(self, setpoint: Setpoint) -> None:
-        self._target = (setpoint.positions, setpoint.velocities)
+        """Any thread: brake from the next physics step on (see `_set_brake`)."""
+        self._target = _ArmTarget(setpoint.positions, setpoint.velocities, braking=True)
+
+    def _set_brake(self, braking: bool) -> None:
+        """Physics thread: the arm actuators become pure dampers (force = −kv_brake·q̇, saturating
+        at the joint torque limits: the hardest stop the drives can make), or position servos again."""
+        model, actuators = self._model, self.cell.arm_actuators
+        kp = 0.0 if braking else self._tracking_kp
+        model.actuator_gainprm[actuators, 0] = kp
+        model.actuator_biasprm[actuators, 1] = -kp
+        model.actuator_biasprm[actuators, 2] = -self._tracking_kv * (BRAKE_DAMPING_FACTOR if braking else 1.0)
+        self._braking_gains = braking
+
+    def _release_brake(self, braking: _ArmTarget) -> None:
+        """Physics thread: the arm has stopped; hold it where it is. Only the brake this step saw
+        is released (a stop that replaced it meanwhile brakes anew)."""
+        arm = self._data.qpos[self.cell.arm_qpos]
+        if self._target is braking:
+            self._target = _ArmTarget(frozen(arm), braking.velocities)
 
     # ================================================================ measurement (servo thread)
     def _measure(self) -> _Measured:
