@@ -102,7 +102,7 @@ async def test_a_plan_of_another_client_is_refused_and_stays_its_owners(arm) -> 
 
         record = assert_refused(arm, taken, "NOT_PLAN_OWNER")
         mine = await execute(alice, summary["plan_id"])  # Bob's attempt spent nothing
-        assert mine.structured_content["status"] == "succeeded", text_of(mine)
+        assert not mine.is_error and mine.structured_content["status"] == "succeeded", text_of(mine)
     assert record["session"] != calls(arm, "execute_plan")[-1]["session"]
 
 

@@ -166,12 +166,12 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: 
     counting = CountingBackend(inner)
     audit_path = tmp_path / "audit.jsonl"
     audit = AuditLog(audit_path)
+    threshold = gc.get_threshold()
+    if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
+        freeze_long_lived_objects()  # before the physics starts: the collection itself takes ~100 ms
     await inner.open()
     guard = build_guard(policy, counting, audit)
     server = ArmWardenServer(guard)
-    threshold = gc.get_threshold()
-    if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
-        freeze_long_lived_objects()
     try:
         yield ArmHarness(guard, server, counting, inner, audit, audit_path)
     finally:
