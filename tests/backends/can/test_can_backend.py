@@ -219,7 +219,7 @@ async def test_start_up_writes_the_can_timeout_and_enables_last(arm: CanBackend)
         snapshot = arm.emulator.snapshot(joint.can_id)
         assert snapshot.enabled
     # the emulator reads the timeout back from what the backend wrote (0x7028)
-    assert all(a.parameters[rs.CAN_TIMEOUT.index] == rs.can_timeout_ticks(0.25) for a in arm._actuators)
+    assert all(a.parameters[rs.CAN_TIMEOUT.index] == rs.can_timeout_ticks(arm.config.can_timeout_s) for a in arm._actuators)
 
 
 # ---------------------------------------------------------------------------- motion
@@ -263,7 +263,7 @@ async def test_a_setpoint_outside_the_joint_limits_is_never_sent_it_is_a_fault(a
         goal[0] = POLICY.robot.upper_limits[0] + 0.2  # the Guard would refuse this plan; the backend must too
         start = np.array(q)
         trajectory = straight_line(arm.joint_names, start, goal, 0.3)
-        with pytest.raises(BackendError, match="fr3_joint1.*outside the policy limits"):
+        with pytest.raises(BackendError, match=r"fr3_joint1.*outside the policy limits"):
             await arm.execute(trajectory)
         sent = [s.command.position for s in spy.seen() if s.motor == 1 and s.command is not None and s.command.kp > 0]
         assert max(sent) <= POLICY.robot.upper_limits[0] + 1e-3

@@ -105,10 +105,12 @@ class Config(BaseModel):
 
     @model_validator(mode="after")
     def _unique(self) -> Config:
-        for what, values in (("joint name", [j.name for j in self.joints]), ("can_id", [j.can_id for j in self.joints])):
-            duplicates = sorted({v for v in values if values.count(v) > 1}, key=str)
+        columns: tuple[tuple[str, list[str]], ...] = (("joint name", [j.name for j in self.joints]),
+                                                      ("can_id", [str(j.can_id) for j in self.joints]))
+        for what, values in columns:
+            duplicates = sorted({v for v in values if values.count(v) > 1})
             if duplicates:
-                raise ValueError(f"duplicate {what}: {', '.join(map(str, duplicates))}")
+                raise ValueError(f"duplicate {what}: {', '.join(duplicates)}")
         if self.simulate is not None:
             unknown = sorted(set(self.simulate.loads) - {j.name for j in self.joints})
             if unknown:
