@@ -70,3 +70,22 @@ async def test_it_forwards_capabilities_stop_stamp_and_backend_specific_attribut
     finally:
         await counting.close()
     assert not fake.is_open
+
+
+def test_a_fault_listener_set_on_the_wrapper_hears_the_inner_backends_faults() -> None:
+    inner = MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01)
+    heard: list[str] = []
+    CountingBackend(inner).set_fault_listener(heard.append)
+    inner._report_fault("joint 3: over-temperature")
+    assert heard == ["joint 3: over-temperature"]
+
+
+def test_a_failing_fault_listener_does_not_reach_the_reporting_thread(caplog: pytest.LogCaptureFixture) -> None:
+    inner = MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01)
+
+    def broken(reason: str) -> None:
+        raise RuntimeError("listener bug")
+
+    inner.set_fault_listener(broken)
+    inner._report_fault("bus-off")  # logged, not raised: the backend has already damped the arm
+    assert "fault listener failed" in caplog.text

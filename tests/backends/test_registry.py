@@ -20,8 +20,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_the_cli_choices_are_the_built_backends_then_the_planned_ones() -> None:
-    assert backend_names() == ("fake", "mujoco", "ros2", "can")
-    assert list(backends.BACKENDS) == ["fake", "mujoco"]
+    assert backend_names() == ("fake", "mujoco", "can", "ros2")
+    assert list(backends.BACKENDS) == ["fake", "mujoco", "can"]
 
 
 def test_create_backend_builds_the_fake_for_the_policy_robot(fr3_policy: Policy, robot: RobotModel) -> None:
@@ -38,7 +38,7 @@ def test_create_backend_takes_the_config_model_itself(fr3_policy: Policy, robot:
     assert not backend.capabilities.wrench
 
 
-@pytest.mark.parametrize("name", ["ros2", "can"])
+@pytest.mark.parametrize("name", ["ros2"])
 def test_a_planned_backend_says_it_is_not_built_yet(name: str, fr3_policy: Policy, robot: RobotModel) -> None:
     with pytest.raises(BackendUnavailable, match=f"the {name} backend is not built yet"):
         create_backend(name, robot, fr3_policy)
@@ -91,9 +91,9 @@ def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_serve_with_a_backend_not_built_yet_exits_2_before_serving(tmp_path: Path) -> None:
-    result = _serve(tmp_path, "--backend", "can")
+    result = _serve(tmp_path, "--backend", "ros2")
     assert result.returncode == 2, result.stderr
-    assert "the can backend is not built yet" in result.stderr
+    assert "the ros2 backend is not built yet" in result.stderr
     assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
 
 

@@ -1,8 +1,8 @@
 """An in-memory ArmWarden for end-to-end tests through the official MCP SDK client.
 
 `ArmHarness` builds the real Guard and server (`armwarden.assembly.build_guard`, as the daemon
-does) on a backend — the fake by default, the tiny example backend ("minimal"), or the MuJoCo
-simulation ("mujoco", 4× real time) — wrapped in a
+does) on a backend — the fake by default, the tiny example backend ("minimal"), the MuJoCo
+simulation ("mujoco", 4× real time) or emulated CAN actuators ("can", examples/can_sim.yaml) — wrapped in a
 `CountingBackend` that counts every actuation command that reaches it: the proof that a refusal
 moved nothing. Tests talk to it only through `mcp.Client`, in either protocol mode.
 """
@@ -36,13 +36,15 @@ from tests.helpers import text_of
 MODES = ("legacy", "2026-07-28")
 HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
 #: backends a scenario can run on: parametrise with `@pytest.mark.parametrize("backend", BACKENDS)`
-BACKENDS = ("fake", "minimal", "mujoco")
+BACKENDS = ("fake", "minimal", "mujoco", "can")
 #: simulated time per wall time of the harness's simulated backends (scenarios take seconds)
-SPEEDUP = {"fake": 10.0, "minimal": 10.0, "mujoco": 4.0}
+SPEEDUP = {"fake": 10.0, "minimal": 10.0, "mujoco": 4.0, "can": 2.0}
 #: backends whose simulation runs against the wall clock: a long garbage collection (the test
 #: process's heap is large) stalls their physics and makes the wrench stale, as it would in a
 #: daemon that did not freeze its long-lived objects
-REAL_TIME = ("mujoco",)
+REAL_TIME = ("mujoco", "can")
+#: the emulated RobStride arm the "can" harness backend drives (on a virtual bus of its own)
+CAN_SIM = Path(__file__).resolve().parents[2] / "examples" / "can_sim.yaml"
 
 ElicitationCallback = Callable[[Any, types.ElicitRequestParams], Awaitable[types.ElicitResult]]
 
@@ -120,6 +122,12 @@ class ArmHarness:
     def actuations(self) -> list[str]:
         return self.backend.actuations
 
+    @property
+    def bus_motions(self) -> int | None:
+        """Executions that put motion on the CAN bus (command frames following a trajectory, not
+        the hold/damping stream); None on a backend without a bus."""
+        return getattr(self.inner, "moving_executions", None)
+
     @contextlib.asynccontextmanager
     async def client(self, mode: str = "legacy", elicitation: ElicitationCallback | None = None) -> AsyncIterator[Client]:
         async with Client(self.server.mcp, mode=mode, elicitation_callback=elicitation) as client:
@@ -137,6 +145,18 @@ def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
                               start_tolerance_rad=policy.motion.start_tolerance_rad, speedup=SPEEDUP[name])
     if name == "mujoco":
         return build_backend("mujoco", policy, robot=robot, config={"speedup": SPEEDUP[name]} | options)
+    if name == "can":
+        import uuid
+
+        import yaml
+
+        document = yaml.safe_load(CAN_SIM.read_text())
+        document["bus"]["channel"] = f"armwarden-harness-{uuid.uuid4().hex}"  # virtual buses of one name share frames
+        document["simulate"]["speedup"] = SPEEDUP[name]
+        # the test process stalls its threads far longer than a daemon (planning, a large heap, 2 cores
+        # shared with other suites): watch for silence on a scale those stalls do not reach
+        document |= {"rx_timeout_s": 1.0, "can_timeout_s": 2.0}
+        return build_backend("can", policy, robot=robot, config=document | options)
     if name != "fake":
         raise ValueError(f"unknown harness backend {name!r}; choose one of {BACKENDS}")
     config = {key: value for key, value in options.items() if key in FakeConfig.model_fields}
@@ -153,7 +173,7 @@ def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
 def _policy_for(backend: str) -> Policy:
     """The bundled policy, adapted to what `backend` has: without a wrench estimate, execution
     runs without force enforcement (the gripper and camera tools are simply not registered)."""
-    if backend == "minimal":
+    if backend in ("minimal", "can"):
         return policy_with(**{"force.require_wrench": False})
     return load_policy(bundled_policy("fr3"))
 

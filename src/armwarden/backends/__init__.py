@@ -29,9 +29,10 @@ if TYPE_CHECKING:
 BACKENDS: dict[str, str] = {
     "fake": "armwarden.backends.fake",
     "mujoco": "armwarden.backends.mujoco.backend",
+    "can": "armwarden.backends.can.backend",
 }
 #: backends announced in the design whose module is not written yet (each has its own issue)
-PLANNED: tuple[str, ...] = ("ros2", "can")
+PLANNED: tuple[str, ...] = ("ros2",)
 #: a backend config file larger than this is refused unread [bytes]
 MAX_CONFIG_BYTES = 1_000_000
 

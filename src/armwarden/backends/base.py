@@ -49,6 +49,10 @@ Rules every backend follows
   cross into asyncio with `armwarden.handoff.settle_threadsafe`. A backend whose thread publishes
   every sample answers `_latest_joint_state` / `_latest_wrench` from that snapshot without
   awaiting; the read deadline is then skipped.
+- A fault the backend finds on its own thread (a physical arm's health watch) is handled there
+  first — the arm stopped or damped, the stop epoch bumped — then reported to the listener set
+  with `set_fault_listener` (the Guard latches its e-stop from any thread). A fault during an
+  execution also makes `execute` raise `BackendError` naming it.
 - Deadlines (class attributes, seconds): reads `read_timeout_s`, stops `stop_timeout_s`, and one
   per optional capability (`*_timeout_s`; gripper motions get `gripper_timeout_s` plus the time
   `gripper_travel_m` takes at the requested speed). A missed deadline raises `BackendTimeout`;
@@ -74,6 +78,8 @@ from armwarden.planning.trajectory import JointTrajectory
 logger = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[float], None]
+#: told (from any thread) that the backend found a fault and has already stopped or damped the arm
+FaultListener = Callable[[str], None]
 #: `ExecutionResult.reason` of an execution a stop preempted before anything moved
 PREEMPTED = "stopped before it started"
 T = TypeVar("T")
@@ -212,6 +218,7 @@ class Backend(abc.ABC):
         self._gripper_epoch = 0  # the stop epoch the running gripper action was decided under
         self._opened = False
         self._closed = False
+        self._fault_listener: FaultListener | None = None
 
     @property
     def last_stop_stamp(self) -> float | None:
@@ -250,6 +257,24 @@ class Backend(abc.ABC):
         if self._stop_epoch != epoch:
             raise StoppedBeforeStart(f"{what} not started: a stop was issued after it was decided")
         return epoch
+
+    # ---------------------------------------------------------------- faults
+    def set_fault_listener(self, listener: FaultListener | None) -> None:
+        """Who to tell about a fault the backend finds on its own, outside any call (the Guard
+        latches its e-stop). Called from the backend's thread: the listener must be thread-safe and
+        quick, and must not wait for the event loop."""
+        self._fault_listener = listener
+
+    def _report_fault(self, reason: str) -> None:
+        """Any thread: the arm is already stopped or damped; tell the listener why."""
+        listener = self._fault_listener
+        if listener is None:
+            logger.error("backend %s fault with no listener: %s", self.name, reason)
+            return
+        try:
+            listener(reason)
+        except Exception:  # the backend has stopped the arm either way; the report must not kill its thread
+            logger.exception("backend %s: fault listener failed for %r", self.name, reason)
 
     # ---------------------------------------------------------------- lifecycle
     @property

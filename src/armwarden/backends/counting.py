@@ -19,6 +19,7 @@ from armwarden.backends.base import (
     Capabilities,
     ControllerInfo,
     ExecutionResult,
+    FaultListener,
     GripperResult,
     GripperState,
     JointState,
@@ -74,6 +75,9 @@ class CountingBackend(Backend):
     @last_stop_stamp.setter
     def last_stop_stamp(self, stamp: float | None) -> None:  # the inner backend records it
         pass
+
+    def set_fault_listener(self, listener: FaultListener | None) -> None:
+        self.inner.set_fault_listener(listener)
 
     async def open(self) -> None:
         await self.inner.open()

@@ -83,6 +83,7 @@ class Guard:
         self.readings = Readings(policy, state_robot, backend, clock)
         self.stopper = Stopper(backend, self.latch, self.plans)
         self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
+        backend.set_fault_listener(self.stopper.backend_fault)  # faults a backend finds on its own thread
         self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
                                    emergency_stop=self.stopper.emergency_stop, stop_for=self.stopper.stop_for,
                                    record=self._record)

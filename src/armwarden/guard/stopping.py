@@ -76,6 +76,15 @@ class Stopper:
             schedule(lambda: self.plans.invalidate_all(f"e-stop #{voided.number}"))
         return event
 
+    def backend_fault(self, reason: str) -> EStopEvent:
+        """From any thread (the backend's): the backend found a fault and has already stopped or
+        damped the arm. Latch the e-stop (plans made before it are refused: they carry the latch
+        generation) and record the fault for `get_safety_status`; nothing moves until a human
+        resets the e-stop and the backend finds the fault cleared."""
+        self.generation += 1
+        self.faults.append(reason)
+        return self.latch.latch(reason, "backend_fault")
+
     def hold_now(self) -> BackendError | None:
         """From any thread: stop arm and gripper now with the backend's `stop_now`, without latching.
         For a stop or e-stop request the transport has just read: the arm is held before the request

@@ -1,0 +1,570 @@
+"""The CAN backend: an arm of MIT-mode and RobStride actuators driven directly over python-can.
+
+Start-up (`_open`): start the emulator if the config asks for one, open the bus, ping every
+actuator (RobStride type 0; MIT: the exit-motor-mode frame, which every MIT actuator answers and
+which leaves it disabled), read positions (RobStride: a stop frame, answered with feedback),
+write and read back the actuator-side CAN timeout (RobStride 0x7028; MIT mode has no frame for
+it: the firmware's own setting applies), refuse a fault bit or an over-temperature, and enable
+the actuators only at the very end, when the servo loop is about to hold them. A missing reply
+refuses to open (`BackendError` naming the joints and ids; the daemon exits 2).
+
+The servo loop (`armwarden.backends.servo.ServoLoop`) ticks at `control_rate_hz` whether moving
+or not — the stream of frames is what feeds the actuators' watchdogs. Each tick sends one
+impedance command per joint: the trajectory sample while following, the measured position (with
+the tracking gains) while holding, or kp = 0, kd > 0 while damping. It never sends a position
+outside the policy's joint limits: such a setpoint is not sent but turned into a fault. Replies
+are parsed on the bus's reader thread; what is published is what the actuators measured.
+
+Health, every tick: an actuator that has left a command unanswered for `rx_timeout_s` (RX
+timeout), fault bits in its feedback or a RobStride fault frame, a temperature above
+`temperature_limit_c`, invalid frames, an actuator that left run mode, and the bus's latched
+flags (bus-off and other error frames, TX overrun, reader errors). ANY fault: damping frames on
+every joint from that tick on, the stop epoch bumped, the running execution ended (`execute`
+raises `BackendError` naming the joint and the fault, which makes the Guard latch its e-stop), and
+the fault reported through the backend's fault listener (the Guard latches the e-stop when idle
+too). Damping lasts until an execution is admitted again (only after a human reset the e-stop)
+*and* no fault condition is present any more; otherwise that execution is refused.
+
+Calibration: joint = direction·(raw − homing_offset_rad); velocity and torque: direction only.
+Zeroing and id/baud changes are maintenance operations: no code path here sends them.
+See docs/architecture.md, section "Backends" (CAN).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import anyio
+import can
+import numpy as np
+
+from armwarden.backends.base import Backend, Capabilities, ExecutionResult, JointState, ProgressCallback
+from armwarden.backends.can import mit
+from armwarden.backends.can import robstride as rs
+from armwarden.backends.can.bus import NO_FLAGS, BusFactory, CanBus, FrameKind, HealthFlag, open_interface
+from armwarden.backends.can.command import MotorCommand
+from armwarden.backends.can.config import Config, JointConfig, check_against_policy
+from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
+from armwarden.backends.can.errors import InvalidFrame
+from armwarden.backends.can.ranges import ModelRanges, Protocol
+from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.errors import BackendError
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.model import RobotModel
+
+if TYPE_CHECKING:
+    from armwarden.policy import Policy
+
+logger = logging.getLogger(__name__)
+
+#: how often start-up and settling look at the replies [s]
+POLL_S = 0.002
+
+
+@dataclass
+class _Actuator:
+    """One actuator's configuration and what it last reported (written by the reader thread,
+    read by the servo thread, both under the backend's state lock)."""
+
+    index: int
+    joint: JointConfig
+    ranges: ModelRanges
+    unwrapper: mit.PositionUnwrapper | None
+    raw_position: float | None = None
+    raw_velocity: float = 0.0
+    temperature_c: float | None = None
+    fault_bits: tuple[str, ...] = ()  # reported in the latest feedback (current)
+    fault_frames: tuple[str, ...] = ()  # RobStride type-21 reports (latched until recovery)
+    invalid_frames: int = 0  # malformed frames from it (latched until recovery)
+    mode: rs.MotorMode | None = None  # RobStride only
+    pinged: bool = False
+    replies: int = 0
+    parameters: dict[int, float] = field(default_factory=dict)
+    unanswered_since: float | None = None  # monotonic time of the oldest frame not yet answered
+
+    @property
+    def label(self) -> str:
+        return f"joint {self.joint.name} (can id {self.joint.can_id})"
+
+
+class CanBackend(Backend, ServoHooks):
+    """The arm of CAN actuators (see the module docstring)."""
+
+    name = "can"
+
+    def __init__(self, robot: RobotModel, config: Config, joints: tuple[JointConfig, ...], *,
+                 lower: Iterable[float], upper: Iterable[float], home: Iterable[float], start_tolerance_rad: float,
+                 bus_factory: BusFactory = open_interface) -> None:
+        super().__init__(robot.joint_names, start_tolerance_rad=start_tolerance_rad)
+        self.config = config
+        self._lower = np.asarray(tuple(lower), dtype=float)
+        self._upper = np.asarray(tuple(upper), dtype=float)
+        self._home = np.asarray(tuple(home), dtype=float)
+        self._actuators = [
+            _Actuator(i, j, j.ranges, mit.PositionUnwrapper(j.ranges.position.lo, j.ranges.position.hi)
+                      if j.protocol is Protocol.MIT else None)
+            for i, j in enumerate(joints)
+        ]
+        self._robstride = {a.joint.can_id: a for a in self._actuators if a.joint.protocol is Protocol.ROBSTRIDE}
+        self._mit = {a.joint.can_id: a for a in self._actuators if a.joint.protocol is Protocol.MIT}
+        self._direction = np.array([j.direction for j in joints], dtype=float)
+        self._offset = np.array([j.homing_offset_rad for j in joints], dtype=float)
+        # honest accuracies: a few position LSBs of the coarsest model; velocity noise of 12-bit fields
+        position_lsb = max(a.ranges.position.span / 0xFFFF for a in self._actuators)
+        velocity_lsb = max(a.ranges.velocity.span / (0xFFF if a.ranges.protocol is Protocol.MIT else 0xFFFF)
+                           for a in self._actuators)
+        self.goal_accuracy_rad = max(2e-3, 4 * position_lsb)
+        self.hold_accuracy_rad = max(2e-3, 4 * position_lsb)
+        self.rest_speed_rad_s = max(0.01, 2.5 * velocity_lsb)
+        self.period_s = 1.0 / config.control_rate_hz
+        self._speedup = config.simulate.speedup if config.simulate is not None else 1.0
+        self._bus_factory = bus_factory
+        self.bus: CanBus | None = None
+        self.emulator: ActuatorEmulator | None = None
+        self.servo: ServoLoop | None = None
+        self._state_lock = threading.Lock()
+        self._fault_lock = threading.Lock()
+        #: the active fault ("joint ...: why; ..."), None when healthy; damping while set
+        self.fault: str | None = None
+        self._damping = False
+        self._enabled = False  # every actuator confirmed run mode at start-up
+        self._limit_violation: str | None = None  # a setpoint refused under the servo lock
+        self._published: JointState | None = None
+        self._tracking_peak_rad = 0.0
+        self._following: np.ndarray | None = None  # the previous tick's trajectory sample
+        #: command frames sent while following a trajectory (not holds, not damping): motion at the bus
+        self.motion_frames = 0
+        #: executions that sent at least one motion frame
+        self.moving_executions = 0
+        self._moved_this_execution = False
+
+    # ================================================================ lifecycle
+    @property
+    def capabilities(self) -> Capabilities:
+        return Capabilities()
+
+    @property
+    def last_stop_stamp(self) -> float | None:
+        return None if self.servo is None else self.servo.last_hold_stamp
+
+    @last_stop_stamp.setter
+    def last_stop_stamp(self, stamp: float | None) -> None:  # the servo loop records it
+        pass
+
+    async def _open(self) -> None:
+        try:
+            await self._start_up()
+        except BaseException:
+            with anyio.CancelScope(shield=True):
+                await self._release()
+            raise
+
+    async def _start_up(self) -> None:
+        config = self.config
+        if config.simulate is not None:
+            self.emulator = self._build_emulator()
+            self.emulator.start()
+        self.bus = CanBus(config.bus, self._on_frame, bus_factory=self._bus_factory)
+        self.bus.open()
+        host = config.host_id
+        # 1. ping (harmless: MIT exit-mode leaves the actuator disabled and answers with its state)
+        for a in self._actuators:
+            if a.joint.protocol is Protocol.ROBSTRIDE:
+                self._send_rs(rs.get_id_frame(a.joint.can_id, host), FrameKind.QUERY, a)
+            else:
+                self._send_mit(a, mit.Special.EXIT_MOTOR_MODE.value, FrameKind.QUERY)
+        await self._await_all(lambda a: a.pinged, "did not answer the ping")
+        # 2. positions: a RobStride stop frame (disabled already) is answered with feedback
+        for a in self._robstride.values():
+            self._send_rs(rs.stop_frame(a.joint.can_id, host), FrameKind.MODE, a)
+        await self._await_all(lambda a: a.raw_position is not None, "reported no position")
+        # 3. actuator-side CAN timeout (RobStride 0x7028), written and read back
+        ticks = rs.can_timeout_ticks(config.can_timeout_s)
+        for a in self._robstride.values():
+            self._send_rs(rs.write_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT, ticks), FrameKind.PARAMETER, a)
+            self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT), FrameKind.PARAMETER, a)
+        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or a.parameters.get(rs.CAN_TIMEOUT.index) == ticks,
+                              f"did not confirm canTimeout = {ticks} ticks ({config.can_timeout_s} s)")
+        # 4. nothing wrong before anything is enabled
+        problems = self._conditions(time.monotonic())
+        if problems:
+            raise BackendError(f"can backend: refusing to enable the actuators: {'; '.join(problems)}")
+        q = self._measured_positions()
+        outside = [f"{n} at {v:.4f} rad (limits [{lo:.4f}, {hi:.4f}])"
+                   for n, v, lo, hi in zip(self.joint_names, q, self._lower, self._upper, strict=True) if not lo <= v <= hi]
+        if outside:
+            raise BackendError(f"can backend: refusing to enable: joints outside the policy limits: {', '.join(outside)}")
+        # 5. the servo loop holds the measured positions from its first tick; enable last
+        self._publish(time.monotonic())
+        self.servo = ServoLoop(self, q, period_s=self.period_s, idle_period_s=self.period_s, speedup=self._speedup,
+                               name="can backend")
+        await self.servo.start("armwarden-can-servo")
+        for a in self._actuators:
+            if a.joint.protocol is Protocol.ROBSTRIDE:
+                self._send_rs(rs.enable_frame(a.joint.can_id, host), FrameKind.MODE, a)
+            else:
+                self._send_mit(a, mit.Special.ENTER_MOTOR_MODE.value, FrameKind.MODE)
+        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or a.mode is rs.MotorMode.RUN,
+                              "did not enter run mode")
+        self._enabled = True
+        logger.info("can backend: %d actuators enabled at %.0f Hz", len(self._actuators), config.control_rate_hz)
+
+    async def _close(self) -> None:
+        await self._release()
+
+    async def _release(self) -> None:
+        self._enabled = False
+        if self.servo is not None:
+            await self.servo.shutdown()
+        bus = self.bus
+        if bus is not None and bus.is_open:
+            for a in self._actuators:  # disable: zero torque (the actuators' watchdog would do it anyway)
+                try:
+                    if a.joint.protocol is Protocol.ROBSTRIDE:
+                        self._send_rs(rs.stop_frame(a.joint.can_id, self.config.host_id), FrameKind.MODE, a)
+                    else:
+                        self._send_mit(a, mit.Special.EXIT_MOTOR_MODE.value, FrameKind.MODE)
+                except BackendError:
+                    logger.exception("can backend: disabling %s failed", a.label)
+            await asyncio.sleep(5 * POLL_S)  # let the replies come back before the reader stops
+        if bus is not None:
+            bus.close()
+        if self.emulator is not None:
+            self.emulator.close()
+
+    def _build_emulator(self) -> ActuatorEmulator:
+        simulate = self.config.simulate
+        assert simulate is not None
+        specs = []
+        for a, q in zip(self._actuators, self._home, strict=True):
+            load = simulate.loads.get(a.joint.name)
+            extra = {} if load is None else load.model_dump()
+            specs.append(ActuatorSpec(
+                can_id=a.joint.can_id, model=a.joint.model,
+                initial_position_rad=a.joint.direction * float(q) + a.joint.homing_offset_rad,
+                # MIT firmware's watchdog is configured outside this protocol; the emulator gets it here
+                can_timeout_s=self.config.can_timeout_s if a.joint.protocol is Protocol.MIT else 0.0,
+                **extra,
+            ))
+        return ActuatorEmulator(self.config.bus.channel, specs, interface=self.config.bus.interface,
+                                rate_hz=simulate.rate_hz, host_id=self.config.host_id,
+                                mit_reply_id=self.config.mit_reply_id)
+
+    async def _await_all(self, ready: Callable[[_Actuator], bool], what: str) -> None:
+        deadline = time.monotonic() + self.config.startup_timeout_s
+        while True:
+            with self._state_lock:
+                missing = [a for a in self._actuators if not ready(a)]
+            if not missing:
+                return
+            if time.monotonic() > deadline:
+                names = ", ".join(a.label for a in missing)
+                raise BackendError(f"can backend: {names} {what} within {self.config.startup_timeout_s} s")
+            await asyncio.sleep(POLL_S)
+
+    # ================================================================ state
+    def _latest_joint_state(self) -> JointState:
+        servo = self._require_servo()
+        servo.require_running()
+        published = self._published
+        assert published is not None
+        return published
+
+    async def _read_joint_state(self) -> JointState:
+        return self._latest_joint_state()
+
+    def _measured_positions(self) -> np.ndarray:
+        with self._state_lock:
+            raw = np.array([a.raw_position if a.raw_position is not None else np.nan for a in self._actuators])
+        return self._direction * (raw - self._offset)
+
+    def _publish(self, stamp: float) -> None:
+        with self._state_lock:
+            raw = np.array([a.raw_position if a.raw_position is not None else np.nan for a in self._actuators])
+            raw_velocity = np.array([a.raw_velocity for a in self._actuators])
+        self._published = JointState(self.joint_names, frozen(self._direction * (raw - self._offset)),
+                                     frozen(self._direction * raw_velocity), stamp)
+
+    def health(self) -> dict[str, object]:
+        """A small report: the active fault, the bus's latched flags and frame counters."""
+        bus = self.bus.health() if self.bus is not None else None
+        return {
+            "fault": self.fault,
+            "damping": self._damping,
+            "bus_flags": None if bus is None else str(bus.flags),
+            "command_frames_sent": None if bus is None else bus.command_frames_sent,
+            "motion_frames": self.motion_frames,
+        }
+
+    # ================================================================ motion
+    async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        servo = self._require_servo()
+        servo.require_running()
+        if self.fault is not None:
+            self._recover()
+        self._tracking_peak_rad = 0.0
+        self._following = None
+        self._moved_this_execution = False
+        result = await servo.run(trajectory, progress, preempted=self._stop_landed)
+        self._raise_if_faulted()
+        if result.completed:
+            result = await self._settle(servo, trajectory.goal)
+        return replace(result, max_tracking_error_rad=self._tracking_peak_rad)
+
+    async def _settle(self, servo: ServoLoop, goal: np.ndarray) -> ExecutionResult:
+        """The goal is commanded; wait until the measured arm is there and still (or a stop, a
+        fault, or `settle_timeout_s`)."""
+        deadline = time.monotonic() + self.config.settle_timeout_s
+        while True:
+            self._raise_if_faulted()
+            sample = self._latest_joint_state()
+            if self._stop_landed():
+                return ExecutionResult(False, "stopped", servo.latest.positions.copy())
+            if (np.max(np.abs(sample.positions - goal)) <= self.goal_accuracy_rad
+                    and np.max(np.abs(sample.velocities)) <= self.rest_speed_rad_s):
+                return ExecutionResult(True, "completed", sample.positions.copy())
+            if time.monotonic() > deadline:
+                error = float(np.max(np.abs(sample.positions - goal)))
+                return ExecutionResult(False, f"did not settle at the goal within {self.config.settle_timeout_s} s "
+                                       f"(off by {error:.4f} rad)", sample.positions.copy())
+            await asyncio.sleep(POLL_S)
+
+    def _raise_if_faulted(self) -> None:
+        fault = self.fault
+        if fault is not None:
+            raise BackendError(f"can backend fault, motion aborted, actuators damped: {fault}")
+
+    def _recover(self) -> None:
+        """Leave damping for an execution the Guard admitted (so a human reset the e-stop): clear
+        what latched, then refuse if any fault condition is still present."""
+        with self._state_lock:
+            for a in self._actuators:
+                a.fault_frames, a.invalid_frames = (), 0
+        if self.bus is not None:
+            self.bus.clear_flags()
+        problems = self._conditions(time.monotonic())
+        if problems:
+            raise BackendError(f"can backend: the fault has not cleared, nothing moves: {'; '.join(problems)}")
+        with self._fault_lock:
+            self.fault, self._damping, self._limit_violation = None, False, None
+        self._require_servo().hold()  # from damping to holding where the arm is
+        logger.warning("can backend: fault cleared after a reset; holding again")
+
+    async def _stop(self) -> None:
+        self._stop_now()
+
+    def _stop_now(self) -> None:
+        servo = self._require_servo()
+        servo.hold()
+        servo.require_running()
+
+    def _require_servo(self) -> ServoLoop:
+        if self.servo is None:
+            raise BackendError("can backend: the servo loop is not running")
+        return self.servo
+
+    # ================================================================ servo hooks
+    def servo_prepare(self, setpoint: Setpoint) -> None:
+        """Servo thread: publish the measured state, track the error, check health."""
+        servo = self.servo
+        if servo is None or threading.current_thread() is not servo.thread:
+            return
+        now = time.monotonic()
+        self._publish(now)
+        measured = self._published.positions if self._published is not None else None
+        if self._following is not None and measured is not None:
+            self._tracking_peak_rad = max(self._tracking_peak_rad, float(np.max(np.abs(measured - self._following))))
+        self._following = setpoint.positions if setpoint.following else None
+        problems = self._conditions(now)
+        if self._limit_violation is not None:
+            problems.insert(0, self._limit_violation)
+        if setpoint.following and not self._damping:
+            problems.extend(self._outside_limits(setpoint.positions, "commanded"))
+        if problems and self.fault is None:
+            self._enter_fault(problems)
+
+    def servo_command(self, setpoint: Setpoint) -> None:
+        self._send_commands(setpoint.positions, setpoint.velocities, following=setpoint.following)
+
+    def servo_hold_positions(self, commanded: np.ndarray) -> np.ndarray:
+        measured = self._measured_positions()
+        return np.where(np.isfinite(measured), measured, commanded)
+
+    def servo_hold(self, setpoint: Setpoint) -> None:
+        self._send_commands(setpoint.positions, setpoint.velocities, following=False)
+
+    def servo_failed(self, error: BaseException) -> None:
+        self._report_fault(f"can backend: the servo loop died ({error!r}); the actuators' CAN timeout disables them")
+
+    # ================================================================ faults (servo thread)
+    def _enter_fault(self, problems: list[str]) -> None:
+        with self._fault_lock:
+            if self.fault is not None:
+                return
+            self.fault = "; ".join(problems)
+            self._damping = True
+        logger.error("can backend fault: %s; damping every joint", self.fault)
+        self._bump_stop_epoch()
+        self._require_servo().hold()  # damping frames now, and the running execution ends
+        self._report_fault(f"can backend fault: {self.fault}")
+
+    def _conditions(self, now: float) -> list[str]:
+        """Every fault condition present now, naming the joint (or the bus)."""
+        problems: list[str] = []
+        limit = self.config.temperature_limit_c
+        with self._state_lock:
+            for a in self._actuators:
+                if a.unanswered_since is not None and now - a.unanswered_since > self.config.rx_timeout_s:
+                    problems.append(f"{a.label}: no reply for {1000 * (now - a.unanswered_since):.0f} ms (RX timeout)")
+                if a.fault_bits:
+                    problems.append(f"{a.label}: fault {', '.join(a.fault_bits)}")
+                if a.fault_frames:
+                    problems.append(f"{a.label}: fault frame {', '.join(a.fault_frames)}")
+                if a.temperature_c is not None and a.temperature_c > limit:
+                    problems.append(f"{a.label}: over-temperature {a.temperature_c:.1f} °C (limit {limit:g} °C)")
+                if a.invalid_frames:
+                    problems.append(f"{a.label}: {a.invalid_frames} invalid frame(s)")
+                if self._enabled and a.mode is not None and a.mode is not rs.MotorMode.RUN:
+                    problems.append(f"{a.label}: left run mode ({a.mode.name})")
+            attributed = any(a.invalid_frames for a in self._actuators)
+        if self.bus is not None:
+            flags = self.bus.health().flags
+            if attributed:
+                flags &= ~HealthFlag.INVALID_FRAME
+            if flags != NO_FLAGS:
+                names = ", ".join(f.name or "?" for f in HealthFlag if f in flags)
+                problems.append(f"all joints: CAN bus {names}")
+        return problems
+
+    def _outside_limits(self, positions: np.ndarray, what: str) -> list[str]:
+        return [f"joint {n}: {what} position {q:.4f} rad outside the policy limits [{lo:.4f}, {hi:.4f}] (refused)"
+                for n, q, lo, hi in zip(self.joint_names, positions, self._lower, self._upper, strict=True)
+                if not lo <= q <= hi]
+
+    # ================================================================ frames out (under the servo lock)
+    def _send_commands(self, positions: np.ndarray, velocities: np.ndarray, *, following: bool) -> None:
+        if not self._damping:
+            bad = self._outside_limits(positions, "commanded" if following else "hold")
+            if bad:  # never sent: damp instead, and the next tick turns it into a fault
+                self._limit_violation = bad[0]
+                self._damping = True
+        if self._damping:
+            for a in self._actuators:
+                raw = a.raw_position if a.raw_position is not None else 0.0
+                raw = min(max(raw, a.ranges.position.lo), a.ranges.position.hi)  # kp = 0: the position has no effect
+                self._send_command(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0))
+            return
+        raw = self._direction * positions + self._offset
+        raw_velocity = self._direction * velocities
+        for a in self._actuators:
+            j = a.joint
+            self._send_command(a, MotorCommand(float(raw[a.index]), float(raw_velocity[a.index]), j.kp_nm_per_rad,
+                                               j.kd_nms_per_rad, 0.0))
+        if following:
+            self.motion_frames += len(self._actuators)
+            if not self._moved_this_execution:
+                self._moved_this_execution = True
+                self.moving_executions += 1
+
+    def _send_command(self, a: _Actuator, command: MotorCommand) -> None:
+        try:
+            if a.joint.protocol is Protocol.ROBSTRIDE:
+                frame = rs.control_frame(a.joint.can_id, command, a.ranges)
+                self._send(a, frame.arbitration_id, frame.data, extended=True, kind=FrameKind.COMMAND)
+            else:
+                self._send(a, a.joint.can_id, mit.pack_command(command, a.ranges), extended=False, kind=FrameKind.COMMAND)
+        except ValueError as exc:  # a value the model cannot carry: never sent
+            raise BackendError(f"can backend: {a.label}: command refused: {exc}") from exc
+
+    def _send_rs(self, frame: rs.Frame, kind: FrameKind, a: _Actuator) -> None:
+        self._send(a, frame.arbitration_id, frame.data, extended=True, kind=kind)
+
+    def _send_mit(self, a: _Actuator, data: bytes, kind: FrameKind) -> None:
+        self._send(a, a.joint.can_id, data, extended=False, kind=kind)
+
+    def _send(self, a: _Actuator, arbitration_id: int, data: bytes, *, extended: bool, kind: FrameKind) -> None:
+        bus = self.bus
+        if bus is None:
+            raise BackendError("can backend: the bus is not open")
+        with self._state_lock:
+            if a.unanswered_since is None:
+                a.unanswered_since = time.monotonic()
+        bus.send_frame(arbitration_id, data, extended=extended, kind=kind)  # a refused send latches TX overrun
+
+    # ================================================================ frames in (reader thread)
+    def _on_frame(self, msg: can.Message) -> None:
+        data = bytes(msg.data)
+        if msg.is_extended_id:
+            fields = rs.split_id(msg.arbitration_id)
+            motor = fields.data2 & 0xFF
+            a = self._robstride.get(motor)
+            if a is None:
+                raise InvalidFrame(f"frame 0x{msg.arbitration_id:X} from unknown RobStride motor {motor}")
+            with self._state_lock:
+                try:
+                    self._on_robstride(a, fields.comm_type, msg.arbitration_id, data)
+                except InvalidFrame:
+                    a.invalid_frames += 1
+                    raise
+                a.replies += 1
+                a.unanswered_since = None
+            return
+        if msg.arbitration_id != self.config.mit_reply_id or not data:
+            raise InvalidFrame(f"unexpected standard frame 0x{msg.arbitration_id:X}")
+        a = self._mit.get(data[0])
+        if a is None:
+            raise InvalidFrame(f"MIT reply from unknown motor {data[0]}")
+        with self._state_lock:
+            try:
+                reply = mit.parse_reply(data, a.ranges, motor_id=a.joint.can_id)
+            except InvalidFrame:
+                a.invalid_frames += 1
+                raise
+            assert a.unwrapper is not None
+            a.raw_position = a.unwrapper.update(reply.position)
+            a.raw_velocity = reply.velocity
+            if reply.temperature_c is not None:
+                a.temperature_c = float(reply.temperature_c)
+            a.fault_bits = () if reply.error in (None, mit.MitError.NONE) else (reply.error.name,)
+            a.pinged = True
+            a.replies += 1
+            a.unanswered_since = None
+
+    def _on_robstride(self, a: _Actuator, comm_type: int, arbitration_id: int, data: bytes) -> None:
+        host = self.config.host_id
+        if comm_type == rs.CommType.FEEDBACK:
+            feedback = rs.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
+            a.raw_position, a.raw_velocity = feedback.position, feedback.velocity
+            a.temperature_c, a.mode = feedback.temperature_c, feedback.mode
+            a.fault_bits = rs.flag_names(feedback.faults)
+        elif comm_type == rs.CommType.FAULT:
+            report = rs.parse_fault(arbitration_id, data, host_id=host)
+            names = rs.flag_names(report.faults) + ((f"0x{report.unknown_bits:X}",) if report.unknown_bits else ())
+            if names:
+                a.fault_frames = tuple(dict.fromkeys(a.fault_frames + names))
+        elif comm_type == rs.CommType.GET_ID:
+            rs.parse_device_id(arbitration_id, data)
+            a.pinged = True
+        elif comm_type == rs.CommType.READ_PARAMETER:
+            value = rs.parse_parameter(arbitration_id, data, host_id=host)
+            a.parameters[value.parameter.index] = float(value.value)
+        else:
+            raise InvalidFrame(f"unexpected RobStride frame type {comm_type} from motor {a.joint.can_id}")
+
+
+def create_backend(robot: RobotModel, policy: Policy, config: Config, *,
+                   bus_factory: BusFactory = open_interface) -> CanBackend:
+    """Registry factory: the actuators `config` names, checked against `policy`'s joints and limits."""
+    r = policy.robot
+    joints = check_against_policy(config, tuple(r.joint_names), r.lower_limits, r.upper_limits)
+    return CanBackend(robot, config, joints, lower=r.lower_limits, upper=r.upper_limits, home=r.home_joint_positions,
+                      start_tolerance_rad=policy.motion.start_tolerance_rad, bus_factory=bus_factory)
+
+
+__all__ = ["CanBackend", "Config", "create_backend"]

@@ -1,0 +1,142 @@
+"""`--backend-config` of the CAN backend: the bus, the actuators behind each policy joint, and an
+optional emulation of those actuators (strict pydantic: unknown keys, NaN, duplicate ids and
+models that do not speak the declared protocol are errors with their YAML path).
+
+Units are in the field names. Joint = direction·(raw − homing_offset_rad) for positions; velocity
+and torque scale by the direction only. Cross-checks that need the policy (every policy joint
+exactly once, the joint limits representable in each model's position range) are made by
+`check_against_policy` when the backend is built.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from armwarden.backends.can.bus import BusConfig
+from armwarden.backends.can.errors import UnknownModel
+from armwarden.backends.can.ranges import ModelRanges, Protocol, model_ranges
+from armwarden.errors import ConfigurationError
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class JointConfig(BaseModel):
+    """One actuator driving one policy joint."""
+
+    model_config = _STRICT
+    name: str = Field(min_length=1, description="Policy joint this actuator drives.")
+    can_id: int = Field(ge=1, le=0x7FF, description="Actuator CAN id (RobStride: 1..253; MIT: 1..2047).")
+    protocol: Protocol = Field(description="Wire protocol: 'robstride' or 'mit'.")
+    model: str = Field(description="Actuator model (RS00..RS06, AK80-9, ...): selects the value ranges.")
+    direction: Literal[1, -1] = Field(default=1, description="+1 or -1: sign between joint and actuator.")
+    homing_offset_rad: float = Field(default=0.0, description="Actuator position [rad] at joint zero.")
+    kp_nm_per_rad: float = Field(gt=0, description="Stiffness [N·m/rad] while tracking and holding.")
+    kd_nms_per_rad: float = Field(ge=0, description="Damping [N·m·s/rad] while tracking and holding.")
+    damping_kd_nms_per_rad: float = Field(gt=0, description="Damping [N·m·s/rad] of the fault/e-stop damping mode (kp = 0).")
+    torque_limit_nm: float = Field(gt=0, description="Largest feed-forward torque [N·m] (the backend sends none today).")
+
+    @property
+    def ranges(self) -> ModelRanges:
+        return model_ranges(self.model)
+
+    @model_validator(mode="after")
+    def _model_fits(self) -> JointConfig:
+        try:
+            ranges = model_ranges(self.model)
+        except UnknownModel as exc:
+            raise ValueError(str(exc)) from None
+        if ranges.protocol is not self.protocol:
+            raise ValueError(f"model {self.model} speaks {ranges.protocol.value}, not {self.protocol.value}")
+        if self.protocol is Protocol.ROBSTRIDE and self.can_id > 0xFD:
+            raise ValueError(f"RobStride can_id must be 1..253, got {self.can_id}")
+        for field, value, valid in (("kp_nm_per_rad", self.kp_nm_per_rad, ranges.kp),
+                                    ("kd_nms_per_rad", self.kd_nms_per_rad, ranges.kd),
+                                    ("damping_kd_nms_per_rad", self.damping_kd_nms_per_rad, ranges.kd),
+                                    ("torque_limit_nm", self.torque_limit_nm, ranges.torque)):
+            if value not in valid:
+                raise ValueError(f"{field} {value} is outside the {self.model} range [{valid.lo}, {valid.hi}]")
+        return self
+
+
+class SimulatedLoad(BaseModel):
+    """The load an emulated actuator drives (see `armwarden.backends.can.emulator`)."""
+
+    model_config = _STRICT
+    inertia_kgm2: float = Field(default=0.02, gt=0, description="Reflected inertia [kg·m²].")
+    damping_nms_per_rad: float = Field(default=0.05, ge=0, description="Viscous friction [N·m·s/rad].")
+    gravity_torque_nm: float = Field(default=0.0, description="Amplitude of a gravity load [N·m] (0: none).")
+    temperature_c: float = Field(default=30.0, ge=0, le=255, description="Reported temperature [°C].")
+
+
+class Simulation(BaseModel):
+    """Emulated actuators on the (virtual) bus, started with the backend: no hardware needed."""
+
+    model_config = _STRICT
+    rate_hz: float = Field(default=2000.0, gt=0, le=10000, description="Emulator integration rate [Hz].")
+    speedup: float = Field(default=1.0, gt=0, le=10,
+                       description="Trajectory time per wall time, no unit (tests only; hardware always runs at 1).")
+    loads: dict[str, SimulatedLoad] = Field(default_factory=dict,
+                                            description="Load per joint name; joints not named get the defaults.")
+
+
+class Config(BaseModel):
+    """`--backend-config` for the CAN backend."""
+
+    model_config = _STRICT
+    bus: BusConfig = Field(description="The CAN interface (socketcan on hardware, virtual in simulation).")
+    host_id: int = Field(default=0xFD, ge=0, le=0xFF, description="This host's id on the bus (RobStride data area 2).")
+    mit_reply_id: int = Field(default=0x000, ge=0, le=0x7FF, description="Standard id MIT actuators reply with.")
+    control_rate_hz: float = Field(default=500.0, ge=50, le=2000, description="Servo loop rate [Hz], moving and idle.")
+    rx_timeout_s: float = Field(default=0.1, gt=0, le=1,
+                                description="A command unanswered this long is an RX_TIMEOUT fault [s].")
+    temperature_limit_c: float = Field(default=80.0, gt=0, le=150, description="Hotter than this is a fault [°C].")
+    can_timeout_s: float = Field(
+        default=0.25, gt=0, le=3,
+        description="Actuator-side watchdog [s]: no frame for this long and the actuator disables itself. Written to "
+                    "RobStride parameter 0x7028 at start-up; MIT mode has no frame to set it (configure the firmware).",
+    )
+    startup_timeout_s: float = Field(default=0.5, gt=0, le=10, description="How long start-up waits for each reply [s].")
+    settle_timeout_s: float = Field(default=2.0, gt=0, le=30,
+                                    description="How long a finished trajectory may take to settle at its goal [s].")
+    joints: tuple[JointConfig, ...] = Field(min_length=1, description="One actuator per policy joint.")
+    simulate: Simulation | None = Field(default=None, description="Emulate the actuators (no hardware); null: real bus.")
+
+    @model_validator(mode="after")
+    def _unique(self) -> Config:
+        columns: tuple[tuple[str, list[str]], ...] = (("joint name", [j.name for j in self.joints]),
+                                                      ("can_id", [str(j.can_id) for j in self.joints]))
+        for what, values in columns:
+            duplicates = sorted({v for v in values if values.count(v) > 1})
+            if duplicates:
+                raise ValueError(f"duplicate {what}: {', '.join(duplicates)}")
+        if self.simulate is not None:
+            unknown = sorted(set(self.simulate.loads) - {j.name for j in self.joints})
+            if unknown:
+                raise ValueError(f"simulate.loads names joints that are not configured: {', '.join(unknown)}")
+        return self
+
+
+def check_against_policy(config: Config, joint_names: tuple[str, ...], lower: tuple[float, ...],
+                         upper: tuple[float, ...]) -> tuple[JointConfig, ...]:
+    """The joint configs in policy order; `ConfigurationError` if a policy joint is missing or an
+    extra one is configured, or a joint's limits do not map into its model's position range."""
+    by_name = {j.name: j for j in config.joints}
+    missing = [n for n in joint_names if n not in by_name]
+    extra = [n for n in by_name if n not in joint_names]
+    if missing or extra:
+        parts = ([f"missing {', '.join(missing)}"] if missing else []) + ([f"not in the policy: {', '.join(extra)}"] if extra else [])
+        raise ConfigurationError(f"invalid can backend config: joints must name every policy joint exactly once ({'; '.join(parts)})")
+    ordered = tuple(by_name[n] for n in joint_names)
+    for joint, lo, hi in zip(ordered, lower, upper, strict=True):
+        position = joint.ranges.position
+        raw = sorted((joint.direction * lo + joint.homing_offset_rad, joint.direction * hi + joint.homing_offset_rad))
+        if not (position.lo <= raw[0] and raw[1] <= position.hi):
+            raise ConfigurationError(
+                f"invalid can backend config: joint {joint.name} limits [{lo}, {hi}] rad map to actuator positions "
+                f"[{raw[0]:.3f}, {raw[1]:.3f}] rad, outside the {joint.model} range [{position.lo:.3f}, {position.hi:.3f}]")
+    return ordered
+
+
+__all__ = ["Config", "JointConfig", "SimulatedLoad", "Simulation", "check_against_policy"]

@@ -1,0 +1,197 @@
+"""The bus layer on python-can's virtual interface: sending, reading, health flags and counters."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+import can
+import pytest
+from can.interfaces.virtual import VirtualBus
+
+from armwarden.backends.can.bus import BusConfig, CanBus, FrameKind, HealthFlag, decode_error_frame, open_interface
+from armwarden.backends.can.errors import InvalidFrame
+from armwarden.errors import BackendError, BackendUnavailable
+from tests.backends.can.polling import eventually, unique_channel
+
+
+@pytest.fixture
+def channel() -> str:
+    return unique_channel()
+
+
+@pytest.fixture
+def peer(channel: str) -> Iterator[can.BusABC]:
+    """Another node on the same virtual bus (the actuators' side)."""
+    bus = can.Bus(interface="virtual", channel=channel)
+    yield bus
+    bus.shutdown()
+
+
+class Recorder:
+    """A frame handler that keeps what it was given and can be told to fail."""
+
+    def __init__(self) -> None:
+        self.frames: list[can.Message] = []
+        self.fail_with: Exception | None = None
+        self._lock = threading.Lock()
+
+    def __call__(self, msg: can.Message) -> None:
+        failure, self.fail_with = self.fail_with, None
+        if failure is not None:
+            raise failure
+        with self._lock:
+            self.frames.append(msg)
+
+    def ids(self) -> list[int]:
+        with self._lock:
+            return [m.arbitration_id for m in self.frames]
+
+
+def test_sent_frames_reach_the_other_nodes_and_are_counted_by_kind(channel: str, peer: can.BusABC) -> None:
+    with CanBus(BusConfig(channel=channel)) as bus:
+        assert bus.send_frame(0x01, bytes(8), extended=False, kind=FrameKind.COMMAND)
+        assert bus.send_frame(0x0300FD01, bytes(8), extended=True, kind=FrameKind.MODE)
+        health = bus.health()
+    first, second = peer.recv(timeout=5), peer.recv(timeout=5)
+    assert first is not None and (first.arbitration_id, first.is_extended_id) == (0x01, False)
+    assert second is not None and (second.arbitration_id, second.is_extended_id) == (0x0300FD01, True)
+    assert (health.frames_sent, health.command_frames_sent, health.sent_by_kind[FrameKind.MODE]) == (2, 1, 1)
+    assert health.ok
+
+
+def test_received_frames_go_to_the_handler(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    with CanBus(BusConfig(channel=channel), recorder) as bus:
+        peer.send(can.Message(arbitration_id=0x7, data=b"\x01", is_extended_id=False))
+        eventually(lambda: recorder.ids() == [0x7], "the handler received the frame")
+        assert bus.health().frames_received == 1
+
+
+def test_an_invalid_frame_is_counted_and_reading_goes_on(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    recorder.fail_with = InvalidFrame("reply must have 6 or 8 data bytes")
+    with CanBus(BusConfig(channel=channel), recorder) as bus:
+        peer.send(can.Message(arbitration_id=0x1, data=b"\x00", is_extended_id=False))
+        peer.send(can.Message(arbitration_id=0x2, data=b"\x00", is_extended_id=False))
+        eventually(lambda: recorder.ids() == [0x2], "the frame after the invalid one was handled")
+        health = bus.health()
+    assert (health.invalid_frames, health.flags) == (1, HealthFlag.INVALID_FRAME)
+    assert health.last_error is not None and "6 or 8 data bytes" in health.last_error
+
+
+def test_a_failing_handler_is_counted_and_does_not_stop_the_reader(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    recorder.fail_with = RuntimeError("bug in the handler")
+    with CanBus(BusConfig(channel=channel), recorder) as bus:
+        peer.send(can.Message(arbitration_id=0x1, data=b"", is_extended_id=False))
+        peer.send(can.Message(arbitration_id=0x2, data=b"", is_extended_id=False))
+        eventually(lambda: recorder.ids() == [0x2], "the frame after the failure was handled")
+        health = bus.health()
+    assert (health.listener_errors, health.flags) == (1, HealthFlag.LISTENER_ERROR)
+
+
+def test_bus_off_error_frame_raises_the_bus_off_flag(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    with CanBus(BusConfig(channel=channel), recorder) as bus:
+        peer.send(can.Message(arbitration_id=0x40, is_error_frame=True))
+        eventually(lambda: HealthFlag.BUS_OFF in bus.health().flags, "BUS_OFF was flagged")
+        assert bus.health().error_frames == 1
+    assert recorder.ids() == []  # error frames are health, not data
+
+
+@pytest.mark.parametrize(
+    ("class_bits", "flags"),
+    [
+        (0x040, HealthFlag.BUS_OFF),
+        (0x004, HealthFlag.CONTROLLER_ERROR),
+        (0x020, HealthFlag.NO_ACK),
+        (0x100, HealthFlag.RESTARTED),
+        (0x044, HealthFlag.BUS_OFF | HealthFlag.CONTROLLER_ERROR),
+        (0x008, HealthFlag.OTHER_ERROR_FRAME),
+        (0x000, HealthFlag.OTHER_ERROR_FRAME),
+    ],
+)
+def test_error_frame_classes_decode_into_health_flags(class_bits: int, flags: HealthFlag) -> None:
+    assert decode_error_frame(class_bits) == flags
+
+
+def test_flags_latch_until_cleared_while_counters_stay(channel: str, peer: can.BusABC) -> None:
+    with CanBus(BusConfig(channel=channel)) as bus:
+        peer.send(can.Message(arbitration_id=0x40, is_error_frame=True))
+        eventually(lambda: not bus.health().ok, "the error frame was seen")
+        bus.clear_flags()
+        health = bus.health()
+    assert health.ok and health.error_frames == 1
+
+
+class FullTxQueueBus(VirtualBus):
+    """A virtual bus whose transmit buffer is always full."""
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise can.CanOperationError("Transmit buffer full")
+
+
+def test_a_full_transmit_buffer_is_a_tx_queue_overrun(channel: str) -> None:
+    with CanBus(BusConfig(channel=channel), bus_factory=lambda cfg: FullTxQueueBus(channel=cfg.channel)) as bus:
+        assert not bus.send_frame(0x01, bytes(8), extended=False, kind=FrameKind.COMMAND)
+        health = bus.health()
+    assert health.flags == HealthFlag.TX_QUEUE_OVERRUN
+    assert (health.send_failures, health.frames_sent, health.command_frames_sent) == (1, 0, 0)
+
+
+class FlakyReceiveBus(VirtualBus):
+    """A virtual bus whose first receive fails."""
+
+    failed = False
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if not self.failed:
+            self.failed = True
+            raise can.CanOperationError("receive failed")
+        return super()._recv_internal(timeout)
+
+
+def test_a_failing_receive_is_flagged_and_reading_goes_on(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    with CanBus(BusConfig(channel=channel), recorder, bus_factory=lambda cfg: FlakyReceiveBus(channel=cfg.channel)) as bus:
+        eventually(lambda: HealthFlag.RECEIVE_ERROR in bus.health().flags, "the receive failure was flagged")
+        peer.send(can.Message(arbitration_id=0x5, data=b"", is_extended_id=False))
+        eventually(lambda: recorder.ids() == [0x5], "a frame after the failure was handled")
+
+
+def test_an_interface_python_can_does_not_know_is_unavailable(channel: str) -> None:
+    with pytest.raises(BackendUnavailable, match="'no-such-interface' is not available"):
+        CanBus(BusConfig(interface="no-such-interface", channel=channel)).open()
+
+
+def test_sending_on_a_closed_bus_is_refused_and_close_is_idempotent(channel: str) -> None:
+    bus = CanBus(BusConfig(channel=channel))
+    bus.close()  # before open: nothing to do
+    with pytest.raises(BackendError, match="closed"):
+        bus.open()
+    with pytest.raises(BackendError, match="not open"):
+        bus.send_frame(0x01, bytes(8), extended=False, kind=FrameKind.COMMAND)
+
+
+def test_closing_twice_is_safe(channel: str) -> None:
+    bus = CanBus(BusConfig(channel=channel))
+    bus.open()
+    bus.close()
+    bus.close()
+    assert not bus.is_open
+
+
+def test_config_refuses_unknown_keys() -> None:
+    with pytest.raises(ValueError, match="bitrate"):
+        BusConfig.model_validate({"channel": "can0", "bitrate": 500_000})
+
+
+def test_open_interface_opens_the_named_virtual_bus(channel: str, peer: can.BusABC) -> None:
+    bus = open_interface(BusConfig(channel=channel))
+    try:
+        bus.send(can.Message(arbitration_id=0x3, data=b"", is_extended_id=False))
+        received = peer.recv(timeout=5)
+        assert received is not None and received.arbitration_id == 0x3
+    finally:
+        bus.shutdown()

@@ -1,0 +1,414 @@
+"""The CAN backend on emulated actuators: the backend contract for both protocols, tracking,
+calibration through the bus, every injected fault ending in damping frames and a latched e-stop,
+host silence stopping the actuators by their own CAN timeout, and start-up refusals."""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+import threading
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import anyio
+import can
+import numpy as np
+import pytest
+import yaml
+from mcp import Client, StdioServerParameters
+
+from armwarden.assembly import build_guard
+from armwarden.backends import parse_backend_config
+from armwarden.backends.base import Backend
+from armwarden.backends.can import mit
+from armwarden.backends.can import robstride as rs
+from armwarden.backends.can.backend import CanBackend, create_backend
+from armwarden.backends.can.command import MotorCommand
+from armwarden.backends.can.config import Config
+from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
+from armwarden.backends.can.ranges import model_ranges
+from armwarden.errors import BackendError, ConfigurationError
+from armwarden.policy import load_policy
+from armwarden.policy.loading import bundled_policy
+from armwarden.robot import build_robot
+from tests.backends.can.polling import unique_channel
+from tests.backends.contract import BackendContract, straight_line, wait_until
+from tests.helpers import REPO, SRC
+
+POLICY = load_policy(bundled_policy("fr3"))
+ROBOT = build_robot(POLICY)
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
+ROBSTRIDE_SIM = EXAMPLES / "can_sim.yaml"
+MIT_SIM = EXAMPLES / "can_sim_mit.yaml"
+
+
+def config_document(path: Path = ROBSTRIDE_SIM, **top: Any) -> dict[str, Any]:
+    document = yaml.safe_load(path.read_text())
+    document["bus"]["channel"] = unique_channel()
+    document.update(top)
+    return document
+
+
+def build(path: Path = ROBSTRIDE_SIM, **top: Any) -> CanBackend:
+    config = parse_backend_config("can", config_document(path, **top))
+    assert isinstance(config, Config)
+    return create_backend(ROBOT, POLICY, config)
+
+
+@pytest.fixture
+def anyio_backend() -> str:
+    return "asyncio"
+
+
+class TestCanRobStrideContract(BackendContract):
+    def build(self) -> Backend:
+        return build(ROBSTRIDE_SIM)
+
+
+class TestCanMitContract(BackendContract):
+    def build(self) -> Backend:
+        return build(MIT_SIM)
+
+
+# ---------------------------------------------------------------------------- a bus spy
+@dataclass(frozen=True)
+class Seen:
+    """One frame seen on the bus, decoded as far as the test needs."""
+
+    index: int
+    msg: can.Message
+    motor: int | None  # command frames: the motor addressed
+    command: MotorCommand | None  # command frames: what was commanded
+
+    @property
+    def damping(self) -> bool:
+        return self.command is not None and self.command.kp == 0.0 and self.command.kd > 0.0
+
+
+class Spy:
+    """Every frame on a virtual channel, in order (python-can's virtual bus delivers to every other bus)."""
+
+    def __init__(self, backend: CanBackend) -> None:
+        self.backend = backend
+        self.bus = can.Bus(interface="virtual", channel=backend.config.bus.channel)
+        self.frames: list[can.Message] = []
+        self._lock = threading.Lock()
+        self._notifier = can.Notifier(self.bus, [self._on], timeout=0.05)
+        self._ranges = {j.can_id: j.ranges for j in backend.config.joints}
+        self._protocol = {j.can_id: j.protocol.value for j in backend.config.joints}
+
+    def _on(self, msg: can.Message) -> None:
+        with self._lock:
+            self.frames.append(msg)
+
+    def close(self) -> None:
+        self._notifier.stop()
+        self.bus.shutdown()
+
+    def seen(self) -> list[Seen]:
+        with self._lock:
+            frames = list(self.frames)
+        out = []
+        for i, msg in enumerate(frames):
+            motor, command = None, None
+            if not msg.is_error_frame and msg.is_extended_id and rs.split_id(msg.arbitration_id).comm_type == rs.CommType.CONTROL:
+                motor = msg.arbitration_id & 0xFF
+                command = rs.unpack_control(msg.arbitration_id, bytes(msg.data), self._ranges[motor])[1]
+            elif (not msg.is_error_frame and not msg.is_extended_id and msg.arbitration_id in self._protocol
+                  and len(msg.data) == 8 and mit.special_of(bytes(msg.data)) is None):
+                motor = msg.arbitration_id
+                command = mit.unpack_command(bytes(msg.data), self._ranges[motor])
+            out.append(Seen(i, msg, motor, command))
+        return out
+
+
+def assert_damping_within_one_period(seen: list[Seen], evidence: int, motors: set[int]) -> None:
+    """After frame `evidence` (the first sign of the fault on the bus), each motor gets at most one
+    more non-damping command (the tick already under way) before its damping frames, and once
+    damping has begun every later command frame is damping."""
+    after = [s for s in seen if s.index > evidence and s.command is not None]
+    first_damping = next(s.index for s in after if s.damping)
+    for motor in motors:
+        before = [s for s in after if s.motor == motor and s.index < first_damping]
+        assert len(before) <= 1, f"motor {motor}: {len(before)} non-damping commands after the fault"
+    late = [s for s in after if s.index >= first_damping and not s.damping]
+    assert late == [], f"non-damping commands after damping began: {late[:3]}"
+    damped = {s.motor for s in after if s.index >= first_damping and s.damping}
+    assert damped == motors
+
+
+@pytest.fixture
+async def arm() -> AsyncIterator[CanBackend]:
+    backend = build()
+    await backend.open()
+    try:
+        yield backend
+    finally:
+        await backend.close()
+
+
+async def long_motion(backend: CanBackend, reach: float = 0.3, duration_s: float = 4.0):
+    q = (await backend.read_joint_state()).positions.copy()
+    return straight_line(backend.joint_names, q, q + reach, duration_s)
+
+
+async def moving(backend: CanBackend, trajectory) -> asyncio.Task:
+    q = (await backend.read_joint_state()).positions.copy()
+    task = asyncio.create_task(backend.execute(trajectory))
+
+    async def moved() -> bool:
+        return bool(np.max(np.abs((await backend.read_joint_state()).positions - q)) > 0.01)
+
+    await wait_until(moved)
+    return task
+
+
+# ---------------------------------------------------------------------------- config
+def test_config_errors_name_their_yaml_path():
+    document = config_document()
+    document["joints"][2]["kp_nm_per_rad"] = float("nan")
+    document["joints"][3]["gains"] = 1
+    with pytest.raises(ConfigurationError) as caught:
+        parse_backend_config("can", document)
+    message = str(caught.value)
+    assert "joints[2].kp_nm_per_rad" in message and "joints[3].gains" in message
+
+
+def test_config_refuses_duplicate_ids_and_a_model_of_the_other_protocol():
+    document = config_document()
+    document["joints"][1]["can_id"] = 1
+    with pytest.raises(ConfigurationError, match="duplicate can_id: 1"):
+        parse_backend_config("can", document)
+    document = config_document()
+    document["joints"][0]["model"] = "AK80-9"
+    with pytest.raises(ConfigurationError, match="speaks mit, not robstride"):
+        parse_backend_config("can", document)
+
+
+def test_every_policy_joint_must_be_configured_exactly_once():
+    document = config_document()
+    document["joints"][6]["name"] = "elbow"
+    document["simulate"]["loads"].pop("fr3_joint7")
+    config = parse_backend_config("can", document)
+    assert isinstance(config, Config)
+    with pytest.raises(ConfigurationError, match="missing fr3_joint7; not in the policy: elbow"):
+        create_backend(ROBOT, POLICY, config)
+
+
+# ---------------------------------------------------------------------------- start-up
+@pytest.mark.anyio
+async def test_start_up_refuses_naming_the_actuators_that_do_not_answer():
+    document = config_document(simulate=None)
+    config = parse_backend_config("can", document)
+    assert isinstance(config, Config)
+    present = [ActuatorSpec(can_id=j.can_id, model=j.model) for j in config.joints if j.can_id not in (3, 6)]
+    with ActuatorEmulator(config.bus.channel, present, host_id=config.host_id):
+        backend = create_backend(ROBOT, POLICY, config)
+        with pytest.raises(BackendError, match=r"fr3_joint3 \(can id 3\), joint fr3_joint6 \(can id 6\) did not answer"):
+            await backend.open()
+        await backend.close()
+
+
+@pytest.mark.anyio
+async def test_start_up_writes_the_can_timeout_and_enables_last(arm: CanBackend):
+    assert arm.emulator is not None
+    for joint in arm.config.joints:
+        snapshot = arm.emulator.snapshot(joint.can_id)
+        assert snapshot.enabled
+    # the emulator reads the timeout back from what the backend wrote (0x7028)
+    assert all(a.parameters[rs.CAN_TIMEOUT.index] == rs.can_timeout_ticks(arm.config.can_timeout_s) for a in arm._actuators)
+
+
+# ---------------------------------------------------------------------------- motion
+@pytest.mark.anyio
+async def test_a_safe_move_tracks_the_trajectory_and_stops_where_planned(arm: CanBackend):
+    q = (await arm.read_joint_state()).positions.copy()
+    goal = q + np.array([0.4, -0.3, 0.3, 0.3, -0.4, 0.4, 0.5])
+    result = await arm.execute(straight_line(arm.joint_names, q, goal, 1.5))
+    assert result.completed
+    assert result.max_tracking_error_rad is not None and 0 < result.max_tracking_error_rad < 0.05
+    assert np.max(np.abs(result.final_positions - goal)) <= arm.goal_accuracy_rad
+    assert arm.motion_frames > 0 and arm.moving_executions == 1
+
+
+@pytest.mark.anyio
+async def test_calibration_direction_and_offset_hold_both_ways_through_the_bus(arm: CanBackend):
+    """Joint 2 is configured direction −1, homing offset 0.1 rad: the actuator sits at −q + 0.1
+    and the command frames on the bus carry −q_goal + 0.1."""
+    assert arm.emulator is not None
+    spy = Spy(arm)
+    try:
+        q = (await arm.read_joint_state()).positions.copy()
+        goal = q.copy()
+        goal[1] += 0.25
+        assert (await arm.execute(straight_line(arm.joint_names, q, goal, 0.5))).completed
+        measured = (await arm.read_joint_state()).positions
+        assert arm.emulator.snapshot(2).position_rad == pytest.approx(-measured[1] + 0.1, abs=2e-3)
+        assert arm.emulator.snapshot(1).position_rad == pytest.approx(measured[0], abs=2e-3)
+        last = [s.command for s in spy.seen() if s.motor == 2 and s.command is not None][-1]
+        assert last.position == pytest.approx(-goal[1] + 0.1, abs=1e-3)
+    finally:
+        spy.close()
+
+
+@pytest.mark.anyio
+async def test_a_setpoint_outside_the_joint_limits_is_never_sent_it_is_a_fault(arm: CanBackend):
+    spy = Spy(arm)
+    try:
+        q = (await arm.read_joint_state()).positions.copy()
+        goal = q.copy()
+        goal[0] = POLICY.robot.upper_limits[0] + 0.2  # the Guard would refuse this plan; the backend must too
+        start = np.array(q)
+        trajectory = straight_line(arm.joint_names, start, goal, 0.3)
+        with pytest.raises(BackendError, match=r"fr3_joint1.*outside the policy limits"):
+            await arm.execute(trajectory)
+        sent = [s.command.position for s in spy.seen() if s.motor == 1 and s.command is not None and s.command.kp > 0]
+        assert max(sent) <= POLICY.robot.upper_limits[0] + 1e-3
+    finally:
+        spy.close()
+
+
+# ---------------------------------------------------------------------------- faults
+def _first(seen: list[Seen], predicate: Callable[[can.Message], bool]) -> int:
+    return next(s.index for s in seen if predicate(s.msg))
+
+
+def _feedback_from(motor: int, check: Callable[[rs.Feedback], bool]) -> Callable[[can.Message], bool]:
+    ranges = model_ranges("RS03")
+
+    def predicate(msg: can.Message) -> bool:
+        if msg.is_error_frame or not msg.is_extended_id:
+            return False
+        fields = rs.split_id(msg.arbitration_id)
+        if fields.comm_type != rs.CommType.FEEDBACK or (fields.data2 & 0xFF) != motor or len(msg.data) != 8:
+            return False
+        return check(rs.parse_feedback(msg.arbitration_id, bytes(msg.data), ranges, host_id=0xFD))
+
+    return predicate
+
+
+FAULTS: dict[str, tuple[Callable[[ActuatorEmulator], None], Callable[[ActuatorEmulator], None], str,
+                        Callable[[can.Message], bool] | None]] = {
+    "silent actuator": (lambda e: e.silence(3), lambda e: e.silence(3, False), r"fr3_joint3 \(can id 3\).*RX timeout", None),
+    "fault bit": (lambda e: e.raise_fault(3, rs.FeedbackFault.OVER_CURRENT), lambda e: e.clear_faults(3),
+                  r"fr3_joint3 \(can id 3\): fault OVER_CURRENT", _feedback_from(3, lambda f: bool(f.faults))),
+    "over-temperature": (lambda e: e.overheat(3, 95.0), lambda e: e.overheat(3, 30.0),
+                         r"fr3_joint3 \(can id 3\): over-temperature 95", _feedback_from(3, lambda f: f.temperature_c > 80)),
+    "garbage frames": (lambda e: e.send_garbage(3, 3), lambda e: None, r"fr3_joint3 \(can id 3\): \d invalid frame",
+                       lambda m: m.is_extended_id and len(m.data) == 3),
+    "bus-off": (lambda e: e.emit_error_frame(0x40), lambda e: None, "all joints: CAN bus BUS_OFF",
+                lambda m: m.is_error_frame),
+}
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+async def test_an_injected_fault_damps_every_joint_aborts_the_motion_naming_it_and_latches(arm: CanBackend, fault: str):
+    inject, clear, message, evidence = FAULTS[fault]
+    emulator = arm.emulator
+    assert emulator is not None
+    reported: list[str] = []
+    arm.set_fault_listener(reported.append)
+    spy = Spy(arm)
+    try:
+        task = await moving(arm, await long_motion(arm))
+        epoch = arm.stop_epoch
+        inject(emulator)
+        with pytest.raises(BackendError, match=message):
+            await task
+        assert arm.stop_epoch > epoch
+        await wait_until(lambda: _async_true(len(reported) == 1))  # reported right after the damping frames
+        assert "fr3_joint3" in reported[0] or "all joints" in reported[0]
+        motors = {j.can_id for j in arm.config.joints}
+        await wait_until(lambda: _async_true({s.motor for s in spy.seen() if s.damping} == motors))  # the spy lags
+        seen = spy.seen()
+        if evidence is not None:
+            assert_damping_within_one_period(seen, _first(seen, evidence), motors)
+        else:  # silence has no frame of its own: the switch to damping is still one tick for all joints
+            first = next(s.index for s in seen if s.damping)
+            assert_damping_within_one_period(seen, first - 1, motors)
+        # nothing moves while the fault is active
+        if fault in ("silent actuator", "fault bit", "over-temperature"):
+            frames = arm.motion_frames
+            with pytest.raises(BackendError, match="has not cleared"):
+                await arm.execute(await long_motion(arm, 0.05, 0.2))
+            assert arm.motion_frames == frames
+        clear(emulator)  # garbage and bus-off latched: the reset (an admitted execution) clears them
+
+        async def cleared() -> bool:
+            return not [p for p in arm._conditions(time.monotonic()) if "invalid" not in p and "BUS_OFF" not in p]
+
+        await wait_until(cleared)
+        assert (await arm.execute(await long_motion(arm, 0.05, 0.3))).completed
+    finally:
+        spy.close()
+
+
+@pytest.mark.anyio
+async def test_a_fault_while_idle_latches_the_guards_estop_and_shows_in_the_safety_status(arm: CanBackend):
+    guard = build_guard(POLICY, arm, None)
+    assert arm.emulator is not None
+    arm.emulator.raise_fault(5, rs.FeedbackFault.MAGNETIC_ENCODER)
+    await wait_until(lambda: _async_true(guard.latch.is_latched))
+    status = guard.safety_status()
+    assert status.estopped and status.estop_event is not None
+    assert "fr3_joint5" in status.estop_event.reason and "MAGNETIC_ENCODER" in status.estop_event.reason
+    assert any("fr3_joint5" in fault for fault in status.faults)
+
+
+async def _async_true(value: bool) -> bool:
+    return value
+
+
+# ---------------------------------------------------------------------------- host silence
+@pytest.mark.anyio
+async def test_a_frozen_servo_thread_mid_motion_lets_the_actuators_can_timeout_stop_them(arm: CanBackend):
+    emulator = arm.emulator
+    assert emulator is not None
+    release = threading.Event()
+    original = arm.servo_command
+    task = await moving(arm, await long_motion(arm))
+
+    def frozen(setpoint):  # the servo thread hangs here, as if the host had died
+        release.wait(30)
+        original(setpoint)
+
+    arm.servo_command = frozen  # type: ignore[method-assign]  # the hang is injected on the instance
+    await wait_until(lambda: _async_true(all(not emulator.snapshot(j.can_id).enabled for j in arm.config.joints)))
+    assert all(emulator.snapshot(j.can_id).timeouts >= 1 for j in arm.config.joints)
+    assert all(emulator.snapshot(j.can_id).torque_nm == 0.0 for j in arm.config.joints)
+    release.set()
+    arm.servo_command = original  # type: ignore[method-assign]
+    with pytest.raises(BackendError):  # the actuators left run mode: a fault
+        await task
+
+
+@pytest.mark.anyio
+async def test_closing_the_host_bus_mid_motion_lets_the_actuators_can_timeout_stop_them(arm: CanBackend):
+    emulator = arm.emulator
+    assert emulator is not None and arm.bus is not None
+    task = await moving(arm, await long_motion(arm))
+    arm.bus.close()  # as when the daemon dies: no more frames from the host
+    await wait_until(lambda: _async_true(all(not emulator.snapshot(j.can_id).enabled for j in arm.config.joints)))
+    assert all(emulator.snapshot(j.can_id).timeouts >= 1 for j in arm.config.joints)
+    with pytest.raises(BackendError):
+        await task
+
+
+# ---------------------------------------------------------------------------- the daemon
+@pytest.mark.anyio
+async def test_serve_with_the_can_sim_example_answers_get_robot_state_over_stdio(tmp_path):
+    params = StdioServerParameters(
+        command=sys.executable,
+        args=["-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), "--backend", "can",
+              "--backend-config", str(ROBSTRIDE_SIM), "--log-level", "WARNING"],
+        env={"PYTHONPATH": str(SRC)}, cwd=str(REPO),
+    )
+    with anyio.fail_after(60):
+        async with Client(params) as client:
+            state = await client.call_tool("get_robot_state", {})
+    assert not state.is_error
+    assert state.structured_content["joint_positions"] == pytest.approx(list(POLICY.robot.home_joint_positions), abs=2e-3)
