@@ -384,12 +384,13 @@ def test_an_open_motion_call_stays_cancellable_after_a_duplicate_id_was_refused(
     try:
         motion_id, refusal = reuse_the_id_of_an_open_motion(rpc)
         rpc.send({"jsonrpc": "2.0", "method": "notifications/cancelled", "params": {"requestId": motion_id}})
-        records = anyio.run(wait_for_record, audit, lambda r: r["event"] == "execution_interrupted")
+        # the call's own record is written when the cancelled call ends, after the interruption's
+        records = anyio.run(wait_for_record, audit, lambda r: r["tool"] == "execute_plan" and r["outcome"] == "cancelled")
         state = rpc.request("tools/call", {"name": "get_motion_status", "arguments": {}})
     finally:
         stop_raw_daemon(process)
     assert "error" in refusal
-    assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
+    assert any(r["event"] == "execution_interrupted" for r in records)
     assert state["result"]["structuredContent"]["executing"] is False
 
 

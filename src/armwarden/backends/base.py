@@ -78,8 +78,9 @@ from armwarden.planning.trajectory import JointTrajectory
 logger = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[float], None]
-#: told (from any thread) that the backend found a fault and has already stopped or damped the arm
-FaultListener = Callable[[str], None]
+#: told (from any thread) that the backend found a fault and has already stopped or damped the arm;
+#: called with the fault's description, what it returns is ignored
+FaultListener = Callable[[str], object]
 #: `ExecutionResult.reason` of an execution a stop preempted before anything moved
 PREEMPTED = "stopped before it started"
 T = TypeVar("T")
