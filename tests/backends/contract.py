@@ -288,6 +288,31 @@ class BackendContract:
         if held_in_thread[0] is not None:  # held in the stopping thread, not when the loop came back
             assert_near(held_in_thread[0].positions, held, backend.hold_accuracy_rad)
 
+    async def test_emergency_stop_now_bumps_the_epoch_ends_the_execution_stopped_and_the_arm_rests(
+            self, backend: Backend) -> None:
+        q_start = await self.positions(backend)
+        trajectory = await self.motion(backend, self.long_motion_s)
+        results: list[Any] = []
+        async with anyio.create_task_group() as group:
+            async def run() -> None:
+                results.append(await backend.execute(trajectory))
+
+            group.start_soon(run)
+            await wait_until(lambda: self.has_moved(backend, q_start))
+            before = backend.stop_epoch
+            stopped = threading.Event()
+
+            def estop_from_elsewhere() -> None:
+                backend.emergency_stop_now()
+                stopped.set()
+
+            threading.Thread(target=estop_from_elsewhere).start()
+            assert stopped.wait(10.0)
+            assert backend.stop_epoch > before
+        assert results[0].reason == "stopped"
+        held = await self.assert_still(backend)
+        assert not np.allclose(held, trajectory.goal)
+
     async def test_every_stop_bumps_the_stop_epoch(self, backend: Backend) -> None:
         before = backend.stop_epoch
         await backend.stop()

@@ -23,6 +23,13 @@ Rules every backend follows
 - `stop_now()` is the same stop, synchronous and thread-safe: any thread may call it while the
   event loop is busy or blocked, and the arm is held before it returns (a servo loop commands a
   hold under its lock; see `armwarden.backends.servo`). It must not await the event loop.
+- `emergency_stop()` / `emergency_stop_now()` are the e-stop's stop (the `estop` tool, the stop
+  channel, SIGUSR1): the same guarantees as `stop()` / `stop_now()` (fast, idempotent, any time;
+  the `_now` form synchronous and thread-safe from any thread, done before it returns), and they
+  bump the stop epoch too. By default they are `stop()` / `stop_now()`; a physical arm that
+  should go limp rather than stiff on an e-stop overrides `_emergency_stop` / `_emergency_stop_now`
+  (the CAN backend damps every joint, kp = 0, kd > 0, until the next admitted execution after a
+  reset).
 - A stop is never overtaken by an actuation that was decided before it (trajectories, gripper
   actions, controller switches, threshold changes, error recovery all take `stop_epoch`). Every stop (`stop`,
   `stop_now`, any thread) first bumps `stop_epoch`; `execute(..., stop_epoch=E)` refuses to start
@@ -401,15 +408,39 @@ class Backend(abc.ABC):
     def stop_now(self) -> None:
         """Stop arm and gripper from any thread, without the event loop; the arm is held when it
         returns. Raises `BackendError` if the stop could not be issued. No-op unless open."""
+        self._stop_synchronously(self._stop_now, "stop")
+
+    async def emergency_stop(self) -> None:
+        """The e-stop's stop of arm and gripper (see "Rules every backend follows"); like `stop`.
+        Raises `BackendError` if the stop could not be issued."""
         self._bump_stop_epoch()
         if not self._opened or self._closed:
             return
         try:
-            self._stop_now()
+            with anyio.fail_after(self.stop_timeout_s):
+                await self._emergency_stop()
+        except TimeoutError as exc:
+            raise BackendTimeout(f"backend {self.name}: e-stop not confirmed within {self.stop_timeout_s} s") from exc
         except BackendError:
             raise
         except Exception as exc:
-            raise BackendError(f"backend {self.name}: stop failed: {exc}") from exc
+            raise BackendError(f"backend {self.name}: e-stop failed: {exc}") from exc
+
+    def emergency_stop_now(self) -> None:
+        """The e-stop's stop from any thread, without the event loop; like `stop_now`. Raises
+        `BackendError` if the stop could not be issued. No-op unless open."""
+        self._stop_synchronously(self._emergency_stop_now, "e-stop")
+
+    def _stop_synchronously(self, hook: Callable[[], None], what: str) -> None:
+        self._bump_stop_epoch()
+        if not self._opened or self._closed:
+            return
+        try:
+            hook()
+        except BackendError:
+            raise
+        except Exception as exc:
+            raise BackendError(f"backend {self.name}: {what} failed: {exc}") from exc
 
     # ---------------------------------------------------------------- optional capabilities
     async def gripper_state(self) -> GripperState | None:
@@ -531,6 +562,14 @@ class Backend(abc.ABC):
     @abc.abstractmethod
     def _stop_now(self) -> None:
         """Synchronous, thread-safe stop (see `stop_now`); must not touch the event loop."""
+
+    async def _emergency_stop(self) -> None:
+        """The e-stop's stop (see `emergency_stop`); default: the ordinary stop."""
+        await self._stop()
+
+    def _emergency_stop_now(self) -> None:
+        """Synchronous, thread-safe e-stop (see `emergency_stop_now`); default: `_stop_now`."""
+        self._stop_now()
 
     async def _gripper_state(self) -> GripperState | None:
         return None

@@ -36,7 +36,7 @@ ACTUATING_METHODS = (
 
 
 class CountingBackend(Backend):
-    """Wraps `inner`: `actuations` lists every actuating call, `stops` counts `stop`/`stop_now`."""
+    """Wraps `inner`: `actuations` lists every actuating call, `stops` counts `stop`/`stop_now` and the e-stops."""
 
     def __init__(self, inner: Backend) -> None:
         super().__init__(inner.joint_names, start_tolerance_rad=inner.start_tolerance_rad)
@@ -44,6 +44,8 @@ class CountingBackend(Backend):
         self.name = inner.name
         self.actuations: list[str] = []
         self.stops = 0
+        #: of `stops`, how many were e-stops (`emergency_stop`/`emergency_stop_now`)
+        self.emergency_stops = 0
         self._count_lock = threading.Lock()  # stop_now may come from another thread
 
     def __getattr__(self, name: str) -> Any:  # anything beyond the contract (e.g. fault injection)
@@ -55,9 +57,10 @@ class CountingBackend(Backend):
         with self._count_lock:
             self.actuations.append(method)
 
-    def _stopping(self) -> None:
+    def _stopping(self, *, emergency: bool = False) -> None:
         with self._count_lock:
             self.stops += 1
+            self.emergency_stops += emergency
 
     # ---------------------------------------------------------------- lifecycle and state
     @property
@@ -109,6 +112,14 @@ class CountingBackend(Backend):
     def stop_now(self) -> None:
         self._stopping()
         self.inner.stop_now()
+
+    async def emergency_stop(self) -> None:
+        self._stopping(emergency=True)
+        await self.inner.emergency_stop()
+
+    def emergency_stop_now(self) -> None:
+        self._stopping(emergency=True)
+        self.inner.emergency_stop_now()
 
     # ---------------------------------------------------------------- optional capabilities
     async def gripper_state(self) -> GripperState | None:
@@ -170,6 +181,12 @@ class CountingBackend(Backend):
 
     def _stop_now(self) -> None:
         self.inner.stop_now()
+
+    async def _emergency_stop(self) -> None:
+        await self.inner.emergency_stop()
+
+    def _emergency_stop_now(self) -> None:
+        self.inner.emergency_stop_now()
 
 
 __all__ = ["ACTUATING_METHODS", "CountingBackend"]

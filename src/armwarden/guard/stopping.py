@@ -53,21 +53,21 @@ class Stopper:
             self.force_violation_latched = True
         self.plans.invalidate_all(f"e-stop #{event.number}")
         try:
-            await self._timed_stop()
+            await self._timed_stop(emergency=True)
         except BackendError as exc:
             event = self._latch_estop_stop_failure(event, exc)
         return EStopResult(estopped=True, estop_event=conversions.estop_info(event))
 
     def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent:
         """The e-stop from any thread, without the event loop (stop channel, SIGUSR1): latch, then
-        stop arm and gripper with the backend's thread-safe `stop_now`; the plans are voided on the
+        stop arm and gripper with the backend's thread-safe `emergency_stop_now`; the plans are voided on the
         loop afterwards through `schedule` (until then they are refused anyway: each carries the
         latch generation it was made under). Raises `BackendError`, with a `stop_failed` e-stop
         latched on top, when the stop could not be issued."""
         event = self.latch.latch(reason, source)
         self.generation += 1
         try:
-            self.backend.stop_now()
+            self.backend.emergency_stop_now()
         except BackendError as exc:
             event = self._latch_estop_stop_failure(event, exc)
             raise BackendError(f"e-stop #{event.number}: the stop could not be issued: {exc}") from exc
@@ -85,14 +85,18 @@ class Stopper:
         self.faults.append(reason)
         return self.latch.latch(reason, "backend_fault")
 
-    def hold_now(self) -> BackendError | None:
-        """From any thread: stop arm and gripper now with the backend's `stop_now`, without latching.
-        For a stop or e-stop request the transport has just read: the arm is held before the request
-        waits its turn, and the tool, when it runs, stops again, latches and records. Returns the
-        failure, if the stop could not be issued (the tool's own stop then fails and latches too)."""
+    def hold_now(self, *, emergency: bool = False) -> BackendError | None:
+        """From any thread: stop arm and gripper now with the backend's `stop_now` (an e-stop
+        request: `emergency_stop_now`), without latching. For a stop or e-stop request the transport
+        has just read: the arm is stopped before the request waits its turn, and the tool, when it
+        runs, stops again, latches and records. Returns the failure, if the stop could not be
+        issued (the tool's own stop then fails and latches too)."""
         self.generation += 1
         try:
-            self.backend.stop_now()
+            if emergency:
+                self.backend.emergency_stop_now()
+            else:
+                self.backend.stop_now()
         except BackendError as exc:
             return exc
         return None
@@ -148,12 +152,13 @@ class Stopper:
         self.faults.append(f"{what} failed: {exc}")
         return event
 
-    async def _timed_stop(self) -> None:
-        """The backend stop, with when it was issued and confirmed noted on the call's audit record."""
+    async def _timed_stop(self, *, emergency: bool = False) -> None:
+        """The backend stop (an e-stop's: `emergency_stop`), with when it was issued and confirmed
+        noted on the call's audit record."""
         issued = time.monotonic()
         stopped = False
         try:
-            await self.backend.stop()
+            await (self.backend.emergency_stop() if emergency else self.backend.stop())
             stopped = True
         finally:
             note_stop_timing(issued, time.monotonic(), self.backend.last_stop_stamp, stopped)

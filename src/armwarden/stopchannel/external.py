@@ -25,7 +25,7 @@ logger = logging.getLogger(__name__)
 class ThreadSafeStopper(Protocol):
     def latch_and_stop(self, reason: str, source: str, schedule: Callable[[Callable[[], object]], None]) -> EStopEvent: ...
 
-    def hold_now(self) -> Exception | None: ...
+    def hold_now(self, *, emergency: bool = False) -> Exception | None: ...
 
 
 class ExternalStops:
@@ -69,7 +69,7 @@ class ExternalStops:
         """A transport has just read an `estop`/`stop_motion` request: hold the robot before the
         request waits its turn behind other work; the tool itself latches and records when it runs.
         Audited (without waiting) as `stop_on_receipt`."""
-        failure = self._stopper.hold_now()
+        failure = self._stopper.hold_now(emergency=tool == "estop")
         self._submit("stop_on_receipt", tool=tool, principal=principal,
                            outcome="stop_failed" if failure is not None else "stopped",
                            detail=f"robot held as the {tool} request was read" if failure is None

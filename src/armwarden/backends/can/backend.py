@@ -25,6 +25,11 @@ the fault reported through the backend's fault listener (the Guard latches the e
 too). Damping lasts until an execution is admitted again (only after a human reset the e-stop)
 *and* no fault condition is present any more; otherwise that execution is refused.
 
+`stop` holds position (the tracking gains at the measured position); the e-stop
+(`emergency_stop` / `emergency_stop_now`: the `estop` tool, the stop channel, SIGUSR1) damps every
+joint like a fault — from the calling thread at once, then every tick — until the next admitted
+execution, which recovers to a hold at the measured position first.
+
 Calibration: joint = direction·(raw − homing_offset_rad); velocity and torque: direction only.
 Zeroing and id/baud changes are maintenance operations: no code path here sends them.
 See docs/architecture.md, section "Backends" (CAN).
@@ -133,6 +138,7 @@ class CanBackend(Backend, ServoHooks):
         #: the active fault ("joint ...: why; ..."), None when healthy; damping while set
         self.fault: str | None = None
         self._damping = False
+        self._estopped = False  # an e-stop damps until the next admitted execution
         self._enabled = False  # every actuator confirmed run mode at start-up
         self._limit_violation: str | None = None  # a setpoint refused under the servo lock
         self._published: JointState | None = None
@@ -297,6 +303,7 @@ class CanBackend(Backend, ServoHooks):
         return {
             "fault": self.fault,
             "damping": self._damping,
+            "estopped": self._estopped,
             "bus_flags": None if bus is None else str(bus.flags),
             "command_frames_sent": None if bus is None else bus.command_frames_sent,
             "motion_frames": self.motion_frames,
@@ -306,7 +313,7 @@ class CanBackend(Backend, ServoHooks):
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
         servo = self._require_servo()
         servo.require_running()
-        if self.fault is not None:
+        if self.fault is not None or self._estopped:
             self._recover()
         self._tracking_peak_rad = 0.0
         self._following = None
@@ -341,8 +348,8 @@ class CanBackend(Backend, ServoHooks):
             raise BackendError(f"can backend fault, motion aborted, actuators damped: {fault}")
 
     def _recover(self) -> None:
-        """Leave damping for an execution the Guard admitted (so a human reset the e-stop): clear
-        what latched, then refuse if any fault condition is still present."""
+        """Leave damping (a fault's or an e-stop's) for an execution the Guard admitted (so a human
+        reset the e-stop): clear what latched, then refuse if any fault condition is still present."""
         with self._state_lock:
             for a in self._actuators:
                 a.fault_frames, a.invalid_frames = (), 0
@@ -352,9 +359,11 @@ class CanBackend(Backend, ServoHooks):
         if problems:
             raise BackendError(f"can backend: the fault has not cleared, nothing moves: {'; '.join(problems)}")
         with self._fault_lock:
-            self.fault, self._damping, self._limit_violation = None, False, None
-        self._require_servo().hold()  # from damping to holding where the arm is
-        logger.warning("can backend: fault cleared after a reset; holding again")
+            if self._stop_landed():  # an e-stop or fault since this execution was decided: stay damped
+                return  # (the servo loop refuses the trajectory as "stopped before it started")
+            self.fault, self._damping, self._limit_violation, self._estopped = None, False, None, False
+            self._require_servo().hold()  # from damping to holding where the arm is
+        logger.warning("can backend: damping ended after a reset; holding again")
 
     async def _stop(self) -> None:
         self._stop_now()
@@ -362,6 +371,18 @@ class CanBackend(Backend, ServoHooks):
     def _stop_now(self) -> None:
         servo = self._require_servo()
         servo.hold()
+        servo.require_running()
+
+    async def _emergency_stop(self) -> None:
+        self._emergency_stop_now()
+
+    def _emergency_stop_now(self) -> None:
+        """The e-stop: damping frames on every joint now, from the calling thread, and from every
+        later tick, until an execution is admitted again (after a human reset) — as for a fault."""
+        servo = self._require_servo()
+        with self._fault_lock:  # against `_recover` leaving damping at the same moment
+            self._estopped = self._damping = True
+            servo.hold()  # the running execution ends "stopped"; the hold is sent as damping
         servo.require_running()
 
     def _require_servo(self) -> ServoLoop:
