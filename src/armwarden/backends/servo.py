@@ -32,6 +32,7 @@ import anyio
 import numpy as np
 
 from armwarden.backends.base import PREEMPTED, ExecutionResult, ProgressCallback
+from armwarden.backends.ticktiming import TickTiming
 from armwarden.errors import BackendError
 from armwarden.handoff import settle_threadsafe
 from armwarden.planning.trajectory import JointTrajectory
@@ -146,6 +147,8 @@ class ServoLoop:
         self.tick_count = 0
         #: monotonic time [s] at which the latest hold was commanded
         self.last_hold_stamp: float | None = None
+        #: when each tick began against when it was scheduled (rate, deadline misses, jitter)
+        self.timing = TickTiming(self.period_s)
         #: why the thread died, if it did
         self.error: BaseException | None = None
         self.thread: threading.Thread | None = None
@@ -288,6 +291,7 @@ class ServoLoop:
         next_tick = time.perf_counter()
         try:
             while not self._shutdown:
+                self.timing.record(time.perf_counter(), next_tick)
                 self._tick()
                 # idle: tick slowly; a stop or a new execution wakes the loop at once, and the idle
                 # loop takes the interpreter lock from planning less often
