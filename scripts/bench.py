@@ -5,6 +5,7 @@
     python scripts/bench.py envelope        # one section
     python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
+    python scripts/bench.py can --can-seconds 10  # the CAN servo loop (default 60 s per rate: opt-in)
     python scripts/bench.py --json out.json # also write the raw figures
 
 Sections
@@ -30,6 +31,10 @@ Sections
   → every joint below 1e-3 rad/s (wall and simulated, beside the torque-limited braking floor),
   640×480 render time, and get_robot_state / plan_to_pose against the fake in the same run
   (`scripts/_bench/mujoco_cell.py`).
+- can (opt-in: 60 s per rate): the CAN servo loop at 500 Hz and 1 kHz for 7 emulated RobStride
+  actuators on the virtual bus while an SDK client keeps the server busy: achieved rate,
+  deadline-miss rate (goal < 0.5 % at 1 kHz), p99 period jitter, and `estop` sent → first damping
+  frame on the bus, p50/p99 (goal ≤ one control period) (`scripts/_bench/can_loop.py`).
 
 Timing thresholds live here, never in unit tests: the machines are shared and noisy. Each
 target is reported as met or missed; nothing is asserted.
@@ -40,6 +45,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import statistics
 import sys
 import time
@@ -841,14 +847,24 @@ def _report_mujoco(r: dict[str, Any]) -> None:
     importlib.import_module("mujoco_cell").report_mujoco(r)
 
 
+def bench_can(seconds: float = 60.0) -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("can_loop").bench_can(seconds)
+
+
+def _report_can(r: dict[str, Any]) -> None:
+    importlib.import_module("can_loop").report_can(r)
+
+
 SECTIONS = {
     "envelope": (bench_envelope, _report_envelope),
     "server": (bench_server, _report_server),
     "estop": (bench_estop, _report_estop),
     "flood": (bench_flood, _report_flood),
     "mujoco": (bench_mujoco, _report_mujoco),
+    "can": (bench_can, _report_can),
 }
-#: sections run when none is named (flood takes about a minute and a half: ask for it by name)
+#: sections run when none is named (flood takes about a minute and a half, can two minutes: ask for them by name)
 DEFAULT_SECTIONS = ("envelope", "server", "estop", "mujoco")
 
 
@@ -866,6 +882,8 @@ def main() -> int:
                         help="flood only, an experiment: the daemon collects once and gc.freeze()s when ready")
     parser.add_argument("--nice", type=int, default=0,
                         help="flood only: run the daemon and the e-stop sender at niceness N, the flood not (negative needs root)")
+    parser.add_argument("--can-seconds", type=float, default=None,
+                        help="can only: seconds per control rate (default 60, or $ARMWARDEN_BENCH_CAN_SECONDS)")
     args = parser.parse_args()
     chosen = args.sections or list(DEFAULT_SECTIONS)
     unknown = [name for name in chosen if name not in SECTIONS]
@@ -874,7 +892,12 @@ def main() -> int:
     results = {}
     for name in chosen:
         run, report = SECTIONS[name]
-        results[name] = run(nice=args.nice, gc_freeze=args.gc_freeze) if name == "flood" else run()
+        if name == "flood":
+            results[name] = run(nice=args.nice, gc_freeze=args.gc_freeze)
+        elif name == "can":
+            results[name] = run(seconds=args.can_seconds or float(os.environ.get("ARMWARDEN_BENCH_CAN_SECONDS", "60")))
+        else:
+            results[name] = run()
         report(results[name])
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2))
