@@ -97,8 +97,9 @@ class Spy:
         self.frames: list[can.Message] = []
         self._lock = threading.Lock()
         self._notifier = can.Notifier(self.bus, [self._on], timeout=0.05)
-        self._ranges = {j.can_id: j.ranges for j in backend.config.joints}
-        self._protocol = {j.can_id: j.protocol.value for j in backend.config.joints}
+        actuators = [*backend.config.joints, *([backend.config.gripper] if backend.config.gripper else [])]
+        self._ranges = {j.can_id: j.ranges for j in actuators}
+        self._protocol = {j.can_id: j.protocol.value for j in actuators}
 
     def _on(self, msg: can.Message) -> None:
         with self._lock:
@@ -138,6 +139,11 @@ def assert_damping_within_one_period(seen: list[Seen], evidence: int, motors: se
     assert late == [], f"non-damping commands after damping began: {late[:3]}"
     damped = {s.motor for s in after if s.index >= first_damping and s.damping}
     assert damped == motors
+
+
+def all_motors(backend: CanBackend) -> set[int]:
+    gripper = backend.config.gripper
+    return {j.can_id for j in backend.config.joints} | ({gripper.can_id} if gripper else set())
 
 
 @pytest.fixture
@@ -204,7 +210,8 @@ async def test_start_up_refuses_naming_the_actuators_that_do_not_answer():
     document = config_document(simulate=None)
     config = parse_backend_config("can", document)
     assert isinstance(config, Config)
-    present = [ActuatorSpec(can_id=j.can_id, model=j.model) for j in config.joints if j.can_id not in (3, 6)]
+    actuators = [*config.joints, *([config.gripper] if config.gripper else [])]
+    present = [ActuatorSpec(can_id=j.can_id, model=j.model) for j in actuators if j.can_id not in (3, 6)]
     with ActuatorEmulator(config.bus.channel, present, host_id=config.host_id):
         backend = create_backend(ROBOT, POLICY, config)
         with pytest.raises(BackendError, match=r"fr3_joint3 \(can id 3\), joint fr3_joint6 \(can id 6\) did not answer"):
@@ -322,7 +329,7 @@ async def test_an_injected_fault_damps_every_joint_aborts_the_motion_naming_it_a
         assert arm.stop_epoch > epoch
         await wait_until(lambda: _async_true(len(reported) == 1))  # reported right after the damping frames
         assert "fr3_joint3" in reported[0] or "all joints" in reported[0]
-        motors = {j.can_id for j in arm.config.joints}
+        motors = all_motors(arm)  # the arm's and the gripper's
         await wait_until(lambda: _async_true({s.motor for s in spy.seen() if s.damping} == motors))  # the spy lags
         seen = spy.seen()
         if evidence is not None:

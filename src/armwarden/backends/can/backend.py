@@ -38,6 +38,7 @@ See docs/architecture.md, section "Backends" (CAN).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import threading
 import time
@@ -49,14 +50,23 @@ import anyio
 import can
 import numpy as np
 
-from armwarden.backends.base import Backend, Capabilities, ExecutionResult, JointState, ProgressCallback
+from armwarden.backends.base import (
+    Backend,
+    Capabilities,
+    ExecutionResult,
+    GripperResult,
+    GripperState,
+    JointState,
+    ProgressCallback,
+)
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.bus import NO_FLAGS, BusFactory, CanBus, FrameKind, HealthFlag, open_interface
 from armwarden.backends.can.command import MotorCommand
-from armwarden.backends.can.config import Config, JointConfig, check_against_policy
+from armwarden.backends.can.config import Config, GripperConfig, JointConfig, check_against_policy
 from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
 from armwarden.backends.can.errors import InvalidFrame
+from armwarden.backends.can.gripper import GripperMotion, capped_setpoint
 from armwarden.backends.can.ranges import ModelRanges, Protocol
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.errors import BackendError
@@ -70,6 +80,10 @@ logger = logging.getLogger(__name__)
 
 #: how often start-up and settling look at the replies [s]
 POLL_S = 0.002
+#: fingers still this long short of their target are blocked (by an object) [s]
+BLOCKED_S = 0.05
+#: finger speed of `gripper_home` [m/s]
+GRIPPER_HOMING_SPEED_MPS = 0.05
 
 
 @dataclass
@@ -77,8 +91,8 @@ class _Actuator:
     """One actuator's configuration and what it last reported (written by the reader thread,
     read by the servo thread, both under the backend's state lock)."""
 
-    index: int
-    joint: JointConfig
+    index: int  # the joint's index; -1: the gripper
+    joint: JointConfig | GripperConfig
     ranges: ModelRanges
     unwrapper: mit.PositionUnwrapper | None
     raw_position: float | None = None
@@ -95,7 +109,8 @@ class _Actuator:
 
     @property
     def label(self) -> str:
-        return f"joint {self.joint.name} (can id {self.joint.can_id})"
+        what = "" if self.index < 0 else "joint "  # the gripper's name says what it is
+        return f"{what}{self.joint.name} (can id {self.joint.can_id})"
 
 
 class CanBackend(Backend, ServoHooks):
@@ -116,8 +131,14 @@ class CanBackend(Backend, ServoHooks):
                       if j.protocol is Protocol.MIT else None)
             for i, j in enumerate(joints)
         ]
-        self._robstride = {a.joint.can_id: a for a in self._actuators if a.joint.protocol is Protocol.ROBSTRIDE}
-        self._mit = {a.joint.can_id: a for a in self._actuators if a.joint.protocol is Protocol.MIT}
+        gripper = config.gripper
+        self._gripper = None if gripper is None else _Actuator(
+            -1, gripper, gripper.ranges, mit.PositionUnwrapper(gripper.ranges.position.lo, gripper.ranges.position.hi)
+            if gripper.protocol is Protocol.MIT else None)
+        #: the arm's actuators, then the gripper's: start-up, health, damping and frames cover all
+        self._everyone = [*self._actuators, *([] if self._gripper is None else [self._gripper])]
+        self._robstride = {a.joint.can_id: a for a in self._everyone if a.joint.protocol is Protocol.ROBSTRIDE}
+        self._mit = {a.joint.can_id: a for a in self._everyone if a.joint.protocol is Protocol.MIT}
         self._direction = np.array([j.direction for j in joints], dtype=float)
         self._offset = np.array([j.homing_offset_rad for j in joints], dtype=float)
         # honest accuracies: a few position LSBs of the coarsest model; velocity noise of 12-bit fields
@@ -148,12 +169,19 @@ class CanBackend(Backend, ServoHooks):
         self.motion_frames = 0
         #: executions that sent at least one motion frame
         self.moving_executions = 0
+        # ---- gripper (the servo thread streams it; the event loop starts and watches its actions)
+        self._gripper_lock = threading.Lock()  # an action's start vs a stop from any thread
+        self._gripper_motion: GripperMotion | None = None
+        self._gripper_hold_rad = 0.0 if gripper is None else gripper.open_position_rad
+        self._gripper_grasped = False
+        if gripper is not None:
+            self.gripper_travel_m = gripper.max_width_m
         self._moved_this_execution = False
 
     # ================================================================ lifecycle
     @property
     def capabilities(self) -> Capabilities:
-        return Capabilities()
+        return Capabilities(gripper=self.config.gripper is not None)
 
     @property
     def last_stop_stamp(self) -> float | None:
@@ -180,7 +208,7 @@ class CanBackend(Backend, ServoHooks):
         self.bus.open()
         host = config.host_id
         # 1. ping (harmless: MIT exit-mode leaves the actuator disabled and answers with its state)
-        for a in self._actuators:
+        for a in self._everyone:
             if a.joint.protocol is Protocol.ROBSTRIDE:
                 self._send_rs(rs.get_id_frame(a.joint.can_id, host), FrameKind.QUERY, a)
             else:
@@ -208,10 +236,12 @@ class CanBackend(Backend, ServoHooks):
             raise BackendError(f"can backend: refusing to enable: joints outside the policy limits: {', '.join(outside)}")
         # 5. the servo loop holds the measured positions from its first tick; enable last
         self._publish(time.monotonic())
+        if self._gripper is not None:
+            self._gripper_hold_rad = self._gripper_position()
         self.servo = ServoLoop(self, q, period_s=self.period_s, idle_period_s=self.period_s, speedup=self._speedup,
                                name="can backend")
         await self.servo.start("armwarden-can-servo")
-        for a in self._actuators:
+        for a in self._everyone:
             if a.joint.protocol is Protocol.ROBSTRIDE:
                 self._send_rs(rs.enable_frame(a.joint.can_id, host), FrameKind.MODE, a)
             else:
@@ -230,7 +260,7 @@ class CanBackend(Backend, ServoHooks):
             await self.servo.shutdown()
         bus = self.bus
         if bus is not None and bus.is_open:
-            for a in self._actuators:  # disable: zero torque (the actuators' watchdog would do it anyway)
+            for a in self._everyone:  # disable: zero torque (the actuators' watchdog would do it anyway)
                 try:
                     if a.joint.protocol is Protocol.ROBSTRIDE:
                         self._send_rs(rs.stop_frame(a.joint.can_id, self.config.host_id), FrameKind.MODE, a)
@@ -258,6 +288,14 @@ class CanBackend(Backend, ServoHooks):
                 can_timeout_s=self.config.can_timeout_s if a.joint.protocol is Protocol.MIT else 0.0,
                 **extra,
             ))
+        g = self.config.gripper
+        if g is not None:
+            load = simulate.loads.get(g.name)
+            specs.append(ActuatorSpec(
+                can_id=g.can_id, model=g.model, initial_position_rad=g.direction * g.open_position_rad + g.homing_offset_rad,
+                can_timeout_s=self.config.can_timeout_s if g.protocol is Protocol.MIT else 0.0,
+                **({} if load is None else load.model_dump()),
+            ))
         return ActuatorEmulator(self.config.bus.channel, specs, interface=self.config.bus.interface,
                                 rate_hz=simulate.rate_hz, host_id=self.config.host_id,
                                 mit_reply_id=self.config.mit_reply_id)
@@ -266,7 +304,7 @@ class CanBackend(Backend, ServoHooks):
         deadline = time.monotonic() + self.config.startup_timeout_s
         while True:
             with self._state_lock:
-                missing = [a for a in self._actuators if not ready(a)]
+                missing = [a for a in self._everyone if not ready(a)]
             if not missing:
                 return
             if time.monotonic() > deadline:
@@ -351,7 +389,7 @@ class CanBackend(Backend, ServoHooks):
         """Leave damping (a fault's or an e-stop's) for an execution the Guard admitted (so a human
         reset the e-stop): clear what latched, then refuse if any fault condition is still present."""
         with self._state_lock:
-            for a in self._actuators:
+            for a in self._everyone:
                 a.fault_frames, a.invalid_frames = (), 0
         if self.bus is not None:
             self.bus.clear_flags()
@@ -362,6 +400,7 @@ class CanBackend(Backend, ServoHooks):
             if self._stop_landed():  # an e-stop or fault since this execution was decided: stay damped
                 return  # (the servo loop refuses the trajectory as "stopped before it started")
             self.fault, self._damping, self._limit_violation, self._estopped = None, False, None, False
+            self._freeze_gripper()  # the fingers hold where damping left them
             self._require_servo().hold()  # from damping to holding where the arm is
         logger.warning("can backend: damping ended after a reset; holding again")
 
@@ -370,6 +409,7 @@ class CanBackend(Backend, ServoHooks):
 
     def _stop_now(self) -> None:
         servo = self._require_servo()
+        self._freeze_gripper()
         servo.hold()
         servo.require_running()
 
@@ -380,6 +420,7 @@ class CanBackend(Backend, ServoHooks):
         """The e-stop: damping frames on every joint now, from the calling thread, and from every
         later tick, until an execution is admitted again (after a human reset) — as for a fault."""
         servo = self._require_servo()
+        self._freeze_gripper()
         with self._fault_lock:  # against `_recover` leaving damping at the same moment
             self._estopped = self._damping = True
             servo.hold()  # the running execution ends "stopped"; the hold is sent as damping
@@ -389,6 +430,142 @@ class CanBackend(Backend, ServoHooks):
         if self.servo is None:
             raise BackendError("can backend: the servo loop is not running")
         return self.servo
+
+    # ================================================================ gripper
+    def _gripper_config(self) -> GripperConfig:
+        g = self.config.gripper
+        if g is None:
+            raise BackendError("can backend has no gripper")
+        return g
+
+    def _gripper_position(self) -> float:
+        """The measured gripper position [rad] (see `GripperConfig`)."""
+        g, a = self._gripper_config(), self._gripper
+        assert a is not None
+        with self._state_lock:
+            raw = a.raw_position
+        if raw is None:
+            raise BackendError(f"can backend: {a.label} reported no position")
+        return g.direction * (raw - g.homing_offset_rad)
+
+    def _freeze_gripper(self) -> None:
+        """Any thread, on every stop and fault: end the gripper's action and hold where it is."""
+        if self._gripper is None:
+            return
+        with self._gripper_lock:
+            self._gripper_motion = None
+            self._gripper_grasped = False
+            with contextlib.suppress(BackendError):  # no position yet: keep the previous hold
+                self._gripper_hold_rad = self._gripper_position()
+
+    def _send_gripper(self) -> None:
+        """Servo thread, under the servo lock: this tick's command to the gripper (not damping)."""
+        a = self._gripper
+        if a is None:
+            return
+        g = self._gripper_config()
+        now = time.monotonic()
+        measured = self._gripper_position()
+        with self._gripper_lock:
+            motion = self._gripper_motion
+            if motion is None:
+                wanted, velocity, cap = self._gripper_hold_rad, 0.0, g.torque_limit_nm
+            else:
+                (wanted, velocity), cap = motion.ramp(now), motion.torque_cap_nm
+        low, high = sorted((g.open_position_rad, g.closed_position_rad))
+        position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad), low), high)
+        self._send_command(a, MotorCommand(g.direction * position + g.homing_offset_rad, g.direction * velocity,
+                                           g.kp_nm_per_rad, g.kd_nms_per_rad, 0.0))
+
+    async def _gripper_state(self) -> GripperState:
+        g = self._gripper_config()
+        motion = self._gripper_motion
+        return GripperState(g.width_of(self._gripper_position()), self._gripper_grasped,
+                            motion is not None and not motion.settled, time.monotonic())
+
+    def _check_gripper_width_speed(self, width_m: float, speed_mps: float) -> GripperConfig:
+        g = self._gripper_config()
+        if not (np.isfinite(width_m) and 0.0 <= width_m <= g.max_width_m):
+            raise BackendError(f"gripper width {width_m} m outside [0, {g.max_width_m}] m")
+        if not (np.isfinite(speed_mps) and speed_mps > 0):
+            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
+        return g
+
+    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
+        g = self._check_gripper_width_speed(width_m, speed_mps)
+        return await self._gripper_run(g.position_of(width_m), speed_mps, g.torque_limit_nm, grasp=None)
+
+    async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
+                             epsilon_outer_m: float) -> GripperResult:
+        g = self._check_gripper_width_speed(width_m, speed_mps)
+        for name, value in (("force_n", force_n), ("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
+            if not (np.isfinite(value) and value >= 0):
+                raise BackendError(f"gripper grasp: {name} must be finite and ≥ 0, got {value}")
+        torque = force_n * abs(g.width_per_rad_m)  # virtual work: F·dw = τ·dθ
+        if torque > g.torque_limit_nm:
+            raise BackendError(f"gripper grasp: {force_n} N needs {torque:.2f} N·m, above the gripper actuator's "
+                               f"torque limit {g.torque_limit_nm} N·m (refused)")
+        # close to the inner edge of the band: an object of the expected width blocks the fingers
+        # first and is squeezed with (at most) the force
+        return await self._gripper_run(g.position_of(max(0.0, width_m - epsilon_inner_m)), speed_mps, torque,
+                                       grasp=(width_m - epsilon_inner_m, width_m + epsilon_outer_m))
+
+    async def _gripper_home(self) -> GripperResult:
+        g = self._gripper_config()
+        return await self._gripper_run(g.open_position_rad, GRIPPER_HOMING_SPEED_MPS, g.torque_limit_nm, grasp=None)
+
+    async def _gripper_run(self, target_rad: float, speed_mps: float, torque_cap_nm: float,
+                           grasp: tuple[float, float] | None) -> GripperResult:
+        """Stream a ramp to `target_rad` (torque capped) until the fingers are there or blocked; a
+        grasp (`grasp` = the accepted width band [m]) keeps squeezing if it holds something."""
+        g = self._gripper_config()
+        servo = self._require_servo()
+        servo.require_running()
+        self._raise_if_faulted()
+        if self._damping:
+            raise BackendError("can backend: the actuators are damped (e-stop or fault); the gripper does not move")
+        start = self._gripper_position()
+        motion = GripperMotion(start, target_rad, speed_mps / abs(g.width_per_rad_m), torque_cap_nm, time.monotonic(),
+                               grasp is not None)
+        with self._gripper_lock:  # started atomically with the check: a stop that came first wins
+            if self._gripper_stop_landed():
+                return GripperResult(False, g.width_of(start), False, "stopped")
+            if self._gripper_motion is not None and not self._gripper_motion.settled:
+                raise BackendError("the gripper is already moving; one gripper action at a time")
+            self._gripper_motion, self._gripper_grasped = motion, False
+        rest = max(self.rest_speed_rad_s, 0.02)
+        still_since: float | None = None
+        while True:
+            await asyncio.sleep(POLL_S)
+            self._raise_if_faulted()
+            position = self._gripper_position()
+            width = g.width_of(position)
+            if self._gripper_stop_landed() or self._gripper_motion is not motion:
+                return GripperResult(False, width, False, "stopped")
+            with self._state_lock:
+                assert self._gripper is not None
+                speed = abs(self._gripper.raw_velocity)
+            now = time.monotonic()
+            still_since = (still_since or now) if speed <= rest else None
+            arrived = motion.ramp_done(now) and abs(position - target_rad) <= g.position_tolerance_rad and speed <= rest
+            blocked = still_since is not None and now - still_since >= BLOCKED_S and not arrived
+            if arrived or blocked:
+                break
+        if grasp is not None and grasp[0] <= width <= grasp[1]:
+            with self._gripper_lock:
+                if self._gripper_motion is motion:
+                    motion.settled = True  # keep squeezing at the capped torque
+                    self._gripper_grasped = True
+            return GripperResult(True, width, True, "")
+        with self._gripper_lock:
+            if self._gripper_motion is motion:
+                self._gripper_motion = None
+                self._gripper_hold_rad = target_rad if arrived else position
+        if grasp is not None:
+            return GripperResult(False, width, False, f"final width {width:.4f} m outside [{grasp[0]:.4f}, {grasp[1]:.4f}] m")
+        if blocked:
+            return GripperResult(False, width, False, f"blocked at {width:.4f} m")
+        return GripperResult(True, width, False, "")
 
     # ================================================================ servo hooks
     def servo_prepare(self, setpoint: Setpoint) -> None:
@@ -432,6 +609,7 @@ class CanBackend(Backend, ServoHooks):
             self._damping = True
         logger.error("can backend fault: %s; damping every joint", self.fault)
         self._bump_stop_epoch()
+        self._freeze_gripper()
         self._require_servo().hold()  # damping frames now, and the running execution ends
         self._report_fault(f"can backend fault: {self.fault}")
 
@@ -440,7 +618,7 @@ class CanBackend(Backend, ServoHooks):
         problems: list[str] = []
         limit = self.config.temperature_limit_c
         with self._state_lock:
-            for a in self._actuators:
+            for a in self._everyone:
                 if a.unanswered_since is not None and now - a.unanswered_since > self.config.rx_timeout_s:
                     problems.append(f"{a.label}: no reply for {1000 * (now - a.unanswered_since):.0f} ms (RX timeout)")
                 if a.fault_bits:
@@ -453,7 +631,7 @@ class CanBackend(Backend, ServoHooks):
                     problems.append(f"{a.label}: {a.invalid_frames} invalid frame(s)")
                 if self._enabled and a.mode is not None and a.mode is not rs.MotorMode.RUN:
                     problems.append(f"{a.label}: left run mode ({a.mode.name})")
-            attributed = any(a.invalid_frames for a in self._actuators)
+            attributed = any(a.invalid_frames for a in self._everyone)
         if self.bus is not None:
             flags = self.bus.health().flags
             if attributed:
@@ -476,7 +654,7 @@ class CanBackend(Backend, ServoHooks):
                 self._limit_violation = bad[0]
                 self._damping = True
         if self._damping:
-            for a in self._actuators:
+            for a in self._everyone:
                 raw = a.raw_position if a.raw_position is not None else 0.0
                 raw = min(max(raw, a.ranges.position.lo), a.ranges.position.hi)  # kp = 0: the position has no effect
                 self._send_command(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0))
@@ -487,6 +665,7 @@ class CanBackend(Backend, ServoHooks):
             j = a.joint
             self._send_command(a, MotorCommand(float(raw[a.index]), float(raw_velocity[a.index]), j.kp_nm_per_rad,
                                                j.kd_nms_per_rad, 0.0))
+        self._send_gripper()
         if following:
             self.motion_frames += len(self._actuators)
             if not self._moved_this_execution:

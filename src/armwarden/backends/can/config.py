@@ -60,6 +60,68 @@ class JointConfig(BaseModel):
         return self
 
 
+class GripperConfig(BaseModel):
+    """An optional actuator driving the gripper's fingers. Gripper position = direction·(raw −
+    homing_offset_rad); the width is linear in it: 0 at `closed_position_rad`, `max_width_m` at
+    `open_position_rad`. A grasp's force maps to actuator torque by virtual work (F·dw = τ·dθ) and
+    must fit under `torque_limit_nm` (refused otherwise)."""
+
+    model_config = _STRICT
+    name: str = Field(default="gripper", min_length=1, description="Name in messages and in simulate.loads.")
+    can_id: int = Field(ge=1, le=0x7FF, description="Actuator CAN id (RobStride: 1..253; MIT: 1..2047).")
+    protocol: Protocol = Field(description="Wire protocol: 'robstride' or 'mit'.")
+    model: str = Field(description="Actuator model: selects the value ranges.")
+    direction: Literal[1, -1] = Field(default=1, description="+1 or -1: sign between gripper position and actuator.")
+    homing_offset_rad: float = Field(default=0.0, description="Actuator position [rad] at gripper position zero.")
+    open_position_rad: float = Field(description="Gripper position [rad] with the fingers fully open (max_width_m).")
+    closed_position_rad: float = Field(description="Gripper position [rad] with the fingers closed (width 0).")
+    max_width_m: float = Field(gt=0, le=0.5, description="Finger opening [m] at open_position_rad.")
+    kp_nm_per_rad: float = Field(gt=0, description="Stiffness [N·m/rad] while moving and holding.")
+    kd_nms_per_rad: float = Field(ge=0, description="Damping [N·m·s/rad] while moving and holding.")
+    damping_kd_nms_per_rad: float = Field(gt=0, description="Damping [N·m·s/rad] of the fault/e-stop damping mode.")
+    torque_limit_nm: float = Field(gt=0, description="Largest torque [N·m] a move or grasp may ask (caps the force).")
+    position_tolerance_rad: float = Field(default=0.01, gt=0, description="A move is at its target within this [rad].")
+
+    @property
+    def ranges(self) -> ModelRanges:
+        return model_ranges(self.model)
+
+    @property
+    def width_per_rad_m(self) -> float:
+        """Finger opening per gripper radian [m/rad] (signed: negative if opening lowers the position)."""
+        return self.max_width_m / (self.open_position_rad - self.closed_position_rad)
+
+    def position_of(self, width_m: float) -> float:
+        return self.closed_position_rad + width_m / self.width_per_rad_m
+
+    def width_of(self, position_rad: float) -> float:
+        return (position_rad - self.closed_position_rad) * self.width_per_rad_m
+
+    @model_validator(mode="after")
+    def _fits(self) -> GripperConfig:
+        try:
+            ranges = model_ranges(self.model)
+        except UnknownModel as exc:
+            raise ValueError(str(exc)) from None
+        if ranges.protocol is not self.protocol:
+            raise ValueError(f"model {self.model} speaks {ranges.protocol.value}, not {self.protocol.value}")
+        if self.protocol is Protocol.ROBSTRIDE and self.can_id > 0xFD:
+            raise ValueError(f"RobStride can_id must be 1..253, got {self.can_id}")
+        if self.open_position_rad == self.closed_position_rad:
+            raise ValueError("open_position_rad and closed_position_rad must differ")
+        for field, value, valid in (("kp_nm_per_rad", self.kp_nm_per_rad, ranges.kp),
+                                    ("kd_nms_per_rad", self.kd_nms_per_rad, ranges.kd),
+                                    ("damping_kd_nms_per_rad", self.damping_kd_nms_per_rad, ranges.kd),
+                                    ("torque_limit_nm", self.torque_limit_nm, ranges.torque)):
+            if value not in valid:
+                raise ValueError(f"{field} {value} is outside the {self.model} range [{valid.lo}, {valid.hi}]")
+        for field, value in (("open_position_rad", self.open_position_rad), ("closed_position_rad", self.closed_position_rad)):
+            raw = self.direction * value + self.homing_offset_rad
+            if raw not in ranges.position:
+                raise ValueError(f"{field} maps to actuator position {raw:.3f} rad, outside the {self.model} range")
+        return self
+
+
 class SimulatedLoad(BaseModel):
     """The load an emulated actuator drives (see `armwarden.backends.can.emulator`)."""
 
@@ -101,18 +163,20 @@ class Config(BaseModel):
     settle_timeout_s: float = Field(default=2.0, gt=0, le=30,
                                     description="How long a finished trajectory may take to settle at its goal [s].")
     joints: tuple[JointConfig, ...] = Field(min_length=1, description="One actuator per policy joint.")
+    gripper: GripperConfig | None = Field(default=None, description="The gripper's actuator; null: no gripper.")
     simulate: Simulation | None = Field(default=None, description="Emulate the actuators (no hardware); null: real bus.")
 
     @model_validator(mode="after")
     def _unique(self) -> Config:
-        columns: tuple[tuple[str, list[str]], ...] = (("joint name", [j.name for j in self.joints]),
-                                                      ("can_id", [str(j.can_id) for j in self.joints]))
+        gripper = [] if self.gripper is None else [self.gripper]
+        columns: tuple[tuple[str, list[str]], ...] = (("joint name", [j.name for j in [*self.joints, *gripper]]),
+                                                      ("can_id", [str(j.can_id) for j in [*self.joints, *gripper]]))
         for what, values in columns:
             duplicates = sorted({v for v in values if values.count(v) > 1})
             if duplicates:
                 raise ValueError(f"duplicate {what}: {', '.join(duplicates)}")
         if self.simulate is not None:
-            unknown = sorted(set(self.simulate.loads) - {j.name for j in self.joints})
+            unknown = sorted(set(self.simulate.loads) - {j.name for j in [*self.joints, *gripper]})
             if unknown:
                 raise ValueError(f"simulate.loads names joints that are not configured: {', '.join(unknown)}")
         return self
@@ -139,4 +203,4 @@ def check_against_policy(config: Config, joint_names: tuple[str, ...], lower: tu
     return ordered
 
 
-__all__ = ["Config", "JointConfig", "SimulatedLoad", "Simulation", "check_against_policy"]
+__all__ = ["Config", "GripperConfig", "JointConfig", "SimulatedLoad", "Simulation", "check_against_policy"]

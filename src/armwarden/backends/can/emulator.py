@@ -13,6 +13,7 @@ type-2 feedback, 17 with the parameter value, 0 with its id. The actuator-side C
 actuator for that long -> reset mode, disabled, zero torque. Reported positions wrap over the
 model's position range and reported velocity/torque saturate at its ranges, as hardware does.
 
+`place_obstacle` puts rigid stops in an actuator's way (an object between the gripper's fingers).
 Fault injection (for tests and demos): `silence` (stop replying), `raise_fault`, `overheat`,
 `send_garbage` (malformed frames), `emit_fault_frame` (RobStride type 21) and
 `emit_error_frame` (python-can's virtual bus never produces error frames; this sends one).
@@ -131,6 +132,7 @@ class _Actuator:
         self.host_id = host_id
         self.last_rx = now
         self.silent = False
+        self.stops = (-math.inf, math.inf)  # physical positions [rad] it cannot move beyond
         self.mit_error = mit.MitError.NONE
         self.rs_faults = rs.FeedbackFault(0)
         self.timeouts = 0
@@ -154,6 +156,9 @@ class _Actuator:
         load = self.spec.damping_nms_per_rad * self.velocity + self.spec.gravity_torque_nm * math.cos(self.position)
         self.velocity += (self.torque - load) / self.spec.inertia_kgm2 * dt
         self.position += self.velocity * dt
+        lo, hi = self.stops
+        if not lo <= self.position <= hi:  # a rigid obstacle (an object between the fingers)
+            self.position, self.velocity = min(max(self.position, lo), hi), 0.0
 
     def reported_continuous(self) -> float:
         return self.position - self.zero_offset
@@ -242,6 +247,11 @@ class ActuatorEmulator:
         """Stop (or resume) replying; the actuator still obeys what it receives."""
         with self._lock:
             self._actuator(can_id).silent = silent
+
+    def place_obstacle(self, can_id: int, low_rad: float = -math.inf, high_rad: float = math.inf) -> None:
+        """Rigid stops at physical positions `low_rad`/`high_rad` (an object the fingers close on)."""
+        with self._lock:
+            self._actuator(can_id).stops = (low_rad, high_rad)
 
     def raise_fault(self, can_id: int, fault: mit.MitError | rs.FeedbackFault) -> None:
         """Report `fault` in every reply from now on (MIT: the error code; RobStride: feedback fault bits)."""

@@ -1,0 +1,108 @@
+"""The CAN gripper (examples/can_sim.yaml's RobStride finger actuator) through the bus: moves to a
+width, grasps an object with at most the asked force, refuses a force above its torque limit,
+freezes on a stop and is damped with the arm on an e-stop."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+
+import pytest
+
+from armwarden.backends import parse_backend_config
+from armwarden.backends.can.backend import CanBackend
+from armwarden.errors import BackendError
+from tests.backends.can.test_can_backend import MIT_SIM, Spy, _async_true, build, config_document
+from tests.backends.contract import wait_until
+
+pytestmark = pytest.mark.anyio
+GRIPPER_ID = 8
+
+
+@pytest.fixture
+def anyio_backend() -> str:
+    return "asyncio"
+
+
+@pytest.fixture
+async def arm() -> AsyncIterator[CanBackend]:
+    backend = build()
+    await backend.open()
+    try:
+        yield backend
+    finally:
+        await backend.close()
+
+
+def gripper_of(backend: CanBackend):
+    assert backend.config.gripper is not None and backend.emulator is not None
+    return backend.config.gripper, backend.emulator
+
+
+def test_the_gripper_is_a_capability_only_when_configured():
+    assert build().capabilities.gripper is True
+    assert build(MIT_SIM).capabilities.gripper is False
+
+
+def test_a_gripper_sharing_a_joints_can_id_is_refused():
+    document = config_document()
+    document["gripper"]["can_id"] = 3
+    with pytest.raises(Exception, match="duplicate can_id: 3"):
+        parse_backend_config("can", document)
+
+
+async def test_a_move_reaches_the_width_through_the_bus(arm: CanBackend):
+    g, emulator = gripper_of(arm)
+    result = await arm.gripper_move(0.03, 0.1)
+    assert result.success and result.width_m == pytest.approx(0.03, abs=g.position_tolerance_rad * abs(g.width_per_rad_m))
+    assert g.width_of(emulator.snapshot(GRIPPER_ID).position_rad) == pytest.approx(0.03, abs=1e-3)
+
+
+async def test_a_grasp_holds_the_object_squeezing_with_no_more_than_the_force(arm: CanBackend):
+    g, emulator = gripper_of(arm)
+    emulator.place_obstacle(GRIPPER_ID, low_rad=g.position_of(0.02))  # an object 2 cm wide
+    result = await arm.gripper_grasp(0.02, 40.0, 0.1, 0.005, 0.005)
+    assert result.success and result.is_grasped
+    state = await arm.gripper_state()
+    assert state is not None and state.is_grasped
+    squeeze = abs(emulator.snapshot(GRIPPER_ID).torque_nm)
+    lsb_torque = g.kp_nm_per_rad * g.ranges.position.span / 0xFFFF  # the cap acts on measured (quantised) positions
+    assert 0.0 < squeeze <= 40.0 * abs(g.width_per_rad_m) + 4 * lsb_torque
+
+
+async def test_a_grasp_that_closes_past_the_band_fails_naming_the_width(arm: CanBackend):
+    gripper_of(arm)[1].place_obstacle(GRIPPER_ID, low_rad=gripper_of(arm)[0].position_of(0.03))
+    result = await arm.gripper_grasp(0.01, 20.0, 0.1, 0.002, 0.002)
+    assert not result.success and not result.is_grasped and "outside" in result.detail
+
+
+async def test_a_force_above_the_torque_limit_is_refused_and_nothing_moves(arm: CanBackend):
+    emulator = gripper_of(arm)[1]
+    before = emulator.snapshot(GRIPPER_ID).position_rad
+    with pytest.raises(BackendError, match="torque limit"):
+        await arm.gripper_grasp(0.02, 1000.0, 0.1, 0.005, 0.005)
+    assert emulator.snapshot(GRIPPER_ID).position_rad == pytest.approx(before, abs=1e-3)
+
+
+async def test_a_stop_freezes_the_fingers_where_they_are(arm: CanBackend):
+    g, emulator = gripper_of(arm)
+    task = asyncio.create_task(arm.gripper_move(0.0, 0.02))
+    await wait_until(lambda: _async_true(g.width_of(emulator.snapshot(GRIPPER_ID).position_rad) < 0.07))
+    await arm.stop()
+    result = await task
+    assert not result.success and result.detail == "stopped"
+    frozen_at = (await arm.gripper_state()).width_m  # type: ignore[union-attr]
+    await asyncio.sleep(0.2)
+    assert frozen_at > 0.01
+    assert (await arm.gripper_state()).width_m == pytest.approx(frozen_at, abs=1e-3)  # type: ignore[union-attr]
+
+
+async def test_an_estop_damps_the_gripper_with_the_arm(arm: CanBackend):
+    spy = Spy(arm)
+    try:
+        arm.emergency_stop_now()
+        await wait_until(lambda: _async_true(any(s.damping and s.motor == GRIPPER_ID for s in spy.seen())))
+        with pytest.raises(BackendError, match="damped"):
+            await arm.gripper_move(0.02, 0.1)
+    finally:
+        spy.close()
