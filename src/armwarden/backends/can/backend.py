@@ -598,6 +598,9 @@ class CanBackend(Backend, ServoHooks):
         self._send_commands(setpoint.positions, setpoint.velocities, following=False)
 
     def servo_failed(self, error: BaseException) -> None:
+        with self._fault_lock:  # the health report says why nothing is commanded any more
+            if self.fault is None:
+                self.fault = f"all joints: the servo loop died ({error}); nothing is commanded"
         self._report_fault(f"can backend: the servo loop died ({error!r}); the actuators' CAN timeout disables them")
 
     # ================================================================ faults (servo thread)
