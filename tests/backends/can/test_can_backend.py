@@ -220,6 +220,29 @@ async def test_start_up_refuses_naming_the_actuators_that_do_not_answer():
 
 
 @pytest.mark.anyio
+async def test_start_up_refuses_a_robstride_actuator_not_in_operation_mode_naming_the_joint():
+    document = config_document(simulate=None)
+    config = parse_backend_config("can", document)
+    assert isinstance(config, Config)
+    actuators = [*config.joints, *([config.gripper] if config.gripper else [])]
+    with ActuatorEmulator(config.bus.channel, [ActuatorSpec(can_id=j.can_id, model=j.model) for j in actuators],
+                          host_id=config.host_id) as emulator:
+        emulator.set_run_mode(5, rs.RunMode.VELOCITY)
+        backend = create_backend(ROBOT, POLICY, config)
+        with pytest.raises(BackendError, match=r"fr3_joint5 \(can id 5\) is in run_mode 2 \(VELOCITY\)"):
+            await backend.open()
+        await backend.close()
+        assert not any(emulator.snapshot(j.can_id).enabled for j in actuators)
+
+
+@pytest.mark.anyio
+async def test_start_up_writes_each_robstride_torque_limit(arm: CanBackend):
+    assert arm.emulator is not None
+    for joint in arm.config.joints:
+        assert arm.emulator.torque_limit(joint.can_id) == pytest.approx(joint.torque_limit_nm)
+
+
+@pytest.mark.anyio
 async def test_start_up_writes_the_can_timeout_and_enables_last(arm: CanBackend):
     assert arm.emulator is not None
     for joint in arm.config.joints:

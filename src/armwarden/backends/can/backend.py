@@ -4,7 +4,9 @@ Start-up (`_open`): start the emulator if the config asks for one, open the bus,
 actuator (RobStride type 0; MIT: the exit-motor-mode frame, which every MIT actuator answers and
 which leaves it disabled), read positions (RobStride: a stop frame, answered with feedback),
 write and read back the actuator-side CAN timeout (RobStride 0x7028; MIT mode has no frame for
-it: the firmware's own setting applies), refuse a fault bit or an over-temperature, and enable
+it: the firmware's own setting applies), refuse a RobStride actuator whose run_mode (0x7005) is not
+0 (operation/MIT mode; naming the joint), write and read back each RobStride actuator's configured
+torque limit (0x700B limit_torque; MIT: the firmware's), refuse a fault bit or an over-temperature, and enable
 the actuators only at the very end, when the servo loop is about to hold them. A missing reply
 refuses to open (`BackendError` naming the joints and ids; the daemon exits 2).
 
@@ -225,6 +227,22 @@ class CanBackend(Backend, ServoHooks):
             self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT), FrameKind.PARAMETER, a)
         await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or a.parameters.get(rs.CAN_TIMEOUT.index) == ticks,
                               f"did not confirm canTimeout = {ticks} ticks ({config.can_timeout_s} s)")
+        # 3b. RobStride: operation (MIT-style) control mode, or nothing is enabled; the torque limit
+        # written (0x700B limit_torque) and read back
+        for a in self._robstride.values():
+            self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.RUN_MODE), FrameKind.PARAMETER, a)
+        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or rs.RUN_MODE.index in a.parameters,
+                              "did not report run_mode (0x7005)")
+        wrong = [f"{a.label} is in run_mode {self._run_mode_name(a.parameters[rs.RUN_MODE.index])}"
+                 for a in self._robstride.values() if a.parameters[rs.RUN_MODE.index] != rs.RunMode.OPERATION]
+        if wrong:
+            raise BackendError(f"can backend: refusing to enable: {'; '.join(wrong)} (must be 0, operation/MIT mode)")
+        for a in self._robstride.values():
+            self._send_rs(rs.write_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE, a.joint.torque_limit_nm),
+                          FrameKind.PARAMETER, a)
+            self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE), FrameKind.PARAMETER, a)
+        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or _confirms(
+            a.parameters.get(rs.LIMIT_TORQUE.index), a.joint.torque_limit_nm), "did not confirm its limit_torque (0x700B)")
         # 4. nothing wrong before anything is enabled
         problems = self._conditions(time.monotonic())
         if problems:
@@ -299,6 +317,13 @@ class CanBackend(Backend, ServoHooks):
         return ActuatorEmulator(self.config.bus.channel, specs, interface=self.config.bus.interface,
                                 rate_hz=simulate.rate_hz, host_id=self.config.host_id,
                                 mit_reply_id=self.config.mit_reply_id)
+
+    @staticmethod
+    def _run_mode_name(value: float) -> str:
+        try:
+            return f"{int(value)} ({rs.RunMode(int(value)).name})"
+        except ValueError:
+            return f"{value:g} (undefined)"
 
     async def _await_all(self, ready: Callable[[_Actuator], bool], what: str) -> None:
         deadline = time.monotonic() + self.config.startup_timeout_s
@@ -759,6 +784,11 @@ class CanBackend(Backend, ServoHooks):
             a.parameters[value.parameter.index] = float(value.value)
         else:
             raise InvalidFrame(f"unexpected RobStride frame type {comm_type} from motor {a.joint.can_id}")
+
+
+def _confirms(read_back: float | None, written: float) -> bool:
+    """A float32 parameter read back as written (to float32 precision)."""
+    return read_back is not None and abs(read_back - written) <= 1e-5 * max(1.0, abs(written))
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config, *,

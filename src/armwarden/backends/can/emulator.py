@@ -253,6 +253,16 @@ class ActuatorEmulator:
         with self._lock:
             self._actuator(can_id).stops = (low_rad, high_rad)
 
+    def set_run_mode(self, can_id: int, mode: rs.RunMode) -> None:
+        """As if someone had left the actuator in another control mode (RobStride 0x7005)."""
+        with self._lock:
+            self._actuator(can_id).run_mode = mode
+
+    def torque_limit(self, can_id: int) -> float:
+        """The actuator's torque limit now [N·m] (RobStride 0x700B as written)."""
+        with self._lock:
+            return self._actuator(can_id).torque_limit
+
     def raise_fault(self, can_id: int, fault: mit.MitError | rs.FeedbackFault) -> None:
         """Report `fault` in every reply from now on (MIT: the error code; RobStride: feedback fault bits)."""
         with self._lock:
