@@ -89,3 +89,19 @@ def test_a_failing_fault_listener_does_not_reach_the_reporting_thread(caplog: py
     inner.set_fault_listener(broken)
     inner._report_fault("bus-off")  # logged, not raised: the backend has already damped the arm
     assert "fault listener failed" in caplog.text
+
+
+async def test_e_stops_are_counted_as_stops_and_as_e_stops_and_reach_the_inner_backend() -> None:
+    inner = MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01)
+    counting = CountingBackend(inner)
+    await counting.open()
+    try:
+        before = inner.stop_epoch
+        await counting.emergency_stop()
+        thread = threading.Thread(target=counting.emergency_stop_now)
+        thread.start()
+        thread.join()
+    finally:
+        await counting.close()
+    assert (counting.stops, counting.emergency_stops) == (2, 2)
+    assert inner.stop_epoch >= before + 2
