@@ -39,6 +39,12 @@ def gripper_of(backend: CanBackend):
     return backend.config.gripper, backend.emulator
 
 
+async def width(backend: CanBackend) -> float:
+    state = await backend.gripper_state()
+    assert state is not None
+    return state.width_m
+
+
 def test_the_gripper_is_a_capability_only_when_configured():
     assert build().capabilities.gripper is True
     assert build(MIT_SIM).capabilities.gripper is False
@@ -91,10 +97,10 @@ async def test_a_stop_freezes_the_fingers_where_they_are(arm: CanBackend):
     await arm.stop()
     result = await task
     assert not result.success and result.detail == "stopped"
-    frozen_at = (await arm.gripper_state()).width_m  # type: ignore[union-attr]
+    frozen_at = await width(arm)
     await asyncio.sleep(0.2)
     assert frozen_at > 0.01
-    assert (await arm.gripper_state()).width_m == pytest.approx(frozen_at, abs=1e-3)  # type: ignore[union-attr]
+    assert await width(arm) == pytest.approx(frozen_at, abs=1e-3)
 
 
 async def test_an_estop_damps_the_gripper_with_the_arm(arm: CanBackend):
