@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Build the ROS 2 interface packages that are not on PyPI into a Python environment.
 
-control_msgs and controller_manager_msgs (the subsets under ros/interfaces/, Jazzy's exact field
+control_msgs, controller_manager_msgs and tf2_msgs (the subsets under ros/interfaces/, Jazzy's exact field
 layouts) are generated with the rosidl/ament wheels of the ``ros`` extra and installed into the
 environment's prefix, which the wheels already use as their install space. Run it with the
 environment's own interpreter, or name the prefix:
@@ -30,7 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 INTERFACES = ROOT / "ros" / "interfaces"
-PACKAGES = ("control_msgs", "controller_manager_msgs")
+PACKAGES = ("control_msgs", "controller_manager_msgs", "tf2_msgs")
 STAMP_NAME = "armwarden_interfaces.sha256"
 BUILD_RECIPE_VERSION = "1"  # bump when the way packages are built changes (forces a rebuild)
 
