@@ -137,7 +137,7 @@ def build_package(package: str, target: Target, jobs: int, keep_build: Path | No
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--prefix", type=Path, default=Path(sys.prefix), help="environment to build into (default: this interpreter's)")
     parser.add_argument("-j", "--jobs", type=int, default=os.cpu_count() or 1, help="parallel compile jobs")
     parser.add_argument("--force", action="store_true", help="rebuild even when the stamp matches or a sourced ROS has the package")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import enum
+import itertools
 import os
 import random
 import signal
@@ -34,12 +35,13 @@ from control_msgs.action import FollowJointTrajectory, GripperCommand
 from controller_manager_msgs.msg import ControllerState
 from controller_manager_msgs.srv import ListControllers, SwitchController
 from geometry_msgs.msg import TransformStamped, WrenchStamped
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.action.server import ServerGoalHandle
+from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import Image, JointState
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
@@ -135,7 +137,7 @@ def _sample(points: Sequence[tuple[float, np.ndarray]], t: float) -> tuple[np.nd
     """Position and velocity at time t along piecewise-linear (time, positions) points."""
     if t <= points[0][0]:
         return points[0][1].copy(), np.zeros_like(points[0][1])
-    for (t0, q0), (t1, q1) in zip(points, points[1:]):
+    for (t0, q0), (t1, q1) in itertools.pairwise(points):
         if t <= t1:
             span = t1 - t0
             if span <= 0.0:
@@ -170,7 +172,7 @@ class Cell:
         self._counters = Counters()
         self._switches = _Switches()
         self._closing = threading.Event()
-        self._context: rclpy.Context | None = None
+        self._context: Context | None = None
         self._executor: MultiThreadedExecutor | None = None
         self._thread: threading.Thread | None = None
         self._node = None
@@ -179,7 +181,7 @@ class Cell:
 
     def start(self) -> Cell:
         _require_local_discovery()
-        context = rclpy.Context()
+        context = Context()
         domain = int(os.environ.get("ROS_DOMAIN_ID", "0"))
         rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
         self._context = context
@@ -248,7 +250,7 @@ class Cell:
             self._gripper_server.destroy()
             self._node.destroy_node()
         if self._context is not None:
-            rclpy.try_shutdown(context=self._context)
+            try_shutdown(context=self._context)
 
     def __enter__(self) -> Cell:
         return self.start()

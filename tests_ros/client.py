@@ -12,12 +12,13 @@ import rclpy
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from controller_manager_msgs.srv import ListControllers, SwitchController
 from geometry_msgs.msg import WrenchStamped
-from rclpy.action import ActionClient
-from rclpy.action.client import ClientGoalHandle
+from rclpy.action.client import ActionClient, ClientGoalHandle
+from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import Image, JointState
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
@@ -61,12 +62,13 @@ class RosClient:
 
     def start(self) -> RosClient:
         cfg = self.config
-        self._context = rclpy.Context()
+        self._context = Context()
         rclpy.init(context=self._context, domain_id=int(os.environ["ROS_DOMAIN_ID"]), signal_handler_options=SignalHandlerOptions.NO)
         node = rclpy.create_node("cell_test_client", context=self._context)
         self.node = node
         node.create_subscription(JointState, cfg.joint_states_topic, self._keep("joint_states"), 10)
-        node.create_subscription(WrenchStamped, cfg.wrench_topic, self._keep("wrench"), QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        node.create_subscription(WrenchStamped, cfg.wrench_topic, self._keep("wrench"), best_effort)
         node.create_subscription(Image, cfg.camera_topic, self._keep("image"), 10)
         static_qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
         node.create_subscription(TFMessage, "/tf_static", self._keep("tf_static"), static_qos)
@@ -86,7 +88,7 @@ class RosClient:
         self.trajectory.destroy()
         self.gripper.destroy()
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self._context)
+        try_shutdown(context=self._context)
 
     def __enter__(self) -> RosClient:
         return self.start()
@@ -116,14 +118,18 @@ class RosClient:
 
     # ------------------------------------------------------------------ trajectory action
 
-    def trajectory_goal(self, names: Sequence[str], waypoints: Sequence[Sequence[float]], times: Sequence[float]) -> FollowJointTrajectory.Goal:
+    def trajectory_goal(
+        self, names: Sequence[str], waypoints: Sequence[Sequence[float]], times: Sequence[float]
+    ) -> FollowJointTrajectory.Goal:
         goal = FollowJointTrajectory.Goal()
         goal.trajectory.joint_names = list(names)
+        points = []
         for positions, t in zip(waypoints, times, strict=True):
             point = JointTrajectoryPoint(positions=list(positions))
             point.time_from_start.sec = int(t)
-            point.time_from_start.nanosec = int(round((t - int(t)) * 1e9))
-            goal.trajectory.points.append(point)
+            point.time_from_start.nanosec = round((t - int(t)) * 1e9)
+            points.append(point)
+        goal.trajectory.points = points
         return goal
 
     def send_goal(self, goal: FollowJointTrajectory.Goal, timeout: float = DISCOVERY_TIMEOUT_S) -> ClientGoalHandle:

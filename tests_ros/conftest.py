@@ -7,7 +7,6 @@ so the test process and every child process it starts stay off the LAN.
 
 from __future__ import annotations
 
-import os
 import random
 from collections.abc import Iterator
 

@@ -9,6 +9,7 @@ import pytest
 from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory
 from controller_manager_msgs.srv import ListControllers, SwitchController
+from sensor_msgs.msg import Image
 
 from tests_ros.cell import Cell, CellConfig, GoalMode
 from tests_ros.client import RosClient, eventually
@@ -171,7 +172,11 @@ def test_the_camera_image_is_rgb8_and_changes_when_the_arm_moves(cell: Cell, cli
     names = client.wait_latest("joint_states").name
     client.result(client.send_goal(client.trajectory_goal(names, [moved_joint1(0.5)], [0.3])))
 
-    after = eventually(lambda: (img := client.latest("image")) is not None and img.data != before.data and img, what="a new image")
+    def changed_image() -> Image | None:
+        image = client.latest("image")
+        return image if image is not None and image.data != before.data else None
+
+    after = eventually(changed_image, what="a new image")
 
     assert (before.encoding, before.width, before.height, before.step) == ("rgb8", 64, 48, 64 * 3)
     assert len(after.data) == 64 * 48 * 3
