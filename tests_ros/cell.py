@@ -1,0 +1,559 @@
+"""A fake FR3 cell made of real rclpy endpoints, for testing the ROS 2 backend.
+
+One node in a private rclpy Context offers what a ros2_control FR3 with a Franka Hand and a
+scene camera offers: joint states (100 Hz), a force/torque wrench (best-effort QoS) with an
+optional virtual table, a FollowJointTrajectory action server that interpolates goals in real
+time, a GripperCommand action server, the controller_manager list/switch services, a camera image
+that changes with the joint state and a static transform base → camera.
+
+Tests steer it (reject or abort goals, stop a topic, freeze a stamp, die mid-motion) and read its
+counters (goals received and accepted: refused scenarios must show zero).
+
+Standalone: ``ROS_DOMAIN_ID=42 python -m tests_ros.cell [--table-height 0.1]``. DDS stays on
+this host: the cell refuses to start unless discovery is limited to localhost (or a Fast DDS
+profile is given); the standalone entry point sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+import itertools
+import os
+import random
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time as TimeMsg
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from controller_manager_msgs.msg import ControllerState
+from controller_manager_msgs.srv import ListControllers, SwitchController
+from geometry_msgs.msg import TransformStamped, WrenchStamped
+from rclpy.action.server import ActionServer, CancelResponse, GoalResponse, ServerGoalHandle
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
+from sensor_msgs.msg import Image, JointState
+from tf2_msgs.msg import TFMessage
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from armwarden.policy import bundled_policy, load_policy
+from armwarden.robot import RobotModel, build_robot
+
+STATE_PERIOD_S = 0.01  # joint states and the trajectory interpolation run at 100 Hz
+WRENCH_PERIOD_S = 0.01
+CAMERA_PERIOD_S = 0.1
+GRIPPER_SPEED_MPS = 0.1
+
+Result = FollowJointTrajectory.Result
+
+
+class GoalMode(enum.Enum):
+    """What the trajectory action server does with the next goals."""
+
+    ACCEPT = "accept"  # execute them
+    REJECT = "reject"  # refuse them in the goal callback (counted as received, not accepted)
+    ABORT = "abort"  # accept, move for `abort_after_s`, then abort with PATH_TOLERANCE_VIOLATED
+    DIE = "die"  # accept, move for `die_after_s`, then the whole cell goes silent
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    """Names and rates of the cell's endpoints. The defaults mirror a ros2_control FR3."""
+
+    node_name: str = "fake_fr3_cell"
+    joint_states_topic: str = "/joint_states"
+    wrench_topic: str = "/force_torque_sensor_broadcaster/wrench"
+    trajectory_action: str = "/fr3_arm_controller/follow_joint_trajectory"
+    gripper_action: str = "/franka_gripper/gripper_action"
+    list_controllers_service: str = "/controller_manager/list_controllers"
+    switch_controller_service: str = "/controller_manager/switch_controller"
+    camera_topic: str = "/scene_camera/color/image_raw"
+    camera_frame: str = "scene_camera_color_optical_frame"
+    image_width: int = 64
+    image_height: int = 48
+    # Virtual table: a plane z = table_height_m in the base frame; a TCP below it feels an upward
+    # force of stiffness × depth (in the base frame). None: no table, the wrench stays zero.
+    table_height_m: float | None = None
+    table_stiffness_n_per_m: float = 2000.0
+    initial_positions: tuple[float, ...] | None = None  # default: the policy's home pose
+    initial_gripper_width_m: float = 0.08
+    controllers: tuple[tuple[str, str], ...] = (
+        ("joint_state_broadcaster", "active"),
+        ("fr3_arm_controller", "active"),
+        ("joint_impedance_controller", "inactive"),
+    )
+    abort_after_s: float = 0.2
+    die_after_s: float = 0.2
+    goal_mode: GoalMode = GoalMode.ACCEPT
+
+
+@dataclass
+class Counters:
+    """What the cell saw; tests assert on these (e.g. zero goals in a refused scenario)."""
+
+    goals_received: int = 0
+    goals_accepted: int = 0
+    goals_succeeded: int = 0
+    goals_aborted: int = 0
+    goals_canceled: int = 0
+    cancels_received: int = 0
+    gripper_goals: int = 0
+    switch_calls: int = 0
+    last_goal: FollowJointTrajectory.Goal | None = None
+
+
+@dataclass
+class _Switches:
+    """Faults a test can switch on while the cell runs."""
+
+    joint_states_paused: bool = False
+    wrench_stopped: bool = False
+    wrench_stamp_frozen: bool = False
+    dead: bool = False
+    frozen_stamp: TimeMsg = field(default_factory=TimeMsg)
+
+
+def _require_local_discovery() -> None:
+    """DDS must not leave this host: localhost-only discovery or an explicit Fast DDS profile."""
+    if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST" or os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE"):
+        return
+    raise RuntimeError(
+        "refusing to start DDS with LAN discovery: set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "
+        "(or FASTRTPS_DEFAULT_PROFILES_FILE to a loopback-only profile) and a random ROS_DOMAIN_ID"
+    )
+
+
+def _sample(points: Sequence[tuple[float, np.ndarray]], t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity at time t along piecewise-linear (time, positions) points."""
+    if t <= points[0][0]:
+        return points[0][1].copy(), np.zeros_like(points[0][1])
+    for (t0, q0), (t1, q1) in itertools.pairwise(points):
+        if t <= t1:
+            span = t1 - t0
+            if span <= 0.0:
+                return q1.copy(), np.zeros_like(q1)
+            return q0 + (q1 - q0) * ((t - t0) / span), (q1 - q0) / span
+    return points[-1][1].copy(), np.zeros_like(points[-1][1])
+
+
+def _seconds(duration) -> float:
+    return float(duration.sec) + float(duration.nanosec) * 1e-9
+
+
+class Cell:
+    """The fake FR3 cell: start(), steer and read it, close(). Thread-safe."""
+
+    def __init__(self, config: CellConfig | None = None, robot: RobotModel | None = None, hard_death: bool = False) -> None:
+        self.config = config or CellConfig()
+        policy = load_policy(bundled_policy("fr3"))
+        self.robot = robot or build_robot(policy)
+        self.joint_names: tuple[str, ...] = tuple(policy.robot.joint_names)
+        home = self.config.initial_positions or tuple(policy.robot.home_joint_positions)
+        if len(home) != len(self.joint_names):
+            raise ValueError(f"initial_positions has {len(home)} values for {len(self.joint_names)} joints")
+        self._hard_death = hard_death  # standalone process: dying means os._exit
+        self._lock = threading.Lock()
+        self._positions = np.array(home, dtype=float)
+        self._velocities = np.zeros(len(self.joint_names))
+        self._gripper_width = self.config.initial_gripper_width_m
+        self._mode = self.config.goal_mode
+        self._controllers = dict(self.config.controllers)
+        self._active_goal: bytes | None = None
+        self._counters = Counters()
+        self._switches = _Switches()
+        self._closing = threading.Event()
+        self._context: Context | None = None
+        self._executor: MultiThreadedExecutor | None = None
+        self._thread: threading.Thread | None = None
+        self._node = None
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> Cell:
+        _require_local_discovery()
+        context = Context()
+        domain = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+        rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+        self._context = context
+        node = rclpy.create_node(self.config.node_name, context=context)
+        self._node = node
+        cfg = self.config
+        periodic = MutuallyExclusiveCallbackGroup()
+        camera_group = MutuallyExclusiveCallbackGroup()
+        serving = ReentrantCallbackGroup()
+        self._joint_pub = node.create_publisher(JointState, cfg.joint_states_topic, 10)
+        wrench_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self._wrench_pub = node.create_publisher(WrenchStamped, cfg.wrench_topic, wrench_qos)
+        self._image_pub = node.create_publisher(Image, cfg.camera_topic, 10)
+        static_qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
+        self._tf_static_pub = node.create_publisher(TFMessage, "/tf_static", static_qos)
+        node.create_timer(STATE_PERIOD_S, self._publish_joint_state, callback_group=periodic)
+        node.create_timer(WRENCH_PERIOD_S, self._publish_wrench, callback_group=periodic)
+        node.create_timer(CAMERA_PERIOD_S, self._publish_image, callback_group=camera_group)
+        self._trajectory_server = ActionServer(
+            node,
+            FollowJointTrajectory,
+            cfg.trajectory_action,
+            execute_callback=self._execute_trajectory,
+            goal_callback=self._on_trajectory_goal,
+            handle_accepted_callback=self._on_trajectory_accepted,
+            cancel_callback=self._on_cancel,
+            callback_group=serving,
+        )
+        self._gripper_server = ActionServer(
+            node,
+            GripperCommand,
+            cfg.gripper_action,
+            execute_callback=self._execute_gripper,
+            goal_callback=self._on_gripper_goal,
+            cancel_callback=lambda _handle: CancelResponse.ACCEPT,
+            callback_group=serving,
+        )
+        node.create_service(ListControllers, cfg.list_controllers_service, self._list_controllers, callback_group=serving)
+        node.create_service(SwitchController, cfg.switch_controller_service, self._switch_controller, callback_group=serving)
+        self._publish_static_tf()
+        self._executor = MultiThreadedExecutor(num_threads=6, context=context)
+        self._executor.add_node(node)
+        self._thread = threading.Thread(target=self._spin, name="fake-cell-executor", daemon=True)
+        self._thread.start()
+        return self
+
+    def _spin(self) -> None:
+        assert self._executor is not None
+        try:
+            self._executor.spin()
+        except Exception:  # the context shut down under it: close() is in progress
+            if not self._closing.is_set():
+                raise
+
+    def close(self) -> None:
+        """Stop the executor, join its thread, destroy the node, shut the context down."""
+        if self._closing.is_set():
+            return
+        self._closing.set()
+        if self._executor is not None:
+            self._executor.shutdown(timeout_sec=5.0)
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self._node is not None:
+            self._trajectory_server.destroy()
+            self._gripper_server.destroy()
+            self._node.destroy_node()
+        if self._context is not None:
+            try_shutdown(context=self._context)
+
+    def __enter__(self) -> Cell:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ steering and reading
+
+    def positions(self) -> np.ndarray:
+        with self._lock:
+            return self._positions.copy()
+
+    def gripper_width(self) -> float:
+        with self._lock:
+            return self._gripper_width
+
+    def counters(self) -> Counters:
+        with self._lock:
+            return replace(self._counters)
+
+    def controller_states(self) -> dict[str, str]:
+        with self._lock:
+            return dict(self._controllers)
+
+    def set_goal_mode(self, mode: GoalMode) -> None:
+        with self._lock:
+            self._mode = mode
+
+    def pause_joint_states(self, paused: bool = True) -> None:
+        with self._lock:
+            self._switches.joint_states_paused = paused
+
+    def stop_wrench(self, stopped: bool = True) -> None:
+        with self._lock:
+            self._switches.wrench_stopped = stopped
+
+    def freeze_wrench_stamp(self, frozen: bool = True) -> None:
+        """Keep publishing the wrench, always with the same stamp (a stuck driver)."""
+        with self._lock:
+            self._switches.wrench_stamp_frozen = frozen
+            self._switches.frozen_stamp = self._now()
+
+    def die(self) -> None:
+        """The cell goes silent: no topic, no feedback, no result, no service answer."""
+        if self._hard_death:
+            os._exit(3)
+        with self._lock:
+            self._switches.dead = True
+
+    @property
+    def dead(self) -> bool:
+        with self._lock:
+            return self._switches.dead
+
+    # ------------------------------------------------------------------ publishers
+
+    def _now(self) -> TimeMsg:
+        assert self._node is not None
+        return self._node.get_clock().now().to_msg()
+
+    def _publish_joint_state(self) -> None:
+        with self._lock:
+            if self._switches.dead or self._switches.joint_states_paused:
+                return
+            positions, velocities = self._positions.tolist(), self._velocities.tolist()
+        msg = JointState()
+        msg.header.stamp = self._now()
+        msg.name = list(self.joint_names)
+        msg.position = positions
+        msg.velocity = velocities
+        msg.effort = [0.0] * len(positions)
+        self._joint_pub.publish(msg)
+
+    def _contact_force(self, positions: np.ndarray) -> float:
+        """Upward force of the virtual table on the TCP [N] (zero above the table or without one)."""
+        height = self.config.table_height_m
+        if height is None:
+            return 0.0
+        depth = height - float(self.robot.tcp_pose(positions).position[2])
+        return self.config.table_stiffness_n_per_m * depth if depth > 0.0 else 0.0
+
+    def _publish_wrench(self) -> None:
+        with self._lock:
+            switches = replace(self._switches)
+            positions = self._positions.copy()
+        if switches.dead or switches.wrench_stopped:
+            return
+        msg = WrenchStamped()
+        msg.header.stamp = switches.frozen_stamp if switches.wrench_stamp_frozen else self._now()
+        msg.header.frame_id = self.robot.base_frame
+        msg.wrench.force.z = self._contact_force(positions)
+        self._wrench_pub.publish(msg)
+
+    def render_image(self, positions: np.ndarray) -> np.ndarray:
+        """A small rgb8 picture that is a function of the joint state (height × width × 3)."""
+        h, w = self.config.image_height, self.config.image_width
+        ys, xs = np.mgrid[0:h, 0:w]
+        shift = (positions * 40.0).astype(int)
+        red = (xs * 4 + shift[0]) % 256
+        green = (ys * 5 + shift[1]) % 256
+        blue = ((xs + ys) * 2 + int(np.sum(shift[2:]))) % 256
+        return np.stack([red, green, blue], axis=-1).astype(np.uint8)
+
+    def _publish_image(self) -> None:
+        with self._lock:
+            if self._switches.dead:
+                return
+            positions = self._positions.copy()
+        pixels = self.render_image(positions)
+        msg = Image()
+        msg.header.stamp = self._now()
+        msg.header.frame_id = self.config.camera_frame
+        msg.height, msg.width = pixels.shape[0], pixels.shape[1]
+        msg.encoding = "rgb8"
+        msg.is_bigendian = 0
+        msg.step = pixels.shape[1] * 3
+        msg.data = pixels.tobytes()
+        self._image_pub.publish(msg)
+
+    def _publish_static_tf(self) -> None:
+        transform = TransformStamped()
+        transform.header.stamp = self._now()
+        transform.header.frame_id = self.robot.base_frame
+        transform.child_frame_id = self.config.camera_frame
+        transform.transform.translation.x = 1.2
+        transform.transform.translation.z = 0.8
+        # Looking back at the robot and down: optical z along -x of the base, tilted down.
+        transform.transform.rotation.x = 0.5
+        transform.transform.rotation.y = -0.5
+        transform.transform.rotation.z = 0.5
+        transform.transform.rotation.w = -0.5
+        self._tf_static_pub.publish(TFMessage(transforms=[transform]))
+
+    # ------------------------------------------------------------------ trajectory action
+
+    def _on_trajectory_goal(self, goal: FollowJointTrajectory.Goal) -> GoalResponse:
+        with self._lock:
+            self._counters.goals_received += 1
+            self._counters.last_goal = goal
+            if self._switches.dead or self._mode is GoalMode.REJECT:
+                return GoalResponse.REJECT
+        names = list(goal.trajectory.joint_names)
+        points = goal.trajectory.points
+        if sorted(names) != sorted(self.joint_names) or not points:
+            return GoalResponse.REJECT  # like Jazzy's controller: wrong joints or an empty trajectory
+        if any(len(p.positions) != len(names) for p in points):
+            return GoalResponse.REJECT
+        with self._lock:
+            self._counters.goals_accepted += 1
+        return GoalResponse.ACCEPT
+
+    def _on_trajectory_accepted(self, goal_handle: ServerGoalHandle) -> None:
+        with self._lock:
+            self._active_goal = bytes(goal_handle.goal_id.uuid)  # a newer goal preempts the running one
+        goal_handle.execute()
+
+    def _on_cancel(self, _goal_handle: ServerGoalHandle) -> CancelResponse:
+        with self._lock:
+            self._counters.cancels_received += 1
+        return CancelResponse.ACCEPT
+
+    def _goal_points(self, goal: FollowJointTrajectory.Goal, start: np.ndarray) -> list[tuple[float, np.ndarray]]:
+        order = [list(goal.trajectory.joint_names).index(name) for name in self.joint_names]
+        points = [(0.0, start)]
+        for point in goal.trajectory.points:
+            points.append((_seconds(point.time_from_start), np.array([point.positions[i] for i in order], dtype=float)))
+        return points
+
+    def _park_until_closed(self) -> None:
+        """A dead cell never answers: hold the callback until the cell is closed."""
+        self._closing.wait()
+
+    def _finish(self, goal_handle: ServerGoalHandle, outcome: str, code: int, text: str) -> FollowJointTrajectory.Result:
+        with self._lock:
+            self._velocities[:] = 0.0
+            if outcome == "succeed":
+                self._counters.goals_succeeded += 1
+            elif outcome == "abort":
+                self._counters.goals_aborted += 1
+            else:
+                self._counters.goals_canceled += 1
+        getattr(goal_handle, {"succeed": "succeed", "abort": "abort", "cancel": "canceled"}[outcome])()
+        return Result(error_code=code, error_string=text)
+
+    def _execute_trajectory(self, goal_handle: ServerGoalHandle) -> FollowJointTrajectory.Result:
+        goal_id = bytes(goal_handle.goal_id.uuid)
+        with self._lock:
+            mode = self._mode
+            points = self._goal_points(goal_handle.request, self._positions.copy())
+        started = time.monotonic()
+        end = points[-1][0]
+        while True:
+            if self._closing.is_set():
+                return self._finish(goal_handle, "abort", Result.INVALID_GOAL, "fake cell: shutting down")
+            if self.dead:
+                self._park_until_closed()
+                return Result()
+            elapsed = time.monotonic() - started
+            with self._lock:
+                preempted = self._active_goal != goal_id
+            if preempted:
+                return self._finish(goal_handle, "abort", Result.INVALID_GOAL, "fake cell: preempted by a newer goal")
+            if goal_handle.is_cancel_requested:
+                return self._finish(goal_handle, "cancel", Result.SUCCESSFUL, "fake cell: canceled, holding position")
+            if mode is GoalMode.ABORT and elapsed >= self.config.abort_after_s:
+                return self._finish(goal_handle, "abort", Result.PATH_TOLERANCE_VIOLATED, "fake cell: aborted on request (path tolerance)")
+            if mode is GoalMode.DIE and elapsed >= self.config.die_after_s:
+                self.die()
+                continue
+            desired, velocity = _sample(points, min(elapsed, end))
+            with self._lock:
+                self._positions[:] = desired
+                self._velocities[:] = velocity if elapsed < end else 0.0
+            self._publish_feedback(goal_handle, desired, velocity)
+            if elapsed >= end:
+                return self._finish(goal_handle, "succeed", Result.SUCCESSFUL, "")
+            time.sleep(STATE_PERIOD_S)
+
+    def _publish_feedback(self, goal_handle: ServerGoalHandle, desired: np.ndarray, velocity: np.ndarray) -> None:
+        feedback = FollowJointTrajectory.Feedback()
+        feedback.header.stamp = self._now()
+        feedback.joint_names = list(self.joint_names)
+        feedback.desired = JointTrajectoryPoint(positions=desired.tolist(), velocities=velocity.tolist())
+        feedback.actual = JointTrajectoryPoint(positions=desired.tolist(), velocities=velocity.tolist())
+        feedback.error = JointTrajectoryPoint(positions=[0.0] * len(desired), velocities=[0.0] * len(desired))
+        goal_handle.publish_feedback(feedback)
+
+    # ------------------------------------------------------------------ gripper and controllers
+
+    def _on_gripper_goal(self, _goal: GripperCommand.Goal) -> GoalResponse:
+        with self._lock:
+            self._counters.gripper_goals += 1
+            return GoalResponse.REJECT if self._switches.dead else GoalResponse.ACCEPT
+
+    def _execute_gripper(self, goal_handle: ServerGoalHandle) -> GripperCommand.Result:
+        target = min(max(goal_handle.request.command.position, 0.0), 0.08)
+        while True:
+            if self.dead:
+                self._park_until_closed()
+                return GripperCommand.Result()
+            with self._lock:
+                step = GRIPPER_SPEED_MPS * STATE_PERIOD_S
+                delta = target - self._gripper_width
+                self._gripper_width += max(-step, min(step, delta))
+                width = self._gripper_width
+            reached = abs(target - width) < 1e-6
+            if goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+                return GripperCommand.Result(position=width, reached_goal=reached)
+            goal_handle.publish_feedback(GripperCommand.Feedback(position=width, reached_goal=reached))
+            if reached or self._closing.is_set():
+                goal_handle.succeed()
+                return GripperCommand.Result(position=width, reached_goal=reached)
+            time.sleep(STATE_PERIOD_S)
+
+    def _list_controllers(self, _request: ListControllers.Request, response: ListControllers.Response) -> ListControllers.Response:
+        if self.dead:
+            self._park_until_closed()
+        with self._lock:
+            response.controller = [
+                ControllerState(name=name, state=state, type="fake/Controller", update_rate=1000)
+                for name, state in self._controllers.items()
+            ]
+        return response
+
+    def _switch_controller(self, request: SwitchController.Request, response: SwitchController.Response) -> SwitchController.Response:
+        if self.dead:
+            self._park_until_closed()
+        with self._lock:
+            self._counters.switch_calls += 1
+            names = [*request.activate_controllers, *request.deactivate_controllers]
+            unknown = [name for name in names if name not in self._controllers]
+            if unknown:
+                response.ok = False
+                response.message = f"unknown controller(s): {', '.join(unknown)}"
+                return response
+            for name in request.deactivate_controllers:
+                self._controllers[name] = "inactive"
+            for name in request.activate_controllers:
+                self._controllers[name] = "active"
+        response.ok = True
+        response.message = "switched"
+        return response
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Run the fake FR3 cell (domain from ROS_DOMAIN_ID).")
+    parser.add_argument("--table-height", type=float, default=None, help="virtual table plane z [m] in the base frame")
+    parser.add_argument("--goal-mode", choices=[m.value for m in GoalMode], default=GoalMode.ACCEPT.value)
+    args = parser.parse_args(argv)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if "ROS_DOMAIN_ID" not in os.environ:
+        os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+    config = CellConfig(table_height_m=args.table_height, goal_mode=GoalMode(args.goal_mode))
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with Cell(config, hard_death=True):
+        print(f"fake FR3 cell ready: ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}", flush=True)
+        stop.wait()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
