@@ -70,6 +70,8 @@ class DampingWatch:
         if rs.split_id(msg.arbitration_id).comm_type != rs.CommType.CONTROL:
             return
         motor = msg.arbitration_id & 0xFF
+        if motor not in self._ranges:
+            return  # not an actuator of this arm
         command = rs.unpack_control(msg.arbitration_id, bytes(msg.data), self._ranges[motor])[1]
         if command.kp == 0.0 and command.kd > 0.0 and msg.timestamp >= after:
             with self._lock:
@@ -124,7 +126,8 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ) -> di
         cell = await open_assembly(*assemble(policy, "can", str(config), str(directory / f"audit-{rate_hz}.jsonl")))
         freeze_long_lived_objects()
         backend: Any = cell.backend  # a CanBackend: its servo loop's timing and config are read
-        watch = DampingWatch(backend.config.bus.channel, {j.can_id: j.ranges for j in backend.config.joints})
+        motors = [*backend.config.joints, *([backend.config.gripper] if backend.config.gripper is not None else [])]
+        watch = DampingWatch(backend.config.bus.channel, {m.can_id: m.ranges for m in motors})
         out: dict[str, Any] = {"rate_hz": rate_hz, "seconds": seconds}
         latencies_bus: list[float] = []
         latencies_arrival: list[float] = []
