@@ -22,6 +22,26 @@ from armwarden.errors import ConfigurationError
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
+def _actuator_ranges(actuator: JointConfig | GripperConfig) -> ModelRanges:
+    """The value ranges of `actuator`'s model, once its model, protocol, id, gains and torque
+    limit are checked against them (ValueError naming the field otherwise)."""
+    try:
+        ranges = model_ranges(actuator.model)
+    except UnknownModel as exc:
+        raise ValueError(str(exc)) from None
+    if ranges.protocol is not actuator.protocol:
+        raise ValueError(f"model {actuator.model} speaks {ranges.protocol.value}, not {actuator.protocol.value}")
+    if actuator.protocol is Protocol.ROBSTRIDE and actuator.can_id > 0xFD:
+        raise ValueError(f"RobStride can_id must be 1..253, got {actuator.can_id}")
+    for field, value, valid in (("kp_nm_per_rad", actuator.kp_nm_per_rad, ranges.kp),
+                                ("kd_nms_per_rad", actuator.kd_nms_per_rad, ranges.kd),
+                                ("damping_kd_nms_per_rad", actuator.damping_kd_nms_per_rad, ranges.kd),
+                                ("torque_limit_nm", actuator.torque_limit_nm, ranges.torque)):
+        if value not in valid:
+            raise ValueError(f"{field} {value} is outside the {actuator.model} range [{valid.lo}, {valid.hi}]")
+    return ranges
+
+
 class JointConfig(BaseModel):
     """One actuator driving one policy joint."""
 
@@ -43,20 +63,7 @@ class JointConfig(BaseModel):
 
     @model_validator(mode="after")
     def _model_fits(self) -> JointConfig:
-        try:
-            ranges = model_ranges(self.model)
-        except UnknownModel as exc:
-            raise ValueError(str(exc)) from None
-        if ranges.protocol is not self.protocol:
-            raise ValueError(f"model {self.model} speaks {ranges.protocol.value}, not {self.protocol.value}")
-        if self.protocol is Protocol.ROBSTRIDE and self.can_id > 0xFD:
-            raise ValueError(f"RobStride can_id must be 1..253, got {self.can_id}")
-        for field, value, valid in (("kp_nm_per_rad", self.kp_nm_per_rad, ranges.kp),
-                                    ("kd_nms_per_rad", self.kd_nms_per_rad, ranges.kd),
-                                    ("damping_kd_nms_per_rad", self.damping_kd_nms_per_rad, ranges.kd),
-                                    ("torque_limit_nm", self.torque_limit_nm, ranges.torque)):
-            if value not in valid:
-                raise ValueError(f"{field} {value} is outside the {self.model} range [{valid.lo}, {valid.hi}]")
+        _actuator_ranges(self)
         return self
 
 
@@ -99,22 +106,9 @@ class GripperConfig(BaseModel):
 
     @model_validator(mode="after")
     def _fits(self) -> GripperConfig:
-        try:
-            ranges = model_ranges(self.model)
-        except UnknownModel as exc:
-            raise ValueError(str(exc)) from None
-        if ranges.protocol is not self.protocol:
-            raise ValueError(f"model {self.model} speaks {ranges.protocol.value}, not {self.protocol.value}")
-        if self.protocol is Protocol.ROBSTRIDE and self.can_id > 0xFD:
-            raise ValueError(f"RobStride can_id must be 1..253, got {self.can_id}")
+        ranges = _actuator_ranges(self)
         if self.open_position_rad == self.closed_position_rad:
             raise ValueError("open_position_rad and closed_position_rad must differ")
-        for field, value, valid in (("kp_nm_per_rad", self.kp_nm_per_rad, ranges.kp),
-                                    ("kd_nms_per_rad", self.kd_nms_per_rad, ranges.kd),
-                                    ("damping_kd_nms_per_rad", self.damping_kd_nms_per_rad, ranges.kd),
-                                    ("torque_limit_nm", self.torque_limit_nm, ranges.torque)):
-            if value not in valid:
-                raise ValueError(f"{field} {value} is outside the {self.model} range [{valid.lo}, {valid.hi}]")
         for field, value in (("open_position_rad", self.open_position_rad), ("closed_position_rad", self.closed_position_rad)):
             raw = self.direction * value + self.homing_offset_rad
             if raw not in ranges.position:
