@@ -7,12 +7,14 @@ the SDK client) live in `tests/server/harness.py`; the daemon-as-a-subprocess on
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import socket
 import sys
+from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -64,3 +66,21 @@ def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind((host, 0))
         return sock.getsockname()[1]
+
+
+B = TypeVar("B")
+R = TypeVar("R")
+
+
+def run_opened(build: Callable[[], B], scenario: Callable[[B], Awaitable[R]]) -> R:
+    """Build a backend, open it, run `scenario(backend)` on a fresh event loop, always close it."""
+
+    async def main() -> R:
+        backend: Any = build()
+        await backend.open()
+        try:
+            return await scenario(backend)
+        finally:
+            await backend.close()
+
+    return asyncio.run(main())

@@ -14,6 +14,7 @@ Assertions are about order and outcome, never about how fast something happened.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -98,6 +99,20 @@ class BackendContract:
         q_start = await self.positions(backend)
         return straight_line(backend.joint_names, q_start, q_start + self.reach_rad, duration_s)
 
+    @contextlib.asynccontextmanager
+    async def executing(self, backend: Backend, trajectory: JointTrajectory) -> AsyncIterator[list[Any]]:
+        """`execute(trajectory)` in the background; the body runs once the arm has moved; after
+        the block the execution's result is the list's one element."""
+        q_start = await self.positions(backend)
+        results: list[Any] = []
+        async with anyio.create_task_group() as group:
+            async def run() -> None:
+                results.append(await backend.execute(trajectory))
+
+            group.start_soon(run)
+            await wait_until(lambda: self.has_moved(backend, q_start))
+            yield results
+
     async def has_moved(self, backend: Backend, q_from: np.ndarray) -> bool:
         return bool(np.max(np.abs(await self.positions(backend) - q_from)) > 1e-3)
 
@@ -144,14 +159,7 @@ class BackendContract:
             await backend.execute(trajectory)
 
     async def test_close_during_execution_ends_it_stopped(self, backend: Backend) -> None:
-        q_start = await self.positions(backend)
-        results: list[Any] = []
-        async with anyio.create_task_group() as group:
-            async def run() -> None:
-                results.append(await backend.execute(await self.motion(backend, self.long_motion_s)))
-
-            group.start_soon(run)
-            await wait_until(lambda: self.has_moved(backend, q_start))
+        async with self.executing(backend, await self.motion(backend, self.long_motion_s)) as results:
             await backend.close()
         assert results[0].reason == "stopped"
 
@@ -245,15 +253,8 @@ class BackendContract:
         assert (await backend.execute(await self.motion(backend, self.short_motion_s))).completed
 
     async def test_stop_during_execute_ends_it_stopped_short_of_the_goal_and_holds(self, backend: Backend) -> None:
-        q_start = await self.positions(backend)
         trajectory = await self.motion(backend, self.long_motion_s)
-        results: list[Any] = []
-        async with anyio.create_task_group() as group:
-            async def run() -> None:
-                results.append(await backend.execute(trajectory))
-
-            group.start_soon(run)
-            await wait_until(lambda: self.has_moved(backend, q_start))
+        async with self.executing(backend, trajectory) as results:
             await backend.stop()
         held = await self.assert_still(backend)
         assert not results[0].completed and results[0].reason == "stopped"
@@ -261,18 +262,10 @@ class BackendContract:
         assert not np.allclose(held, trajectory.goal)
 
     async def test_stop_now_from_another_thread_while_the_loop_is_blocked_holds_the_arm(self, backend: Backend) -> None:
-        q_start = await self.positions(backend)
         trajectory = await self.motion(backend, self.long_motion_s)
-        results: list[Any] = []
         held_in_thread: list[Any] = []
         stopped = threading.Event()
-        async with anyio.create_task_group() as group:
-            async def run() -> None:
-                results.append(await backend.execute(trajectory))
-
-            group.start_soon(run)
-            await wait_until(lambda: self.has_moved(backend, q_start))
-
+        async with self.executing(backend, trajectory) as results:
             def stop_from_elsewhere() -> None:
                 backend.stop_now()
                 held_in_thread.append(backend._latest_joint_state())  # a published sample, if the backend has one
@@ -290,15 +283,8 @@ class BackendContract:
 
     async def test_emergency_stop_now_bumps_the_epoch_ends_the_execution_stopped_and_the_arm_rests(
             self, backend: Backend) -> None:
-        q_start = await self.positions(backend)
         trajectory = await self.motion(backend, self.long_motion_s)
-        results: list[Any] = []
-        async with anyio.create_task_group() as group:
-            async def run() -> None:
-                results.append(await backend.execute(trajectory))
-
-            group.start_soon(run)
-            await wait_until(lambda: self.has_moved(backend, q_start))
+        async with self.executing(backend, trajectory) as results:
             before = backend.stop_epoch
             stopped = threading.Event()
 

@@ -23,6 +23,7 @@ from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 from tests.backends.contract import BackendContract
+from tests.helpers import run_opened
 
 Q_READY = np.array(FR3_READY)
 # joint 2 forward: the TCP goes down (≈ 3 cm per 0.1 rad near "ready")
@@ -31,16 +32,7 @@ Q_REACH = Q_READY + np.array([0.3, 0.2, 0.0, 0.2, 0.0, 0.0, 0.3])
 
 def run_with_backend(scenario, **options):
     """Open a fake backend, run `scenario(backend)` on a fresh event loop, always close it."""
-
-    async def main():
-        backend = FakeBackend(**options)
-        await backend.open()
-        try:
-            return await scenario(backend)
-        finally:
-            await backend.close()
-
-    return asyncio.run(main())
+    return run_opened(lambda: FakeBackend(**options), scenario)
 
 
 def straight_line(q_start, q_goal, duration_s: float, dt_s: float = 0.01) -> JointTrajectory:

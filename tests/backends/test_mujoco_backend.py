@@ -26,6 +26,7 @@ from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy
 from armwarden.robot import build_robot
 from tests.backends.contract import BackendContract, straight_line
+from tests.helpers import run_opened
 
 POLICY = load_policy(bundled_policy("fr3"))
 EXAMPLE_SCENE = Path(__file__).resolve().parents[2] / "examples" / "mujoco_scene.yaml"
@@ -38,16 +39,7 @@ def build(**config) -> MujocoBackend:
 
 def run_with_backend(scenario, **config):
     """Open a MuJoCo backend, run `scenario(backend)` on a fresh event loop, always close it."""
-
-    async def main():
-        backend = build(**config)
-        await backend.open()
-        try:
-            return await scenario(backend)
-        finally:
-            await backend.close()
-
-    return asyncio.run(main())
+    return run_opened(lambda: build(**config), scenario)
 
 
 class TestMujocoContract(BackendContract):

@@ -35,11 +35,6 @@ GOAL_ERROR_RAD = 2e-3
 BELOW_TABLE_X_M = 0.66
 
 
-@pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
-
-
 def mujoco_of(arm: ArmHarness) -> MujocoBackend:
     assert isinstance(arm.inner, MujocoBackend)
     return arm.inner

@@ -8,7 +8,7 @@ import asyncio
 import sys
 import threading
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,11 +56,6 @@ def build(path: Path = ROBSTRIDE_SIM, **top: Any) -> CanBackend:
     config = parse_backend_config("can", config_document(path, **top))
     assert isinstance(config, Config)
     return create_backend(ROBOT, POLICY, config)
-
-
-@pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
 
 
 class TestCanRobStrideContract(BackendContract):
@@ -144,16 +139,6 @@ def assert_damping_within_one_period(seen: list[Seen], evidence: int, motors: se
 def all_motors(backend: CanBackend) -> set[int]:
     gripper = backend.config.gripper
     return {j.can_id for j in backend.config.joints} | ({gripper.can_id} if gripper else set())
-
-
-@pytest.fixture
-async def arm() -> AsyncIterator[CanBackend]:
-    backend = build()
-    await backend.open()
-    try:
-        yield backend
-    finally:
-        await backend.close()
 
 
 async def long_motion(backend: CanBackend, reach: float = 0.3, duration_s: float = 4.0):

@@ -18,11 +18,6 @@ pytestmark = pytest.mark.anyio
 
 
 @pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
-
-
-@pytest.fixture
 async def arm(tmp_path: Path) -> AsyncIterator[ArmHarness]:
     async with arm_harness(tmp_path, policy_with(**{"force.require_wrench": False}), backend="can") as harness:
         yield harness

@@ -5,7 +5,6 @@ freezes on a stop and is damped with the arm on an e-stop."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator
 
 import pytest
 
@@ -17,21 +16,6 @@ from tests.backends.contract import wait_until
 
 pytestmark = pytest.mark.anyio
 GRIPPER_ID = 8
-
-
-@pytest.fixture
-def anyio_backend() -> str:
-    return "asyncio"
-
-
-@pytest.fixture
-async def arm() -> AsyncIterator[CanBackend]:
-    backend = build()
-    await backend.open()
-    try:
-        yield backend
-    finally:
-        await backend.close()
 
 
 def gripper_of(backend: CanBackend):
