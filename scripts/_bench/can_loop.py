@@ -26,7 +26,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from bench_stats import percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "can_sim.yaml"
 RATES_HZ = (500, 1000)
@@ -35,11 +35,7 @@ ESTOP_EVERY_S = 1.0
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:
-    if not values:
-        return {"n": 0, "p50": float("nan"), "p99": float("nan"), "max": float("nan")}
-    array = np.asarray(values, dtype=float)
-    return {"n": len(values), "p50": float(np.percentile(array, 50)), "p99": float(np.percentile(array, 99)),
-            "max": float(array.max())}
+    return percentiles(values, (50, 99))
 
 
 class DampingWatch:

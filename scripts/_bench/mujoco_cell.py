@@ -27,16 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_stats import percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 #: joint speed below which the arm counts as still [rad/s] (the issue's bar)
 STILL_RAD_S = 1e-3
 BLOCK = 20
-
-
-def _percentiles(values: list[float]) -> dict[str, float]:
-    array = np.asarray(values, dtype=float)
-    return {"n": len(values), "p50": float(np.percentile(array, 50)), "p95": float(np.percentile(array, 95)),
-            "max": float(array.max())}
 
 
 class StillWatch:
@@ -143,7 +138,7 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                         series["plan_fake"].append(await timed(on_fake, "plan_to_pose", pose(block + i)))
                         series["plan_mujoco"].append(await timed(on_cell, "plan_to_pose", pose(block + i)))
                 wall = time.perf_counter() - wall_start
-                out["calls"] = {name: _percentiles(values) for name, values in series.items()}
+                out["calls"] = {name: percentiles(values) for name, values in series.items()}
                 out["rtf_while_serving"] = (backend._measured.sim_s - sim_start) / wall
                 out["steps_per_s"] = (backend.step_count - steps_start) / wall
                 out["dropped_steps"] = backend.dropped_steps - dropped_start
@@ -154,8 +149,8 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                     start = time.perf_counter()
                     await backend.camera_snapshot("scene")
                     renders.append((time.perf_counter() - start) * 1e3)
-                out["render_backend_ms"] = _percentiles(renders)
-                out["render_tool_ms"] = _percentiles([await timed(on_cell, "camera_snapshot", {"camera": "scene"})
+                out["render_backend_ms"] = percentiles(renders)
+                out["render_tool_ms"] = percentiles([await timed(on_cell, "camera_snapshot", {"camera": "scene"})
                                                      for _ in range(10)])
 
                 # ---- e-stops mid-motion while a client keeps the server busy
@@ -215,7 +210,7 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                     out["rtf_during_estops"] = (backend._measured.sim_s - sim_start) / wall
                     out["dropped_steps_during_estops"] = backend.dropped_steps - dropped_start
                     loading = False
-                out["estops"] = {key: _percentiles([s[key] for s in stops]) for key in stops[0]} if stops else {}
+                out["estops"] = {key: percentiles([s[key] for s in stops]) for key in stops[0]} if stops else {}
                 out["estops_missed"] = missed
                 out["estop_cycles"] = cycles
         finally:
