@@ -336,7 +336,9 @@ class ServoLoop:
                 positions, velocities = frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t))
                 fraction = t / duration
         setpoint = Setpoint(positions, velocities, stamp, following=execution is not None)
-        setpoint = replace(setpoint, extra=self.hooks.servo_prepare(setpoint))
+        extra = self.hooks.servo_prepare(setpoint)
+        if extra is not None:  # (dataclasses.replace costs microseconds a tick; most hooks return None)
+            setpoint = replace(setpoint, extra=extra)
 
         with self._lock:
             if self._stop_seq != stop_seq:

@@ -195,3 +195,27 @@ def test_open_interface_opens_the_named_virtual_bus(channel: str, peer: can.BusA
         assert received is not None and received.arbitration_id == 0x3
     finally:
         bus.shutdown()
+
+
+def test_a_batch_goes_out_in_order_and_is_counted_once_per_frame(channel: str, peer: can.BusABC) -> None:
+    frames = [(0x0100FD01 + i, bytes((i,)) * 8, True) for i in range(8)]
+    with CanBus(BusConfig(channel=channel)) as bus:
+        assert bus.send_frames(frames, FrameKind.COMMAND) == 8
+        health = bus.health()
+    received = [peer.recv(timeout=5) for _ in frames]
+    assert [(m.arbitration_id, bytes(m.data)) for m in received if m is not None] == [(i, d) for i, d, _ in frames]
+    assert (health.frames_sent, health.command_frames_sent) == (8, 8)
+
+
+def test_a_batch_the_driver_refuses_latches_tx_overrun_and_counts_nothing_sent(channel: str) -> None:
+    with CanBus(BusConfig(channel=channel), bus_factory=lambda cfg: FullTxQueueBus(channel=cfg.channel)) as bus:
+        assert bus.send_frames([(0x01, bytes(8), False), (0x02, bytes(8), False)], FrameKind.COMMAND) == 0
+        health = bus.health()
+    assert health.flags == HealthFlag.TX_QUEUE_OVERRUN
+    assert (health.send_failures, health.frames_sent) == (2, 0)
+
+
+def test_a_batch_on_a_closed_bus_is_refused(channel: str) -> None:
+    bus = CanBus(BusConfig(channel=channel))
+    with pytest.raises(BackendError, match="not open"):
+        bus.send_frames([(0x01, bytes(8), False)], FrameKind.COMMAND)

@@ -148,3 +148,10 @@ def test_ping_reply_carries_the_uid() -> None:
 
 def _fields(frame: rs.Frame) -> tuple[int, bytes]:
     return frame.arbitration_id, frame.data
+
+
+def test_flag_names_tell_apart_flags_of_two_types_with_the_same_value() -> None:
+    # the names are cached: FeedbackFault(1) == FaultFlag(1) as integers, yet they name different faults
+    assert rs.flag_names(rs.FeedbackFault(1)) == ("UNDER_VOLTAGE",)
+    assert rs.flag_names(rs.FaultFlag(1)) == ("OVER_TEMPERATURE",)
+    assert rs.flag_names(rs.FeedbackFault(0)) == ()

@@ -115,6 +115,16 @@ class _Actuator:
         return f"{what}{self.joint.name} (can id {self.joint.can_id})"
 
 
+@dataclass(frozen=True)
+class _OutFrame:
+    """A frame to send to `actuator` (encoded before any frame of its batch is sent)."""
+
+    actuator: _Actuator
+    arbitration_id: int
+    data: bytes
+    extended: bool
+
+
 class CanBackend(Backend, ServoHooks):
     """The arm of CAN actuators (see the module docstring)."""
 
@@ -483,11 +493,11 @@ class CanBackend(Backend, ServoHooks):
             with contextlib.suppress(BackendError):  # no position yet: keep the previous hold
                 self._gripper_hold_rad = self._gripper_position()
 
-    def _send_gripper(self) -> None:
+    def _gripper_frame(self) -> _OutFrame | None:
         """Servo thread, under the servo lock: this tick's command to the gripper (not damping)."""
         a = self._gripper
         if a is None:
-            return
+            return None
         g = self._gripper_config()
         now = time.monotonic()
         measured = self._gripper_position()
@@ -499,8 +509,8 @@ class CanBackend(Backend, ServoHooks):
                 (wanted, velocity), cap = motion.ramp(now), motion.torque_cap_nm
         low, high = sorted((g.open_position_rad, g.closed_position_rad))
         position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad), low), high)
-        self._send_command(a, MotorCommand(g.direction * position + g.homing_offset_rad, g.direction * velocity,
-                                           g.kp_nm_per_rad, g.kd_nms_per_rad, 0.0))
+        return self._command_frame(a, MotorCommand(g.direction * position + g.homing_offset_rad, g.direction * velocity,
+                                                   g.kp_nm_per_rad, g.kd_nms_per_rad, 0.0))
 
     async def _gripper_state(self) -> GripperState:
         g = self._gripper_config()
@@ -661,7 +671,7 @@ class CanBackend(Backend, ServoHooks):
                     problems.append(f"{a.label}: left run mode ({a.mode.name})")
             attributed = any(a.invalid_frames for a in self._everyone)
         if self.bus is not None:
-            flags = self.bus.health().flags
+            flags = self.bus.flags
             if attributed:
                 flags &= ~HealthFlag.INVALID_FRAME
             if flags != NO_FLAGS:
@@ -670,60 +680,78 @@ class CanBackend(Backend, ServoHooks):
         return problems
 
     def _outside_limits(self, positions: np.ndarray, what: str) -> list[str]:
+        if bool(np.all((positions >= self._lower) & (positions <= self._upper))):
+            return []  # the common case, checked at once (NaN fails it and is named below)
         return [f"joint {n}: {what} position {q:.4f} rad outside the policy limits [{lo:.4f}, {hi:.4f}] (refused)"
                 for n, q, lo, hi in zip(self.joint_names, positions, self._lower, self._upper, strict=True)
                 if not lo <= q <= hi]
 
     # ================================================================ frames out (under the servo lock)
     def _send_commands(self, positions: np.ndarray, velocities: np.ndarray, *, following: bool) -> None:
+        """This tick's command to every actuator: every frame is encoded (a value the model
+        cannot carry refuses the whole tick before anything is sent), then sent as one batch."""
         if not self._damping:
             bad = self._outside_limits(positions, "commanded" if following else "hold")
             if bad:  # never sent: damp instead, and the next tick turns it into a fault
                 self._limit_violation = bad[0]
                 self._damping = True
-        if self._damping:
+        if self._damping:  # every actuator that can be damped is, whatever another one refuses
+            frames, refused = [], []
             for a in self._everyone:
                 raw = a.raw_position if a.raw_position is not None else 0.0
                 raw = min(max(raw, a.ranges.position.lo), a.ranges.position.hi)  # kp = 0: the position has no effect
-                self._send_command(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0))
+                try:
+                    frames.append(self._command_frame(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0)))
+                except BackendError as exc:
+                    refused.append(exc)
+            self._send_batch(frames, FrameKind.COMMAND)
+            if refused:
+                raise refused[0]
             return
-        raw = self._direction * positions + self._offset
-        raw_velocity = self._direction * velocities
-        for a in self._actuators:
-            j = a.joint
-            self._send_command(a, MotorCommand(float(raw[a.index]), float(raw_velocity[a.index]), j.kp_nm_per_rad,
-                                               j.kd_nms_per_rad, 0.0))
-        self._send_gripper()
+        raw = (self._direction * positions + self._offset).tolist()
+        raw_velocity = (self._direction * velocities).tolist()
+        frames = [self._command_frame(a, MotorCommand(raw[a.index], raw_velocity[a.index], a.joint.kp_nm_per_rad,
+                                                      a.joint.kd_nms_per_rad, 0.0))
+                  for a in self._actuators]
+        gripper = self._gripper_frame()
+        if gripper is not None:
+            frames.append(gripper)
+        self._send_batch(frames, FrameKind.COMMAND)
         if following:
             self.motion_frames += len(self._actuators)
             if not self._moved_this_execution:
                 self._moved_this_execution = True
                 self.moving_executions += 1
 
-    def _send_command(self, a: _Actuator, command: MotorCommand) -> None:
+    def _command_frame(self, a: _Actuator, command: MotorCommand) -> _OutFrame:
+        """`command` for `a` as a frame; `BackendError` (nothing sent) if the model cannot carry it."""
         try:
             if a.joint.protocol is Protocol.ROBSTRIDE:
                 frame = rs.control_frame(a.joint.can_id, command, a.ranges)
-                self._send(a, frame.arbitration_id, frame.data, extended=True, kind=FrameKind.COMMAND)
-            else:
-                self._send(a, a.joint.can_id, mit.pack_command(command, a.ranges), extended=False, kind=FrameKind.COMMAND)
+                return _OutFrame(a, frame.arbitration_id, frame.data, True)
+            return _OutFrame(a, a.joint.can_id, mit.pack_command(command, a.ranges), False)
         except ValueError as exc:  # a value the model cannot carry: never sent
             raise BackendError(f"can backend: {a.label}: command refused: {exc}") from exc
 
     def _send_rs(self, frame: rs.Frame, kind: FrameKind, a: _Actuator) -> None:
-        self._send(a, frame.arbitration_id, frame.data, extended=True, kind=kind)
+        self._send_batch([_OutFrame(a, frame.arbitration_id, frame.data, True)], kind)
 
     def _send_mit(self, a: _Actuator, data: bytes, kind: FrameKind) -> None:
-        self._send(a, a.joint.can_id, data, extended=False, kind=kind)
+        self._send_batch([_OutFrame(a, a.joint.can_id, data, False)], kind)
 
-    def _send(self, a: _Actuator, arbitration_id: int, data: bytes, *, extended: bool, kind: FrameKind) -> None:
+    def _send_batch(self, frames: list[_OutFrame], kind: FrameKind) -> None:
+        """Send `frames` in order; each actuator now owes an answer (its RX timeout runs from the
+        oldest unanswered frame)."""
         bus = self.bus
         if bus is None:
             raise BackendError("can backend: the bus is not open")
+        now = time.monotonic()
         with self._state_lock:
-            if a.unanswered_since is None:
-                a.unanswered_since = time.monotonic()
-        bus.send_frame(arbitration_id, data, extended=extended, kind=kind)  # a refused send latches TX overrun
+            for frame in frames:
+                if frame.actuator.unanswered_since is None:
+                    frame.actuator.unanswered_since = now
+        # a refused send latches TX overrun
+        bus.send_frames([(f.arbitration_id, f.data, f.extended) for f in frames], kind)
 
     # ================================================================ frames in (reader thread)
     def _on_frame(self, msg: can.Message) -> None:

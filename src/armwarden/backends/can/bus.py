@@ -18,7 +18,7 @@ import enum
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType, TracebackType
 
@@ -221,23 +221,37 @@ class CanBus:
     def send(self, message: can.Message, kind: FrameKind) -> bool:
         """Send `message`; False (and TX_QUEUE_OVERRUN) if the driver refused it. `BackendError`
         if the bus is not open. Thread-safe."""
-        with self._send_lock:
-            bus = self._bus
-            if bus is None or self._closed:
-                raise BackendError(f"CAN bus {self.config.channel} is not open")
-            try:
-                bus.send(message, timeout=self.config.send_timeout_s)
-            except (can.CanOperationError, can.CanTimeoutError) as exc:
-                self._count_send_failure(exc)
-                return False
-        with self._count_lock:
-            self._counters.frames_sent += 1
-            self._counters.sent_by_kind[kind] += 1
-        return True
+        return self._send_messages((message,), kind) == 1
 
     def send_frame(self, arbitration_id: int, data: bytes, *, extended: bool, kind: FrameKind) -> bool:
         """`send` a data frame built from an id and data bytes."""
         return self.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=extended), kind)
+
+    def send_frames(self, frames: Sequence[tuple[int, bytes, bool]], kind: FrameKind) -> int:
+        """Send data frames `(arbitration_id, data, extended)` in order, under one lock (a servo
+        tick's commands go out together); how many the driver took (each refusal latches
+        TX_QUEUE_OVERRUN and the rest are still tried)."""
+        return self._send_messages(
+            [can.Message(arbitration_id=i, data=data, is_extended_id=extended) for i, data, extended in frames], kind)
+
+    def _send_messages(self, messages: Sequence[can.Message], kind: FrameKind) -> int:
+        sent = 0
+        with self._send_lock:
+            bus = self._bus
+            if bus is None or self._closed:
+                raise BackendError(f"CAN bus {self.config.channel} is not open")
+            timeout = self.config.send_timeout_s
+            for message in messages:
+                try:
+                    bus.send(message, timeout=timeout)
+                except (can.CanOperationError, can.CanTimeoutError) as exc:
+                    self._count_send_failure(exc)
+                    continue
+                sent += 1
+        with self._count_lock:
+            self._counters.frames_sent += sent
+            self._counters.sent_by_kind[kind] += sent
+        return sent
 
     # ---------------------------------------------------------------- health
     def health(self) -> BusHealth:
@@ -248,6 +262,12 @@ class CanBus:
                 send_failures=c.send_failures, frames_received=c.frames_received, error_frames=c.error_frames,
                 invalid_frames=c.invalid_frames, listener_errors=c.listener_errors, last_error=c.last_error,
             )
+
+    @property
+    def flags(self) -> HealthFlag:
+        """The latched health flags (what `health().flags` says, without copying the counters)."""
+        with self._count_lock:
+            return self._counters.flags
 
     def clear_flags(self) -> None:
         """Clear the latched flags (a human reset, once the cause is gone); counters stay."""

@@ -3,8 +3,12 @@
 Each emulated actuator has simple rigid-body dynamics — inertia, viscous damping, an optional
 gravity load torque −gravity_torque_nm·cos(position) (a link that is horizontal at zero) — and
 applies the impedance law τ = kp·(p* − p) + kd·(v* − v) + τ_ff, clipped to its torque limit,
-while enabled. The state is integrated at a fixed internal rate (semi-implicit Euler); a
-stalled thread catches up by stepping, so simulated time follows wall-clock time.
+while enabled. The state is integrated in fixed steps at an internal rate (semi-implicit Euler),
+lazily: an actuator is brought up to the present when a frame reaches it, when a test looks at
+it, and on a housekeeping pass every `HOUSEKEEPING_S` (which is when a silent host's CAN timeout
+is noticed). Simulated time follows wall-clock time; the thread does not wake at the
+integration rate, so the emulator costs the process's other threads (the servo loop it shares
+the interpreter with) little more than the frames themselves.
 
 Protocols as the notes describe them: an MIT actuator answers every frame addressed to it
 (specials included) with an 8-byte reply; a RobStride actuator answers types 1/3/4/6/18 with
@@ -41,8 +45,10 @@ logger = logging.getLogger(__name__)
 
 #: internal integration rate [Hz]
 DEFAULT_RATE_HZ = 2000.0
-#: the most integration steps one loop pass may take to catch up after a stall
-MAX_CATCH_UP_STEPS = 200
+#: the most integration steps one catch-up may take after a stall (beyond: the backlog is dropped)
+MAX_CATCH_UP_STEPS = 400
+#: how often every actuator is brought up to the present even when no frame arrives [s]
+HOUSEKEEPING_S = 0.005
 #: the host id RobStride replies go to until a request names one
 DEFAULT_HOST_ID = 0xFD
 #: the standard id MIT replies are sent with (the motor id is in byte 0)
@@ -131,6 +137,7 @@ class _Actuator:
         self.run_mode = rs.RunMode.OPERATION
         self.host_id = host_id
         self.last_rx = now
+        self.sim_time = now  # the instant the state below describes
         self.silent = False
         self.stops = (-math.inf, math.inf)  # physical positions [rad] it cannot move beyond
         self.mit_error = mit.MitError.NONE
@@ -142,6 +149,17 @@ class _Actuator:
     def set_enabled(self, enabled: bool) -> None:
         self.enabled = enabled
         self.command = _ZERO_COMMAND  # a stale command never acts after (re-)enabling
+
+    def advance(self, dt: float, now: float) -> None:
+        """Integrate in steps of `dt` up to `now` (monotonic); a backlog beyond
+        `MAX_CATCH_UP_STEPS` is dropped (the state jumps in time, as after a stalled thread)."""
+        t = self.sim_time
+        steps = 0
+        while t + dt <= now and steps < MAX_CATCH_UP_STEPS:
+            t += dt
+            self.step(dt, t)
+            steps += 1
+        self.sim_time = t if t + dt > now else now
 
     def step(self, dt: float, now: float) -> None:
         if self.enabled and self.can_timeout_s > 0 and now - self.last_rx > self.can_timeout_s:
@@ -239,8 +257,9 @@ class ActuatorEmulator:
 
     # ---------------------------------------------------------------- observation
     def snapshot(self, can_id: int) -> ActuatorSnapshot:
+        """The actuator's state now (brought up to the present first)."""
         with self._lock:
-            return self._actuator(can_id).snapshot()
+            return self._current(can_id).snapshot()
 
     # ---------------------------------------------------------------- fault injection
     def silence(self, can_id: int, silent: bool = True) -> None:
@@ -251,12 +270,12 @@ class ActuatorEmulator:
     def place_obstacle(self, can_id: int, low_rad: float = -math.inf, high_rad: float = math.inf) -> None:
         """Rigid stops at physical positions `low_rad`/`high_rad` (an object the fingers close on)."""
         with self._lock:
-            self._actuator(can_id).stops = (low_rad, high_rad)
+            self._current(can_id).stops = (low_rad, high_rad)
 
     def set_run_mode(self, can_id: int, mode: rs.RunMode) -> None:
         """As if someone had left the actuator in another control mode (RobStride 0x7005)."""
         with self._lock:
-            self._actuator(can_id).run_mode = mode
+            self._current(can_id).run_mode = mode
 
     def torque_limit(self, can_id: int) -> float:
         """The actuator's torque limit now [N·m] (RobStride 0x700B as written)."""
@@ -310,26 +329,21 @@ class ActuatorEmulator:
     # ---------------------------------------------------------------- the thread
     def _run(self) -> None:
         bus = self._require_bus()
-        next_step = time.perf_counter()
+        next_housekeeping = time.monotonic()
         while self._running:
-            now = time.perf_counter()
-            steps = 0
-            with self._lock:
-                stamp = time.monotonic()
-                while next_step <= now and steps < MAX_CATCH_UP_STEPS:
-                    for actuator in self._all():
-                        actuator.step(self.dt, stamp)
-                    next_step += self.dt
-                    steps += 1
-            if next_step <= now:  # fell far behind: drop the backlog rather than spin
-                next_step = now + self.dt
             try:
-                msg = bus.recv(timeout=max(0.0, next_step - time.perf_counter()))
+                msg = bus.recv(timeout=max(0.0, next_housekeeping - time.monotonic()))
                 if msg is not None and not msg.is_error_frame:
                     self._handle(msg)
             except Exception as exc:  # the emulator keeps serving; tests check `error`
                 logger.exception("CAN emulator on %s: frame handling failed", self.channel)
                 self.error = exc
+            now = time.monotonic()
+            if now >= next_housekeeping:  # every actuator to the present: CAN timeouts take effect
+                with self._lock:
+                    for actuator in self._all():
+                        actuator.advance(self.dt, now)
+                next_housekeeping = now + HOUSEKEEPING_S
 
     def _handle(self, msg: can.Message) -> None:
         data = bytes(msg.data)
@@ -351,6 +365,7 @@ class ActuatorEmulator:
             actuator = self._mit.get(arbitration_id)
             if actuator is None or len(data) != 8:
                 return None
+            self._arrived(actuator)
             self._received(actuator)
             special = mit.special_of(data)
             if special is mit.Special.ENTER_MOTOR_MODE:
@@ -378,6 +393,7 @@ class ActuatorEmulator:
             actuator = self._robstride.get(fields.dest)
             if actuator is None:
                 return None
+            self._arrived(actuator)
             kind = fields.comm_type
             if kind != rs.CommType.CONTROL:
                 actuator.host_id = fields.data2 & 0xFF
@@ -453,12 +469,24 @@ class ActuatorEmulator:
         # other parameters are read-only or not emulated: the write is acknowledged and ignored
 
     # ---------------------------------------------------------------- helpers
+    def _arrived(self, actuator: _Actuator) -> None:
+        """A frame reached `actuator`: bring it to the present before the frame acts (its
+        watchdog is judged on the time before this frame)."""
+        actuator.advance(self.dt, time.monotonic())
+
     def _received(self, actuator: _Actuator) -> None:
+        """Count a frame `actuator` accepted: it feeds the watchdog from now on."""
         actuator.frames_received += 1
-        actuator.last_rx = time.monotonic()
+        actuator.last_rx = actuator.sim_time
 
     def _all(self) -> list[_Actuator]:
         return [*self._mit.values(), *self._robstride.values()]
+
+    def _current(self, can_id: int) -> _Actuator:
+        """`_actuator`, brought up to the present (under the lock)."""
+        actuator = self._actuator(can_id)
+        actuator.advance(self.dt, time.monotonic())
+        return actuator
 
     def _actuator(self, can_id: int) -> _Actuator:
         actuator = self._mit.get(can_id) or self._robstride.get(can_id)

@@ -15,11 +15,15 @@ import math
 
 from armwarden.backends.can.ranges import Range
 
+#: 2^bits − 1 for every field width the protocols use (and any up to 32)
+_FULL_SCALE = {bits: (1 << bits) - 1 for bits in range(1, 33)}
+
 
 def _full_scale(bits: int) -> int:
-    if not 1 <= bits <= 32:
+    full = _FULL_SCALE.get(bits)
+    if full is None:
         raise ValueError(f"bits must be in 1..32, got {bits}")
-    return (1 << bits) - 1
+    return full
 
 
 def lsb(value_range: Range, bits: int) -> float:
@@ -31,11 +35,15 @@ def encode(value: float, value_range: Range, bits: int, field: str) -> int:
     """`value` as a `bits`-wide unsigned integer over `value_range`; `ValueError` naming `field`
     and its range if it is not a finite number inside the range."""
     full = _full_scale(bits)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    # the servo loop encodes thousands of fields a second: the common case (a float) is checked first
+    if value.__class__ is not float and (isinstance(value, bool) or not isinstance(value, (int, float))):
         raise ValueError(f"{field} must be a finite number, got {value!r}")
-    if not value_range.lo <= value <= value_range.hi:
-        raise ValueError(f"{field} = {value} is outside its range [{value_range.lo}, {value_range.hi}]")
-    scaled = (float(value) - value_range.lo) * full / value_range.span
+    lo, hi = value_range.lo, value_range.hi
+    if not lo <= value <= hi:  # NaN and ±Inf fail this comparison too
+        if not math.isfinite(value):
+            raise ValueError(f"{field} must be a finite number, got {value!r}")
+        raise ValueError(f"{field} = {value} is outside its range [{lo}, {hi}]")
+    scaled = (float(value) - lo) * full / (hi - lo)
     return min(int(scaled), full)  # rounding error must not push hi past the field's full scale
 
 
@@ -44,7 +52,8 @@ def decode(raw: int, value_range: Range, bits: int) -> float:
     full = _full_scale(bits)
     if not 0 <= raw <= full:
         raise ValueError(f"raw value {raw} does not fit in {bits} bits")
-    return raw * value_range.span / full + value_range.lo
+    lo = value_range.lo
+    return raw * (value_range.hi - lo) / full + lo
 
 
 __all__ = ["decode", "encode", "lsb"]

@@ -11,6 +11,7 @@ type, wrong length, addressed to another host, undefined mode) with `InvalidFram
 from __future__ import annotations
 
 import enum
+import functools
 import math
 import struct
 from dataclasses import dataclass
@@ -80,8 +81,10 @@ class FaultFlag(enum.IntFlag):
 _KNOWN_FAULT_BITS = sum(flag.value for flag in FaultFlag)
 
 
+@functools.lru_cache(maxsize=1024, typed=True)  # typed: FeedbackFault(1) == FaultFlag(1) as integers
 def flag_names(flags: enum.Flag) -> tuple[str, ...]:
-    """The names of the flags set in `flags` (for messages: "OVER_TEMPERATURE, STALL_OVERLOAD")."""
+    """The names of the flags set in `flags` (for messages: "OVER_TEMPERATURE, STALL_OVERLOAD");
+    cached, as the reader thread asks for every feedback frame."""
     return tuple(member.name for member in type(flags) if member.name and member in flags)
 
 
@@ -145,6 +148,12 @@ def can_timeout_seconds(ticks: int) -> float:
     return ticks / CAN_TIMEOUT_TICKS_PER_S
 
 
+#: control and feedback data: four big-endian u16 values
+_FOUR_U16_BE = struct.Struct(">HHHH")
+_MOTOR_MODES = {int(mode): mode for mode in MotorMode}
+_FEEDBACK_FAULTS = tuple(FeedbackFault(bits) for bits in range(64))  # every value of the 6 fault bits
+
+
 # ------------------------------------------------------------------ ids and frames
 @dataclass(frozen=True)
 class ExtId:
@@ -165,6 +174,8 @@ class Frame:
 
 def build_id(comm_type: int, data2: int, dest: int) -> int:
     """The 29-bit id of the fields; `ValueError` if one does not fit."""
+    if 0 <= comm_type < 32 and 0 <= data2 <= 0xFFFF and 0 <= dest <= 0xFF:
+        return (int(comm_type) << 24) | (data2 << 8) | dest
     for name, value, bits in (("communication type", comm_type, 5), ("data area 2", data2, 16), ("destination", dest, 8)):
         if not 0 <= value < (1 << bits):
             raise ValueError(f"{name} {value} does not fit in {bits} bits")
@@ -203,8 +214,7 @@ def control_frame(motor_id: int, command: MotorCommand, ranges: ModelRanges) -> 
     `ValueError` if any value is non-finite or out of the model's range."""
     _require_robstride(ranges)
     torque = encode(command.torque, ranges.torque, 16, "torque")
-    data = struct.pack(
-        ">HHHH",
+    data = _FOUR_U16_BE.pack(
         encode(command.position, ranges.position, 16, "position"),
         encode(command.velocity, ranges.velocity, 16, "velocity"),
         encode(command.kp, ranges.kp, 16, "kp"),
@@ -328,15 +338,14 @@ def parse_feedback(arbitration_id: int, data: bytes, ranges: ModelRanges, *, hos
     _require_robstride(ranges)
     fields = _expect(arbitration_id, data, CommType.FEEDBACK, host_id, "feedback frame")
     mode_bits = fields.data2 >> 14
-    try:
-        mode = MotorMode(mode_bits)
-    except ValueError:
-        raise InvalidFrame(f"RobStride feedback from motor {fields.data2 & 0xFF} has undefined mode {mode_bits}") from None
-    angle, velocity, torque, temperature = struct.unpack(">HHHH", bytes(data))
+    mode = _MOTOR_MODES.get(mode_bits)
+    if mode is None:
+        raise InvalidFrame(f"RobStride feedback from motor {fields.data2 & 0xFF} has undefined mode {mode_bits}")
+    angle, velocity, torque, temperature = _FOUR_U16_BE.unpack(data)
     return Feedback(
         motor_id=fields.data2 & 0xFF,
         mode=mode,
-        faults=FeedbackFault((fields.data2 >> 8) & 0x3F),
+        faults=_FEEDBACK_FAULTS[(fields.data2 >> 8) & 0x3F],
         position=decode(angle, ranges.position, 16),
         velocity=decode(velocity, ranges.velocity, 16),
         torque=decode(torque, ranges.torque, 16),
@@ -373,7 +382,7 @@ def unpack_control(arbitration_id: int, data: bytes, ranges: ModelRanges) -> tup
     fields = split_id(arbitration_id)
     if fields.comm_type != CommType.CONTROL or len(data) != 8:
         raise InvalidFrame(f"not a RobStride control frame: type {fields.comm_type}, {len(data)} data bytes")
-    angle, velocity, kp, kd = struct.unpack(">HHHH", bytes(data))
+    angle, velocity, kp, kd = _FOUR_U16_BE.unpack(data)
     return fields.dest, MotorCommand(
         position=decode(angle, ranges.position, 16),
         velocity=decode(velocity, ranges.velocity, 16),
@@ -397,8 +406,7 @@ def feedback_frame(feedback: Feedback, ranges: ModelRanges, *, host_id: int) -> 
     if not 0 <= temperature <= 0xFFFF:
         raise ValueError(f"temperature {feedback.temperature_c} °C does not fit the feedback frame")
     data2 = (int(feedback.mode) << 14) | (int(feedback.faults) & 0x3F) << 8 | _byte("motor_id", feedback.motor_id)
-    data = struct.pack(
-        ">HHHH",
+    data = _FOUR_U16_BE.pack(
         encode(feedback.position, ranges.position, 16, "position"),
         encode(feedback.velocity, ranges.velocity, 16, "velocity"),
         encode(feedback.torque, ranges.torque, 16, "torque"),
