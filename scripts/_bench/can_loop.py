@@ -12,6 +12,7 @@ own thread; kernel vcan is not available here). For each control rate (500 Hz, 1
   after it was scheduled; goal < 0.5 % at 1 kHz) and p99 period jitter, from the loop's own
   `ServoLoop.timing`; and `estop` sent → the first damping frame (kp = 0, kd > 0) on the bus, as
   stamped by the virtual bus when it was sent (goal ≤ one control period), p50/p99.
+- **ours, busy, FIFO**: the same, with `realtime_priority: 50` (the servo thread under SCHED_FIFO).
 - **ours, idle**: the same daemon with no calls (`compare_seconds` long).
 - **floor, idle / busy**: what CPython and python-can allow with none of our code in the loop: a
   bare thread that keeps the same schedule (`TickTiming`, the same sleep/wake logic) and sends 8
@@ -40,6 +41,8 @@ RATES_HZ = (500, 1000)
 ESTOP_EVERY_S = 1.0
 #: frames a floor tick sends (7 joints and the gripper, as the arm does)
 FLOOR_FRAMES = 8
+#: SCHED_FIFO priority of the servo thread in the "FIFO" rows (`realtime_priority` in the config; None: no such rows)
+REALTIME_PRIORITY = 50
 #: the stop channel's bearer token in the benchmark
 BENCH_TOKEN = "bench-token"
 
@@ -105,12 +108,13 @@ class DampingWatch:
         self.disarm()
 
 
-def _config_file(directory: Path, rate_hz: int) -> Path:
+def _config_file(directory: Path, rate_hz: int, realtime_priority: int | None) -> Path:
     import yaml
 
     document = yaml.safe_load(EXAMPLE.read_text())
     document["bus"]["channel"] = f"armwarden-bench-{uuid.uuid4().hex}"
     document["control_rate_hz"] = rate_hz
+    document["realtime_priority"] = realtime_priority
     path = directory / f"can-{rate_hz}-{uuid.uuid4().hex[:8]}.yaml"
     path.write_text(yaml.safe_dump(document))
     return path
@@ -225,7 +229,45 @@ class BareLoop:
         self._device.shutdown()
 
 
-def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compare_seconds: float | None = None) -> dict[str, Any]:
+class ChannelSender:
+    """A separate process that POSTs an e-stop to the stop channel when asked and answers with
+    the `time.time()` at which it began (an operator's stop button is not in the daemon's process;
+    in the same process it would wait for the interpreter lock like everything else)."""
+
+    _CODE = (
+        "import sys, time\n"
+        "from armwarden.stopchannel.client import send_estop\n"
+        "url, token = sys.argv[1], sys.argv[2]\n"
+        "for _ in sys.stdin:\n"
+        "    began = time.time()\n"
+        "    send_estop(url, token, 'bench')\n"
+        "    print(repr(began), flush=True)\n"
+    )
+
+    def __init__(self, url: str, token: str) -> None:
+        import os
+        import subprocess
+
+        source = str(Path(__file__).resolve().parents[2] / "src")
+        env = {**os.environ, "PYTHONPATH": source + os.pathsep + os.environ.get("PYTHONPATH", "")}
+        self._process = subprocess.Popen([sys.executable, "-c", self._CODE, url, token], stdin=subprocess.PIPE,
+                                         stdout=subprocess.PIPE, text=True, env=env)
+
+    def send(self) -> float:
+        """One e-stop; when the other process began sending it (time.time)."""
+        assert self._process.stdin is not None and self._process.stdout is not None
+        self._process.stdin.write("go\n")
+        self._process.stdin.flush()
+        return float(self._process.stdout.readline())
+
+    def close(self) -> None:
+        if self._process.stdin is not None:
+            self._process.stdin.close()
+        self._process.wait(timeout=5)
+
+
+def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compare_seconds: float | None = None,
+              realtime_priority: int | None = REALTIME_PRIORITY) -> dict[str, Any]:
     import asyncio
 
     import anyio
@@ -234,7 +276,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
     from mcp import Client
 
     from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
-    from armwarden.stopchannel.client import send_estop
+    from armwarden.errors import ArmWardenError
     from armwarden.stopchannel.external import ExternalStops
     from armwarden.stopchannel.server import StopChannel
 
@@ -280,14 +322,15 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
                 await close_assembly(cell, "benchmark done")
         return out
 
-    async def ours(directory: Path, rate_hz: int, busy: bool) -> dict[str, Any]:
-        config = _config_file(directory, rate_hz)
+    async def ours(directory: Path, rate_hz: int, busy: bool, realtime_priority: int | None = None) -> dict[str, Any]:
+        config = _config_file(directory, rate_hz, realtime_priority)
         cell = await open_assembly(*assemble(policy, "can", str(config), str(directory / f"audit-{uuid.uuid4().hex[:8]}.jsonl")))
         freeze_long_lived_objects()
         backend: Any = cell.backend  # a CanBackend: its servo loop's timing and config are read
         servo = backend.servo
         length = seconds if busy else compare
-        out: dict[str, Any] = {"rate_hz": rate_hz, "seconds": length, "what": f"ours, {'busy' if busy else 'idle'}"}
+        what = f"ours, {'busy' if busy else 'idle'}" + ("" if realtime_priority is None else ", FIFO")
+        out: dict[str, Any] = {"rate_hz": rate_hz, "seconds": length, "what": what}
         try:
             if not busy:
                 await anyio.sleep(0.5)
@@ -302,6 +345,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
             channel = StopChannel(authenticate=lambda token: "bench" if token == BENCH_TOKEN else None,
                                   latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
                                   on_refused=external.record_refusal).start()
+            sender = ChannelSender(channel.url, BENCH_TOKEN)
             entered: list[float] = []  # when the backend's e-stop began (time.time): our share starts there
             original = backend._emergency_stop_now
 
@@ -327,8 +371,8 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
                         watch.arm(sent)
                         if path == "tool":
                             await operator.call_tool("estop", {"reason": "bench"})
-                        else:
-                            await anyio.to_thread.run_sync(send_estop, channel.url, BENCH_TOKEN, "bench")
+                        else:  # from another process, as an operator's stop button would
+                            sent = await anyio.to_thread.run_sync(sender.send)
                         deadline = time.monotonic() + 1.0
                         while watch.found is None and time.monotonic() < deadline:  # noqa: ASYNC110 - set by the listener thread
                             await anyio.sleep(0.002)
@@ -348,6 +392,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
                     out["calls"] = await loaded(cell, measure)
                 finally:
                     watch.close()
+                    sender.close()
                     channel.close()
                     backend._emergency_stop_now = original
             out["estop_ms"] = {path: {k: _percentiles(v) for k, v in figures.items()} for path, figures in paths.items()}
@@ -363,6 +408,11 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
             rows.append(await floor(directory, rate, busy=True))
             rows.append(await ours(directory, rate, busy=False))
             rows.append(await ours(directory, rate, busy=True))
+            if realtime_priority is not None:
+                try:
+                    rows.append(await ours(directory, rate, busy=True, realtime_priority=realtime_priority))
+                except ArmWardenError as exc:  # no CAP_SYS_NICE here: say so instead of a row
+                    print(f"can: the FIFO row at {rate} Hz was refused: {exc}", file=sys.stderr)
         return {"rows": rows}
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -372,10 +422,10 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
 def report_can(r: dict[str, Any]) -> None:
     print("## can (7 emulated RobStride actuators + gripper on the virtual bus, emulator on its own thread; "
           "'busy': an SDK client in memory keeps the server busy)")
-    print(f"| {'rate':>6} | {'run':<12} | {'s':>4} | {'achieved':>9} | {'misses':>8} | {'p99 jitter':>10} | {'latest start':>12} |")
+    print(f"| {'rate':>6} | {'run':<18} | {'s':>4} | {'achieved':>9} | {'misses':>8} | {'p99 jitter':>10} | {'latest start':>12} |")
     for row in r["rows"]:
         rate, period_ms = row["rate_hz"], 1e3 / row["rate_hz"]
-        print(f"| {rate:>4}Hz | {row['what']:<12} | {row['seconds']:>4g} | {row['achieved_hz']:>6.1f} Hz | "
+        print(f"| {rate:>4}Hz | {row['what']:<18} | {row['seconds']:>4g} | {row['achieved_hz']:>6.1f} Hz | "
               f"{100 * row['miss_ratio']:>6.2f} % | {row['jitter_p99_ms']:>7.3f} ms | {row['max_lateness_ms']:>9.2f} ms |")
     for row in r["rows"]:
         if "estop_ms" not in row:
@@ -384,7 +434,8 @@ def report_can(r: dict[str, Any]) -> None:
         goal = f" (goal < 0.5 %: {'met' if row['miss_ratio'] < 0.005 else 'MISSED'})" if rate >= 1000 else ""
         print(f"{rate} Hz, {row['what']}: deadline misses {100 * row['miss_ratio']:.2f} %{goal}; period p50 "
               f"{row['interval_p50_ms']:.3f} / p99 {row['interval_p99_ms']:.3f} / max {row['interval_max_ms']:.2f} ms")
-        for path, label in (("tool", "`estop` tool (SDK client in memory)"), ("channel", "stop channel (POST /estop)")):
+        paths = (("tool", "`estop` tool (SDK client in memory)"), ("channel", "stop channel (POST /estop from another process)"))
+        for path, label in paths:
             figures = row["estop_ms"][path]
             bus, ours = figures["bus"], figures["ours"]
             if bus["n"]:

@@ -32,6 +32,7 @@ import anyio
 import numpy as np
 
 from armwarden.backends.base import PREEMPTED, ExecutionResult, ProgressCallback
+from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
 from armwarden.errors import BackendError
 from armwarden.handoff import settle_threadsafe
@@ -127,12 +128,13 @@ class ServoLoop:
     `q_start` [rad] is the first held position; `period_s` the tick period while moving [s];
     `speedup` scales trajectory time (2 = twice as fast); `idle_period_s` is the tick period while
     nothing moves [s] (a physics simulation ticks at `period_s` always: the world keeps moving);
-    `name` prefixes error messages.
+    `name` prefixes error messages; `realtime_priority` (1–99) runs the thread under SCHED_FIFO
+    (`start` fails, saying why, if the system refuses it).
     """
 
     def __init__(
         self, hooks: ServoHooks, q_start: Any, *, period_s: float, speedup: float = 1.0,
-        idle_period_s: float = IDLE_PERIOD_S, name: str = "servo",
+        idle_period_s: float = IDLE_PERIOD_S, name: str = "servo", realtime_priority: int | None = None,
     ) -> None:
         if not (np.isfinite(period_s) and period_s > 0):
             raise ValueError(f"period_s must be a positive number of seconds, got {period_s}")
@@ -143,6 +145,7 @@ class ServoLoop:
         self.speedup = float(speedup)
         self.idle_period_s = max(self.period_s, float(idle_period_s))
         self.name = name
+        self.realtime_priority = realtime_priority
         #: ticks run so far (the thread's heartbeat)
         self.tick_count = 0
         #: monotonic time [s] at which the latest hold was commanded
@@ -288,8 +291,10 @@ class ServoLoop:
     # ---------------------------------------------------------------- the servo thread
     def _run(self) -> None:
         period = self.period_s
-        next_tick = time.perf_counter()
         try:
+            if self.realtime_priority is not None:
+                make_current_thread_realtime(self.realtime_priority)
+            next_tick = time.perf_counter()
             while not self._shutdown:
                 self.timing.record(time.perf_counter(), next_tick)
                 self._tick()

@@ -21,7 +21,7 @@ import yaml
 from mcp import Client, StdioServerParameters
 
 from armwarden.assembly import build_guard
-from armwarden.backends import parse_backend_config
+from armwarden.backends import parse_backend_config, realtime
 from armwarden.backends.base import Backend
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
@@ -449,3 +449,21 @@ async def test_serve_with_the_can_sim_example_answers_get_robot_state_over_stdio
             state = await client.call_tool("get_robot_state", {})
     assert not state.is_error
     assert state.structured_content["joint_positions"] == pytest.approx(list(POLICY.robot.home_joint_positions), abs=2e-3)
+
+
+@pytest.mark.parametrize("priority", [0, 100, 2.5, "high"])
+def test_config_refuses_a_realtime_priority_outside_1_to_99(priority: Any):
+    with pytest.raises(ConfigurationError, match="realtime_priority"):
+        parse_backend_config("can", config_document(realtime_priority=priority))
+
+
+@pytest.mark.anyio
+async def test_start_up_refuses_when_the_servo_thread_cannot_have_its_realtime_priority(monkeypatch: pytest.MonkeyPatch):
+    def refuse(pid: int, policy: int, param: Any) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(realtime.os, "sched_setscheduler", refuse)
+    backend = build(realtime_priority=50)
+    with pytest.raises(BackendError, match="SCHED_FIFO priority 50"):
+        await backend.open()
+    await backend.close()

@@ -267,7 +267,7 @@ class CanBackend(Backend, ServoHooks):
         if self._gripper is not None:
             self._gripper_hold_rad = self._gripper_position()
         self.servo = ServoLoop(self, q, period_s=self.period_s, idle_period_s=self.period_s, speedup=self._speedup,
-                               name="can backend")
+                               name="can backend", realtime_priority=self.config.realtime_priority)
         await self.servo.start("armwarden-can-servo")
         for a in self._everyone:
             if a.joint.protocol is Protocol.ROBSTRIDE:

@@ -145,6 +145,10 @@ class Config(BaseModel):
     host_id: int = Field(default=0xFD, ge=0, le=0xFF, description="This host's id on the bus (RobStride data area 2).")
     mit_reply_id: int = Field(default=0x000, ge=0, le=0x7FF, description="Standard id MIT actuators reply with.")
     control_rate_hz: float = Field(default=500.0, ge=50, le=2000, description="Servo loop rate [Hz], moving and idle.")
+    realtime_priority: int | None = Field(
+        default=None, ge=1, le=99,
+        description="SCHED_FIFO priority of the servo thread (Linux; needs CAP_SYS_NICE or ulimit -r); "
+                    "the daemon refuses to start if it cannot have it. Unset: the ordinary scheduler.")
     rx_timeout_s: float = Field(default=0.1, gt=0, le=1,
                                 description="A command unanswered this long is an RX_TIMEOUT fault [s].")
     temperature_limit_c: float = Field(default=80.0, gt=0, le=150, description="Hotter than this is a fault [°C].")
