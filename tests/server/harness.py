@@ -159,7 +159,7 @@ class ArmHarness:
         trajectory goals received by the cell's action server (accepted or not). None on a backend
         with nothing below it (fake, minimal, MuJoCo)."""
         if self.cell is not None:
-            return self.cell.counters.goals_received
+            return self.cell.counters().goals_received
         return getattr(self.inner, "moving_executions", None)
 
     @contextlib.asynccontextmanager
