@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
+import sys
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -34,9 +35,11 @@ from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake import FakeBackend
-from armwarden.daemon import freeze_long_lived_objects
+from armwarden.daemon import SWITCH_INTERVAL_S, freeze_long_lived_objects
+from armwarden.errors import BackendError
 from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, bundled_policy, load_policy, parse_policy
+from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from armwarden.robot import build_robot
 from armwarden.safety.audit import AuditLog, verify_file
 from armwarden.server.app import ArmWardenServer
@@ -195,6 +198,10 @@ def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
         import yaml
 
         document = yaml.safe_load(ROS2_FR3.read_text())
+        # the cell publishes from a thread of the test process, which stalls far longer than a daemon
+        # (planning, a large heap, 2 cores shared with other suites): ages on a scale those stalls do not reach
+        document["joint_states"]["max_age_s"] = 1.0
+        document["wrench"]["max_age_s"] = MAX_WRENCH_TIMEOUT_S
         return build_backend("ros2", policy, robot=robot, config=document | options)
     if name != "fake":
         raise ValueError(f"unknown harness backend {name!r}; choose one of {KNOWN_BACKENDS}")
@@ -225,21 +232,45 @@ def _ros_cell(stack: contextlib.AsyncExitStack) -> Any:
     return stack.enter_context(Cell())
 
 
+def _for_an_in_process_cell(policy: Policy) -> Policy:
+    """`policy` with the longest wrench timeout a policy may set: the cell publishes from threads of
+    the test process, which stall far longer than a cell of its own (measured here: gaps of
+    0.1–0.24 s between wrench messages while a scenario executes on a loaded 2-core machine)."""
+    force = policy.force.model_copy(update={"wrench_timeout_s": MAX_WRENCH_TIMEOUT_S})
+    return policy.model_copy(update={"force": force})
+
+
+async def _first_wrench(backend: Backend, timeout_s: float = 15.0) -> None:
+    """Wait until `backend` has a fresh wrench (DDS discovery of a best-effort topic takes a while)."""
+    with anyio.fail_after(timeout_s):
+        while True:
+            with contextlib.suppress(BackendError):  # "no wrench received yet" until the first message
+                if await backend.read_wrench() is not None:
+                    return
+            await anyio.sleep(0.02)
+
+
 @contextlib.asynccontextmanager
 async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: str = "fake",
                       **fake_options: Any) -> AsyncIterator[ArmHarness]:
     policy = policy or _policy_for(backend)
+    if backend == "ros2":
+        policy = _for_an_in_process_cell(policy)
     inner = _backend(backend, policy, fake_options)
     counting = CountingBackend(inner)
     audit_path = tmp_path / "audit.jsonl"
     audit = AuditLog(audit_path)
-    threshold = gc.get_threshold()
+    threshold, switch_interval = gc.get_threshold(), sys.getswitchinterval()
     if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
         freeze_long_lived_objects()  # before the physics starts: the collection itself takes ~100 ms
+    if backend == "ros2":  # as the daemon does: a dozen executor threads take turns on the interpreter lock
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
     async with contextlib.AsyncExitStack() as stack:
         cell = _ros_cell(stack) if backend == "ros2" else None
         await inner.open()
         stack.push_async_callback(inner.close)  # closed before the cell (the stack unwinds in reverse)
+        if cell is not None:  # open() waits for the joint state; a scenario may execute before the first wrench
+            await _first_wrench(inner)
         guard = build_guard(policy, counting, audit)
         server = ArmWardenServer(guard)
         try:
@@ -250,5 +281,6 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: 
             if backend in REAL_TIME:
                 gc.unfreeze()
                 gc.set_threshold(*threshold)
+            sys.setswitchinterval(switch_interval)
     report = verify_file(audit_path)  # whatever the scenario did, the chain it left must verify
     assert report.ok, f"audit chain broken at line {report.first_bad_line}: {report.reason}"
