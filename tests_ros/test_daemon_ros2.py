@@ -2,7 +2,14 @@
 policy) as a real subprocess, against the fake cell as a process of its own
 (`python -m tests_ros.cell`), driven by the official MCP SDK client over stdio and over
 streamable HTTP on 127.0.0.1. The test reads the cell only through ROS, as any other node would:
-its joint states and its trajectory action's goal status topic (`CellWatch`)."""
+its joint states and its trajectory action's goal status topic (`CellWatch`).
+
+One change to both files: wrench and joint-state ages of 0.5 s and 1 s (policy
+`force.wrench_timeout_s`, the longest a policy may set; config `wrench.max_age_s`,
+`joint_states.max_age_s`) instead of 0.1 s and 0.5 s. The cell is a Python process publishing
+from an rclpy timer on a shared 2-core machine: gaps of 0.07–0.38 s between its wrench messages
+were measured here under load, and with the bundled 0.1 s the force monitor rightly aborts the
+motion (a real FR3 publishes from C++ at 1 kHz)."""
 
 from __future__ import annotations
 
@@ -17,11 +24,14 @@ from typing import Any
 
 import anyio
 import pytest
+import yaml
 from mcp import Client, StdioServerParameters
 from tests.helpers import HOME, REPO, SRC, records_of, text_of
 from tests.server.harness import MotionStarted, approve
 from tests.server.http_daemon import http_daemon, session
 
+from armwarden.policy import apply_overrides, bundled_policy
+from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from tests_ros.cell_watch import CellWatch
 
 pytestmark = pytest.mark.anyio
@@ -73,10 +83,29 @@ def watch(cell_process: subprocess.Popen[str]) -> Iterator[CellWatch]:
         yield running
 
 
-def stdio_daemon(audit: Path) -> StdioServerParameters:
+def with_overrides(source: Path, target: Path, overrides: dict[str, Any]) -> Path:
+    """`source` YAML with dotted-path `overrides`, written to `target`."""
+    target.write_text(yaml.safe_dump(apply_overrides(yaml.safe_load(source.read_text()), overrides)))
+    return target
+
+
+@pytest.fixture
+def policy(tmp_path: Path) -> Path:
+    """The bundled FR3 policy with the longest wrench timeout (module docstring)."""
+    return with_overrides(bundled_policy("fr3"), tmp_path / "fr3.yaml", {"force.wrench_timeout_s": MAX_WRENCH_TIMEOUT_S})
+
+
+@pytest.fixture
+def config(tmp_path: Path) -> Path:
+    """examples/ros2_fr3.yaml with longer wrench and joint-state ages (module docstring)."""
+    return with_overrides(EXAMPLE, tmp_path / "ros2_fr3.yaml",
+                          {"wrench.max_age_s": MAX_WRENCH_TIMEOUT_S, "joint_states.max_age_s": 1.0})
+
+
+def stdio_daemon(audit: Path, policy: Path, config: Path) -> StdioServerParameters:
     return StdioServerParameters(
         command=sys.executable,
-        args=["-m", "armwarden.cli", "serve", "--backend", "ros2", "--backend-config", str(EXAMPLE),
+        args=["-m", "armwarden.cli", "serve", "--policy", str(policy), "--backend", "ros2", "--backend-config", str(config),
               "--audit-log", str(audit), "--log-level", "WARNING"],
         env=ros_env(),
         cwd=str(REPO),
@@ -105,15 +134,15 @@ async def state_then_an_approved_move(client: Client, watch: CellWatch) -> None:
     assert after["joint_positions"] == pytest.approx(GOAL, abs=AT_GOAL_RAD)
 
 
-async def test_over_stdio_the_state_is_the_cells_and_an_approved_plan_reaches_its_goal_at_the_cell(tmp_path, watch) -> None:
-    async with Client(stdio_daemon(tmp_path / "audit.jsonl"), elicitation_callback=approve()) as client:
+async def test_over_stdio_the_state_is_the_cells_and_an_approved_plan_reaches_its_goal_at_the_cell(tmp_path, watch, policy, config) -> None:
+    async with Client(stdio_daemon(tmp_path / "audit.jsonl", policy, config), elicitation_callback=approve()) as client:
         await state_then_an_approved_move(client, watch)
 
 
-async def test_an_estop_during_execution_cancels_the_goal_and_the_cell_stops(tmp_path, watch) -> None:
+async def test_an_estop_during_execution_cancels_the_goal_and_the_cell_stops(tmp_path, watch, policy, config) -> None:
     moving = MotionStarted()
     outcome: dict[str, Any] = {}
-    async with Client(stdio_daemon(tmp_path / "audit.jsonl"), elicitation_callback=approve()) as client:
+    async with Client(stdio_daemon(tmp_path / "audit.jsonl", policy, config), elicitation_callback=approve()) as client:
         slow = await plan_id(client, GOAL, **SLOW)
 
         async def execute() -> None:
@@ -134,12 +163,12 @@ async def test_an_estop_during_execution_cancels_the_goal_and_the_cell_stops(tmp
     assert held != pytest.approx(GOAL, abs=1e-3)  # stopped on the way, not at the goal
 
 
-async def test_a_stdio_client_that_goes_away_mid_motion_has_its_goal_cancelled_at_the_cell(tmp_path, watch) -> None:
+async def test_a_stdio_client_that_goes_away_mid_motion_has_its_goal_cancelled_at_the_cell(tmp_path, watch, policy, config) -> None:
     audit = tmp_path / "audit.jsonl"
     moving = MotionStarted()
     with anyio.fail_after(60):
         async with anyio.create_task_group() as group:
-            async with Client(stdio_daemon(audit), elicitation_callback=approve()) as client:
+            async with Client(stdio_daemon(audit, policy, config), elicitation_callback=approve()) as client:
                 slow = await plan_id(client, GOAL, **SLOW)
 
                 async def execute() -> None:
@@ -157,8 +186,9 @@ async def test_a_stdio_client_that_goes_away_mid_motion_has_its_goal_cancelled_a
     assert "execution_interrupted" in events and events[-1] == "shutdown"
 
 
-async def test_over_http_an_approved_plan_runs_and_a_client_dropped_mid_motion_leaves_the_cell_stopped(tmp_path, watch) -> None:
-    with http_daemon(tmp_path, speedup=1.0, backend="ros2", config=EXAMPLE) as daemon:
+async def test_over_http_an_approved_plan_runs_and_a_client_dropped_mid_motion_leaves_the_cell_stopped(
+        tmp_path, watch, policy, config) -> None:
+    with http_daemon(tmp_path, 1.0, ("--policy", str(policy)), backend="ros2", config=config) as daemon:
         http, client = session(daemon, daemon.operator_token, "legacy", approve())
         async with http, client:
             await state_then_an_approved_move(client, watch)
