@@ -211,6 +211,7 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
                         plan_id = planned.structured_content["plan_id"]
                         times.reset()
                         moving: dict[str, Any] = {}
+                        requested = 0.0  # when the estop call is sent
 
                         async def execute(plan_id: str = plan_id, holder: dict[str, Any] = moving) -> None:
                             holder["result"] = await on_ros.call_tool("execute_plan", {"plan_id": plan_id})
