@@ -6,8 +6,11 @@ optional virtual table, a FollowJointTrajectory action server that interpolates 
 time, a GripperCommand action server, the controller_manager list/switch services, a camera image
 that changes with the joint state and a static transform base → camera.
 
-Tests steer it (reject or abort goals, stop a topic, freeze a stamp, die mid-motion) and read its
-counters (goals received and accepted: refused scenarios must show zero).
+Tests steer it (reject, abort or hang goals, stop a topic, freeze a stamp, die mid-motion) and read
+its counters (goals received and accepted: refused scenarios must show zero). It also offers what
+the backend's optional parts use: the finger joint states of the gripper, a JointTrajectory topic
+(the controller's topic interface, the backend's fallback), the same camera picture as a PNG
+CompressedImage, and a std_srvs/Trigger error-recovery service.
 
 Standalone: ``ROS_DOMAIN_ID=42 python -m tests_ros.cell [--table-height 0.1]``. DDS stays on
 this host: the cell refuses to start unless discovery is limited to localhost (or a Fast DDS
@@ -67,6 +70,7 @@ class GoalMode(enum.Enum):
     REJECT = "reject"  # refuse them in the goal callback (counted as received, not accepted)
     ABORT = "abort"  # accept, move for `abort_after_s`, then abort with PATH_TOLERANCE_VIOLATED
     DIE = "die"  # accept, move for `die_after_s`, then the whole cell goes silent
+    HANG = "hang"  # accept, never move, never finish (until cancelled): a stuck controller
 
 
 @dataclass(frozen=True)
@@ -504,6 +508,9 @@ class Cell:
                 return self._finish(goal_handle, "abort", Result.PATH_TOLERANCE_VIOLATED, "fake cell: aborted on request (path tolerance)")
             if mode is GoalMode.DIE and elapsed >= self.config.die_after_s:
                 self.die()
+                continue
+            if mode is GoalMode.HANG:
+                time.sleep(STATE_PERIOD_S)
                 continue
             desired, velocity = _sample(points, min(elapsed, end))
             with self._lock:

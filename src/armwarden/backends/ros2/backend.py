@@ -25,12 +25,13 @@ cancel the gripper's goal, and record when the cancel request was sent (`stop_re
 found while idle (joint states stop for longer than `max_age_s`, the action server vanishes) stop
 the same way and are reported once through the fault listener (the Guard latches its e-stop).
 
-Declared accuracies: `goal_accuracy_rad` = `hold_accuracy_rad` = 1e-3 rad and `rest_speed_rad_s` =
-1e-3 rad/s. A ros2_control position controller ends where its goal tolerance lets it, and a
-cancelled one holds where the cancel found it; the test cell interpolates exactly and freezes on
-cancel, so what separates "held" from "where the stop read the arm" is at most one joint-state
-period at the test speeds (0.05 rad/s × 20 ms = 1e-3 rad, for the topic fallback's hold). A real
-arm with looser goal tolerances should raise these (see docs/architecture.md, "Backends").
+Declared accuracies: `goal_accuracy_rad` 1e-3 rad, `hold_accuracy_rad` 2e-3 rad, `rest_speed_rad_s`
+1e-3 rad/s. A ros2_control position controller ends within its goal tolerance and a cancelled one
+holds where the cancel reached it. The test cell ends exactly at the goal and publishes exact zero
+velocities at rest; a cancel reaches its 10 ms loop at most one period late, and the joint state a
+stop reads is at most one 10 ms period old, so at the contract's 0.05 rad/s the arm rests within
+0.05 × (10 + 10 + DDS latency) ms ≈ 1–2e-3 rad of where the stop read it. A real arm with looser
+goal tolerances, or faster motions, needs larger values (see docs/architecture.md, "Backends").
 """
 
 from __future__ import annotations
@@ -48,8 +49,8 @@ from typing import TYPE_CHECKING, Any
 
 import anyio
 import numpy as np
-import rclpy.action
 import rclpy.action.client
+import rclpy.action.graph
 import rclpy.client
 import rclpy.publisher
 import rclpy.qos
@@ -181,7 +182,7 @@ class _TopicRun:
     epoch: int
     duration_s: float
     sent_at: float
-    held: bool = False
+    held_at: float | None = None  # when the stop's hold was published (monotonic [s])
 
 
 @dataclass
@@ -215,7 +216,7 @@ class Ros2Backend(Backend):
 
     name = "ros2"
     goal_accuracy_rad = 1e-3
-    hold_accuracy_rad = 1e-3
+    hold_accuracy_rad = 2e-3
     rest_speed_rad_s = 1e-3
 
     def __init__(self, robot: RobotModel, config: Config, ros_names: tuple[str, ...], *,
@@ -296,13 +297,13 @@ class Ros2Backend(Backend):
             subscribe(node.create_subscription(TFMessage, "/tf_static", lambda m: transforms.accept(m, static=True),
                                                static, callback_group=group))
         if cfg.trajectory.action is not None:
-            e.trajectory_action = rclpy.action.ActionClient(node, FollowJointTrajectory, cfg.trajectory.action,
+            e.trajectory_action = rclpy.action.client.ActionClient(node, FollowJointTrajectory, cfg.trajectory.action,
                                                             callback_group=group)
         else:
             assert cfg.trajectory.topic is not None
             e.trajectory_topic = node.create_publisher(JointTrajectoryMsg, cfg.trajectory.topic, 10)
         if cfg.gripper is not None:
-            e.gripper_action = rclpy.action.ActionClient(node, GripperCommand, cfg.gripper.action, callback_group=group)
+            e.gripper_action = rclpy.action.client.ActionClient(node, GripperCommand, cfg.gripper.action, callback_group=group)
         if cfg.controller_manager is not None:
             ns = cfg.controller_manager.namespace.rstrip("/")
             e.list_controllers = node.create_client(ListControllers, f"{ns}/list_controllers", callback_group=group)
@@ -457,7 +458,7 @@ class Ros2Backend(Backend):
                 await asyncio.wait({waiting}, timeout=POLL_S)
                 if waiting.done():
                     break
-                if self._stop_landed():
+                if self._stop_landed() or not self.is_open:  # closing stops too (without an epoch bump)
                     return await self._stopped_goal(run, waiting)
                 fraction = min(run.fraction(), 0.99)  # 1.0 only once completed
                 if fraction > reported:
@@ -480,7 +481,7 @@ class Ros2Backend(Backend):
         run.terminal = True
         status, result = response.status, response.result
         if self._stop_landed():
-            return await self._rest(trajectory, "stopped")
+            return await self._rest()
         if status == GoalStatus.STATUS_SUCCEEDED and result.error_code == FollowJointTrajectory.Result.SUCCESSFUL:
             settled = await self._settle(trajectory)
             if settled.completed:
@@ -495,10 +496,12 @@ class Ros2Backend(Backend):
     async def _stopped_goal(self, run: _GoalRun, waiting: asyncio.Future[Any]) -> ExecutionResult:
         """A stop cancelled the goal: wait (bounded) for its result, then for the arm to rest."""
         self._cancel_goal(run)  # the stop sent it already; this only covers a stop that found no run
+        if not self.is_open:
+            return await self._rest()
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(asyncio.shield(waiting), self.config.trajectory.goal_response_timeout_s)
         run.terminal = run.terminal or waiting.done()
-        return await self._rest(None, "stopped")
+        return await self._rest()
 
     async def _settle(self, trajectory: JointTrajectory) -> ExecutionResult:
         """The controller reports success: the joint states must show the goal (within
@@ -508,7 +511,7 @@ class Ros2Backend(Backend):
         while True:
             state = self.joint_states.fresh()
             if self._stop_landed():
-                return await self._rest(trajectory, "stopped")
+                return await self._rest()
             error = float(np.max(np.abs(state.positions - goal)))
             if error <= self.goal_accuracy_rad and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
                 return ExecutionResult(True, "completed", state.positions.copy())
@@ -517,12 +520,18 @@ class Ros2Backend(Backend):
                                        f"goal after {self.config.trajectory.result_margin_s:g} s", state.positions.copy())
             await anyio.sleep(POLL_S)
 
-    async def _rest(self, trajectory: JointTrajectory | None, reason: str) -> ExecutionResult:
-        """Wait (bounded) until the measured joints are at rest; where they rest is the result."""
+    async def _rest(self, after: float = 0.0, reason: str = "stopped") -> ExecutionResult:
+        """Wait (bounded) until a joint state received after `after` (monotonic [s]) shows the
+        joints at rest; where they rest is the result."""
         deadline = time.monotonic() + REST_TIMEOUT_S
         while True:
+            if not self.is_open:  # closed under the execution: the stop was sent; report where it was
+                latest = self.joint_states.latest()
+                if latest is not None:
+                    return ExecutionResult(False, reason, latest.positions.copy())
             state = self.joint_states.fresh()
-            if np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s or time.monotonic() > deadline:
+            resting = state.stamp >= after and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s
+            if resting or time.monotonic() > deadline:
                 return ExecutionResult(False, reason, state.positions.copy())
             await anyio.sleep(POLL_S)
 
@@ -546,8 +555,10 @@ class Ros2Backend(Backend):
             reported = 0.0
             while True:
                 await anyio.sleep(POLL_S)
-                if self._stop_landed():
-                    return await self._rest(trajectory, "stopped")
+                if self._stop_landed() or not self.is_open:
+                    self._hold(run)  # the stop sent it already; this covers a close, which does not bump the epoch
+                    held_at = run.held_at if run.held_at is not None else time.monotonic()
+                    return await self._rest(held_at + self.config.trajectory.hold_time_s)
                 problem = self._health_problem()
                 if problem is not None:
                     self._hold(run)
@@ -585,14 +596,14 @@ class Ros2Backend(Backend):
     def _hold(self, run: _TopicRun) -> None:
         """Any thread: publish a one-point hold at the measured positions (once per run)."""
         publisher = self._endpoints.trajectory_topic
-        if publisher is None or run.held:
+        if publisher is None or run.held_at is not None:
             return
         state = self.joint_states.latest()
         if state is None:
             raise BackendError("cannot hold: no joint state to hold at")
-        run.held = True
         publisher.publish(hold_message(state.positions, self.ros_names, self.config.trajectory.hold_time_s))
-        self.stop_records.append(StopRecord("hold", time.monotonic()))
+        run.held_at = time.monotonic()
+        self.stop_records.append(StopRecord("hold", run.held_at))
 
     # ================================================================ stops
     async def _stop(self) -> None:
@@ -789,7 +800,7 @@ class Ros2Backend(Backend):
             "nodes": nodes,
             "topics": typed(node.get_topic_names_and_types()),
             "services": typed(node.get_service_names_and_types()),
-            "actions": typed(rclpy.action.get_action_names_and_types(node)),
+            "actions": typed(rclpy.action.graph.get_action_names_and_types(node)),
         }
 
     def lookup_transform(self, target_frame: str, source_frame: str) -> TransformReading:

@@ -120,11 +120,14 @@ class RosBridge:
         if self._context is not None:
             rclpy.utilities.try_shutdown(context=self._context)
 
-    async def result(self, future: rclpy.task.Future, timeout_s: float) -> Any:
-        """Await an rclpy future from asyncio; `TimeoutError` after `timeout_s` [s]. The rclpy
+    async def result(self, future: rclpy.task.Future, timeout_s: float | None) -> Any:
+        """Await an rclpy future from asyncio; `TimeoutError` after `timeout_s` [s] (None: no
+        deadline — the caller bounds the wait). The rclpy
         future is left alone on timeout or cancellation (its late result is dropped)."""
         loop = asyncio.get_running_loop()
         waiter: asyncio.Future[Any] = loop.create_future()
+        # an error that lands after the awaiter gave up (a node destroyed at close) is not "never retrieved"
+        waiter.add_done_callback(lambda f: f.cancelled() or f.exception())
 
         def done(finished: rclpy.task.Future) -> None:  # an executor thread, or this one if already done
             error = finished.exception()
