@@ -75,4 +75,5 @@ while [ "${#pending[@]}" -gt 0 ]; do
   fi
 done
 wait
+echo "test.sh: $(tail -qn1 "$logs/tests.log" "$logs/ros.log" | paste -sd';' - | sed 's/;/; /g')"
 exit "$failed"
