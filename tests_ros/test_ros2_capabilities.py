@@ -5,6 +5,7 @@ and each one absent from the capabilities when its config section is."""
 from __future__ import annotations
 
 import io
+import time
 
 import anyio
 import numpy as np
@@ -13,7 +14,8 @@ from PIL import Image
 
 from armwarden.backends.base import Capabilities
 from armwarden.errors import BackendError
-from tests_ros.backend_setup import example_config, opened
+from armwarden.guard.readings import Readings
+from tests_ros.backend_setup import POLICY, ROBOT, example_config, opened
 from tests_ros.cell import Cell, CellConfig
 
 pytestmark = pytest.mark.anyio
@@ -124,32 +126,50 @@ async def test_the_graph_names_the_cells_node_topics_services_and_actions_with_t
     assert not any("/_action/" in name for name in graph["topics"] + graph["services"])
 
 
+async def wait_for_frame(backend, frame: str) -> None:
+    """/tf_static is latched, but discovery takes a moment."""
+    with anyio.fail_after(10.0):
+        while frame not in backend.tf_frames():  # noqa: ASYNC110 - filled by the ROS executor thread
+            await anyio.sleep(0.02)
+
+
 async def test_a_transform_from_tf_static_is_looked_up_and_composed(cell: Cell) -> None:
     async with opened() as backend:
         camera = cell.config.camera_frame
-        for _ in range(200):  # /tf_static is latched, but discovery takes a moment
-            if camera in backend.tf_frames():
-                break
-            await anyio.sleep(0.02)
-        reading = backend.lookup_transform(cell.robot.base_frame, camera)
-        inverse = backend.lookup_transform(camera, cell.robot.base_frame)
+        await wait_for_frame(backend, camera)
+        reading = await backend.lookup_transform(cell.robot.base_frame, camera)
+        inverse = await backend.lookup_transform(camera, cell.robot.base_frame)
     np.testing.assert_allclose(reading.translation, [1.2, 0.0, 0.8], atol=1e-12)
     assert abs(np.dot(reading.rotation_xyzw, [0.5, -0.5, 0.5, -0.5])) == pytest.approx(1.0)
     np.testing.assert_allclose(np.linalg.norm(inverse.translation), np.linalg.norm([1.2, 0.0, 0.8]), atol=1e-12)
 
 
+async def test_the_lookup_transform_tool_reads_tf_for_frames_the_robot_model_lacks(cell: Cell) -> None:
+    async with opened() as backend:
+        await wait_for_frame(backend, cell.config.camera_frame)
+        readings = Readings(POLICY, ROBOT, backend, time.monotonic)
+        from_tf = await readings.lookup_transform(ROBOT.base_frame, cell.config.camera_frame)
+        from_model = await readings.lookup_transform(ROBOT.base_frame, ROBOT.tcp_frame)
+    position = from_tf.pose.position
+    assert (position.x, position.y, position.z) == pytest.approx((1.2, 0.0, 0.8))
+    expected_tcp = ROBOT.tcp_pose(cell.positions()).position
+    assert (from_model.pose.position.x, from_model.pose.position.z) == pytest.approx((expected_tcp[0], expected_tcp[2]))
+
+
 async def test_an_unknown_frame_is_refused_listing_the_known_ones(cell: Cell) -> None:
     async with opened() as backend:
         with pytest.raises(BackendError, match=r"unknown frame 'moon'; frames on /tf and /tf_static: "):
-            backend.lookup_transform("moon", cell.robot.base_frame)
+            await backend.lookup_transform("moon", cell.robot.base_frame)
 
 
 # ---------------------------------------------------------------------------- absent parts
 async def test_without_optional_sections_no_optional_capability_is_declared(cell: Cell) -> None:
-    config = example_config(wrench=None, gripper=None, controller_manager=None, error_recovery=None, cameras={})
+    config = example_config(wrench=None, gripper=None, controller_manager=None, error_recovery=None, cameras={},
+                            tf={"enabled": False})
     async with opened(config) as backend:
         assert backend.capabilities == Capabilities(graph=True)
         assert await backend.read_wrench() is None and await backend.gripper_state() is None
-        for call in (backend.gripper_home(), backend.list_controllers(), backend.error_recovery()):
+        for call in (backend.gripper_home(), backend.list_controllers(), backend.error_recovery(),
+                     backend.lookup_transform("fr3_link0", "fr3_link0")):
             with pytest.raises(BackendError, match="has no"):
                 await call

@@ -5,12 +5,20 @@ clear error or a stop naming the cause, and the cell shows what reached it."""
 from __future__ import annotations
 
 import asyncio
+import os
 import threading
 import time
 
 import anyio
 import numpy as np
 import pytest
+import rclpy
+import rclpy.context
+import rclpy.executors
+import rclpy.utilities
+from control_msgs.action import FollowJointTrajectory
+from rclpy.action.server import ActionServer
+from rclpy.signals import SignalHandlerOptions
 from tests.backends.contract import straight_line
 
 from armwarden.backends.ros2.backend import Ros2Backend
@@ -217,3 +225,45 @@ async def test_the_topic_fallback_publishes_the_waypoints_and_a_stop_publishes_a
     assert hold is not None and len(hold.points) == 1
     np.testing.assert_allclose(hold.points[0].positions, held, rtol=0, atol=backend.hold_accuracy_rad)
     assert not np.allclose(held, trajectory.goal)
+
+
+class SpareController:
+    """A bare FollowJointTrajectory server in its own context, to take away while the backend watches."""
+
+    def __init__(self, action: str) -> None:
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context, domain_id=int(os.environ["ROS_DOMAIN_ID"]),
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("spare_controller", context=self.context)
+        self.server = ActionServer(self.node, FollowJointTrajectory, action, execute_callback=lambda handle: None)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        self.gone = False
+
+    def vanish(self) -> None:
+        if self.gone:
+            return
+        self.gone = True
+        self.executor.shutdown(timeout_sec=5.0)
+        self.thread.join(timeout=5.0)
+        self.server.destroy()
+        self.node.destroy_node()
+        rclpy.utilities.try_shutdown(context=self.context)
+
+
+async def test_an_action_server_that_vanishes_while_idle_reports_one_fault_naming_it(cell: Cell) -> None:
+    spare = SpareController("/spare_controller/follow_joint_trajectory")
+    try:
+        config = example_config(trajectory={"action": "/spare_controller/follow_joint_trajectory"})
+        async with opened(config) as backend:
+            faults: list[str] = []
+            backend.set_fault_listener(faults.append)
+            await wait_for(lambda: backend._server_seen, "the spare server discovered")
+            spare.vanish()
+            await wait_for(lambda: faults, "a fault report")
+            await anyio.sleep(0.3)
+    finally:
+        spare.vanish()
+    assert faults == ["ros2 backend fault: the trajectory action server /spare_controller/follow_joint_trajectory vanished"]

@@ -79,13 +79,14 @@ from armwarden.backends.base import (
     GripperState,
     JointState,
     ProgressCallback,
+    Transform,
     Wrench,
 )
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import Config, check_against_policy
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache
-from armwarden.backends.ros2.tf import TransformBuffer, TransformReading
+from armwarden.backends.ros2.tf import TransformBuffer
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
@@ -253,6 +254,7 @@ class Ros2Backend(Backend):
             controllers=config.controller_manager is not None,
             error_recovery=config.error_recovery is not None,
             graph=True,
+            transforms=self.transforms is not None,
         )
 
     @property
@@ -803,13 +805,10 @@ class Ros2Backend(Backend):
             "actions": typed(rclpy.action.graph.get_action_names_and_types(node)),
         }
 
-    def lookup_transform(self, target_frame: str, source_frame: str) -> TransformReading:
-        """Pose of `source_frame` in `target_frame` from /tf and /tf_static (`BackendError` if
-        unknown, disconnected or stale; or if tf is disabled)."""
-        self._require_open()
-        if self.transforms is None:
-            raise BackendError("backend ros2 has no transforms (tf.enabled is false)")
-        return self.transforms.lookup(target_frame, source_frame)
+    async def _lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
+        assert self.transforms is not None
+        reading = self.transforms.lookup(target_frame, source_frame)
+        return Transform(reading.translation, reading.rotation_xyzw, time.monotonic())
 
     def tf_frames(self) -> tuple[str, ...]:
         """Frames seen on /tf and /tf_static so far."""

@@ -114,7 +114,7 @@ class TransformBuffer:
             for name in (target, source):
                 if name not in known:
                     shown = ", ".join(sorted(known)[:40]) or "none yet"
-                    raise BackendError(f"unknown frame {name!r}; frames on /tf and /tf_static: {shown}")
+                    raise BackendError(f"unknown frame {name[:80]!r}; frames on /tf and /tf_static: {shown}")
             up_source, up_target = self._chain(source, now), self._chain(target, now)
         root_source = up_source[-1].parent if up_source else source
         root_target = up_target[-1].parent if up_target else target
