@@ -6,6 +6,7 @@
     python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
     python scripts/bench.py can --can-seconds 10  # the CAN servo loop (default 60 s per rate: opt-in)
+    .venv-ros/bin/python scripts/bench.py ros2    # the ROS 2 backend against the fake cell (opt-in: ROS venv)
     python scripts/bench.py --json out.json # also write the raw figures
 
 Sections
@@ -35,6 +36,10 @@ Sections
   actuators on the virtual bus while an SDK client keeps the server busy: achieved rate,
   deadline-miss rate (goal < 0.5 % at 1 kHz), p99 period jitter, and `estop` sent → first damping
   frame on the bus, p50/p99 (goal ≤ one control period) (`scripts/_bench/can_loop.py`).
+- ros2 (opt-in: needs the ROS venv scripts/test.sh builds, .venv-ros): the ROS 2 backend against
+  the fake FR3 cell (in the same process) over 100 runs of execute + mid-motion e-stop + reset:
+  goal sent → accepted, e-stop request → goal cancel sent, cancel → cell stopped, p50/p99; and
+  get_robot_state on ros2 vs the fake in the same run (`scripts/_bench/ros2_cell.py`).
 
 Timing thresholds live here, never in unit tests: the machines are shared and noisy. Each
 target is reported as met or missed; nothing is asserted.
@@ -856,6 +861,15 @@ def _report_can(r: dict[str, Any]) -> None:
     importlib.import_module("can_loop").report_can(r)
 
 
+def bench_ros2(runs: int = 100) -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("ros2_cell").bench_ros2(runs)
+
+
+def _report_ros2(r: dict[str, Any]) -> None:
+    importlib.import_module("ros2_cell").report_ros2(r)
+
+
 SECTIONS = {
     "envelope": (bench_envelope, _report_envelope),
     "server": (bench_server, _report_server),
@@ -863,8 +877,10 @@ SECTIONS = {
     "flood": (bench_flood, _report_flood),
     "mujoco": (bench_mujoco, _report_mujoco),
     "can": (bench_can, _report_can),
+    "ros2": (bench_ros2, _report_ros2),
 }
-#: sections run when none is named (flood takes about a minute and a half, can two minutes: ask for them by name)
+#: sections run when none is named (flood takes about a minute and a half, can two minutes: ask for them
+#: by name; ros2 needs the ROS venv)
 DEFAULT_SECTIONS = ("envelope", "server", "estop", "mujoco")
 
 
@@ -884,6 +900,7 @@ def main() -> int:
                         help="flood only: run the daemon and the e-stop sender at niceness N, the flood not (negative needs root)")
     parser.add_argument("--can-seconds", type=float, default=None,
                         help="can only: seconds per control rate (default 60, or $ARMWARDEN_BENCH_CAN_SECONDS)")
+    parser.add_argument("--ros2-runs", type=int, default=100, help="ros2 only: execute + e-stop runs (default 100)")
     args = parser.parse_args()
     chosen = args.sections or list(DEFAULT_SECTIONS)
     unknown = [name for name in chosen if name not in SECTIONS]
@@ -896,6 +913,8 @@ def main() -> int:
             results[name] = run(nice=args.nice, gc_freeze=args.gc_freeze)
         elif name == "can":
             results[name] = run(seconds=args.can_seconds or float(os.environ.get("ARMWARDEN_BENCH_CAN_SECONDS", "60")))
+        elif name == "ros2":
+            results[name] = run(runs=args.ros2_runs)
         else:
             results[name] = run()
         report(results[name])

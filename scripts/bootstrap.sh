@@ -1,19 +1,31 @@
 #!/usr/bin/env bash
 # Create (or refresh) the project's virtual environment in .venv with everything the daemon and
 # the tests need. Needs only python3 (>= 3.10) with pip and venv; uses uv for a fast install.
-# Skips the install when pyproject.toml has not changed since the last successful one.
+# Skips the install when pyproject.toml (and the constraints file, if any) has not changed since
+# the last successful one.
+#
+#   ARMWARDEN_VENV         where the venv goes (default .venv)
+#   ARMWARDEN_EXTRAS       the extras to install (default dev,mujoco,can,image)
+#   ARMWARDEN_CONSTRAINTS  an optional pip constraints file, e.g. constraints/ros.txt for the ROS
+#                          venv scripts/test.sh builds (.venv-ros, extras dev,can,ros)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON="${PYTHON:-python3}"
 VENV="${ARMWARDEN_VENV:-.venv}"
 EXTRAS="${ARMWARDEN_EXTRAS:-dev,mujoco,can,image}"
+CONSTRAINTS="${ARMWARDEN_CONSTRAINTS:-}"
 stamp="$VENV/.armwarden-installed"
 want="$(sha256sum pyproject.toml | cut -d' ' -f1) $EXTRAS"
+constrain=()
+if [ -n "$CONSTRAINTS" ]; then
+  want="$want $CONSTRAINTS=$(sha256sum "$CONSTRAINTS" | cut -d' ' -f1)"
+  constrain=(-c "$CONSTRAINTS")
+fi
 if [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   exit 0
 fi
-echo "bootstrap: installing armwarden[$EXTRAS] into $VENV" >&2
+echo "bootstrap: installing armwarden[$EXTRAS] into $VENV${CONSTRAINTS:+ (constraints: $CONSTRAINTS)}" >&2
 "$PYTHON" -m venv "$VENV"
 "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check uv >&2
-"$VENV/bin/python" -m uv pip install --quiet --python "$VENV/bin/python" -e ".[$EXTRAS]" >&2
+"$VENV/bin/python" -m uv pip install --quiet --python "$VENV/bin/python" "${constrain[@]}" -e ".[$EXTRAS]" >&2
 echo "$want" > "$stamp"

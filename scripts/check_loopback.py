@@ -50,7 +50,7 @@ def main(argv: list[str]) -> int:
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "strace.log"
-        command = ["strace", "-f", "-qq", "-e", "trace=sendto,sendmsg,sendmmsg,connect", "-o", str(log), *argv]
+        command = ["strace", "-f", "--seccomp-bpf", "-qq", "-e", "trace=sendto,sendmsg,sendmmsg,connect", "-o", str(log), *argv]
         returncode = subprocess.run(command).returncode
         found = destinations(log.read_text())
     off_host = {address: count for address, count in found.items() if not ipaddress.ip_address(address).is_loopback}

@@ -1,12 +1,79 @@
 #!/usr/bin/env bash
-# Set up, then run the whole test suite (tests/, and tests_ros/ when it has tests).
-# Extra arguments go to pytest, e.g. `bash scripts/test.sh -m slow` for the slow soak tests.
+# Set up, then run the whole test suite as two parallel lanes, each logging to build/test-logs/
+# (printed as each lane ends); fails if either lane fails or collects no test:
+#
+#   tests  `tests/` in .venv (no ROS)
+#   ros    sets up .venv-ros (extras dev,can,ros pinned by constraints/ros.txt, then the
+#          control_msgs/controller_manager_msgs/tf2_msgs interfaces built into it), then runs
+#          `tests_ros/` and the scenario suite on the ros2 backend only
+#          (ARMWARDEN_HARNESS_BACKENDS=ros2, see tests/server/harness.py), with
+#          `-p tests_ros.no_skips`: a skipped test there is a failure.
+#
+# The ROS wheels' .pth re-executes every interpreter of their venv with ROS's lib/ on
+# LD_LIBRARY_PATH, hence a venv of their own, away from the main venv's Pinocchio and MuJoCo.
+# DDS stays on this host: the ros lane runs with a random ROS_DOMAIN_ID and
+# ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
+#
+# Extra arguments go to both pytest runs, e.g. `bash scripts/test.sh -m slow` for the slow soak
+# tests; with extra arguments a lane they leave without tests passes (without, it fails).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
 export PYTHONHASHSEED=0
-status=0
-.venv/bin/python -m pytest -m "not slow" "$@" tests || status=$?
-# pytest exits 5 when it collected no test: that is a failure of this script, not a pass
-if [ "$status" -eq 5 ]; then echo "test.sh: no tests were collected" >&2; exit 1; fi
-exit "$status"
+logs=build/test-logs
+mkdir -p "$logs"
+rm -f "$logs"/*.log "$logs"/*.rc
+
+lane_tests() {
+  .venv/bin/python -m pytest -m "not slow" "$@" tests
+}
+
+lane_ros() {
+  ARMWARDEN_VENV=.venv-ros ARMWARDEN_EXTRAS=dev,can,ros ARMWARDEN_CONSTRAINTS=constraints/ros.txt bash scripts/bootstrap.sh
+  .venv-ros/bin/python scripts/build_ros_interfaces.py -j2
+  ROS_DOMAIN_ID="$((RANDOM % 100 + 1))" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ARMWARDEN_HARNESS_BACKENDS=ros2 \
+    PYTHONPATH="$PWD" .venv-ros/bin/python -m pytest -m "not slow" -p tests_ros.no_skips "$@" \
+    tests_ros tests/scenarios tests/backends/test_harness_backends.py
+}
+
+# each lane in the background; its exit status lands in $logs/<lane>.rc when it ends
+pids=()
+for lane in tests ros; do
+  ( status=0; SECONDS=0; "lane_$lane" "$@" >"$logs/$lane.log" 2>&1 || status=$?
+    echo "lane $lane: exit $status after ${SECONDS} s" >>"$logs/$lane.log"; echo "$status" >"$logs/$lane.rc" ) &
+  pids+=($!)
+done
+stop_lanes() {
+  for pid in "${pids[@]}"; do pkill -TERM -P "$pid" 2>/dev/null || true; kill "$pid" 2>/dev/null || true; done
+  exit 130
+}
+trap stop_lanes INT TERM
+
+failed=0
+pending=(tests ros)
+heartbeat=$((SECONDS + 120))
+while [ "${#pending[@]}" -gt 0 ]; do
+  sleep 2
+  still=()
+  for lane in "${pending[@]}"; do
+    if [ ! -f "$logs/$lane.rc" ]; then still+=("$lane"); continue; fi
+    status="$(cat "$logs/$lane.rc")"
+    echo "======================== lane $lane ($logs/$lane.log) ========================"
+    cat "$logs/$lane.log"
+    # pytest exits 5 when it collected no test: a failure of this script, unless arguments filtered it
+    if [ "$status" -eq 5 ] && [ "$#" -gt 0 ]; then
+      echo "test.sh: lane $lane collected no test with the arguments given"
+    elif [ "$status" -eq 5 ]; then
+      echo "test.sh: lane $lane collected no test" >&2; failed=1
+    elif [ "$status" -ne 0 ]; then
+      echo "test.sh: lane $lane failed (exit $status)" >&2; failed=1
+    fi
+  done
+  pending=("${still[@]}")
+  if [ "${#pending[@]}" -gt 0 ] && [ "$SECONDS" -ge "$heartbeat" ]; then
+    echo "test.sh: after $SECONDS s still running: ${pending[*]}"; heartbeat=$((SECONDS + 120))
+  fi
+done
+wait
+echo "test.sh: $(tail -qn1 "$logs/tests.log" "$logs/ros.log" | paste -sd';' - | sed 's/;/; /g')"
+exit "$failed"

@@ -6,8 +6,11 @@ optional virtual table, a FollowJointTrajectory action server that interpolates 
 time, a GripperCommand action server, the controller_manager list/switch services, a camera image
 that changes with the joint state and a static transform base → camera.
 
-Tests steer it (reject or abort goals, stop a topic, freeze a stamp, die mid-motion) and read its
-counters (goals received and accepted: refused scenarios must show zero).
+Tests steer it (reject, abort or hang goals, stop a topic, freeze a stamp, die mid-motion) and read
+its counters (goals received and accepted: refused scenarios must show zero). It also offers what
+the backend's optional parts use: the finger joint states of the gripper, a JointTrajectory topic
+(the controller's topic interface, the backend's fallback), the same camera picture as a PNG
+CompressedImage, and a std_srvs/Trigger error-recovery service.
 
 Standalone: ``ROS_DOMAIN_ID=42 python -m tests_ros.cell [--table-height 0.1]``. DDS stays on
 this host: the cell refuses to start unless discovery is limited to localhost (or a Fast DDS
@@ -22,9 +25,11 @@ import itertools
 import os
 import random
 import signal
+import struct
 import sys
 import threading
 import time
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -42,9 +47,10 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
-from sensor_msgs.msg import Image, JointState
+from sensor_msgs.msg import CompressedImage, Image, JointState
+from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
-from trajectory_msgs.msg import JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.robot import RobotModel, build_robot
@@ -64,6 +70,7 @@ class GoalMode(enum.Enum):
     REJECT = "reject"  # refuse them in the goal callback (counted as received, not accepted)
     ABORT = "abort"  # accept, move for `abort_after_s`, then abort with PATH_TOLERANCE_VIOLATED
     DIE = "die"  # accept, move for `die_after_s`, then the whole cell goes silent
+    HANG = "hang"  # accept, never move, never finish (until cancelled): a stuck controller
 
 
 @dataclass(frozen=True)
@@ -79,6 +86,12 @@ class CellConfig:
     switch_controller_service: str = "/controller_manager/switch_controller"
     camera_topic: str = "/scene_camera/color/image_raw"
     camera_frame: str = "scene_camera_color_optical_frame"
+    compressed_camera_topic: str = "/scene_camera/color/image_raw/compressed"  # the same picture as PNG
+    trajectory_topic: str = "/fr3_arm_controller/joint_trajectory"  # JointTrajectory (the controller's topic interface)
+    gripper_joint_states_topic: str = "/franka_gripper/joint_states"  # finger joints, each half the width
+    finger_joints: tuple[str, str] = ("fr3_finger_joint1", "fr3_finger_joint2")
+    error_recovery_service: str = "/error_recovery"  # std_srvs/Trigger
+    error_recovery_succeeds: bool = True
     image_width: int = 64
     image_height: int = 48
     # Virtual table: a plane z = table_height_m in the base frame; a TCP below it feels an upward
@@ -110,6 +123,9 @@ class Counters:
     gripper_goals: int = 0
     switch_calls: int = 0
     last_goal: FollowJointTrajectory.Goal | None = None
+    error_recoveries: int = 0
+    topic_trajectories: int = 0  # JointTrajectory messages received on the topic interface
+    last_topic_trajectory: JointTrajectory | None = None
 
 
 @dataclass
@@ -150,6 +166,17 @@ def _seconds(duration) -> float:
     return float(duration.sec) + float(duration.nanosec) * 1e-9
 
 
+def _png(pixels: np.ndarray) -> bytes:
+    """PNG bytes of an rgb8 picture (height × width × 3), written by hand: no Pillow needed."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    height, width = pixels.shape[:2]
+    rows = b"".join(b"\x00" + pixels[y].tobytes() for y in range(height))
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b"")
+
+
 class Cell:
     """The fake FR3 cell: start(), steer and read it, close(). Thread-safe."""
 
@@ -169,6 +196,8 @@ class Cell:
         self._mode = self.config.goal_mode
         self._controllers = dict(self.config.controllers)
         self._active_goal: bytes | None = None
+        self._topic_points: list[tuple[float, np.ndarray]] | None = None  # the topic trajectory being followed
+        self._topic_started = 0.0
         self._counters = Counters()
         self._switches = _Switches()
         self._closing = threading.Event()
@@ -195,10 +224,15 @@ class Cell:
         wrench_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
         self._wrench_pub = node.create_publisher(WrenchStamped, cfg.wrench_topic, wrench_qos)
         self._image_pub = node.create_publisher(Image, cfg.camera_topic, 10)
+        self._compressed_pub = node.create_publisher(CompressedImage, cfg.compressed_camera_topic, 10)
+        self._fingers_pub = node.create_publisher(JointState, cfg.gripper_joint_states_topic, 10)
+        node.create_subscription(JointTrajectory, cfg.trajectory_topic, self._on_topic_trajectory, 10, callback_group=serving)
+        node.create_service(Trigger, cfg.error_recovery_service, self._error_recovery, callback_group=serving)
         static_qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
         self._tf_static_pub = node.create_publisher(TFMessage, "/tf_static", static_qos)
         node.create_timer(STATE_PERIOD_S, self._publish_joint_state, callback_group=periodic)
         node.create_timer(WRENCH_PERIOD_S, self._publish_wrench, callback_group=periodic)
+        node.create_timer(STATE_PERIOD_S, self._follow_topic_trajectory, callback_group=periodic)
         node.create_timer(CAMERA_PERIOD_S, self._publish_image, callback_group=camera_group)
         self._trajectory_server = ActionServer(
             node,
@@ -317,13 +351,21 @@ class Cell:
             if self._switches.dead or self._switches.joint_states_paused:
                 return
             positions, velocities = self._positions.tolist(), self._velocities.tolist()
+            half_width = self._gripper_width / 2
+        stamp = self._now()
         msg = JointState()
-        msg.header.stamp = self._now()
+        msg.header.stamp = stamp
         msg.name = list(self.joint_names)
         msg.position = positions
         msg.velocity = velocities
         msg.effort = [0.0] * len(positions)
         self._joint_pub.publish(msg)
+        fingers = JointState()
+        fingers.header.stamp = stamp
+        fingers.name = list(self.config.finger_joints)
+        fingers.position = [half_width, half_width]
+        fingers.velocity = [0.0, 0.0]
+        self._fingers_pub.publish(fingers)
 
     def _contact_force(self, positions: np.ndarray) -> float:
         """Upward force of the virtual table on the TCP [N] (zero above the table or without one)."""
@@ -370,6 +412,11 @@ class Cell:
         msg.step = pixels.shape[1] * 3
         msg.data = pixels.tobytes()
         self._image_pub.publish(msg)
+        compressed = CompressedImage()
+        compressed.header = msg.header
+        compressed.format = "rgb8; png compressed rgb8"
+        compressed.data = _png(pixels)
+        self._compressed_pub.publish(compressed)
 
     def _publish_static_tf(self) -> None:
         transform = TransformStamped()
@@ -406,6 +453,7 @@ class Cell:
     def _on_trajectory_accepted(self, goal_handle: ServerGoalHandle) -> None:
         with self._lock:
             self._active_goal = bytes(goal_handle.goal_id.uuid)  # a newer goal preempts the running one
+            self._topic_points = None
         goal_handle.execute()
 
     def _on_cancel(self, _goal_handle: ServerGoalHandle) -> CancelResponse:
@@ -461,6 +509,9 @@ class Cell:
             if mode is GoalMode.DIE and elapsed >= self.config.die_after_s:
                 self.die()
                 continue
+            if mode is GoalMode.HANG:
+                time.sleep(STATE_PERIOD_S)
+                continue
             desired, velocity = _sample(points, min(elapsed, end))
             with self._lock:
                 self._positions[:] = desired
@@ -478,6 +529,49 @@ class Cell:
         feedback.actual = JointTrajectoryPoint(positions=desired.tolist(), velocities=velocity.tolist())
         feedback.error = JointTrajectoryPoint(positions=[0.0] * len(desired), velocities=[0.0] * len(desired))
         goal_handle.publish_feedback(feedback)
+
+    # ------------------------------------------------------------------ trajectory topic
+
+    def _on_topic_trajectory(self, msg: JointTrajectory) -> None:
+        """Like a controller's topic interface: a new trajectory replaces the one being followed
+        (and preempts an action goal), starting from where the joints are now."""
+        with self._lock:
+            self._counters.topic_trajectories += 1
+            self._counters.last_topic_trajectory = msg
+            if self._switches.dead:
+                return
+        names = list(msg.joint_names)
+        if sorted(names) != sorted(self.joint_names) or not msg.points:
+            return  # ignored, like Jazzy's controller with wrong joints or an empty trajectory
+        order = [names.index(name) for name in self.joint_names]
+        with self._lock:
+            points = [(0.0, self._positions.copy())]
+            points += [(_seconds(p.time_from_start), np.array([p.positions[i] for i in order], dtype=float)) for p in msg.points]
+            self._topic_points = points
+            self._topic_started = time.monotonic()
+            self._active_goal = None
+
+    def _follow_topic_trajectory(self) -> None:
+        with self._lock:
+            points = self._topic_points
+            if points is None or self._switches.dead:
+                return
+            elapsed = time.monotonic() - self._topic_started
+            end = points[-1][0]
+            desired, velocity = _sample(points, min(elapsed, end))
+            self._positions[:] = desired
+            self._velocities[:] = velocity if elapsed < end else 0.0
+            if elapsed >= end:
+                self._topic_points = None
+
+    def _error_recovery(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        if self.dead:
+            self._park_until_closed()
+        with self._lock:
+            self._counters.error_recoveries += 1
+        response.success = self.config.error_recovery_succeeds
+        response.message = "recovered" if response.success else "fake cell: reflex still active"
+        return response
 
     # ------------------------------------------------------------------ gripper and controllers
 

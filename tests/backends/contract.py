@@ -113,6 +113,10 @@ class BackendContract:
             await wait_until(lambda: self.has_moved(backend, q_start))
             yield results
 
+    def assert_nothing_reached_the_arm(self, backend: Backend) -> None:
+        """Called after each refused or preempted execution: a backend whose far side can count
+        what arrived (the ROS cell counts trajectory goals) asserts that nothing did."""
+
     async def has_moved(self, backend: Backend, q_from: np.ndarray) -> bool:
         return bool(np.max(np.abs(await self.positions(backend) - q_from)) > 1e-3)
 
@@ -237,6 +241,7 @@ class BackendContract:
         with pytest.raises(BackendError, match="trajectory"):
             await backend.execute(self.malformed(backend, q_start)[case])
         assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
+        self.assert_nothing_reached_the_arm(backend)
 
     async def test_a_trajectory_that_does_not_start_at_the_arm_is_refused_and_nothing_moves(self, backend: Backend) -> None:
         q_start = await self.positions(backend)
@@ -244,6 +249,7 @@ class BackendContract:
         with pytest.raises(BackendError, match="rad away from the arm"):
             await backend.execute(straight_line(backend.joint_names, elsewhere, q_start, self.short_motion_s))
         assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
+        self.assert_nothing_reached_the_arm(backend)
 
     # ------------------------------------------------------------------ stops
     async def test_stop_when_idle_keeps_the_arm_still_and_the_next_motion_runs(self, backend: Backend) -> None:
@@ -315,6 +321,7 @@ class BackendContract:
         result = await backend.execute(await self.motion(backend, self.short_motion_s), stop_epoch=decided)
         assert not result.completed and result.reason == PREEMPTED
         assert_near(await self.assert_still(backend), q_start, backend.hold_accuracy_rad)
+        self.assert_nothing_reached_the_arm(backend)
 
     @pytest.mark.parametrize("delay_ms", [0.0, 0.05, 0.2, 0.5, 1.0, 2.0])
     async def test_a_stop_racing_the_hand_over_is_never_overtaken(self, backend: Backend, delay_ms: float) -> None:

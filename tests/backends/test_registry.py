@@ -21,7 +21,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_the_cli_choices_are_the_built_backends_then_the_planned_ones() -> None:
     assert backend_names() == ("fake", "mujoco", "can", "ros2")
-    assert list(backends.BACKENDS) == ["fake", "mujoco", "can"]
+    assert list(backends.BACKENDS) == ["fake", "mujoco", "can", "ros2"]
+    assert backends.PLANNED == ()
 
 
 def test_create_backend_builds_the_fake_for_the_policy_robot(fr3_policy: Policy, robot: RobotModel) -> None:
@@ -38,10 +39,10 @@ def test_create_backend_takes_the_config_model_itself(fr3_policy: Policy, robot:
     assert not backend.capabilities.wrench
 
 
-@pytest.mark.parametrize("name", ["ros2"])
-def test_a_planned_backend_says_it_is_not_built_yet(name: str, fr3_policy: Policy, robot: RobotModel) -> None:
-    with pytest.raises(BackendUnavailable, match=f"the {name} backend is not built yet"):
-        create_backend(name, robot, fr3_policy)
+def test_a_planned_backend_says_it_is_not_built_yet(monkeypatch, fr3_policy: Policy, robot: RobotModel) -> None:
+    monkeypatch.setattr(backends, "PLANNED", ("warp",))
+    with pytest.raises(BackendUnavailable, match="the warp backend is not built yet"):
+        create_backend("warp", robot, fr3_policy)
 
 
 def test_an_unknown_backend_lists_the_available_ones(fr3_policy: Policy, robot: RobotModel) -> None:
@@ -90,10 +91,19 @@ def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_serve_with_a_backend_not_built_yet_exits_2_before_serving(tmp_path: Path) -> None:
-    result = _serve(tmp_path, "--backend", "ros2")
+def test_serve_with_ros2_but_without_rclpy_exits_2_with_the_install_hint(tmp_path: Path) -> None:
+    # a sitecustomize that makes `import rclpy` fail, as on a machine without the `ros` extra
+    blocker = tmp_path / "site"
+    blocker.mkdir()
+    (blocker / "sitecustomize.py").write_text("import sys\nsys.modules['rclpy'] = None\n", encoding="utf-8")
+    env = dict(os.environ, PYTHONPATH=f"{blocker}{os.pathsep}{REPO / 'src'}")
+    result = subprocess.run(
+        [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), "--backend", "ros2"],
+        check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
+    )
     assert result.returncode == 2, result.stderr
-    assert "the ros2 backend is not built yet" in result.stderr
+    assert "the ros2 backend is not available" in result.stderr
+    assert "pip install -e '.[ros]' -c constraints/ros.txt && python scripts/build_ros_interfaces.py" in result.stderr
     assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
 
 

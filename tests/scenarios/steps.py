@@ -137,8 +137,8 @@ def assert_refused(arm: ArmHarness, result: Any, code: str, tool: str = "execute
     record = calls(arm, tool)[-1]
     assert (record["outcome"], (record["extra"] or {}).get("code")) == ("refused", code), record
     assert arm.actuations == list(moved_before)
-    if arm.bus_motions is not None:  # counted at the bus too: no motion frames beyond what ran first
-        assert arm.bus_motions <= moved_before.count("execute")
+    if arm.motions_below is not None:  # counted below the backend too (CAN frames, ROS goals): nothing beyond what ran first
+        assert arm.motions_below <= moved_before.count("execute")
     return record
 
 
@@ -148,6 +148,6 @@ def assert_invalid(arm: ArmHarness, result: Any, tool: str) -> dict[str, Any]:
     record = calls(arm, tool)[-1]
     assert (record["outcome"], record["extra"]["code"]) == ("invalid", "INVALID_ARGUMENTS"), record
     assert arm.actuations == []
-    assert arm.bus_motions in (None, 0)
+    assert arm.motions_below in (None, 0)
     return record
 

@@ -269,16 +269,28 @@ def _invalid_policy(tmp_path: Path) -> Path:
 START_REFUSALS = {
     "invalid_policy": (lambda tmp: ["--policy", str(_invalid_policy(tmp))], "mystery_section"),
     "unknown_backend": (lambda tmp: ["--backend", "warp-drive"], "invalid choice"),
-    "unavailable_backend": (lambda tmp: ["--backend", "ros2"], "backend"),
+    # rclpy blocked (see _without_rclpy), so the case holds whether or not the ROS extra is installed
+    "unavailable_backend": (lambda tmp: ["--backend", "ros2"], "the ros2 backend is not available"),
     "unopenable_audit_log": (lambda tmp: ["--audit-log", str(tmp / "no-such-dir" / "audit.jsonl")], "does not exist"),
 }
+
+
+def _without_rclpy(tmp_path: Path) -> dict[str, str]:
+    """child_env() with a sitecustomize that makes `import rclpy` fail (as without the ROS extra)."""
+    blocker = tmp_path / "no-rclpy"
+    blocker.mkdir()
+    (blocker / "sitecustomize.py").write_text("import sys\nsys.modules['rclpy'] = None\n", encoding="utf-8")
+    env = child_env()
+    env["PYTHONPATH"] = f"{blocker}{os.pathsep}{env['PYTHONPATH']}"
+    return env
 
 
 @pytest.mark.parametrize("case", sorted(START_REFUSALS))
 def test_serve_refuses_to_start_with_exit_2(tmp_path, case) -> None:
     extra, expected = START_REFUSALS[case]
     args = ["--audit-log", str(tmp_path / "audit.jsonl"), *extra(tmp_path)]
-    result = subprocess.run([*CLI, "serve", *args], cwd=REPO, env=child_env(), stdin=subprocess.DEVNULL,
+    env = _without_rclpy(tmp_path) if case == "unavailable_backend" else child_env()
+    result = subprocess.run([*CLI, "serve", *args], cwd=REPO, env=env, stdin=subprocess.DEVNULL,
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
     assert expected in result.stderr, result.stderr

@@ -30,9 +30,10 @@ BACKENDS: dict[str, str] = {
     "fake": "armwarden.backends.fake",
     "mujoco": "armwarden.backends.mujoco.backend",
     "can": "armwarden.backends.can.backend",
+    "ros2": "armwarden.backends.ros2",
 }
 #: backends announced in the design whose module is not written yet (each has its own issue)
-PLANNED: tuple[str, ...] = ("ros2",)
+PLANNED: tuple[str, ...] = ()
 #: a backend config file larger than this is refused unread [bytes]
 MAX_CONFIG_BYTES = 1_000_000
 

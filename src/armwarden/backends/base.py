@@ -146,6 +146,16 @@ class CameraImage:
 
 
 @dataclass(frozen=True)
+class Transform:
+    """Pose of a source frame in a target frame, from the backend's own frame tree (ROS tf):
+    translation [m], rotation as a unit quaternion (x, y, z, w); `stamp` on the monotonic clock [s]."""
+
+    translation: np.ndarray
+    rotation_xyzw: np.ndarray
+    stamp: float
+
+
+@dataclass(frozen=True)
 class ControllerInfo:
     name: str
     type: str
@@ -176,6 +186,8 @@ class Capabilities:
     error_recovery: bool = False
     graph: bool = False
     frames: tuple[str, ...] = field(default_factory=tuple)
+    #: the backend looks up frames beyond the robot model (ROS tf): `lookup_transform`
+    transforms: bool = False
 
 
 class Backend(abc.ABC):
@@ -210,6 +222,8 @@ class Backend(abc.ABC):
     error_recovery_timeout_s: float = 10.0
     #: deadline for describing the graph [s]
     graph_timeout_s: float = 2.0
+    #: deadline for a transform lookup [s]
+    transform_timeout_s: float = 0.5
 
     def __init__(self, joint_names: Sequence[str], *, start_tolerance_rad: float) -> None:
         if not (isinstance(start_tolerance_rad, (int, float)) and math.isfinite(start_tolerance_rad)
@@ -503,6 +517,13 @@ class Backend(abc.ABC):
         self._require_capability(self.capabilities.graph, "graph")
         return await self._bounded("graph description", self.graph_timeout_s, self._graph)
 
+    async def lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
+        """Pose of `source_frame` in `target_frame` from the backend's frame tree (capability
+        `transforms`); `BackendError` if a frame is unknown, disconnected or stale."""
+        self._require_capability(self.capabilities.transforms, "transforms")
+        return await self._bounded("transform lookup", self.transform_timeout_s,
+                                   lambda: self._lookup_transform(target_frame, source_frame))
+
     def _require_capability(self, present: bool, what: str) -> None:
         self._require_open()
         if not present:
@@ -601,4 +622,7 @@ class Backend(abc.ABC):
         raise NotImplementedError
 
     async def _graph(self) -> dict[str, list[str]]:
+        raise NotImplementedError
+
+    async def _lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
         raise NotImplementedError

@@ -18,7 +18,16 @@ from armwarden import conversions
 from armwarden.backends.base import Backend, JointState
 from armwarden.errors import BackendError, RefusalCode, SafetyRefusal, StoppedBeforeStart
 from armwarden.policy import Policy
-from armwarden.results import ControllerList, ControllerModel, EnvelopeModel, GraphModel, RobotState, TransformResult
+from armwarden.results import (
+    ControllerList,
+    ControllerModel,
+    EnvelopeModel,
+    GraphModel,
+    PoseModel,
+    Quaternion,
+    RobotState,
+    TransformResult,
+)
 from armwarden.robot.model import Pose, RobotModel
 from armwarden.safety import checks
 from armwarden.safety.estop import flatten_reason
@@ -69,7 +78,15 @@ class Readings:
         return conversions.envelope_model(self.policy, self.robot, registered_tools)
 
     async def lookup_transform(self, target_frame: str, source_frame: str) -> TransformResult:
+        """Two robot-model frames: forward kinematics at the measured joints. Otherwise, on a
+        backend with its own frame tree (ROS tf), that tree; else an unknown-frame refusal."""
         frames = set(self.robot.frame_names())
+        if not {target_frame, source_frame} <= frames and self.backend.capabilities.transforms:
+            found = await self.backend_call("look up the transform",
+                                            self.backend.lookup_transform(target_frame, source_frame))
+            qx, qy, qz, qw = (float(v) for v in found.rotation_xyzw)
+            pose = PoseModel(position=conversions.vector(found.translation), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+            return TransformResult(target_frame=target_frame, source_frame=source_frame, pose=pose)
         for name in (target_frame, source_frame):
             if name not in frames:
                 shown = ", ".join(sorted(frames)[:40])

@@ -1,0 +1,830 @@
+"""The ROS 2 backend: a ros2_control arm through standard interfaces, over real rclpy.
+
+State: `sensor_msgs/JointState` name-matched to the policy's joints (config `joints` maps names
+that differ), judged fresh by receipt time; older than `joint_states.max_age_s` and reads refuse,
+naming the age (`get_robot_state` errors rather than lying). The wrench (`WrenchStamped`,
+best-effort QoS) is stamped with the receipt time of its last *new* header stamp, so a frozen
+driver ages like a silent one and the Guard's force monitor aborts.
+
+Execution (`control_msgs/FollowJointTrajectory`): the goal is exactly the validated waypoints and
+their times (positions only: the controller interpolates linearly between them, as the envelope
+sampled them). The goal is sent under the motion lock the stops take, after a last look at the
+stop epoch: either a stop came first and nothing is sent, or the goal was sent and the stop
+cancels it (by goal id, before the server has even answered if need be; a goal accepted after a
+stop is cancelled again when its acceptance arrives). Rejection, an error code, no answer, no
+result within the trajectory's duration + `result_margin_s` (cancel, "controller timeout"), joint
+states that stop or an action server that vanishes mid-motion (cancel, fault) all end in
+`BackendError` naming the cause. Progress comes from the feedback's trajectory time.
+
+Fallback (`trajectory.topic`): the trajectory is published as `trajectory_msgs/JointTrajectory`;
+it has completed when its time is up and the joint states are at the goal; a stop publishes a
+one-point hold at the measured positions (Jazzy's controller rejects an empty trajectory).
+
+Stops (`_stop_now`, any thread, never awaiting): cancel the running goal (or publish the hold),
+cancel the gripper's goal, and record when the cancel request was sent (`stop_records`). Faults
+found while idle (joint states stop for longer than `max_age_s`, the action server vanishes) stop
+the same way and are reported once through the fault listener (the Guard latches its e-stop).
+
+Declared accuracies: `goal_accuracy_rad` 1e-3 rad, `hold_accuracy_rad` 2e-3 rad, `rest_speed_rad_s`
+1e-3 rad/s. A ros2_control position controller ends within its goal tolerance and a cancelled one
+holds where the cancel reached it. The test cell ends exactly at the goal and publishes exact zero
+velocities at rest; a cancel reaches its 10 ms loop at most one period late, and the joint state a
+stop reads is at most one 10 ms period old, so at the contract's 0.05 rad/s the arm rests within
+0.05 × (10 + 10 + DDS latency) ms ≈ 1–2e-3 rad of where the stop read it. A real arm with looser
+goal tolerances, or faster motions, needs larger values (see docs/architecture.md, "Backends").
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import threading
+import time
+import uuid
+from collections import deque
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import anyio
+import numpy as np
+import rclpy.action.client
+import rclpy.action.graph
+import rclpy.client
+import rclpy.publisher
+import rclpy.qos
+import rclpy.subscription
+import rclpy.timer
+from action_msgs.msg import GoalStatus
+from control_msgs.action import FollowJointTrajectory, GripperCommand
+from controller_manager_msgs.srv import ListControllers, SwitchController
+from geometry_msgs.msg import WrenchStamped
+from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import JointState as JointStateMsg
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+from trajectory_msgs.msg import JointTrajectory as JointTrajectoryMsg
+from trajectory_msgs.msg import JointTrajectoryPoint
+from unique_identifier_msgs.msg import UUID
+
+from armwarden.backends.base import (
+    PREEMPTED,
+    Backend,
+    CameraImage,
+    Capabilities,
+    ControllerInfo,
+    ExecutionResult,
+    GripperResult,
+    GripperState,
+    JointState,
+    ProgressCallback,
+    Transform,
+    Wrench,
+)
+from armwarden.backends.ros2.bridge import RosBridge
+from armwarden.backends.ros2.config import Config, check_against_policy
+from armwarden.backends.ros2.images import png_from_compressed, png_from_image
+from armwarden.backends.ros2.state import JointStateCache, WrenchCache
+from armwarden.backends.ros2.tf import TransformBuffer
+from armwarden.errors import BackendError
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.model import RobotModel
+
+if TYPE_CHECKING:
+    from armwarden.policy import Policy
+
+logger = logging.getLogger(__name__)
+
+#: how often a waiting execution looks at the stop epoch, progress, health and deadlines [s]
+POLL_S = 0.01
+#: how often the idle watchdog looks at the joint states and the action server [s]
+WATCH_PERIOD_S = 0.05
+#: how long a stopped execution waits for the arm to come to rest [s]
+REST_TIMEOUT_S = 2.0
+#: FollowJointTrajectory.Result error codes by value, for messages
+ERROR_CODES = {getattr(FollowJointTrajectory.Result, name): name for name in (
+    "SUCCESSFUL", "INVALID_GOAL", "INVALID_JOINTS", "OLD_HEADER_TIMESTAMP", "PATH_TOLERANCE_VIOLATED",
+    "GOAL_TOLERANCE_VIOLATED")}
+STATUS_NAMES = {getattr(GoalStatus, name): name[len("STATUS_"):].lower() for name in dir(GoalStatus)
+                if name.startswith("STATUS_")}
+
+
+def _duration(seconds: float) -> tuple[int, int]:
+    """(sec, nanosec) of a non-negative duration [s]."""
+    nanoseconds = round(seconds * 1e9)
+    return nanoseconds // 1_000_000_000, nanoseconds % 1_000_000_000
+
+
+def trajectory_message(trajectory: JointTrajectory, ros_names: tuple[str, ...]) -> JointTrajectoryMsg:
+    """The validated waypoints and times, unchanged, under the controller's joint names (header
+    stamp zero: start on receipt)."""
+    msg = JointTrajectoryMsg()
+    msg.joint_names = list(ros_names)
+    points = []
+    for t, q in zip(trajectory.times, trajectory.positions, strict=True):
+        point = JointTrajectoryPoint(positions=[float(v) for v in q])
+        point.time_from_start.sec, point.time_from_start.nanosec = _duration(float(t))
+        points.append(point)
+    msg.points = points
+    return msg
+
+
+def hold_message(positions: np.ndarray, ros_names: tuple[str, ...], hold_time_s: float) -> JointTrajectoryMsg:
+    """A one-point trajectory at `positions`, reached after `hold_time_s` [s]: the topic stop."""
+    msg = JointTrajectoryMsg()
+    msg.joint_names = list(ros_names)
+    point = JointTrajectoryPoint(positions=[float(v) for v in positions], velocities=[0.0] * len(ros_names))
+    point.time_from_start.sec, point.time_from_start.nanosec = _duration(hold_time_s)
+    msg.points = [point]
+    return msg
+
+
+@dataclass(frozen=True)
+class StopRecord:
+    """One stop as the backend carried it out: `stamp` = monotonic time [s] the cancel request
+    (or the topic hold) was sent; `what` = "cancel", "hold", "gripper cancel"."""
+
+    what: str
+    stamp: float
+
+
+@dataclass
+class _GoalRun:
+    """One trajectory goal: written under the motion lock (event loop, stopping threads) and by
+    the goal-response and feedback callbacks (executor threads)."""
+
+    goal_id: UUID
+    epoch: int
+    duration_s: float
+    sent_at: float
+    handle: rclpy.action.client.ClientGoalHandle | None = None
+    cancel_sent: bool = False
+    terminal: bool = False  # a result (any status) arrived
+    feedback_s: float = 0.0  # the latest feedback's trajectory time [s]
+
+    def on_feedback(self, message: Any) -> None:
+        desired = message.feedback.desired.time_from_start
+        t = float(desired.sec) + float(desired.nanosec) * 1e-9
+        if t <= 0.0:  # a server that does not fill in the time: time since the goal was sent
+            t = time.monotonic() - self.sent_at
+        self.feedback_s = max(self.feedback_s, t)
+
+    def fraction(self) -> float:
+        if self.duration_s <= 0.0:
+            return 0.0
+        return min(1.0, self.feedback_s / self.duration_s)
+
+
+@dataclass
+class _TopicRun:
+    """One trajectory published on the fallback topic."""
+
+    epoch: int
+    duration_s: float
+    sent_at: float
+    held_at: float | None = None  # when the stop's hold was published (monotonic [s])
+
+
+@dataclass
+class _GripperRun:
+    goal_id: UUID
+    epoch: int
+    handle: rclpy.action.client.ClientGoalHandle | None = None
+    cancel_sent: bool = False
+
+
+def _new_goal_id() -> UUID:
+    return UUID(uuid=list(uuid.uuid4().bytes))
+
+
+@dataclass
+class _Endpoints:
+    """The rclpy entities the backend created (built in `_open`)."""
+
+    trajectory_action: rclpy.action.client.ActionClient | None = None
+    trajectory_topic: rclpy.publisher.Publisher | None = None
+    gripper_action: rclpy.action.client.ActionClient | None = None
+    list_controllers: rclpy.client.Client | None = None
+    switch_controller: rclpy.client.Client | None = None
+    error_recovery: rclpy.client.Client | None = None
+    watchdog: rclpy.timer.Timer | None = None
+    subscriptions: list[rclpy.subscription.Subscription] = field(default_factory=list)
+
+
+class Ros2Backend(Backend):
+    """A ros2_control arm over rclpy (see the module docstring)."""
+
+    name = "ros2"
+    goal_accuracy_rad = 1e-3
+    hold_accuracy_rad = 2e-3
+    rest_speed_rad_s = 1e-3
+
+    def __init__(self, robot: RobotModel, config: Config, ros_names: tuple[str, ...], *,
+                 start_tolerance_rad: float) -> None:
+        super().__init__(robot.joint_names, start_tolerance_rad=start_tolerance_rad)
+        self.config = config
+        self.ros_names = ros_names
+        self.bridge = RosBridge(config.node_name, config.domain_id)
+        self.joint_states = JointStateCache(config.joint_states.topic, robot.joint_names, ros_names,
+                                            config.joint_states.max_age_s)
+        self.wrench = None if config.wrench is None else WrenchCache(
+            config.wrench.topic, config.wrench.max_age_s, config.wrench.frame_id)
+        gripper = config.gripper
+        self.fingers = None if gripper is None else JointStateCache(
+            gripper.joint_states_topic, gripper.finger_joints, gripper.finger_joints, gripper.max_age_s)
+        self.transforms = TransformBuffer(config.tf.max_age_s) if config.tf.enabled else None
+        self._endpoints = _Endpoints()
+        self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
+        self._run: _GoalRun | _TopicRun | None = None
+        self._gripper_run: _GripperRun | None = None
+        self._gripper_grasped = False
+        #: the stops carried out, newest last (the benchmark reads e-stop -> cancel sent)
+        self.stop_records: deque[StopRecord] = deque(maxlen=1000)
+        self._server_seen = False  # the trajectory action server was seen at least once
+        self._idle_fault: str | None = None  # the fault the watchdog reported (reported once)
+        if gripper is not None:
+            self.gripper_travel_m = gripper.max_width_m
+        if config.cameras:
+            self.camera_timeout_s = max(c.timeout_s for c in config.cameras.values()) + 0.5
+        self._capabilities = Capabilities(
+            wrench=config.wrench is not None,
+            gripper=gripper is not None,
+            cameras=tuple(config.cameras),
+            controllers=config.controller_manager is not None,
+            error_recovery=config.error_recovery is not None,
+            graph=True,
+            transforms=self.transforms is not None,
+        )
+
+    @property
+    def capabilities(self) -> Capabilities:
+        return self._capabilities
+
+    @property
+    def trajectory_interface(self) -> str:
+        """The action or topic trajectories go to, for messages."""
+        trajectory = self.config.trajectory
+        return trajectory.action if trajectory.action is not None else f"topic {trajectory.topic}"
+
+    # ================================================================ lifecycle
+    async def _open(self) -> None:
+        await anyio.to_thread.run_sync(self.bridge.start)
+        try:
+            self._create_endpoints()
+            await self._wait_for_first_state()
+        except BaseException:
+            with anyio.CancelScope(shield=True):
+                await anyio.to_thread.run_sync(self.bridge.close)
+            raise
+
+    def _create_endpoints(self) -> None:
+        node, group, cfg, e = self.bridge.node, self.bridge.group, self.config, self._endpoints
+        subscribe = e.subscriptions.append
+        subscribe(node.create_subscription(JointStateMsg, cfg.joint_states.topic, self.joint_states.accept, 10,
+                                           callback_group=group))
+        if self.wrench is not None:
+            best_effort = rclpy.qos.QoSProfile(depth=10, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
+            subscribe(node.create_subscription(WrenchStamped, self.wrench.topic, self.wrench.accept, best_effort,
+                                               callback_group=group))
+        if self.fingers is not None:
+            subscribe(node.create_subscription(JointStateMsg, self.fingers.topic, self.fingers.accept, 10,
+                                               callback_group=group))
+        if self.transforms is not None:
+            transforms = self.transforms
+            static = rclpy.qos.QoSProfile(depth=100, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL,
+                                          reliability=rclpy.qos.ReliabilityPolicy.RELIABLE)
+            subscribe(node.create_subscription(TFMessage, "/tf", lambda m: transforms.accept(m, static=False), 100,
+                                               callback_group=group))
+            subscribe(node.create_subscription(TFMessage, "/tf_static", lambda m: transforms.accept(m, static=True),
+                                               static, callback_group=group))
+        if cfg.trajectory.action is not None:
+            e.trajectory_action = rclpy.action.client.ActionClient(node, FollowJointTrajectory, cfg.trajectory.action,
+                                                            callback_group=group)
+        else:
+            assert cfg.trajectory.topic is not None
+            e.trajectory_topic = node.create_publisher(JointTrajectoryMsg, cfg.trajectory.topic, 10)
+        if cfg.gripper is not None:
+            e.gripper_action = rclpy.action.client.ActionClient(node, GripperCommand, cfg.gripper.action, callback_group=group)
+        if cfg.controller_manager is not None:
+            ns = cfg.controller_manager.namespace.rstrip("/")
+            e.list_controllers = node.create_client(ListControllers, f"{ns}/list_controllers", callback_group=group)
+            e.switch_controller = node.create_client(SwitchController, f"{ns}/switch_controller", callback_group=group)
+        if cfg.error_recovery is not None:
+            e.error_recovery = node.create_client(Trigger, cfg.error_recovery.service, callback_group=group)
+        e.watchdog = node.create_timer(WATCH_PERIOD_S, self._watch, callback_group=group)
+
+    async def _wait_for_first_state(self) -> None:
+        timeout_s = self.config.joint_states.startup_timeout_s
+        deadline = time.monotonic() + timeout_s
+        while self.joint_states.latest() is None:
+            if time.monotonic() > deadline:
+                why = f" ({self.joint_states.last_drop})" if self.joint_states.dropped else ""
+                raise BackendError(f"no joint state naming {', '.join(self.ros_names)} arrived on "
+                                   f"{self.joint_states.topic} within {timeout_s:g} s{why}")
+            await anyio.sleep(POLL_S)
+
+    async def _close(self) -> None:
+        await anyio.to_thread.run_sync(self.bridge.close)
+
+    # ================================================================ state
+    def _latest_joint_state(self) -> JointState:
+        return self.joint_states.fresh()
+
+    async def _read_joint_state(self) -> JointState:
+        return self.joint_states.fresh()
+
+    def _latest_wrench(self) -> Wrench | None:
+        return None if self.wrench is None else self.wrench.fresh()
+
+    async def _read_wrench(self) -> Wrench | None:
+        return self._latest_wrench()
+
+    # ================================================================ watchdog (executor thread)
+    def _health_problem(self) -> str | None:
+        """What is wrong with the cell right now (joint states stopped, action server gone), or None."""
+        age = self.joint_states.age_s()
+        limit = self.config.joint_states.max_age_s
+        if age is None or age > limit:
+            shown = "never received" if age is None else f"{age:.2f} s old"
+            return f"joint states on {self.joint_states.topic} stopped arriving ({shown}, limit {limit:g} s)"
+        action = self._endpoints.trajectory_action
+        if action is not None:
+            ready = action.server_is_ready()
+            if ready:
+                self._server_seen = True
+            elif self._server_seen:
+                return f"the trajectory action server {self.config.trajectory.action} vanished"
+        return None
+
+    def _watch(self) -> None:
+        """Executor thread: a fault found while open is stopped and reported once (until healthy)."""
+        if not self.is_open:
+            return
+        try:
+            problem = self._health_problem()
+        except Exception:  # the node is going away under a closing backend
+            logger.debug("ros2 watchdog: health check failed", exc_info=True)
+            return
+        if problem is None:
+            self._idle_fault = None
+            return
+        if self._idle_fault is not None:
+            return
+        self._idle_fault = problem
+        self._bump_stop_epoch()
+        try:
+            self._stop_now()
+        except Exception:
+            logger.exception("ros2 backend: stop after a fault failed")
+        self._report_fault(f"ros2 backend fault: {problem}")
+
+    # ================================================================ motion
+    async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        if self._endpoints.trajectory_action is not None:
+            return await self._execute_action(self._endpoints.trajectory_action, trajectory, progress)
+        return await self._execute_topic(trajectory, progress)
+
+    async def _wait_for_server(self, action: rclpy.action.client.ActionClient, name: str, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not action.server_is_ready():
+            if time.monotonic() > deadline:
+                raise BackendError(f"the action server {name} is not available (waited {timeout_s:g} s); nothing was sent")
+            await anyio.sleep(POLL_S)
+        if action is self._endpoints.trajectory_action:
+            self._server_seen = True
+
+    async def _execute_action(self, action: rclpy.action.client.ActionClient, trajectory: JointTrajectory,
+                              progress: ProgressCallback) -> ExecutionResult:
+        cfg = self.config.trajectory
+        name = self.trajectory_interface
+        await self._wait_for_server(action, name, cfg.server_timeout_s)
+        goal = FollowJointTrajectory.Goal(trajectory=trajectory_message(trajectory, self.ros_names))
+        with self._motion_lock:  # the stops take it: a stop is either before the send or cancels it
+            if self._stop_landed():
+                return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
+            run = _GoalRun(_new_goal_id(), self._execution_epoch, trajectory.duration_s, time.monotonic())
+            self._run = run
+            sending = action.send_goal_async(goal, feedback_callback=run.on_feedback, goal_uuid=run.goal_id)
+        sending.add_done_callback(lambda future: self._on_goal_response(run, future))
+        try:
+            try:
+                handle = await self.bridge.result(sending, cfg.goal_response_timeout_s)
+            except TimeoutError:
+                raise BackendError(f"{name} did not answer the trajectory goal within "
+                                   f"{cfg.goal_response_timeout_s:g} s; a cancel was sent") from None
+            if not handle.accepted:
+                run.terminal = True
+                raise BackendError(f"the trajectory goal was rejected by {name} (nothing moved)")
+            return await self._follow_goal(run, handle, trajectory, progress)
+        finally:
+            if not run.terminal:  # error, timeout or cancellation of this task: the goal must not run on
+                self._cancel_goal(run)
+            with self._motion_lock:
+                if self._run is run:
+                    self._run = None
+
+    def _on_goal_response(self, run: _GoalRun, future: Any) -> None:
+        """Executor thread: note the handle; a goal accepted after a stop is cancelled now."""
+        if future.exception() is not None:
+            return
+        handle = future.result()
+        with self._motion_lock:
+            run.handle = handle
+            stopped_meanwhile = run.cancel_sent or self._stop_epoch != run.epoch
+        if handle.accepted and stopped_meanwhile:
+            self._cancel_goal(run, again=True)
+
+    def _cancel_goal(self, run: _GoalRun, *, again: bool = False) -> None:
+        """Any thread, without waiting: ask the server to cancel `run`'s goal (by id, so it works
+        before the goal was even answered). Sent once, plus once more on a late acceptance."""
+        action = self._endpoints.trajectory_action
+        if action is None or run.terminal or (run.cancel_sent and not again):
+            return
+        run.cancel_sent = True
+        handle = run.handle or rclpy.action.client.ClientGoalHandle(
+            action, run.goal_id, FollowJointTrajectory.Impl.SendGoalService.Response())
+        handle.cancel_goal_async()
+        self.stop_records.append(StopRecord("cancel", time.monotonic()))
+
+    async def _follow_goal(self, run: _GoalRun, handle: rclpy.action.client.ClientGoalHandle,
+                           trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        """The goal was accepted: report progress until its result, a stop, a fault or the deadline."""
+        cfg = self.config.trajectory
+        name = self.trajectory_interface
+        deadline = time.monotonic() + trajectory.duration_s + cfg.result_margin_s
+        waiting = asyncio.ensure_future(self.bridge.result(handle.get_result_async(), None))
+        reported = 0.0
+        try:
+            while not waiting.done():
+                await asyncio.wait({waiting}, timeout=POLL_S)
+                if waiting.done():
+                    break
+                if self._stop_landed() or not self.is_open:  # closing stops too (without an epoch bump)
+                    return await self._stopped_goal(run, waiting)
+                fraction = min(run.fraction(), 0.99)  # 1.0 only once completed
+                if fraction > reported:
+                    reported = fraction
+                    progress(fraction)
+                problem = self._health_problem()
+                if problem is not None:
+                    self._cancel_goal(run)
+                    self._report_fault(f"ros2 backend fault: {problem}")
+                    raise BackendError(f"execution aborted: {problem}; the goal was cancelled")
+                if time.monotonic() > deadline:
+                    self._cancel_goal(run)
+                    raise BackendError(f"controller timeout: no result from {name} within "
+                                       f"{trajectory.duration_s + cfg.result_margin_s:g} s (trajectory "
+                                       f"{trajectory.duration_s:g} s + margin {cfg.result_margin_s:g} s); the goal was cancelled")
+            response = waiting.result()
+        finally:
+            if not waiting.done():
+                waiting.cancel()
+        run.terminal = True
+        status, result = response.status, response.result
+        if self._stop_landed():
+            return await self._rest()
+        if status == GoalStatus.STATUS_SUCCEEDED and result.error_code == FollowJointTrajectory.Result.SUCCESSFUL:
+            settled = await self._settle(trajectory)
+            if settled.completed:
+                progress(1.0)
+            return settled
+        code = f"{ERROR_CODES.get(result.error_code, 'UNKNOWN')} ({result.error_code})"
+        if status == GoalStatus.STATUS_ABORTED:
+            raise BackendError(f"the trajectory was aborted by the controller ({name}): {code}: {result.error_string}")
+        raise BackendError(f"the trajectory goal ended {STATUS_NAMES.get(status, status)} at {name} without a stop "
+                           f"from here: {code}: {result.error_string}")
+
+    async def _stopped_goal(self, run: _GoalRun, waiting: asyncio.Future[Any]) -> ExecutionResult:
+        """A stop cancelled the goal: wait (bounded) for its result, then for the arm to rest."""
+        self._cancel_goal(run)  # the stop sent it already; this only covers a stop that found no run
+        if not self.is_open:
+            return await self._rest()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(waiting), self.config.trajectory.goal_response_timeout_s)
+        run.terminal = run.terminal or waiting.done()
+        return await self._rest()
+
+    async def _settle(self, trajectory: JointTrajectory) -> ExecutionResult:
+        """The controller reports success: the joint states must show the goal (within
+        `goal_accuracy_rad`) and rest, within `result_margin_s`."""
+        goal = trajectory.goal
+        deadline = time.monotonic() + self.config.trajectory.result_margin_s
+        while True:
+            state = self.joint_states.fresh()
+            if self._stop_landed():
+                return await self._rest()
+            error = float(np.max(np.abs(state.positions - goal)))
+            if error <= self.goal_accuracy_rad and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
+                return ExecutionResult(True, "completed", state.positions.copy())
+            if time.monotonic() > deadline:
+                return ExecutionResult(False, f"the controller reported success but the arm is {error:.4f} rad from the "
+                                       f"goal after {self.config.trajectory.result_margin_s:g} s", state.positions.copy())
+            await anyio.sleep(POLL_S)
+
+    async def _rest(self, after: float = 0.0, reason: str = "stopped") -> ExecutionResult:
+        """Wait (bounded) until a joint state received after `after` (monotonic [s]) shows the
+        joints at rest; where they rest is the result."""
+        deadline = time.monotonic() + REST_TIMEOUT_S
+        while True:
+            if not self.is_open:  # closed under the execution: the stop was sent; report where it was
+                latest = self.joint_states.latest()
+                if latest is not None:
+                    return ExecutionResult(False, reason, latest.positions.copy())
+            state = self.joint_states.fresh()
+            resting = state.stamp >= after and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s
+            if resting or time.monotonic() > deadline:
+                return ExecutionResult(False, reason, state.positions.copy())
+            await anyio.sleep(POLL_S)
+
+    # ---------------------------------------------------------------- topic fallback
+    async def _execute_topic(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        publisher = self._endpoints.trajectory_topic
+        assert publisher is not None
+        cfg = self.config.trajectory
+        name = self.trajectory_interface
+        if publisher.get_subscription_count() == 0:
+            await self._wait_for_subscriber(publisher, name, cfg.server_timeout_s)
+        message = trajectory_message(trajectory, self.ros_names)
+        with self._motion_lock:
+            if self._stop_landed():
+                return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
+            run = _TopicRun(self._execution_epoch, trajectory.duration_s, time.monotonic())
+            self._run = run
+            publisher.publish(message)
+        try:
+            deadline = run.sent_at + trajectory.duration_s + cfg.result_margin_s
+            reported = 0.0
+            while True:
+                await anyio.sleep(POLL_S)
+                if self._stop_landed() or not self.is_open:
+                    self._hold(run)  # the stop sent it already; this covers a close, which does not bump the epoch
+                    held_at = run.held_at if run.held_at is not None else time.monotonic()
+                    return await self._rest(held_at + self.config.trajectory.hold_time_s)
+                problem = self._health_problem()
+                if problem is not None:
+                    self._hold(run)
+                    self._report_fault(f"ros2 backend fault: {problem}")
+                    raise BackendError(f"execution aborted: {problem}; a hold was sent")
+                elapsed = time.monotonic() - run.sent_at
+                if elapsed >= trajectory.duration_s:
+                    state = self.joint_states.fresh()
+                    at_goal = float(np.max(np.abs(state.positions - trajectory.goal))) <= self.goal_accuracy_rad
+                    if at_goal and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
+                        progress(1.0)
+                        return ExecutionResult(True, "completed", state.positions.copy())
+                elif trajectory.duration_s > 0 and (fraction := min(0.99, elapsed / trajectory.duration_s)) > reported:
+                    reported = fraction
+                    progress(fraction)
+                if time.monotonic() > deadline:
+                    self._hold(run)
+                    raise BackendError(f"controller timeout: the joint states did not reach the goal within "
+                                       f"{trajectory.duration_s + cfg.result_margin_s:g} s of publishing on {name}; a hold was sent")
+        except BaseException:
+            self._hold(run)
+            raise
+        finally:
+            with self._motion_lock:
+                if self._run is run:
+                    self._run = None
+
+    async def _wait_for_subscriber(self, publisher: rclpy.publisher.Publisher, name: str, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while publisher.get_subscription_count() == 0:
+            if time.monotonic() > deadline:
+                raise BackendError(f"nothing subscribes to {name} (waited {timeout_s:g} s); nothing was sent")
+            await anyio.sleep(POLL_S)
+
+    def _hold(self, run: _TopicRun) -> None:
+        """Any thread: publish a one-point hold at the measured positions (once per run)."""
+        publisher = self._endpoints.trajectory_topic
+        if publisher is None or run.held_at is not None:
+            return
+        state = self.joint_states.latest()
+        if state is None:
+            raise BackendError("cannot hold: no joint state to hold at")
+        publisher.publish(hold_message(state.positions, self.ros_names, self.config.trajectory.hold_time_s))
+        run.held_at = time.monotonic()
+        self.stop_records.append(StopRecord("hold", run.held_at))
+
+    # ================================================================ stops
+    async def _stop(self) -> None:
+        self._stop_now()
+
+    def _stop_now(self) -> None:
+        """Any thread, never awaiting: cancel the running goal (or hold), cancel the gripper's goal."""
+        with self._motion_lock:
+            run, gripper = self._run, self._gripper_run
+        if isinstance(run, _GoalRun):
+            self._cancel_goal(run)
+        elif isinstance(run, _TopicRun):
+            self._hold(run)
+        if gripper is not None:
+            self._cancel_gripper(gripper)
+
+    # ================================================================ gripper
+    def _cancel_gripper(self, run: _GripperRun) -> None:
+        action = self._endpoints.gripper_action
+        if action is None or run.cancel_sent:
+            return
+        run.cancel_sent = True
+        handle = run.handle or rclpy.action.client.ClientGoalHandle(
+            action, run.goal_id, GripperCommand.Impl.SendGoalService.Response())
+        handle.cancel_goal_async()
+        self.stop_records.append(StopRecord("gripper cancel", time.monotonic()))
+
+    async def _gripper_state(self) -> GripperState:
+        assert self.fingers is not None
+        state = self.fingers.fresh()
+        moving = self._gripper_run is not None or bool(np.max(np.abs(state.velocities)) > 1e-3)
+        return GripperState(float(np.sum(state.positions)), self._gripper_grasped, moving, state.stamp)
+
+    def _check_gripper(self, width_m: float, speed_mps: float) -> None:
+        assert self.config.gripper is not None
+        limit = self.config.gripper.max_width_m
+        if not (math.isfinite(width_m) and 0.0 <= width_m <= limit):
+            raise BackendError(f"gripper width {width_m} m outside [0, {limit}] m")
+        if not (math.isfinite(speed_mps) and speed_mps > 0):
+            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
+
+    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
+        assert self.config.gripper is not None
+        self._check_gripper(width_m, speed_mps)
+        result, stopped = await self._gripper_goal(width_m, self.config.gripper.move_effort_n)
+        self._gripper_grasped = False
+        if stopped:
+            return GripperResult(False, result, False, "stopped")
+        return GripperResult(True, result, False, "")
+
+    async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
+                             epsilon_outer_m: float) -> GripperResult:
+        gripper = self.config.gripper
+        assert gripper is not None
+        self._check_gripper(width_m, speed_mps)
+        for label, value in (("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
+            if not (math.isfinite(value) and value >= 0):
+                raise BackendError(f"gripper grasp: {label} must be finite and ≥ 0, got {value}")
+        if not (math.isfinite(force_n) and 0 < force_n <= gripper.max_effort_n):
+            raise BackendError(f"gripper grasp force {force_n} N outside (0, {gripper.max_effort_n}] N")
+        self._gripper_grasped = False
+        width, stopped = await self._gripper_goal(width_m, force_n)
+        if stopped:
+            return GripperResult(False, width, False, "stopped")
+        low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
+        grasped = low <= width <= high
+        self._gripper_grasped = grasped
+        detail = "" if grasped else f"final width {width:.4f} m outside [{low:.4f}, {high:.4f}] m"
+        return GripperResult(grasped, width, grasped, detail)
+
+    async def _gripper_home(self) -> GripperResult:
+        assert self.config.gripper is not None
+        return await self._gripper_move(self.config.gripper.max_width_m, 0.05)
+
+    async def _gripper_goal(self, width_m: float, effort_n: float) -> tuple[float, bool]:
+        """Send one GripperCommand goal and wait for its result: (final gap [m], whether a stop ended it).
+        GripperCommand carries no speed: the gripper's own speed applies."""
+        action, gripper = self._endpoints.gripper_action, self.config.gripper
+        assert action is not None and gripper is not None
+        if self._gripper_run is not None:
+            raise BackendError("the gripper is already moving; one gripper action at a time")
+        await self._wait_for_server(action, gripper.action, gripper.server_timeout_s)
+        goal = GripperCommand.Goal()
+        goal.command.position, goal.command.max_effort = float(width_m), float(effort_n)
+        with self._motion_lock:
+            if self._gripper_stop_landed():
+                return self._measured_width(), True
+            run = _GripperRun(_new_goal_id(), self._gripper_epoch)
+            self._gripper_run = run
+            sending = action.send_goal_async(goal, goal_uuid=run.goal_id)
+        finished = False
+        try:
+            handle = await self.bridge.result(sending, gripper.server_timeout_s)
+            with self._motion_lock:
+                run.handle = handle
+                late = run.cancel_sent
+            if not handle.accepted:
+                finished = True
+                raise BackendError(f"the gripper goal was rejected by {gripper.action}")
+            if late:
+                run.cancel_sent = False
+                self._cancel_gripper(run)
+            response = await self.bridge.result(handle.get_result_async(), None)
+            finished = True
+            if self._gripper_stop_landed() or response.status == GoalStatus.STATUS_CANCELED:
+                return float(response.result.position), True
+            if response.status != GoalStatus.STATUS_SUCCEEDED:
+                raise BackendError(f"the gripper goal ended {STATUS_NAMES.get(response.status, response.status)} "
+                                   f"at {gripper.action}")
+            return float(response.result.position), False
+        finally:
+            if not finished:
+                self._cancel_gripper(run)
+            with self._motion_lock:
+                if self._gripper_run is run:
+                    self._gripper_run = None
+
+    def _measured_width(self) -> float:
+        assert self.fingers is not None
+        state = self.fingers.latest()
+        return float(np.sum(state.positions)) if state is not None else float("nan")
+
+    # ================================================================ cameras
+    async def _camera_snapshot(self, camera: str) -> CameraImage:
+        spec = self.config.cameras[camera]
+        loop = asyncio.get_running_loop()
+        arrived: asyncio.Future[Any] = loop.create_future()
+
+        def take(msg: Any) -> None:  # executor thread
+            if not loop.is_closed():
+                loop.call_soon_threadsafe(lambda: arrived.done() or arrived.set_result(msg))
+
+        kind = CompressedImage if spec.kind == "compressed" else Image
+        qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
+        node = self.bridge.node
+        subscription = node.create_subscription(kind, spec.topic, take, qos, callback_group=self.bridge.group)
+        try:
+            msg = await asyncio.wait_for(arrived, spec.timeout_s)
+        except TimeoutError:
+            raise BackendError(f"camera {camera!r}: no image on {spec.topic} within {spec.timeout_s:g} s") from None
+        finally:
+            node.destroy_subscription(subscription)
+        width, height, png = png_from_compressed(msg) if spec.kind == "compressed" else png_from_image(msg)
+        return CameraImage(camera, width, height, png, time.monotonic())
+
+    # ================================================================ controllers and recovery
+    async def _call(self, client: rclpy.client.Client | None, request: Any, what: str, timeout_s: float) -> Any:
+        assert client is not None
+        deadline = time.monotonic() + timeout_s
+        while not client.service_is_ready():
+            if time.monotonic() > deadline:
+                raise BackendError(f"the service {client.srv_name} is not available (waited {timeout_s:g} s)")
+            await anyio.sleep(POLL_S)
+        try:
+            return await self.bridge.result(client.call_async(request), max(0.0, deadline - time.monotonic()))
+        except TimeoutError:
+            raise BackendError(f"{what}: {client.srv_name} did not answer within {timeout_s:g} s") from None
+
+    async def _list_controllers(self) -> list[ControllerInfo]:
+        response = await self._call(self._endpoints.list_controllers, ListControllers.Request(), "list controllers",
+                                    self.controllers_timeout_s)
+        return [ControllerInfo(c.name, c.type, c.state) for c in response.controller]
+
+    async def _switch_controllers(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
+        manager = self.config.controller_manager
+        assert manager is not None
+        refused = sorted({*activate, *deactivate} - set(manager.allowlist))
+        if refused:
+            allowed = ", ".join(manager.allowlist) or "none"
+            raise BackendError(f"controller(s) {', '.join(refused)} are not in the ros2 backend's allowlist "
+                               f"(allowed: {allowed}); nothing was switched")
+        request = SwitchController.Request(activate_controllers=list(activate), deactivate_controllers=list(deactivate),
+                                           strictness=SwitchController.Request.STRICT)
+        response = await self._call(self._endpoints.switch_controller, request, "switch controllers",
+                                    self.controllers_timeout_s)
+        if not response.ok:
+            raise BackendError(f"the controller manager refused the switch: {response.message or 'no reason given'}")
+
+    async def _error_recovery(self) -> None:
+        response = await self._call(self._endpoints.error_recovery, Trigger.Request(), "error recovery",
+                                    self.error_recovery_timeout_s)
+        if not response.success:
+            raise BackendError(f"error recovery failed: {response.message or 'no reason given'}")
+
+    # ================================================================ graph and frames
+    async def _graph(self) -> dict[str, list[str]]:
+        node = self.bridge.node
+
+        def typed(pairs: list[tuple[str, list[str]]]) -> list[str]:
+            return [f"{name} [{', '.join(types)}]" for name, types in pairs if "/_action/" not in name]
+
+        nodes = [f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()]
+        return {
+            "nodes": nodes,
+            "topics": typed(node.get_topic_names_and_types()),
+            "services": typed(node.get_service_names_and_types()),
+            "actions": typed(rclpy.action.graph.get_action_names_and_types(node)),
+        }
+
+    async def _lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
+        assert self.transforms is not None
+        reading = self.transforms.lookup(target_frame, source_frame)
+        return Transform(reading.translation, reading.rotation_xyzw, time.monotonic())
+
+    def tf_frames(self) -> tuple[str, ...]:
+        """Frames seen on /tf and /tf_static so far."""
+        return () if self.transforms is None else self.transforms.frames()
+
+    # ================================================================ diagnostics
+    @property
+    def last_cancel_stamp(self) -> float | None:
+        """Monotonic time [s] the latest cancel request (or topic hold) was sent; None: none yet."""
+        return self.stop_records[-1].stamp if self.stop_records else None
+
+
+def create_backend(robot: RobotModel, policy: Policy, config: Config) -> Ros2Backend:
+    """Registry factory: the ROS 2 backend for `policy`'s joints, named as `config` says."""
+    ros_names = check_against_policy(config, tuple(policy.robot.joint_names))
+    return Ros2Backend(robot, config, ros_names, start_tolerance_rad=policy.motion.start_tolerance_rad)
+
+
+__all__ = ["ERROR_CODES", "Ros2Backend", "StopRecord", "create_backend", "hold_message", "trajectory_message"]

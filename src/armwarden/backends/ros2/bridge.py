@@ -1,0 +1,143 @@
+"""rclpy inside the daemon: a private context, one node, one executor thread, asyncio bridging.
+
+Why a private `Context` with `SignalHandlerOptions.NO`: with rclpy's default signal handling,
+SIGINT shuts every context down and SIGTERM is swallowed, but the daemon handles its own signals
+(and must stop the arm on them). The `MultiThreadedExecutor` spins on a thread of its own, so ROS
+callbacks never wait for the event loop and the event loop never blocks on DDS. `close` shuts the
+executor down and *joins* its thread before destroying the node: a thread left spinning aborts
+the process at exit.
+
+rclpy futures are not awaitable by asyncio; `result` bridges one with `add_done_callback` (called
+on an executor thread) and `loop.call_soon_threadsafe` (see `armwarden.handoff`), guarded against
+a loop that has closed meanwhile.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import threading
+from typing import Any
+
+import rclpy
+import rclpy.callback_groups
+import rclpy.context
+import rclpy.executors
+import rclpy.node
+import rclpy.task
+import rclpy.utilities
+from rclpy.signals import SignalHandlerOptions
+
+from armwarden.errors import BackendError
+from armwarden.handoff import settle_threadsafe
+
+logger = logging.getLogger(__name__)
+
+#: executor threads: subscriptions, action and service responses, the watchdog timer
+EXECUTOR_THREADS = 4
+#: how long `close` waits for the executor to stop and its thread to end [s]
+SHUTDOWN_TIMEOUT_S = 5.0
+
+
+def domain_from_environment() -> int:
+    """ROS_DOMAIN_ID from the environment (0 when unset, as ROS itself does)."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return 0
+    try:
+        domain = int(text)
+    except ValueError:
+        raise BackendError(f"ROS_DOMAIN_ID={text!r} is not a number") from None
+    if not 0 <= domain <= 232:
+        raise BackendError(f"ROS_DOMAIN_ID={domain} is outside 0..232")
+    return domain
+
+
+class RosBridge:
+    """One node in a private context, spun on its own thread. `start` then `close` (twice is safe)."""
+
+    def __init__(self, node_name: str, domain_id: int | None) -> None:
+        self.node_name = node_name
+        self.domain_id = domain_id
+        self._context: rclpy.context.Context | None = None
+        self._node: rclpy.node.Node | None = None
+        self._executor: rclpy.executors.MultiThreadedExecutor | None = None
+        self._thread: threading.Thread | None = None
+        self._closed = threading.Event()
+        #: every callback may run concurrently with every other (each guards its own state)
+        self.group = rclpy.callback_groups.ReentrantCallbackGroup()
+
+    @property
+    def node(self) -> rclpy.node.Node:
+        if self._node is None:
+            raise BackendError("the ROS node is not running")
+        return self._node
+
+    def start(self) -> None:
+        domain = self.domain_id if self.domain_id is not None else domain_from_environment()
+        context = rclpy.context.Context()
+        rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+        self._context = context
+        try:
+            self._node = rclpy.create_node(self.node_name, context=context)
+            self._executor = rclpy.executors.MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=context)
+            self._executor.add_node(self._node)
+        except BaseException:
+            self.close()
+            raise
+        self._thread = threading.Thread(target=self._spin, name="armwarden-ros2-executor", daemon=True)
+        self._thread.start()
+        logger.info("ros2: node %s started in domain %d", self.node_name, domain)
+
+    def _spin(self) -> None:
+        executor = self._executor
+        assert executor is not None
+        try:
+            executor.spin()
+        except Exception:  # the context shut down under it while closing; anything else is a bug to log
+            if not self._closed.is_set():
+                logger.exception("ros2: the executor thread failed")
+
+    @property
+    def spinning(self) -> bool:
+        thread = self._thread
+        return thread is not None and thread.is_alive() and not self._closed.is_set()
+
+    def close(self) -> None:
+        """Stop the executor, join its thread, destroy the node, shut the context down."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        if self._executor is not None:
+            self._executor.shutdown(timeout_sec=SHUTDOWN_TIMEOUT_S)
+        if self._thread is not None:
+            self._thread.join(timeout=SHUTDOWN_TIMEOUT_S)
+            if self._thread.is_alive():
+                logger.error("ros2: the executor thread did not end within %s s", SHUTDOWN_TIMEOUT_S)
+        if self._node is not None:
+            self._node.destroy_node()
+        if self._context is not None:
+            rclpy.utilities.try_shutdown(context=self._context)
+
+    async def result(self, future: rclpy.task.Future, timeout_s: float | None) -> Any:
+        """Await an rclpy future from asyncio; `TimeoutError` after `timeout_s` [s] (None: no
+        deadline — the caller bounds the wait). The rclpy
+        future is left alone on timeout or cancellation (its late result is dropped)."""
+        loop = asyncio.get_running_loop()
+        waiter: asyncio.Future[Any] = loop.create_future()
+        # an error that lands after the awaiter gave up (a node destroyed at close) is not "never retrieved"
+        waiter.add_done_callback(lambda f: f.cancelled() or f.exception())
+
+        def done(finished: rclpy.task.Future) -> None:  # an executor thread, or this one if already done
+            error = finished.exception()
+            if error is None and finished.cancelled():
+                error = BackendError("the ROS request was cancelled")
+            if not loop.is_closed():
+                settle_threadsafe(loop, waiter, None if error is not None else finished.result(), error)
+
+        future.add_done_callback(done)
+        return await asyncio.wait_for(waiter, timeout_s)
+
+
+__all__ = ["EXECUTOR_THREADS", "RosBridge", "domain_from_environment"]

@@ -1,0 +1,171 @@
+"""`--backend-config` of the ROS 2 backend: every topic, action and service name it uses, and the
+ages and deadlines it holds them to (strict pydantic: unknown keys, NaN/inf, out-of-range values
+are errors with their YAML path). Importing this module does not import rclpy.
+
+Sections that are optional (`wrench`, `gripper`, `controller_manager`, `error_recovery`, cameras)
+are `null` (or empty) when the cell lacks them: the backend then declares no such capability and
+the server registers none of its tools. `check_against_policy` makes the cross-checks that need
+the policy (the `joints` mapping names policy joints only) when the backend is built.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from armwarden.errors import ConfigurationError
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+#: a ROS name: absolute or relative, no whitespace
+RosName = Annotated[str, Field(min_length=1, max_length=256, pattern=r"^[~/A-Za-z_][A-Za-z0-9_/~{}]*$")]
+
+
+class JointStatesConfig(BaseModel):
+    """The `sensor_msgs/JointState` topic the arm's state comes from."""
+
+    model_config = _STRICT
+    topic: RosName = Field(default="/joint_states", description="JointState topic.")
+    max_age_s: float = Field(default=0.5, gt=0, le=5,
+                             description="Older than this [s] (receipt time, monotonic clock): the state is refused.")
+    startup_timeout_s: float = Field(default=10.0, gt=0, le=120,
+                                     description="How long `open` waits for the first complete joint state [s].")
+
+
+class WrenchConfig(BaseModel):
+    """The `geometry_msgs/WrenchStamped` topic (best-effort QoS) of the external wrench at the TCP,
+    in the robot's base frame."""
+
+    model_config = _STRICT
+    topic: RosName = Field(default="/force_torque_sensor_broadcaster/wrench", description="WrenchStamped topic.")
+    max_age_s: float = Field(default=0.1, gt=0, le=5,
+                             description="No new header stamp for this long [s]: the wrench is stale.")
+    frame_id: str | None = Field(default=None, min_length=1,
+                                 description="Only accept messages in this frame (the base frame); null: any frame.")
+
+
+class TrajectoryConfig(BaseModel):
+    """How trajectories reach the controller: a `control_msgs/FollowJointTrajectory` action, or
+    (fallback) a `trajectory_msgs/JointTrajectory` topic. Exactly one of the two."""
+
+    model_config = _STRICT
+    action: RosName | None = Field(default="/fr3_arm_controller/follow_joint_trajectory",
+                                   description="FollowJointTrajectory action; null: use `topic`.")
+    topic: RosName | None = Field(default=None, description="JointTrajectory topic (fallback); null: use `action`.")
+    server_timeout_s: float = Field(default=5.0, gt=0, le=60,
+                                    description="How long an execution waits for the action server [s] before refusing.")
+    goal_response_timeout_s: float = Field(default=2.0, gt=0, le=30,
+                                           description="How long the server may take to accept or reject a goal [s].")
+    result_margin_s: float = Field(default=2.0, gt=0, le=60,
+                                   description="No result this long [s] after the trajectory's duration: controller timeout.")
+    hold_time_s: float = Field(default=0.05, gt=0, le=1,
+                               description="Topic fallback: time_from_start [s] of the one-point hold a stop sends.")
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> TrajectoryConfig:
+        if (self.action is None) == (self.topic is None):
+            raise ValueError("give exactly one of action (FollowJointTrajectory) and topic (JointTrajectory fallback)")
+        return self
+
+
+class GripperConfig(BaseModel):
+    """A `control_msgs/GripperCommand` action; command.position is the finger gap [m]."""
+
+    model_config = _STRICT
+    action: RosName = Field(default="/franka_gripper/gripper_action", description="GripperCommand action.")
+    max_width_m: float = Field(default=0.08, gt=0, le=0.5, description="The fingers' full opening [m].")
+    max_effort_n: float = Field(default=70.0, gt=0, le=1000, description="Largest grasp force [N] sent as max_effort.")
+    move_effort_n: float = Field(default=0.0, ge=0, le=1000,
+                                 description="max_effort [N] of a plain move (franka_gripper: 0 = move, not grasp).")
+    joint_states_topic: RosName = Field(default="/franka_gripper/joint_states",
+                                        description="JointState topic of the finger joints (the width is their sum).")
+    finger_joints: tuple[str, ...] = Field(default=("fr3_finger_joint1", "fr3_finger_joint2"), min_length=1,
+                                           description="Finger joint names; width [m] = sum of their positions.")
+    max_age_s: float = Field(default=0.5, gt=0, le=5, description="Finger state older than this [s] is refused.")
+    server_timeout_s: float = Field(default=5.0, gt=0, le=60, description="How long to wait for the action server [s].")
+
+
+class ControllerManagerConfig(BaseModel):
+    """The controller_manager's list/switch services; only `allowlist` controllers are switched."""
+
+    model_config = _STRICT
+    namespace: RosName = Field(default="/controller_manager", description="Namespace of list_controllers/switch_controller.")
+    allowlist: tuple[str, ...] = Field(default=(), description="Controllers that may be activated or deactivated.")
+
+
+class ErrorRecoveryConfig(BaseModel):
+    """A `std_srvs/Trigger` service that clears the controller's error state."""
+
+    model_config = _STRICT
+    service: RosName = Field(description="Trigger service name.")
+
+
+class CameraConfig(BaseModel):
+    """One camera topic: `sensor_msgs/Image` (8-bit encodings) or `sensor_msgs/CompressedImage`."""
+
+    model_config = _STRICT
+    topic: RosName = Field(description="Image or CompressedImage topic.")
+    kind: Literal["image", "compressed"] = Field(default="image", description="'image' or 'compressed'.")
+    timeout_s: float = Field(default=1.5, gt=0, le=30, description="How long a snapshot waits for a frame [s].")
+
+
+class TfConfig(BaseModel):
+    """Transforms from /tf and /tf_static."""
+
+    model_config = _STRICT
+    enabled: bool = Field(default=True, description="Subscribe to /tf and /tf_static.")
+    max_age_s: float = Field(default=1.0, gt=0, le=60,
+                             description="A /tf (not static) transform older than this [s] is not used.")
+
+
+class Config(BaseModel):
+    """`--backend-config` for the ROS 2 backend."""
+
+    model_config = _STRICT
+    node_name: str = Field(default="armwarden", min_length=1, max_length=128, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+                           description="This node's name.")
+    domain_id: int | None = Field(default=None, ge=0, le=232, description="ROS_DOMAIN_ID; null: the environment's.")
+    joints: dict[str, str] = Field(default_factory=dict,
+                                   description="Policy joint -> JointState name, where they differ (default: same name).")
+    joint_states: JointStatesConfig = Field(default_factory=JointStatesConfig, description="Joint state topic.")
+    wrench: WrenchConfig | None = Field(default_factory=WrenchConfig, description="Wrench topic; null: no wrench.")
+    trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig, description="How trajectories are sent.")
+    gripper: GripperConfig | None = Field(default=None, description="Gripper action; null: no gripper.")
+    controller_manager: ControllerManagerConfig | None = Field(default=None, description="null: no controller tools.")
+    error_recovery: ErrorRecoveryConfig | None = Field(default=None, description="null: no error recovery.")
+    cameras: dict[str, CameraConfig] = Field(default_factory=dict, description="Camera name -> topic (only these).")
+    tf: TfConfig = Field(default_factory=TfConfig, description="Transforms.")
+
+    @model_validator(mode="after")
+    def _distinct_ros_names(self) -> Config:
+        names = list(self.joints.values())
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ValueError(f"joints maps two policy joints to the same JointState name: {', '.join(duplicates)}")
+        return self
+
+
+def check_against_policy(config: Config, joint_names: tuple[str, ...]) -> tuple[str, ...]:
+    """The JointState name of each policy joint, in policy order; `ConfigurationError` (with the
+    YAML path) if `joints` names a joint the policy does not have."""
+    unknown = [name for name in config.joints if name not in joint_names]
+    if unknown:
+        lines = "\n".join(f"  joints.{name}: not a joint of the policy (policy joints: {', '.join(joint_names)})"
+                          for name in unknown)
+        raise ConfigurationError(f"invalid ros2 backend config:\n{lines}")
+    return tuple(config.joints.get(name, name) for name in joint_names)
+
+
+__all__ = [
+    "CameraConfig",
+    "Config",
+    "ControllerManagerConfig",
+    "ErrorRecoveryConfig",
+    "GripperConfig",
+    "JointStatesConfig",
+    "TfConfig",
+    "TrajectoryConfig",
+    "WrenchConfig",
+    "check_against_policy",
+]

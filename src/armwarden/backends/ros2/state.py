@@ -1,0 +1,162 @@
+"""Thread-safe caches of what the cell publishes, stamped with when it arrived.
+
+Subscription callbacks (executor threads) `accept` messages; the event loop and any stopping
+thread read the latest sample without waiting. Freshness is judged by *receipt* time on the
+monotonic clock, never by the sender's header stamp (another clock, possibly simulated); the
+header stamp is only checked to move forward: a message whose stamp goes backwards, or repeats
+(a frozen driver), is not a new sample, so the cache ages and the reader refuses it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from armwarden.backends.base import JointState, Wrench
+from armwarden.errors import BackendError
+
+Clock = Callable[[], float]
+
+
+def header_seconds(stamp) -> float:
+    """A builtin_interfaces/Time as seconds."""
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def _frozen(values: np.ndarray) -> np.ndarray:
+    values.setflags(write=False)
+    return values
+
+
+@dataclass(frozen=True)
+class _Sample:
+    state: JointState
+    header_s: float
+
+
+class JointStateCache:
+    """The latest complete joint state, mapped by name to the policy's joint order."""
+
+    def __init__(self, topic: str, joint_names: Sequence[str], ros_names: Sequence[str], max_age_s: float,
+                 clock: Clock = time.monotonic) -> None:
+        self.topic = topic
+        self.joint_names = tuple(joint_names)
+        self.ros_names = tuple(ros_names)
+        self.max_age_s = max_age_s
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._sample: _Sample | None = None
+        self._arrived = threading.Event()
+        #: messages not taken, and why the last one was not (for the stale message)
+        self.dropped = 0
+        self.last_drop: str = ""
+
+    def accept(self, msg) -> None:
+        """Executor thread: take `msg` (sensor_msgs/JointState) if it is complete and newer."""
+        now = self._clock()
+        index = {name: i for i, name in enumerate(msg.name)}
+        missing = [name for name in self.ros_names if name not in index]
+        header_s = header_seconds(msg.header.stamp)
+        with self._lock:
+            previous = self._sample
+            if missing:  # e.g. another publisher's message (the fingers) on the same topic
+                self._drop(f"a message lacked {', '.join(missing)}")
+                return
+            try:
+                positions = np.array([msg.position[index[name]] for name in self.ros_names], dtype=float)
+                velocities = (np.array([msg.velocity[index[name]] for name in self.ros_names], dtype=float)
+                              if len(msg.velocity) == len(msg.name) else None)
+            except IndexError:
+                self._drop("a message had fewer positions than names")
+                return
+            if not np.all(np.isfinite(positions)) or (velocities is not None and not np.all(np.isfinite(velocities))):
+                self._drop("a message had non-finite positions or velocities")
+                return
+            if previous is not None and header_s <= previous.header_s:
+                self._drop(f"the header stamp went backwards or repeated ({header_s:.6f} s after {previous.header_s:.6f} s)")
+                return
+            if velocities is None:  # no velocities published: difference the positions (zero for the first)
+                dt = now - previous.state.stamp if previous is not None else 0.0
+                velocities = (positions - previous.state.positions) / dt if previous is not None and dt > 0 else np.zeros_like(positions)
+            stamp = max(now, previous.state.stamp) if previous is not None else now
+            state = JointState(self.joint_names, _frozen(positions), _frozen(velocities), stamp)
+            self._sample = _Sample(state, header_s)
+        self._arrived.set()
+
+    def _drop(self, why: str) -> None:
+        self.dropped += 1
+        self.last_drop = why
+
+    def latest(self) -> JointState | None:
+        with self._lock:
+            return None if self._sample is None else self._sample.state
+
+    def age_s(self) -> float | None:
+        state = self.latest()
+        return None if state is None else self._clock() - state.stamp
+
+    def fresh(self) -> JointState:
+        """The latest sample, or `BackendError` naming how old it is (or that none came)."""
+        state = self.latest()
+        if state is None:
+            why = f"; {self.dropped} message(s) not used: {self.last_drop}" if self.dropped else ""
+            raise BackendError(f"no joint state received on {self.topic} yet{why}")
+        age = self._clock() - state.stamp
+        if age > self.max_age_s:
+            why = f"; {self.dropped} message(s) not used, the last because {self.last_drop}" if self.dropped else ""
+            raise BackendError(f"joint states on {self.topic} are {age:.2f} s old (limit {self.max_age_s:g} s){why}")
+        return state
+
+    def wait_first(self, timeout_s: float) -> bool:
+        """Block until a complete sample arrived (any thread but the executor's)."""
+        return self._arrived.wait(timeout_s)
+
+
+class WrenchCache:
+    """The latest wrench; its stamp is the receipt time of the last *new* header stamp, so a
+    frozen header stamp makes it age like a silent topic."""
+
+    def __init__(self, topic: str, max_age_s: float, frame_id: str | None, clock: Clock = time.monotonic) -> None:
+        self.topic = topic
+        self.max_age_s = max_age_s
+        self.frame_id = frame_id
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._wrench: Wrench | None = None
+        self._header_s: float | None = None
+        self.last_drop = ""
+
+    def accept(self, msg) -> None:
+        """Executor thread: take `msg` (geometry_msgs/WrenchStamped) if its stamp is new."""
+        now = self._clock()
+        header_s = header_seconds(msg.header.stamp)
+        f, t = msg.wrench.force, msg.wrench.torque
+        force, torque = np.array([f.x, f.y, f.z], dtype=float), np.array([t.x, t.y, t.z], dtype=float)
+        with self._lock:
+            if self.frame_id is not None and msg.header.frame_id != self.frame_id:
+                self.last_drop = f"a message was in frame {msg.header.frame_id!r}, not {self.frame_id!r}"
+                return
+            if self._header_s is not None and header_s <= self._header_s:
+                self.last_drop = "its header stamp stopped advancing"
+                return
+            self._header_s = header_s
+            self._wrench = Wrench(_frozen(force), _frozen(torque), now)
+
+    def fresh(self) -> Wrench:
+        """The latest wrench, or `BackendError` naming its age (or that none came)."""
+        with self._lock:
+            wrench, why = self._wrench, self.last_drop
+        if wrench is None:
+            raise BackendError(f"no wrench received on {self.topic} yet")
+        age = self._clock() - wrench.stamp
+        if age > self.max_age_s:
+            cause = f" ({why})" if why else ""
+            raise BackendError(f"the wrench on {self.topic} is {age:.2f} s old (limit {self.max_age_s:g} s){cause}")
+        return wrench
+
+
+__all__ = ["JointStateCache", "WrenchCache", "header_seconds"]
