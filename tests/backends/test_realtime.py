@@ -32,7 +32,7 @@ class SchedulerSpy:
 def test_a_priority_outside_1_to_99_is_refused_before_asking_the_system(monkeypatch: pytest.MonkeyPatch, priority: Any) -> None:
     spy = SchedulerSpy()
     monkeypatch.setattr(realtime.os, "sched_setscheduler", spy)
-    with pytest.raises(BackendError, match="integer in 1..99"):
+    with pytest.raises(BackendError, match=r"integer in 1\.\.99"):
         make_current_thread_realtime(priority)
     assert spy.calls == []
 

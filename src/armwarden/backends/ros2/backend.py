@@ -710,6 +710,7 @@ class Ros2Backend(Backend):
                 self._cancel_gripper(run)
             response = await self.bridge.result(handle.get_result_async(), None)
             finished = True
+            await self._finger_state_after(time.monotonic(), gripper.max_age_s)
             if self._gripper_stop_landed() or response.status == GoalStatus.STATUS_CANCELED:
                 return float(response.result.position), True
             if response.status != GoalStatus.STATUS_SUCCEEDED:
@@ -722,6 +723,18 @@ class Ros2Backend(Backend):
             with self._motion_lock:
                 if self._gripper_run is run:
                     self._gripper_run = None
+
+    async def _finger_state_after(self, instant: float, timeout_s: float) -> None:
+        """Wait (at most `timeout_s`) for a finger state received after `instant`, so the gripper
+        state read after an action reflects where the action left the fingers, not a sample
+        from just before its last step."""
+        assert self.fingers is not None
+        deadline = instant + timeout_s
+        while time.monotonic() < deadline:
+            state = self.fingers.latest()
+            if state is not None and state.stamp > instant:
+                return
+            await asyncio.sleep(0.002)
 
     def _measured_width(self) -> float:
         assert self.fingers is not None
