@@ -48,6 +48,8 @@ _POSE_EXTRA = frozenset({Code.STEP_TOO_LARGE, Code.CARTESIAN_STEP_TOO_LARGE})
 _GOAL_SHARE = 0.35
 #: part of the budget kept for timing and the final check after the search
 _RESERVE_SHARE = 0.05
+#: searches per plan call (each after the previous path failed the whole-plan check), budget permitting
+_MAX_SEARCHES = 4
 
 #: how far the TCP backs off from a goal near an obstacle before the search connects to it [m]
 _RETREAT_M = 0.06
@@ -62,8 +64,8 @@ class DetourFacts:
     """What a detour cost, for notes and the benchmark."""
 
     vertices: int
-    joint_path_rad: float
-    straight_joint_path_rad: float
+    tcp_path_m: float
+    straight_tcp_path_m: float
     goal_configurations: int
     searched: bool  # False: another goal configuration's straight line was clear
     elapsed_s: float
@@ -120,24 +122,29 @@ class DetourPlanner:
         # point a few centimetres back from it and straight in from there
         retreats = [self._retreat(goal) for goal in goals]
         rejected: list[str] = []
+        context = _Context(straight, report, len(goals), began, rejected)
         for goal, retreat in zip(goals, retreats, strict=True):
             for path in ([start, goal], [start, retreat, goal] if retreat is not None else None):
                 if path is not None and self._clear(path):
-                    proposal = self._accepted(straight, np.vstack(path), len(goals), False, began, rejected)
+                    proposal = self._accepted(context, np.vstack(path), searched=False)
                     if proposal is not None:
                         return proposal
-        # then the search, to the retreat points where there are some
+        # then the search, to the retreat points where there are some; a path the whole-plan check
+        # refuses (too long for the travel or TCP-path cap) is followed by another search while
+        # the budget lasts (OMPL's generators continue, so the next tree differs)
         entries = [goal if retreat is None else retreat for goal, retreat in zip(goals, retreats, strict=True)]
-        result = self.search.find(start, entries, seed, deadline, should_stop)
-        if result.path is None or result.goal_index is None:
-            return self._refuse(straight, report, _search_failure(result, len(goals), self.budget_s, rejected))
-        path = result.path
-        if retreats[result.goal_index] is not None:
-            path = np.vstack([path, goals[result.goal_index]])
-        proposal = self._accepted(straight, path, len(goals), True, began, rejected)
-        if proposal is None:
-            return self._refuse(straight, report, "the path found fails the envelope as a whole: " + "; ".join(rejected[-1:]))
-        return proposal
+        for _ in range(_MAX_SEARCHES):
+            result = self.search.find(start, entries, seed, deadline, should_stop, reseed=not rejected_by_search(rejected))
+            if result.path is None or result.goal_index is None:
+                return self._refuse(straight, report, _search_failure(result, len(goals), self.budget_s, rejected))
+            path = result.path
+            if retreats[result.goal_index] is not None:
+                path = np.vstack([path, goals[result.goal_index]])
+            proposal = self._accepted(context, path, searched=True)
+            if proposal is not None:
+                return proposal
+            rejected[-1] = "search: " + rejected[-1]
+        return self._refuse(straight, report, "every path found fails the envelope as a whole (" + rejected[-1] + ")")
 
     # ------------------------------------------------------------------ helpers
     def _retreat(self, goal: np.ndarray) -> np.ndarray | None:
@@ -160,20 +167,11 @@ class DetourPlanner:
     def _within_travel(self, start: np.ndarray, q: np.ndarray) -> bool:
         return bool(np.max(np.abs(q - start)) <= self.envelope.limits.max_joint_step_rad)
 
-    def _accepted(self, straight: PlanOutcome, path: np.ndarray, n_goals: int, searched: bool, began: float,
-                  rejected: list[str]) -> PlanOutcome | None:
+    def _accepted(self, context: _Context, path: np.ndarray, searched: bool) -> PlanOutcome | None:
         """The path timed, if the envelope accepts the whole timed plan (its travel and TCP-length
         caps apply to the whole detour, and its samples fall differently than the search's); else
-        None, with the reason appended to `rejected`."""
-        proposal = self._timed(straight, path, n_goals, searched, began)
-        hard = proposal.violations or (self.envelope.check(proposal.trajectory).hard if proposal.trajectory else ())
-        if hard:
-            self.last_facts = None
-            rejected.append(f"{hard[0].code.value}: {hard[0].detail}")
-            return None
-        return proposal
-
-    def _timed(self, straight: PlanOutcome, path: np.ndarray, n_goals: int, searched: bool, began: float) -> PlanOutcome:
+        None, with the reason appended to `context.rejected`."""
+        straight = context.straight
         settings = self.planner.settings
         vel, acc = straight.velocity_scaling, straight.acceleration_scaling
         try:
@@ -182,24 +180,43 @@ class DetourPlanner:
                 settings.max_acceleration_rad_s2 * acc, stops=tuple(range(1, len(path) - 1)),
             )
         except TimingError as exc:
-            return self._refuse(straight, None, f"the detour could not be timed: {exc}")
-        assert straight.trajectory is not None
-        straight_length = float(np.sum(np.linalg.norm(np.diff(straight.trajectory.positions, axis=0), axis=1)))
-        length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-        facts = DetourFacts(len(path), length, straight_length, n_goals, searched, time.monotonic() - began)
-        self.last_facts = facts
+            context.rejected.append(f"the path could not be timed: {exc}")
+            return None
+        checked = self.envelope.check(trajectory)
+        if checked.hard:
+            context.rejected.append(f"{checked.hard[0].code.value}: {checked.hard[0].detail}")
+            return None
+        straight_tcp = context.report.tcp_path_length_m
+        elapsed = time.monotonic() - context.began
+        self.last_facts = DetourFacts(len(path), checked.tcp_path_length_m, straight_tcp, context.goals, searched, elapsed)
         how = (f"a joint-space search (RRTConnect) found a way through {len(path) - 2} intermediate configuration(s)"
                if searched else f"a clear line to a collision-free goal configuration through {len(path) - 2} "
                "intermediate configuration(s)")
-        ratio = f"{length / straight_length:.2f}×" if straight_length > 0 else "n/a"
-        note = (f"detour planned: the straight line was blocked; {how}; joint path {length:.2f} rad, {ratio} the "
-                f"straight line's {straight_length:.2f} rad; planned in {facts.elapsed_s * 1e3:.0f} ms")
+        ratio = f", {checked.tcp_path_length_m / straight_tcp:.2f}× the" if straight_tcp > 0 else "; the"
+        note = (f"detour planned: the straight line was blocked; {how}; TCP path {checked.tcp_path_length_m:.3f} m"
+                f"{ratio} straight line's {straight_tcp:.3f} m; planned in {elapsed * 1e3:.0f} ms")
         return replace(straight, trajectory=trajectory, violations=(), notes=(*straight.notes, note))
 
-    def _refuse(self, straight: PlanOutcome, report: EnvelopeReport | None, why: str) -> PlanOutcome:
-        blocked = "; ".join(v.detail for v in (report.hard if report else ())[:3]) or "the envelope"
+    def _refuse(self, straight: PlanOutcome, report: EnvelopeReport, why: str) -> PlanOutcome:
+        blocked = "; ".join(v.detail for v in report.hard[:3])
         violation = Violation(Code.NO_DETOUR, f"the straight line is blocked ({blocked}); no safe detour: {why}")
         return replace(straight, violations=(*straight.violations, violation))
+
+
+@dataclass(frozen=True)
+class _Context:
+    """One `plan` call's facts the candidates are judged and described with."""
+
+    straight: PlanOutcome
+    report: EnvelopeReport  # the envelope's verdict on the straight line
+    goals: int
+    began: float
+    rejected: list[str]  # why candidates failed the whole-plan check, in order
+
+
+def rejected_by_search(rejected: list[str]) -> bool:
+    """Whether a search already ran in this `plan` call (its generators then continue, not restart)."""
+    return any(reason.startswith("search: ") for reason in rejected)
 
 
 def request_seed(kind: str, start: np.ndarray, goal: np.ndarray | PoseTarget | None) -> int:

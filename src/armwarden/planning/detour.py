@@ -25,6 +25,7 @@ is not shared.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -36,6 +37,9 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from armwarden.safety.envelope import Envelope
+
+#: extra travel of one joint over its straight start-to-goal travel that `_straighten_joints` removes [rad]
+_WANDER_RAD = 0.05
 
 ou.setLogLevel(ou.LOG_WARN)  # OMPL's INFO lines ("created N states") would flood stderr per plan
 
@@ -110,15 +114,17 @@ class DetourSearch:
     # ------------------------------------------------------------------ search
     def find(
         self, start: np.ndarray, goals: Sequence[np.ndarray], seed: int, deadline: float,
-        should_stop: Callable[[], bool] = lambda: False,
+        should_stop: Callable[[], bool] = lambda: False, reseed: bool = True,
     ) -> SearchResult:
-        """A valid joint path from `start` to one of `goals` (their order is a preference only for
-        the tie-break of equally short paths), or none before `deadline` (`time.monotonic`)."""
+        """A valid joint path from `start` to one of `goals`, or none before `deadline`
+        (`time.monotonic`). `reseed` False continues OMPL's generators from the previous search
+        (a second search for the same request, which must differ from the first)."""
         began = time.monotonic()
         self.state_checks = self.motion_checks = 0
         if not goals:
             return SearchResult(None, None, 0, 0, 0.0, False)
-        _seed_ompl(seed)
+        if reseed:
+            _seed_ompl(seed)
         n = self._n
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
@@ -162,7 +168,7 @@ class DetourSearch:
         positions[0] = start  # exactly, not through OMPL's copy
         end = int(np.argmin([np.max(np.abs(positions[-1] - g)) for g in goals]))
         positions[-1] = goals[end]
-        return self._result(self._shortcut(positions), end, began, False)
+        return self._result(self._straighten_joints(self._shortcut(positions)), end, began, False)
 
     def _shortcut(self, positions: np.ndarray) -> np.ndarray:
         """Greedy, deterministic: from each kept vertex jump to the farthest later one in clear sight."""
@@ -174,6 +180,26 @@ class DetourSearch:
                 j -= 1
             kept.append(j)
         return positions[kept]
+
+    def _straighten_joints(self, positions: np.ndarray) -> np.ndarray:
+        """Per joint, deterministic: a joint that wanders (the random tree turns the wrist back and
+        forth while it searches for the elbow's way) is put back on its straight line from start to
+        goal along the path, wherever the path stays clear. Joint travel counts against the
+        policy's per-plan cap, so a wandering joint can get a good path rejected."""
+        if len(positions) < 3:
+            return positions
+        steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+        fraction = np.concatenate([[0.0], np.cumsum(steps)]) / max(float(np.sum(steps)), 1e-12)
+        for j in range(positions.shape[1]):
+            straight = positions[0, j] + fraction * (positions[-1, j] - positions[0, j])
+            travel = float(np.sum(np.abs(np.diff(positions[:, j]))))
+            if travel - abs(positions[-1, j] - positions[0, j]) < _WANDER_RAD:
+                continue
+            candidate = positions.copy()
+            candidate[:, j] = straight
+            if all(self.segment_is_clear(a, b) for a, b in itertools.pairwise(candidate)):
+                positions = candidate
+        return positions
 
     def _state(self, si, q: np.ndarray):
         state = si.allocState()
