@@ -50,7 +50,7 @@ def test_an_unobstructed_plan_never_consults_the_detour_planner(runtime: Runtime
         raise AssertionError("the detour planner ran for an unobstructed target")
 
     monkeypatch.setattr(runtime.detours, "plan", fail)
-    outcome, report = plan_and_check(runtime, "pose", READY, {"target": UNOBSTRUCTED_POSES[0]})
+    _, report = plan_and_check(runtime, "pose", READY, {"target": UNOBSTRUCTED_POSES[0]})
     assert report is not None and not report.hard
 
 

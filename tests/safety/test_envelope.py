@@ -277,3 +277,39 @@ def test_plans_accepted_near_self_contact_never_collide_under_dense_resampling(s
 def test_plans_accepted_near_self_contact_never_collide_under_dense_resampling_full_budget(seed: int, robot: RobotModel,
                                                                                            envelope: Envelope, planner: Planner) -> None:
     assert self_contacts_of_an_accepted_folding_plan(seed, robot, envelope, planner) == []
+
+
+# ---------------------------------------------------------------------------- the planners' untimed check
+def test_check_path_finds_on_a_joint_polyline_what_check_finds_on_its_timed_plan(envelope: Envelope, planner: Planner) -> None:
+    goal = READY + np.array([0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    middle = envelope.robot.tcp_pose(READY + np.array([0.45, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])).position
+    checked = _with_zones(envelope, Box.of("post", middle - 0.03, middle + 0.03))
+    timed = checked.check(planner.plan_to_joints(READY, goal).trajectory)
+    untimed = checked.check_path(np.vstack([READY, goal]))
+    assert {(v.code, v.body) for v in untimed} == {(v.code, v.body) for v in timed.hard}
+
+
+def test_check_path_of_one_configuration_is_its_static_check(envelope: Envelope) -> None:
+    assert envelope.check_path(READY) == ()
+    folded = READY.copy()
+    folded[3], folded[5] = -3.0, 0.6  # wrist folded onto the forearm
+    assert Code.SELF_COLLISION in {v.code for v in envelope.check_path(folded)}
+
+
+def first_only_disagreement(seed: int, envelope: Envelope) -> tuple[bool, bool]:
+    """A random joint segment and a random zone near its middle: (full verdict, first_only verdict)."""
+    rng = np.random.default_rng(seed)
+    q0 = np.clip(READY + rng.uniform(-0.7, 0.7, 7), envelope.robot.lower, envelope.robot.upper)
+    q1 = np.clip(q0 + rng.uniform(-0.6, 0.6, 7), envelope.robot.lower, envelope.robot.upper)
+    middle = envelope.robot.tcp_pose((q0 + q1) / 2).position + rng.uniform(-0.15, 0.15, 3)
+    half = rng.uniform(0.01, 0.08, 3)
+    checked = _with_zones(envelope, Box.of("random", middle - half, middle + half))
+    path = np.vstack([q0, q1])
+    return (any(v.is_hard for v in checked.check_path(path)), any(v.is_hard for v in checked.check_path(path, first_only=True)))
+
+
+@settings(max_examples=150, deadline=None)
+@given(seed=SEEDS)
+def test_check_path_first_only_gives_the_same_verdict_as_the_full_check(seed: int, envelope: Envelope) -> None:
+    full, first_only = first_only_disagreement(seed, envelope)
+    assert full == first_only
