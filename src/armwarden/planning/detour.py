@@ -25,23 +25,25 @@ is not shared.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
-from ompl import base as ob
-from ompl import geometric as og
-from ompl import util as ou
 
 from armwarden.safety.envelope import Envelope
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
+    from ompl.geometric import PathGeometric
 
 #: extra travel of one joint over its straight start-to-goal travel that `_straighten_joints` removes [rad]
 _WANDER_RAD = 0.05
 
-ou.setLogLevel(ou.LOG_WARN)  # OMPL's INFO lines ("created N states") would flood stderr per plan
 
 
 @dataclass(frozen=True)
@@ -65,17 +67,32 @@ class SearchResult:
     stopped_early: bool  # the caller asked to stop (an e-stop), not the budget
 
 
-class _EnvelopeMotions(ob.MotionValidator):
-    """OMPL motion validator: a straight joint segment is valid when the envelope finds nothing hard."""
+@functools.cache
+def _ompl() -> tuple[ModuleType, ModuleType, type]:
+    """OMPL's base and geometric modules and our motion validator class, imported on the first
+    search only: ompl 2.0.1's bindings report leaked default-argument objects on stderr when the
+    interpreter exits, which a daemon that never searched should not print."""
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
 
-    def __init__(self, si, search: DetourSearch) -> None:
-        super().__init__(si)
-        self._search = search
+    # INFO lines ("created N states") go to stdout, which carries MCP under stdio: warnings and
+    # errors only (OMPL writes those to stderr)
+    ou.setLogLevel(ou.LOG_WARN)
 
-    def checkMotion(self, s1, s2, *last_valid) -> bool:
-        search = self._search
-        search.motion_checks += 1
-        return search.segment_is_clear(search.to_array(s1), search.to_array(s2))
+    class EnvelopeMotions(ob.MotionValidator):
+        """OMPL motion validator: a straight joint segment is valid when the envelope finds nothing hard."""
+
+        def __init__(self, si: Any, search: DetourSearch) -> None:
+            super().__init__(si)
+            self._search = search
+
+        def checkMotion(self, s1: Any, s2: Any, *last_valid: Any) -> bool:
+            search = self._search
+            search.motion_checks += 1
+            return search.segment_is_clear(search.to_array(s1), search.to_array(s2))
+
+    return ob, og, EnvelopeMotions
 
 
 class DetourSearch:
@@ -123,6 +140,7 @@ class DetourSearch:
         self.state_checks = self.motion_checks = 0
         if not goals:
             return SearchResult(None, None, 0, 0, 0.0, False)
+        ob, og, envelope_motions = _ompl()
         if reseed:
             _seed_ompl(seed)
         n = self._n
@@ -137,7 +155,7 @@ class DetourSearch:
         space.setBounds(bounds)
         si = ob.SpaceInformation(space)
         si.setStateValidityChecker(self._state_is_valid)
-        validator = _EnvelopeMotions(si, self)
+        validator = envelope_motions(si, self)
         si.setMotionValidator(validator)
         si.setup()
         problem = ob.ProblemDefinition(si)
@@ -162,7 +180,7 @@ class DetourSearch:
         planner.solve(ob.PlannerTerminationCondition(terminate))
         if not problem.hasExactSolution():
             return self._result(None, None, began, stopped["early"])
-        path = cast(og.PathGeometric, problem.getSolutionPath())  # a geometric planner's solution
+        path = cast("PathGeometric", problem.getSolutionPath())  # a geometric planner's solution
         og.PathSimplifier(si).reduceVertices(path, self.options.simplify_steps)
         positions = np.vstack([self.to_array(path.getState(i)) for i in range(path.getStateCount())])
         positions[0] = start  # exactly, not through OMPL's copy
@@ -214,6 +232,8 @@ class DetourSearch:
 def _seed_ompl(seed: int) -> None:
     """Seed OMPL's generators for this search (quietly: OMPL logs an error when it is re-seeded
     after its first use, although the new seed takes effect, as the determinism tests show)."""
+    from ompl import util as ou
+
     ou.noOutputHandler()
     try:
         ou.RNG.setSeed(seed % (2**31 - 1) + 1)  # OMPL ignores a zero seed
