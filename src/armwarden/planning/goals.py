@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from itertools import chain
 
@@ -35,7 +34,6 @@ class GoalOptions:
     local_seeds: int = 8  # IK restarts from seeded random configurations near the start (±`local_spread_rad`)
     local_spread_rad: float = 0.6
     random_seeds: int = 8  # then from seeded random configurations anywhere within the limits
-    extra_seeds: int = 48  # while none is collision-free: more random restarts, up to this many (or the deadline)
     max_goals: int = 4  # stop once this many distinct collision-free goals are found
     distinct_rad: float = 0.1  # solutions whose largest joint difference is below this are one
 
@@ -88,13 +86,7 @@ class GoalSelector:
         goals: list[np.ndarray] = []
         near_limit: set[int] = set()  # ids of goals within the soft joint-limit margin: ranked last
         blocked: Counter[str] = Counter()
-        def extra() -> Iterator[np.ndarray]:
-            for _ in range(opts.extra_seeds):
-                if goals:
-                    return
-                yield rng.uniform(lower, upper)
-
-        candidates = chain([first] if first is not None else [], seeds, extra())
+        candidates = chain([first] if first is not None else [], seeds)
         for index, seed_q in enumerate(candidates):
             if len(goals) >= opts.max_goals or (index > 0 and time.monotonic() > deadline):
                 break
