@@ -60,3 +60,17 @@ def test_a_goal_beyond_the_joint_travel_cap_is_not_offered(runtime: RuntimeModel
     cap = runtime.envelope.limits.max_joint_step_rad
     selection = chooser.select(READY, np.array([-0.1, 0.35, 0.3]), None, seed=2, deadline=time.monotonic() + 5)
     assert all(np.max(np.abs(goal - READY)) <= cap for goal in selection.goals)
+
+
+def test_goals_with_a_clear_approach_come_first_and_their_approach_line_passes_the_envelope(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, Box.of("bin_box", [0.40, -0.20, 0.0], [0.70, 0.20, 0.25]))
+    chooser = selector(model)
+    selection = chooser.select(READY, np.array([0.55, 0.0, 0.29]), DOWN, seed=8, deadline=time.monotonic() + 5)
+    assert selection.approaches and selection.approaches[0] is not None
+    flags = [approach is None for approach in selection.approaches]
+    assert flags == sorted(flags)  # with an approach (False) before without (True)
+    for goal, approach in zip(selection.goals, selection.approaches, strict=True):
+        if approach is not None:
+            assert not [v for v in model.envelope.check_path(np.vstack([approach, goal])) if v.is_hard]
+            gap = np.linalg.norm(model.robot.tcp_pose(approach).position - model.robot.tcp_pose(goal).position)
+            assert abs(gap - chooser.options.retreat_m) < 1e-3  # a few centimetres back, as asked

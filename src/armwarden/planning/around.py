@@ -8,12 +8,13 @@ a goal configuration that travels too far) does `DetourPlanner.plan` run, within
 `motion.planning_time_s`:
 
 1. pose targets: other IK solutions (`planning.goals`), collision-free ones only, best first; the
-   first whose straight joint line is clear is taken as it is;
+   first whose straight joint line (or line to its approach, directly or through home) is clear
+   is taken as it is;
 2. otherwise OMPL's RRTConnect from the start to any of those goals (`planning.detour`), whose
-   validity test is the envelope's own; to a goal close to an obstacle it searches to a retreat
-   configuration a few centimetres back (TCP above, or behind along the tool axis) and goes
-   straight in from there, because a goal hemmed in by a zone is a narrow passage a sampler
-   rarely threads;
+   validity test is the envelope's own; to a goal close to an obstacle it searches to the goal's
+   approach configuration a few centimetres back (`GoalSelector.approach`: TCP above, or behind
+   along the tool axis) and goes straight in from there, because a goal hemmed in by a zone is a
+   narrow passage a sampler rarely threads;
 3. the path is timed with the existing parameterisation, coming to rest at each corner.
 
 It returns a proposal; the caller runs the unchanged `Envelope.check` on it before any plan id
@@ -50,11 +51,6 @@ _GOAL_SHARE = 0.35
 _RESERVE_SHARE = 0.05
 #: searches per plan call (each after the previous path failed the whole-plan check), budget permitting
 _MAX_SEARCHES = 4
-
-#: how far the TCP backs off from a goal near an obstacle before the search connects to it [m]
-_RETREAT_M = 0.06
-#: a retreat configuration further than this from its goal (largest joint) is a different branch [rad]
-_RETREAT_MAX_RAD = 0.5
 
 Kind = Literal["joints", "pose"]
 
@@ -112,20 +108,23 @@ class DetourPlanner:
             if not selection.goals:
                 return self._refuse(straight, report, _no_goal_reason(selection))
             goals: Sequence[np.ndarray] = selection.goals
+            retreats: Sequence[np.ndarray | None] = selection.approaches
         else:
             if not self.search.configuration_is_clear(first_goal):
                 return self._refuse(straight, report, "the goal configuration itself violates the envelope")
-            goals = (first_goal,)
+            goals, retreats = (first_goal,), (self.goals.approach(first_goal),)
 
         # cheap candidates first: a clear straight line to another goal configuration; then, since
-        # a goal close to an obstacle can only be left in a few directions, a line to a retreat
-        # point a few centimetres back from it and straight in from there
-        retreats = [self._retreat(goal) for goal in goals]
+        # a goal close to an obstacle can only be entered from a few directions, lines to its
+        # approach configuration a few centimetres back (directly, or through home) and straight in
         rejected: list[str] = []
         context = _Context(straight, report, len(goals), began, rejected)
+        home = self.planner.settings.home_rad
         for goal, retreat in zip(goals, retreats, strict=True):
-            for path in ([start, goal], [start, retreat, goal] if retreat is not None else None):
-                if path is not None and self._clear(path):
+            near = [goal] if retreat is None else [retreat, goal]
+            candidates = [[start, goal], [start, *near], [start, home, *near]]
+            for path in candidates[:1] + candidates[2 - (retreat is not None):]:  # no line tried twice
+                if self._clear(path):
                     proposal = self._accepted(context, np.vstack(path), searched=False)
                     if proposal is not None:
                         return proposal
@@ -147,18 +146,6 @@ class DetourPlanner:
         return self._refuse(straight, report, "every path found fails the envelope as a whole (" + rejected[-1] + ")")
 
     # ------------------------------------------------------------------ helpers
-    def _retreat(self, goal: np.ndarray) -> np.ndarray | None:
-        """A configuration with the TCP `_RETREAT_M` above the goal's, or back along its tool axis,
-        same orientation, from which the straight joint line to the goal is clear (None: none)."""
-        robot = self.envelope.robot
-        pose = robot.tcp_pose(goal)
-        for offset in (np.array([0.0, 0.0, _RETREAT_M]), -_RETREAT_M * pose.rotation[:, 2]):
-            result = self.planner.ik.solve_from(pose.position + offset, pose.rotation, goal)
-            if (result.success and np.max(np.abs(result.q - goal)) < _RETREAT_MAX_RAD
-                    and self.search.segment_is_clear(result.q, goal)):
-                return result.q
-        return None
-
     def _clear(self, path: Sequence[np.ndarray]) -> bool:
         """Every leg within the joint travel cap and clear (the envelope's untimed check)."""
         return all(self._within_travel(path[0], q) for q in path[1:]) and all(
