@@ -55,18 +55,6 @@ _MAX_SEARCHES = 4
 Kind = Literal["joints", "pose"]
 
 
-@dataclass(frozen=True)
-class DetourFacts:
-    """What a detour cost, for notes and the benchmark."""
-
-    vertices: int
-    tcp_path_m: float
-    straight_tcp_path_m: float
-    goal_configurations: int
-    searched: bool  # False: another goal configuration's straight line was clear
-    elapsed_s: float
-
-
 class DetourPlanner:
     """Proposes a path around what blocked the straight line (on the planning thread; not thread safe)."""
 
@@ -77,7 +65,6 @@ class DetourPlanner:
         self.budget_s = float(budget_s)
         self.goals = goals or GoalSelector(planner.ik, envelope, planner.settings.home_rad)
         self.search = search or DetourSearch(envelope)
-        self.last_facts: DetourFacts | None = None  # of the last successful `plan` (benchmark, tests)
 
     def worth_trying(self, kind: str, report: EnvelopeReport) -> bool:
         """Whether the envelope's verdict on the straight line is one a different path could change."""
@@ -93,7 +80,6 @@ class DetourPlanner:
     ) -> PlanOutcome:
         """A detour proposal, or `straight` with a `NO_DETOUR` violation explaining why there is none."""
         began = time.monotonic()
-        self.last_facts = None
         deadline = began + self.budget_s * (1.0 - _RESERVE_SHARE)
         assert straight.trajectory is not None
         start = np.asarray(start, dtype=float)
@@ -118,7 +104,7 @@ class DetourPlanner:
         # a goal close to an obstacle can only be entered from a few directions, lines to its
         # approach configuration a few centimetres back (directly, or through home) and straight in
         rejected: list[str] = []
-        context = _Context(straight, report, len(goals), began, rejected)
+        context = _Context(straight, report, began, rejected)
         home = self.planner.settings.home_rad
         for goal, retreat in zip(goals, retreats, strict=True):
             near = [goal] if retreat is None else [retreat, goal]
@@ -175,7 +161,6 @@ class DetourPlanner:
             return None
         straight_tcp = context.report.tcp_path_length_m
         elapsed = time.monotonic() - context.began
-        self.last_facts = DetourFacts(len(path), checked.tcp_path_length_m, straight_tcp, context.goals, searched, elapsed)
         how = (f"a joint-space search (RRTConnect) found a way through {len(path) - 2} intermediate configuration(s)"
                if searched else f"a clear line to a collision-free goal configuration through {len(path) - 2} "
                "intermediate configuration(s)")
@@ -196,7 +181,6 @@ class _Context:
 
     straight: PlanOutcome
     report: EnvelopeReport  # the envelope's verdict on the straight line
-    goals: int
     began: float
     rejected: list[str]  # why candidates failed the whole-plan check, in order
 
