@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """ArmWarden benchmarks: every figure is a ratio or a percentile measured in this one run.
 
-    python scripts/bench.py                 # envelope, server, estop (flood only when named)
+    python scripts/bench.py                 # envelope, server, estop, mujoco, planner (flood, can only when named)
     python scripts/bench.py envelope        # one section
     python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
@@ -32,6 +32,13 @@ Sections
   → every joint below 1e-3 rad/s (wall and simulated, beside the torque-limited braking floor),
   640×480 render time, and get_robot_state / plan_to_pose against the fake in the same run
   (`scripts/_bench/mujoco_cell.py`).
+- planner: the detour planner beside the straight-line planner, in one process, through the same
+  `plan_and_check` the Guard runs (`scripts/_bench/planner_scenes.py`): a scene set (open bin in
+  front, shelf, behind a wall-like zone, near the robot's own body) and the near-obstacle set (a
+  bin-sized box, TCP targets 2-10 cm outside its faces, seeded): solved fraction among targets
+  with a collision-free goal configuration (goal >= 90 %) and overall, planning time median (goal
+  <= 50 ms) and p95 (goal <= 500 ms), TCP path length relative to the refused straight line;
+  again with the per-plan caps raised, to separate the planner from the policy's caps. About 1 min.
 - can (opt-in: 60 s per rate): the CAN servo loop at 500 Hz and 1 kHz for 7 emulated RobStride
   actuators on the virtual bus while an SDK client keeps the server busy: achieved rate,
   deadline-miss rate (goal < 0.5 % at 1 kHz), p99 period jitter, and `estop` sent → first damping
@@ -852,6 +859,15 @@ def _report_mujoco(r: dict[str, Any]) -> None:
     importlib.import_module("mujoco_cell").report_mujoco(r)
 
 
+def bench_planner() -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("planner_scenes").bench_planner()
+
+
+def _report_planner(r: dict[str, Any]) -> None:
+    importlib.import_module("planner_scenes").report_planner(r)
+
+
 def bench_can(seconds: float = 60.0) -> dict[str, Any]:
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))
     return importlib.import_module("can_loop").bench_can(seconds)
@@ -878,10 +894,11 @@ SECTIONS = {
     "mujoco": (bench_mujoco, _report_mujoco),
     "can": (bench_can, _report_can),
     "ros2": (bench_ros2, _report_ros2),
+    "planner": (bench_planner, _report_planner),
 }
 #: sections run when none is named (flood takes about a minute and a half, can two minutes: ask for them
 #: by name; ros2 needs the ROS venv)
-DEFAULT_SECTIONS = ("envelope", "server", "estop", "mujoco")
+DEFAULT_SECTIONS = ("envelope", "server", "estop", "mujoco", "planner")
 
 
 def main() -> int:

@@ -236,6 +236,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_floats("motion.start_tolerance_rad", 0, -0.01, 0.11, 10),
     *_floats("motion.check_resolution_rad", 0, -0.02, 0.0009, 0.11),
     *_floats("motion.sweep_resolution_m", 0, -0.01, 0.051, 0.0009),
+    *_floats("motion.planning_time_s", 0, -0.5, 2.01, 60),
     *_sections("force"),
     *_floats("force.max_contact_force_n", 0, -30, 150.1),
     *_floats("force.max_contact_torque_nm", 0, -10, 30.1),
@@ -361,6 +362,7 @@ def test_field_defaults_match_the_documented_values() -> None:
     motion, force, ws = policy.motion, policy.force, policy.workspace
     assert (motion.plan_ttl_s, motion.joint_limit_margin_rad, motion.start_tolerance_rad) == (120, 0.05, 0.01)
     assert (motion.check_resolution_rad, motion.sweep_resolution_m, motion.soft_joint_step_rad) == (0.02, 0.01, None)
+    assert motion.planning_time_s == 0.5
     assert (force.monitor_rate_hz, force.require_wrench, force.wrench_timeout_s) == (200, True, 0.1)
     assert (ws.link_padding_m, ws.check_links, ws.self_collision) == (0.01, None, True)
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from armwarden.errors import PolicyError, RobotModelError
+from armwarden.planning.around import DetourPlanner
 from armwarden.planning.planners import Planner, PlannerSettings
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.policy import Policy
@@ -28,6 +29,7 @@ class RuntimeModel:
     robot: RobotModel
     envelope: Envelope
     planner: Planner
+    detours: DetourPlanner | None = None  # plans around a blocked straight line (None: straight lines only)
 
 
 def load_runtime_model(policy: Policy, source: str = "<policy>") -> RuntimeModel:
@@ -44,7 +46,8 @@ def load_runtime_model(policy: Policy, source: str = "<policy>") -> RuntimeModel
     ]
     if problems:
         raise PolicyError(source, problems)
-    return RuntimeModel(policy, robot, envelope, Planner(robot, PlannerSettings.from_policy(policy)))
+    planner = Planner(robot, PlannerSettings.from_policy(policy))
+    return RuntimeModel(policy, robot, envelope, planner, DetourPlanner(planner, envelope, policy.motion.planning_time_s))
 
 
 def _path_for(message: str) -> str:

@@ -118,3 +118,15 @@ def test_a_joint_jump_between_cartesian_steps_is_refused(planner: Planner, robot
 def test_empty_cartesian_path_is_malformed(planner: Planner) -> None:
     outcome = planner.plan_cartesian_path(READY, [])
     assert outcome.violations[0].code is Code.MALFORMED
+
+
+def test_a_cartesian_step_the_ik_misses_from_the_previous_solution_is_retried_from_other_seeds(
+        planner: Planner, robot: RobotModel) -> None:
+    # folded arm, TCP drawn back over the base: from the previous step's solution alone the
+    # solver stalls at one step; the extrapolated previous step and a half step reach it
+    start = np.array([-0.4328, -1.5354, 0.4141, -2.9921, 0.1865, 1.8162, 1.8952])
+    outcome = planner.plan_cartesian_path(start, [PoseTarget(np.array([0.0047, -0.0385, 0.4925]))])
+    assert outcome.violations == (), outcome.violations
+    steps = np.max(np.abs(np.diff(outcome.trajectory.positions, axis=0)), axis=1)
+    assert np.all(steps <= planner.settings.max_ik_jump_rad)
+    assert np.linalg.norm(robot.tcp_pose(outcome.trajectory.goal).position - [0.0047, -0.0385, 0.4925]) < 1e-3

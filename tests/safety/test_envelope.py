@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-import coal
 import numpy as np
-import pinocchio as pin
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -17,7 +15,7 @@ from armwarden.robot import RobotModel
 from armwarden.safety.envelope import Box, Envelope, EnvelopeLimits
 from armwarden.safety.violations import Code, Severity
 from tests.helpers import DOWN, READY
-from tests.safety.coal_shapes import coal_capsule
+from tests.safety.dense_oracle import DenseOracle
 
 
 def _codes(report) -> set[Code]:
@@ -201,77 +199,6 @@ def test_samples_bound_every_point_motion_by_the_sweep_resolution(envelope: Enve
 
 
 # ---------------------------------------------------------------------------- the guarantee, independently
-class DenseOracle:
-    """An independent checker: Pinocchio geometry placements + coal, resampled until no capsule
-    end point moves more than 1 mm between samples (so no point of any capsule does)."""
-
-    def __init__(self, robot: RobotModel, limits: EnvelopeLimits, pairs: list[tuple[int, int]] = ()) -> None:
-        self.robot, self.limits, self.pairs = robot, limits, list(pairs)
-        self.data = robot.model.createData()
-        self.geometry_data = pin.GeometryData(robot.geometry)
-        self.ids = [robot.geometry.getGeometryId(c.name) for c in robot.capsules]
-
-    def _segments(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, float]]:
-        pin.updateGeometryPlacements(self.robot.model, self.data, self.robot.geometry, self.geometry_data, q)
-        out = []
-        for gid in self.ids:
-            placement = self.geometry_data.oMg[gid]
-            geom = self.robot.geometry.geometryObjects[gid].geometry
-            half = placement.rotation[:, 2] * getattr(geom, "halfLength", 0.0)
-            out.append((placement.translation - half, placement.translation + half, float(geom.radius)))
-        return out
-
-    def violations(self, trajectory: JointTrajectory) -> list[str]:
-        found = []
-        t, t_end = 0.0, trajectory.duration_s
-        dt = 1e-3
-        previous = self._segments(trajectory.sample(0.0))
-        self._check(previous, found, 0.0)
-        while t < t_end and not found:
-            step = dt
-            while True:
-                candidate = self._segments(trajectory.sample(min(t + step, t_end)))
-                moved = max(max(np.linalg.norm(a0 - b0), np.linalg.norm(a1 - b1))
-                            for (a0, a1, _), (b0, b1, _) in zip(previous, candidate, strict=True))
-                if moved <= 1e-3 or step < 1e-7:
-                    break
-                step /= 2
-            t = min(t + step, t_end)
-            previous = candidate
-            self._check(candidate, found, t)
-            dt = step * 2
-        return found
-
-    def _check(self, segments, found: list[str], t: float) -> None:
-        pad = self.limits.link_padding_m
-        ws = self.limits.workspace
-        for a, b in self.pairs:
-            (a0, a1, ra), (b0, b1, rb) = segments[a], segments[b]
-            shape_a, tf_a = coal_capsule(a0, a1, ra)
-            shape_b, tf_b = coal_capsule(b0, b1, rb)
-            result = coal.CollisionResult()
-            coal.collide(shape_a, tf_a, shape_b, tf_b, coal.CollisionRequest(), result)
-            if result.isCollision():
-                found.append(f"{self.robot.capsules[a].name} touches {self.robot.capsules[b].name} at t={t:.4f}")
-        for (p0, p1, radius), capsule in zip(segments, self.robot.capsules, strict=True):
-            r = radius + pad
-            if np.any(np.minimum(p0, p1) - r < ws.lo) or np.any(np.maximum(p0, p1) + r > ws.hi):
-                found.append(f"{capsule.name} outside the box at t={t:.4f}")
-            length = float(np.linalg.norm(p1 - p0))
-            z = (p1 - p0) / length
-            x = np.cross([1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0], z)
-            x /= np.linalg.norm(x)
-            tf = coal.Transform3s(np.column_stack([x, np.cross(z, x), z]), (p0 + p1) / 2)
-            for zone in self.limits.keep_out:
-                result = coal.CollisionResult()
-                coal.collide(
-                    coal.Capsule(r, length), tf, coal.Box(*(zone.hi - zone.lo)),
-                    coal.Transform3s(np.eye(3), (zone.lo + zone.hi) / 2), coal.CollisionRequest(), result,
-                )
-                if result.isCollision():
-                    found.append(f"{capsule.name} inside {zone.name} at t={t:.4f}")
-
-
 @pytest.fixture(scope="module")
 def oracle(robot: RobotModel, limits: EnvelopeLimits) -> DenseOracle:
     return DenseOracle(robot, limits)
@@ -350,3 +277,39 @@ def test_plans_accepted_near_self_contact_never_collide_under_dense_resampling(s
 def test_plans_accepted_near_self_contact_never_collide_under_dense_resampling_full_budget(seed: int, robot: RobotModel,
                                                                                            envelope: Envelope, planner: Planner) -> None:
     assert self_contacts_of_an_accepted_folding_plan(seed, robot, envelope, planner) == []
+
+
+# ---------------------------------------------------------------------------- the planners' untimed check
+def test_check_path_finds_on_a_joint_polyline_what_check_finds_on_its_timed_plan(envelope: Envelope, planner: Planner) -> None:
+    goal = READY + np.array([0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    middle = envelope.robot.tcp_pose(READY + np.array([0.45, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])).position
+    checked = _with_zones(envelope, Box.of("post", middle - 0.03, middle + 0.03))
+    timed = checked.check(planner.plan_to_joints(READY, goal).trajectory)
+    untimed = checked.check_path(np.vstack([READY, goal]))
+    assert {(v.code, v.body) for v in untimed} == {(v.code, v.body) for v in timed.hard}
+
+
+def test_check_path_of_one_configuration_is_its_static_check(envelope: Envelope) -> None:
+    assert envelope.check_path(READY) == ()
+    folded = READY.copy()
+    folded[3], folded[5] = -3.0, 0.6  # wrist folded onto the forearm
+    assert Code.SELF_COLLISION in {v.code for v in envelope.check_path(folded)}
+
+
+def first_only_disagreement(seed: int, envelope: Envelope) -> tuple[bool, bool]:
+    """A random joint segment and a random zone near its middle: (full verdict, first_only verdict)."""
+    rng = np.random.default_rng(seed)
+    q0 = np.clip(READY + rng.uniform(-0.7, 0.7, 7), envelope.robot.lower, envelope.robot.upper)
+    q1 = np.clip(q0 + rng.uniform(-0.6, 0.6, 7), envelope.robot.lower, envelope.robot.upper)
+    middle = envelope.robot.tcp_pose((q0 + q1) / 2).position + rng.uniform(-0.15, 0.15, 3)
+    half = rng.uniform(0.01, 0.08, 3)
+    checked = _with_zones(envelope, Box.of("random", middle - half, middle + half))
+    path = np.vstack([q0, q1])
+    return (any(v.is_hard for v in checked.check_path(path)), any(v.is_hard for v in checked.check_path(path, first_only=True)))
+
+
+@settings(max_examples=150, deadline=None)
+@given(seed=SEEDS)
+def test_check_path_first_only_gives_the_same_verdict_as_the_full_check(seed: int, envelope: Envelope) -> None:
+    full, first_only = first_only_disagreement(seed, envelope)
+    assert full == first_only

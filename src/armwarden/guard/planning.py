@@ -15,10 +15,12 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import anyio
+import numpy as np
 
 from armwarden import conversions
 from armwarden.callcontext import current_caller
 from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.planning.planners import PlanOutcome
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.preflight import RuntimeModel
 from armwarden.results import PlanSummary
@@ -33,6 +35,33 @@ PlanKind = Literal["joints", "pose", "cartesian"]
 Previewer = Callable[[RuntimeModel, JointTrajectory, EnvelopeReport], "bytes | None"]
 
 T = TypeVar("T")
+
+
+def plan_and_check(
+    model: RuntimeModel, kind: PlanKind, start: np.ndarray, request: dict[str, Any],
+    should_stop: Callable[[], bool] = lambda: False,
+) -> tuple[PlanOutcome, EnvelopeReport | None]:
+    """The straight-line planner's proposal and the envelope's verdict on it. When the verdict is
+    one a different path could change (`DetourPlanner.worth_trying`), the detour planner's
+    proposal replaces it and the envelope checks that one instead: the envelope's `check` is the
+    last word on whatever is returned. `should_stop` ends a detour search early (an e-stop)."""
+    vel, acc = request.get("velocity_scaling"), request.get("acceleration_scaling")
+    if kind == "joints":
+        outcome = model.planner.plan_to_joints(start, request["joint_positions"], vel, acc)
+    elif kind == "pose":
+        outcome = model.planner.plan_to_pose(start, request["target"], vel, acc)
+    else:
+        outcome = model.planner.plan_cartesian_path(start, request["waypoints"], vel, acc)
+    if outcome.trajectory is None:
+        return outcome, None
+    report = model.envelope.check(outcome.trajectory)
+    detours = model.detours
+    if detours is None or kind == "cartesian" or not detours.worth_trying(kind, report):
+        return outcome, report
+    proposal = detours.plan(kind, start, outcome, report, target=request.get("target"), should_stop=should_stop)
+    if proposal.trajectory is outcome.trajectory:
+        return proposal, report  # no detour: the straight line's verdict stands, with the reason why
+    return proposal, model.envelope.check(proposal.trajectory)  # type: ignore[arg-type]
 
 
 class PlanningFlow:
@@ -55,18 +84,11 @@ class PlanningFlow:
         generation = door.latch.generation  # an e-stop while planning voids the result
         start = (await door.readings.joint_state()).positions.copy()
         model, previewer = door.planning, self._previewer  # the Guard's model, as it is now
-        vel, acc = request.get("velocity_scaling"), request.get("acceleration_scaling")
 
         def work() -> tuple[Any, EnvelopeReport | None, bytes | None]:
-            if kind == "joints":
-                outcome = model.planner.plan_to_joints(start, request["joint_positions"], vel, acc)
-            elif kind == "pose":
-                outcome = model.planner.plan_to_pose(start, request["target"], vel, acc)
-            else:
-                outcome = model.planner.plan_cartesian_path(start, request["waypoints"], vel, acc)
-            if outcome.trajectory is None:
+            outcome, report = plan_and_check(model, kind, start, request, lambda: door.latch.generation != generation)
+            if outcome.trajectory is None or report is None:
                 return outcome, None, None
-            report = model.envelope.check(outcome.trajectory)
             wants_preview = request.get("preview", True) and previewer is not None
             preview = previewer(model, outcome.trajectory, report) if wants_preview and previewer else None
             return outcome, report, preview

@@ -17,7 +17,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 
 from armwarden.planning.timing import TimingError, time_parameterize
 from armwarden.planning.trajectory import JointTrajectory
-from armwarden.robot.ik import IkSolver
+from armwarden.robot.ik import IkResult, IkSolver
 from armwarden.robot.model import RobotModel
 from armwarden.safety.violations import Code, Violation
 
@@ -138,6 +138,27 @@ class Planner:
             return PlanOutcome(None, (Violation(Code.IK_FAILED, result.message, None, self.robot.tcp_frame),), tuple(notes), vel, acc)
         return self._timed(np.vstack([start, result.q]), vel, acc, notes)
 
+    def _cartesian_step(self, position: np.ndarray, rotation: np.ndarray, q: np.ndarray, q_before: np.ndarray) -> IkResult:
+        """IK for the next Cartesian step from the previous step's solution; when that lands on
+        another branch (a joint jump), retry from other seeds on the same branch before the caller
+        reports the flip: the previous solution extrapolated one step, and a step half as long
+        first. The first solution within `max_ik_jump_rad` of `q` wins (else the first try's)."""
+        limit = self.settings.max_ik_jump_rad
+        first = self.ik.solve_from(position, rotation, q)
+        if first.success and float(np.max(np.abs(first.q - q))) <= limit:
+            return first
+        extrapolated = self.ik.solve_from(position, rotation, q + (q - q_before))
+        if extrapolated.success and float(np.max(np.abs(extrapolated.q - q))) <= limit:
+            return extrapolated
+        current = self.robot.tcp_pose(q)
+        half_rotation = pin.Quaternion(current.rotation).slerp(0.5, pin.Quaternion(rotation)).toRotationMatrix()
+        halfway = self.ik.solve_from((current.position + position) / 2.0, half_rotation, q)
+        if halfway.success and float(np.max(np.abs(halfway.q - q))) <= limit:
+            retried = self.ik.solve_from(position, rotation, halfway.q)
+            if retried.success and float(np.max(np.abs(retried.q - q))) <= limit:
+                return retried
+        return first
+
     def plan_cartesian_path(
         self,
         start: np.ndarray,
@@ -167,7 +188,7 @@ class Planner:
                 alpha = step / steps
                 p = position + alpha * (waypoint.position - position)
                 r = q0_rot.slerp(alpha, q1_rot).toRotationMatrix()
-                result = self.ik.solve_from(p, r, q)
+                result = self._cartesian_step(p, r, q, path[-2] if len(path) > 1 else q)
                 if not result.success:
                     return PlanOutcome(
                         None,

@@ -26,6 +26,9 @@ MAX_START_TOLERANCE_RAD = 0.1
 #: would hang in planning instead of answering).
 MIN_CHECK_RESOLUTION_RAD, MAX_CHECK_RESOLUTION_RAD = 0.001, 0.1
 MIN_SWEEP_RESOLUTION_M, MAX_SWEEP_RESOLUTION_M = 0.001, 0.05
+#: Longest planning budget [s]. Plans and every execution's last envelope re-check share one
+#: planning thread, so a longer search would hold the next execute_plan back by as much.
+MAX_PLANNING_TIME_S = 2.0
 
 
 class MotionConfig(BaseModel):
@@ -93,6 +96,14 @@ class MotionConfig(BaseModel):
         default=0.01,
         description="Largest displacement [m] of any checked body between envelope samples, "
         f"in [{MIN_SWEEP_RESOLUTION_M:g}, {MAX_SWEEP_RESOLUTION_M:g}].",
+    )
+    planning_time_s: float = finite(
+        gt=0,
+        le=MAX_PLANNING_TIME_S,
+        default=0.5,
+        description="Time budget [s] for finding a detour when the straight line is blocked (other IK "
+        f"solutions, then a joint-space search), in (0, {MAX_PLANNING_TIME_S:g}]; out of budget the plan is "
+        "rejected with NO_DETOUR.",
     )
 
     @model_validator(mode="before")

@@ -62,7 +62,8 @@ def summarize_policy(policy: Policy) -> str:
         f"  joint travel per plan ≤ {motion.max_joint_step_rad:g} rad ({soft}); "
         f"TCP path ≤ {motion.max_cartesian_step_m:g} m; plan TTL {motion.plan_ttl_s:g} s",
         f"  limit margin {motion.joint_limit_margin_rad:g} rad; start tolerance {motion.start_tolerance_rad:g} rad; "
-        f"check resolution {motion.check_resolution_rad:g} rad; sweep resolution {motion.sweep_resolution_m:g} m",
+        f"check resolution {motion.check_resolution_rad:g} rad; sweep resolution {motion.sweep_resolution_m:g} m; "
+        f"detour planning budget {motion.planning_time_s:g} s",
         f"Force: ≤ {force.max_contact_force_n:g} N, ≤ {force.max_contact_torque_nm:g} N·m, "
         f"monitored at {force.monitor_rate_hz:g} Hz, wrench older than {force.wrench_timeout_s:g} s aborts; "
         + ("wrench REQUIRED" if force.require_wrench else "wrench NOT required (force may be unenforced)"),

@@ -23,6 +23,7 @@ nothing can slip through a zone between samples, however thin the zone or fast t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -208,6 +209,28 @@ class Envelope:
             samples_checked=n_samples,
         )
 
+    # ------------------------------------------------------------------ for planners: the same checks, untimed
+    def check_path(self, positions: np.ndarray, *, first_only: bool = False) -> tuple[Violation, ...]:
+        """Joint limits and geometry of an untimed joint polyline `(K, n)` (or one configuration).
+
+        This is what planners search with, so that they never use a second collision model: the
+        same joint-limit check and the same sweep-bounded geometry pass as `check` (workspace,
+        keep-out, self-collision, every padded capsule and the TCP), without what only a whole timed
+        plan has (timing, travel caps, TCP path length). Violation times are waypoint indices.
+        `first_only`: a search only needs to know *whether* something is hit, so the exact
+        keep-out confirmation stops at its first hit (the findings are then incomplete, never
+        fewer than one when there is any).
+        """
+        positions = np.atleast_2d(np.asarray(positions, dtype=float))
+        if len(positions) == 1:
+            positions = np.vstack([positions, positions])
+        index = np.arange(len(positions), dtype=float)
+        violations = waypoints.check_joint_limits(self.limits, self.robot.joint_names, index, positions)
+        if first_only and any(v.is_hard for v in violations):
+            return tuple(violations)
+        geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
+        return tuple(violations + geometric)
+
     # ------------------------------------------------------------------ geometry
     def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:
         """Cumulative sampling cost along the waypoint polyline, in units of one fine interval.
@@ -262,7 +285,8 @@ class Envelope:
         samples = self._samples_at(path, _unit_targets(0.0, path.total))
         return samples.times, samples.positions, samples.inflation
 
-    def _check_geometry(self, times: np.ndarray, positions: np.ndarray) -> tuple[list[Violation], float, Pose, int]:
+    def _check_geometry(self, times: np.ndarray, positions: np.ndarray,
+                        first_only: bool = False) -> tuple[list[Violation], float, Pose, int]:
         """Coarse to fine: a pass at `COARSE_FACTOR` times the sweep resolution (bodies inflated
         accordingly, so a clean pass is as much a proof as a fine one); where it finds anything,
         the path around those samples is checked again at full resolution, and only fine
@@ -270,24 +294,30 @@ class Envelope:
         path = self._path_parameter(times, positions)
         coarse = _unit_targets(0.0, path.total, COARSE_FACTOR)
         samples = self._samples_at(path, coarse)
-        found, flagged, tcp = self._geometry_pass(samples)
+        # first_only: coarse candidates need no exact confirmation (they are all re-checked finely)
+        found, flagged, tcp = self._geometry_pass(samples, "none" if first_only else "all")
         checked = len(samples.times)
         if np.any(flagged):
             found = {}
             for start, end in _merged_ranges(coarse, np.flatnonzero(flagged)):
                 fine_samples = self._samples_at(path, _unit_targets(start, end))
-                fine, _, _ = self._geometry_pass(fine_samples)
+                fine, _, _ = self._geometry_pass(fine_samples, "first" if first_only else "all")
                 checked += len(fine_samples.times)
                 for key, violation in fine.items():
                     if key not in found or violation.time_s < found[key].time_s:
                         found[key] = violation
+                if first_only and found:
+                    break
         tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
         ordered = sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
         return ordered, tcp_length, self.robot.tcp_pose(positions[-1]), checked
 
-    def _geometry_pass(self, samples: _Samples) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
+    def _geometry_pass(self, samples: _Samples, confirm: Literal["all", "first", "none"] = "all",
+                       ) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
         """One check of consecutive samples. Returns the first violation per (code, body, what),
-        which samples found anything, and the TCP positions."""
+        which samples found anything, and the TCP positions. `confirm`: which keep-out candidates
+        of the broad phase are confirmed exactly — all, up to the first hit, or none (every
+        candidate counts as a hit: only for a coarse pass whose hits are all checked again finely)."""
         robot, lim = self.robot, self.limits
         t_s, q_s, inflation = samples.times, samples.positions, samples.inflation
         p0, p1 = robot.body_points(robot.joint_frames(q_s))  # (N, B+1, 3); last body is the TCP point
@@ -313,7 +343,8 @@ class Envelope:
                 seg_hi = np.maximum(tcp[:-1], tcp[1:]) + r_tcp
                 overlap[1:, -1] |= np.all(seg_lo[:, None] <= self._ko_hi, axis=-1) & np.all(seg_hi[:, None] >= self._ko_lo, axis=-1)
             if np.any(overlap):
-                confirmed = self._confirm_keep_out(overlap, p0, p1, radius, tcp)
+                confirmed = overlap if confirm == "none" else self._confirm_keep_out(
+                    overlap, p0, p1, radius, tcp, first_only=confirm == "first")
                 flagged |= np.any(confirmed, axis=(1, 2))
                 for zone_index, zone in enumerate(lim.keep_out):
                     self._first_per_body(
@@ -325,8 +356,10 @@ class Envelope:
             flagged |= self._check_self_collision(found, t_s, p0, p1, samples.pair_inflation)
         return found, flagged, tcp
 
-    def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, tcp: np.ndarray) -> np.ndarray:
-        """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments."""
+    def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, tcp: np.ndarray,
+                          first_only: bool = False) -> np.ndarray:
+        """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments
+        (`first_only`: up to the first hit)."""
         confirmed = np.zeros_like(overlap)
         tcp_body = radius.shape[1] - 1
         for k, body, zone in zip(*np.nonzero(overlap), strict=True):
@@ -336,6 +369,8 @@ class Envelope:
             if not hit and body == tcp_body and k > 0:
                 hit = bool(geometry.segments_hit_boxes(tcp[k - 1], tcp[k], zone_lo - r, zone_hi + r))
             confirmed[k, body, zone] = hit
+            if hit and first_only:
+                break
         return confirmed
 
     def _check_self_collision(

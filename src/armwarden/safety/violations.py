@@ -28,6 +28,7 @@ class Code(str, Enum):
     ACCELERATION_LIMIT = "ACCELERATION_LIMIT"
     MALFORMED = "MALFORMED"
     IK_FAILED = "IK_FAILED"
+    NO_DETOUR = "NO_DETOUR"  # the straight line is blocked and the planner found no safe way around in time
 
 
 SOFT_CODES = frozenset({Code.NEAR_JOINT_LIMIT, Code.LARGE_MOTION})

@@ -1,0 +1,56 @@
+"""Scenes the detour tests share: the runtime model with extra keep-out zones, a pillar in the
+way of a base rotation (a detour exists), and a goal hemmed in by a zone (no plan can end there)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from armwarden.preflight import RuntimeModel
+from armwarden.safety.envelope import Box, Envelope
+from tests.helpers import READY
+from tests.safety.dense_oracle import DenseOracle
+
+
+def with_zones(runtime: RuntimeModel, *zones: Box, budget_s: float = 0.5, detours: bool = True) -> RuntimeModel:
+    """The runtime model with `zones` added to the policy's and its own detour planner (or none)."""
+    from armwarden.planning.around import DetourPlanner
+
+    limits = dataclasses.replace(runtime.envelope.limits, keep_out=runtime.envelope.limits.keep_out + tuple(zones))
+    envelope = Envelope(runtime.robot, limits)
+    planner = DetourPlanner(runtime.planner, envelope, budget_s) if detours else None
+    return dataclasses.replace(runtime, envelope=envelope, detours=planner)
+
+
+def base_turn(angle: float) -> np.ndarray:
+    """The ready pose with the base (joint 1) turned by `angle` [rad]."""
+    return READY + np.array([angle, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+
+#: a thin pillar where the hand passes when the base turns from -0.6 to +0.6 rad at the ready pose
+PILLAR = Box.of("pillar", [0.28, -0.02, 0.0], [0.34, 0.02, 0.50])
+PILLAR_START, PILLAR_GOAL = base_turn(-0.6), base_turn(0.6)
+
+
+def pillar_at(runtime: RuntimeModel, angle: float) -> Box:
+    """A 6 × 4 cm pillar, 50 cm tall, around where the TCP is with the base turned by `angle` from ready."""
+    centre = runtime.robot.tcp_pose(base_turn(angle)).position
+    return Box.of("pillar", [centre[0] - 0.03, centre[1] - 0.02, 0.0], [centre[0] + 0.03, centre[1] + 0.02, 0.50])
+
+
+def hemmed_block(runtime: RuntimeModel) -> Box:
+    """A block 1 mm below the padded hand at the ready pose: the ready pose itself is clear, but every
+    motion into it sweeps the hand into the block (the sweep allowance at the last sample is more
+    than 1 mm), so no plan can end there and a search for one runs out of budget."""
+    robot = runtime.robot
+    p0, p1 = robot.body_points(robot.joint_frames(READY[None]))
+    padding = runtime.envelope.limits.link_padding_m
+    hand = [i for i, capsule in enumerate(robot.capsules) if "hand" in capsule.link]
+    lowest = min(min(p0[0, i, 2], p1[0, i, 2]) - robot.capsule_radii[i] - padding for i in hand)
+    return Box.of("block", [0.15, -0.12, 0.0], [0.45, 0.12, lowest - 0.001])
+
+
+def oracle_for(model: RuntimeModel) -> DenseOracle:
+    """The independent dense checker with the model's zones and self-collision pairs."""
+    return DenseOracle(model.robot, model.envelope.limits, [tuple(p) for p in model.envelope._pairs])

@@ -1,0 +1,130 @@
+"""Planning around a blocked straight line (`plan_and_check` with the `DetourPlanner`), on the bundled FR3.
+
+The envelope decides: every accepted detour is re-checked here by the independent dense oracle.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from armwarden.guard.planning import plan_and_check
+from armwarden.planning.planners import PoseTarget
+from armwarden.preflight import RuntimeModel
+from armwarden.safety.envelope import Box
+from armwarden.safety.violations import Code
+from tests.helpers import DOWN, READY
+from tests.planning.scenarios import PILLAR, PILLAR_GOAL, PILLAR_START, base_turn, hemmed_block, oracle_for, with_zones
+
+UNOBSTRUCTED_POSES = [
+    PoseTarget(np.array([0.45, 0.1, 0.3]), DOWN),
+    PoseTarget(np.array([0.40, 0.05, 0.35])),
+    PoseTarget(np.array([0.30, -0.2, 0.45]), DOWN),
+]
+
+
+def hard_codes(outcome, report) -> set[Code]:
+    return {v.code for v in (*outcome.violations, *(report.violations if report else ())) if v.is_hard}
+
+
+# ------------------------------------------------------------------ unobstructed: today's plan, unchanged
+@pytest.mark.parametrize("target", UNOBSTRUCTED_POSES)
+def test_an_unobstructed_pose_target_gives_the_straight_line_plan_unchanged(runtime: RuntimeModel, target) -> None:
+    outcome, report = plan_and_check(runtime, "pose", READY, {"target": target})
+    straight = runtime.planner.plan_to_pose(READY, target)
+    assert report is not None and not report.hard
+    assert outcome.trajectory.digest == straight.trajectory.digest
+    assert outcome.notes == straight.notes
+
+
+def test_an_unobstructed_joint_target_gives_the_straight_line_plan_unchanged(runtime: RuntimeModel) -> None:
+    goal = READY + np.array([0.2, -0.1, 0.0, 0.2, 0.0, 0.1, -0.3])
+    outcome, _ = plan_and_check(runtime, "joints", READY, {"joint_positions": goal})
+    assert outcome.trajectory.digest == runtime.planner.plan_to_joints(READY, goal).trajectory.digest
+
+
+def test_an_unobstructed_plan_never_consults_the_detour_planner(runtime: RuntimeModel, monkeypatch) -> None:
+    def fail(*args, **kwargs):
+        raise AssertionError("the detour planner ran for an unobstructed target")
+
+    monkeypatch.setattr(runtime.detours, "plan", fail)
+    _, report = plan_and_check(runtime, "pose", READY, {"target": UNOBSTRUCTED_POSES[0]})
+    assert report is not None and not report.hard
+
+
+# ------------------------------------------------------------------ blocked: a detour the envelope accepts
+def test_a_base_turn_blocked_by_a_pillar_goes_around_it(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, PILLAR)
+    straight, straight_report = plan_and_check(with_zones(runtime, PILLAR, detours=False), "joints", PILLAR_START,
+                                               {"joint_positions": PILLAR_GOAL})
+    assert Code.KEEP_OUT in hard_codes(straight, straight_report)
+
+    outcome, report = plan_and_check(model, "joints", PILLAR_START, {"joint_positions": PILLAR_GOAL})
+    assert report is not None and not report.hard, report.hard
+    np.testing.assert_array_equal(outcome.trajectory.start, PILLAR_START)
+    np.testing.assert_array_equal(outcome.trajectory.goal, PILLAR_GOAL)
+    assert any(note.startswith("detour planned") and "× the straight line's" in note for note in outcome.notes)
+    assert oracle_for(model).violations(outcome.trajectory) == []
+
+
+def test_the_same_request_gives_the_same_detour(runtime: RuntimeModel) -> None:
+    first, _ = plan_and_check(with_zones(runtime, PILLAR), "joints", PILLAR_START, {"joint_positions": PILLAR_GOAL})
+    again, _ = plan_and_check(with_zones(runtime, PILLAR), "joints", PILLAR_START, {"joint_positions": PILLAR_GOAL})
+    np.testing.assert_array_equal(first.trajectory.positions, again.trajectory.positions)
+    np.testing.assert_array_equal(first.trajectory.times, again.trajectory.times)
+
+
+def test_a_pose_target_whose_nearest_solution_is_blocked_gets_another_solution_or_a_detour(runtime: RuntimeModel) -> None:
+    # the straight joint line from the turned base sweeps the hand through the pillar
+    target = PoseTarget(runtime.robot.tcp_pose(PILLAR_GOAL).position, DOWN)
+    model = with_zones(runtime, PILLAR)
+    outcome, report = plan_and_check(model, "pose", PILLAR_START, {"target": target})
+    assert report is not None and not report.hard, hard_codes(outcome, report)
+    reached = runtime.robot.tcp_pose(outcome.trajectory.goal)
+    assert np.linalg.norm(reached.position - target.position) < 1e-3
+    assert oracle_for(model).violations(outcome.trajectory) == []
+
+
+# ------------------------------------------------------------------ no detour: a clear rejection, in budget
+def test_no_detour_within_the_budget_is_a_rejection_naming_the_blocker_and_the_budget(runtime: RuntimeModel) -> None:
+    budget = 0.25
+    model = with_zones(runtime, hemmed_block(runtime), budget_s=budget)
+    began = time.monotonic()
+    outcome, report = plan_and_check(model, "joints", base_turn(0.6), {"joint_positions": READY})
+    elapsed = time.monotonic() - began
+    assert report is not None and Code.KEEP_OUT in {v.code for v in report.hard}
+    (no_detour,) = [v for v in outcome.violations if v.code is Code.NO_DETOUR]
+    assert no_detour.is_hard
+    assert "'block'" in no_detour.detail and "planning budget of 0.25 s" in no_detour.detail
+    assert elapsed <= 1.2 * budget, f"planning took {elapsed:.3f} s for a {budget} s budget"
+
+
+def test_a_stop_request_ends_the_search_at_once(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, hemmed_block(runtime), budget_s=2.0)
+    straight = model.planner.plan_to_joints(base_turn(0.6), READY)
+    report = model.envelope.check(straight.trajectory)
+    began = time.monotonic()
+    outcome = model.detours.plan("joints", base_turn(0.6), straight, report, should_stop=lambda: True)
+    assert time.monotonic() - began < 0.5
+    assert any(v.code is Code.NO_DETOUR and "e-stop" in v.detail for v in outcome.violations)
+
+
+def test_a_goal_past_a_joint_limit_is_refused_without_a_search(runtime: RuntimeModel, monkeypatch) -> None:
+    monkeypatch.setattr(runtime.detours, "plan", lambda *a, **k: pytest.fail("searched for an unreachable goal"))
+    goal = READY.copy()
+    goal[3] = 0.5  # joint 4 above its upper limit
+    outcome, report = plan_and_check(runtime, "joints", READY, {"joint_positions": goal})
+    assert report is not None and Code.JOINT_LIMIT in {v.code for v in report.hard}
+    assert not any(v.code is Code.NO_DETOUR for v in outcome.violations)
+
+
+def test_a_cartesian_path_stays_a_straight_line_even_when_blocked(runtime: RuntimeModel) -> None:
+    start_tcp = runtime.robot.tcp_pose(READY).position
+    wall = Box.of("wall", start_tcp + [0.05, -0.2, -0.3], start_tcp + [0.07, 0.2, 0.3])
+    model = with_zones(runtime, wall)
+    waypoints = [PoseTarget(start_tcp + np.array([0.12, 0.0, 0.0]), DOWN)]
+    outcome, report = plan_and_check(model, "cartesian", READY, {"waypoints": waypoints})
+    assert report is not None and Code.KEEP_OUT in {v.code for v in report.hard}
+    assert not any(v.code is Code.NO_DETOUR for v in outcome.violations)

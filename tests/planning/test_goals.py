@@ -1,0 +1,76 @@
+"""Goal selection for pose targets: several IK solutions, blocked ones dropped, the rest ranked."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from armwarden.planning.goals import GoalSelector
+from armwarden.preflight import RuntimeModel
+from armwarden.safety.envelope import Box
+from tests.helpers import DOWN, READY
+from tests.planning.scenarios import with_zones
+
+#: around the elbow (joint 4) of the ready pose; the arm's redundancy can swing the elbow elsewhere
+ELBOW_ZONE = Box.of("elbow_zone", [-0.225, -0.06, 0.555], [-0.105, 0.06, 0.675])
+
+
+def selector(model: RuntimeModel) -> GoalSelector:
+    return GoalSelector(model.planner.ik, model.envelope, model.planner.settings.home_rad)
+
+
+def ready_target(model: RuntimeModel) -> tuple[np.ndarray, np.ndarray]:
+    pose = model.robot.tcp_pose(READY)
+    return pose.position, pose.rotation
+
+
+def test_a_solution_with_its_elbow_in_a_zone_is_dropped_for_one_with_the_elbow_elsewhere(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, ELBOW_ZONE)
+    position, rotation = ready_target(model)
+    selection = selector(model).select(READY, position, rotation, seed=3, deadline=time.monotonic() + 5, first=READY)
+    assert selection.goals, selection.describe_blocked()
+    assert "KEEP_OUT" in selection.describe_blocked()
+    for goal in selection.goals:
+        assert not [v for v in model.envelope.check_path(goal) if v.is_hard]
+        assert np.linalg.norm(model.robot.tcp_pose(goal).position - position) < 1e-3
+        assert np.max(np.abs(goal - READY)) > 0.05  # not the blocked ready pose
+
+
+def test_goals_are_ranked_by_weighted_joint_travel(runtime: RuntimeModel) -> None:
+    chooser = selector(runtime)
+    target = np.array([0.45, 0.1, 0.3])
+    selection = chooser.select(READY, target, None, seed=11, deadline=time.monotonic() + 5)
+    travel = [chooser.weighted_travel(READY, goal) for goal in selection.goals]
+    assert len(travel) >= 2 and travel == sorted(travel)
+
+
+def test_the_same_seed_gives_the_same_goals(runtime: RuntimeModel) -> None:
+    chooser = selector(runtime)
+    target = np.array([0.40, -0.1, 0.25])
+    first = chooser.select(READY, target, DOWN, seed=5, deadline=time.monotonic() + 5)
+    again = chooser.select(READY, target, DOWN, seed=5, deadline=time.monotonic() + 5)
+    assert len(first.goals) == len(again.goals) > 0
+    for a, b in zip(first.goals, again.goals, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_goal_beyond_the_joint_travel_cap_is_not_offered(runtime: RuntimeModel) -> None:
+    chooser = selector(runtime)
+    cap = runtime.envelope.limits.max_joint_step_rad
+    selection = chooser.select(READY, np.array([-0.1, 0.35, 0.3]), None, seed=2, deadline=time.monotonic() + 5)
+    assert all(np.max(np.abs(goal - READY)) <= cap for goal in selection.goals)
+
+
+def test_goals_with_a_clear_approach_come_first_and_their_approach_line_passes_the_envelope(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, Box.of("bin_box", [0.40, -0.20, 0.0], [0.70, 0.20, 0.25]))
+    chooser = selector(model)
+    selection = chooser.select(READY, np.array([0.55, 0.0, 0.29]), DOWN, seed=8, deadline=time.monotonic() + 5)
+    assert selection.approaches and selection.approaches[0] is not None
+    flags = [approach is None for approach in selection.approaches]
+    assert flags == sorted(flags)  # with an approach (False) before without (True)
+    for goal, approach in zip(selection.goals, selection.approaches, strict=True):
+        if approach is not None:
+            assert not [v for v in model.envelope.check_path(np.vstack([approach, goal])) if v.is_hard]
+            gap = np.linalg.norm(model.robot.tcp_pose(approach).position - model.robot.tcp_pose(goal).position)
+            assert abs(gap - chooser.options.retreat_m) < 1e-3  # a few centimetres back, as asked
