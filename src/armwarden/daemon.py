@@ -32,7 +32,7 @@ from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.audit import AuditLog, hmac_key_from_env
+from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, hmac_key_from_env
 from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel import StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
@@ -60,13 +60,14 @@ class Assembly:
     server: ArmWardenServer
 
 
-def assemble(policy: Policy, backend_name: str, backend_config: str | None,
-             audit_path: str) -> tuple[Policy, Backend, AuditLog, RuntimeModel, RobotModel]:
-    """Build everything that can fail before serving (each failure is a clean exit 2)."""
+def assemble(policy: Policy, backend_name: str, backend_config: str | None, audit_path: str,
+             commit_window_s: float = DEFAULT_COMMIT_WINDOW_S) -> tuple[Policy, Backend, AuditLog, RuntimeModel, RobotModel]:
+    """Build everything that can fail before serving (each failure is a clean exit 2).
+    ``commit_window_s``: the audit log's group-commit window for read-only calls' records."""
     runtime = load_runtime_model(policy)
     state_robot = build_robot(policy)
     backend = build_backend(backend_name, policy, robot=state_robot, config_path=backend_config)
-    audit = AuditLog(audit_path, hmac_key=hmac_key_from_env())
+    audit = AuditLog(audit_path, hmac_key=hmac_key_from_env(), commit_window_s=commit_window_s)
     return policy, backend, audit, runtime, state_robot
 
 
@@ -237,7 +238,8 @@ def serve_command(args: argparse.Namespace) -> int:
         if getattr(args, "estop_port", None) is not None and not args.auth_tokens:
             raise ConfigurationError("--estop-port needs --auth-tokens: the stop channel accepts any role's token, "
                                      "and none without one")
-        parts = assemble(policy, args.backend, args.backend_config, args.audit_log)
+        parts = assemble(policy, args.backend, args.backend_config, args.audit_log,
+                         args.audit_commit_window_ms / 1e3)
     except PolicyError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)
         return EXIT_REFUSED
