@@ -11,9 +11,16 @@ decompressed, so a small file claiming a huge image (a decompression bomb) is re
 from __future__ import annotations
 
 import io
+import struct
 import warnings
+import zlib
+from typing import Any
+
+import numpy as np
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: zlib level of `encode_png`: 1 is the fastest that still shrinks a drawing ~30x
+PNG_ZLIB_LEVEL = 1
 #: largest image (width × height) `downscale_png` will decode
 MAX_PIXELS = 40_000_000
 
@@ -80,4 +87,27 @@ def downscale_png(png: bytes, max_width: int) -> tuple[bytes, int, int]:
     return out.getvalue(), width, height
 
 
-__all__ = ["MAX_PIXELS", "ImageSupportMissing", "downscale_png", "pillow_available"]
+def encode_png(image: Any) -> bytes:
+    """PNG bytes of an 8-bit RGB Pillow image, every row with filter type 0 (None).
+
+    Why not ``image.save(format="PNG")``: Pillow tries every PNG row filter on every row, which
+    costs more than the compression itself (about 3 ms for a 640x320 drawing, against about 1 ms
+    here); a drawing of flat colours compresses about as well unfiltered. No metadata chunks, so
+    the same pixels give the same bytes.
+    """
+    if image.mode != "RGB":
+        raise ValueError(f"encode_png takes an RGB image, got mode {image.mode}")
+    width, height = image.size
+    rows = np.empty((height, 1 + 3 * width), dtype=np.uint8)
+    rows[:, 0] = 0  # filter type None
+    rows[:, 1:] = np.frombuffer(image.tobytes(), dtype=np.uint8).reshape(height, 3 * width)
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, no interlace
+    return b"".join((PNG_SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", zlib.compress(rows.tobytes(), PNG_ZLIB_LEVEL)),
+                     _chunk(b"IEND", b"")))
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+__all__ = ["MAX_PIXELS", "ImageSupportMissing", "downscale_png", "encode_png", "pillow_available"]
