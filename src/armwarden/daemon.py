@@ -28,6 +28,7 @@ from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
 from armwarden.errors import ArmWardenError, BackendUnavailable, ConfigurationError, PolicyError
+from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
@@ -147,6 +148,10 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
                    "pid": os.getpid()},
         )
+        if args.transport == "stdio" and started_from_terminal(sys.stdin):
+            print(first_contact_line(backend=args.backend, policy=str(args.policy or "bundled fr3"),
+                                     audit_log=assembly.audit.path, tools=len(assembly.server.tools),
+                                     dry_run=assembly.policy.dry_run), file=sys.stderr, flush=True)
         async with anyio.create_task_group() as group:
             async def on_signals() -> None:
                 nonlocal why
