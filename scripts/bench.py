@@ -14,6 +14,11 @@ Sections
 - server: round trips through the official MCP SDK client — plan_to_pose (all links checked, with
   and without the preview picture) and get_robot_state in memory, get_robot_state over real
   stdio, and the audit log's cost per call.
+- share: ArmWarden's own share of each round trip, per transport (in memory, stdio, streamable
+  HTTP under 2025-11-25 and 2026-07-28): get_robot_state, get_safety_status, plan_to_pose
+  without and with the preview, and estop, each against the SDK floor returning a constant
+  result of the same model and output schema over the same transport, interleaved; plus the
+  preview picture's cost alone and with/without ratio over stdio (`scripts/_bench/own_share.py`).
 - estop: e-stop latency while 8 HTTP clients load the daemon (a subprocess on 127.0.0.1): from
   the request reaching ArmWarden to the backend stop being issued, and to the arm being still
   (the fake holds the arm in the thread that issues the stop; its control thread never commands
@@ -838,6 +843,19 @@ def _report_flood(r: dict[str, Any]) -> None:
     print(f"host 1-min load average before / after the cycles: {' / '.join(f'{v:.1f}' for v in r['host_load_average_1min'])} "
           f"(2 cores; other work on the machine shows here)")
 
+def bench_share(rounds: int = 6) -> dict[str, Any]:
+    import tempfile
+
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    with tempfile.TemporaryDirectory() as tmp:
+        directory = Path(tmp)
+        return importlib.import_module("own_share").bench_own_share(_bench_policy_file(directory), directory, rounds)
+
+
+def _report_share(r: dict[str, Any]) -> None:
+    importlib.import_module("own_share").report_own_share(r)
+
+
 def bench_mujoco() -> dict[str, Any]:
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))
     return importlib.import_module("mujoco_cell").bench_mujoco()
@@ -859,13 +877,14 @@ def _report_can(r: dict[str, Any]) -> None:
 SECTIONS = {
     "envelope": (bench_envelope, _report_envelope),
     "server": (bench_server, _report_server),
+    "share": (bench_share, _report_share),
     "estop": (bench_estop, _report_estop),
     "flood": (bench_flood, _report_flood),
     "mujoco": (bench_mujoco, _report_mujoco),
     "can": (bench_can, _report_can),
 }
 #: sections run when none is named (flood takes about a minute and a half, can two minutes: ask for them by name)
-DEFAULT_SECTIONS = ("envelope", "server", "estop", "mujoco")
+DEFAULT_SECTIONS = ("envelope", "server", "share", "estop", "mujoco")
 
 
 def main() -> int:
