@@ -212,9 +212,11 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
     ready = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
     goal = ready + np.array([0.5, 0.25, -0.2, 0.3, 0.2, -0.3, 0.4])
     trajectory = runtime.planner.plan_to_joints(ready, goal).trajectory
+    if trajectory is None:
+        raise RuntimeError("the benchmark's typical plan was not planned")
     report = runtime.envelope.check(trajectory)
     preview = plan_previewer()
-    times = []
+    times, png = [], None
     for _ in range(repeats):
         start = time.perf_counter()
         png = preview(runtime, trajectory, report)
