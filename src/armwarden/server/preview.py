@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # pragma: no cover
 #: configurations at which the swept links are drawn (evenly spaced in time, start and goal included)
 SWEEP_SAMPLES = 8
 #: at most this many points on the TCP polyline (waypoints are thinned evenly beyond that)
-MAX_PATH_POINTS = 200
+MAX_PATH_POINTS = 64
 MIN_SIZE = (160, 96)
 DEFAULT_SIZE = (640, 320)
 #: static scenes kept per previewer (one per picture scale; plans inside the workspace share one)
@@ -114,7 +114,7 @@ class PlanPreviewer:
         duration = trajectory.duration_s if geometry is not None and trajectory is not None else 0.0
         n_hard, n_soft = len(report.hard), len(report.soft)
         title_y = 2
-        draw.text((6, title_y), status.upper(), fill=_STATUS_COLOUR.get(status, _TEXT), font=font)
+        scene.text(image, (6, title_y), status.upper(), _STATUS_COLOUR.get(status, _TEXT))
         x = 6 + draw.textlength(status.upper(), font=font)
         details = f"   duration {duration:.2f} s   TCP path {report.tcp_path_length_m:.3f} m"
         if n_hard or n_soft:
@@ -122,7 +122,7 @@ class PlanPreviewer:
         draw.text((x, title_y), details, fill=_TEXT, font=font)
 
         for view in scene.views:
-            _draw_plan(image, draw, font, view, self.limits, geometry)
+            _draw_plan(image, draw, scene, view, self.limits, geometry)
         return encode_png(image)
 
     def _scene(self, lo: np.ndarray, hi: np.ndarray) -> _Scene:
@@ -250,6 +250,7 @@ class _Scene:
         scale = min(plot_w / span[0], plot_h / span[1], plot_h / span[2])  # px per metre
         step = next((s for s in _NICE_STEPS if s * scale >= 4.5 * text_h), _NICE_STEPS[-1])
 
+        self._stamps: dict[tuple[str, float, float], _TextStamp] = {}
         self.views: list[_View] = []
         for index, (axis_v, name) in enumerate(((1, "TOP (x-y)"), (2, "SIDE (x-z)"))):
             left = index * panel_w + margin_l
@@ -259,6 +260,38 @@ class _Scene:
             self.views.append(view)
             if index == 0:
                 draw.line([(panel_w, top), (panel_w, height - 2)], fill=_SEPARATOR, width=1)
+
+    def text(self, image: Any, xy: tuple[float, float], text: str, fill: tuple[int, int, int]) -> None:
+        """`ImageDraw.text` for text every picture of this scene repeats (zone names, the status
+        word): rendered by FreeType once, then pasted."""
+        key = (text, *xy)
+        stamp = self._stamps.get(key)
+        if stamp is None:
+            stamp = self._stamps[key] = _TextStamp(self.font, text, xy)
+        stamp.paste(image, fill)
+
+
+class _TextStamp:
+    """One line of text at one position, rendered once as a coverage mask (what `ImageDraw.text`
+    blends the ink with), so that drawing it again is one masked paste."""
+
+    PAD = 4
+
+    def __init__(self, font: Any, text: str, xy: tuple[float, float]) -> None:
+        from PIL import Image, ImageDraw
+
+        x, y = xy
+        left, top, right, bottom = font.getbbox(text)
+        width = int(math.ceil(max(right, 0) - min(left, 0))) + 2 * self.PAD + 2
+        height = int(math.ceil(max(bottom, 0) - min(top, 0))) + 2 * self.PAD + 2
+        self.mask = Image.new("L", (width, height), 0)
+        # same integer/fraction split as ImageDraw.text, so the glyphs land on the same pixels
+        shift_x, shift_y = self.PAD - min(int(left), 0), self.PAD - min(int(top), 0)
+        ImageDraw.Draw(self.mask).text((x - int(x) + shift_x, y - int(y) + shift_y), text, fill=255, font=font)
+        self.origin = (int(x) - shift_x, int(y) - shift_y)
+
+    def paste(self, image: Any, fill: tuple[int, int, int]) -> None:
+        image.paste(fill, self.origin, mask=self.mask)
 
 
 class _View:
@@ -313,7 +346,7 @@ def _draw_frame(draw: Any, font: Any, text_h: int, view: _View, name: str, v_nam
     draw.text((sx1 - bar - 4 - draw.textlength(label, font=font), sy - text_h / 2 - 1), label, fill=_TEXT, font=font)
 
 
-def _draw_plan(image: Any, draw: Any, font: Any, view: _View, limits: EnvelopeLimits,
+def _draw_plan(image: Any, draw: Any, scene: _Scene, view: _View, limits: EnvelopeLimits,
                geometry: _PlanGeometry | None) -> None:
     """A panel's plan-dependent parts, in z-order: the sweep, the zones over it, the base, the path."""
     # swept links first, so the translucent zones and the workspace outline stay visible over them
@@ -325,7 +358,7 @@ def _draw_plan(image: Any, draw: Any, font: Any, view: _View, limits: EnvelopeLi
         draw.rectangle(rect, fill=_KEEP_OUT_FILL, outline=_KEEP_OUT_EDGE, width=1)
     for zone in limits.keep_out:  # names on top of every fill, so overlapping zones stay legible
         rect = view.rect(zone.lo, zone.hi)
-        draw.text((rect[0] + 2, rect[1] + 1), zone.name, fill=_KEEP_OUT_TEXT, font=font)
+        scene.text(image, (rect[0] + 2, rect[1] + 1), zone.name, _KEEP_OUT_TEXT)
 
     # robot base at the origin, over the links
     bx, by = view.px(0.0, 0.0)
@@ -389,9 +422,12 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
     outlines: np.ndarray = bands & ~_interior(bands)  # (S, h, w)
     union: np.ndarray = np.any(bands, axis=0)
     edges: np.ndarray = np.any(outlines[:-1], axis=0)
-    image.paste(_LINK_FILL, (x0, y0), mask=_mask(union))
-    image.paste(_LINK_EDGE, (x0, y0), mask=_mask(edges))
-    image.paste(_LINK_GOAL, (x0, y0), mask=_mask(outlines[-1]))
+    # colour the region's pixels in NumPy and paste it back whole (one paste, not three masked ones)
+    region = np.array(image.crop((x0, y0, x0 + w, y0 + h)))
+    region[union] = _LINK_FILL
+    region[edges] = _LINK_EDGE
+    region[outlines[-1]] = _LINK_GOAL
+    image.paste(Image.fromarray(region), (x0, y0))
 
 
 def _interior(masks: np.ndarray) -> np.ndarray:
@@ -405,12 +441,6 @@ def _interior(masks: np.ndarray) -> np.ndarray:
             if dy != 1 or dx != 1:
                 inner &= padded[:, dy:dy + h, dx:dx + w]
     return inner
-
-
-def _mask(pixels: np.ndarray) -> Any:
-    from PIL import Image
-
-    return Image.fromarray(pixels.astype(np.uint8) * 255, mode="L")
 
 
 def _draw_ticks(draw: Any, font: Any, text_h: int, view: _View, step: float) -> None:
