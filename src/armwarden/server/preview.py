@@ -282,11 +282,11 @@ class _TextStamp:
 
         x, y = xy
         left, top, right, bottom = font.getbbox(text)
-        width = int(math.ceil(max(right, 0) - min(left, 0))) + 2 * self.PAD + 2
-        height = int(math.ceil(max(bottom, 0) - min(top, 0))) + 2 * self.PAD + 2
+        width = math.ceil(max(right, 0) - min(left, 0)) + 2 * self.PAD + 2
+        height = math.ceil(max(bottom, 0) - min(top, 0)) + 2 * self.PAD + 2
         self.mask = Image.new("L", (width, height), 0)
         # same integer/fraction split as ImageDraw.text, so the glyphs land on the same pixels
-        shift_x, shift_y = self.PAD - min(int(left), 0), self.PAD - min(int(top), 0)
+        shift_x, shift_y = self.PAD - min(math.floor(left), 0), self.PAD - min(math.floor(top), 0)
         ImageDraw.Draw(self.mask).text((x - int(x) + shift_x, y - int(y) + shift_y), text, fill=255, font=font)
         self.origin = (int(x) - shift_x, int(y) - shift_y)
 
