@@ -6,23 +6,24 @@ so the chain is the call order. When a record must be on disk depends on its dur
 - `Durability.NOW` — actuating calls, approval questions and answers, refusals of actuating
   calls, e-stops, resets, start-up and shutdown: the batch it is in is fsync-ed before any
   caller of that batch is answered, so the reply waits for the disk.
-- `Durability.WINDOW` — records of read-only calls: nobody waits. The record is written at once
-  and fsync-ed at most ``window_s`` after that write (sooner when a `NOW` record follows: one
-  fsync covers everything written before it). A power loss or kernel crash can lose the
-  read-only records of the last window, never a `NOW` record nor anything before one.
+- `Durability.WINDOW` — records of read-only calls: nobody waits. The record is written and
+  fsync-ed at most ``window_s`` after it was handed over (sooner when a `NOW` record or a tail
+  read follows: everything queued before it is written first, and one fsync covers it all). A
+  crash can lose the read-only records of the last window, never a `NOW` record nor anything
+  handed over before one.
 - `Durability.NONE` — a job that writes nothing (reading the tail in call order).
 
-A failed fsync is reported to the callers of the batch that wait for it; a failed fsync of
-window records nobody waits for is logged and leaves the log broken (``on_sync`` raises after
-marking it), so the next record is refused: the log fails closed instead of writing past a hole.
+A failed write or fsync is reported to the callers of the batch that wait for it, and logged for
+records nobody waits for; either way the log is then broken (``sync`` marks it before raising),
+so the next record is refused: the log fails closed instead of writing past a hole.
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections
 import enum
 import logging
-import queue
 import threading
 import time
 from collections.abc import Callable
@@ -57,65 +58,82 @@ class Job:
 
 
 class Writer:
-    """The writer thread of one log. ``sync`` fsyncs what was written (and raises on failure)."""
+    """The writer thread of one log. ``sync`` fsyncs what was written (and raises on failure).
+
+    Jobs wait in one deque, in call order. A job that someone waits for (or that must be on disk
+    now) wakes the thread at once; a window record only arms the window's timer (the first of a
+    window wakes the thread to start it) and is written with the others when the window closes —
+    so a burst of state polls costs the event loop an append each, not a thread switch each.
+    """
 
     def __init__(self, sync: Callable[[], None], window_s: float, name: str = "armwarden-audit") -> None:
         self._sync = sync
         self._window_s = window_s
-        self._jobs: queue.SimpleQueue[Job | None] = queue.SimpleQueue()
+        self._jobs: collections.deque[Job | None] = collections.deque()
+        self._wake = threading.Event()
+        self._urgent = False  # a job that must not wait for the window is queued
+        self._armed = False  # window records are queued and the thread knows it
         self._thread = threading.Thread(target=self._drain, name=name, daemon=True)
         self._thread.start()
 
     def put(self, job: Job) -> None:
-        self._jobs.put(job)
+        self._jobs.append(job)
+        if job.durability is Durability.WINDOW and self._window_s > 0:
+            if not self._armed:
+                self._armed = True
+                self._wake.set()
+            return
+        self._urgent = True
+        self._wake.set()
 
     def stop(self) -> None:
         """Write and fsync everything queued so far, then end the thread (joined unless called from it)."""
-        self._jobs.put(None)
+        self._jobs.append(None)
+        self._urgent = True
+        self._wake.set()
         if self._thread is not threading.current_thread():
             self._thread.join()
 
     # -- the thread -----------------------------------------------------------------------
-    def _next_batch(self, deadline: float | None) -> tuple[list[Job], bool]:
-        """Wait for work (until ``deadline`` when window records await their fsync), then take
-        everything queued. Returns (jobs, stopping); no jobs and not stopping = the window closed."""
-        try:
-            first = self._jobs.get() if deadline is None else self._jobs.get(timeout=max(0.0, deadline - time.monotonic()))
-        except queue.Empty:
-            return [], False
-        if first is None:
-            return [], True
-        batch = [first]
+    def _take_all(self) -> tuple[list[Job], bool]:
+        """Everything queued, in order, up to a stop marker. Returns (jobs, stopping)."""
+        self._armed = False  # before taking: a window record queued from now on arms a new window
+        batch: list[Job] = []
         while True:
             try:
-                more = self._jobs.get_nowait()
-            except queue.Empty:
+                job = self._jobs.popleft()
+            except IndexError:
                 return batch, False
-            if more is None:
+            if job is None:
                 return batch, True
-            batch.append(more)
+            batch.append(job)
 
     def _drain(self) -> None:
-        deadline: float | None = None  # when the oldest unsynced window record must be on disk
+        deadline: float | None = None  # when the window records queued so far must be on disk
         while True:
-            batch, stopping = self._next_batch(deadline)
+            self._wake.wait(None if deadline is None else max(0.0, deadline - time.monotonic()))
+            self._wake.clear()  # before looking: a job queued from now on wakes the thread again
+            urgent, self._urgent = self._urgent, False
+            if not urgent:
+                if deadline is None:
+                    if self._armed:
+                        deadline = time.monotonic() + self._window_s  # the first record of a window
+                    continue
+                if time.monotonic() < deadline:
+                    continue
+            batch, stopping = self._take_all()
+            deadline = None
             outcomes = []
             for job in batch:
                 try:
                     outcomes.append((job, job.call(), False))
                 except BaseException as exc:  # handed back to the awaiting caller
                     outcomes.append((job, exc, True))
-            written = [job.durability for job, _, failed in outcomes if not failed]
-            if Durability.WINDOW in written and deadline is None:
-                deadline = time.monotonic() + self._window_s
-            if Durability.NOW in written or (deadline is not None and (stopping or not batch)):
-                deadline = None  # one fsync covers everything written so far
+            if any(not failed and job.durability is not Durability.NONE for job, _, failed in outcomes):
                 try:
-                    self._sync()
+                    self._sync()  # one fsync covers everything written so far
                 except BaseException as exc:  # nothing of this batch is known to be on disk
                     outcomes = [(job, exc, True) for job, *_ in outcomes]
-                    if not outcomes:  # the window closed: nobody to tell but the log
-                        logger.error("audit records of the last commit window could not be fsync-ed: %s", exc)
             self._answer(outcomes)
             if stopping:
                 return
