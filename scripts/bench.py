@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """ArmWarden benchmarks: every figure is a ratio or a percentile measured in this one run.
 
-    python scripts/bench.py                 # envelope, server, estop (flood only when named)
+    python scripts/bench.py                 # envelope, server, share, estop, mujoco (flood, can only when named)
     python scripts/bench.py envelope        # one section
     python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
@@ -322,8 +322,10 @@ def _report_server(r: dict[str, Any]) -> None:
     print("## server (official MCP SDK client)")
     line("plan_to_pose round trip, in memory, all links checked, no preview", "plan_to_pose_in_memory", 5)
     line("plan_to_pose round trip, in memory, with the PNG preview (default)", "plan_to_pose_with_preview_in_memory")
-    line("get_robot_state, in memory", "get_robot_state_in_memory", 1)
-    line("get_robot_state over stdio", "get_robot_state_stdio", 1.5)
+    # the daemon issue's absolute targets (1 ms, 1.5 ms) were below the SDK's own floor and are
+    # withdrawn (issue 13): the `share` section holds ArmWarden to its own share instead
+    line("get_robot_state, in memory", "get_robot_state_in_memory")
+    line("get_robot_state over stdio", "get_robot_state_stdio")
     line("get_robot_state, in memory, audit log off", "get_robot_state_in_memory_no_audit")
     print(f"audit record cost per call (difference of the interleaved medians; hash chain + fsync on the writer thread): "
           f"{r['audit_overhead_per_call_ms']:.2f} ms")
