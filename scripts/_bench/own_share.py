@@ -179,7 +179,7 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
 
         mode = "legacy" if "2025-11-25" in transport else "2026-07-28"
         window = ["--audit-commit-window-ms", "0"] if transport == STRICT_AUDIT else []
-        token_file = directory / f"tokens-{len(list(directory.glob('tokens-*.json')))}.json"  # one per daemon
+        token_file = directory / f"tokens-{_free_port()}.json"  # one per daemon (a fresh number)
         token = TokenStore.add(token_file, "operator", "bench")
         aw_port, floor_port = _free_port(), _free_port()
         daemon = subprocess.Popen(  # noqa: ASYNC220 - set-up, before anything is timed

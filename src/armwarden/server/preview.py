@@ -12,7 +12,8 @@ keeps, per policy, the static scene (frames, ticks, labels, scale bars) for each
 it has drawn — every plan inside the workspace box has the same one — and per plan draws only
 what changes: the title, the sweep, the zones over it, the path and the marks. The sweep's masks
 and outlines are computed in NumPy (one capsule drawing pass, no per-sample image filters), and
-the PNG is encoded without per-row filter search (`images.encode_png`).
+the PNG is encoded without per-row filter search, compressing only the row bands the plan drew
+on (`images.BandedPngEncoder`; the scene's own bands are compressed once).
 
 Pillow is optional (`armwarden[image]`); without it the renderer returns None. The output is
 deterministic: the same inputs give the same bytes (Pillow's built-in default font, no
@@ -30,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armwarden.server.images import encode_png
+from armwarden.server.images import BandedPngEncoder
 
 if TYPE_CHECKING:  # pragma: no cover
     from armwarden.planning.trajectory import JointTrajectory
@@ -123,7 +124,7 @@ class PlanPreviewer:
 
         for view in scene.views:
             _draw_plan(image, draw, scene, view, self.limits, geometry)
-        return encode_png(image)
+        return scene.encode(image, self.limits)
 
     def _scene(self, lo: np.ndarray, hi: np.ndarray) -> _Scene:
         key = (*np.round(lo, 9).tolist(), *np.round(hi, 9).tolist())
@@ -260,6 +261,20 @@ class _Scene:
             self.views.append(view)
             if index == 0:
                 draw.line([(panel_w, top), (panel_w, height - 2)], fill=_SEPARATOR, width=1)
+        self._encoder: BandedPngEncoder | None = None
+
+    def encode(self, image: Any, limits: EnvelopeLimits) -> bytes:
+        """PNG of a picture drawn on this scene: only the row bands that differ from the scene with
+        its zones and base (and no plan) are compressed (`BandedPngEncoder`)."""
+        if self._encoder is None:
+            from PIL import ImageDraw
+
+            reference = self.image.copy()
+            draw = ImageDraw.Draw(reference, "RGBA")
+            for view in self.views:
+                _draw_plan(reference, draw, self, view, limits, None)
+            self._encoder = BandedPngEncoder(reference)
+        return self._encoder.encode(image)
 
     def text(self, image: Any, xy: tuple[float, float], text: str, fill: tuple[int, int, int]) -> None:
         """`ImageDraw.text` for text every picture of this scene repeats (zone names, the status
