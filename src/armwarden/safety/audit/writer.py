@@ -113,14 +113,16 @@ class Writer:
         while True:
             self._wake.wait(None if deadline is None else max(0.0, deadline - time.monotonic()))
             self._wake.clear()  # before looking: a job queued from now on wakes the thread again
-            urgent, self._urgent = self._urgent, False
-            if not urgent:
+            if not self._urgent:
                 if deadline is None:
                     if self._armed:
                         deadline = time.monotonic() + self._window_s  # the first record of a window
                     continue
                 if time.monotonic() < deadline:
                     continue
+            # reset only when everything queued is about to be taken: a flag set meanwhile is kept
+            # (its job is taken now or on the next pass), never lost
+            self._urgent = False
             batch, stopping = self._take_all()
             deadline = None
             outcomes = []
