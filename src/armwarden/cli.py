@@ -42,8 +42,8 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--port", type=int, default=8765)
     serve.add_argument("--audit-log", default="armwarden-audit.jsonl", help="append-only audit log (JSONL)")
     serve.add_argument("--audit-commit-window-ms", type=float, default=DEFAULT_COMMIT_WINDOW_S * 1e3, metavar="MS",
-                       help="read-only calls' audit records are fsynced within this window instead of before their "
-                            "reply (0..1000; 0 = every record before its reply). Actuating calls, approvals, "
+                       help="read-only calls' audit records are written and fsynced within this window instead of "
+                            "before their reply (0..1000; 0 = every record before its reply). Actuating calls, approvals, "
                             "refusals of actuating calls, e-stops and resets are always on disk before their reply")
     serve.add_argument("--auth-tokens", default=None, help="bearer token file (see `armwarden tokens`)")
     serve.add_argument("--allowed-host", action="append", default=[], metavar="HOST[:PORT]",

@@ -44,7 +44,7 @@ except ImportError:  # pragma: no cover - non-POSIX
     fcntl = None  # type: ignore[assignment]
 
 MAX_EVENT_CHARS = 64
-#: how long a read-only call's record may wait for its fsync after it is written [s] (writer.py)
+#: how long a read-only call's record may wait to be written and fsync-ed [s] (writer.py)
 DEFAULT_COMMIT_WINDOW_S = 0.02
 
 
@@ -341,8 +341,8 @@ class AuditLog:
     def append_soon(self, entry: AuditEntry | str, /, **fields: Any) -> None:
         """Hand a record of a read-only call to the writer thread without waiting for it.
 
-        It is written after the records already queued and fsync-ed within `commit_window_s`
-        of that write (`Durability.WINDOW`; sooner if a record that must be on disk follows).
+        It keeps its place after the records already queued and is written and fsync-ed within
+        `commit_window_s` (`Durability.WINDOW`; sooner if a record that must be on disk follows).
         Raises `AuditWriteError` at once if the log is closed or broken, so a caller fails closed
         instead of answering calls the log can no longer record.
         """
@@ -364,8 +364,8 @@ class AuditLog:
 
     @property
     def commit_window_s(self) -> float:
-        """How long a read-only call's record may wait for its fsync after it is written [s]; 0:
-        every record is on disk before its caller is answered."""
+        """How long a read-only call's record may wait to be written and fsync-ed [s]; 0: every
+        record is on disk before its caller is answered."""
         return self._window_s
 
     def _writer(self) -> Writer:
