@@ -119,6 +119,16 @@ async def test_the_tail_includes_a_read_only_record_handed_over_just_before(tmp_
     assert tail[-1]["tool"] == "get_robot_state"
 
 
+def test_flush_puts_the_records_of_an_open_window_on_disk_at_once(tmp_path, monkeypatch) -> None:
+    path = tmp_path / "audit.jsonl"
+    spy = FsyncSpy(path)
+    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", spy)
+    with AuditLog(path, commit_window_s=1.0) as log:
+        log.append_soon("read", outcome="ok")
+        log.flush()
+        assert spy.synced and spy.synced[-1][-1] == "read"
+
+
 def test_a_read_only_record_to_a_closed_log_is_refused(tmp_path) -> None:
     log = AuditLog(tmp_path / "audit.jsonl")
     log.close()

@@ -11,6 +11,7 @@ aside.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import errno
 import functools
 import hashlib
@@ -361,6 +362,20 @@ class AuditLog:
         Raises `AuditWriteError` if the log is closed."""
         call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
         self._writer().put(Job(call, Durability.NOW))
+
+    def flush(self, timeout_s: float = 30.0) -> None:
+        """Block until every record handed over so far is written and fsync-ed (window records
+        included). For callers that read the file right after (tests, tools); not for the event
+        loop. A closed log has nothing left to flush (closing wrote everything). Raises
+        `AuditWriteError` if that fails, TimeoutError after ``timeout_s``."""
+        if self._fd is None:
+            return
+        waiter: concurrent.futures.Future[None] = concurrent.futures.Future()
+        self._writer().put(Job(lambda: None, Durability.NOW, waiter=waiter))
+        try:
+            waiter.result(timeout_s)
+        except concurrent.futures.TimeoutError as exc:
+            raise TimeoutError(f"audit log {str(self._path)!r} did not flush within {timeout_s:g} s") from exc
 
     @property
     def commit_window_s(self) -> float:

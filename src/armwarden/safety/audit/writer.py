@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import concurrent.futures
 import enum
 import logging
 import threading
@@ -49,12 +50,14 @@ class Durability(enum.Enum):
 @dataclass(frozen=True, slots=True)
 class Job:
     """One piece of work for the writer: ``call`` runs on the writer thread; its result (or error)
-    settles ``future`` on ``loop`` once the job's durability class allows (both None: nobody waits)."""
+    settles ``future`` on ``loop`` (or ``waiter``, from any thread) once the job's durability class
+    allows; none of them: nobody waits."""
 
     call: Callable[[], Any]
     durability: Durability
     loop: asyncio.AbstractEventLoop | None = None
     future: asyncio.Future[Any] | None = None
+    waiter: concurrent.futures.Future[Any] | None = None  # for a caller outside any event loop
 
 
 class Writer:
@@ -143,7 +146,12 @@ class Writer:
     @staticmethod
     def _answer(outcomes: list[tuple[Job, Any, bool]]) -> None:
         for job, outcome, failed in outcomes:
-            if job.loop is None or job.future is None:  # nobody waits: a failure is only logged
+            if job.waiter is not None:
+                if failed:
+                    job.waiter.set_exception(outcome)
+                else:
+                    job.waiter.set_result(outcome)
+            elif job.loop is None or job.future is None:  # nobody waits: a failure is only logged
                 if failed:
                     logger.error("audit record could not be written: %s", outcome)
             elif failed:
