@@ -1,21 +1,32 @@
-"""The SDK's own floor (used by scripts/bench.py): an MCPServer with two constant tools and nothing
+"""The SDK's own floor (used by scripts/bench.py): an MCPServer with constant tools and nothing
 of ArmWarden behind them.
 
 - `trivial`: a tiny structured result.
 - `robot_state_shape`: a constant result with exactly `get_robot_state`'s model and published
   output schema, so the SDK's cost for that shape (serialising it, and the client re-validating
   it against the schema) is measured apart from what ArmWarden does to produce it.
+- with `shapes` (a JSON file of results ArmWarden really returned, written by the benchmark):
+  `get_safety_status_shape`, `estop_shape`, `plan_to_pose_shape` and
+  `plan_to_pose_preview_shape` (the same summary plus the same PNG, as image content), each
+  with the model and output schema of the ArmWarden tool it stands for.
+
+Run as a script: `trivial_server.py [--shapes FILE] [--http PORT]` serves stdio, or streamable
+HTTP on 127.0.0.1:PORT (the SDK's defaults: stateful sessions, SSE responses, as ArmWarden).
 """
 
+import argparse
+import json
 import sys
 from pathlib import Path
+from typing import Annotated, Any
 
 from mcp.server.mcpserver import MCPServer
+from mcp_types import CallToolResult, ImageContent, TextContent
 from pydantic import BaseModel
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 
-from armwarden.results import RobotState
+from armwarden.results import EStopResult, PlanSummary, RobotState, SafetyStatus
 from armwarden.server.tools import inline_refs
 
 
@@ -37,7 +48,29 @@ READY_STATE = RobotState.model_validate({
 })
 
 
-def build() -> MCPServer:
+def _constant(model: type[BaseModel], structured: dict[str, Any], image_b64: str | None = None):
+    """A tool body returning a fixed result of `model` as ArmWarden's tools do (`server.calls.ok`):
+    the model's JSON as text, its structured content, and optionally one PNG."""
+    value = model.model_validate(structured)
+
+    async def body() -> Annotated[CallToolResult, model]:  # type: ignore[valid-type]
+        extra = [ImageContent(type="image", data=image_b64, mime_type="image/png")] if image_b64 else []
+        return CallToolResult(content=[TextContent(type="text", text=value.model_dump_json()), *extra],
+                              structured_content=value.model_dump(mode="json"))
+
+    return body
+
+
+def _publish_inlined_schema(server: MCPServer, name: str) -> None:
+    tool = server._tool_manager.get_tool(name)  # publish the schema ArmWarden publishes
+    if tool is None or tool.output_schema is None:
+        raise RuntimeError(f"the SDK registered {name} without an output schema")
+    inlined = inline_refs(tool.output_schema)
+    tool.output_schema.clear()
+    tool.output_schema.update(inlined)
+
+
+def build(shapes: dict[str, Any] | None = None) -> MCPServer:
     server = MCPServer("trivial")
 
     async def trivial() -> Trivial:
@@ -48,15 +81,29 @@ def build() -> MCPServer:
 
     server.add_tool(trivial, name="trivial")
     server.add_tool(robot_state_shape, name="robot_state_shape")
-    tool = server._tool_manager.get_tool("robot_state_shape")  # publish the schema ArmWarden publishes
-    if tool is None or tool.output_schema is None:
-        raise RuntimeError("the SDK registered robot_state_shape without an output schema")
-    inlined = inline_refs(tool.output_schema)
-    tool.output_schema.clear()
-    tool.output_schema.update(inlined)
+    _publish_inlined_schema(server, "robot_state_shape")
+    if shapes:
+        for name, body in (
+            ("get_safety_status_shape", _constant(SafetyStatus, shapes["get_safety_status"])),
+            ("estop_shape", _constant(EStopResult, shapes["estop"])),
+            ("plan_to_pose_shape", _constant(PlanSummary, shapes["plan_to_pose"])),
+            ("plan_to_pose_preview_shape", _constant(PlanSummary, shapes["plan_to_pose"], shapes["preview_png_b64"])),
+        ):
+            server.add_tool(body, name=name)
+            _publish_inlined_schema(server, name)
     return server
 
 
 if __name__ == "__main__":
-    build().run("stdio")
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--shapes", default=None)
+    parser.add_argument("--http", type=int, default=None, metavar="PORT")
+    args = parser.parse_args()
+    floor = build(json.loads(Path(args.shapes).read_text()) if args.shapes else None)
+    if args.http is None:
+        floor.run("stdio")
+    else:
+        import anyio
+
+        anyio.run(lambda: floor.run_streamable_http_async(host="127.0.0.1", port=args.http))
     sys.exit(0)

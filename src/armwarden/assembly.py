@@ -26,11 +26,18 @@ if TYPE_CHECKING:
     from armwarden.safety.envelope import EnvelopeReport
 
 def plan_previewer() -> Previewer:
-    """The plan preview renderer the daemon attaches to every plan summary."""
-    from armwarden.server.preview import render_plan_preview
+    """The plan preview renderer the daemon attaches to every plan summary: one `PlanPreviewer`
+    (which caches the static scene) per policy's limits, rebuilt only if the runtime model's
+    limits are replaced. Called on the planning thread only, like the robot model it uses."""
+    from armwarden.server.preview import PlanPreviewer
+
+    previewers: list[PlanPreviewer] = []  # the current one; a list so the closure can replace it
 
     def preview(runtime: RuntimeModel, trajectory: JointTrajectory, report: EnvelopeReport) -> bytes | None:
-        return render_plan_preview(runtime.robot, runtime.envelope.limits, trajectory, report)
+        limits = runtime.envelope.limits
+        if not previewers or previewers[0].limits is not limits:
+            previewers[:] = [PlanPreviewer(limits)]
+        return previewers[0].render(runtime.robot, trajectory, report)
 
     return preview
 

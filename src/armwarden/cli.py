@@ -18,6 +18,7 @@ from armwarden import __version__
 from armwarden.backends import BACKENDS, backend_names
 from armwarden.errors import ArmWardenError, PolicyError
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
+from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.stopchannel.client import add_estop_arguments, estop_command
 
 EXIT_OK = 0
@@ -40,6 +41,10 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--host", default="127.0.0.1")
     serve.add_argument("--port", type=int, default=8765)
     serve.add_argument("--audit-log", default="armwarden-audit.jsonl", help="append-only audit log (JSONL)")
+    serve.add_argument("--audit-commit-window-ms", type=float, default=DEFAULT_COMMIT_WINDOW_S * 1e3, metavar="MS",
+                       help="read-only calls' audit records are written and fsynced within this window instead of "
+                            "before their reply (0..1000; 0 = every record before its reply). Actuating calls, approvals, "
+                            "refusals of actuating calls, e-stops and resets are always on disk before their reply")
     serve.add_argument("--auth-tokens", default=None, help="bearer token file (see `armwarden tokens`)")
     serve.add_argument("--allowed-host", action="append", default=[], metavar="HOST[:PORT]",
                        help="extra Host header value clients may use (repeatable; e.g. the LAN name of this machine)")

@@ -28,11 +28,12 @@ from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
 from armwarden.errors import ArmWardenError, BackendUnavailable, ConfigurationError, PolicyError
+from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.audit import AuditLog, hmac_key_from_env
+from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, hmac_key_from_env
 from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel import StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
@@ -60,13 +61,14 @@ class Assembly:
     server: ArmWardenServer
 
 
-def assemble(policy: Policy, backend_name: str, backend_config: str | None,
-             audit_path: str) -> tuple[Policy, Backend, AuditLog, RuntimeModel, RobotModel]:
-    """Build everything that can fail before serving (each failure is a clean exit 2)."""
+def assemble(policy: Policy, backend_name: str, backend_config: str | None, audit_path: str,
+             commit_window_s: float = DEFAULT_COMMIT_WINDOW_S) -> tuple[Policy, Backend, AuditLog, RuntimeModel, RobotModel]:
+    """Build everything that can fail before serving (each failure is a clean exit 2).
+    ``commit_window_s``: the audit log's group-commit window for read-only calls' records."""
     runtime = load_runtime_model(policy)
     state_robot = build_robot(policy)
     backend = build_backend(backend_name, policy, robot=state_robot, config_path=backend_config)
-    audit = AuditLog(audit_path, hmac_key=hmac_key_from_env())
+    audit = AuditLog(audit_path, hmac_key=hmac_key_from_env(), commit_window_s=commit_window_s)
     return policy, backend, audit, runtime, state_robot
 
 
@@ -146,6 +148,10 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
                    "pid": os.getpid()},
         )
+        if args.transport == "stdio" and started_from_terminal(sys.stdin):
+            print(first_contact_line(backend=args.backend, policy=str(args.policy or "bundled fr3"),
+                                     audit_log=assembly.audit.path, tools=len(assembly.server.tools),
+                                     dry_run=assembly.policy.dry_run), file=sys.stderr, flush=True)
         async with anyio.create_task_group() as group:
             async def on_signals() -> None:
                 nonlocal why
@@ -237,7 +243,8 @@ def serve_command(args: argparse.Namespace) -> int:
         if getattr(args, "estop_port", None) is not None and not args.auth_tokens:
             raise ConfigurationError("--estop-port needs --auth-tokens: the stop channel accepts any role's token, "
                                      "and none without one")
-        parts = assemble(policy, args.backend, args.backend_config, args.audit_log)
+        parts = assemble(policy, args.backend, args.backend_config, args.audit_log,
+                         args.audit_commit_window_ms / 1e3)
     except PolicyError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)
         return EXIT_REFUSED

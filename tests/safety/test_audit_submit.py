@@ -64,7 +64,7 @@ def test_a_record_submitted_while_the_log_closes_is_refused_not_reordered_or_los
     closer = threading.Thread(target=audit.close)
     closer.start()
     deadline = time.monotonic() + 10
-    while audit._queue is not None:  # close() has taken the queue and waits for the writer
+    while audit._writer_thread is not None:  # close() has taken the writer and waits for it
         assert time.monotonic() < deadline
         time.sleep(0.001)
     with pytest.raises(AuditWriteError):

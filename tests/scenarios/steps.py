@@ -116,6 +116,8 @@ async def last_result(client: Client) -> dict[str, Any]:
 
 # ------------------------------------------------------------------ what the audit log recorded
 def audit_records(arm: ArmHarness) -> list[dict[str, Any]]:
+    """Every record so far: read-only calls' records are group-committed, so flush them first."""
+    arm.audit.flush()
     return [json.loads(line) for line in arm.audit_path.read_text(encoding="utf-8").splitlines() if line.strip()]
 
 

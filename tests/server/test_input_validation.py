@@ -180,6 +180,7 @@ async def test_bad_arguments_on_every_tool_are_refused_and_nothing_actuates(tmp_
         assert accepted == [], "\n".join(accepted)
         assert arm.actuations == []
         # refused before any tool body ran, and every one of them is in the audit log
+        arm.audit.flush()  # read-only calls' records are group-committed
         records = [r for r in read_tail(arm.audit_path, 1000) if r["event"] == "tool_call"]
         assert len(records) == calls
         assert all(r["outcome"] in ("invalid", "refused") for r in records)

@@ -68,6 +68,7 @@ async def refused_at_execution(arm: Any, client: Any, summary: dict, hard_code: 
 
 
 def audit_records(arm: Any, n: int = 200) -> list[dict]:
+    arm.audit.flush()  # read-only calls' records are group-committed
     return read_tail(arm.audit_path, n)
 
 

@@ -246,13 +246,15 @@ class RobotModel:
         return placement if self._base_from_world is None else self._base_from_world * placement
 
     def frame_pose(self, q: np.ndarray, frame: str) -> Pose:
-        frame_id = self.frame_id(frame)
+        return self._frame_pose(q, self.frame_id(frame))
+
+    def _frame_pose(self, q: np.ndarray, frame_id: int) -> Pose:
         pin.forwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
         placement = self._to_base(pin.updateFramePlacement(self.model, self.data, frame_id))
         return Pose(placement.translation.copy(), placement.rotation.copy())
 
     def tcp_pose(self, q: np.ndarray) -> Pose:
-        return self.frame_pose(q, self.tcp_frame)
+        return self._frame_pose(q, self._tcp_frame_id)  # the id looked up once: every state poll asks
 
     def tcp_jacobian(self, q: np.ndarray) -> np.ndarray:
         """6×nq Jacobian of the TCP, linear part first, in the world-aligned TCP frame."""

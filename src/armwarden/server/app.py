@@ -3,9 +3,13 @@
 The middleware (outermost) does two jobs for each `tools/call`:
 1. access: with HTTP tokens, an `observer` may only use introspection, perception,
    `get_safety_status`, `stop_motion` and `estop`; `tools/list` shows each role its own tools;
-2. audit: one hash-chained record per call, written (and fsynced, on a worker thread) before the
-   reply leaves — for calls refused before any tool body ran too (bad arguments, unknown tool,
-   wrong role), and for the approval questions sent under protocol 2026-07-28.
+2. audit: one hash-chained record per call, for calls refused before any tool body ran too (bad
+   arguments, unknown tool, wrong role), and for the approval questions sent under protocol
+   2026-07-28. A call of a tool that may change anything (actuating, stopping, releasing — also
+   when refused) or of an unknown tool is on disk (fsynced, on the writer thread) before its
+   reply leaves; a read-only call's record (`read_only_hint`: introspection, perception,
+   planning, status) is handed to the writer without waiting and fsynced within the log's
+   group-commit window (docs/threat-model.md, "Audit durability").
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from armwarden import __version__
 from armwarden.errors import RefusalCode
 from armwarden.guard import Guard
 from armwarden.policy import ALL_TOOLS
+from armwarden.safety.audit import AuditEntry
 from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
 from armwarden.transport.access import current_principal, role_allows
@@ -66,6 +71,7 @@ class ArmWardenServer:
         builder = ToolBuilder(self.mcp, guard)
         self.tools = builder.build()
         self.group_of = builder.group_of
+        self._read_only = frozenset(builder.read_only)
         self._sessions = SessionNames()
         self._declared: dict[str, frozenset[str]] | None = None  # tool -> argument names, built on first call
         # Outside the SDK's request-state boundary: a forged, replayed or expired 2026-07-28 request
@@ -177,18 +183,22 @@ class ArmWardenServer:
         audit = self.guard.audit
         if audit is None:
             return
+        entry = AuditEntry(
+            "tool_call",
+            session=record.session,
+            principal=record.principal,
+            tool=record.tool,
+            arguments=record.arguments,
+            outcome=record.outcome,
+            detail=record.detail,
+            operator=record.operator,
+            extra={"code": record.code, "role": record.role, **record.extra} if (record.code or record.extra or record.role) else None,
+        )
         try:
-            await audit.append_async(
-                "tool_call",
-                session=record.session,
-                principal=record.principal,
-                tool=record.tool,
-                arguments=record.arguments,
-                outcome=record.outcome,
-                detail=record.detail,
-                operator=record.operator,
-                extra={"code": record.code, "role": record.role, **record.extra} if (record.code or record.extra or record.role) else None,
-            )
+            if record.tool in self._read_only and audit.commit_window_s > 0:
+                audit.append_soon(entry)  # group-committed: the reply does not wait for the fsync
+            else:
+                await audit.append_async(entry)  # on disk before the reply
         except Exception:  # an audit failure must be loud, but it is not the caller's fault
             logger.exception("audit write failed for %s", record.tool)
             self.guard.faults.append("audit log write failed")

@@ -11,9 +11,16 @@ decompressed, so a small file claiming a huge image (a decompression bomb) is re
 from __future__ import annotations
 
 import io
+import struct
 import warnings
+import zlib
+from typing import Any
+
+import numpy as np
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: zlib level of `encode_png`: 1 is the fastest that still shrinks a drawing ~30x
+PNG_ZLIB_LEVEL = 1
 #: largest image (width × height) `downscale_png` will decode
 MAX_PIXELS = 40_000_000
 
@@ -80,4 +87,76 @@ def downscale_png(png: bytes, max_width: int) -> tuple[bytes, int, int]:
     return out.getvalue(), width, height
 
 
-__all__ = ["MAX_PIXELS", "ImageSupportMissing", "downscale_png", "pillow_available"]
+def encode_png(image: Any) -> bytes:
+    """PNG bytes of an 8-bit RGB Pillow image, every row with filter type 0 (None).
+
+    Why not ``image.save(format="PNG")``: Pillow tries every PNG row filter on every row, which
+    costs more than the compression itself (about 3 ms for a 640x320 drawing, against about 1 ms
+    here); a drawing of flat colours compresses about as well unfiltered. No metadata chunks, so
+    the same pixels give the same bytes.
+    """
+    if image.mode != "RGB":
+        raise ValueError(f"encode_png takes an RGB image, got mode {image.mode}")
+    width, height = image.size
+    rows = _png_rows(image)
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, no interlace
+    return b"".join((PNG_SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", zlib.compress(rows.tobytes(), PNG_ZLIB_LEVEL)),
+                     _chunk(b"IEND", b"")))
+
+
+class BandedPngEncoder:
+    """`encode_png` for pictures that differ from one `reference` picture in a few rows only.
+
+    The pixel rows are compressed in bands of `band_rows`, each band as its own deflate segment
+    (a fresh compressor ended with a full flush: its bytes depend on that band alone, and
+    segments concatenate into one valid zlib stream). The reference's segments are compressed
+    once; a picture then costs a comparison with the reference and the compression of the bands
+    it changed. Same pixels, same chunks as `encode_png`, only the IDAT bytes differ.
+    """
+
+    def __init__(self, reference: Any, band_rows: int = 32) -> None:
+        if reference.mode != "RGB":
+            raise ValueError(f"BandedPngEncoder takes an RGB reference, got mode {reference.mode}")
+        if band_rows < 1:
+            raise ValueError(f"band_rows must be at least 1, got {band_rows}")
+        self.size = reference.size
+        self._band_rows = band_rows
+        self._reference = _png_rows(reference)
+        self._segments = [_deflate_segment(band) for band in self._bands(self._reference)]
+
+    def encode(self, image: Any) -> bytes:
+        if image.mode != "RGB" or image.size != self.size:
+            raise ValueError(f"expected an RGB picture of {self.size}, got {image.mode} {image.size}")
+        rows = _png_rows(image)
+        pieces = [b"\x78\x01"]  # zlib header: deflate, 32 KiB window, fastest
+        for band, reference, segment in zip(self._bands(rows), self._bands(self._reference), self._segments, strict=True):
+            pieces.append(segment if np.array_equal(band, reference) else _deflate_segment(band))
+        pieces.append(b"\x03\x00")  # an empty final block (fixed Huffman codes)
+        pieces.append(struct.pack(">I", zlib.adler32(rows.data) & 0xFFFFFFFF))
+        width, height = self.size
+        header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+        return b"".join((PNG_SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", b"".join(pieces)), _chunk(b"IEND", b"")))
+
+    def _bands(self, rows: np.ndarray) -> list[np.ndarray]:
+        return [rows[start:start + self._band_rows] for start in range(0, rows.shape[0], self._band_rows)]
+
+
+def _png_rows(image: Any) -> np.ndarray:
+    """The picture's PNG scanlines: filter type 0 (None) and the RGB bytes of each row."""
+    width, height = image.size
+    rows = np.empty((height, 1 + 3 * width), dtype=np.uint8)
+    rows[:, 0] = 0
+    rows[:, 1:] = np.frombuffer(image.tobytes(), dtype=np.uint8).reshape(height, 3 * width)
+    return rows
+
+
+def _deflate_segment(rows: np.ndarray) -> bytes:
+    compressor = zlib.compressobj(PNG_ZLIB_LEVEL, zlib.DEFLATED, -15)  # raw deflate: the header is shared
+    return compressor.compress(np.ascontiguousarray(rows).data) + compressor.flush(zlib.Z_FULL_FLUSH)
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+__all__ = ["MAX_PIXELS", "BandedPngEncoder", "ImageSupportMissing", "downscale_png", "encode_png", "pillow_available"]

@@ -7,21 +7,31 @@ evenly spaced instants), the TCP path (green dot at the start, blue dot at the g
 base, and a red X wherever a violation with a time was found. The title line gives the status,
 duration and TCP path length.
 
-Pillow is optional (`armwarden[image]`); without it `render_plan_preview` returns None. The
-output is deterministic: the same inputs give the same bytes (Pillow's built-in default font,
-no timestamps or other metadata in the PNG).
+Cheap enough to stay on by default (issue 13: ≤ 3 ms p95 for a typical plan). `PlanPreviewer`
+keeps, per policy, the static scene (frames, ticks, labels, scale bars) for each picture scale
+it has drawn — every plan inside the workspace box has the same one — and per plan draws only
+what changes: the title, the sweep, the zones over it, the path and the marks. The sweep's masks
+and outlines are computed in NumPy (one capsule drawing pass, no per-sample image filters), and
+the PNG is encoded without per-row filter search, compressing only the row bands the plan drew
+on (`images.BandedPngEncoder`; the scene's own bands are compressed once).
+
+Pillow is optional (`armwarden[image]`); without it the renderer returns None. The output is
+deterministic: the same inputs give the same bytes (Pillow's built-in default font, no
+timestamps or other metadata in the PNG).
 
 Not thread safe on its own: it runs forward kinematics on `robot`, whose Pinocchio data is
-shared, so call it wherever the robot model is otherwise used (the Guard's planning thread).
+shared, and keeps its scene cache unlocked, so call it wherever the robot model is otherwise
+used (the Guard's planning thread).
 """
 
 from __future__ import annotations
 
-import io
 import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from armwarden.server.images import BandedPngEncoder
 
 if TYPE_CHECKING:  # pragma: no cover
     from armwarden.planning.trajectory import JointTrajectory
@@ -31,8 +41,11 @@ if TYPE_CHECKING:  # pragma: no cover
 #: configurations at which the swept links are drawn (evenly spaced in time, start and goal included)
 SWEEP_SAMPLES = 8
 #: at most this many points on the TCP polyline (waypoints are thinned evenly beyond that)
-MAX_PATH_POINTS = 200
+MAX_PATH_POINTS = 64
 MIN_SIZE = (160, 96)
+DEFAULT_SIZE = (640, 320)
+#: static scenes kept per previewer (one per picture scale; plans inside the workspace share one)
+MAX_SCENES = 8
 
 _WHITE = (255, 255, 255)
 _FRAME = (165, 165, 165)
@@ -50,8 +63,77 @@ _GOAL = (0, 80, 230)
 _BASE = (30, 30, 30)
 _VIOLATION = (255, 0, 0)  # the only saturated red in the picture
 _STATUS_COLOUR = {"ok": (0, 125, 45), "needs_approval": (185, 115, 0), "rejected": (150, 0, 0)}
+_SEPARATOR = (215, 215, 215)
 
 _NICE_STEPS = (0.05, 0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0)
+
+
+class PlanPreviewer:
+    """Renders the preview of plans checked against one policy's limits, at one size.
+
+    Keeps the static scene of each picture scale it drew (at most `MAX_SCENES`), so a plan's
+    picture costs its forward kinematics, its own strokes and the PNG encoding.
+    """
+
+    def __init__(self, limits: EnvelopeLimits, size: tuple[int, int] = DEFAULT_SIZE) -> None:
+        width, height = int(size[0]), int(size[1])
+        if width < MIN_SIZE[0] or height < MIN_SIZE[1]:
+            raise ValueError(f"preview size must be at least {MIN_SIZE[0]}x{MIN_SIZE[1]} px, got {width}x{height}")
+        self.limits = limits
+        self.size = (width, height)
+        self._scenes: dict[tuple[float, ...], _Scene] = {}
+
+    def render(
+        self,
+        robot: RobotModel,
+        trajectory: JointTrajectory | None,
+        report: EnvelopeReport,
+        *,
+        status: str | None = None,
+    ) -> bytes | None:
+        """PNG bytes of the plan preview, or None when Pillow is not installed.
+
+        `status` defaults to what the report implies (hard violation → rejected, soft →
+        needs_approval, none → ok); pass the Guard's own verdict when it knows more (e.g.
+        planner findings that are not in the envelope report). A missing or malformed
+        trajectory is drawn as the boxes alone.
+        """
+        try:
+            from PIL import ImageDraw
+        except ImportError:
+            return None
+        if status is None:
+            status = "rejected" if report.hard else ("needs_approval" if report.soft else "ok")
+
+        geometry = _plan_geometry(robot, trajectory, report)
+        scene = self._scene(*_bounds(self.limits, geometry))
+        image = scene.image.copy()
+        draw = ImageDraw.Draw(image, "RGBA")  # RGBA drawing blends translucent fills onto the RGB image
+        font = scene.font
+
+        # ---- title line
+        duration = trajectory.duration_s if geometry is not None and trajectory is not None else 0.0
+        n_hard, n_soft = len(report.hard), len(report.soft)
+        title_y = 2
+        scene.text(image, (6, title_y), status.upper(), _STATUS_COLOUR.get(status, _TEXT))
+        x = 6 + draw.textlength(status.upper(), font=font)
+        details = f"   duration {duration:.2f} s   TCP path {report.tcp_path_length_m:.3f} m"
+        if n_hard or n_soft:
+            details += f"   violations: {n_hard} hard, {n_soft} soft"
+        draw.text((x, title_y), details, fill=_TEXT, font=font)
+
+        for view in scene.views:
+            _draw_plan(image, draw, scene, view, self.limits, geometry)
+        return scene.encode(image, self.limits)
+
+    def _scene(self, lo: np.ndarray, hi: np.ndarray) -> _Scene:
+        key = (*np.round(lo, 9).tolist(), *np.round(hi, 9).tolist())
+        scene = self._scenes.get(key)
+        if scene is None:
+            if len(self._scenes) >= MAX_SCENES:
+                self._scenes.pop(next(iter(self._scenes)))  # the oldest: plans far outside the box are rare
+            scene = self._scenes[key] = _Scene(self.size, lo, hi)
+        return scene
 
 
 def render_plan_preview(
@@ -60,67 +142,12 @@ def render_plan_preview(
     trajectory: JointTrajectory | None,
     report: EnvelopeReport,
     *,
-    size: tuple[int, int] = (640, 320),
+    size: tuple[int, int] = DEFAULT_SIZE,
     status: str | None = None,
 ) -> bytes | None:
-    """PNG bytes of the plan preview, or None when Pillow is not installed.
-
-    `status` defaults to what the report implies (hard violation → rejected, soft →
-    needs_approval, none → ok); pass the Guard's own verdict when it knows more (e.g. planner
-    findings that are not in the envelope report). A missing or malformed trajectory is drawn
-    as the boxes alone.
-    """
-    try:
-        from PIL import Image, ImageDraw, ImageFont
-    except ImportError:
-        return None
-
-    width, height = int(size[0]), int(size[1])
-    if width < MIN_SIZE[0] or height < MIN_SIZE[1]:
-        raise ValueError(f"preview size must be at least {MIN_SIZE[0]}x{MIN_SIZE[1]} px, got {width}x{height}")
-    if status is None:
-        status = "rejected" if report.hard else ("needs_approval" if report.soft else "ok")
-
-    geometry = _plan_geometry(robot, trajectory, report)
-    font = ImageFont.load_default()
-    image = Image.new("RGB", (width, height), _WHITE)
-    draw = ImageDraw.Draw(image, "RGBA")  # RGBA drawing blends translucent fills onto the RGB image
-    text_h = _text_height(draw, font)
-
-    # ---- title line
-    duration = trajectory.duration_s if geometry is not None and trajectory is not None else 0.0
-    n_hard, n_soft = len(report.hard), len(report.soft)
-    title_y = 2
-    draw.text((6, title_y), status.upper(), fill=_STATUS_COLOUR.get(status, _TEXT), font=font)
-    x = 6 + draw.textlength(status.upper(), font=font)
-    details = f"   duration {duration:.2f} s   TCP path {report.tcp_path_length_m:.3f} m"
-    if n_hard or n_soft:
-        details += f"   violations: {n_hard} hard, {n_soft} soft"
-    draw.text((x, title_y), details, fill=_TEXT, font=font)
-    top = title_y + text_h + 4
-
-    # ---- one scale for both panels, chosen so everything drawn fits
-    lo, hi = _bounds(limits, geometry)
-    panel_w = width // 2
-    margin_l, margin_r = int(draw.textlength("-0.25", font=font)) + 6, 6
-    margin_t, margin_b = text_h + 4, 2 * text_h + 8
-    plot_w = panel_w - margin_l - margin_r
-    plot_h = height - top - margin_t - margin_b
-    span = hi - lo
-    scale = min(plot_w / span[0], plot_h / span[1], plot_h / span[2])  # px per metre
-    step = next((s for s in _NICE_STEPS if s * scale >= 4.5 * text_h), _NICE_STEPS[-1])
-
-    for index, (axis_v, name) in enumerate(((1, "TOP (x-y)"), (2, "SIDE (x-z)"))):
-        left = index * panel_w + margin_l
-        box = (left, top + margin_t, left + plot_w, top + margin_t + plot_h)
-        view = _View(box, scale, lo, hi, axis_v)
-        _draw_panel(image, draw, font, text_h, view, name, "xyz"[axis_v], limits, geometry, step)
-        if index == 0:
-            draw.line([(panel_w, top), (panel_w, height - 2)], fill=(215, 215, 215), width=1)
-
-    out = io.BytesIO()
-    image.save(out, format="PNG", compress_level=1)  # encoding dominates the cost; size matters less
-    return out.getvalue()
+    """One picture without a cached scene (see `PlanPreviewer.render`; the daemon keeps a
+    `PlanPreviewer` per policy instead)."""
+    return PlanPreviewer(limits, size).render(robot, trajectory, report, status=status)
 
 
 # ---------------------------------------------------------------------------- geometry of the plan
@@ -200,6 +227,88 @@ def _bounds(limits: EnvelopeLimits, geometry: _PlanGeometry | None) -> tuple[np.
 
 
 # ---------------------------------------------------------------------------- drawing
+class _Scene:
+    """What every plan drawn at one scale shares: the white picture with the panel frames, ticks,
+    axis labels, panel names and scale bars already drawn, and each panel's `_View`."""
+
+    def __init__(self, size: tuple[int, int], lo: np.ndarray, hi: np.ndarray) -> None:
+        from PIL import Image, ImageDraw, ImageFont
+
+        width, height = size
+        self.font = font = ImageFont.load_default()
+        self.image = image = Image.new("RGB", (width, height), _WHITE)
+        draw = ImageDraw.Draw(image, "RGBA")
+        text_h = _text_height(draw, font)
+        top = 2 + text_h + 4  # below the title line
+
+        # one scale for both panels, chosen so everything drawn fits
+        panel_w = width // 2
+        margin_l, margin_r = int(draw.textlength("-0.25", font=font)) + 6, 6
+        margin_t, margin_b = text_h + 4, 2 * text_h + 8
+        plot_w = panel_w - margin_l - margin_r
+        plot_h = height - top - margin_t - margin_b
+        span = hi - lo
+        scale = min(plot_w / span[0], plot_h / span[1], plot_h / span[2])  # px per metre
+        step = next((s for s in _NICE_STEPS if s * scale >= 4.5 * text_h), _NICE_STEPS[-1])
+
+        self._stamps: dict[tuple[str, float, float], _TextStamp] = {}
+        self.views: list[_View] = []
+        for index, (axis_v, name) in enumerate(((1, "TOP (x-y)"), (2, "SIDE (x-z)"))):
+            left = index * panel_w + margin_l
+            box = (left, top + margin_t, left + plot_w, top + margin_t + plot_h)
+            view = _View(box, scale, lo, hi, axis_v)
+            _draw_frame(draw, font, text_h, view, name, "xyz"[axis_v], step)
+            self.views.append(view)
+            if index == 0:
+                draw.line([(panel_w, top), (panel_w, height - 2)], fill=_SEPARATOR, width=1)
+        self._encoder: BandedPngEncoder | None = None
+
+    def encode(self, image: Any, limits: EnvelopeLimits) -> bytes:
+        """PNG of a picture drawn on this scene: only the row bands that differ from the scene with
+        its zones and base (and no plan) are compressed (`BandedPngEncoder`)."""
+        if self._encoder is None:
+            from PIL import ImageDraw
+
+            reference = self.image.copy()
+            draw = ImageDraw.Draw(reference, "RGBA")
+            for view in self.views:
+                _draw_plan(reference, draw, self, view, limits, None)
+            self._encoder = BandedPngEncoder(reference)
+        return self._encoder.encode(image)
+
+    def text(self, image: Any, xy: tuple[float, float], text: str, fill: tuple[int, int, int]) -> None:
+        """`ImageDraw.text` for text every picture of this scene repeats (zone names, the status
+        word): rendered by FreeType once, then pasted."""
+        key = (text, *xy)
+        stamp = self._stamps.get(key)
+        if stamp is None:
+            stamp = self._stamps[key] = _TextStamp(self.font, text, xy)
+        stamp.paste(image, fill)
+
+
+class _TextStamp:
+    """One line of text at one position, rendered once as a coverage mask (what `ImageDraw.text`
+    blends the ink with), so that drawing it again is one masked paste."""
+
+    PAD = 4
+
+    def __init__(self, font: Any, text: str, xy: tuple[float, float]) -> None:
+        from PIL import Image, ImageDraw
+
+        x, y = xy
+        left, top, right, bottom = font.getbbox(text)
+        width = math.ceil(max(right, 0) - min(left, 0)) + 2 * self.PAD + 2
+        height = math.ceil(max(bottom, 0) - min(top, 0)) + 2 * self.PAD + 2
+        self.mask = Image.new("L", (width, height), 0)
+        # same integer/fraction split as ImageDraw.text, so the glyphs land on the same pixels
+        shift_x, shift_y = self.PAD - min(math.floor(left), 0), self.PAD - min(math.floor(top), 0)
+        ImageDraw.Draw(self.mask).text((x - int(x) + shift_x, y - int(y) + shift_y), text, fill=255, font=font)
+        self.origin = (int(x) - shift_x, int(y) - shift_y)
+
+    def paste(self, image: Any, fill: tuple[int, int, int]) -> None:
+        image.paste(fill, self.origin, mask=self.mask)
+
+
 class _View:
     """Maps base-frame points to pixels in one panel: x to the right, `axis_v` (y or z) up."""
 
@@ -233,49 +342,14 @@ class _View:
         return (self.cv - (self.box[3] - self.oy) / self.scale, self.cv + (self.oy - self.box[1]) / self.scale)
 
 
-def _draw_panel(
-    image: Any,
-    draw: Any,
-    font: Any,
-    text_h: int,
-    view: _View,
-    name: str,
-    v_name: str,
-    limits: EnvelopeLimits,
-    geometry: _PlanGeometry | None,
-    step: float,
-) -> None:
+def _draw_frame(draw: Any, font: Any, text_h: int, view: _View, name: str, v_name: str, step: float) -> None:
+    """A panel's static parts: name, axis labels, frame, ticks and the scale bar (below the plot)."""
     x0, y0, x1, y1 = view.box
     # panel name, centred above the plot; the vertical axis label above the vertical axis
     draw.text(((x0 + x1 - draw.textlength(name, font=font)) / 2, y0 - text_h - 3), name, fill=_TEXT, font=font)
     draw.text((x0 + 2, y0 - text_h - 3), f"{v_name} [m]", fill=_TEXT, font=font)
     draw.rectangle(view.box, outline=_FRAME, width=1)
     _draw_ticks(draw, font, text_h, view, step)
-
-    # swept links first, so the translucent zones and the workspace outline stay visible over them
-    if geometry is not None:
-        _draw_sweep(image, view, geometry)
-    draw.rectangle(view.rect(limits.workspace.lo, limits.workspace.hi), outline=_WORKSPACE, width=2)
-    for zone in limits.keep_out:
-        rect = view.rect(zone.lo, zone.hi)
-        draw.rectangle(rect, fill=_KEEP_OUT_FILL, outline=_KEEP_OUT_EDGE, width=1)
-    for zone in limits.keep_out:  # names on top of every fill, so overlapping zones stay legible
-        rect = view.rect(zone.lo, zone.hi)
-        draw.text((rect[0] + 2, rect[1] + 1), zone.name, fill=_KEEP_OUT_TEXT, font=font)
-
-    # robot base at the origin, over the links
-    bx, by = view.px(0.0, 0.0)
-    draw.rectangle((bx - 5, by - 5, bx + 5, by + 5), fill=_BASE)
-    if geometry is not None:
-        path = view.pts(geometry.tcp_path)
-        if len(path) > 1:
-            draw.line(path, fill=_PATH, width=2, joint="curve")
-        for px, py in view.pts(geometry.marks):
-            arm = 5
-            draw.line([(px - arm, py - arm), (px + arm, py + arm)], fill=_VIOLATION, width=3)
-            draw.line([(px - arm, py + arm), (px + arm, py - arm)], fill=_VIOLATION, width=3)
-        for (px, py), colour in ((path[0], _START), (path[-1], _GOAL)):  # small enough to leave the X visible
-            draw.ellipse((px - 3, py - 3, px + 3, py + 3), fill=colour)
 
     # scale bar, right-aligned on the axis-label line below the plot
     bar = step * view.scale
@@ -287,14 +361,46 @@ def _draw_panel(
     draw.text((sx1 - bar - 4 - draw.textlength(label, font=font), sy - text_h / 2 - 1), label, fill=_TEXT, font=font)
 
 
+def _draw_plan(image: Any, draw: Any, scene: _Scene, view: _View, limits: EnvelopeLimits,
+               geometry: _PlanGeometry | None) -> None:
+    """A panel's plan-dependent parts, in z-order: the sweep, the zones over it, the base, the path."""
+    # swept links first, so the translucent zones and the workspace outline stay visible over them
+    if geometry is not None:
+        _draw_sweep(image, view, geometry)
+    draw.rectangle(view.rect(limits.workspace.lo, limits.workspace.hi), outline=_WORKSPACE, width=2)
+    for zone in limits.keep_out:
+        rect = view.rect(zone.lo, zone.hi)
+        draw.rectangle(rect, fill=_KEEP_OUT_FILL, outline=_KEEP_OUT_EDGE, width=1)
+    for zone in limits.keep_out:  # names on top of every fill, so overlapping zones stay legible
+        rect = view.rect(zone.lo, zone.hi)
+        scene.text(image, (rect[0] + 2, rect[1] + 1), zone.name, _KEEP_OUT_TEXT)
+
+    # robot base at the origin, over the links
+    bx, by = view.px(0.0, 0.0)
+    draw.rectangle((bx - 5, by - 5, bx + 5, by + 5), fill=_BASE)
+    if geometry is None:
+        return
+    path = view.pts(geometry.tcp_path)
+    if len(path) > 1:
+        draw.line(path, fill=_PATH, width=2, joint="curve")
+    for px, py in view.pts(geometry.marks):
+        arm = 5
+        draw.line([(px - arm, py - arm), (px + arm, py + arm)], fill=_VIOLATION, width=3)
+        draw.line([(px - arm, py + arm), (px + arm, py - arm)], fill=_VIOLATION, width=3)
+    for (px, py), colour in ((path[0], _START), (path[-1], _GOAL)):  # small enough to leave the X visible
+        draw.ellipse((px - 3, py - 3, px + 3, py + 3), fill=colour)
+
+
 def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
     """Swept links: the union of all sampled capsules filled light grey, each sample outlined.
 
-    Every capsule is a thick line with round caps (width ∝ radius) drawn into a mask, so
-    overlapping capsules do not darken each other; the outline of each sampled pose is the
-    mask's edge, darker for the goal pose.
+    Every capsule is a thick line with round caps (width ∝ radius) drawn into its sample's mask,
+    so overlapping capsules do not darken each other; the outline of each sampled pose is its
+    mask's edge (mask pixels with a background pixel among their 8 neighbours), darker for the
+    goal pose. All samples are drawn into one tall mask, one band per sample, and the union and
+    outlines are computed on the bands at once.
     """
-    from PIL import Image, ImageChops, ImageDraw, ImageFilter
+    from PIL import Image, ImageDraw
 
     radii = geometry.radii.tolist()
     r_max = max(1.0, max(radii, default=0.0) * view.scale)
@@ -311,28 +417,45 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
     if x1 <= x0 or y1 <= y0:
         return
     w, h = x1 - x0 + 1, y1 - y0 + 1
-    union = Image.new("L", (w, h), 0)
-    edges = Image.new("L", (w, h), 0)
-    goal_edges = edges
+    gap = 2 * math.ceil(r_max) + 4  # strokes cut at the region's edge spill into the gap, not the next band
+    stride = h + gap
+    tall = Image.new("L", (w, stride * len(samples)), 0)
+    # Pillow's drawing primitives, without `ImageDraw`'s per-call colour parsing (hundreds of
+    # strokes per picture, all of one ink): the same calls `ImageDraw.line`/`ellipse` make
+    pen = ImageDraw.Draw(tall).draw
+    r_pxs = [float(max(1.0, radius * view.scale)) for radius in radii]  # Python floats: round() gives an int
+    widths = [max(1, round(2 * r_px)) for r_px in r_pxs]
     for k, ends in enumerate(samples):
-        mask = Image.new("L", (w, h), 0)
-        pen = ImageDraw.Draw(mask)
-        ends = [(px - x0, py - y0) for px, py in ends]
-        for b, radius in enumerate(radii):
-            r_px = float(max(1.0, radius * view.scale))  # a Python float: round() below gives an int on any numpy
+        dy = k * stride - y0
+        ends = [(px - x0, py + dy) for px, py in ends]
+        for b, r_px in enumerate(r_pxs):
             a, c = ends[2 * b], ends[2 * b + 1]
-            pen.line([a, c], fill=255, width=max(1, round(2 * r_px)))
+            pen.draw_lines([a, c], 255, widths[b])
             for px, py in (a, c):
-                pen.ellipse((px - r_px, py - r_px, px + r_px, py + r_px), fill=255)
-        union = ImageChops.lighter(union, mask)
-        outline = mask.filter(ImageFilter.FIND_EDGES)
-        if k == len(samples) - 1:
-            goal_edges = outline
-        else:
-            edges = ImageChops.lighter(edges, outline)
-    image.paste(_LINK_FILL, (x0, y0), mask=union)
-    image.paste(_LINK_EDGE, (x0, y0), mask=edges)
-    image.paste(_LINK_GOAL, (x0, y0), mask=goal_edges)
+                pen.draw_ellipse((px - r_px, py - r_px, px + r_px, py + r_px), 255, 1)
+    bands: np.ndarray = np.frombuffer(tall.tobytes(), dtype=np.uint8).reshape(len(samples), stride, w)[:, :h] > 0
+    outlines: np.ndarray = bands & ~_interior(bands)  # (S, h, w)
+    union: np.ndarray = np.any(bands, axis=0)
+    edges: np.ndarray = np.any(outlines[:-1], axis=0)
+    # colour the region's pixels in NumPy and paste it back whole (one paste, not three masked ones)
+    region = np.array(image.crop((x0, y0, x0 + w, y0 + h)))
+    region[union] = _LINK_FILL
+    region[edges] = _LINK_EDGE
+    region[outlines[-1]] = _LINK_GOAL
+    image.paste(Image.fromarray(region), (x0, y0))
+
+
+def _interior(masks: np.ndarray) -> np.ndarray:
+    """Pixels of (S, h, w) boolean masks whose 8 neighbours are all set (outside the image counts
+    as unset, so a set pixel on the border is an outline pixel, as Pillow's FIND_EDGES leaves it)."""
+    padded = np.pad(masks, ((0, 0), (1, 1), (1, 1)))
+    h, w = masks.shape[1:]
+    inner = masks.copy()
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            if dy != 1 or dx != 1:
+                inner &= padded[:, dy:dy + h, dx:dx + w]
+    return inner
 
 
 def _draw_ticks(draw: Any, font: Any, text_h: int, view: _View, step: float) -> None:
@@ -363,4 +486,4 @@ def _text_height(draw: Any, font: Any) -> int:
     return int(box[3] - min(box[1], 0))
 
 
-__all__ = ["render_plan_preview"]
+__all__ = ["DEFAULT_SIZE", "PlanPreviewer", "render_plan_preview"]

@@ -115,6 +115,8 @@ class ToolBuilder:
         self.policy = guard.policy
         self.capabilities = guard.capabilities
         self.registered: list[str] = []
+        #: tools that change nothing in the world (`read_only_hint`): their audit records are group-committed
+        self.read_only: set[str] = set()
         self.group_of = {tool: group for group, tools in TOOL_GROUPS.items() for tool in tools}
 
     def tool(self, description: str, annotations: ToolAnnotations) -> Callable[[ToolBody], ToolBody]:
@@ -151,6 +153,8 @@ class ToolBuilder:
             tool.output_schema.clear()
             tool.output_schema.update(inlined)
         self.registered.append(name)
+        if annotations.read_only_hint:
+            self.read_only.add(name)
 
     @staticmethod
     async def _answer(tool: str, body: Callable[[], Awaitable[CallToolResult]]) -> CallToolResult:
@@ -221,7 +225,8 @@ class ToolBuilder:
 
         @tool("The last n (1..100) audit-log records: tool calls, refusals, approvals, e-stops.", READ_ONLY_LOCAL)
         async def get_audit_tail(n: Annotated[int, Strict(), Field(ge=1, le=100)] = 20) -> Annotated[CallToolResult, AuditTail]:
-            return ok(AuditTail(records=guard.audit.tail(n) if guard.audit is not None else []))
+            # in call order: the records of the calls answered before this one are in it
+            return ok(AuditTail(records=await guard.audit.tail_async(n) if guard.audit is not None else []))
 
     # ------------------------------------------------------------------ perception
     def _perception(self) -> None:

@@ -2,7 +2,8 @@
 
 See docs/architecture.md, "Where each limit is enforced" (the audit row), for where records are
 written. One record per line, written with a single ``write`` and ``fsync``-ed before
-`AuditLog.append` returns. Every record carries ``prev`` (the previous record's ``hash``; 64
+`AuditLog.append` returns; records of read-only calls (`AuditLog.append_soon`) are fsync-ed
+within a bounded group-commit window instead (see `writer`). Every record carries ``prev`` (the previous record's ``hash``; 64
 zeros for the first) and ``hash`` = SHA-256 — or HMAC-SHA256 when a key is configured — over
 the canonical JSON of the record without ``hash``::
 
@@ -20,8 +21,8 @@ chain, so only the keyed mode detects forgery; removing whole records from the *
 is not detectable from the file alone (compare `seq` against an external copy of the tail).
 
 Modules: `sanitise` (bounded, strict-JSON copies of arguments), `chain` (record fields,
-canonical JSON, hashing, the key), `verify` (chain verification and tail reading), `log` (the
-writer) and `cli` (`armwarden audit verify|tail`).
+canonical JSON, hashing, the key), `verify` (chain verification and tail reading), `writer` (the
+writer thread and its durability classes), `log` (the log) and `cli` (`armwarden audit verify|tail`).
 """
 
 from __future__ import annotations
@@ -34,13 +35,16 @@ from armwarden.safety.audit.chain import (
     hmac_key_from_env,
 )
 from armwarden.safety.audit.cli import tail_command, verify_command
-from armwarden.safety.audit.log import MAX_EVENT_CHARS, AuditEntry, AuditLog, AuditWriteError
+from armwarden.safety.audit.log import DEFAULT_COMMIT_WINDOW_S, MAX_EVENT_CHARS, AuditEntry, AuditLog, AuditWriteError
 from armwarden.safety.audit.sanitise import sanitize
 from armwarden.safety.audit.verify import MAX_TAIL, VerifyReport, read_tail, verify_file
+from armwarden.safety.audit.writer import MAX_COMMIT_WINDOW_S, Durability
 
 __all__ = [
     "AUDIT_KEY_ENV",
+    "DEFAULT_COMMIT_WINDOW_S",
     "GENESIS_HASH",
+    "MAX_COMMIT_WINDOW_S",
     "MAX_EVENT_CHARS",
     "MAX_TAIL",
     "RECORD_FIELDS",
@@ -48,6 +52,7 @@ __all__ = [
     "AuditLog",
     "AuditRecord",
     "AuditWriteError",
+    "Durability",
     "VerifyReport",
     "hmac_key_from_env",
     "read_tail",

@@ -11,13 +11,12 @@ aside.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import errno
 import functools
 import hashlib
 import json
-import logging
 import os
-import queue
 import stat
 import threading
 import time
@@ -27,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 from armwarden.errors import ArmWardenError, ConfigurationError
-from armwarden.handoff import settle_threadsafe
 from armwarden.safety.audit.chain import (
     GENESIS_HASH,
     AuditRecord,
@@ -39,6 +37,7 @@ from armwarden.safety.audit.chain import (
 )
 from armwarden.safety.audit.sanitise import Sanitizer, sanitize
 from armwarden.safety.audit.verify import clamp_tail, decode_records, scan, tail_lines
+from armwarden.safety.audit.writer import MAX_COMMIT_WINDOW_S, Durability, Job, Writer
 
 try:  # POSIX advisory lock: one writer per log file.
     import fcntl
@@ -46,9 +45,10 @@ except ImportError:  # pragma: no cover - non-POSIX
     fcntl = None  # type: ignore[assignment]
 
 MAX_EVENT_CHARS = 64
+#: how long a read-only call's record may wait to be written and fsync-ed [s] (writer.py)
+DEFAULT_COMMIT_WINDOW_S = 0.02
 
 
-logger = logging.getLogger(__name__)
 
 
 class AuditWriteError(ArmWardenError):
@@ -88,7 +88,8 @@ class AuditLog:
 
     ``append`` returns only after the record is written and fsync-ed. Use ``append_async`` from
     the event loop: it runs ``append`` in a worker thread (FIFO per log and event loop), so the
-    loop never waits for the disk.
+    loop never waits for the disk. ``append_soon`` is for records of read-only calls: nobody
+    waits, and the record is fsync-ed within ``commit_window_s`` (see `writer`).
     """
 
     def __init__(
@@ -97,6 +98,7 @@ class AuditLog:
         *,
         hmac_key: bytes | None = None,
         max_string_chars: int = 500,
+        commit_window_s: float = DEFAULT_COMMIT_WINDOW_S,
     ) -> None:
         self._path = Path(path)
         self._key = check_key(hmac_key)
@@ -109,9 +111,15 @@ class AuditLog:
         self._max_chars = max_string_chars
         self._texter = Sanitizer(max_string_chars, 1, 1, 1)  # text() only; stateless
         self._lock = threading.Lock()
-        self._queue: queue.SimpleQueue | None = None  # jobs for the writer thread (started on first use)
+        if isinstance(commit_window_s, bool) or not isinstance(commit_window_s, (int, float)) or not (
+            0.0 <= commit_window_s <= MAX_COMMIT_WINDOW_S
+        ):
+            raise ConfigurationError(
+                f"audit commit_window_s must be a number in 0..{MAX_COMMIT_WINDOW_S:g} s, got {commit_window_s!r}"
+            )
+        self._window_s = float(commit_window_s)
+        self._writer_thread: Writer | None = None  # started on first use
         self._closing = False  # set by close(): no new writer thread, no new record
-        self._thread: threading.Thread | None = None
         self._fd: int | None = None
         self._broken: str | None = None
         self._seq = 0
@@ -274,15 +282,21 @@ class AuditLog:
             os.fsync(self._fd)
 
     def _fsync_written(self) -> None:
-        """fsync what was written without it (a group commit by the writer thread)."""
+        """fsync what was written without it (a group commit by the writer thread).
+
+        Not under the lock: a stalled disk must not hold up callers handing records over (the event
+        loop's `append_soon` and `append_async` take the lock briefly). The descriptor stays open
+        meanwhile: `close` joins the writer thread before it closes it."""
         with self._lock:
-            if self._fd is None:
-                raise AuditWriteError(f"audit log {str(self._path)!r} is closed")
-            try:
-                os.fsync(self._fd)
-            except OSError as exc:
+            fd = self._fd
+        if fd is None:
+            raise AuditWriteError(f"audit log {str(self._path)!r} is closed")
+        try:
+            os.fsync(fd)
+        except OSError as exc:
+            with self._lock:
                 self._broken = str(exc)
-                raise AuditWriteError(f"cannot fsync audit log {str(self._path)!r}: {exc}") from exc
+            raise AuditWriteError(f"cannot fsync audit log {str(self._path)!r}: {exc}") from exc
 
     def append(self, entry: AuditEntry | str, /, **fields: Any) -> AuditRecord:
         """Write one record and fsync it; returns the record. Raises AuditWriteError on failure.
@@ -313,77 +327,71 @@ class AuditLog:
     async def append_async(self, entry: AuditEntry | str, /, **fields: Any) -> AuditRecord:
         """`append` on the log's own writer thread, so the event loop never waits on disk.
 
-        Records are written in the order of the calls. A record handed to the writer is always
-        written — also when the caller is cancelled meanwhile (the event happened; the log must
-        say so). A dedicated thread and a plain queue cost far less per record than a generic
-        thread pool hop, which matters because every tool call writes one.
+        Returns once the record is written and fsync-ed (`Durability.NOW`). Records are written
+        in the order of the calls. A record handed to the writer is always written — also when
+        the caller is cancelled meanwhile (the event happened; the log must say so). A dedicated
+        thread and a plain queue cost far less per record than a generic thread pool hop, which
+        matters because every tool call writes one; under load one fsync serves many calls.
         """
-        # the writer thread fsyncs each batch before answering any of its callers
         call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
         loop = asyncio.get_running_loop()
         future: asyncio.Future[AuditRecord] = loop.create_future()
-        self._writer().put((call, loop, future))
+        self._writer().put(Job(call, Durability.NOW, loop, future))
         return await asyncio.shield(future)
+
+    def append_soon(self, entry: AuditEntry | str, /, **fields: Any) -> None:
+        """Hand a record of a read-only call to the writer thread without waiting for it.
+
+        It keeps its place after the records already queued and is written and fsync-ed within
+        `commit_window_s` (`Durability.WINDOW`; sooner if a record that must be on disk follows).
+        Raises `AuditWriteError` at once if the log is closed or broken, so a caller fails closed
+        instead of answering calls the log can no longer record.
+        """
+        if self._broken is not None:
+            raise AuditWriteError(
+                f"audit log {str(self._path)!r} is unusable after an earlier write failure: {self._broken}"
+            )
+        call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
+        self._writer().put(Job(call, Durability.WINDOW))
 
     def submit(self, entry: AuditEntry | str, /, **fields: Any) -> None:
         """From any thread, without waiting: hand a record to the writer thread (after the ones
-        already queued). For paths that must never wait on the disk or the event loop, such as the
-        independent stop channel; a record that cannot be written is logged, and the log is then
-        broken like after any failed write. Raises `AuditWriteError` if the log is closed."""
+        already queued), fsync-ed with its batch (`Durability.NOW`). For paths that must never
+        wait on the disk or the event loop, such as the independent stop channel; a record that
+        cannot be written is logged, and the log is then broken like after any failed write.
+        Raises `AuditWriteError` if the log is closed."""
         call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
-        self._writer().put((call, None, None))
+        self._writer().put(Job(call, Durability.NOW))
 
-    def _writer(self) -> queue.SimpleQueue:
+    def flush(self, timeout_s: float = 30.0) -> None:
+        """Block until every record handed over so far is written and fsync-ed (window records
+        included). For callers that read the file right after (tests, tools); not for the event
+        loop. A closed log has nothing left to flush (closing wrote everything). Raises
+        `AuditWriteError` if that fails, TimeoutError after ``timeout_s``."""
+        if self._fd is None:
+            return
+        waiter: concurrent.futures.Future[None] = concurrent.futures.Future()
+        self._writer().put(Job(lambda: None, Durability.NOW, waiter=waiter))
+        try:
+            waiter.result(timeout_s)
+        except concurrent.futures.TimeoutError as exc:
+            raise TimeoutError(f"audit log {str(self._path)!r} did not flush within {timeout_s:g} s") from exc
+
+    @property
+    def commit_window_s(self) -> float:
+        """How long a read-only call's record may wait to be written and fsync-ed [s]; 0: every
+        record is on disk before its caller is answered."""
+        return self._window_s
+
+    def _writer(self) -> Writer:
         with self._lock:
             if self._closing:
                 raise AuditWriteError(f"audit log {self.path} is closing")
-            if self._queue is None:
+            if self._writer_thread is None:
                 if self._fd is None:
                     raise AuditWriteError(f"audit log {self.path} is closed")
-                self._queue = queue.SimpleQueue()
-                self._thread = threading.Thread(target=self._drain, args=(self._queue,), name="armwarden-audit", daemon=True)
-                self._thread.start()
-            return self._queue
-
-    def _drain(self, jobs: queue.SimpleQueue) -> None:
-        """Writer thread: take every queued record, write them in order, fsync once, then answer
-        their callers — each record is on disk before its call returns, and under load one fsync
-        serves many calls."""
-        while True:
-            job = jobs.get()
-            if job is None:
-                return
-            batch, stopping = [job], False
-            while True:
-                try:
-                    more = jobs.get_nowait()
-                except queue.Empty:
-                    break
-                if more is None:
-                    stopping = True
-                    break
-                batch.append(more)
-            outcomes = []
-            for call, loop, future in batch:
-                try:
-                    outcomes.append((loop, future, call(), False))
-                except BaseException as exc:  # handed back to the awaiting caller
-                    outcomes.append((loop, future, exc, True))
-            if any(not failed for *_, failed in outcomes):
-                try:
-                    self._fsync_written()
-                except BaseException as exc:  # nothing of this batch is known to be on disk
-                    outcomes = [(loop, future, exc, True) for loop, future, *_ in outcomes]
-            for loop, future, outcome, failed in outcomes:  # a closed loop: nobody waits any more
-                if loop is None:  # handed over by `submit`: nobody waits, a failure is only logged
-                    if failed:
-                        logger.error("audit record from another thread could not be written: %s", outcome)
-                elif failed:
-                    settle_threadsafe(loop, future, error=outcome)
-                else:
-                    settle_threadsafe(loop, future, outcome)
-            if stopping:
-                return
+                self._writer_thread = Writer(self._fsync_written, self._window_s)
+            return self._writer_thread
 
     # -- reading ---------------------------------------------------------------------------
     def tail(self, n: int = 20) -> list[dict[str, Any]]:
@@ -395,6 +403,13 @@ class AuditLog:
                 lines = tail_lines(stream, clamp_tail(n))
         return decode_records(lines)
 
+    async def tail_async(self, n: int = 20) -> list[dict[str, Any]]:
+        """`tail` in call order: the records handed to the writer before this call are in it."""
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[list[dict[str, Any]]] = loop.create_future()
+        self._writer().put(Job(functools.partial(self.tail, n), Durability.NONE, loop, future))
+        return await asyncio.shield(future)
+
     # -- closing ---------------------------------------------------------------------------
     def close(self) -> None:
         """Release the file. Idempotent; writes nothing (a ``shutdown`` record is the caller's).
@@ -402,11 +417,9 @@ class AuditLog:
         Records already handed to the writer thread are written first."""
         with self._lock:
             self._closing = True  # a record handed over from another thread from now on is refused, not lost
-            jobs, thread, self._queue, self._thread = self._queue, self._thread, None, None
-        if jobs is not None and thread is not None:
-            jobs.put(None)
-            if thread is not threading.current_thread():
-                thread.join()
+            writer, self._writer_thread = self._writer_thread, None
+        if writer is not None:
+            writer.stop()
         with self._lock:
             fd, self._fd = self._fd, None
         if fd is not None:

@@ -1,0 +1,293 @@
+"""ArmWarden's own share of a round trip, per transport (used by `scripts/bench.py share`).
+
+For each transport — in memory, stdio, streamable HTTP under protocol 2025-11-25 ("legacy") and
+2026-07-28 — two servers run side by side: ArmWarden (fake backend, the benchmark policy, audit
+log on, HTTP with a bearer token) and the SDK floor (`trivial_server.py`: constant results of the
+same model and output schema, captured from ArmWarden's own answers at the start, over the same
+transport). For `get_robot_state`, `get_safety_status`, `plan_to_pose` without and with the
+preview picture, and `estop`, blocks of `BLOCK` calls alternate between the two servers, round
+after round, so machine drift hits both alike; the own share is the difference of the medians.
+After each round's e-stop block ArmWarden's latch is reset through an approved `reset_estop`
+(the benchmark's client approves), so the next round plans again.
+
+The preview's own cost is also measured apart: the renderer alone on a typical plan (p95), and
+over stdio `plan_to_pose` with the preview against the same call without it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from contextlib import AsyncExitStack, asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SRC = HERE.parents[1] / "src"
+TRIVIAL_SERVER = HERE / "trivial_server.py"
+sys.path.insert(0, str(SRC))
+sys.path.insert(0, str(HERE))
+
+#: calls per block (the first `WARM` of each block are dropped: caches warm up after a switch)
+BLOCK = 20
+WARM = 3
+#: (label, ArmWarden tool, its arguments for call i, floor tool)
+CASES: tuple[tuple[str, str, Callable[[int], dict[str, Any]], str], ...] = (
+    ("get_robot_state", "get_robot_state", lambda i: {}, "robot_state_shape"),
+    ("get_safety_status", "get_safety_status", lambda i: {}, "get_safety_status_shape"),
+    ("plan_to_pose, no preview", "plan_to_pose",
+     lambda i: {"position": {"x": 0.40 + 0.02 * (i % 2), "y": 0.05, "z": 0.35}, "preview": False}, "plan_to_pose_shape"),
+    ("plan_to_pose, with preview", "plan_to_pose",
+     lambda i: {"position": {"x": 0.40 + 0.02 * (i % 2), "y": 0.05, "z": 0.35}}, "plan_to_pose_preview_shape"),
+    ("estop", "estop", lambda i: {"reason": "benchmark"}, "estop_shape"),
+)
+#: the last one is the comparison with the audit log as it was before issue 13: every record,
+#: also a state poll's, fsynced before its reply (`--audit-commit-window-ms 0`)
+STRICT_AUDIT = "http 2026-07-28, fsync before every reply"
+TRANSPORTS = ("memory", "stdio", "http 2025-11-25", "http 2026-07-28", STRICT_AUDIT)
+#: own-share targets [ms] for get_robot_state (issue 13)
+TARGETS_MS = {"memory": 0.15, "stdio": 0.15, "http 2025-11-25": 0.5, "http 2026-07-28": 0.5}
+RENDER_P95_TARGET_MS = 3.0
+PREVIEW_RATIO_TARGET = 1.3
+
+
+def _summary(values_s: list[float]) -> dict[str, float]:
+    ms = sorted(v * 1e3 for v in values_s)
+    return {"median_ms": statistics.median(ms), "p95_ms": float(np.percentile(ms, 95)), "n": len(ms)}
+
+
+async def _block(client: Any, tool: str, args_for: Callable[[int], dict[str, Any]]) -> list[float]:
+    out = []
+    for i in range(BLOCK):
+        start = time.perf_counter()
+        result = await client.call_tool(tool, args_for(i))
+        out.append(time.perf_counter() - start)
+        if result.is_error:
+            raise RuntimeError(f"{tool} failed in the benchmark: {result.content[0].text}")
+    return out[WARM:]
+
+
+async def _approve(context: Any, params: Any) -> Any:
+    import mcp_types as types
+
+    return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _wait_listening(port: int, process: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"server on port {port} exited with {process.returncode}")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise RuntimeError(f"nothing listens on port {port}")
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+async def _capture_shapes(armwarden: Any) -> dict[str, Any]:
+    """The results ArmWarden really returns, for the floor to return as constants."""
+    shapes: dict[str, Any] = {}
+    for label, tool, args_for, _ in CASES:
+        result = await armwarden.call_tool(tool, args_for(0))
+        if result.is_error:
+            raise RuntimeError(f"{tool} failed while capturing shapes: {result.content[0].text}")
+        if label == "plan_to_pose, with preview":
+            shapes["preview_png_b64"] = next(c.data for c in result.content if getattr(c, "type", "") == "image")
+        else:
+            shapes[tool] = result.structured_content
+    await armwarden.call_tool("reset_estop", {})
+    return shapes
+
+
+async def _rounds(armwarden: Any, floor: Any, rounds: int) -> dict[str, dict[str, list[float]]]:
+    series: dict[str, dict[str, list[float]]] = {label: {"armwarden": [], "floor": []} for label, *_ in CASES}
+    for r in range(rounds):
+        for label, tool, args_for, floor_tool in CASES:
+            pair = [(armwarden, tool, args_for, "armwarden"), (floor, floor_tool, lambda i: {}, "floor")]
+            if r % 2:
+                pair.reverse()  # neither server always goes first
+            for client, name, arguments, who in pair:
+                series[label][who] += await _block(client, name, arguments)
+        reset = await armwarden.call_tool("reset_estop", {})
+        if reset.is_error:
+            raise RuntimeError(f"reset_estop failed in the benchmark: {reset.content[0].text}")
+    return series
+
+
+@asynccontextmanager
+async def _clients(transport: str, directory: Path, policy_path: Path, shapes_path: Path | None,
+                   shapes: dict[str, Any] | None):
+    """(ArmWarden client, floor client) over `transport`."""
+    import trivial_server
+    from mcp import Client, StdioServerParameters
+
+    from armwarden.daemon import assemble, close_assembly, open_assembly
+    from armwarden.policy import load_policy
+
+    async with AsyncExitStack() as stack:
+        if transport == "memory":
+            assembly = await open_assembly(*assemble(load_policy(policy_path), "fake", None,
+                                                     str(directory / "memory-audit.jsonl")))
+            stack.push_async_callback(close_assembly, assembly, "benchmark done")
+            armwarden = await stack.enter_async_context(Client(assembly.server.mcp, elicitation_callback=_approve))
+            floor = await stack.enter_async_context(Client(trivial_server.build(shapes)))
+            yield armwarden, floor
+            return
+        floor_args = [sys.executable, str(TRIVIAL_SERVER)] + (["--shapes", str(shapes_path)] if shapes_path else [])
+        env = {**os.environ, "PYTHONPATH": str(SRC)}
+        if transport == "stdio":
+            armwarden = await stack.enter_async_context(Client(StdioServerParameters(
+                command=sys.executable, env={"PYTHONPATH": str(SRC)},
+                args=["-m", "armwarden.cli", "serve", "--policy", str(policy_path),
+                      "--audit-log", str(directory / "stdio-audit.jsonl"), "--log-level", "WARNING"],
+            ), elicitation_callback=_approve))
+            floor = await stack.enter_async_context(Client(StdioServerParameters(
+                command=floor_args[0], args=floor_args[1:], env={"PYTHONPATH": str(SRC)})))
+            yield armwarden, floor
+            return
+        import httpx2
+        from mcp.client.streamable_http import streamable_http_client
+
+        from armwarden.transport.tokens import TokenStore
+
+        mode = "legacy" if "2025-11-25" in transport else "2026-07-28"
+        window = ["--audit-commit-window-ms", "0"] if transport == STRICT_AUDIT else []
+        token_file = directory / f"tokens-{_free_port()}.json"  # one per daemon (a fresh number)
+        token = TokenStore.add(token_file, "operator", "bench")
+        aw_port, floor_port = _free_port(), _free_port()
+        daemon = subprocess.Popen(  # noqa: ASYNC220 - set-up, before anything is timed
+            [sys.executable, "-m", "armwarden.cli", "serve", "--transport", "http", "--host", "127.0.0.1",
+             "--port", str(aw_port), "--policy", str(policy_path), "--auth-tokens", str(token_file),
+             "--audit-log", str(directory / f"http-{mode}-{len(window)}-audit.jsonl"), "--log-level", "WARNING",
+             *window],
+            env=env, stdin=subprocess.DEVNULL)
+        stack.callback(_stop, daemon)
+        floor_process = subprocess.Popen(  # noqa: ASYNC220 - set-up, before anything is timed
+            [*floor_args, "--http", str(floor_port)], env=env, stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stack.callback(_stop, floor_process)
+        _wait_listening(aw_port, daemon)
+        _wait_listening(floor_port, floor_process)
+        aw_http = await stack.enter_async_context(
+            httpx2.AsyncClient(headers={"Authorization": f"Bearer {token}"}, timeout=60))
+        floor_http = await stack.enter_async_context(httpx2.AsyncClient(timeout=60))
+        armwarden = await stack.enter_async_context(Client(
+            streamable_http_client(f"http://127.0.0.1:{aw_port}/mcp", http_client=aw_http),
+            mode=mode, elicitation_callback=_approve))
+        floor = await stack.enter_async_context(Client(
+            streamable_http_client(f"http://127.0.0.1:{floor_port}/mcp", http_client=floor_http), mode=mode))
+        yield armwarden, floor
+
+
+def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
+    """The preview renderer alone, as the daemon runs it (one previewer per policy), on a typical
+    0.5 rad plan: p50 and p95 over `repeats` pictures."""
+    from armwarden.assembly import plan_previewer
+    from armwarden.policy import load_policy
+    from armwarden.preflight import load_runtime_model
+
+    runtime = load_runtime_model(load_policy(policy_path))
+    ready = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+    goal = ready + np.array([0.5, 0.25, -0.2, 0.3, 0.2, -0.3, 0.4])
+    trajectory = runtime.planner.plan_to_joints(ready, goal).trajectory
+    if trajectory is None:
+        raise RuntimeError("the benchmark's typical plan was not planned")
+    report = runtime.envelope.check(trajectory)
+    preview = plan_previewer()
+    times, png = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        png = preview(runtime, trajectory, report)
+        times.append(time.perf_counter() - start)
+    assert png is not None
+    out = _summary(times[10:])
+    out["png_bytes"] = len(png)
+    return out
+
+
+def bench_own_share(policy_path: Path, directory: Path, rounds: int = 6) -> dict[str, Any]:
+    import anyio
+
+    from armwarden.daemon import SWITCH_INTERVAL_S
+
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs
+    results: dict[str, Any] = {"transports": {}}
+    shapes_path = directory / "shapes.json"
+    shapes: dict[str, Any] | None = None
+    for transport in TRANSPORTS:
+        async def run(transport: str = transport) -> dict[str, dict[str, list[float]]]:
+            nonlocal shapes
+            if shapes is None:  # capture once, from ArmWarden in memory, before any floor is built
+                async with _clients("memory", directory, policy_path, None, None) as (armwarden, _):
+                    shapes = await _capture_shapes(armwarden)
+                shapes_path.write_text(json.dumps(shapes))
+            async with _clients(transport, directory, policy_path, shapes_path, shapes) as (armwarden, floor):
+                await _block(armwarden, "get_robot_state", lambda i: {})  # warm both up
+                await _block(floor, "robot_state_shape", lambda i: {})
+                return await _rounds(armwarden, floor, rounds)
+
+        series = anyio.run(run)
+        figures = {}
+        for label, pair in series.items():
+            aw, fl = _summary(pair["armwarden"]), _summary(pair["floor"])
+            figures[label] = {"armwarden": aw, "floor": fl, "own_ms": aw["median_ms"] - fl["median_ms"],
+                              "own_p95_ms": aw["p95_ms"] - fl["p95_ms"]}
+        results["transports"][transport] = figures
+    results["render"] = _render_p95_ms(policy_path)
+    stdio = results["transports"]["stdio"]
+    results["preview_ratio_stdio"] = (stdio["plan_to_pose, with preview"]["armwarden"]["median_ms"]
+                                      / stdio["plan_to_pose, no preview"]["armwarden"]["median_ms"])
+    return results
+
+
+def report_own_share(r: dict[str, Any]) -> None:
+    print("## own share per transport (ArmWarden round trip - SDK floor of the same result shape, same transport;")
+    print(f"## interleaved blocks of {BLOCK} calls, medians; audit log on; HTTP with a bearer token)")
+    print("| transport | call | SDK floor | ArmWarden | own share | target |")
+    print("|---|---|---|---|---|---|")
+    for transport, figures in r["transports"].items():
+        for label, f in figures.items():
+            target = ""
+            if label == "get_robot_state" and transport in TARGETS_MS:
+                goal = TARGETS_MS[transport]
+                target = f"≤ {goal:g} ms: {'met' if f['own_ms'] <= goal else 'MISSED'}"
+            print(f"| {transport} | {label} | {f['floor']['median_ms']:.2f} ms (p95 {f['floor']['p95_ms']:.2f}) "
+                  f"| {f['armwarden']['median_ms']:.2f} ms (p95 {f['armwarden']['p95_ms']:.2f}) "
+                  f"| {f['own_ms']:.2f} ms | {target} |")
+    render = r["render"]
+    print(f"preview picture alone (typical 0.5 rad plan, {render['png_bytes']} bytes): {render['median_ms']:.2f} ms median, "
+          f"{render['p95_ms']:.2f} ms p95 (target ≤ {RENDER_P95_TARGET_MS:g} ms p95: "
+          f"{'met' if render['p95_ms'] <= RENDER_P95_TARGET_MS else 'MISSED'})")
+    ratio = r["preview_ratio_stdio"]
+    print(f"plan_to_pose over stdio, with preview / without: {ratio:.2f}x (target ≤ {PREVIEW_RATIO_TARGET:g}x: "
+          f"{'met' if ratio <= PREVIEW_RATIO_TARGET else 'MISSED'})")
+
+
+__all__ = ["bench_own_share", "report_own_share"]
