@@ -4,7 +4,11 @@ Physics runs on the servo thread (`armwarden.backends.servo.ServoLoop`): each ti
 simulation up to the tick's time (wall time × `speedup`, in `timestep_s` steps), then commands the
 tick's trajectory sample as actuator targets (`MujocoModel.arm_ctrl`: PD with velocity
 feed-forward). The targets are one tuple, replaced whole, and read before every physics step, so
-a stop issued from any thread reaches the actuators at the next step.
+a stop issued from any thread reaches the actuators at the next step. A tick that comes late (the
+host was busy) catches up with targets ramped from the last sample to its own, as a controller
+running at its own rate would have tracked them: stepping the whole stall on the stale sample made
+the arm lag, then jerk (tracking errors of 0.1 rad and a 31 N inertial "contact" on a loaded
+2-core machine; 3–16 mrad with the ramp).
 
 What is published is what the simulation measures, never what was commanded: joint positions and
 velocities (`qpos`/`qvel`) and the external wrench, stamped (monotonic clock) after the step that
@@ -520,7 +524,11 @@ class MujocoBackend(Backend, ServoHooks):
         if steps == 0:
             return
         model, data, cell = self._model, self._data, self.cell
-        for _ in range(steps):
+        # a stalled tick (a loaded machine): the trajectory moved on meanwhile, so the catch-up
+        # steps track the samples between the last one commanded and this tick's, not the stale
+        # one — the simulated controller keeps its rate whatever the host's scheduling
+        ramp = self._target if self._target.following and setpoint.following and steps > 1 else None
+        for step in range(steps):
             target = self._target
             if target.braking:
                 if target.since_s is None:
@@ -531,7 +539,12 @@ class MujocoBackend(Backend, ServoHooks):
                     target = self._target
             if target.braking != self._braking_gains:
                 self._set_brake(target.braking)
-            if not target.braking:
+            if target is ramp:  # not replaced (by a stop) since the catch-up began
+                a = step / steps
+                data.ctrl[cell.arm_actuators] = cell.arm_ctrl(
+                    ramp.positions + a * (setpoint.positions - ramp.positions),
+                    ramp.velocities + a * (setpoint.velocities - ramp.velocities))
+            elif not target.braking:
                 data.ctrl[cell.arm_actuators] = cell.arm_ctrl(target.positions, target.velocities)
             if self._gripper is not None:
                 fingers = self._fingers
