@@ -539,7 +539,7 @@ class MujocoBackend(Backend, ServoHooks):
                     target = self._target
             if target.braking != self._braking_gains:
                 self._set_brake(target.braking)
-            if target is ramp:  # not replaced (by a stop) since the catch-up began
+            if ramp is not None and target is ramp:  # not replaced (by a stop) since the catch-up began
                 a = step / steps
                 data.ctrl[cell.arm_actuators] = cell.arm_ctrl(
                     ramp.positions + a * (setpoint.positions - ramp.positions),
