@@ -190,6 +190,10 @@ class Cell:
             raise ValueError(f"initial_positions has {len(home)} values for {len(self.joint_names)} joints")
         self._hard_death = hard_death  # standalone process: dying means os._exit
         self._lock = threading.Lock()
+        # held while a joint state is published: once a pause has taken it, nothing more is sent
+        self._joint_publish_lock = threading.Lock()
+        self._last_joint_stamp: TimeMsg | None = None  # header stamp of the last joint state sent
+        self._wrench_publish_lock = threading.Lock()  # likewise for the wrench's switches
         self._positions = np.array(home, dtype=float)
         self._velocities = np.zeros(len(self.joint_names))
         self._gripper_width = self.config.initial_gripper_width_m
@@ -315,18 +319,27 @@ class Cell:
             self._mode = mode
 
     def pause_joint_states(self, paused: bool = True) -> None:
-        with self._lock:
+        """Stop (or resume) the arm's and fingers' joint states: when it returns, the last one
+        has been sent (`last_joint_state_stamp`) and no other will be until resumed."""
+        with self._joint_publish_lock, self._lock:
             self._switches.joint_states_paused = paused
 
+    def last_joint_state_stamp(self) -> TimeMsg | None:
+        """The header stamp of the last joint state published (None: none yet)."""
+        with self._joint_publish_lock:
+            return self._last_joint_stamp
+
     def stop_wrench(self, stopped: bool = True) -> None:
-        with self._lock:
+        with self._wrench_publish_lock, self._lock:
             self._switches.wrench_stopped = stopped
 
-    def freeze_wrench_stamp(self, frozen: bool = True) -> None:
-        """Keep publishing the wrench, always with the same stamp (a stuck driver)."""
-        with self._lock:
+    def freeze_wrench_stamp(self, frozen: bool = True) -> TimeMsg:
+        """Keep publishing the wrench, always with the same stamp (a stuck driver): every wrench
+        sent after this returns carries the stamp it returns."""
+        with self._wrench_publish_lock, self._lock:
             self._switches.wrench_stamp_frozen = frozen
             self._switches.frozen_stamp = self._now()
+            return self._switches.frozen_stamp
 
     def die(self) -> None:
         """The cell goes silent: no topic, no feedback, no result, no service answer."""
@@ -347,25 +360,27 @@ class Cell:
         return self._node.get_clock().now().to_msg()
 
     def _publish_joint_state(self) -> None:
-        with self._lock:
-            if self._switches.dead or self._switches.joint_states_paused:
-                return
-            positions, velocities = self._positions.tolist(), self._velocities.tolist()
-            half_width = self._gripper_width / 2
-        stamp = self._now()
-        msg = JointState()
-        msg.header.stamp = stamp
-        msg.name = list(self.joint_names)
-        msg.position = positions
-        msg.velocity = velocities
-        msg.effort = [0.0] * len(positions)
-        self._joint_pub.publish(msg)
-        fingers = JointState()
-        fingers.header.stamp = stamp
-        fingers.name = list(self.config.finger_joints)
-        fingers.position = [half_width, half_width]
-        fingers.velocity = [0.0, 0.0]
-        self._fingers_pub.publish(fingers)
+        with self._joint_publish_lock:
+            with self._lock:
+                if self._switches.dead or self._switches.joint_states_paused:
+                    return
+                positions, velocities = self._positions.tolist(), self._velocities.tolist()
+                half_width = self._gripper_width / 2
+            stamp = self._now()
+            msg = JointState()
+            msg.header.stamp = stamp
+            msg.name = list(self.joint_names)
+            msg.position = positions
+            msg.velocity = velocities
+            msg.effort = [0.0] * len(positions)
+            self._joint_pub.publish(msg)
+            fingers = JointState()
+            fingers.header.stamp = stamp
+            fingers.name = list(self.config.finger_joints)
+            fingers.position = [half_width, half_width]
+            fingers.velocity = [0.0, 0.0]
+            self._fingers_pub.publish(fingers)
+            self._last_joint_stamp = stamp
 
     def _contact_force(self, positions: np.ndarray) -> float:
         """Upward force of the virtual table on the TCP [N] (zero above the table or without one)."""
@@ -376,16 +391,17 @@ class Cell:
         return self.config.table_stiffness_n_per_m * depth if depth > 0.0 else 0.0
 
     def _publish_wrench(self) -> None:
-        with self._lock:
-            switches = replace(self._switches)
-            positions = self._positions.copy()
-        if switches.dead or switches.wrench_stopped:
-            return
-        msg = WrenchStamped()
-        msg.header.stamp = switches.frozen_stamp if switches.wrench_stamp_frozen else self._now()
-        msg.header.frame_id = self.robot.base_frame
-        msg.wrench.force.z = self._contact_force(positions)
-        self._wrench_pub.publish(msg)
+        with self._wrench_publish_lock:
+            with self._lock:
+                switches = replace(self._switches)
+                positions = self._positions.copy()
+            if switches.dead or switches.wrench_stopped:
+                return
+            msg = WrenchStamped()
+            msg.header.stamp = switches.frozen_stamp if switches.wrench_stamp_frozen else self._now()
+            msg.header.frame_id = self.robot.base_frame
+            msg.wrench.force.z = self._contact_force(positions)
+            self._wrench_pub.publish(msg)
 
     def render_image(self, positions: np.ndarray) -> np.ndarray:
         """A small rgb8 picture that is a function of the joint state (height × width × 3)."""

@@ -12,7 +12,7 @@ import rclpy
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from controller_manager_msgs.srv import ListControllers, SwitchController
 from geometry_msgs.msg import WrenchStamped
-from rclpy.action.client import ActionClient, ClientGoalHandle
+from rclpy.action.client import ClientGoalHandle
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -23,6 +23,7 @@ from sensor_msgs.msg import Image, JointState
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectoryPoint
 
+from armwarden.backends.ros2.action_client import ActionClient  # rclpy's, without its lost-answer race
 from tests_ros.cell import CellConfig
 
 DISCOVERY_TIMEOUT_S = 15.0  # peers were found in 0.25–2.75 s here; generous on a loaded machine

@@ -8,7 +8,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, Capabilities, ExecutionResult, JointState
+from armwarden.backends.base import Backend, CameraImage, Capabilities, ExecutionResult, JointState
 from armwarden.errors import BackendError, BackendTimeout
 
 NAMES = ("j1", "j2")
@@ -144,6 +144,48 @@ def test_the_gripper_deadline_grows_with_the_travel_time_at_the_requested_speed(
     backend.gripper_timeout_s, backend.gripper_travel_m = 5.0, 0.08
     assert backend._gripper_deadline_s(0.01) == pytest.approx(13.0)
     assert backend._gripper_deadline_s(float("nan")) == 5.0
+
+
+class _SlowCamera(_Probe):
+    """A probe whose camera takes `render_s` per frame, plus `setup_s` for its first."""
+
+    def __init__(self, render_s: float, setup_s: float, setup_timeout_s: float) -> None:
+        super().__init__()
+        self.render_s, self.setup_s, self.frames = render_s, setup_s, 0
+        self.camera_timeout_s, self.camera_setup_timeout_s = 0.2, setup_timeout_s
+
+    @property
+    def capabilities(self) -> Capabilities:
+        return Capabilities(cameras=("scene",))
+
+    async def _camera_snapshot(self, camera: str) -> CameraImage:
+        await asyncio.sleep(self.render_s + (self.setup_s if self.frames == 0 else 0.0))
+        self.frames += 1
+        return CameraImage(camera, 1, 1, b"", 0.0)
+
+    def _camera_set_up(self) -> bool:
+        return self.frames > 0
+
+
+def test_a_first_snapshot_may_take_the_one_time_setup_on_top_of_the_camera_deadline():
+    backend = _SlowCamera(render_s=0.0, setup_s=0.5, setup_timeout_s=60.0)  # setup alone: past camera_timeout_s
+
+    async def two_snapshots(b: Backend) -> None:
+        await b.camera_snapshot("scene")
+        await b.camera_snapshot("scene")
+
+    _call(backend, two_snapshots)
+    assert backend.frames == 2
+
+
+def test_a_first_snapshot_past_the_setup_deadline_names_the_setup_and_later_ones_get_the_plain_deadline():
+    with pytest.raises(BackendTimeout, match=r"camera 'scene' snapshot \(the first, which sets up rendering\) "
+                                             r"did not finish within 0\.5 s"):
+        _call(_SlowCamera(render_s=0.0, setup_s=3600.0, setup_timeout_s=0.3), lambda b: b.camera_snapshot("scene"))
+    backend = _SlowCamera(render_s=3600.0, setup_s=0.0, setup_timeout_s=60.0)
+    backend.frames = 1  # set up already: the plain deadline
+    with pytest.raises(BackendTimeout, match=r"camera 'scene' snapshot did not finish within 0\.2 s"):
+        _call(backend, lambda b: b.camera_snapshot("scene"))
 
 
 def test_a_missing_capability_is_refused_before_anything_is_sent():

@@ -21,6 +21,7 @@ from mcp import Client
 from PIL import Image
 
 from armwarden.backends.mujoco.backend import MujocoBackend
+from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from tests.helpers import text_of
 from tests.scenarios.steps import READY, assert_still, calls, execute, plan, plan_joints
 from tests.server.harness import ArmHarness, approve, arm_harness, policy_with
@@ -54,9 +55,12 @@ async def test_thirty_random_safe_moves_end_within_2_mrad_of_their_goal(tmp_path
     rng = np.random.default_rng(20261123)
     final_errors: list[float] = []
     tracking_errors: list[float] = []
-    # thirty executions in well under a minute: above the bundled policy's rate limits
+    # thirty executions in well under a minute: above the bundled policy's rate limits. What this
+    # measures is accuracy: a loaded host that stalls the physics thread past the bundled 0.1 s
+    # wrench age rightly aborts a motion (the force tests prove that), so allow the longest age.
     busy = policy_with(**{"rate_limits.global_per_minute": 600, "rate_limits.default_per_minute": 300,
-                          "rate_limits.per_tool.execute_plan": 100, "rate_limits.per_tool.plan_to_joints": 300})
+                          "rate_limits.per_tool.execute_plan": 100, "rate_limits.per_tool.plan_to_joints": 300,
+                          "force.wrench_timeout_s": MAX_WRENCH_TIMEOUT_S})
     async with arm_harness(tmp_path, busy, backend="mujoco") as arm, arm.client(elicitation=approve()) as client:
         attempts = 0
         while len(final_errors) < 30:

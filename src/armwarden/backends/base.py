@@ -62,8 +62,9 @@ Rules every backend follows
   execution also makes `execute` raise `BackendError` naming it.
 - Deadlines (class attributes, seconds): reads `read_timeout_s`, stops `stop_timeout_s`, and one
   per optional capability (`*_timeout_s`; gripper motions get `gripper_timeout_s` plus the time
-  `gripper_travel_m` takes at the requested speed). A missed deadline raises `BackendTimeout`;
-  an actuating call that misses it is followed by a stop.
+  `gripper_travel_m` takes at the requested speed; camera snapshots get `camera_setup_timeout_s`
+  more until `_camera_set_up` says a one-time setup, e.g. an offscreen renderer, is done). A
+  missed deadline raises `BackendTimeout`; an actuating call that misses it is followed by a stop.
 """
 
 from __future__ import annotations
@@ -214,6 +215,9 @@ class Backend(abc.ABC):
     gripper_home_timeout_s: float = 30.0
     #: deadline for a camera snapshot [s]
     camera_timeout_s: float = 2.0
+    #: added to the deadline of a backend's first camera snapshot [s], for one-time setup (an
+    #: offscreen renderer's GL context and first frame); see `_camera_deadline`
+    camera_setup_timeout_s: float = 0.0
     #: deadline for listing or switching controllers [s]
     controllers_timeout_s: float = 5.0
     #: deadline for setting collision thresholds [s]
@@ -488,8 +492,17 @@ class Backend(abc.ABC):
 
     async def camera_snapshot(self, camera: str) -> CameraImage:
         self._require_capability(camera in self.capabilities.cameras, f"camera {camera!r}")
-        return await self._bounded(f"camera {camera!r} snapshot", self.camera_timeout_s,
-                                   lambda: self._camera_snapshot(camera))
+        what, timeout_s = self._camera_deadline(camera)
+        return await self._bounded(what, timeout_s, lambda: self._camera_snapshot(camera))
+
+    def _camera_deadline(self, camera: str) -> tuple[str, float]:
+        """What a snapshot of `camera` is called in its timeout message, and its deadline [s]:
+        `camera_timeout_s`, plus `camera_setup_timeout_s` while `_camera_set_up` says the
+        one-time setup has not finished (a first frame may be far slower than the others)."""
+        if self.camera_setup_timeout_s > 0 and not self._camera_set_up():
+            return (f"camera {camera!r} snapshot (the first, which sets up rendering)",
+                    self.camera_timeout_s + self.camera_setup_timeout_s)
+        return f"camera {camera!r} snapshot", self.camera_timeout_s
 
     async def list_controllers(self) -> list[ControllerInfo]:
         self._require_capability(self.capabilities.controllers, "controllers")
@@ -608,6 +621,10 @@ class Backend(abc.ABC):
 
     async def _camera_snapshot(self, camera: str) -> CameraImage:
         raise NotImplementedError
+
+    def _camera_set_up(self) -> bool:
+        """Whether the one-time camera setup `camera_setup_timeout_s` allows for is done."""
+        return True
 
     async def _list_controllers(self) -> list[ControllerInfo]:
         raise NotImplementedError

@@ -4,7 +4,11 @@ Physics runs on the servo thread (`armwarden.backends.servo.ServoLoop`): each ti
 simulation up to the tick's time (wall time × `speedup`, in `timestep_s` steps), then commands the
 tick's trajectory sample as actuator targets (`MujocoModel.arm_ctrl`: PD with velocity
 feed-forward). The targets are one tuple, replaced whole, and read before every physics step, so
-a stop issued from any thread reaches the actuators at the next step.
+a stop issued from any thread reaches the actuators at the next step. A tick that comes late (the
+host was busy) catches up with targets ramped from the last sample to its own, as a controller
+running at its own rate would have tracked them: stepping the whole stall on the stale sample made
+the arm lag, then jerk (tracking errors of 0.1 rad and a 31 N inertial "contact" on a loaded
+2-core machine; 3–16 mrad with the ramp).
 
 What is published is what the simulation measures, never what was commanded: joint positions and
 velocities (`qpos`/`qvel`) and the external wrench, stamped (monotonic clock) after the step that
@@ -23,7 +27,11 @@ grasp force (a grasp closes fully: the object stops the fingers, friction holds 
 the finger target where its ramp is (fingers on an object keep their grip; see `_freeze_fingers`).
 
 Cameras render offscreen on their own thread (it owns the GL context), from the last published
-configuration of every body, so rendering never holds up the physics.
+configuration of every body, so rendering never holds up the physics. The renderer is made by the
+first snapshot, not at open (most sessions never look); that first frame (GL context, shaders, the
+model's meshes and textures uploaded) took 1.2–1.5 s with software EGL on a loaded 2-core
+machine, the next ones 0.2–0.35 s, so the first gets `camera_setup_timeout_s` on top of the usual
+deadline.
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -101,6 +109,9 @@ SETTLE_TIMEOUT_S = 1.0
 #: how often the event loop looks at the published sample while waiting to settle [s]
 SETTLE_POLL_S = 0.002
 
+#: extra deadline [s] for the first camera snapshot, which creates the renderer and draws its first
+#: frame (1.2–1.5 s measured on a loaded 2-core machine with software EGL, vs 0.2–0.35 s after)
+RENDERER_SETUP_TIMEOUT_S = 15.0
 #: finger speed [m/s] of `gripper_home`
 GRIPPER_HOMING_SPEED_MPS = 0.05
 #: the fingers count as still below this opening speed [m/s]
@@ -219,6 +230,7 @@ class MujocoBackend(Backend, ServoHooks):
     goal_accuracy_rad = SETTLE_POSITION_RAD
     hold_accuracy_rad = HOLD_ACCURACY_RAD
     rest_speed_rad_s = SETTLE_SPEED_RAD_S
+    camera_setup_timeout_s = RENDERER_SETUP_TIMEOUT_S
 
     def __init__(self, robot: RobotModel, cell: MujocoModel, home: np.ndarray, *, speedup: float = 1.0,
                  start_tolerance_rad: float = 0.05, camera_size_px: tuple[int, int] = (640, 480)) -> None:
@@ -278,6 +290,7 @@ class MujocoBackend(Backend, ServoHooks):
         self._render_pool: ThreadPoolExecutor | None = None
         self._renderer: mujoco.Renderer | None = None
         self._render_data: mujoco.MjData | None = None
+        self._rendered = threading.Event()  # a frame has been rendered: the one-time setup is done
         self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, cameras=tuple(cell.cameras),
                                           frames=tuple(robot.frame_names()))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
@@ -483,7 +496,11 @@ class MujocoBackend(Backend, ServoHooks):
         renderer.update_scene(data, camera=camera)
         buffer = io.BytesIO()
         Image.fromarray(renderer.render()).save(buffer, format="PNG")
+        self._rendered.set()
         return buffer.getvalue()
+
+    def _camera_set_up(self) -> bool:
+        return self._rendered.is_set()
 
     def _close_renderer(self) -> None:
         if self._renderer is not None:
@@ -507,7 +524,11 @@ class MujocoBackend(Backend, ServoHooks):
         if steps == 0:
             return
         model, data, cell = self._model, self._data, self.cell
-        for _ in range(steps):
+        # a stalled tick (a loaded machine): the trajectory moved on meanwhile, so the catch-up
+        # steps track the samples between the last one commanded and this tick's, not the stale
+        # one — the simulated controller keeps its rate whatever the host's scheduling
+        ramp = self._target if self._target.following and setpoint.following and steps > 1 else None
+        for step in range(steps):
             target = self._target
             if target.braking:
                 if target.since_s is None:
@@ -518,7 +539,12 @@ class MujocoBackend(Backend, ServoHooks):
                     target = self._target
             if target.braking != self._braking_gains:
                 self._set_brake(target.braking)
-            if not target.braking:
+            if ramp is not None and target is ramp:  # not replaced (by a stop) since the catch-up began
+                a = step / steps
+                data.ctrl[cell.arm_actuators] = cell.arm_ctrl(
+                    ramp.positions + a * (setpoint.positions - ramp.positions),
+                    ramp.velocities + a * (setpoint.velocities - ramp.velocities))
+            elif not target.braking:
                 data.ctrl[cell.arm_actuators] = cell.arm_ctrl(target.positions, target.velocities)
             if self._gripper is not None:
                 fingers = self._fingers

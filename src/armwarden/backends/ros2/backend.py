@@ -22,8 +22,15 @@ one-point hold at the measured positions (Jazzy's controller rejects an empty tr
 
 Stops (`_stop_now`, any thread, never awaiting): cancel the running goal (or publish the hold),
 cancel the gripper's goal, and record when the cancel request was sent (`stop_records`). Faults
-found while idle (joint states stop for longer than `max_age_s`, the action server vanishes) stop
-the same way and are reported once through the fault listener (the Guard latches its e-stop).
+(joint states stop for longer than `max_age_s`, the action server vanishes), found by the idle
+watchdog or by a running execution's own look, whichever comes first, stop the same way, are
+recorded and are reported once through the fault listener (the Guard latches its e-stop); a
+running execution then ends in `BackendError` naming the recorded fault, so the message does not
+depend on which thread looked first (on a loaded machine either may). Closing ends a running
+execution as "stopped", whatever answer the cell sends to the close's cancel.
+
+Open waits (`joint_states.startup_timeout_s`) for the first arm joint state, and for the first
+finger state and wrench when those are configured, so reads right after open find them.
 
 Declared accuracies: `goal_accuracy_rad` 1e-3 rad, `hold_accuracy_rad` 2e-3 rad, `rest_speed_rad_s`
 1e-3 rad/s. A ros2_control position controller ends within its goal tolerance and a cancelled one
@@ -82,6 +89,7 @@ from armwarden.backends.base import (
     Transform,
     Wrench,
 )
+from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import Config, check_against_policy
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
@@ -102,6 +110,8 @@ POLL_S = 0.01
 WATCH_PERIOD_S = 0.05
 #: how long a stopped execution waits for the arm to come to rest [s]
 REST_TIMEOUT_S = 2.0
+#: what stopped the arm when a fault aborts an execution, for messages
+CANCELLED, ENDED, HELD = "the goal was cancelled", "the goal had ended", "a hold was sent"
 #: FollowJointTrajectory.Result error codes by value, for messages
 ERROR_CODES = {getattr(FollowJointTrajectory.Result, name): name for name in (
     "SUCCESSFUL", "INVALID_GOAL", "INVALID_JOINTS", "OLD_HEADER_TIMESTAMP", "PATH_TOLERANCE_VIOLATED",
@@ -176,6 +186,15 @@ class _GoalRun:
         return min(1.0, self.feedback_s / self.duration_s)
 
 
+@dataclass(frozen=True)
+class _Fault:
+    """A fault the backend found (idle or mid-motion): `problem` names it; `epoch` is the stop
+    epoch before the stop it caused, so an execution decided under `epoch` or earlier ran into it."""
+
+    problem: str
+    epoch: int
+
+
 @dataclass
 class _TopicRun:
     """One trajectory published on the fallback topic."""
@@ -242,7 +261,9 @@ class Ros2Backend(Backend):
         #: the stops carried out, newest last (the benchmark reads e-stop -> cancel sent)
         self.stop_records: deque[StopRecord] = deque(maxlen=1000)
         self._server_seen = False  # the trajectory action server was seen at least once
-        self._idle_fault: str | None = None  # the fault the watchdog reported (reported once)
+        self._fault_lock = threading.Lock()
+        self._fault_active = False  # a fault was reported and the cell has not been healthy since
+        self._last_fault: _Fault | None = None  # the latest fault found (executions name it)
         if gripper is not None:
             self.gripper_travel_m = gripper.max_width_m
         if config.cameras:
@@ -299,13 +320,12 @@ class Ros2Backend(Backend):
             subscribe(node.create_subscription(TFMessage, "/tf_static", lambda m: transforms.accept(m, static=True),
                                                static, callback_group=group))
         if cfg.trajectory.action is not None:
-            e.trajectory_action = rclpy.action.client.ActionClient(node, FollowJointTrajectory, cfg.trajectory.action,
-                                                            callback_group=group)
+            e.trajectory_action = ActionClient(node, FollowJointTrajectory, cfg.trajectory.action, callback_group=group)
         else:
             assert cfg.trajectory.topic is not None
             e.trajectory_topic = node.create_publisher(JointTrajectoryMsg, cfg.trajectory.topic, 10)
         if cfg.gripper is not None:
-            e.gripper_action = rclpy.action.client.ActionClient(node, GripperCommand, cfg.gripper.action, callback_group=group)
+            e.gripper_action = ActionClient(node, GripperCommand, cfg.gripper.action, callback_group=group)
         if cfg.controller_manager is not None:
             ns = cfg.controller_manager.namespace.rstrip("/")
             e.list_controllers = node.create_client(ListControllers, f"{ns}/list_controllers", callback_group=group)
@@ -315,13 +335,20 @@ class Ros2Backend(Backend):
         e.watchdog = node.create_timer(WATCH_PERIOD_S, self._watch, callback_group=group)
 
     async def _wait_for_first_state(self) -> None:
+        """Open ends once the arm's joint states (and the fingers' and the wrench, when configured)
+        have arrived: reads right after open must not find a stream not yet discovered."""
         timeout_s = self.config.joint_states.startup_timeout_s
         deadline = time.monotonic() + timeout_s
-        while self.joint_states.latest() is None:
+        for cache in (self.joint_states, self.fingers):
+            while cache is not None and cache.latest() is None:
+                if time.monotonic() > deadline:
+                    why = f" ({cache.last_drop})" if cache.dropped else ""
+                    raise BackendError(f"no joint state naming {', '.join(cache.ros_names)} arrived on "
+                                       f"{cache.topic} within {timeout_s:g} s{why}")
+                await anyio.sleep(POLL_S)
+        while self.wrench is not None and not self.wrench.received:
             if time.monotonic() > deadline:
-                why = f" ({self.joint_states.last_drop})" if self.joint_states.dropped else ""
-                raise BackendError(f"no joint state naming {', '.join(self.ros_names)} arrived on "
-                                   f"{self.joint_states.topic} within {timeout_s:g} s{why}")
+                raise BackendError(f"no wrench arrived on {self.wrench.topic} within {timeout_s:g} s")
             await anyio.sleep(POLL_S)
 
     async def _close(self) -> None:
@@ -367,17 +394,38 @@ class Ros2Backend(Backend):
             logger.debug("ros2 watchdog: health check failed", exc_info=True)
             return
         if problem is None:
-            self._idle_fault = None
+            with self._fault_lock:
+                self._fault_active = False
             return
-        if self._idle_fault is not None:
-            return
-        self._idle_fault = problem
+        self._fault(problem)
+
+    def _fault(self, problem: str) -> None:
+        """Any thread: stop for `problem` and report it, once until the cell is healthy again.
+        The watchdog and a running execution both call it, whichever looks first; the execution
+        then ends naming the recorded fault (`_abort_on_fault`), so the message does not depend on
+        which check fired first."""
+        with self._fault_lock:
+            if self._fault_active:
+                return
+            self._fault_active = True
+            self._last_fault = _Fault(problem, self.stop_epoch)
         self._bump_stop_epoch()
         try:
             self._stop_now()
         except Exception:
             logger.exception("ros2 backend: stop after a fault failed")
         self._report_fault(f"ros2 backend fault: {problem}")
+
+    def _abort_on_fault(self, epoch: int, sent: str) -> None:
+        """Event loop, during an execution decided under stop epoch `epoch`: look at the cell's
+        health; if a fault was found since (now, or already by the watchdog), raise `BackendError`
+        naming it (`sent`: what stopped the arm, for the message)."""
+        problem = self._health_problem()
+        if problem is not None:
+            self._fault(problem)
+        fault = self._last_fault
+        if fault is not None and fault.epoch >= epoch:
+            raise BackendError(f"execution aborted: {fault.problem}; {sent}")
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
@@ -460,32 +508,28 @@ class Ros2Backend(Backend):
                 await asyncio.wait({waiting}, timeout=POLL_S)
                 if waiting.done():
                     break
-                if self._stop_landed() or not self.is_open:  # closing stops too (without an epoch bump)
+                if self._stopped(run.epoch, CANCELLED):
                     return await self._stopped_goal(run, waiting)
                 fraction = min(run.fraction(), 0.99)  # 1.0 only once completed
                 if fraction > reported:
                     reported = fraction
                     progress(fraction)
-                problem = self._health_problem()
-                if problem is not None:
-                    self._cancel_goal(run)
-                    self._report_fault(f"ros2 backend fault: {problem}")
-                    raise BackendError(f"execution aborted: {problem}; the goal was cancelled")
                 if time.monotonic() > deadline:
                     self._cancel_goal(run)
                     raise BackendError(f"controller timeout: no result from {name} within "
                                        f"{trajectory.duration_s + cfg.result_margin_s:g} s (trajectory "
                                        f"{trajectory.duration_s:g} s + margin {cfg.result_margin_s:g} s); the goal was cancelled")
+            if self._stopped(run.epoch, CANCELLED):  # the stop's cancel ended the goal
+                run.terminal = True
+                return await self._rest(run.epoch, CANCELLED)
             response = waiting.result()
         finally:
             if not waiting.done():
                 waiting.cancel()
         run.terminal = True
         status, result = response.status, response.result
-        if self._stop_landed():
-            return await self._rest()
         if status == GoalStatus.STATUS_SUCCEEDED and result.error_code == FollowJointTrajectory.Result.SUCCESSFUL:
-            settled = await self._settle(trajectory)
+            settled = await self._settle(run.epoch, trajectory)
             if settled.completed:
                 progress(1.0)
             return settled
@@ -495,25 +539,42 @@ class Ros2Backend(Backend):
         raise BackendError(f"the trajectory goal ended {STATUS_NAMES.get(status, status)} at {name} without a stop "
                            f"from here: {code}: {result.error_string}")
 
+    def _state_during(self, epoch: int, sent: str) -> JointState:
+        """Event loop: the fresh joint state during the execution decided under `epoch`; stale
+        joint states there are a fault, named as the watchdog names it (`_abort_on_fault`)."""
+        try:
+            return self.joint_states.fresh()
+        except BackendError:
+            self._abort_on_fault(epoch, sent)
+            raise
+
+    def _stopped(self, epoch: int, sent: str) -> bool:
+        """Event loop: whether the execution decided under `epoch` must end as stopped — a stop
+        landed, or the backend is closing (its stop does not bump the epoch). A fault found by
+        then, by the watchdog or by this look, raises instead (`_abort_on_fault`)."""
+        if not self.is_open:
+            return True
+        self._abort_on_fault(epoch, sent)
+        return self._stop_landed()
+
     async def _stopped_goal(self, run: _GoalRun, waiting: asyncio.Future[Any]) -> ExecutionResult:
         """A stop cancelled the goal: wait (bounded) for its result, then for the arm to rest."""
         self._cancel_goal(run)  # the stop sent it already; this only covers a stop that found no run
-        if not self.is_open:
-            return await self._rest()
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(asyncio.shield(waiting), self.config.trajectory.goal_response_timeout_s)
-        run.terminal = run.terminal or waiting.done()
-        return await self._rest()
+        if self.is_open:
+            with contextlib.suppress(Exception):  # the result or its absence; a closing node fails it
+                await asyncio.wait_for(asyncio.shield(waiting), self.config.trajectory.goal_response_timeout_s)
+            run.terminal = run.terminal or waiting.done()
+        return await self._rest(run.epoch, CANCELLED)
 
-    async def _settle(self, trajectory: JointTrajectory) -> ExecutionResult:
+    async def _settle(self, epoch: int, trajectory: JointTrajectory) -> ExecutionResult:
         """The controller reports success: the joint states must show the goal (within
         `goal_accuracy_rad`) and rest, within `result_margin_s`."""
         goal = trajectory.goal
         deadline = time.monotonic() + self.config.trajectory.result_margin_s
         while True:
-            state = self.joint_states.fresh()
-            if self._stop_landed():
-                return await self._rest()
+            if self._stopped(epoch, ENDED):
+                return await self._rest(epoch, ENDED)
+            state = self._state_during(epoch, ENDED)
             error = float(np.max(np.abs(state.positions - goal)))
             if error <= self.goal_accuracy_rad and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
                 return ExecutionResult(True, "completed", state.positions.copy())
@@ -522,16 +583,19 @@ class Ros2Backend(Backend):
                                        f"goal after {self.config.trajectory.result_margin_s:g} s", state.positions.copy())
             await anyio.sleep(POLL_S)
 
-    async def _rest(self, after: float = 0.0, reason: str = "stopped") -> ExecutionResult:
+    async def _rest(self, epoch: int, sent: str, after: float = 0.0, reason: str = "stopped") -> ExecutionResult:
         """Wait (bounded) until a joint state received after `after` (monotonic [s]) shows the
-        joints at rest; where they rest is the result."""
+        joints at rest; where they rest is the result. A fault meanwhile aborts the execution
+        decided under `epoch` (`sent`: what stopped the arm, for the message)."""
         deadline = time.monotonic() + REST_TIMEOUT_S
         while True:
             if not self.is_open:  # closed under the execution: the stop was sent; report where it was
                 latest = self.joint_states.latest()
                 if latest is not None:
                     return ExecutionResult(False, reason, latest.positions.copy())
-            state = self.joint_states.fresh()
+            else:
+                self._abort_on_fault(epoch, sent)
+            state = self._state_during(epoch, sent)
             resting = state.stamp >= after and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s
             if resting or time.monotonic() > deadline:
                 return ExecutionResult(False, reason, state.positions.copy())
@@ -557,18 +621,13 @@ class Ros2Backend(Backend):
             reported = 0.0
             while True:
                 await anyio.sleep(POLL_S)
-                if self._stop_landed() or not self.is_open:
+                if self._stopped(run.epoch, HELD):
                     self._hold(run)  # the stop sent it already; this covers a close, which does not bump the epoch
                     held_at = run.held_at if run.held_at is not None else time.monotonic()
-                    return await self._rest(held_at + self.config.trajectory.hold_time_s)
-                problem = self._health_problem()
-                if problem is not None:
-                    self._hold(run)
-                    self._report_fault(f"ros2 backend fault: {problem}")
-                    raise BackendError(f"execution aborted: {problem}; a hold was sent")
+                    return await self._rest(run.epoch, HELD, held_at + self.config.trajectory.hold_time_s)
                 elapsed = time.monotonic() - run.sent_at
                 if elapsed >= trajectory.duration_s:
-                    state = self.joint_states.fresh()
+                    state = self._state_during(run.epoch, HELD)
                     at_goal = float(np.max(np.abs(state.positions - trajectory.goal))) <= self.goal_accuracy_rad
                     if at_goal and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
                         progress(1.0)

@@ -30,7 +30,8 @@ class JointStatesConfig(BaseModel):
     max_age_s: float = Field(default=0.5, gt=0, le=5,
                              description="Older than this [s] (receipt time, monotonic clock): the state is refused.")
     startup_timeout_s: float = Field(default=10.0, gt=0, le=120,
-                                     description="How long `open` waits for the first complete joint state [s].")
+                                     description="How long `open` waits for the first complete joint state "
+                                                 "(and finger state and wrench, when configured) [s].")
 
 
 class WrenchConfig(BaseModel):

@@ -146,6 +146,12 @@ class WrenchCache:
             self._header_s = header_s
             self._wrench = Wrench(_frozen(force), _frozen(torque), now)
 
+    @property
+    def received(self) -> bool:
+        """Whether a wrench has arrived yet."""
+        with self._lock:
+            return self._wrench is not None
+
     def fresh(self) -> Wrench:
         """The latest wrench, or `BackendError` naming its age (or that none came)."""
         with self._lock:

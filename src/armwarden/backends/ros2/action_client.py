@@ -1,0 +1,45 @@
+"""rclpy's action client, safe to use from one thread while an executor spins on others.
+
+rclpy's `ActionClient` (7.1, Jazzy) sends a goal, cancel or result request and only then records
+the future that waits for its answer. With the executor on other threads, the answer can be taken
+and handled in between: it is dropped ("Ignoring unexpected goal response", ros2/rclpy#1123) and
+the future never completes — a goal that "did not answer", a result that never comes. It happened
+here on a loaded machine. This client sends under a lock and handles an answer only once that lock
+is free, so the request an answer belongs to is always recorded first. The lock is never held
+while futures complete (their callbacks take the backend's motion lock and may send a cancel).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import rclpy.action.client
+
+
+class ActionClient(rclpy.action.client.ActionClient):
+    """`rclpy.action.client.ActionClient` without the lost-answer race (see the module docstring)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._sending = threading.Lock()  # held from sending a request until its future is recorded
+
+    def send_goal_async(self, goal: Any, feedback_callback: Any = None, goal_uuid: Any = None) -> Any:
+        with self._sending:
+            return super().send_goal_async(goal, feedback_callback, goal_uuid)
+
+    def _cancel_goal_async(self, goal_handle: Any) -> Any:
+        with self._sending:
+            return super()._cancel_goal_async(goal_handle)
+
+    def _get_result_async(self, goal_handle: Any) -> Any:
+        with self._sending:
+            return super()._get_result_async(goal_handle)
+
+    async def execute(self, taken_data: Any) -> None:
+        with self._sending:  # a request being sent right now is recorded once this is free
+            pass
+        await super().execute(taken_data)
+
+
+__all__ = ["ActionClient"]
