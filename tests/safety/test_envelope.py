@@ -296,20 +296,33 @@ def test_check_path_of_one_configuration_is_its_static_check(envelope: Envelope)
     assert Code.SELF_COLLISION in {v.code for v in envelope.check_path(folded)}
 
 
-def first_only_disagreement(seed: int, envelope: Envelope) -> tuple[bool, bool]:
-    """A random joint segment and a random zone near its middle: (full verdict, first_only verdict)."""
+def random_segment_near_a_zone(seed: int, envelope: Envelope) -> tuple[Envelope, np.ndarray]:
+    """A random joint segment and a random keep-out zone near its middle."""
     rng = np.random.default_rng(seed)
     q0 = np.clip(READY + rng.uniform(-0.7, 0.7, 7), envelope.robot.lower, envelope.robot.upper)
     q1 = np.clip(q0 + rng.uniform(-0.6, 0.6, 7), envelope.robot.lower, envelope.robot.upper)
     middle = envelope.robot.tcp_pose((q0 + q1) / 2).position + rng.uniform(-0.15, 0.15, 3)
     half = rng.uniform(0.01, 0.08, 3)
-    checked = _with_zones(envelope, Box.of("random", middle - half, middle + half))
-    path = np.vstack([q0, q1])
-    return (any(v.is_hard for v in checked.check_path(path)), any(v.is_hard for v in checked.check_path(path, first_only=True)))
+    return _with_zones(envelope, Box.of("random", middle - half, middle + half)), np.vstack([q0, q1])
 
 
-@settings(max_examples=150, deadline=None)
+# `first_only` (what the detour search asks) and the full check are each a conservative proof, with
+# different over-approximations: a near miss can be a hit for one and clear for the other (seed 1251:
+# first_only says hit, the full check and the dense oracle say clear). What the search relies on is
+# that "clear" is never wrong; every plan it proposes is then checked in full anyway.
+@settings(max_examples=25, deadline=None)
 @given(seed=SEEDS)
-def test_check_path_first_only_gives_the_same_verdict_as_the_full_check(seed: int, envelope: Envelope) -> None:
-    full, first_only = first_only_disagreement(seed, envelope)
-    assert full == first_only
+def test_check_path_first_only_never_calls_a_blocked_segment_clear(seed: int, envelope: Envelope) -> None:
+    checked, path = random_segment_near_a_zone(seed, envelope)
+    if any(v.is_hard for v in checked.check_path(path, first_only=True)):
+        return  # a hit, right or conservative: the search avoids the segment
+    zoned = DenseOracle(checked.robot, checked.limits)
+    assert zoned.violations(JointTrajectory(checked.robot.joint_names, [0.0, 1.0], path)) == []
+
+
+def test_check_path_first_only_may_be_more_conservative_than_the_full_check(envelope: Envelope) -> None:
+    checked, path = random_segment_near_a_zone(1251, envelope)
+    assert [v.code for v in checked.check_path(path, first_only=True) if v.is_hard] == [Code.KEEP_OUT]
+    assert [v for v in checked.check_path(path) if v.is_hard] == []
+    zoned = DenseOracle(checked.robot, checked.limits)
+    assert zoned.violations(JointTrajectory(checked.robot.joint_names, [0.0, 1.0], path)) == []
