@@ -661,7 +661,11 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     with Cell(config, hard_death=True):
         print(f"fake FR3 cell ready: ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}", flush=True)
-        stop.wait()
+        # a timed wait: the kernel may deliver SIGTERM to one of rclpy's or DDS's threads, and then
+        # Python runs the handler only when the main thread next executes bytecode; an untimed wait
+        # would never wake for it
+        while not stop.wait(0.1):
+            pass
     return 0
 
 
