@@ -73,6 +73,9 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "_bench"))  # the sections' helpers
+
+from bench_common import approve_all, median_p95, timed_calls
 
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.preflight import load_runtime_model
@@ -193,6 +196,8 @@ def _bench_policy_file(directory: Path) -> Path:
 
 #: calls per block when series are interleaved (the first few calls of each block are dropped)
 BLOCK = 30
+#: the first calls of each block, which warm caches up and are not counted
+WARM_CALLS = 5
 
 
 async def _wait_healthy(port: int, daemon: Any, *, attempts: int = 400, stderr_path: Path | None = None) -> None:
@@ -212,22 +217,6 @@ async def _wait_healthy(port: int, daemon: Any, *, attempts: int = 400, stderr_p
             await anyio.sleep(0.05)
     tail = f": {stderr_path.read_text()[-2000:]}" if stderr_path is not None else ""  # noqa: ASYNC240 - once, on failure
     raise RuntimeError(f"the daemon did not become ready{tail}")
-
-
-def _summary(values_s: list[float]) -> dict[str, float]:
-    ms = [v * 1e3 for v in values_s]
-    return {"median_ms": statistics.median(ms), "p95_ms": _percentile(ms, 95), "n": len(ms)}
-
-
-async def _timed_calls(client, tool: str, args_for: Callable[[int], dict], repeats: int) -> list[float]:
-    out = []
-    for i in range(repeats):
-        start = time.perf_counter()
-        result = await client.call_tool(tool, args_for(i))
-        out.append(time.perf_counter() - start)
-        if result.is_error:
-            raise RuntimeError(f"{tool} failed in the benchmark: {result.content[0].text}")
-    return out[5:] if len(out) > 10 else out  # the first few calls warm caches up
 
 
 def bench_server(repeats: int = 400) -> dict[str, Any]:
@@ -265,17 +254,17 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
                 async with Client(assembly.server.mcp) as armwarden, Client(trivial_server.build()) as floor:
                     for _ in range(rounds):
                         assembly.guard.audit = audit
-                        series["audited"] += await _timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK)
+                        series["audited"] += await timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK, warm=WARM_CALLS)
                         assembly.guard.audit = None  # the same call with the audit record left out
-                        series["unaudited"] += await _timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK)
-                        series["shape"] += await _timed_calls(floor, "robot_state_shape", lambda i: {}, BLOCK)
-                        series["trivial"] += await _timed_calls(floor, "trivial", lambda i: {}, BLOCK)
+                        series["unaudited"] += await timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK, warm=WARM_CALLS)
+                        series["shape"] += await timed_calls(floor, "robot_state_shape", lambda i: {}, BLOCK, warm=WARM_CALLS)
+                        series["trivial"] += await timed_calls(floor, "trivial", lambda i: {}, BLOCK, warm=WARM_CALLS)
                     assembly.guard.audit = audit
-                    out = {name: _summary(values) for name, values in series.items()}
-                    out["plan_to_pose"] = _summary(await _timed_calls(
-                        armwarden, "plan_to_pose", lambda i: pose(i) | {"preview": False}, repeats))
-                    out["plan_to_pose_with_preview"] = _summary(await _timed_calls(
-                        armwarden, "plan_to_pose", pose, max(20, repeats // 10)))
+                    out = {name: median_p95(values) for name, values in series.items()}
+                    out["plan_to_pose"] = median_p95(await timed_calls(
+                        armwarden, "plan_to_pose", lambda i: pose(i) | {"preview": False}, repeats, warm=WARM_CALLS))
+                    out["plan_to_pose_with_preview"] = median_p95(await timed_calls(
+                        armwarden, "plan_to_pose", pose, max(20, repeats // 10), warm=WARM_CALLS))
             finally:
                 assembly.guard.audit = audit
                 await close_assembly(assembly, "benchmark done")
@@ -301,10 +290,10 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
             series: dict[str, list[float]] = {"armwarden": [], "shape": [], "trivial": []}
             async with Client(armwarden_params) as armwarden, Client(floor_params) as floor:
                 for _ in range(rounds):
-                    series["armwarden"] += await _timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK)
-                    series["shape"] += await _timed_calls(floor, "robot_state_shape", lambda i: {}, BLOCK)
-                    series["trivial"] += await _timed_calls(floor, "trivial", lambda i: {}, BLOCK)
-            return {name: _summary(values) for name, values in series.items()}
+                    series["armwarden"] += await timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK, warm=WARM_CALLS)
+                    series["shape"] += await timed_calls(floor, "robot_state_shape", lambda i: {}, BLOCK, warm=WARM_CALLS)
+                    series["trivial"] += await timed_calls(floor, "trivial", lambda i: {}, BLOCK, warm=WARM_CALLS)
+            return {name: median_p95(values) for name, values in series.items()}
 
         stdio = anyio.run(over_stdio)
         results["get_robot_state_stdio"] = stdio["armwarden"]
@@ -363,7 +352,6 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
 
     import anyio
     import httpx2
-    import mcp_types as types
     from mcp import Client
     from mcp.client.streamable_http import streamable_http_client
 
@@ -388,9 +376,6 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
         url = f"http://127.0.0.1:{port}/mcp"
         load_calls = 0
 
-        async def approve(context, params):
-            return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
-
         def client(**kwargs):
             http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {token}"}, timeout=30)
             return http, Client(streamable_http_client(url, http_client=http), **kwargs)
@@ -414,7 +399,7 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
             async with anyio.create_task_group() as group:
                 for _ in range(load_clients):
                     group.start_soon(load)
-                http, c = client(elicitation_callback=approve)
+                http, c = client(elicitation_callback=approve_all)
                 async with http, c as session:
                     home = (await session.call_tool("get_robot_state", {})).structured_content["joint_positions"]
                     for cycle in range(cycles):
@@ -444,7 +429,7 @@ def bench_estop(cycles: int = 60, load_clients: int = 8) -> dict[str, Any]:
     still = [t["still_after_receipt"] / 1e3 for t in timings if "still_after_receipt" in t]
     confirmed = [t["confirmed_after_receipt"] / 1e3 for t in timings]
     return {"estops": len(timings), "load_clients": load_clients, "load_calls": load_calls,
-            "issued": _summary(issued), "still": _summary(still), "confirmed": _summary(confirmed)}
+            "issued": median_p95(issued), "still": median_p95(still), "confirmed": median_p95(confirmed)}
 
 
 def _report_estop(r: dict[str, Any]) -> None:
@@ -504,7 +489,6 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
 
     import anyio
     import httpx2
-    import mcp_types as types
     import yaml
     from mcp import Client
     from mcp.client.streamable_http import streamable_http_client
@@ -563,9 +547,6 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
         url, estop_url = f"http://127.0.0.1:{port}/mcp", f"http://127.0.0.1:{estop_port}/estop"
         flood_script = str(Path(__file__).resolve().parent / "_bench" / "flood.py")
         flood: subprocess.Popen[str] | None = None
-
-        async def approve(context, params):
-            return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
 
         async def wait_ready() -> None:
             await _wait_healthy(port, daemon, stderr_path=stderr_path)
@@ -693,7 +674,7 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
                 daemon.send_signal(signal.SIGUSR2)
                 await anyio.sleep(1.0)
             http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {token}"}, timeout=30)
-            async with http, Client(streamable_http_client(url, http_client=http), elicitation_callback=approve) as session:
+            async with http, Client(streamable_http_client(url, http_client=http), elicitation_callback=approve_all) as session:
                 home = (await session.call_tool("get_robot_state", {})).structured_content["joint_positions"]
                 await cycles(session, "quiet", time.monotonic() + 60, QUIET_CYCLES, 0.1)
                 flood = subprocess.Popen(  # noqa: ASYNC220 - once, before anything is timed

@@ -33,7 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench_stats import percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+from bench_common import approve_all, bench_policy, percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "can_sim.yaml"
 RATES_HZ = (500, 1000)
@@ -118,21 +118,6 @@ def _config_file(directory: Path, rate_hz: int, realtime_priority: int | None) -
     path = directory / f"can-{rate_hz}-{uuid.uuid4().hex[:8]}.yaml"
     path.write_text(yaml.safe_dump(document))
     return path
-
-
-def _bench_policy() -> Any:
-    import yaml
-
-    from armwarden.policy import apply_overrides, bundled_policy, parse_policy
-
-    document = yaml.safe_load(bundled_policy("fr3").read_text())
-    # the benchmark calls far faster than an agent would: above the bundled rate limits; no wrench on CAN
-    return parse_policy(apply_overrides(document, {
-        "rate_limits.global_per_minute": 100000, "rate_limits.default_per_minute": 100000,
-        "rate_limits.per_tool.plan_to_pose": 100000, "rate_limits.per_tool.execute_plan": 100000,
-        "rate_limits.per_tool.plan_to_joints": 100000, "rate_limits.per_tool.reset_estop": 100000,
-        "force.require_wrench": False,
-    }), source="bench")
 
 
 async def _keep_busy(client: Any, running: Callable[[], bool], calls: dict[str, int]) -> None:
@@ -272,7 +257,6 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
 
     import anyio
     import anyio.to_thread
-    import mcp_types as types
     from mcp import Client
 
     from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
@@ -282,11 +266,8 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     logging.getLogger("armwarden.backends.can").setLevel(logging.ERROR)  # one "holding again" per e-stop cycle
-    policy = _bench_policy()
+    policy = bench_policy(**{"force.require_wrench": False})  # no wrench on CAN
     compare = min(seconds, 20.0) if compare_seconds is None else compare_seconds
-
-    async def approve(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
-        return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
 
     async def loaded(cell: Any, run: Callable[[], Any]) -> dict[str, int]:
         """Run `run()` (awaitable) while an SDK client keeps `cell`'s server busy; the calls made."""
@@ -356,7 +337,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
             backend._emergency_stop_now = stamped
             paths: dict[str, dict[str, list[float]]] = {p: {"bus": [], "ours": []} for p in ("tool", "channel")}
             missed = 0
-            async with Client(cell.server.mcp, elicitation_callback=approve) as operator:
+            async with Client(cell.server.mcp, elicitation_callback=approve_all) as operator:
                 async def measure() -> None:
                     nonlocal missed
                     servo.timing.reset()

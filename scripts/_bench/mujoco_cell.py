@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_stats import percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+from bench_common import approve_all, bench_policy, percentiles, timed_ms  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 #: joint speed below which the arm counts as still [rad/s] (the issue's bar)
 STILL_RAD_S = 1e-3
@@ -85,36 +85,15 @@ def braking_floor_s(backend: Any) -> float:
 
 def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
     import anyio
-    import mcp_types as types
     from mcp import Client
 
     from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
-    from armwarden.policy import apply_overrides, bundled_policy, parse_policy
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    import yaml
-
-    document = yaml.safe_load(bundled_policy("fr3").read_text())
-    # the benchmark calls far faster than an agent would: above the bundled rate limits
-    policy = parse_policy(apply_overrides(document, {
-        "rate_limits.global_per_minute": 100000, "rate_limits.default_per_minute": 100000,
-        "rate_limits.per_tool.plan_to_pose": 100000, "rate_limits.per_tool.execute_plan": 100000,
-        "rate_limits.per_tool.plan_to_joints": 100000, "rate_limits.per_tool.camera_snapshot": 100000,
-        "rate_limits.per_tool.reset_estop": 100000,
-    }), source="bench")
-
-    async def approve(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
-        return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
+    policy = bench_policy()
 
     def pose(i: int) -> dict[str, Any]:
         return {"position": {"x": 0.40 + 0.02 * (i % 2), "y": 0.05, "z": 0.35}, "preview": False}
-
-    async def timed(client: Any, tool: str, arguments: dict[str, Any]) -> float:
-        start = time.perf_counter()
-        result = await client.call_tool(tool, arguments)
-        elapsed = (time.perf_counter() - start) * 1e3
-        assert not result.is_error, result.content
-        return elapsed
 
     async def run(directory: Path) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -124,7 +103,7 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
         backend: Any = cell.backend  # a MujocoBackend: its published sample and step counters are read
         watch = StillWatch(backend)
         try:
-            async with Client(fake.server.mcp) as on_fake, Client(cell.server.mcp, elicitation_callback=approve) as on_cell, \
+            async with Client(fake.server.mcp) as on_fake, Client(cell.server.mcp, elicitation_callback=approve_all) as on_cell, \
                     Client(cell.server.mcp) as load_client:
                 # ---- calls on both backends, interleaved in blocks
                 series: dict[str, list[float]] = {"state_fake": [], "state_mujoco": [], "plan_fake": [], "plan_mujoco": []}
@@ -132,11 +111,11 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                 dropped_start = backend.dropped_steps
                 for block in range(max(1, repeats // BLOCK)):
                     for _ in range(BLOCK):
-                        series["state_fake"].append(await timed(on_fake, "get_robot_state", {}))
-                        series["state_mujoco"].append(await timed(on_cell, "get_robot_state", {}))
+                        series["state_fake"].append(await timed_ms(on_fake, "get_robot_state", {}))
+                        series["state_mujoco"].append(await timed_ms(on_cell, "get_robot_state", {}))
                     for i in range(BLOCK // 4):
-                        series["plan_fake"].append(await timed(on_fake, "plan_to_pose", pose(block + i)))
-                        series["plan_mujoco"].append(await timed(on_cell, "plan_to_pose", pose(block + i)))
+                        series["plan_fake"].append(await timed_ms(on_fake, "plan_to_pose", pose(block + i)))
+                        series["plan_mujoco"].append(await timed_ms(on_cell, "plan_to_pose", pose(block + i)))
                 wall = time.perf_counter() - wall_start
                 out["calls"] = {name: percentiles(values) for name, values in series.items()}
                 out["rtf_while_serving"] = (backend._measured.sim_s - sim_start) / wall
@@ -150,7 +129,7 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                     await backend.camera_snapshot("scene")
                     renders.append((time.perf_counter() - start) * 1e3)
                 out["render_backend_ms"] = percentiles(renders)
-                out["render_tool_ms"] = percentiles([await timed(on_cell, "camera_snapshot", {"camera": "scene"})
+                out["render_tool_ms"] = percentiles([await timed_ms(on_cell, "camera_snapshot", {"camera": "scene"})
                                                      for _ in range(10)])
 
                 # ---- e-stops mid-motion while a client keeps the server busy

@@ -20,7 +20,6 @@ import json
 import os
 import signal
 import socket
-import statistics
 import subprocess
 import sys
 import time
@@ -30,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_common import approve_all, median_p95, timed_calls  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 HERE = Path(__file__).resolve().parent
 SRC = HERE.parents[1] / "src"
@@ -58,28 +58,6 @@ TRANSPORTS = ("memory", "stdio", "http 2025-11-25", "http 2026-07-28", STRICT_AU
 TARGETS_MS = {"memory": 0.15, "stdio": 0.15, "http 2025-11-25": 0.5, "http 2026-07-28": 0.5}
 RENDER_P95_TARGET_MS = 3.0
 PREVIEW_RATIO_TARGET = 1.3
-
-
-def _summary(values_s: list[float]) -> dict[str, float]:
-    ms = sorted(v * 1e3 for v in values_s)
-    return {"median_ms": statistics.median(ms), "p95_ms": float(np.percentile(ms, 95)), "n": len(ms)}
-
-
-async def _block(client: Any, tool: str, args_for: Callable[[int], dict[str, Any]]) -> list[float]:
-    out = []
-    for i in range(BLOCK):
-        start = time.perf_counter()
-        result = await client.call_tool(tool, args_for(i))
-        out.append(time.perf_counter() - start)
-        if result.is_error:
-            raise RuntimeError(f"{tool} failed in the benchmark: {result.content[0].text}")
-    return out[WARM:]
-
-
-async def _approve(context: Any, params: Any) -> Any:
-    import mcp_types as types
-
-    return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
 
 
 def _free_port() -> int:
@@ -134,7 +112,7 @@ async def _rounds(armwarden: Any, floor: Any, rounds: int) -> dict[str, dict[str
             if r % 2:
                 pair.reverse()  # neither server always goes first
             for client, name, arguments, who in pair:
-                series[label][who] += await _block(client, name, arguments)
+                series[label][who] += await timed_calls(client, name, arguments, BLOCK, warm=WARM)
         reset = await armwarden.call_tool("reset_estop", {})
         if reset.is_error:
             raise RuntimeError(f"reset_estop failed in the benchmark: {reset.content[0].text}")
@@ -156,7 +134,7 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
             assembly = await open_assembly(*assemble(load_policy(policy_path), "fake", None,
                                                      str(directory / "memory-audit.jsonl")))
             stack.push_async_callback(close_assembly, assembly, "benchmark done")
-            armwarden = await stack.enter_async_context(Client(assembly.server.mcp, elicitation_callback=_approve))
+            armwarden = await stack.enter_async_context(Client(assembly.server.mcp, elicitation_callback=approve_all))
             floor = await stack.enter_async_context(Client(trivial_server.build(shapes)))
             yield armwarden, floor
             return
@@ -167,7 +145,7 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
                 command=sys.executable, env={"PYTHONPATH": str(SRC)},
                 args=["-m", "armwarden.cli", "serve", "--policy", str(policy_path),
                       "--audit-log", str(directory / "stdio-audit.jsonl"), "--log-level", "WARNING"],
-            ), elicitation_callback=_approve))
+            ), elicitation_callback=approve_all))
             floor = await stack.enter_async_context(Client(StdioServerParameters(
                 command=floor_args[0], args=floor_args[1:], env={"PYTHONPATH": str(SRC)})))
             yield armwarden, floor
@@ -200,7 +178,7 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
         floor_http = await stack.enter_async_context(httpx2.AsyncClient(timeout=60))
         armwarden = await stack.enter_async_context(Client(
             streamable_http_client(f"http://127.0.0.1:{aw_port}/mcp", http_client=aw_http),
-            mode=mode, elicitation_callback=_approve))
+            mode=mode, elicitation_callback=approve_all))
         floor = await stack.enter_async_context(Client(
             streamable_http_client(f"http://127.0.0.1:{floor_port}/mcp", http_client=floor_http), mode=mode))
         yield armwarden, floor
@@ -227,7 +205,7 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
         png = preview(runtime, trajectory, report)
         times.append(time.perf_counter() - start)
     assert png is not None
-    out = _summary(times[10:])
+    out = median_p95(times[10:])
     out["png_bytes"] = len(png)
     return out
 
@@ -249,14 +227,14 @@ def bench_own_share(policy_path: Path, directory: Path, rounds: int = 6) -> dict
                     shapes = await _capture_shapes(armwarden)
                 shapes_path.write_text(json.dumps(shapes))
             async with _clients(transport, directory, policy_path, shapes_path, shapes) as (armwarden, floor):
-                await _block(armwarden, "get_robot_state", lambda i: {})  # warm both up
-                await _block(floor, "robot_state_shape", lambda i: {})
+                await timed_calls(armwarden, "get_robot_state", lambda i: {}, BLOCK, warm=WARM)  # warm both up
+                await timed_calls(floor, "robot_state_shape", lambda i: {}, BLOCK, warm=WARM)
                 return await _rounds(armwarden, floor, rounds)
 
         series = anyio.run(run)
         figures = {}
         for label, pair in series.items():
-            aw, fl = _summary(pair["armwarden"]), _summary(pair["floor"])
+            aw, fl = median_p95(pair["armwarden"]), median_p95(pair["floor"])
             figures[label] = {"armwarden": aw, "floor": fl, "own_ms": aw["median_ms"] - fl["median_ms"],
                               "own_p95_ms": aw["p95_ms"] - fl["p95_ms"]}
         results["transports"][transport] = figures

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_stats import percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+from bench_common import approve_all, bench_policy, percentiles, timed_ms  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "ros2_fr3.yaml"
@@ -149,33 +149,13 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
     _local_dds()
     sys.path.insert(0, str(ROOT))  # tests_ros.cell
     import anyio
-    import mcp_types as types
     from mcp import Client
     from tests_ros.cell import Cell
 
     from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
-    from armwarden.policy import apply_overrides, bundled_policy, parse_policy
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    import yaml
-
-    document = yaml.safe_load(bundled_policy("fr3").read_text())
-    # the benchmark calls far faster than an agent would: above the bundled rate limits
-    policy = parse_policy(apply_overrides(document, {
-        "rate_limits.global_per_minute": 100000, "rate_limits.default_per_minute": 100000,
-        "rate_limits.per_tool.plan_to_joints": 100000, "rate_limits.per_tool.execute_plan": 100000,
-        "rate_limits.per_tool.reset_estop": 100000,
-    }), source="bench")
-
-    async def approve(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
-        return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
-
-    async def timed(client: Any, tool: str, arguments: dict[str, Any]) -> float:
-        start = time.perf_counter()
-        result = await client.call_tool(tool, arguments)
-        elapsed = (time.perf_counter() - start) * 1e3
-        assert not result.is_error, result.content
-        return elapsed
+    policy = bench_policy()
 
     times = ActionTimes()
     times.install()
@@ -188,13 +168,13 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
             freeze_long_lived_objects()
             watch = StillWatch(cell)
             try:
-                async with Client(fake.server.mcp) as on_fake, Client(ros.server.mcp, elicitation_callback=approve) as on_ros:
+                async with Client(fake.server.mcp) as on_fake, Client(ros.server.mcp, elicitation_callback=approve_all) as on_ros:
                     # ---- get_robot_state on both backends, interleaved in blocks
                     series: dict[str, list[float]] = {"state_fake": [], "state_ros2": []}
                     for _ in range(max(1, state_calls // BLOCK)):
                         for _ in range(BLOCK):
-                            series["state_fake"].append(await timed(on_fake, "get_robot_state", {}))
-                            series["state_ros2"].append(await timed(on_ros, "get_robot_state", {}))
+                            series["state_fake"].append(await timed_ms(on_fake, "get_robot_state", {}))
+                            series["state_ros2"].append(await timed_ms(on_ros, "get_robot_state", {}))
                     out["state_ms"] = {name: _percentiles(values) for name, values in series.items()}
 
                     # ---- execute, e-stop mid-motion, reset
