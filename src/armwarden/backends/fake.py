@@ -49,6 +49,9 @@ from armwarden.backends.base import (
     JointState,
     ProgressCallback,
     Wrench,
+    check_grasp_margins,
+    check_gripper_width_speed,
+    grasp_outcome,
 )
 from armwarden.backends.fake_camera import (
     CAMERA_HEIGHT_PX,
@@ -337,7 +340,7 @@ class FakeBackend(Backend, ServoHooks):
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
         self.actuation_commands += 1
-        self._check_gripper_args(width_m, speed_mps)
+        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
         width, stopped = await self._run_gripper(width_m, speed_mps)
         if stopped:
             return GripperResult(False, width, False, "stopped")
@@ -347,10 +350,8 @@ class FakeBackend(Backend, ServoHooks):
         self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
     ) -> GripperResult:
         self.actuation_commands += 1
-        self._check_gripper_args(width_m, speed_mps)
-        for name, value in (("force_n", force_n), ("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
-            if not (math.isfinite(value) and value >= 0):
-                raise BackendError(f"gripper grasp: {name} must be finite and ≥ 0, got {value}")
+        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
+        check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
         self.last_grasp_force_n = float(force_n)
         object_width = width_m if self.object_width_m is None else float(self.object_width_m)
         # the fingers close until they touch the object, or fully if it is not between them
@@ -358,11 +359,9 @@ class FakeBackend(Backend, ServoHooks):
         width, stopped = await self._run_gripper(target, speed_mps)
         if stopped:
             return GripperResult(False, width, False, "stopped")
-        grasped = width_m - epsilon_inner_m <= width <= width_m + epsilon_outer_m
-        self._gripper_grasped = grasped
-        low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
-        detail = "" if grasped else f"final width {width:.4f} m outside [{low:.4f}, {high:.4f}] m"
-        return GripperResult(grasped, width, grasped, detail)
+        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
+        self._gripper_grasped = result.is_grasped
+        return result
 
     async def _gripper_home(self) -> GripperResult:
         self.actuation_commands += 1
@@ -370,12 +369,6 @@ class FakeBackend(Backend, ServoHooks):
         if stopped:
             return GripperResult(False, width, False, "stopped")
         return GripperResult(True, width, False, "")
-
-    def _check_gripper_args(self, width_m: float, speed_mps: float) -> None:
-        if not (math.isfinite(width_m) and 0.0 <= width_m <= self.gripper_max_width_m):
-            raise BackendError(f"gripper width {width_m} m outside [0, {self.gripper_max_width_m}] m")
-        if not (math.isfinite(speed_mps) and speed_mps > 0):
-            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
 
     async def _run_gripper(self, target_m: float, speed_mps: float) -> tuple[float, bool]:
         """Move the fingers to `target_m`; returns (final width, whether a stop interrupted it)."""

@@ -60,6 +60,8 @@ from armwarden.backends.base import (
     GripperState,
     JointState,
     ProgressCallback,
+    check_grasp_margins,
+    check_gripper_width_speed,
 )
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
@@ -520,10 +522,7 @@ class CanBackend(Backend, ServoHooks):
 
     def _check_gripper_width_speed(self, width_m: float, speed_mps: float) -> GripperConfig:
         g = self._gripper_config()
-        if not (np.isfinite(width_m) and 0.0 <= width_m <= g.max_width_m):
-            raise BackendError(f"gripper width {width_m} m outside [0, {g.max_width_m}] m")
-        if not (np.isfinite(speed_mps) and speed_mps > 0):
-            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
+        check_gripper_width_speed(width_m, speed_mps, g.max_width_m)
         return g
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
@@ -533,9 +532,7 @@ class CanBackend(Backend, ServoHooks):
     async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
                              epsilon_outer_m: float) -> GripperResult:
         g = self._check_gripper_width_speed(width_m, speed_mps)
-        for name, value in (("force_n", force_n), ("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
-            if not (np.isfinite(value) and value >= 0):
-                raise BackendError(f"gripper grasp: {name} must be finite and ≥ 0, got {value}")
+        check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
         torque = force_n * abs(g.width_per_rad_m)  # virtual work: F·dw = τ·dθ
         if torque > g.torque_limit_nm:
             raise BackendError(f"gripper grasp: {force_n} N needs {torque:.2f} N·m, above the gripper actuator's "

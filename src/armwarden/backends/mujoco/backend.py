@@ -63,6 +63,9 @@ from armwarden.backends.base import (
     JointState,
     ProgressCallback,
     Wrench,
+    check_grasp_margins,
+    check_gripper_width_speed,
+    grasp_outcome,
 )
 from armwarden.backends.mujoco.model import (
     GRAVITY_MPS2,
@@ -401,7 +404,7 @@ class MujocoBackend(Backend, ServoHooks):
         return GripperState(sample.gripper_width_m, self._gripper_grasped, moving, sample.stamp)
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        self._check_gripper_args(width_m, speed_mps)
+        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
         width, stopped = await self._run_fingers(width_m, speed_mps, self._grasp_force_limit_n, arrive=True)
         if stopped:
             return GripperResult(False, width, False, "stopped")
@@ -411,30 +414,20 @@ class MujocoBackend(Backend, ServoHooks):
 
     async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
                              epsilon_outer_m: float) -> GripperResult:
-        self._check_gripper_args(width_m, speed_mps)
-        for name, value in (("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
-            if not (np.isfinite(value) and value >= 0):
-                raise BackendError(f"gripper grasp: {name} must be finite and ≥ 0, got {value}")
+        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
+        check_grasp_margins(epsilon_inner_m, epsilon_outer_m)
         if not (np.isfinite(force_n) and 0 < force_n <= self._grasp_force_limit_n):
             raise BackendError(f"gripper grasp force {force_n} N outside (0, {self._grasp_force_limit_n}] N")
         # close fully with the force capped: the fingers stop where the object stops them
         width, stopped = await self._run_fingers(0.0, speed_mps, float(force_n), arrive=False)
         if stopped:
             return GripperResult(False, width, False, "stopped")
-        low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
-        grasped = low <= width <= high
-        self._gripper_grasped = grasped
-        detail = "" if grasped else f"final width {width:.4f} m outside [{low:.4f}, {high:.4f}] m"
-        return GripperResult(grasped, width, grasped, detail)
+        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
+        self._gripper_grasped = result.is_grasped
+        return result
 
     async def _gripper_home(self) -> GripperResult:
         return await self._gripper_move(self.gripper_max_width_m, GRIPPER_HOMING_SPEED_MPS)
-
-    def _check_gripper_args(self, width_m: float, speed_mps: float) -> None:
-        if not (np.isfinite(width_m) and 0.0 <= width_m <= self.gripper_max_width_m):
-            raise BackendError(f"gripper width {width_m} m outside [0, {self.gripper_max_width_m}] m")
-        if not (np.isfinite(speed_mps) and speed_mps > 0):
-            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
 
     async def _run_fingers(self, goal_m: float, speed_mps: float, force_n: float, *, arrive: bool) -> tuple[float, bool]:
         """Ramp the fingers to `goal_m`; wait until they arrived (`arrive`) or, the ramp done, stand

@@ -88,6 +88,9 @@ from armwarden.backends.base import (
     ProgressCallback,
     Transform,
     Wrench,
+    check_grasp_margins,
+    check_gripper_width_speed,
+    grasp_outcome,
 )
 from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import RosBridge
@@ -700,11 +703,7 @@ class Ros2Backend(Backend):
 
     def _check_gripper(self, width_m: float, speed_mps: float) -> None:
         assert self.config.gripper is not None
-        limit = self.config.gripper.max_width_m
-        if not (math.isfinite(width_m) and 0.0 <= width_m <= limit):
-            raise BackendError(f"gripper width {width_m} m outside [0, {limit}] m")
-        if not (math.isfinite(speed_mps) and speed_mps > 0):
-            raise BackendError(f"gripper speed must be finite and > 0, got {speed_mps} m/s")
+        check_gripper_width_speed(width_m, speed_mps, self.config.gripper.max_width_m)
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
         assert self.config.gripper is not None
@@ -720,20 +719,16 @@ class Ros2Backend(Backend):
         gripper = self.config.gripper
         assert gripper is not None
         self._check_gripper(width_m, speed_mps)
-        for label, value in (("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
-            if not (math.isfinite(value) and value >= 0):
-                raise BackendError(f"gripper grasp: {label} must be finite and ≥ 0, got {value}")
+        check_grasp_margins(epsilon_inner_m, epsilon_outer_m)
         if not (math.isfinite(force_n) and 0 < force_n <= gripper.max_effort_n):
             raise BackendError(f"gripper grasp force {force_n} N outside (0, {gripper.max_effort_n}] N")
         self._gripper_grasped = False
         width, stopped = await self._gripper_goal(width_m, force_n)
         if stopped:
             return GripperResult(False, width, False, "stopped")
-        low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
-        grasped = low <= width <= high
-        self._gripper_grasped = grasped
-        detail = "" if grasped else f"final width {width:.4f} m outside [{low:.4f}, {high:.4f}] m"
-        return GripperResult(grasped, width, grasped, detail)
+        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
+        self._gripper_grasped = result.is_grasped
+        return result
 
     async def _gripper_home(self) -> GripperResult:
         assert self.config.gripper is not None
