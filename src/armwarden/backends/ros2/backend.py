@@ -586,10 +586,12 @@ class Ros2Backend(Backend):
                                        f"goal after {self.config.trajectory.result_margin_s:g} s", state.positions.copy())
             await anyio.sleep(POLL_S)
 
-    async def _rest(self, epoch: int, sent: str, after: float = 0.0, reason: str = "stopped") -> ExecutionResult:
-        """Wait (bounded) until a joint state received after `after` (monotonic [s]) shows the
-        joints at rest; where they rest is the result. A fault meanwhile aborts the execution
-        decided under `epoch` (`sent`: what stopped the arm, for the message)."""
+    async def _rest(self, epoch: int, sent: str, after: float | None = None, reason: str = "stopped") -> ExecutionResult:
+        """Wait (bounded) until a joint state received after `after` (monotonic [s]; by default
+        now, when the stop has been sent: a sample from before it may show the arm still at its
+        start) shows the joints at rest; where they rest is the result. A fault meanwhile aborts
+        the execution decided under `epoch` (`sent`: what stopped the arm, for the message)."""
+        after = time.monotonic() if after is None else after
         deadline = time.monotonic() + REST_TIMEOUT_S
         while True:
             if not self.is_open:  # closed under the execution: the stop was sent; report where it was
