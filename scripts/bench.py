@@ -75,7 +75,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent / "_bench"))  # the sections' helpers
 
-from bench_common import approve_all, median_p95, timed_calls
+from bench_common import approve_all, median_p95, stop_process, timed_calls
 
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.preflight import load_runtime_model
@@ -704,13 +704,8 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
                 flood.wait(timeout=window_s + 60)
         finally:
             for process in (flood, daemon):
-                if process is not None and process.poll() is None:
-                    process.send_signal(signal.SIGTERM)
-                    try:
-                        process.wait(timeout=30)
-                    except subprocess.TimeoutExpired:
-                        process.kill()
-                        process.wait()
+                if process is not None:
+                    stop_process(process, 30)
             if nice:
                 os.nice(-nice)  # back to where this thread was (raising niceness needs no privilege)
         load = json.loads(flood_out.read_text()) if flood_out.exists() else {}

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -26,7 +25,7 @@ import anyio
 import pytest
 import yaml
 from mcp import Client, StdioServerParameters
-from tests.helpers import HOME, REPO, SRC, records_of, text_of
+from tests.helpers import HOME, REPO, SRC, records_of, stop_process, text_of
 from tests.server.harness import MotionStarted, approve
 from tests.server.http_daemon import http_daemon, session
 
@@ -67,13 +66,7 @@ def cell_process() -> Iterator[subprocess.Popen[str]]:
     assert process.stdout is not None
     assert "fake FR3 cell ready" in process.stdout.readline()
     yield process
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+    stop_process(process, 15)
 
 
 @pytest.fixture

@@ -23,8 +23,10 @@ from rclpy.action.server import ActionServer
 from rclpy.signals import SignalHandlerOptions
 from tests.backends.contract import straight_line
 
+from armwarden.backends.base import ExecutionResult
 from armwarden.backends.ros2.backend import Ros2Backend
 from armwarden.errors import BackendError
+from armwarden.planning.trajectory import JointTrajectory
 from tests_ros.backend_setup import example_config, opened
 from tests_ros.cell import Cell, CellConfig, GoalMode
 
@@ -50,6 +52,14 @@ async def wait_for(predicate, what: str, timeout_s: float = 10.0) -> None:
 async def motion(backend: Ros2Backend, duration_s: float, reach_rad: float = 0.3):
     q = (await backend.read_joint_state()).positions.copy()
     return straight_line(backend.joint_names, q, q + reach_rad, duration_s)
+
+
+async def start_moving(backend: Ros2Backend, cell: Cell, trajectory: JointTrajectory) -> asyncio.Task[ExecutionResult]:
+    """`execute(trajectory)` as a task, returned once the cell has moved 0.02 rad."""
+    task = asyncio.create_task(backend.execute(trajectory))
+    start = cell.positions()
+    await wait_for(lambda: cell.positions()[0] > start[0] + 0.02, "the cell moving")
+    return task
 
 
 async def assert_refused(read: Callable[[], Awaitable[object]], pattern: str, timeout_s: float = 10.0) -> None:
@@ -201,9 +211,7 @@ async def test_feedback_drives_progress_to_completion(cell: Cell) -> None:
 # ---------------------------------------------------------------------------- stops
 async def test_stop_mid_motion_cancels_the_goal_and_the_cell_stops(cell: Cell) -> None:
     async with opened() as backend:
-        task = asyncio.create_task(backend.execute(await motion(backend, 4.0)))
-        start = cell.positions()
-        await wait_for(lambda: cell.positions()[0] > start[0] + 0.02, "the cell moving")
+        task = await start_moving(backend, cell, await motion(backend, 4.0))
         await backend.stop()
         result = await task
         held = assert_cell_still(cell)
@@ -214,9 +222,7 @@ async def test_stop_mid_motion_cancels_the_goal_and_the_cell_stops(cell: Cell) -
 
 async def test_emergency_stop_now_from_another_thread_sends_the_cancel_and_records_when(cell: Cell) -> None:
     async with opened() as backend:
-        task = asyncio.create_task(backend.execute(await motion(backend, 4.0)))
-        start = cell.positions()
-        await wait_for(lambda: cell.positions()[0] > start[0] + 0.02, "the cell moving")
+        task = await start_moving(backend, cell, await motion(backend, 4.0))
         before = time.monotonic()
         thread = threading.Thread(target=backend.emergency_stop_now)
         thread.start()
@@ -231,9 +237,7 @@ async def test_emergency_stop_now_from_another_thread_sends_the_cancel_and_recor
 
 async def test_cancelling_the_execute_task_cancels_the_goal(cell: Cell) -> None:
     async with opened() as backend:
-        task = asyncio.create_task(backend.execute(await motion(backend, 4.0)))
-        start = cell.positions()
-        await wait_for(lambda: cell.positions()[0] > start[0] + 0.02, "the cell moving")
+        task = await start_moving(backend, cell, await motion(backend, 4.0))
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
@@ -245,9 +249,7 @@ async def test_the_topic_fallback_publishes_the_waypoints_and_a_stop_publishes_a
     config = example_config(trajectory={"action": None, "topic": "/fr3_arm_controller/joint_trajectory"})
     async with opened(config) as backend:
         trajectory = await motion(backend, 4.0)
-        task = asyncio.create_task(backend.execute(trajectory))
-        start = cell.positions()
-        await wait_for(lambda: cell.positions()[0] > start[0] + 0.02, "the cell moving")
+        task = await start_moving(backend, cell, trajectory)
         await backend.stop()
         result = await task
         held = assert_cell_still(cell)

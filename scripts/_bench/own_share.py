@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -29,7 +28,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_common import approve_all, median_p95, timed_calls  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+from bench_common import (  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+    approve_all,
+    median_p95,
+    stop_process,
+    timed_calls,
+)
 
 HERE = Path(__file__).resolve().parent
 SRC = HERE.parents[1] / "src"
@@ -77,16 +81,6 @@ def _wait_listening(port: int, process: subprocess.Popen, timeout_s: float = 60.
         except OSError:
             time.sleep(0.05)
     raise RuntimeError(f"nothing listens on port {port}")
-
-
-def _stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 async def _capture_shapes(armwarden: Any) -> dict[str, Any]:
@@ -166,11 +160,11 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
              "--audit-log", str(directory / f"http-{mode}-{len(window)}-audit.jsonl"), "--log-level", "WARNING",
              *window],
             env=env, stdin=subprocess.DEVNULL)
-        stack.callback(_stop, daemon)
+        stack.callback(stop_process, daemon, 30)
         floor_process = subprocess.Popen(  # noqa: ASYNC220 - set-up, before anything is timed
             [*floor_args, "--http", str(floor_port)], env=env, stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        stack.callback(_stop, floor_process)
+        stack.callback(stop_process, floor_process, 30)
         _wait_listening(aw_port, daemon)
         _wait_listening(floor_port, floor_process)
         aw_http = await stack.enter_async_context(

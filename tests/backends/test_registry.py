@@ -83,8 +83,16 @@ def test_a_backend_config_that_is_not_a_mapping_is_refused(tmp_path: Path, text:
         load_backend_config("fake", path)
 
 
-def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+def _serve(tmp_path: Path, *args: str, blocked: str | None = None) -> subprocess.CompletedProcess[str]:
+    """`armwarden serve` in a subprocess; `blocked`: a module whose import fails there (a
+    sitecustomize sets it to None), as on a machine without the extra that provides it."""
+    path = [str(REPO / "src")]
+    if blocked is not None:
+        site = tmp_path / "site"
+        site.mkdir()
+        (site / "sitecustomize.py").write_text(f"import sys\nsys.modules[{blocked!r}] = None\n", encoding="utf-8")
+        path.insert(0, str(site))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(path))
     return subprocess.run(
         [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), *args],
         check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
@@ -92,15 +100,7 @@ def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_serve_with_ros2_but_without_rclpy_exits_2_with_the_install_hint(tmp_path: Path) -> None:
-    # a sitecustomize that makes `import rclpy` fail, as on a machine without the `ros` extra
-    blocker = tmp_path / "site"
-    blocker.mkdir()
-    (blocker / "sitecustomize.py").write_text("import sys\nsys.modules['rclpy'] = None\n", encoding="utf-8")
-    env = dict(os.environ, PYTHONPATH=f"{blocker}{os.pathsep}{REPO / 'src'}")
-    result = subprocess.run(
-        [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), "--backend", "ros2"],
-        check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
-    )
+    result = _serve(tmp_path, "--backend", "ros2", blocked="rclpy")
     assert result.returncode == 2, result.stderr
     assert "the ros2 backend is not available" in result.stderr
     assert "pip install -e '.[ros]' -c constraints/ros.txt && python scripts/build_ros_interfaces.py" in result.stderr
@@ -117,15 +117,7 @@ def test_serve_with_an_invalid_backend_config_exits_2_naming_the_key(tmp_path: P
 
 
 def test_serve_with_mujoco_missing_exits_2_with_the_install_hint(tmp_path: Path) -> None:
-    # a sitecustomize that makes `import mujoco` fail, as on a machine without the extra
-    blocker = tmp_path / "site"
-    blocker.mkdir()
-    (blocker / "sitecustomize.py").write_text("import sys\nsys.modules['mujoco'] = None\n", encoding="utf-8")
-    env = dict(os.environ, PYTHONPATH=f"{blocker}{os.pathsep}{REPO / 'src'}")
-    result = subprocess.run(
-        [sys.executable, "-m", "armwarden.cli", "serve", "--audit-log", str(tmp_path / "audit.jsonl"), "--backend", "mujoco"],
-        check=False, cwd=REPO, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
-    )
+    result = _serve(tmp_path, "--backend", "mujoco", blocked="mujoco")
     assert result.returncode == 2, result.stderr
     assert "the mujoco backend is not available" in result.stderr and "install armwarden[mujoco]" in result.stderr
     assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()

@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import json
 import re
-import signal
 import socket
 import struct
 import subprocess
@@ -20,7 +19,7 @@ import httpx2
 from mcp import Client
 from mcp.client.streamable_http import streamable_http_client
 
-from tests.helpers import CLI, REPO, child_env, free_port
+from tests.helpers import CLI, REPO, child_env, free_port, stop_process
 
 HOST = "127.0.0.1"  # never anything else
 
@@ -87,13 +86,7 @@ def http_daemon(tmp: Path, speedup: float, extra_args: Sequence[str] = (), *, ba
             time.sleep(0.1)
         yield running
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGTERM)
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+        stop_process(process, 10)
 
 
 def session(daemon: Daemon, token: str | None, mode: str, elicitation=None) -> tuple[httpx2.AsyncClient, Client]:
