@@ -875,11 +875,14 @@ def _report_can(r: dict[str, Any]) -> None:
 
 def bench_ros2(runs: int = 100) -> dict[str, Any]:
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))
-    return importlib.import_module("ros2_cell").bench_ros2(runs)
+    module = importlib.import_module("ros2_cell")
+    return {**module.bench_ros2(runs), "executors": module.bench_executors()}
 
 
 def _report_ros2(r: dict[str, Any]) -> None:
-    importlib.import_module("ros2_cell").report_ros2(r)
+    module = importlib.import_module("ros2_cell")
+    module.report_ros2(r)
+    module.report_executors(r["executors"])
 
 
 SECTIONS = {

@@ -37,7 +37,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_common import approve_all, bench_policy, percentiles, timed_ms  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+
+# scripts/_bench is on sys.path (scripts/bench.py puts it there)
+from bench_common import approve_all, bench_policy, percentiles, stop_process, timed_ms
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "ros2_fr3.yaml"
@@ -226,6 +228,67 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
 
     with tempfile.TemporaryDirectory() as tmp:
         return anyio.run(run, Path(tmp))
+
+
+def bench_executors(seconds: float = 10.0) -> dict[str, Any]:
+    """The backend's executor, single- vs multi-threaded: with the cell in ANOTHER process
+    (`python -m tests_ros.cell`), an open backend only receives (joint states and fingers at
+    100 Hz, the wrench at 100 Hz) for `seconds` per kind; measured: this process's CPU time and
+    the gaps between joint-state receipts (publisher period 10 ms)."""
+    import resource
+    import subprocess
+
+    import anyio
+    import rclpy.executors
+
+    sys.path.insert(0, str(ROOT))  # tests_ros
+    from tests_ros.backend_setup import build_backend
+
+    from armwarden.backends.ros2.bridge import RosBridge
+
+    kinds = {
+        "single-threaded (the backend's)": rclpy.executors.SingleThreadedExecutor,
+        "multi-threaded, 4 threads": lambda context: rclpy.executors.MultiThreadedExecutor(num_threads=4, context=context),
+    }
+
+    async def receive(factory: Any) -> dict[str, Any]:
+        backend = build_backend()
+        backend.bridge = RosBridge(backend.config.node_name, backend.config.domain_id, factory)
+        await backend.open()
+        try:
+            gaps: list[float] = []
+            last = backend.joint_states.latest()
+            before = resource.getrusage(resource.RUSAGE_SELF)
+            started = time.monotonic()
+            while time.monotonic() - started < seconds:
+                await anyio.sleep(0.001)
+                state = backend.joint_states.latest()
+                if state is not None and last is not None and state.stamp != last.stamp:
+                    gaps.append((state.stamp - last.stamp) * 1e3)
+                last = state
+            after = resource.getrusage(resource.RUSAGE_SELF)
+            elapsed = time.monotonic() - started
+        finally:
+            await backend.close()
+        cpu = (after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime) / elapsed
+        return {"cpu_percent": 100.0 * cpu, "received_hz": len(gaps) / elapsed, "gap_ms": percentiles(gaps, (50, 99))}
+
+    cell = subprocess.Popen([sys.executable, "-m", "tests_ros.cell"], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        time.sleep(2.0)  # the cell's endpoints up; the backend's open waits for the first joint state anyway
+        return {"seconds": seconds, "kinds": {name: anyio.run(receive, factory) for name, factory in kinds.items()}}
+    finally:
+        stop_process(cell, 5.0)
+
+
+def report_executors(r: dict[str, Any]) -> None:
+    print(f"### the backend's executor (cell in another process, {r['seconds']:g} s per kind)")
+    print("| executor | process CPU [%] | joint states received [Hz] | receipt gap p50 / p99 / max [ms] |")
+    print("|---|---|---|---|")
+    for name, f in r["kinds"].items():
+        g = f["gap_ms"]
+        print(f"| {name} | {f['cpu_percent']:.0f} | {f['received_hz']:.0f} | {g['p50']:.1f} / {g['p99']:.1f} / {g['max']:.1f} |")
 
 
 def report_ros2(r: dict[str, Any]) -> None:

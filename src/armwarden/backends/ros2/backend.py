@@ -165,7 +165,7 @@ class StopRecord:
 @dataclass
 class _GoalRun:
     """One trajectory goal: written under the motion lock (event loop, stopping threads) and by
-    the goal-response and feedback callbacks (executor threads)."""
+    the goal-response and feedback callbacks (the executor thread)."""
 
     goal_id: UUID
     epoch: int
@@ -206,6 +206,7 @@ class _TopicRun:
     duration_s: float
     sent_at: float
     held_at: float | None = None  # when the stop's hold was published (monotonic [s])
+    held_measured: float | None = None  # header stamp of the latest joint state then [s, the cell's clock]
 
 
 @dataclass
@@ -545,8 +546,12 @@ class Ros2Backend(Backend):
     def _state_during(self, epoch: int, sent: str) -> JointState:
         """Event loop: the fresh joint state during the execution decided under `epoch`; stale
         joint states there are a fault, named as the watchdog names it (`_abort_on_fault`)."""
+        return self._measured_state_during(epoch, sent)[0]
+
+    def _measured_state_during(self, epoch: int, sent: str) -> tuple[JointState, float]:
+        """`_state_during`, with the sample's header stamp [s, the cell's clock]."""
         try:
-            return self.joint_states.fresh()
+            return self.joint_states.fresh_measured()
         except BackendError:
             self._abort_on_fault(epoch, sent)
             raise
@@ -586,12 +591,17 @@ class Ros2Backend(Backend):
                                        f"goal after {self.config.trajectory.result_margin_s:g} s", state.positions.copy())
             await anyio.sleep(POLL_S)
 
-    async def _rest(self, epoch: int, sent: str, after: float | None = None, reason: str = "stopped") -> ExecutionResult:
+    async def _rest(self, epoch: int, sent: str, after: float | None = None, reason: str = "stopped",
+                    measured_after: float | None = None) -> ExecutionResult:
         """Wait (bounded) until a joint state received after `after` (monotonic [s]; by default
         now, when the stop has been sent: a sample from before it may show the arm still at its
-        start) shows the joints at rest; where they rest is the result. A fault meanwhile aborts
-        the execution decided under `epoch` (`sent`: what stopped the arm, for the message)."""
+        start) and measured after `measured_after` (its header stamp [s, the cell's clock]; by
+        default after the latest sample now: a backlog our executor reads late arrives "now" but
+        was measured before the stop) shows the joints at rest; where they rest is the result. A
+        fault meanwhile aborts the execution decided under `epoch` (`sent`: what stopped the arm)."""
         after = time.monotonic() if after is None else after
+        if measured_after is None:
+            measured_after = self.joint_states.latest_header_s()
         deadline = time.monotonic() + REST_TIMEOUT_S
         while True:
             if not self.is_open:  # closed under the execution: the stop was sent; report where it was
@@ -600,8 +610,9 @@ class Ros2Backend(Backend):
                     return ExecutionResult(False, reason, latest.positions.copy())
             else:
                 self._abort_on_fault(epoch, sent)
-            state = self._state_during(epoch, sent)
-            resting = state.stamp >= after and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s
+            state, measured = self._measured_state_during(epoch, sent)
+            resting = (state.stamp >= after and (measured_after is None or measured > measured_after)
+                       and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s)
             if resting or time.monotonic() > deadline:
                 return ExecutionResult(False, reason, state.positions.copy())
             await anyio.sleep(POLL_S)
@@ -628,8 +639,10 @@ class Ros2Backend(Backend):
                 await anyio.sleep(POLL_S)
                 if self._stopped(run.epoch, HELD):
                     self._hold(run)  # the stop sent it already; this covers a close, which does not bump the epoch
+                    hold_s = self.config.trajectory.hold_time_s
                     held_at = run.held_at if run.held_at is not None else time.monotonic()
-                    return await self._rest(run.epoch, HELD, held_at + self.config.trajectory.hold_time_s)
+                    measured = None if run.held_measured is None else run.held_measured + hold_s
+                    return await self._rest(run.epoch, HELD, held_at + hold_s, measured_after=measured)
                 elapsed = time.monotonic() - run.sent_at
                 if elapsed >= trajectory.duration_s:
                     state = self._state_during(run.epoch, HELD)
@@ -669,6 +682,7 @@ class Ros2Backend(Backend):
             raise BackendError("cannot hold: no joint state to hold at")
         publisher.publish(hold_message(state.positions, self.ros_names, self.config.trajectory.hold_time_s))
         run.held_at = time.monotonic()
+        run.held_measured = self.joint_states.latest_header_s()
         self.stop_records.append(StopRecord("hold", run.held_at))
 
     # ================================================================ stops

@@ -2,8 +2,12 @@
 
 Why a private `Context` with `SignalHandlerOptions.NO`: with rclpy's default signal handling,
 SIGINT shuts every context down and SIGTERM is swallowed, but the daemon handles its own signals
-(and must stop the arm on them). The `MultiThreadedExecutor` spins on a thread of its own, so ROS
-callbacks never wait for the event loop and the event loop never blocks on DDS. `close` shuts the
+(and must stop the arm on them). A `SingleThreadedExecutor` spins on a thread of its own, so ROS
+callbacks never wait for the event loop and the event loop never blocks on DDS. Single, not
+multi-threaded: every callback here is short and never waits for another, and rclpy's
+`MultiThreadedExecutor` (Jazzy) costs several times the CPU per message and, on a loaded host,
+fell hundreds of milliseconds behind a 100 Hz joint-state stream — long enough to look like a
+dead cell (measured: docs/benchmarks.md, "ROS 2 executor"). `close` shuts the
 executor down and *joins* its thread before destroying the node: a thread left spinning aborts
 the process at exit.
 
@@ -18,6 +22,7 @@ import asyncio
 import logging
 import os
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import rclpy
@@ -34,10 +39,12 @@ from armwarden.handoff import settle_threadsafe
 
 logger = logging.getLogger(__name__)
 
-#: executor threads: subscriptions, action and service responses, the watchdog timer
-EXECUTOR_THREADS = 4
 #: how long `close` waits for the executor to stop and its thread to end [s]
 SHUTDOWN_TIMEOUT_S = 5.0
+
+
+#: builds the executor from the bridge's context
+ExecutorFactory = Callable[..., rclpy.executors.Executor]
 
 
 def domain_from_environment() -> int:
@@ -57,15 +64,18 @@ def domain_from_environment() -> int:
 class RosBridge:
     """One node in a private context, spun on its own thread. `start` then `close` (twice is safe)."""
 
-    def __init__(self, node_name: str, domain_id: int | None) -> None:
+    def __init__(self, node_name: str, domain_id: int | None,
+                 executor_factory: ExecutorFactory = rclpy.executors.SingleThreadedExecutor) -> None:
         self.node_name = node_name
         self.domain_id = domain_id
+        self._executor_factory = executor_factory  # another only to measure it (scripts/bench.py ros2)
         self._context: rclpy.context.Context | None = None
         self._node: rclpy.node.Node | None = None
-        self._executor: rclpy.executors.MultiThreadedExecutor | None = None
+        self._executor: rclpy.executors.Executor | None = None
         self._thread: threading.Thread | None = None
         self._closed = threading.Event()
-        #: every callback may run concurrently with every other (each guards its own state)
+        #: one group for every endpoint (callbacks guard their own state: they run on the executor
+        #: thread while the event loop and stopping threads read it)
         self.group = rclpy.callback_groups.ReentrantCallbackGroup()
 
     @property
@@ -81,7 +91,7 @@ class RosBridge:
         self._context = context
         try:
             self._node = rclpy.create_node(self.node_name, context=context)
-            self._executor = rclpy.executors.MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=context)
+            self._executor = self._executor_factory(context=context)
             self._executor.add_node(self._node)
         except BaseException:
             self.close()
@@ -129,7 +139,7 @@ class RosBridge:
         # an error that lands after the awaiter gave up (a node destroyed at close) is not "never retrieved"
         waiter.add_done_callback(lambda f: f.cancelled() or f.exception())
 
-        def done(finished: rclpy.task.Future) -> None:  # an executor thread, or this one if already done
+        def done(finished: rclpy.task.Future) -> None:  # the executor thread, or this one if already done
             error = finished.exception()
             if error is None and finished.cancelled():
                 error = BackendError("the ROS request was cancelled")
@@ -140,4 +150,4 @@ class RosBridge:
         return await asyncio.wait_for(waiter, timeout_s)
 
 
-__all__ = ["EXECUTOR_THREADS", "RosBridge", "domain_from_environment"]
+__all__ = ["ExecutorFactory", "RosBridge", "domain_from_environment"]

@@ -1,10 +1,12 @@
 """Thread-safe caches of what the cell publishes, stamped with when it arrived.
 
-Subscription callbacks (executor threads) `accept` messages; the event loop and any stopping
+Subscription callbacks (the executor thread) `accept` messages; the event loop and any stopping
 thread read the latest sample without waiting. Freshness is judged by *receipt* time on the
 monotonic clock, never by the sender's header stamp (another clock, possibly simulated); the
 header stamp is only checked to move forward: a message whose stamp goes backwards, or repeats
-(a frozen driver), is not a new sample, so the cache ages and the reader refuses it.
+(a frozen driver), is not a new sample, so the cache ages and the reader refuses it. Durations on
+the sender's clock are meaningful, though: "measured at least this long after that sample" is how
+a stop knows a sample shows the arm after the stop, even when our executor reads a backlog late.
 """
 
 from __future__ import annotations
@@ -95,13 +97,24 @@ class JointStateCache:
         with self._lock:
             return None if self._sample is None else self._sample.state
 
+    def latest_header_s(self) -> float | None:
+        """The header stamp [s, the sender's clock] of the latest sample: when it was measured."""
+        with self._lock:
+            return None if self._sample is None else self._sample.header_s
+
     def age_s(self) -> float | None:
         state = self.latest()
         return None if state is None else self._clock() - state.stamp
 
     def fresh(self) -> JointState:
         """The latest sample, or `BackendError` naming how old it is (or that none came)."""
-        state = self.latest()
+        return self.fresh_measured()[0]
+
+    def fresh_measured(self) -> tuple[JointState, float]:
+        """`fresh`, with the sample's header stamp [s, the sender's clock]."""
+        with self._lock:
+            sample = self._sample
+        state = None if sample is None else sample.state
         if state is None:
             why = f"; {self.dropped} message(s) not used: {self.last_drop}" if self.dropped else ""
             raise BackendError(f"no joint state received on {self.topic} yet{why}")
@@ -109,7 +122,8 @@ class JointStateCache:
         if age > self.max_age_s:
             why = f"; {self.dropped} message(s) not used, the last because {self.last_drop}" if self.dropped else ""
             raise BackendError(f"joint states on {self.topic} are {age:.2f} s old (limit {self.max_age_s:g} s){why}")
-        return state
+        assert sample is not None
+        return state, sample.header_s
 
     def wait_first(self, timeout_s: float) -> bool:
         """Block until a complete sample arrived (any thread but the executor's)."""

@@ -63,7 +63,7 @@ class TransformReading:
 
 
 class TransformBuffer:
-    """Latest transform per child frame; `accept` from executor threads, `lookup` from anywhere."""
+    """Latest transform per child frame; `accept` from the executor thread, `lookup` from anywhere."""
 
     def __init__(self, max_age_s: float, clock: Callable[[], float] = time.monotonic) -> None:
         self.max_age_s = max_age_s
