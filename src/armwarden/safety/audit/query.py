@@ -22,8 +22,11 @@ from typing import Any
 def parse_since(text: str) -> _dt.datetime:
     """An aware UTC datetime from ISO 8601 text (``2026-11-24``, ``2026-11-24T04:10``, ``...Z``,
     ``...+02:00``). Raises ValueError naming the expected form."""
+    text = text.strip()
+    if text[-1:] in ("Z", "z"):  # Python 3.10's fromisoformat does not read the "Z" suffix
+        text = text[:-1] + "+00:00"
     try:
-        moment = _dt.datetime.fromisoformat(text.strip())
+        moment = _dt.datetime.fromisoformat(text)
     except ValueError as exc:
         raise ValueError(f"--since must be an ISO 8601 time such as 2026-11-24T04:10:00Z, got {text!r}") from exc
     if moment.tzinfo is None:
