@@ -126,3 +126,11 @@ def test_a_call_refused_before_planning_is_listed_as_not_replayable_with_why(ses
     [skipped] = [plan for plan in data["plans"] if not plan["replayable"]]
     assert skipped["tool"] == "plan_to_joints" and skipped["recorded_refusal"] == "invalid (INVALID_ARGUMENTS)"
     assert "refused before anything was planned" in skipped["reason"]
+
+
+def test_a_policy_without_the_motion_tools_rejects_every_plan_and_lists_every_execution(session_log, capsys, tmp_path) -> None:
+    data = replay_data(capsys, tmp_path, session_log.path, bundled_policy("readonly"))
+
+    assert {plan["candidate"]["codes"][0] for plan in data["plans"] if plan["replayable"]} == {"NOT_ALLOWED"}
+    assert [run["plan_id"] for run in data["executed_newly_rejected"]] == [
+        session_log.plan_ids[step] for step in ("to_a", "back_home", "to_b")]

@@ -3,8 +3,9 @@
 `replan` decodes what the planning call recorded (`armwarden.guard.planning.replay_facts`) and runs
 `plan_offline` — the daemon's planners, detour search, envelope and verdict — for one policy's
 `RuntimeModel`, from the recorded start joint state. No backend, no plan store, no server: nothing
-can move. What cannot be replayed is returned as a reason, never raised, so one odd record does
-not hide the rest of the report.
+can move. A policy that does not enable the `motion` tool group rejects every plan
+(`NOT_ALLOWED`: its daemon would not offer the planning tools). What cannot be replayed is
+returned as a reason, never raised, so one odd record does not hide the rest of the report.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from armwarden.errors import RefusalCode
 from armwarden.guard.planning import REPLAY_FORMAT, PlanKind, decode_request, plan_offline
 from armwarden.preflight import RuntimeModel
 from armwarden.replay.records import Outcome, PlanCall
@@ -27,6 +29,8 @@ def replan(model: RuntimeModel, call: PlanCall) -> Outcome | str:
     facts = call.facts
     if facts is None:
         return missing_facts_reason(call)
+    if "motion" not in model.policy.tools.enabled:  # the planning tools would not even exist
+        return Outcome("rejected", (RefusalCode.NOT_ALLOWED.value,))
     if facts.get("format") != REPLAY_FORMAT:
         return f"replay data of format {facts.get('format')!r}; this version reads format {REPLAY_FORMAT}"
     kind = facts.get("kind")

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from armwarden.errors import ArmWardenError
-from armwarden.safety.audit import VerifyReport, verify_file
+from armwarden.safety.audit import AUDIT_KEY_ENV, VerifyReport, verify_file
 from armwarden.safety.audit.chain import DECODER
 
 #: the planning tools and the planner kind each one asks for
@@ -105,8 +105,11 @@ def read_trusted(path: str | os.PathLike[str], key: bytes | None = None, *, allo
     except (OSError, ArmWardenError) as exc:
         raise BrokenLog(f"cannot read {os.fspath(path)}: {exc}") from exc
     if not verdict.ok and not allow_broken:
-        raise BrokenLog(f"{name}: chain broken at line {verdict.first_bad_line}: {verdict.reason}; refusing to replay "
-                        "a log that does not verify (--allow-broken replays the lines before it)")
+        hint = ""
+        if key is None and verdict.reason == "hash mismatch" and verdict.first_bad_line == 1:
+            hint = f" (no HMAC key given; set {AUDIT_KEY_ENV} if this log is keyed)"
+        raise BrokenLog(f"{name}: chain broken at line {verdict.first_bad_line}: {verdict.reason}{hint}; refusing to "
+                        "replay a log that does not verify (--allow-broken replays the lines before it)")
     trusted = (verdict.first_bad_line - 1) if verdict.first_bad_line is not None else None
     records: list[tuple[int, dict[str, Any]]] = []
     with open(path, "rb") as stream:
