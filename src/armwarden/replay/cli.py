@@ -14,6 +14,7 @@ from armwarden.errors import PolicyError
 from armwarden.policy import load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.replay.engine import replan
+from armwarden.replay.markdown import render_markdown
 from armwarden.replay.records import BrokenLog, TrustedLog, read_trusted
 from armwarden.replay.report import PlanRow, PolicyRef, ReplayReport
 
@@ -65,7 +66,7 @@ def replay_command(log_path: str | os.PathLike[str], policy_path: str, *, origin
         print(f"FAILED: {exc}", file=sys.stderr)
         return EXIT_FAILED
     report = replay_log(log, candidate, Path(policy_path).name, before, None if original is None else Path(original).name)
-    sys.stdout.write(report.to_markdown())
+    sys.stdout.write(render_markdown(report))
     if json_path is not None:
         try:
             Path(json_path).write_text(report.to_json(), encoding="utf-8")
