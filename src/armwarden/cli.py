@@ -1,4 +1,4 @@
-"""`armwarden` command line: serve, check-policy, audit verify|tail, tokens add|list|revoke.
+"""`armwarden` command line: serve, check-policy, audit verify|tail|replay, tokens add|list|revoke.
 
 Exit status 2 means "refused to start / invalid input" (bad policy, unavailable backend,
 unopenable audit log, unsafe bind); 1 means a check failed (e.g. a broken audit chain).
@@ -65,9 +65,25 @@ def _build_parser() -> argparse.ArgumentParser:
     audit = commands.add_parser("audit", help="verify or read an audit log").add_subparsers(dest="audit_command", required=True)
     verify = audit.add_parser("verify", help="prove the hash chain (exit 0 intact, 1 broken)")
     verify.add_argument("file")
-    tail = audit.add_parser("tail", help="print the last records")
+    tail = audit.add_parser("tail", help="print the last records (with filters: the last ones that match all of them)")
     tail.add_argument("file")
     tail.add_argument("-n", type=int, default=20)
+    tail.add_argument("--tool", default=None, help="only calls of this tool")
+    tail.add_argument("--principal", default=None, help="only calls made with this HTTP token name")
+    tail.add_argument("--status", default=None, help="only records with this outcome (ok, refused, invalid, ...) or "
+                      "result status (a plan's ok/needs_approval/rejected, an execution's succeeded/aborted/dry_run)")
+    tail.add_argument("--since", default=None, metavar="TIME", help="only records written at or after this ISO 8601 "
+                      "time (UTC unless a zone is given), e.g. 2026-11-24T04:10:00Z")
+    replay = audit.add_parser("replay", help="re-plan every recorded plan request under a candidate policy (offline) "
+                              "and report what it would have done differently (exit 0 report written, 1 broken or "
+                              "unreadable log, 2 invalid policy)")
+    replay.add_argument("file", help="the audit log (JSONL) of the sessions to replay")
+    replay.add_argument("--policy", required=True, help="the candidate policy YAML")
+    replay.add_argument("--original", default=None, help="re-plan under this policy too, as the original outcome "
+                        "(default: the outcomes recorded in the log)")
+    replay.add_argument("--json", default=None, metavar="FILE", help="also write the report's data as JSON to FILE")
+    replay.add_argument("--allow-broken", action="store_true", help="replay the trusted prefix of a log whose chain "
+                        "is broken (the report says from which line nothing is trusted)")
 
     tokens = commands.add_parser("tokens", help="manage HTTP bearer tokens").add_subparsers(dest="tokens_command", required=True)
     add = tokens.add_parser("add", help="create a token (printed once; only its hash is stored)")
@@ -105,6 +121,19 @@ def check_policy_command(path: str | None) -> int:
     return EXIT_OK
 
 
+def _tail(args: argparse.Namespace) -> int:
+    """`audit tail`, with its record filters (exit 2 on a malformed --since)."""
+    from armwarden.safety import audit
+
+    try:
+        since = None if args.since is None else audit.parse_since(args.since)
+    except ValueError as exc:
+        print(f"armwarden: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    where = audit.RecordFilter(tool=args.tool, principal=args.principal, status=args.status, since=since)
+    return audit.tail_command(args.file, args.n, where)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _build_parser().parse_args(argv)
     logging.basicConfig(
@@ -120,7 +149,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             if args.audit_command == "verify":
                 return audit.verify_command(args.file, audit.hmac_key_from_env())
-            return audit.tail_command(args.file, args.n)
+            if args.audit_command == "replay":
+                from armwarden.replay import replay_command
+
+                return replay_command(args.file, args.policy, original=args.original, json_path=args.json,
+                                      allow_broken=args.allow_broken, key=audit.hmac_key_from_env())
+            return _tail(args)
         if args.command == "tokens":
             from armwarden.transport import tokens
 

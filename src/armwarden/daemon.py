@@ -30,7 +30,7 @@ from armwarden.backends.base import Backend
 from armwarden.errors import ArmWardenError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
-from armwarden.policy import Policy, load_policy
+from armwarden.policy import Policy, load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, hmac_key_from_env
@@ -144,7 +144,8 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
             "startup",
             outcome="ok",
             detail=f"armwarden {__version__} serving {args.transport} with the {args.backend} backend",
-            extra={"policy": str(args.policy or "bundled fr3"), "dry_run": assembly.policy.dry_run,
+            extra={"policy": str(args.policy or "bundled fr3"), "policy_digest": policy_digest(assembly.policy),
+                   "dry_run": assembly.policy.dry_run,
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
                    "pid": os.getpid()},
         )

@@ -22,6 +22,7 @@ import anyio
 import pytest
 from mcp import Client, StdioServerParameters
 
+from armwarden.policy import bundled_policy, load_policy, policy_digest
 from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, text_of
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
@@ -88,6 +89,10 @@ async def test_stdio_daemon_serves_a_session_and_writes_a_shutdown_record_when_t
     records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
     assert records[0]["event"] == "startup"
     assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "end of stdin"
+    # the policy in force, once at start-up and on each plan (what `audit replay` compares against)
+    digest = policy_digest(load_policy(bundled_policy()))
+    assert records[0]["extra"]["policy_digest"] == digest
+    assert [r["extra"]["replay"]["policy_digest"] for r in records if r["tool"] == "plan_to_joints"] == [digest]
     executed = [r for r in records if r["tool"] == "execute_plan" and r["outcome"] == "ok"]
     assert len(executed) == 1 and executed[0]["operator"] == "carol"
     assert len(on_elicit.prompts) == 1 and on_elicit.prompts[0].startswith("APPROVE ROBOT MOTION?")

@@ -4,6 +4,10 @@ Order: e-stop latch → fresh joint state → plan and envelope check (and the p
 planning thread → no e-stop since the start → the verdict (hard violation: rejected; soft or
 `approval.mode`: needs approval) → the plan stored for this caller (`safety.plans`).
 
+`plan_offline` is the pure core of that (plan, check, verdict) for one policy and one start state,
+with no backend, no store and no server: the daemon's flow and `armwarden audit replay` both use
+it. Each planning call notes on its audit record what a replay needs (`replay_facts`).
+
 Planning and envelope checks run on one worker thread with their own Pinocchio data (the
 `RuntimeModel`), one at a time, so a long IK search never delays a stop; the execution's
 re-validation uses the same thread (`on_thread`).
@@ -12,25 +16,32 @@ re-validation uses the same thread (`on_thread`).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import anyio
 import numpy as np
 
-from armwarden import conversions
-from armwarden.callcontext import current_caller
+from armwarden import __version__, conversions
+from armwarden.callcontext import current_call, current_caller
 from armwarden.errors import RefusalCode, SafetyRefusal
-from armwarden.planning.planners import PlanOutcome
+from armwarden.planning.around import request_seed
+from armwarden.planning.planners import PlanOutcome, PoseTarget
 from armwarden.planning.trajectory import JointTrajectory
+from armwarden.policy import Policy, policy_digest
 from armwarden.preflight import RuntimeModel
 from armwarden.results import PlanSummary
 from armwarden.safety.approval import approval_required
 from armwarden.safety.envelope import EnvelopeReport
+from armwarden.safety.violations import Violation
 
 if TYPE_CHECKING:
     from armwarden.guard.door import Guard
 
 PlanKind = Literal["joints", "pose", "cartesian"]
+PlanStatus = Literal["ok", "needs_approval", "rejected"]
+#: version of the `replay` object a planning call's audit record carries (`replay_facts`)
+REPLAY_FORMAT = 1
 #: renders the preview picture (PNG) of a checked plan; None when it cannot be drawn
 Previewer = Callable[[RuntimeModel, JointTrajectory, EnvelopeReport], "bytes | None"]
 
@@ -64,6 +75,123 @@ def plan_and_check(
     return proposal, model.envelope.check(proposal.trajectory)  # type: ignore[arg-type]
 
 
+@dataclass(frozen=True)
+class Verdict:
+    """What a checked plan may do: its status and every finding (the planner's, then the envelope's)."""
+
+    status: PlanStatus
+    violations: tuple[Violation, ...]
+    requires_approval: bool
+
+
+def judge(policy: Policy, outcome: PlanOutcome, report: EnvelopeReport | None) -> Verdict:
+    """The verdict on a planned and checked motion: nothing planned or a hard violation → rejected;
+    otherwise `approval` decides whether a human must approve (soft violations in
+    `outside_envelope` mode, always in `always` mode)."""
+    violations = tuple(outcome.violations) + (tuple(report.violations) if report is not None else ())
+    if outcome.trajectory is None or report is None:
+        return Verdict("rejected", violations, False)
+    hard = any(v.is_hard for v in violations)
+    needs = not hard and approval_required(policy, "execute", any(not v.is_hard for v in violations))
+    return Verdict("rejected" if hard else ("needs_approval" if needs else "ok"), violations, needs)
+
+
+def plan_offline(
+    model: RuntimeModel, kind: PlanKind, start: np.ndarray, request: dict[str, Any],
+    should_stop: Callable[[], bool] = lambda: False,
+) -> tuple[PlanOutcome, EnvelopeReport | None, Verdict]:
+    """Plan `request` from `start` against `model`'s policy, check it and judge it: what the daemon
+    would answer, without a backend, a plan store or a server (the planning thread's work)."""
+    outcome, report = plan_and_check(model, kind, start, request, should_stop)
+    return outcome, report, judge(model.policy, outcome, report)
+
+
+def replay_facts(policy: Policy, model: RuntimeModel, kind: PlanKind, start: np.ndarray,
+                 request: dict[str, Any]) -> dict[str, Any]:
+    """What a planning call's audit record carries so that `armwarden audit replay` can plan it
+    again offline: the start joint state [rad] the plan was made from (exact floats), the request as
+    the planner received it, the digest of the policy in force, and the planner settings that
+    shape the outcome (the detour search's seed derives from request and start state)."""
+    start = np.asarray(start, dtype=float)
+    planner = {
+        "version": __version__,
+        "detours": model.detours is not None,
+        "planning_time_s": model.policy.motion.planning_time_s,
+        "cartesian_step_m": model.planner.settings.cartesian_step_m,
+        "cartesian_step_rad": model.planner.settings.cartesian_step_rad,
+        "max_ik_jump_rad": model.planner.settings.max_ik_jump_rad,
+    }
+    if kind == "joints":
+        planner["seed"] = request_seed(kind, start, np.asarray(request["joint_positions"], dtype=float))
+    elif kind == "pose":
+        planner["seed"] = request_seed(kind, start, request["target"])
+    return {
+        "format": REPLAY_FORMAT,
+        "kind": kind,
+        "start_q": start.tolist(),
+        "request": encode_request(kind, request),
+        "policy_digest": policy_digest(policy),
+        "planner": planner,
+    }
+
+
+def encode_request(kind: PlanKind, request: dict[str, Any]) -> dict[str, Any]:
+    """The planner's input as plain JSON (rotation matrices row-major, 9 numbers); `decode_request`
+    inverts it exactly (JSON floats round-trip)."""
+    encoded: dict[str, Any] = {"velocity_scaling": request.get("velocity_scaling"),
+                               "acceleration_scaling": request.get("acceleration_scaling")}
+    if kind == "joints":
+        encoded["joint_positions"] = np.asarray(request["joint_positions"], dtype=float).tolist()
+    elif kind == "pose":
+        encoded["target"] = _encode_target(request["target"])
+    else:
+        encoded["waypoints"] = [_encode_target(target) for target in request["waypoints"]]
+    return encoded
+
+
+def decode_request(kind: PlanKind, encoded: dict[str, Any]) -> dict[str, Any]:
+    """The planner's input from `encode_request`'s JSON. Raises ValueError/KeyError/TypeError on a
+    malformed one."""
+    request: dict[str, Any] = {"velocity_scaling": _number_or_none(encoded.get("velocity_scaling")),
+                               "acceleration_scaling": _number_or_none(encoded.get("acceleration_scaling"))}
+    if kind == "joints":
+        request["joint_positions"] = _floats(encoded["joint_positions"])
+    elif kind == "pose":
+        request["target"] = _decode_target(encoded["target"])
+    elif kind == "cartesian":
+        request["waypoints"] = [_decode_target(target) for target in encoded["waypoints"]]
+    else:
+        raise ValueError(f"unknown plan kind {kind!r}")
+    return request
+
+
+def _encode_target(target: PoseTarget) -> dict[str, Any]:
+    rotation = None if target.rotation is None else np.asarray(target.rotation, dtype=float).reshape(9).tolist()
+    return {"position": np.asarray(target.position, dtype=float).tolist(), "rotation": rotation}
+
+
+def _decode_target(encoded: dict[str, Any]) -> PoseTarget:
+    position = _floats(encoded["position"])
+    if position.shape != (3,):
+        raise ValueError(f"a target position has 3 numbers, got {position.size}")
+    rotation = encoded.get("rotation")
+    return PoseTarget(position, None if rotation is None else _floats(rotation).reshape(3, 3))
+
+
+def _floats(values: Any) -> np.ndarray:
+    if not isinstance(values, list) or not all(type(v) in (int, float) for v in values):
+        raise ValueError(f"expected a list of numbers, got {str(values)[:80]}")
+    return np.array(values, dtype=float)
+
+
+def _number_or_none(value: Any) -> float | None:
+    if value is None:
+        return None
+    if type(value) not in (int, float):
+        raise ValueError(f"expected a number or null, got {str(value)[:40]}")
+    return float(value)
+
+
 class PlanningFlow:
     """Plans for the Guard (with its `planning` model) on its one planning thread."""
 
@@ -84,6 +212,9 @@ class PlanningFlow:
         generation = door.latch.generation  # an e-stop while planning voids the result
         start = (await door.readings.joint_state()).positions.copy()
         model, previewer = door.planning, self._previewer  # the Guard's model, as it is now
+        call = current_call()
+        if call is not None:  # before planning: a call that fails while planning can be replayed too
+            call.extra["replay"] = replay_facts(door.policy, model, kind, start, request)
 
         def work() -> tuple[Any, EnvelopeReport | None, bytes | None]:
             outcome, report = plan_and_check(model, kind, start, request, lambda: door.latch.generation != generation)
@@ -94,10 +225,14 @@ class PlanningFlow:
             return outcome, report, preview
 
         outcome, report, preview = await self.on_thread(work)
+        if call is not None:  # the scalings the planner used (after the policy's caps)
+            call.extra["replay"]["planner"].update(velocity_scaling=outcome.velocity_scaling,
+                                                   acceleration_scaling=outcome.acceleration_scaling)
         if door.latch.generation != generation:
             raise SafetyRefusal(RefusalCode.ESTOPPED, "an e-stop latched while this motion was being planned; the plan "
                                 "was discarded. A human must approve reset_estop before anything can move again.")
-        violations = list(outcome.violations) + (list(report.violations) if report else [])
+        verdict = judge(door.policy, outcome, report)
+        violations = list(verdict.violations)
         hard = [v for v in violations if v.is_hard]
         if violations:
             door.last_violation = hard[0] if hard else violations[0]
@@ -105,8 +240,7 @@ class PlanningFlow:
         notes = conversions.plan_notes(outcome.notes, monitoring, door.policy.force.require_wrench, door.dry_run)
         if outcome.trajectory is None or report is None:
             return conversions.plan_summary(violations, notes, monitoring), preview
-        needs = not hard and approval_required(door.policy, "execute", any(not v.is_hard for v in violations))
-        status = "rejected" if hard else ("needs_approval" if needs else "ok")
+        status, needs = verdict.status, verdict.requires_approval
         stored = door.plans.add(outcome.trajectory, report, status=status, estop_generation=generation,
                                 owner=current_caller(),
                                 meta={"kind": kind, "notes": tuple(notes), "velocity_scaling": outcome.velocity_scaling})

@@ -22,7 +22,7 @@ Units are SI throughout: metres, radians, seconds, newtons; positions in the rob
 Modules: `constants` (tool groups, approvable actions), `fields` (strict field types and the
 rule plumbing), one module per group of sections (`robot`, `workspace`, `motion`, `devices`,
 `access`), `models` (the `Policy` root), `loading` (files, YAML, `bundled_policy`), `messages`
-(errors at their YAML paths) and `summary` (what `armwarden check-policy` prints).
+(errors at their YAML paths), `digest` (the digest the audit log records) and `summary` (what `armwarden check-policy` prints).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from armwarden.policy.constants import (
     TOOL_GROUPS,
 )
 from armwarden.policy.devices import ControllersConfig, GripperConfig, PerceptionConfig
+from armwarden.policy.digest import policy_digest
 from armwarden.policy.fields import FrozenMap
 from armwarden.policy.loading import apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.policy.messages import format_path, validation_errors
@@ -73,6 +74,7 @@ __all__ = [
     "format_path",
     "load_policy",
     "parse_policy",
+    "policy_digest",
     "policy_json_schema",
     "summarize_policy",
     "validation_errors",

@@ -22,7 +22,8 @@ is not detectable from the file alone (compare `seq` against an external copy of
 
 Modules: `sanitise` (bounded, strict-JSON copies of arguments), `chain` (record fields,
 canonical JSON, hashing, the key), `verify` (chain verification and tail reading), `writer` (the
-writer thread and its durability classes), `log` (the log) and `cli` (`armwarden audit verify|tail`).
+writer thread and its durability classes), `log` (the log), `query` (the record filters of `audit tail`) and
+`cli` (`armwarden audit verify|tail`).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from armwarden.safety.audit.chain import (
 )
 from armwarden.safety.audit.cli import tail_command, verify_command
 from armwarden.safety.audit.log import DEFAULT_COMMIT_WINDOW_S, MAX_EVENT_CHARS, AuditEntry, AuditLog, AuditWriteError
+from armwarden.safety.audit.query import RecordFilter, parse_since
 from armwarden.safety.audit.sanitise import sanitize
 from armwarden.safety.audit.verify import MAX_TAIL, VerifyReport, read_tail, verify_file
 from armwarden.safety.audit.writer import MAX_COMMIT_WINDOW_S, Durability
@@ -53,8 +55,10 @@ __all__ = [
     "AuditRecord",
     "AuditWriteError",
     "Durability",
+    "RecordFilter",
     "VerifyReport",
     "hmac_key_from_env",
+    "parse_since",
     "read_tail",
     "sanitize",
     "tail_command",

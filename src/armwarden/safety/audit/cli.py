@@ -1,4 +1,7 @@
-"""`armwarden audit verify|tail`: a one-line verdict on a log, and its last records as JSON."""
+"""`armwarden audit verify|tail`: a one-line verdict on a log, and its last (matching) records as JSON.
+
+`armwarden audit replay` lives in `armwarden.replay` (it needs the planner and the envelope).
+"""
 
 from __future__ import annotations
 
@@ -8,7 +11,8 @@ import sys
 
 from armwarden.errors import ConfigurationError
 from armwarden.safety.audit.chain import AUDIT_KEY_ENV
-from armwarden.safety.audit.verify import read_tail, verify_file
+from armwarden.safety.audit.query import RecordFilter
+from armwarden.safety.audit.verify import clamp_tail, decode_records, read_tail, verify_file
 
 
 def verify_command(path: str | os.PathLike[str], key: bytes | None = None) -> int:
@@ -32,10 +36,15 @@ def verify_command(path: str | os.PathLike[str], key: bytes | None = None) -> in
     return 1
 
 
-def tail_command(path: str | os.PathLike[str], n: int = 20) -> int:
-    """Print the last ``n`` records of the log as indented JSON; 0 on success, 1 if unreadable."""
+def tail_command(path: str | os.PathLike[str], n: int = 20, where: RecordFilter | None = None) -> int:
+    """Print the last ``n`` records of the log (with ``where``: the last ``n`` that match it) as
+    indented JSON; 0 on success, 1 if unreadable."""
     try:
-        records = read_tail(path, n)
+        if where is None or where.empty:
+            records = read_tail(path, n)
+        else:
+            with open(path, "rb") as stream:
+                records = [record for record in decode_records(list(stream)) if where.matches(record)][-clamp_tail(n):]
     except OSError as exc:
         print(f"cannot read {os.fspath(path)}: {exc}", file=sys.stderr)
         return 1
