@@ -34,6 +34,10 @@ GOAL_ERROR_RAD = 2e-3
 #: how far out the hand reaches 3 cm below the table top, pointing down (closer to the base the
 #: bundled FR3's capsules keep the wrist from folding that far)
 BELOW_TABLE_X_M = 0.66
+#: a loaded host can stall the physics thread past the bundled 0.1 s wrench age, which rightly aborts
+#: a motion (NO_WRENCH; tests/safety prove it); these tests are about what physics does, so they
+#: allow the longest age the policy schema takes. The force limit itself is unchanged.
+STALL_TOLERANT = {"force.wrench_timeout_s": MAX_WRENCH_TIMEOUT_S}
 
 
 def mujoco_of(arm: ArmHarness) -> MujocoBackend:
@@ -56,11 +60,10 @@ async def test_thirty_random_safe_moves_end_within_2_mrad_of_their_goal(tmp_path
     final_errors: list[float] = []
     tracking_errors: list[float] = []
     # thirty executions in well under a minute: above the bundled policy's rate limits. What this
-    # measures is accuracy: a loaded host that stalls the physics thread past the bundled 0.1 s
-    # wrench age rightly aborts a motion (the force tests prove that), so allow the longest age.
+    # measures is accuracy, so a stalled physics thread must not abort a move (STALL_TOLERANT).
     busy = policy_with(**{"rate_limits.global_per_minute": 600, "rate_limits.default_per_minute": 300,
                           "rate_limits.per_tool.execute_plan": 100, "rate_limits.per_tool.plan_to_joints": 300,
-                          "force.wrench_timeout_s": MAX_WRENCH_TIMEOUT_S})
+                          **STALL_TOLERANT})
     async with arm_harness(tmp_path, busy, backend="mujoco") as arm, arm.client(elicitation=approve()) as client:
         attempts = 0
         while len(final_errors) < 30:
@@ -90,7 +93,7 @@ async def test_a_move_down_into_the_table_is_aborted_by_the_force_monitor_from_p
     # The policy believes the floor is 10 cm lower than the real table (a misconfigured cell): the
     # envelope lets the plan through, the table stops the hand, and only contact physics is left to
     # trip the force limit.
-    policy = policy_with(**{"workspace.box.min": [-0.45, -0.70, -0.10]})
+    policy = policy_with(**{"workspace.box.min": [-0.45, -0.70, -0.10], **STALL_TOLERANT})
     async with arm_harness(tmp_path, policy, backend="mujoco", speedup=1.0, table_top_z_m=0.0) as arm, \
             arm.client(elicitation=approve()) as client:
         cell = mujoco_of(arm)
@@ -114,7 +117,7 @@ async def test_a_move_down_into_the_table_is_aborted_by_the_force_monitor_from_p
 async def test_the_example_box_is_grasped_by_friction_and_lifted_5_cm_with_a_plan(tmp_path: Path) -> None:
     scene = yaml.safe_load(EXAMPLE_SCENE.read_text(encoding="utf-8"))
     box_x, box_y, box_z = scene["objects"][0]["position_m"]
-    async with arm_harness(tmp_path, backend="mujoco", **{**scene, "speedup": 4.0}) as arm, \
+    async with arm_harness(tmp_path, policy_with(**STALL_TOLERANT), backend="mujoco", **{**scene, "speedup": 4.0}) as arm, \
             arm.client(elicitation=approve()) as client:
         cell = mujoco_of(arm)
         box = cell.cell.model.body("box").id
@@ -153,7 +156,8 @@ def pixels(result: Any) -> np.ndarray:
 
 
 async def test_a_camera_snapshot_changes_when_the_arm_moves_and_the_audit_log_keeps_no_image(tmp_path: Path) -> None:
-    async with arm_harness(tmp_path, backend="mujoco") as arm, arm.client(elicitation=approve()) as client:
+    async with arm_harness(tmp_path, policy_with(**STALL_TOLERANT), backend="mujoco") as arm, \
+            arm.client(elicitation=approve()) as client:
         before = await client.call_tool("camera_snapshot", {"camera": "scene"})
         assert not before.is_error, text_of(before)
         first = pixels(before)
