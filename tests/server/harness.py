@@ -233,9 +233,10 @@ def _ros_cell(stack: contextlib.AsyncExitStack) -> Any:
 
 
 def _for_an_in_process_cell(policy: Policy) -> Policy:
-    """`policy` with the longest wrench timeout a policy may set: the cell publishes from threads of
-    the test process, which stall far longer than a cell of its own (measured here: gaps of
-    0.1–0.24 s between wrench messages while a scenario executes on a loaded 2-core machine)."""
+    """`policy` with the longest wrench timeout a policy may set: the cell (the ROS 2 cell's
+    publishers, the MuJoCo physics) runs on threads of the test process, which stall far longer
+    than a cell of its own (measured here: gaps of 0.1–0.24 s between wrench messages while a
+    scenario executes on a loaded 2-core machine). Wrench staleness has tests of its own."""
     force = policy.force.model_copy(update={"wrench_timeout_s": MAX_WRENCH_TIMEOUT_S})
     return policy.model_copy(update={"force": force})
 
@@ -254,7 +255,7 @@ async def _first_wrench(backend: Backend, timeout_s: float = 15.0) -> None:
 async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: str = "fake",
                       **fake_options: Any) -> AsyncIterator[ArmHarness]:
     policy = policy or _policy_for(backend)
-    if backend == "ros2":
+    if backend in REAL_TIME:
         policy = _for_an_in_process_cell(policy)
     inner = _backend(backend, policy, fake_options)
     counting = CountingBackend(inner)
@@ -263,7 +264,7 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: 
     threshold, switch_interval = gc.get_threshold(), sys.getswitchinterval()
     if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
         freeze_long_lived_objects()  # before the physics starts: the collection itself takes ~100 ms
-    if backend == "ros2":  # as the daemon does: a dozen executor threads take turns on the interpreter lock
+    if backend == "ros2":  # as the daemon does: the cell's and the backend's threads take turns on the interpreter lock
         sys.setswitchinterval(SWITCH_INTERVAL_S)
     async with contextlib.AsyncExitStack() as stack:
         cell = _ros_cell(stack) if backend == "ros2" else None
