@@ -211,6 +211,13 @@ def _console_app(args: argparse.Namespace, assembly: Assembly, external: Externa
     return build_console_app(assembly.guard, SessionStore(tokens), hook, settings)
 
 
+def _link_host(host: str) -> str:
+    """The host name a link to this daemon uses: a wildcard bind is reached on loopback here."""
+    if host in ("0.0.0.0", "::", "[::]", ""):
+        return "127.0.0.1"
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
 async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops) -> None:
     """``--console-port`` (stdio): the console alone on its own port, until cancelled."""
     from armwarden.transport.http import build_console_only_app, serve_http
@@ -220,7 +227,8 @@ async def _serve_console(args: argparse.Namespace, assembly: Assembly, external:
     app = build_console_only_app(_console_app(args, assembly, external, tokens), host=args.console_host,
                                  port=args.console_port, allowed_hosts=getattr(args, "allowed_host", []) or [],
                                  allowed_origins=getattr(args, "allowed_origin", []) or [])
-    logger.warning("operator console: http://%s:%d/console/", args.console_host, args.console_port)
+    assembly.guard.approvals.console_url = f"http://{_link_host(args.console_host)}:{args.console_port}/console"
+    logger.warning("operator console: %s/", assembly.guard.approvals.console_url)
     await serve_http(app, args.console_host, args.console_port)
 
 
@@ -250,6 +258,8 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
                                             principal=None if principal is None else principal.name)
 
     console = None if getattr(args, "no_console", False) else _console_app(args, assembly, external, tokens)
+    if console is not None:  # the link URL-mode approvals send
+        assembly.guard.approvals.console_url = f"http://{_link_host(args.host)}:{args.port}/console"
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
                          on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt, console=console,

@@ -84,6 +84,7 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
         console = build_console_app(harness.guard, SessionStore(tokens), hook,
                                     settings or ConsoleSettings(answer_approvals=answer))
         port = free_port()
+        harness.guard.approvals.console_url = f"http://{HOST}:{port}/console"
         app = build_http_app(harness.server.mcp, host=HOST, port=port, token_store=tokens, console=console,
                              on_stop_request=external.stop_on_receipt)
         ready, shutdown = anyio.Event(), anyio.Event()

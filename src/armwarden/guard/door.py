@@ -237,7 +237,7 @@ class Guard:
             approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
             if not approval.granted:
                 raise approval.refusal(f"execute_plan {plan.plan_id}")
-            if approval.via == "elicitation" and shown_digest != plan.digest:
+            if approval.via in ("elicitation", "console") and shown_digest != plan.digest:
                 raise refuse(RefusalCode.APPROVAL_MISMATCH, "the approval was given for a different plan; nothing was done")
             self.require_not_estopped("execute_plan")
             recheck = await self.planning_flow.on_thread(lambda: self.planning.envelope.check(plan.trajectory))

@@ -87,6 +87,16 @@ class PendingApprovals:
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._clock = clock
         self._requests: OrderedDict[str, PendingRequest] = OrderedDict()
+        #: where the operator console is served (e.g. ``http://127.0.0.1:8765/console``); None: not served
+        self.console_url: str | None = None
+
+    def link(self, request: PendingRequest) -> str | None:
+        """The console page of `request`: the link a URL-mode elicitation sends."""
+        return None if self.console_url is None else f"{self.console_url}/approvals/{request.request_id}"
+
+    def remaining_s(self, request: PendingRequest) -> float:
+        """Seconds until the request's plan expires [s] (0 when it has)."""
+        return max(0.0, request.expires_mono - self._clock())
 
     def offer(self, plan: StoredPlan, prompt: str, estop_generation: int) -> PendingRequest:
         """The open request for this plan under this e-stop generation, created on first offer."""
