@@ -228,4 +228,4 @@ async def test_pages_carry_a_strict_content_security_policy(tmp_path: Path) -> N
         page = await http.get("/console/login")
 
     assert "script-src 'self'" in page.headers["content-security-policy"]
-    assert page.headers["referrer-policy"] == "no-referrer"
+    assert page.headers["referrer-policy"] == "same-origin"
