@@ -62,10 +62,11 @@ class StateFeed:
     """Reads for the console pages; one per console."""
 
     def __init__(self, guard: Guard) -> None:
-        from armwarden.assembly import plan_previewer
+        from armwarden.server.preview import PlanPreviewer
 
         self.guard = guard
-        self._previewer = plan_previewer()  # the renderer of the plan previews, with its own scene cache
+        #: the plan preview renderer, with its own scene cache (used on the planning thread only)
+        self._previewer = PlanPreviewer(guard.planning.envelope.limits)
         self._audit_status: AuditStatus | None = None
         self._verify_lock = anyio.Lock()
 
@@ -122,17 +123,17 @@ class StateFeed:
             return None
         q = np.asarray(state.positions, dtype=float)
         standing = JointTrajectory(tuple(guard.policy.robot.joint_names), np.array([0.0]), q.reshape(1, -1))
-        return await self._picture(standing, EnvelopeReport(violations=()))
+        return await self._picture(standing, EnvelopeReport(violations=()), "live")
 
     async def plan_picture(self, request: PendingRequest) -> bytes | None:
         """The plan's preview, as the plan summary carried it: drawn from the stored trajectory and report."""
         plan = request.plan
-        return await self._picture(plan.trajectory, plan.report)
+        return await self._picture(plan.trajectory, plan.report, plan.status)
 
-    async def _picture(self, trajectory: JointTrajectory, report: EnvelopeReport) -> bytes | None:
+    async def _picture(self, trajectory: JointTrajectory, report: EnvelopeReport, status: str) -> bytes | None:
         """Drawn on the planning thread: the planning model's Pinocchio data is used only there."""
-        guard, previewer = self.guard, self._previewer
-        return await guard.planning_flow.on_thread(lambda: previewer(guard.planning, trajectory, report))
+        robot, previewer = self.guard.planning.robot, self._previewer
+        return await self.guard.planning_flow.on_thread(lambda: previewer.render(robot, trajectory, report, status=status))
 
     async def audit_tail(self, n: int = AUDIT_TAIL) -> list[dict[str, Any]]:
         audit = self.guard.audit
