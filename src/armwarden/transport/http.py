@@ -8,6 +8,9 @@ Request path (outermost first)::
                (every path)      (all but       token())                request ends unanswered
                                  /healthz)                              is cancelled)
 
+- With a `console` app, ``/console`` is mounted beside ``/mcp``: it authenticates by itself
+  (its session cookie, `armwarden.console`), so `BearerAuth` lets its paths through; Host/Origin
+  are checked there like everywhere.
 - Host/Origin validation (DNS rebinding) uses the SDK's `TransportSecuritySettings` and
   `TransportSecurityMiddleware.validate_request` on *every* path, before credentials are looked
   at; the same settings are handed to the SDK transport, which checks ``/mcp`` again.
