@@ -85,6 +85,16 @@ def wait_for(browser: Any, condition: Any) -> Any:
     return WebDriverWait(browser, WAIT_S).until(condition)
 
 
+def click_and_load(browser: Any, element_id: str) -> None:
+    """Click a submit button and wait until the page it leads to has replaced this one."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    button = browser.find_element(By.ID, element_id)
+    button.click()
+    wait_for(browser, ec.staleness_of(button))
+
+
 def screenshot(browser: Any, name: str) -> None:
     directory = os.environ.get(SCREENSHOTS_ENV)
     if directory:
@@ -172,7 +182,7 @@ def test_a_replayed_approval_link_is_refused(tmp_path: Path, browser: Any) -> No
         browser.find_element(By.ID, "approve").click()
         call.result(timeout=WAIT_S)
         browser.switch_to.window(first_tab)
-        browser.find_element(By.ID, "approve").click()  # the stale tab answers again
+        click_and_load(browser, "approve")  # the stale tab answers again
         message = browser.find_element(By.ID, "message").text
 
     assert "already approved" in message
@@ -225,10 +235,10 @@ def test_reset_from_the_browser_needs_the_event_number(tmp_path: Path, browser: 
         sign_in(browser, session.served, session.served.operator_token)
         browser.get(session.served.console + "/safety")
         browser.find_element(By.ID, "reset-event").send_keys("7")
-        browser.find_element(By.ID, "reset-button").click()
+        click_and_load(browser, "reset-button")
         refused = browser.find_element(By.ID, "message").text
         browser.find_element(By.ID, "reset-event").send_keys("1")
-        browser.find_element(By.ID, "reset-button").click()
+        click_and_load(browser, "reset-button")
         released = browser.find_element(By.ID, "message").text
 
     assert "refused" in refused
@@ -246,7 +256,7 @@ def test_a_post_without_the_csrf_token_is_refused(tmp_path: Path, browser: Any) 
         browser.get(session.served.console + "/safety")
         browser.execute_script("document.querySelector('#reset-form input[name=csrf]').remove();")
         browser.find_element(By.ID, "reset-event").send_keys("1")
-        browser.find_element(By.ID, "reset-button").click()
+        click_and_load(browser, "reset-button")
         message = browser.find_element(By.ID, "message").text
 
     assert "CSRF" in message
