@@ -8,8 +8,22 @@
 #   ARMWARDEN_EXTRAS       the extras to install (default dev,mujoco,can,image)
 #   ARMWARDEN_CONSTRAINTS  an optional pip constraints file, e.g. constraints/ros.txt for the ROS
 #                          venv scripts/test.sh builds (.venv-ros, extras dev,can,ros)
+#
+# The operator console's browser tests (tests/console) drive Debian's chromium through
+# chromium-driver: installed here with apt-get where that can be done (root, or sudo without a
+# password); otherwise the tests say what to install (and fail in CI, .ci/run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if { [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; } && command -v apt-get >/dev/null 2>&1; then
+  as_root=()
+  if [ "$(id -u)" != 0 ]; then as_root=(sudo -n); fi
+  if [ "${#as_root[@]}" = 0 ] || sudo -n true 2>/dev/null; then
+    echo "bootstrap: installing chromium and chromium-driver (browser tests of the operator console)" >&2
+    "${as_root[@]}" apt-get install -y -qq chromium chromium-driver >&2 \
+      || { "${as_root[@]}" apt-get update -qq >&2 && "${as_root[@]}" apt-get install -y -qq chromium chromium-driver >&2; } \
+      || echo "bootstrap: could not install chromium; the console's browser tests will say so" >&2
+  fi
+fi
 PYTHON="${PYTHON:-python3}"
 VENV="${ARMWARDEN_VENV:-.venv}"
 EXTRAS="${ARMWARDEN_EXTRAS:-dev,mujoco,can,image}"

@@ -269,6 +269,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
         ("approval.on_client_without_elicitation", value, "approval.on_client_without_elicitation")
         for value in ("ask", "", 0, None, False)
     ],
+    *[("approval.channel", value, "approval.channel") for value in ("console", "URL", 1, None, True)],
     ("approval.require_for", "execute", "approval.require_for"),
     ("approval.require_for", None, "approval.require_for"),
     ("approval.require_for", ["launch"], "approval.require_for[0]"),

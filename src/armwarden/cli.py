@@ -53,6 +53,12 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--estop-port", type=int, default=None, metavar="PORT",
                        help="serve the independent stop channel (POST /estop, any token) on this port; needs --auth-tokens")
     serve.add_argument("--estop-host", default="127.0.0.1", help="address of the stop channel (default loopback)")
+    serve.add_argument("--console-port", type=int, default=None, metavar="PORT",
+                       help="stdio: serve the operator console on this port (over HTTP it is at /console)")
+    serve.add_argument("--console-host", default="127.0.0.1", help="address of --console-port (default loopback)")
+    serve.add_argument("--no-console", action="store_true", help="HTTP: do not serve the operator console at /console")
+    serve.add_argument("--console-estop-needs-sign-in", action="store_true",
+                       help="the console's E-STOP needs sign-in also from this machine (default: loopback may stop unsigned)")
     serve.add_argument("--dry-run", action="store_true", help="validate and ask, never actuate")
     serve.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
 

@@ -182,6 +182,8 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
 
             group.start_soon(on_signals)
             if args.transport == "stdio":
+                if getattr(args, "console_port", None) is not None:
+                    group.start_soon(_serve_console, args, assembly, external)
                 await _serve_stdio(assembly, external)
                 why = "end of stdin"
             else:
@@ -195,6 +197,40 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
         finally:  # last: a SIGUSR1 during the shutdown still stops the arm instead of killing the process
             if signal_stop is not None:
                 signal_stop.close()
+
+
+def _console_app(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, tokens: Any) -> Any:
+    """The operator console for this daemon (docs/console.md): sign-in with `tokens` (None: nobody
+    can sign in), E-STOP through the stop channel's thread-safe path, approval answers when the
+    policy's `approval.channel` is url or both."""
+    from armwarden.console import ConsoleSettings, SessionStore, build_console_app, timed_estop
+
+    settings = ConsoleSettings(
+        estop_from_loopback_without_sign_in=not getattr(args, "console_estop_needs_sign_in", False),
+        answer_approvals=assembly.policy.approval.channel in ("url", "both"))
+    hook = timed_estop(external.latch_and_stop_for("console"), external.record)
+    return build_console_app(assembly.guard, SessionStore(tokens), hook, settings)
+
+
+def _link_host(host: str) -> str:
+    """The host name a link to this daemon uses: a wildcard bind is reached on loopback here."""
+    if host in ("0.0.0.0", "::", "[::]", ""):
+        return "127.0.0.1"
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
+async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops) -> None:
+    """``--console-port`` (stdio): the console alone on its own port, until cancelled."""
+    from armwarden.transport.http import build_console_only_app, serve_http
+    from armwarden.transport.tokens import TokenStore
+
+    tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
+    app = build_console_only_app(_console_app(args, assembly, external, tokens), host=args.console_host,
+                                 port=args.console_port, allowed_hosts=getattr(args, "allowed_host", []) or [],
+                                 allowed_origins=getattr(args, "allowed_origin", []) or [])
+    assembly.guard.approvals.console_url = f"http://{_link_host(args.console_host)}:{args.console_port}/console"
+    logger.warning("operator console: %s/", assembly.guard.approvals.console_url)
+    await serve_http(app, args.console_host, args.console_port)
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
@@ -222,9 +258,12 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
         await assembly.guard.abandoned_call(tool, arguments, request_id, cancelled,
                                             principal=None if principal is None else principal.name)
 
+    console = None if getattr(args, "no_console", False) else _console_app(args, assembly, external, tokens)
+    if console is not None:  # the link URL-mode approvals send
+        assembly.guard.approvals.console_url = f"http://{_link_host(args.host)}:{args.port}/console"
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
-                         on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt,
+                         on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt, console=console,
                          allowed_hosts=getattr(args, "allowed_host", []) or [],
                          allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)
@@ -241,6 +280,11 @@ def serve_command(args: argparse.Namespace) -> int:
             from armwarden.transport.tokens import TokenStore
 
             check_bind_safety(args.host, TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
+        if getattr(args, "console_port", None) is not None:
+            from armwarden.transport.http import check_bind_safety
+            from armwarden.transport.tokens import TokenStore
+
+            check_bind_safety(args.console_host, TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
         if getattr(args, "estop_port", None) is not None and not args.auth_tokens:
             raise ConfigurationError("--estop-port needs --auth-tokens: the stop channel accepts any role's token, "
                                      "and none without one")

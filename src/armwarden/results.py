@@ -82,7 +82,7 @@ class PlanSummary(_Result):
 class ApprovalInfo(_Result):
     required: bool
     operator: str | None = Field(description="Name the human gave, if asked (unverified)")
-    via: Literal["not_required", "elicitation", "no_elicitation_client", "dry_run"]
+    via: Literal["not_required", "elicitation", "console", "no_elicitation_client", "dry_run"]
 
 
 class ExecutionReport(_Result):

@@ -1,6 +1,8 @@
 """REFERENCE ONLY: the plan preview renderer as it was before issue 13 made it cheap (commit
 02432ca, `src/armwarden/server/preview.py`), kept verbatim so `test_preview_reference.py` can
-show that the optimised renderer draws the same picture. Not used by the daemon.
+show that the optimised renderer draws the same picture. Not used by the daemon. One change
+since: keep-out marks are placed where the body meets the zone (`preview._contact_point`, issue
+14's picture-correctness fix), exactly as the renderer under test places them.
 
 The plan preview picture attached to every `PlanSummary`, for the human who approves the plan.
 
@@ -85,7 +87,7 @@ def render_plan_preview(
     if status is None:
         status = "rejected" if report.hard else ("needs_approval" if report.soft else "ok")
 
-    geometry = _plan_geometry(robot, trajectory, report)
+    geometry = _plan_geometry(robot, trajectory, report, limits)
     font = ImageFont.load_default()
     image = Image.new("RGB", (width, height), _WHITE)
     draw = ImageDraw.Draw(image, "RGBA")  # RGBA drawing blends translucent fills onto the RGB image
@@ -138,7 +140,8 @@ class _PlanGeometry:
         self.marks = marks  # (V, 3) violation positions
 
 
-def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report: EnvelopeReport) -> _PlanGeometry | None:
+def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report: EnvelopeReport,
+                   limits: EnvelopeLimits) -> _PlanGeometry | None:
     """Every point the picture needs, from one batched forward-kinematics call; None if unusable."""
     if trajectory is None:
         return None
@@ -170,6 +173,11 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
         row = n_path + n_sweep + k
         bodies = [index.get(part) for part in (violation.body or "").split("|")]
         found = [b for b in bodies if b is not None]
+        if violation.code.value == "KEEP_OUT" and limits.keep_out:
+            from armwarden.server.preview import _contact_point
+
+            marks.append(_contact_point([(p0[row, b], p1[row, b]) for b in found] or [(p0[row, -1], p0[row, -1])], limits))
+            continue
         marks.append(np.mean(centres[row, found], axis=0) if found else p0[row, -1])
     marks_arr = np.array(marks, dtype=float).reshape(-1, 3)
     return _PlanGeometry(tcp_path, capsules, np.asarray(robot.capsule_radii, dtype=float), marks_arr)

@@ -184,3 +184,28 @@ def test_without_pillow_downscale_raises_a_clear_error(monkeypatch: pytest.Monke
     assert not pillow_available()
     with pytest.raises(ImageSupportMissing, match=r"armwarden\[image\]"):
         downscale_png(png, 5)
+
+
+def test_keep_out_marks_lie_inside_the_drawn_zone(runtime: RuntimeModel, into_monitor) -> None:
+    """Picture correctness on the rendered geometry: each keep-out violation's cross is drawn,
+    in both views, inside the pixel rectangle of the zone it violates (and the pixel there is red)."""
+    from armwarden.server.preview import PlanPreviewer, _bounds, _plan_geometry
+
+    trajectory, report = into_monitor
+    previewer = PlanPreviewer(runtime.envelope.limits)
+    rgb = np.asarray(_decode(previewer.render(runtime.robot, trajectory, report)).convert("RGB")).astype(int)
+    geometry = _plan_geometry(runtime.robot, trajectory, report, previewer.limits)
+    assert geometry is not None
+    scene = previewer._scene(*_bounds(previewer.limits, geometry))
+    timed = [v for v in report.violations if v.time_s is not None]
+    keep_out = [k for k, v in enumerate(timed) if v.code.value == "KEEP_OUT"]
+    monitor = next(zone for zone in previewer.limits.keep_out if zone.name == "monitor")
+
+    assert keep_out
+    for view in scene.views:
+        left, top, right, bottom = view.rect(monitor.lo, monitor.hi)
+        for k in keep_out:
+            x, y = view.pts(geometry.marks[k:k + 1])[0]
+            assert left <= x <= right and min(top, bottom) <= y <= max(top, bottom), (view.axis_v, (x, y))
+            r, g, b = rgb[round(y), round(x)]
+            assert r > 200 and g < 60 and b < 60

@@ -57,6 +57,7 @@ from armwarden.robot.model import RobotModel
 from armwarden.safety import prompts
 from armwarden.safety.approval import Approval, Prompt, ServerDecision, approval_required, client_decision, interpret
 from armwarden.safety.estop import EStopLatch
+from armwarden.safety.pending import PendingApprovals
 from armwarden.safety.plans import PlanRefusal, PlanStore
 from armwarden.safety.ratelimit import RateLimiter
 from armwarden.safety.violations import Violation
@@ -80,6 +81,8 @@ class Guard:
         self.limiter = RateLimiter.from_policy(policy, clock=clock)
         self.latch = EStopLatch(clock=clock)
         self.plans = PlanStore.from_policy(policy, clock=clock)
+        #: approval questions asked about plans, for the operator console (`safety.pending`)
+        self.approvals = PendingApprovals(clock=clock)
         self.readings = Readings(policy, state_robot, backend, clock)
         self.stopper = Stopper(backend, self.latch, self.plans)
         self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
@@ -181,7 +184,8 @@ class Guard:
 
     # ================================================================== execution
     async def precheck_execute(self, plan_id: object, can_elicit: bool) -> ServerDecision | Prompt:
-        """Everything that would refuse execute_plan, checked before any human is asked. Read-only."""
+        """Everything that would refuse execute_plan, checked before any human is asked. Read-only,
+        but for posting the question on the approval board (idempotent per plan and e-stop generation)."""
         if (d := self.peek_rate("execute_plan")) is not None:
             return d
         if (r := self.estop_refusal("execute_plan")) is not None:
@@ -203,7 +207,9 @@ class Guard:
         decision = client_decision(self.policy, "execute_plan", required, can_elicit)
         if decision is not None:
             return decision
-        return prompts.execute_prompt(self.policy, plan, self.backend.name, self.backend.capabilities.wrench, self.dry_run)
+        prompt = prompts.execute_prompt(self.policy, plan, self.backend.name, self.backend.capabilities.wrench, self.dry_run)
+        self.approvals.offer(plan, prompt.message, self.latch.generation)  # idempotent: the console shows it
+        return prompt
 
     def interpret_approval(self, outcome: Any, required: bool) -> Approval:
         """The resolver's outcome as an Approval, noted on the call's audit record."""
@@ -227,10 +233,11 @@ class Guard:
             plan = self.plans.consume(plan_id, self.latch.generation, current_caller())
             if isinstance(plan, PlanRefusal):
                 raise refuse(plan.code, plan.message)
+            self.approvals.withdraw(plan.digest, "the plan was used")
             approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
             if not approval.granted:
                 raise approval.refusal(f"execute_plan {plan.plan_id}")
-            if approval.via == "elicitation" and shown_digest != plan.digest:
+            if approval.via in ("elicitation", "console") and shown_digest != plan.digest:
                 raise refuse(RefusalCode.APPROVAL_MISMATCH, "the approval was given for a different plan; nothing was done")
             self.require_not_estopped("execute_plan")
             recheck = await self.planning_flow.on_thread(lambda: self.planning.envelope.check(plan.trajectory))
@@ -299,6 +306,14 @@ class Guard:
         if not approval.granted:
             raise approval.refusal("reset_estop")
         return self.stopper.release(shown_event)
+
+    def reset_estop_typed(self, typed_event: str) -> results.ResetResult:
+        """Release from the operator console: a signed-in operator typed the number of the event
+        they were shown (the console's equivalent of approving `reset_estop`). Only that event,
+        and only while it is still the one latched."""
+        if not (isinstance(typed_event, str) and typed_event.isascii() and typed_event.isdigit()):
+            raise refuse(RefusalCode.RESET_REFUSED, "reset refused: type the number of the latched e-stop event")
+        return self.stopper.release(typed_event)
 
     # ================================================================== control actions and gripper (own modules)
     def precheck_action(self, tool: ControlTool, can_elicit: bool, **arguments: Any) -> ServerDecision | Prompt:

@@ -97,6 +97,12 @@ class ApprovalConfig(BaseModel):
         description="What to do when approval is needed but the client cannot ask (no unit); "
         "`reset_estop` always needs a human.",
     )
+    channel: Literal["form", "url", "both"] = Field(
+        default="form",
+        description="Where the human answers a motion's approval (no unit): form, the MCP client's elicitation "
+        "form; url, the operator console page of that request (MCP URL-mode elicitation points there); both, "
+        "whichever answers first (the other is withdrawn).",
+    )
     require_for: Annotated[tuple[ApprovalAction, ...], AfterValidator(_normalise_require_for)] = Field(
         default=APPROVAL_ACTIONS,
         description="Actions (no unit) that go through approval; `reset_estop` is always included.",

@@ -70,11 +70,32 @@ class Prompt:
 
 
 @dataclass(frozen=True)
+class ConsoleChannel:
+    """A resolver's answer when the human is asked in the operator console (`approval.channel`
+    url or both): the tool body sends the link (URL-mode elicitation) and waits for the
+    console's answer, recorded server-side (`safety.pending`)."""
+
+    prompt: Prompt
+    channel: Literal["url", "both"]
+
+
+@dataclass(frozen=True)
+class ConsoleAnswer:
+    """What the tool body read from the approval board: the console's answer for `digest`, or
+    why none came (`missing`: expired, e-stopped, link declined, no console served)."""
+
+    approved: bool
+    operator: str | None
+    digest: str
+    missing: str | None = None
+
+
+@dataclass(frozen=True)
 class Approval:
     """What the tool body learned about approval: who decided, and how."""
 
     granted: bool
-    via: Literal["not_required", "elicitation", "no_elicitation_client", "dry_run"]
+    via: Literal["not_required", "elicitation", "console", "no_elicitation_client", "dry_run"]
     required: bool
     operator: str | None = None
     refusal_code: RefusalCode | None = None
@@ -94,6 +115,12 @@ def interpret(outcome: Any, required: bool) -> Approval:
     unrecognised refuses."""
     from mcp.server.mcpserver import AcceptedElicitation, CancelledElicitation, DeclinedElicitation
 
+    if isinstance(outcome, ConsoleAnswer):
+        operator = flatten_reason(outcome.operator, 64) if outcome.operator else None
+        if outcome.approved and outcome.missing is None:
+            return Approval(True, "console", True, operator)
+        why = outcome.missing or "the operator declined in the console"
+        return Approval(False, "console", True, operator, RefusalCode.APPROVAL_DENIED, f"{why}; nothing was done")
     if isinstance(outcome, AcceptedElicitation):
         data = outcome.data
         if isinstance(data, ServerDecision):

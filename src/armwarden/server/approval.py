@@ -12,7 +12,7 @@ from typing import Annotated, Any, NamedTuple
 from mcp.server.mcpserver import Context, Elicit, ElicitationResult, Resolve
 from mcp_types.version import is_version_at_least
 
-from armwarden.safety.approval import ApprovalForm, Prompt, ServerDecision
+from armwarden.safety.approval import ApprovalForm, ConsoleChannel, Prompt, ServerDecision
 from armwarden.server.calls import current_call
 
 #: a tool's hidden `approval` parameter: the server's decision or the human's answer
@@ -39,20 +39,38 @@ class ApprovalGate(NamedTuple):
     shown: Resolve
 
 
-def approval_parameters(precheck: Callable[..., Any]) -> ApprovalGate:
+def console_reachable(ctx: Context) -> bool:
+    """Whether the out-of-band console channel can be offered on this request: the client takes
+    URL-mode elicitation, and the protocol still has server-to-client requests mid-call
+    (2025-11-25). Under 2026-07-28 the SDK's resolvers render form questions only, so the form
+    is asked there whatever the channel."""
+    caps = ctx.client_capabilities
+    if caps is None or caps.elicitation is None or caps.elicitation.url is None:
+        return False
+    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
+        return False
+    return bool(ctx.session.can_send_request)
+
+
+def approval_parameters(precheck: Callable[..., Any], channel: str = "form") -> ApprovalGate:
     """The two hidden parameters of a tool that may need a human, both resolved from `precheck`
     (a read-only `ServerDecision | Prompt`; the SDK runs it once per round and shares it):
     `approval`, the server's decision or the human's answer to the prompt; `shown`, the digest of
     what that prompt showed (None when nobody was asked), which the Guard matches against the
-    request it is about to carry out."""
+    request it is about to carry out. `channel` (the policy's `approval.channel`, for plans): with
+    url or both, and a client that can open a link (`console_reachable`), the answer is a
+    `ConsoleChannel`: the tool body asks out of band (`server.outofband`)."""
     check = Resolve(precheck)
 
-    async def ask(result: Annotated[ServerDecision | Prompt, check]) -> ServerDecision | Elicit[ApprovalForm]:
+    async def ask(ctx: Context, result: Annotated[ServerDecision | Prompt, check]
+                  ) -> ServerDecision | ConsoleChannel | Elicit[ApprovalForm]:
         if not isinstance(result, Prompt):
             return result
         record = current_call()
         if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
             record.extra["approval_prompt"] = result.message
+        if channel in ("url", "both") and console_reachable(ctx):
+            return ConsoleChannel(result, "url" if channel == "url" else "both")
         return Elicit(result.message, ApprovalForm)
 
     async def shown(result: Annotated[ServerDecision | Prompt, check]) -> str | None:
@@ -61,4 +79,4 @@ def approval_parameters(precheck: Callable[..., Any]) -> ApprovalGate:
     return ApprovalGate(Resolve(ask), Resolve(shown))
 
 
-__all__ = ["ApprovalAnswer", "ApprovalGate", "ShownDigest", "approval_parameters", "can_elicit"]
+__all__ = ["ApprovalAnswer", "ApprovalGate", "ShownDigest", "approval_parameters", "can_elicit", "console_reachable"]

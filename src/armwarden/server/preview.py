@@ -105,7 +105,7 @@ class PlanPreviewer:
         if status is None:
             status = "rejected" if report.hard else ("needs_approval" if report.soft else "ok")
 
-        geometry = _plan_geometry(robot, trajectory, report)
+        geometry = _plan_geometry(robot, trajectory, report, self.limits)
         scene = self._scene(*_bounds(self.limits, geometry))
         image = scene.image.copy()
         draw = ImageDraw.Draw(image, "RGBA")  # RGBA drawing blends translucent fills onto the RGB image
@@ -161,8 +161,11 @@ class _PlanGeometry:
         self.marks = marks  # (V, 3) violation positions
 
 
-def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report: EnvelopeReport) -> _PlanGeometry | None:
-    """Every point the picture needs, from one batched forward-kinematics call; None if unusable."""
+def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report: EnvelopeReport,
+                   limits: EnvelopeLimits | None = None) -> _PlanGeometry | None:
+    """Every point the picture needs, from one batched forward-kinematics call; None if unusable.
+    A keep-out violation is marked where its body meets the zone (`_contact_point`), so the mark
+    lies inside the drawn zone in both views; other violations at the centre of their bodies."""
     if trajectory is None:
         return None
     positions = np.asarray(trajectory.positions)
@@ -193,9 +196,29 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
         row = n_path + n_sweep + k
         bodies = [index.get(part) for part in (violation.body or "").split("|")]
         found = [b for b in bodies if b is not None]
+        if violation.code.value == "KEEP_OUT" and limits is not None and limits.keep_out:
+            ends = [(p0[row, b], p1[row, b]) for b in found] or [(p0[row, -1], p0[row, -1])]
+            marks.append(_contact_point(ends, limits))
+            continue
         marks.append(np.mean(centres[row, found], axis=0) if found else p0[row, -1])
     marks_arr = np.array(marks, dtype=float).reshape(-1, 3)
     return _PlanGeometry(tcp_path, capsules, np.asarray(robot.capsule_radii, dtype=float), marks_arr)
+
+
+def _contact_point(segments: list[tuple[np.ndarray, np.ndarray]], limits: EnvelopeLimits) -> np.ndarray:
+    """The point of a keep-out zone nearest to the violating bodies' axes (segments p0→p1): where
+    the padded body reaches into the zone, and a point of the zone itself."""
+    t = np.linspace(0.0, 1.0, 33)[:, None]
+    points = np.vstack([a + t * (b - a) for a, b in segments])  # (N, 3) along every segment
+    best, best_distance = points[0], math.inf
+    for zone in limits.keep_out:
+        lo, hi = np.asarray(zone.lo, dtype=float), np.asarray(zone.hi, dtype=float)
+        inside = np.clip(points, lo, hi)  # each point's nearest point of the zone
+        distances = np.linalg.norm(points - inside, axis=1)
+        k = int(np.argmin(distances))
+        if distances[k] < best_distance:
+            best, best_distance = inside[k], float(distances[k])
+    return best
 
 
 def _body_index(robot: RobotModel) -> dict[str, int]:

@@ -19,7 +19,7 @@ from collections.abc import Awaitable, Callable
 from typing import Annotated, Any
 
 import numpy as np
-from mcp.server.mcpserver import Context, MCPServer
+from mcp.server.mcpserver import AcceptedElicitation, Context, MCPServer
 from mcp.server.mcpserver import Image as McpImage
 from mcp_types import CallToolResult, ToolAnnotations
 from pydantic import BaseModel, ConfigDict, Field, Strict
@@ -46,9 +46,10 @@ from armwarden.results import (
     StopResult,
     TransformResult,
 )
-from armwarden.safety.approval import ServerDecision
+from armwarden.safety.approval import ConsoleChannel, ServerDecision
 from armwarden.server.approval import ApprovalAnswer, ApprovalGate, ShownDigest, approval_parameters, can_elicit
 from armwarden.server.calls import mark_body_ran, ok, refused
+from armwarden.server.outofband import answer_out_of_band
 
 logger = logging.getLogger(__name__)
 
@@ -316,7 +317,7 @@ class ToolBuilder:
         async def precheck_execute(ctx: Context, plan_id: str) -> ServerDecision | Prompt:
             return await guard.precheck_execute(plan_id, can_elicit(ctx))
 
-        gate = approval_parameters(precheck_execute)
+        gate = approval_parameters(precheck_execute, channel=policy.approval.channel)
 
         @tool("EXECUTE a previously planned motion on the robot (the only tool that moves the arm). The server re-checks "
               "the plan, may ask a human to approve, watches the contact force while moving and streams progress. Each "
@@ -328,7 +329,11 @@ class ToolBuilder:
             async def progress(fraction: float) -> None:
                 await ctx.report_progress(fraction, 1.0, "moving")
 
-            report = await guard.execute(plan_id, approval, shown, progress)
+            outcome: Any = approval
+            asked: object = approval.data if isinstance(approval, AcceptedElicitation) else None
+            if isinstance(asked, ConsoleChannel):  # approval.channel url | both: the console's record decides
+                outcome = await answer_out_of_band(ctx, guard, asked)
+            report = await guard.execute(plan_id, outcome, shown, progress)
             return ok(report, summary=f"{report.status}: {report.detail}")
 
         @tool("Whether a plan is executing, its progress (0..1) and the last execution result.", READ_ONLY_LOCAL)

@@ -8,6 +8,9 @@ Request path (outermost first)::
                (every path)      (all but       token())                request ends unanswered
                                  /healthz)                              is cancelled)
 
+- With a `console` app, ``/console`` is mounted beside ``/mcp``: it authenticates by itself
+  (its session cookie, `armwarden.console`), so `BearerAuth` lets its paths through; Host/Origin
+  are checked there like everywhere.
 - Host/Origin validation (DNS rebinding) uses the SDK's `TransportSecuritySettings` and
   `TransportSecurityMiddleware.validate_request` on *every* path, before credentials are looked
   at; the same settings are handed to the SDK transport, which checks ``/mcp`` again.
@@ -50,7 +53,7 @@ from starlette.applications import Starlette
 from starlette.datastructures import Headers
 from starlette.middleware import Middleware
 from starlette.requests import Request
-from starlette.responses import JSONResponse, Response
+from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Mount, Route
 from starlette.types import ASGIApp, Receive, Scope, Send
 
@@ -61,10 +64,12 @@ from armwarden.transport.jsonrpc import StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
+    "CONSOLE_PATH",
     "HEALTH_PATH",
     "MCP_PATH",
     "OBSERVER_GROUPS",
     "OBSERVER_TOOLS",
+    "build_console_only_app",
     "build_http_app",
     "check_bind_safety",
     "current_principal",
@@ -78,6 +83,7 @@ logger = logging.getLogger(__name__)
 
 MCP_PATH = "/mcp"
 HEALTH_PATH = "/healthz"
+CONSOLE_PATH = "/console"
 PUBLIC_PATHS = frozenset({HEALTH_PATH})
 """Paths served without a bearer token (Host/Origin are still checked)."""
 
@@ -170,12 +176,17 @@ def _unauthorized(description: str, *, invalid: bool) -> Response:
 class BearerAuth:
     """Pure ASGI: require a valid bearer token on every path but `PUBLIC_PATHS`."""
 
-    def __init__(self, app: ASGIApp, token_store: TokenStore) -> None:
+    def __init__(self, app: ASGIApp, token_store: TokenStore, own_auth_prefixes: Sequence[str] = ()) -> None:
         self.app = AuthContextMiddleware(app)  # SDK: scope["user"] -> get_access_token()
         self.token_store = token_store
+        #: path prefixes that authenticate by themselves (the operator console's session cookie)
+        self.own_auth_prefixes = tuple(own_auth_prefixes)
+
+    def _own_auth(self, path: str) -> bool:
+        return any(path == prefix or path.startswith(prefix + "/") for prefix in self.own_auth_prefixes)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["path"] in PUBLIC_PATHS:
+        if scope["type"] != "http" or scope["path"] in PUBLIC_PATHS or self._own_auth(scope["path"]):
             await self.app(scope, receive, send)
             return
         values = Headers(scope=scope).getlist("authorization")
@@ -224,8 +235,11 @@ def build_http_app(
     health: Callable[[], dict[str, Any]] | None = None,
     on_abandoned: AbandonedCallback | None = None,
     on_stop_request: StopOnReceipt | None = None,
+    console: ASGIApp | None = None,
 ) -> Starlette:
-    """The ASGI app: ``/mcp`` (stateful streamable HTTP) and ``/healthz``.
+    """The ASGI app: ``/mcp`` (stateful streamable HTTP), ``/healthz`` and, when given, the
+    operator `console` at ``/console`` (its own sign-in instead of bearer tokens; Host/Origin
+    checked like every path).
 
     Build one app per serve: the SDK's session manager it creates can run only once.
     ``/healthz`` needs no token: `health` must be quick, non-blocking and return JSON-able data that
@@ -262,15 +276,32 @@ def build_http_app(
 
     middleware = [Middleware(HostOriginGuard, settings=security)]
     if token_store is not None:
-        middleware.append(Middleware(BearerAuth, token_store=token_store))
+        middleware.append(Middleware(BearerAuth, token_store=token_store,
+                                     own_auth_prefixes=(CONSOLE_PATH,) if console is not None else ()))
     # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
     middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned,
                                  on_stop_request=on_stop_request))
+    routes: list[Route | Mount] = [Route(HEALTH_PATH, healthz, methods=["GET"])]
+    if console is not None:
+        routes.append(Mount(CONSOLE_PATH, app=console))
     return Starlette(
-        routes=[Route(HEALTH_PATH, healthz, methods=["GET"]), Mount("/", app=mcp_app)],
+        routes=[*routes, Mount("/", app=mcp_app)],
         middleware=middleware,
         lifespan=lifespan,
     )
+
+
+def build_console_only_app(console: ASGIApp, *, host: str, port: int, allowed_hosts: Sequence[str] = (),
+                           allowed_origins: Sequence[str] = ()) -> Starlette:
+    """The operator console alone (``--console-port`` on stdio): ``/console`` behind the same
+    Host/Origin checks as the HTTP transport; ``/`` redirects there."""
+    security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
+
+    async def to_console(request: Request) -> Response:
+        return RedirectResponse(CONSOLE_PATH + "/", status_code=303)
+
+    return Starlette(routes=[Route("/", to_console, methods=["GET"]), Mount(CONSOLE_PATH, app=console)],
+                     middleware=[Middleware(HostOriginGuard, settings=security)])
 
 
 # ------------------------------------------------------------------------ serving

@@ -1,0 +1,359 @@
+"""The console's HTTP routes: pages, live fragments, pictures, and the four things a human can do
+(sign in/out, E-STOP, release the e-stop, answer an approval request).
+
+Rules every handler keeps:
+- Pages and reads need a session (`sessions.py`); without one a page redirects to sign-in and a
+  read answers 401.
+- Every POST but the E-STOP from loopback needs the session's CSRF token (sign-in: the login
+  form's own token); a POST without it is refused (403) and audited.
+- Releasing the e-stop and answering approvals need the operator role; observers see, and stop.
+- Everything a human does here is audited with the session's token name (`console_*` events).
+- The E-STOP awaits nothing but its own (small) request body before the stop is issued: it
+  calls the thread-safe latch-and-stop of the independent stop channel (`EStopHook`), then
+  audits (without waiting for the disk) and answers.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any, Literal
+
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import JSONResponse, RedirectResponse, Response
+from starlette.routing import Route
+
+from armwarden.console.feed import StateFeed, request_view
+from armwarden.console.pages import SECURITY_HEADERS, render, render_fragment
+from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, same_secret
+from armwarden.errors import SafetyRefusal
+from armwarden.guard import Guard
+from armwarden.safety.pending import AnswerRefusal
+from armwarden.transport.http import CONSOLE_PATH, is_loopback_host
+
+__all__ = ["CONSOLE_PATH", "ConsoleSettings", "EStopHook", "build_console_app", "timed_estop"]
+
+logger = logging.getLogger(__name__)
+
+#: latch the e-stop and stop the arm from any thread: (reason, principal, peer) -> e-stop event number
+EStopHook = Callable[[str, str, str], int]
+_FRAGMENTS = {"state": "_state.html", "safety": "_safety.html", "approvals": "_approvals.html", "audit": "_audit.html"}
+_STATIC = {"console.js": "text/javascript; charset=utf-8", "console.css": "text/css; charset=utf-8"}
+
+
+@dataclass(frozen=True)
+class ConsoleSettings:
+    """How the console behaves; the daemon builds it from the command line and the policy."""
+
+    #: the E-STOP button works without sign-in for requests from this machine
+    estop_from_loopback_without_sign_in: bool = True
+    #: approval requests may be answered here (`approval.channel` url or both); `form`: shown only
+    answer_approvals: bool = False
+    #: the path the console is mounted at (links and the cookie's Path)
+    path: str = CONSOLE_PATH
+
+
+def _is_loopback_peer(request: Request) -> bool:
+    client = request.client
+    return client is not None and is_loopback_host(client.host)
+
+
+class Console:
+    """The handlers of one console, bound to one Guard."""
+
+    def __init__(self, guard: Guard, sessions: SessionStore, estop: EStopHook, settings: ConsoleSettings) -> None:
+        self.guard = guard
+        self.sessions = sessions
+        self.estop_hook = estop
+        self.settings = settings
+        self.feed = StateFeed(guard)
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def base(self) -> str:
+        return self.settings.path
+
+    def session_of(self, request: Request) -> Session | None:
+        return self.sessions.lookup(request.cookies.get(COOKIE))
+
+    async def audit(self, event: str, session: Session | None, outcome: str, detail: str, **extra: Any) -> None:
+        audit = self.guard.audit
+        if audit is None:
+            return
+        await audit.append_async(event, principal=None if session is None else session.name, outcome=outcome,
+                                 operator=None if session is None else session.name, detail=detail,
+                                 extra={"via": "console", **extra})
+
+    async def refuse(self, request: Request, session: Session | None, status: int, why: str) -> Response:
+        """A refused console action: audited, answered with the reason."""
+        await self.audit("console_refused", session, "refused", f"{request.method} {request.url.path}: {why}",
+                         peer=request.client.host if request.client else None)
+        if "application/json" in request.headers.get("accept", ""):
+            return JSONResponse({"error": why}, status_code=status, headers=SECURITY_HEADERS)
+        return render("login.html" if session is None else "safety.html", status_code=status, base=self.base,
+                      session=session, message=why, message_kind="error", login_csrf="",
+                      sign_in_enabled=self.sessions.enabled, safety=self.feed.safety())
+
+    async def form_of(self, request: Request) -> dict[str, str]:
+        form = await request.form()
+        return {k: v for k, v in form.items() if isinstance(v, str)}
+
+    def csrf_ok(self, request: Request, form: dict[str, str], session: Session) -> bool:
+        return same_secret(form.get("csrf") or request.headers.get("x-csrf-token"), session.csrf)
+
+    def page(self, template: str, request: Request, session: Session, **context: Any) -> Response:
+        message = request.query_params.get("msg")
+        return render(template, base=self.base, session=session, message=message[:300] if message else None,
+                      message_kind=request.query_params.get("kind", "ok"), **context)
+
+    def back(self, where: str, message: str, kind: Literal["ok", "error"] = "ok") -> RedirectResponse:
+        from urllib.parse import urlencode
+
+        return RedirectResponse(f"{self.base}{where}?{urlencode({'msg': message, 'kind': kind})}", status_code=303)
+
+    # ------------------------------------------------------------------ sign-in
+    async def login_page(self, request: Request) -> Response:
+        import secrets
+
+        token = secrets.token_urlsafe(24)
+        response = render("login.html", base=self.base, login_csrf=token, sign_in_enabled=self.sessions.enabled,
+                          message=request.query_params.get("msg"), message_kind=request.query_params.get("kind", "ok"))
+        response.set_cookie(LOGIN_COOKIE, token, httponly=True, samesite="strict", path=self.base, max_age=600)
+        return response
+
+    async def login(self, request: Request) -> Response:
+        form = await self.form_of(request)
+        expected = request.cookies.get(LOGIN_COOKIE, "")
+        if not expected or not same_secret(form.get("csrf"), expected):
+            return await self.refuse(request, None, 403, "sign-in refused: the form's CSRF token is missing or wrong")
+        session = self.sessions.sign_in(form.get("token"))
+        if session is None:
+            await self.audit("console_sign_in", None, "refused", "a sign-in with an unknown or revoked token",
+                             peer=request.client.host if request.client else None)
+            return self.back("/login", "That token is not valid (unknown or revoked).", "error")
+        await self.audit("console_sign_in", session, "ok", f"signed in as {session.name} ({session.role})",
+                         token=session.token_fingerprint)
+        response = RedirectResponse(f"{self.base}/", status_code=303)
+        response.set_cookie(COOKIE, session.session_id, httponly=True, samesite="strict", path=self.base)
+        response.delete_cookie(LOGIN_COOKIE, path=self.base)
+        return response
+
+    async def logout(self, request: Request) -> Response:
+        session = self.session_of(request)
+        if session is None:
+            return RedirectResponse(f"{self.base}/login", status_code=303)
+        if not self.csrf_ok(request, await self.form_of(request), session):
+            return await self.refuse(request, session, 403, "sign-out refused: CSRF token missing or wrong")
+        self.sessions.sign_out(session.session_id)
+        await self.audit("console_sign_out", session, "ok", f"{session.name} signed out")
+        response = RedirectResponse(f"{self.base}/login", status_code=303)
+        response.delete_cookie(COOKIE, path=self.base)
+        return response
+
+    # ------------------------------------------------------------------ pages
+    def _signed_in(self, handler: Callable[[Request, Session], Any]) -> Callable[[Request], Any]:
+        async def page(request: Request) -> Response:
+            session = self.session_of(request)
+            if session is None:
+                return RedirectResponse(f"{self.base}/login", status_code=303)
+            return await handler(request, session)
+
+        return page
+
+    async def state_page(self, request: Request, session: Session) -> Response:
+        return self.page("state.html", request, session, title="state", robot=await self.feed.robot(),
+                         safety=self.feed.safety())
+
+    async def safety_page(self, request: Request, session: Session) -> Response:
+        return self.page("safety.html", request, session, title="safety", safety=self.feed.safety())
+
+    async def approvals_page(self, request: Request, session: Session) -> Response:
+        return self.page("approvals.html", request, session, title="approvals", approvals=self.feed.approvals())
+
+    async def approval_page(self, request: Request, session: Session) -> Response:
+        pending = self.guard.approvals.get(request.path_params["request_id"])
+        if pending is None:
+            return self.back("/approvals", "No such approval request.", "error")
+        return self.page("approval.html", request, session, title=f"approve {pending.plan_id}", r=request_view(pending),
+                         answerable=self.settings.answer_approvals)
+
+    async def audit_page(self, request: Request, session: Session) -> Response:
+        return self.page("audit.html", request, session, title="audit", records=await self.feed.audit_tail(),
+                         audit_status=await self.feed.audit_status())
+
+    # ------------------------------------------------------------------ live reads (session, no redirect)
+    async def fragment(self, request: Request) -> Response:
+        session = self.session_of(request)
+        name = request.path_params["name"]
+        if session is None or name not in _FRAGMENTS:
+            return JSONResponse({"error": "sign in first" if session is None else "no such section"},
+                                status_code=401 if session is None else 404, headers=SECURITY_HEADERS)
+        context: dict[str, Any] = {"base": self.base, "session": session}
+        if name == "state":
+            context["robot"] = await self.feed.robot()
+        elif name == "safety":
+            context["safety"] = self.feed.safety()
+        elif name == "approvals":
+            context["approvals"] = self.feed.approvals()
+        else:
+            context.update(records=await self.feed.audit_tail(), audit_status=await self.feed.audit_status())
+        return render_fragment(_FRAGMENTS[name], **context)
+
+    async def state_json(self, request: Request) -> Response:
+        if self.session_of(request) is None:
+            return JSONResponse({"error": "sign in first"}, status_code=401, headers=SECURITY_HEADERS)
+        return JSONResponse(await self.feed.snapshot(), headers=SECURITY_HEADERS)
+
+    async def live_view(self, request: Request) -> Response:
+        if self.session_of(request) is None:
+            return Response(status_code=401, headers=SECURITY_HEADERS)
+        png = await self.feed.live_picture()
+        if png is None:
+            return Response("no picture: the state is unavailable or Pillow is not installed", status_code=503,
+                            headers=SECURITY_HEADERS)
+        return Response(png, media_type="image/png", headers=SECURITY_HEADERS)
+
+    async def plan_picture(self, request: Request) -> Response:
+        pending = self.guard.approvals.get(request.path_params["request_id"])
+        if self.session_of(request) is None or pending is None:
+            return Response(status_code=401 if pending is not None else 404, headers=SECURITY_HEADERS)
+        png = await self.feed.plan_picture(pending)
+        if png is None:
+            return Response("no picture (Pillow is not installed)", status_code=503, headers=SECURITY_HEADERS)
+        return Response(png, media_type="image/png", headers=SECURITY_HEADERS)
+
+    async def static(self, request: Request) -> Response:
+        name = request.path_params["name"]
+        if name not in _STATIC:
+            return Response(status_code=404)
+        body = (resources.files("armwarden.console") / "static" / name).read_bytes()
+        return Response(body, media_type=_STATIC[name], headers={"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"})
+
+    # ------------------------------------------------------------------ actions
+    async def estop(self, request: Request) -> Response:
+        """Latch and stop first, then audit and answer. Signed in: CSRF required. Not signed in:
+        only from loopback, and only if the settings allow it."""
+        session = self.session_of(request)
+        peer = request.client.host if request.client else "?"
+        form = await self.form_of(request)
+        if session is not None:
+            if not self.csrf_ok(request, form, session):
+                return await self.refuse(request, session, 403, "E-STOP refused: CSRF token missing or wrong "
+                                         "(reload the page, or use the stop channel or the hardware e-stop)")
+            principal = session.name
+        elif self.settings.estop_from_loopback_without_sign_in and _is_loopback_peer(request):
+            principal = f"console (not signed in, {peer})"
+        else:
+            return await self.refuse(request, None, 401, "E-STOP from the console needs sign-in from this address")
+        try:
+            event = self.estop_hook("operator console E-STOP", principal, peer)
+        except Exception as exc:  # the stop may not have been issued: say so loudly
+            logger.critical("console E-STOP failed: %s", exc)
+            return self._answer_estop(request, None, f"the stop may NOT have been issued: {exc}")
+        return self._answer_estop(request, event, None)
+
+    def _answer_estop(self, request: Request, event: int | None, error: str | None) -> Response:
+        if "application/json" in request.headers.get("accept", ""):
+            body = {"estopped": True, "event": event} if error is None else {"error": error}
+            return JSONResponse(body, status_code=200 if error is None else 500, headers=SECURITY_HEADERS)
+        if error is not None:
+            return self.back("/safety", f"E-STOP FAILED: {error}. Use the hardware e-stop.", "error")
+        return self.back("/safety", f"E-STOP latched: event #{event}")
+
+    async def reset(self, request: Request) -> Response:
+        """Release the e-stop: an operator types the number of the event shown; a newer latch refuses."""
+        session = self.session_of(request)
+        if session is None:
+            return await self.refuse(request, None, 401, "sign in to release the e-stop")
+        form = await self.form_of(request)
+        if not self.csrf_ok(request, form, session):
+            return await self.refuse(request, session, 403, "release refused: CSRF token missing or wrong")
+        if not session.can_approve:
+            return await self.refuse(request, session, 403, "release refused: observers cannot release the e-stop")
+        typed = form.get("event", "").strip().lstrip("#")
+        try:
+            result = self.guard.reset_estop_typed(typed)
+        except SafetyRefusal as exc:
+            await self.audit("console_reset_estop", session, "refused", str(exc), typed_event=typed[:32])
+            return self.back("/safety", str(exc), "error")
+        await self.audit("console_reset_estop", session, "released", result.detail, released_event=result.released_event)
+        return self.back("/safety", f"E-stop #{result.released_event} released by {session.name}")
+
+    async def answer(self, request: Request) -> Response:
+        """Approve or decline one request, once; the waiting tool call proceeds from this record."""
+        session = self.session_of(request)
+        if session is None:
+            return await self.refuse(request, None, 401, "sign in to answer approval requests")
+        form = await self.form_of(request)
+        if not self.csrf_ok(request, form, session):
+            return await self.refuse(request, session, 403, "answer refused: CSRF token missing or wrong")
+        if not session.can_approve:
+            return await self.refuse(request, session, 403, "answer refused: observers cannot approve")
+        if not self.settings.answer_approvals:
+            return await self.refuse(request, session, 403, "answer refused: the policy's approval channel is "
+                                     "'form' (answer in the MCP client)")
+        decision = form.get("decision")
+        if decision not in ("approve", "decline"):
+            return await self.refuse(request, session, 400, "answer refused: decision must be approve or decline")
+        request_id = request.path_params["request_id"]
+        outcome = self.guard.approvals.answer(request_id, decision == "approve", session.name,
+                                              self.guard.latch.generation)
+        if isinstance(outcome, AnswerRefusal):
+            await self.audit("console_approval", session, f"refused_{outcome.reason}", outcome.message)
+            return await self.refuse(request, session, 409, f"answer refused: {outcome.message}")
+        await self.audit("console_approval", session, outcome.answer or "?",
+                         f"plan {outcome.plan_id} {outcome.answer} in the console", plan_id=outcome.plan_id,
+                         approval_code=outcome.code)
+        return self.back(f"/approvals/{request_id}", f"Plan {outcome.plan_id} {outcome.answer}.")
+
+    # ------------------------------------------------------------------ the app
+    def routes(self) -> list[Route]:
+        signed = self._signed_in
+        return [
+            Route("/", signed(self.state_page), methods=["GET"]),
+            Route("/safety", signed(self.safety_page), methods=["GET"]),
+            Route("/approvals", signed(self.approvals_page), methods=["GET"]),
+            Route("/approvals/{request_id}", signed(self.approval_page), methods=["GET"]),
+            Route("/approvals/{request_id}", self.answer, methods=["POST"]),
+            Route("/approvals/{request_id}/picture.png", self.plan_picture, methods=["GET"]),
+            Route("/audit", signed(self.audit_page), methods=["GET"]),
+            Route("/login", self.login_page, methods=["GET"]),
+            Route("/login", self.login, methods=["POST"]),
+            Route("/logout", self.logout, methods=["POST"]),
+            Route("/fragment/{name}", self.fragment, methods=["GET"]),
+            Route("/api/state", self.state_json, methods=["GET"]),
+            Route("/view.png", self.live_view, methods=["GET"]),
+            Route("/static/{name}", self.static, methods=["GET"]),
+            Route("/estop", self.estop, methods=["POST"]),
+            Route("/reset", self.reset, methods=["POST"]),
+        ]
+
+
+def build_console_app(guard: Guard, sessions: SessionStore, estop: EStopHook,
+                      settings: ConsoleSettings | None = None) -> Starlette:
+    """The console as an ASGI app, to be mounted at `settings.path` (beside /mcp, or alone on
+    --console-port). Host/Origin checks are the mounting app's job (`transport/http.py`)."""
+    console = Console(guard, sessions, estop, settings or ConsoleSettings())
+    return Starlette(routes=console.routes())
+
+
+def timed_estop(latch_and_stop: Callable[[str, str], int], record: Callable[[Any], None]) -> EStopHook:
+    """An `EStopHook` from the stop channel's parts: latch and stop, then audit (without waiting)
+    as the channel does, with the time the stop took."""
+    from armwarden.stopchannel.server import ChannelStop
+
+    def hook(reason: str, principal: str, peer: str) -> int:
+        started = time.monotonic()
+        try:
+            event = latch_and_stop(reason, principal)
+        except Exception as exc:
+            record(ChannelStop(principal, reason, f"console {peer}", None, None, str(exc)))
+            raise
+        record(ChannelStop(principal, reason, f"console {peer}", event, (time.monotonic() - started) * 1e3))
+        return event
+
+    return hook

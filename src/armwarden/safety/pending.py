@@ -1,0 +1,151 @@
+"""Approval requests a human has been asked about, so the operator console can show them and,
+where the policy lets it (`approval.channel: url | both`), answer them.
+
+Why a board: the elicitation prompt lives in the MCP client; the operator console needs the same
+request with the server's facts and the plan's picture. Each request gets an unguessable id (the
+console link), is bound to the plan digest and to the e-stop generation it was asked under, and
+expires with the plan. An answer is accepted once: a replayed link, an expired plan or an e-stop
+since the request refuse it. The tool body proceeds only from this server-side record.
+
+Lives on the event loop like the plan store: `offer` is idempotent per plan digest (approval
+resolvers may run more than once under protocol 2026-07-28), and nothing here awaits.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+from armwarden.safety.approval import approval_code
+from armwarden.safety.plans import StoredPlan
+
+__all__ = ["AnswerRefusal", "PendingApprovals", "PendingRequest"]
+
+Answer = Literal["approved", "declined", "withdrawn"]
+#: most requests kept (answered ones included, so a replayed link is explained, not unknown)
+MAX_REQUESTS = 256
+
+
+@dataclass
+class PendingRequest:
+    """One approval question about one plan."""
+
+    request_id: str
+    plan: StoredPlan
+    prompt: str
+    estop_generation: int
+    answer: Answer | None = None
+    operator: str | None = None
+    via: str | None = None
+    #: called once when the request is answered or withdrawn (a waiting tool body wakes up)
+    listeners: list[Callable[[PendingRequest], None]] = field(default_factory=list, repr=False)
+
+    @property
+    def plan_id(self) -> str:
+        return self.plan.plan_id
+
+    @property
+    def digest(self) -> str:
+        return self.plan.digest
+
+    @property
+    def expires_mono(self) -> float:
+        return self.plan.expires_mono
+
+    @property
+    def violations(self) -> list[tuple[str, str, str]]:
+        """(code, severity, detail) of every finding of the plan's envelope check."""
+        return [(v.code.value, "hard" if v.is_hard else "soft", v.detail) for v in self.plan.report.violations]
+
+    @property
+    def code(self) -> str:
+        """The approval code the client's prompt shows too, to match the two up."""
+        return approval_code(self.digest)
+
+    def _settle(self, answer: Answer, operator: str | None, via: str) -> None:
+        self.answer, self.operator, self.via = answer, operator, via
+        listeners, self.listeners = self.listeners, []
+        for listener in listeners:
+            listener(self)
+
+
+@dataclass(frozen=True)
+class AnswerRefusal:
+    """Why an answer from the console was not taken."""
+
+    reason: Literal["unknown", "answered", "expired", "stale"]
+    message: str
+
+
+class PendingApprovals:
+    """The board of approval requests, keyed by an unguessable id and by plan digest."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock
+        self._requests: OrderedDict[str, PendingRequest] = OrderedDict()
+        #: where the operator console is served (e.g. ``http://127.0.0.1:8765/console``); None: not served
+        self.console_url: str | None = None
+
+    def link(self, request: PendingRequest) -> str | None:
+        """The console page of `request`: the link a URL-mode elicitation sends."""
+        return None if self.console_url is None else f"{self.console_url}/approvals/{request.request_id}"
+
+    def remaining_s(self, request: PendingRequest) -> float:
+        """Seconds until the request's plan expires [s] (0 when it has)."""
+        return max(0.0, request.expires_mono - self._clock())
+
+    def offer(self, plan: StoredPlan, prompt: str, estop_generation: int) -> PendingRequest:
+        """The open request for this plan under this e-stop generation, created on first offer."""
+        for request in self._requests.values():
+            if request.digest == plan.digest and request.estop_generation == estop_generation and request.answer is None:
+                return request
+        request = PendingRequest(secrets.token_urlsafe(24), plan, prompt, estop_generation)
+        self._requests[request.request_id] = request
+        while len(self._requests) > MAX_REQUESTS:
+            self._requests.popitem(last=False)
+        return request
+
+    def get(self, request_id: str) -> PendingRequest | None:
+        return self._requests.get(request_id) if isinstance(request_id, str) else None
+
+    def open_for(self, digest: str, estop_generation: int) -> PendingRequest | None:
+        """The unanswered, unexpired request for this digest under this generation, if any."""
+        now = self._clock()
+        for request in self._requests.values():
+            if (request.digest == digest and request.estop_generation == estop_generation
+                    and request.answer is None and now < request.expires_mono):
+                return request
+        return None
+
+    def live(self, estop_generation: int) -> list[PendingRequest]:
+        """Unanswered requests still answerable now, oldest first."""
+        now = self._clock()
+        return [r for r in self._requests.values()
+                if r.answer is None and now < r.expires_mono and r.estop_generation == estop_generation]
+
+    def answer(self, request_id: str, approve: bool, operator: str, estop_generation: int,
+               via: str = "console") -> PendingRequest | AnswerRefusal:
+        """Record a human's answer once. Refused: unknown id, already answered (a replayed link),
+        plan expired, or an e-stop latched since the question was asked."""
+        request = self.get(request_id)
+        if request is None:
+            return AnswerRefusal("unknown", "no such approval request")
+        if request.answer is not None:
+            return AnswerRefusal("answered", f"this request was already {request.answer}"
+                                 + (f" by {request.operator}" if request.operator else "") + "; a link works once")
+        if self._clock() >= request.expires_mono:
+            return AnswerRefusal("expired", f"plan {request.plan_id} has expired; nothing was approved")
+        if request.estop_generation != estop_generation:
+            return AnswerRefusal("stale", "an e-stop latched after this request was made; its plan is void")
+        request._settle("approved" if approve else "declined", operator, via)
+        return request
+
+    def withdraw(self, digest: str, why: str = "withdrawn") -> None:
+        """Close every open request for this digest (the plan was used, or answered elsewhere)."""
+        for request in self._requests.values():
+            if request.digest == digest and request.answer is None:
+                request._settle("withdrawn", None, why)

@@ -1,0 +1,263 @@
+"""The operator console in a real headless browser (Debian chromium + selenium): sign in, see a
+pending approval with its picture, approve (execute_plan completes) or decline (refused, nothing
+moved), E-STOP an executing motion, and the refusals (replayed link, wrong token, no CSRF)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+from collections.abc import Iterator
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any
+
+import anyio
+import anyio.from_thread
+import mcp_types as types
+import pytest
+
+from armwarden.policy import Policy
+from tests.console.browser import chromium
+from tests.console.served import ServedConsole, served_console
+from tests.helpers import text_of
+from tests.server.harness import HOME_TCP_X, policy_with
+
+URL_POLICY = {"approval.mode": "always", "approval.channel": "url"}
+#: set to a directory to save the console screenshots (docs/ uses them)
+SCREENSHOTS_ENV = "ARMWARDEN_CONSOLE_SCREENSHOTS"
+WAIT_S = 15
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[Any]:
+    with chromium(tmp_path / "profile") as driver:
+        yield driver
+
+
+class Session:
+    """A console served in a portal thread, an MCP client in it, and the links it was sent."""
+
+    def __init__(self, portal: anyio.from_thread.BlockingPortal, served: ServedConsole) -> None:
+        self.portal, self.served = portal, served
+        self.links: list[str] = []
+        self.link_arrived = threading.Event()
+
+    async def elicitation(self, context: Any, params: Any) -> types.ElicitResult:
+        self.links.append(params.url)
+        self.link_arrived.set()
+        return types.ElicitResult(action="accept")  # the human opened the link; the console decides
+
+    def plan_and_execute(self, z: float = 0.40) -> Future:
+        """Plan a move down to `z` and call execute_plan in the portal; the call's future."""
+        async def run() -> Any:
+            async with self.served.mcp_client(elicitation=self.elicitation) as client:
+                planned = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": z}})
+                assert not planned.is_error, text_of(planned)
+                return await client.call_tool("execute_plan", {"plan_id": planned.structured_content["plan_id"]})
+
+        return self.portal.start_task_soon(run)
+
+    def wait_for_link(self) -> str:
+        assert self.link_arrived.wait(WAIT_S), "no URL-mode elicitation arrived"
+        return self.links[-1]
+
+
+@contextlib.contextmanager
+def console(tmp_path: Path, policy: Policy | None = None, **fake: Any) -> Iterator[Session]:
+    with anyio.from_thread.start_blocking_portal() as portal, \
+            portal.wrap_async_context_manager(served_console(tmp_path, policy, **fake)) as served:
+        yield Session(portal, served)
+
+
+def sign_in(browser: Any, served: ServedConsole, token: str) -> None:
+    from selenium.webdriver.common.by import By
+
+    browser.get(served.console + "/login")
+    browser.find_element(By.ID, "token").send_keys(token)
+    browser.find_element(By.ID, "sign-in").click()
+    wait_for(browser, lambda b: b.find_elements(By.ID, "who") or b.find_elements(By.ID, "message"))
+
+
+def wait_for(browser: Any, condition: Any) -> Any:
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    return WebDriverWait(browser, WAIT_S).until(condition)
+
+
+def click_and_load(browser: Any, element_id: str) -> None:
+    """Click a submit button and wait until the page it leads to has replaced this one."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    button = browser.find_element(By.ID, element_id)
+    button.click()
+    wait_for(browser, ec.staleness_of(button))
+
+
+def screenshot(browser: Any, name: str) -> None:
+    directory = os.environ.get(SCREENSHOTS_ENV)
+    if directory:
+        browser.save_screenshot(str(Path(directory) / name))
+
+
+# ------------------------------------------------------------------ sign-in
+def test_sign_in_shows_the_live_state(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    with console(tmp_path) as session:
+        sign_in(browser, session.served, session.served.operator_token)
+        wait_for(browser, ec.presence_of_element_located((By.ID, "joints")))
+        picture_loaded = wait_for(browser, lambda b: b.execute_script(
+            "const i = document.getElementById('live-view'); return i.complete && i.naturalWidth > 0;"))
+        screenshot(browser, "console-state.png")
+        who = browser.find_element(By.ID, "who").text
+
+    assert who == "alice (operator)"
+    assert picture_loaded
+
+
+def test_a_wrong_token_is_refused(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path) as session:
+        sign_in(browser, session.served, "aw_not-a-real-token")
+        message = browser.find_element(By.ID, "message").text
+        browser.get(session.served.console + "/")
+        still_login = browser.find_elements(By.ID, "login-form")
+
+    assert "not valid" in message
+    assert still_login
+
+
+# ------------------------------------------------------------------ approvals
+def test_approve_in_the_browser_and_execute_plan_completes(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path, policy_with(**URL_POLICY)) as session:
+        sign_in(browser, session.served, session.served.operator_token)
+        call = session.plan_and_execute()
+        browser.get(session.wait_for_link())
+        picture_loaded = wait_for(browser, lambda b: b.execute_script(
+            "const i = document.getElementById('plan-picture'); return i.complete && i.naturalWidth > 0;"))
+        screenshot(browser, "console-approval.png")
+        browser.find_element(By.ID, "approve").click()
+        result = call.result(timeout=WAIT_S)
+        moved = "execute" in session.served.harness.actuations
+
+    assert picture_loaded
+    assert not result.is_error, text_of(result)
+    assert result.structured_content["status"] == "succeeded"
+    assert result.structured_content["approval"]["operator"] == "alice"
+    assert moved
+
+
+def test_decline_in_the_browser_refuses_and_nothing_moves(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path, policy_with(**URL_POLICY)) as session:
+        sign_in(browser, session.served, session.served.operator_token)
+        call = session.plan_and_execute()
+        browser.get(session.wait_for_link())
+        browser.find_element(By.ID, "decline").click()
+        result = call.result(timeout=WAIT_S)
+        actuations = list(session.served.harness.actuations)
+
+    assert result.is_error and "declined" in text_of(result)
+    assert actuations == []
+
+
+def test_a_replayed_approval_link_is_refused(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path, policy_with(**URL_POLICY)) as session:
+        sign_in(browser, session.served, session.served.operator_token)
+        call = session.plan_and_execute()
+        link = session.wait_for_link()
+        browser.get(link)
+        first_tab = browser.current_window_handle
+        browser.switch_to.new_window("tab")
+        browser.get(link)  # the same link open twice
+        browser.find_element(By.ID, "approve").click()
+        call.result(timeout=WAIT_S)
+        browser.switch_to.window(first_tab)
+        click_and_load(browser, "approve")  # the stale tab answers again
+        message = browser.find_element(By.ID, "message").text
+
+    assert "already approved" in message
+
+
+def test_an_observer_sees_the_request_but_cannot_approve(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path, policy_with(**URL_POLICY)) as session:
+        sign_in(browser, session.served, session.served.observer_token)
+        call = session.plan_and_execute()
+        browser.get(session.wait_for_link())
+        buttons = browser.find_elements(By.ID, "approve")
+        note = browser.find_element(By.ID, "observer-note").text
+        session.served.harness.guard.approvals.withdraw(session.served.harness.guard.approvals.live(
+            session.served.harness.guard.latch.generation)[0].digest, "test over")
+        result = call.result(timeout=WAIT_S)
+
+    assert buttons == []
+    assert "observer" in note
+    assert result.is_error
+
+
+# ------------------------------------------------------------------ E-STOP, reset, CSRF
+def test_estop_stops_an_executing_motion_and_the_latch_shows(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    with console(tmp_path, speedup=0.05) as session:  # a slow motion: about 20 s of travel
+        sign_in(browser, session.served, session.served.observer_token)
+        call = session.plan_and_execute(z=0.30)
+        guard = session.served.harness.guard
+        wait_for(browser, lambda b: guard.motion_status().executing)
+        browser.find_element(By.ID, "estop-button").click()
+        answer = wait_for(browser, ec.presence_of_element_located((By.ID, "estop-answer"))).text
+        latched = wait_for(browser, lambda b: "E-STOP LATCHED" in b.find_element(By.ID, "estop-status").text)
+        result = call.result(timeout=WAIT_S)
+
+    assert answer.startswith("E-STOP latched: event #")
+    assert latched
+    assert result.structured_content["status"] == "aborted"
+
+
+def test_reset_from_the_browser_needs_the_event_number(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path) as session:
+        guard = session.served.harness.guard
+        session.portal.call(guard.emergency_stop, "test", "estop")
+        sign_in(browser, session.served, session.served.operator_token)
+        browser.get(session.served.console + "/safety")
+        browser.find_element(By.ID, "reset-event").send_keys("7")
+        click_and_load(browser, "reset-button")
+        refused = browser.find_element(By.ID, "message").text
+        browser.find_element(By.ID, "reset-event").send_keys("1")
+        click_and_load(browser, "reset-button")
+        released = browser.find_element(By.ID, "message").text
+
+    assert "refused" in refused
+    assert "released by alice" in released
+    assert not guard.latch.is_latched
+
+
+def test_a_post_without_the_csrf_token_is_refused(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path) as session:
+        guard = session.served.harness.guard
+        session.portal.call(guard.emergency_stop, "test", "estop")
+        sign_in(browser, session.served, session.served.operator_token)
+        browser.get(session.served.console + "/safety")
+        browser.execute_script("document.querySelector('#reset-form input[name=csrf]').remove();")
+        browser.find_element(By.ID, "reset-event").send_keys("1")
+        click_and_load(browser, "reset-button")
+        message = browser.find_element(By.ID, "message").text
+
+    assert "CSRF" in message
+    assert guard.latch.is_latched

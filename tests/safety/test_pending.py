@@ -1,0 +1,105 @@
+"""The approval board: one-time answers, bound to the plan and the e-stop generation, expiring
+with the plan."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from armwarden.planning.trajectory import JointTrajectory
+from armwarden.safety.envelope import EnvelopeReport
+from armwarden.safety.pending import AnswerRefusal, PendingApprovals, PendingRequest
+from armwarden.safety.plans import PlanStore, StoredPlan
+from tests.helpers import READY, FakeClock
+
+TTL_S = 60.0
+NAMES = tuple(f"fr3_joint{i}" for i in range(1, 8))
+
+
+@pytest.fixture
+def clock() -> FakeClock:
+    return FakeClock(100.0)
+
+
+@pytest.fixture
+def plan(clock: FakeClock) -> StoredPlan:
+    store = PlanStore(TTL_S, 0.01, clock=clock)
+    trajectory = JointTrajectory(NAMES, np.array([0.0, 1.0]), np.vstack([READY, READY + 0.1]))
+    return store.add(trajectory, EnvelopeReport(violations=()))
+
+
+@pytest.fixture
+def board(clock: FakeClock) -> PendingApprovals:
+    return PendingApprovals(clock=clock)
+
+
+def test_offering_the_same_plan_twice_gives_one_request(board: PendingApprovals, plan: StoredPlan) -> None:
+    first = board.offer(plan, "prompt", estop_generation=0)
+    again = board.offer(plan, "prompt", estop_generation=0)
+
+    assert again is first
+    assert board.live(0) == [first]
+
+
+def test_request_ids_are_long_random_and_distinct(board: PendingApprovals, plan: StoredPlan) -> None:
+    a = board.offer(plan, "prompt", estop_generation=0)
+    b = board.offer(plan, "prompt", estop_generation=1)
+
+    assert a.request_id != b.request_id
+    assert len(a.request_id) >= 32
+
+
+def test_an_answer_is_taken_once(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+
+    first = board.answer(request.request_id, True, "alice", estop_generation=0)
+    replay = board.answer(request.request_id, False, "mallory", estop_generation=0)
+
+    assert isinstance(first, PendingRequest) and first.answer == "approved" and first.operator == "alice"
+    assert isinstance(replay, AnswerRefusal) and replay.reason == "answered"
+    assert request.answer == "approved"
+
+
+def test_an_answer_after_the_plan_expired_is_refused(board: PendingApprovals, plan: StoredPlan, clock: FakeClock) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+    clock.advance(TTL_S)
+
+    refused = board.answer(request.request_id, True, "alice", estop_generation=0)
+
+    assert isinstance(refused, AnswerRefusal) and refused.reason == "expired"
+    assert board.live(0) == []
+
+
+def test_an_answer_after_an_estop_is_refused(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+
+    refused = board.answer(request.request_id, True, "alice", estop_generation=1)
+
+    assert isinstance(refused, AnswerRefusal) and refused.reason == "stale"
+    assert board.live(1) == []
+
+
+def test_an_unknown_id_is_refused(board: PendingApprovals) -> None:
+    refused = board.answer("not-a-request", True, "alice", estop_generation=0)
+
+    assert isinstance(refused, AnswerRefusal) and refused.reason == "unknown"
+
+
+def test_withdrawing_closes_the_request_and_wakes_its_listener(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+    woken: list[str | None] = []
+    request.listeners.append(lambda r: woken.append(r.answer))
+
+    board.withdraw(plan.digest, "the plan was used")
+
+    assert woken == ["withdrawn"]
+    assert isinstance(board.answer(request.request_id, True, "alice", 0), AnswerRefusal)
+
+
+def test_the_link_points_at_the_console_page_of_the_request(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+    without_console = board.link(request)
+    board.console_url = "http://127.0.0.1:8765/console"
+
+    assert without_console is None
+    assert board.link(request) == f"http://127.0.0.1:8765/console/approvals/{request.request_id}"
