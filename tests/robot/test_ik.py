@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from armwarden.robot import RobotModel
-from armwarden.robot.ik import IkSolver
+from armwarden.robot.ik import IkOptions, IkSolver
 from tests.helpers import READY
 
 
@@ -59,3 +59,20 @@ def test_solutions_respect_the_joint_limits(robot: RobotModel) -> None:
     for pose in _random_reachable_poses(robot, 30, seed=13):
         result = solver.solve(pose.position, pose.rotation, [READY])
         assert np.all(result.q >= robot.lower) and np.all(result.q <= robot.upper)
+
+
+def test_a_seed_that_stops_improving_is_given_up_long_before_the_iteration_cap(robot: RobotModel) -> None:
+    solver = IkSolver(robot)
+    result = solver.solve_from(np.array([2.0, 0.0, 0.5]), None, READY)  # 2 m out: the arm stretches, then stalls
+    assert not result.success and result.message == "stalled"
+    assert result.iterations < solver.options.max_iterations / 2
+
+
+def test_giving_up_stalled_seeds_changes_no_solution_on_random_poses(robot: RobotModel) -> None:
+    patient = IkSolver(robot, IkOptions(stall_iterations=0))  # every seed runs to the iteration cap
+    default = IkSolver(robot)
+    for pose in _random_reachable_poses(robot, 100, seed=13):
+        a = patient.solve(pose.position, pose.rotation, [READY])
+        b = default.solve(pose.position, pose.rotation, [READY])
+        assert a.success == b.success
+        np.testing.assert_array_equal(a.q, b.q)

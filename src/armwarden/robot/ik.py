@@ -15,6 +15,9 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 
 from armwarden.robot.model import RobotModel
 
+#: weighs orientation error [rad] into the stall test as the arc it sweeps at this radius [m]
+STALL_RADIUS_M = 0.1
+
 
 @dataclass(frozen=True)
 class IkOptions:
@@ -23,6 +26,11 @@ class IkOptions:
     position_tolerance_m: float = 1e-4
     orientation_tolerance_rad: float = 1e-3
     max_iterations: int = 200
+    #: give a seed up once its error has not dropped by `stall_improvement` (relative) for this many
+    #: iterations (0: never): a seed stuck at a joint limit or in a local minimum otherwise spends
+    #: all `max_iterations`; converging seeds improve every few iterations
+    stall_iterations: int = 30
+    stall_improvement: float = 0.01
     damping: float = 1e-3
     max_step_rad: float = 0.5  # largest joint change per iteration, keeps DLS steps in the linear regime
     limit_margin_rad: float = 1e-4  # solutions stay this far inside the limits
@@ -99,6 +107,7 @@ class IkSolver:
         full_pose = rotation is not None
         target = pin.SE3(rotation if full_pose else np.eye(3), position)
         pos_err = ori_err = np.inf
+        best_error, improved_at = np.inf, 0
         for iteration in range(1, opts.max_iterations + 1):
             current_position, current_rotation, jac = robot.tcp_pose_and_jacobian(q)
             if full_pose:
@@ -116,6 +125,11 @@ class IkSolver:
                 if pos_err < opts.position_tolerance_m:
                     return IkResult(True, q, pos_err, ori_err, iteration, "converged")
                 jac = jac[:3]
+            error = pos_err + ori_err * STALL_RADIUS_M
+            if error < best_error * (1.0 - opts.stall_improvement):
+                best_error, improved_at = error, iteration
+            elif opts.stall_iterations and iteration - improved_at >= opts.stall_iterations:
+                return IkResult(False, q, pos_err, ori_err, iteration, "stalled")
             lhs = jac @ jac.T + opts.damping * np.eye(jac.shape[0])
             dq = jac.T @ np.linalg.solve(lhs, err)
             largest = float(np.max(np.abs(dq)))
