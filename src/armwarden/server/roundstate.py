@@ -53,9 +53,10 @@ class RoundSeal:
         if not isinstance(token, str) or len(token) > MAX_TOKEN_CHARS or not token.startswith(PREFIX):
             return None
         body, _, mac = token.rpartition(".")
+        # compared as text: base64 decoding ignores stray low bits, so two spellings could decode alike
+        if not hmac.compare_digest(mac, _b64(self._mac(body))):
+            return None
         try:
-            if not hmac.compare_digest(_unb64(mac), self._mac(body)):
-                return None
             fields = json.loads(_unb64(body[len(PREFIX):]))
             return RoundClaims(**{name: str(fields[name]) for name in RoundClaims.__dataclass_fields__})
         except (ValueError, KeyError, TypeError):
