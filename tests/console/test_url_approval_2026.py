@@ -16,7 +16,7 @@ import mcp_types as types
 import pytest
 from mcp import Client, MCPError
 
-from armwarden.server.outofband import FORM_KEY, LINK_KEY
+from armwarden.server.outofband import FORM_KEY
 from tests.console.served import ServedConsole, csrf_of, served_console, sign_in
 from tests.helpers import records_of, text_of
 from tests.server.harness import plan_down, policy_with, wait_until
@@ -68,9 +68,21 @@ async def first_round(client: Client, plan_id: str) -> types.InputRequiredResult
     return asked
 
 
+def link_key(asked: types.InputRequiredResult) -> str:
+    """The key of the link's question (the approval request's id)."""
+    return next(key for key in asked.input_requests if key != FORM_KEY)
+
+
+def link_of(asked: types.InputRequiredResult) -> str:
+    params = asked.input_requests[link_key(asked)].params
+    assert isinstance(params, types.ElicitRequestURLParams)
+    return params.url
+
+
 async def retry(client: Client, plan_id: str, asked: types.InputRequiredResult,
                 state: str | None = None) -> types.CallToolResult:
-    result = await client.session.call_tool("execute_plan", {"plan_id": plan_id}, input_responses={LINK_KEY: ACCEPT},
+    result = await client.session.call_tool("execute_plan", {"plan_id": plan_id},
+                                            input_responses={link_key(asked): ACCEPT},
                                             request_state=asked.request_state if state is None else state,
                                             allow_input_required=True)
     assert isinstance(result, types.CallToolResult), result
@@ -85,8 +97,8 @@ async def test_the_link_goes_out_in_an_input_required_result_with_the_console_pa
             asked = await first_round(client, plan["plan_id"])
         request = served.harness.guard.approvals.live(served.harness.guard.latch.generation)[0]
 
-    assert list(asked.input_requests) == [LINK_KEY]
-    params = asked.input_requests[LINK_KEY].params
+    assert list(asked.input_requests) == [request.request_id]
+    params = asked.input_requests[request.request_id].params
     assert isinstance(params, types.ElicitRequestURLParams)
     assert params.url == f"{served.console}/approvals/{request.request_id}"
     assert request.code in params.message
@@ -150,8 +162,7 @@ async def test_a_forged_round_state_is_refused_and_nothing_moves(tmp_path: Path)
         async with served.mcp_client(MODE, elicitation=answered_by_hand) as client:
             plan = await plan_down(client, 0.40)
             asked = await first_round(client, plan["plan_id"])
-            link = asked.input_requests[LINK_KEY].params.url  # type: ignore[union-attr]
-            await answer_in_console(served, link, "approve")
+            await answer_in_console(served, link_of(asked), "approve")
             state = asked.request_state or ""
             forged = state[:-6] + ("AAAAAA" if not state.endswith("AAAAAA") else "BBBBBB")
             with pytest.raises(MCPError):
@@ -165,7 +176,7 @@ async def test_a_replayed_round_state_does_not_run_the_plan_twice(tmp_path: Path
         async with served.mcp_client(MODE, elicitation=answered_by_hand) as client:
             plan = await plan_down(client, 0.40)
             asked = await first_round(client, plan["plan_id"])
-            await answer_in_console(served, asked.input_requests[LINK_KEY].params.url, "approve")  # type: ignore[union-attr]
+            await answer_in_console(served, link_of(asked), "approve")
             ran = await retry(client, plan["plan_id"], asked)
             moved = list(served.harness.actuations)
             replayed = await retry(client, plan["plan_id"], asked)
@@ -181,10 +192,10 @@ async def test_the_state_of_an_earlier_round_is_refused_once_the_question_was_as
             plan = await plan_down(client, 0.40)
             earlier = await first_round(client, plan["plan_id"])
             later = await first_round(client, plan["plan_id"])  # the same request, a new round
-            await answer_in_console(served, later.input_requests[LINK_KEY].params.url, "approve")  # type: ignore[union-attr]
+            await answer_in_console(served, link_of(later), "approve")
             result = await retry(client, plan["plan_id"], earlier)
 
-    assert earlier.input_requests[LINK_KEY].params.url == later.input_requests[LINK_KEY].params.url  # type: ignore[union-attr]
+    assert link_of(earlier) == link_of(later)
     assert result.is_error and "replayed" in text_of(result)
     assert served.harness.actuations == []
 
@@ -194,7 +205,7 @@ async def test_an_estop_between_the_console_approval_and_the_retry_refuses(tmp_p
         async with served.mcp_client(MODE, elicitation=answered_by_hand) as client:
             plan = await plan_down(client, 0.40)
             asked = await first_round(client, plan["plan_id"])
-            await answer_in_console(served, asked.input_requests[LINK_KEY].params.url, "approve")  # type: ignore[union-attr]
+            await answer_in_console(served, link_of(asked), "approve")
             await served.harness.guard.emergency_stop("someone stopped", source="estop")
             result = await retry(client, plan["plan_id"], asked)
 
@@ -265,7 +276,7 @@ async def test_both_channels_go_out_in_one_round(tmp_path: Path) -> None:
             plan = await plan_down(client, 0.40)
             asked = await first_round(client, plan["plan_id"])
 
-    assert sorted(asked.input_requests) == sorted([LINK_KEY, FORM_KEY])
+    assert len(asked.input_requests) == 2 and link_of(asked).startswith(served.console + "/approvals/")
     assert isinstance(asked.input_requests[FORM_KEY].params, types.ElicitRequestFormParams)
 
 
@@ -337,7 +348,7 @@ async def test_a_round_state_sealed_by_another_daemon_is_refused(tmp_path: Path)
         request = guard.approvals.live(guard.latch.generation)[0]
         await answer_in_console(served, f"{served.console}/approvals/{request.request_id}", "approve")
         claims = RoundClaims(plan["plan_id"], request.request_id, request.digest, request.round_nonce or "", "url")
-        ctx = SimpleNamespace(request_state=RoundSeal().seal(claims), input_responses={LINK_KEY: ACCEPT})
+        ctx = SimpleNamespace(request_state=RoundSeal().seal(claims), input_responses={request.request_id: ACCEPT})
         asked = ConsoleChannel(Prompt(request.prompt, request.digest), "url")
         outcome = await answer_round(ctx, guard, asked, plan["plan_id"], RoundSeal())  # type: ignore[arg-type]
 

@@ -15,8 +15,8 @@ Under protocol 2026-07-28 a tool cannot ask mid-call: the question goes out in a
 `InputRequiredResult` and the client retries the call with its answers (`ask_round`, then
 `answer_round` on the retry):
 
-- round one carries a URL-mode elicitation with the console link (and, for `both`, the form
-  question beside it) and a `request_state` naming the plan, the board's request and a one-time
+- round one carries a URL-mode elicitation with the console link, keyed by the request's id
+  (and, for `both`, the form question beside it) and a `request_state` naming the plan, the board's request and a one-time
   round nonce, sealed with this daemon's HMAC key (`server.roundstate`);
 - the retry proceeds from the board only: a console decision made before the retry answers; for
   `both`, otherwise the form's answer (accept or decline) does; otherwise, if the client
@@ -46,10 +46,10 @@ from armwarden.safety.approval import ApprovalForm, ConsoleAnswer, ConsoleChanne
 from armwarden.safety.pending import PendingRequest
 from armwarden.server.roundstate import RoundClaims, RoundSeal
 
-__all__ = ["FORM_KEY", "LINK_KEY", "answer_out_of_band", "answer_round", "ask_round"]
+__all__ = ["FORM_KEY", "answer_out_of_band", "answer_round", "ask_round"]
 
-#: the keys of the two questions of a 2026-07-28 approval round (`InputRequiredResult.input_requests`)
-LINK_KEY = "armwarden_console_link"
+#: the key of the form question of a 2026-07-28 approval round (`InputRequiredResult.input_requests`);
+#: the link's key is the request's id (2026-07-28 has no elicitation id on the wire: the key is it)
 FORM_KEY = "armwarden_approval_form"
 
 #: how often a pending console approval looks at the e-stop latch [s]
@@ -146,8 +146,8 @@ def ask_round(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_id: str, s
     link = board.link(request)
     if link is None:
         return ConsoleAnswer(False, None, digest, "approval.channel asks in the operator console, but no console is served")
-    questions: dict[str, Any] = {LINK_KEY: ElicitRequest(params=ElicitRequestURLParams(
-        message=_link_message(request), url=link, elicitation_id=request.request_id))}
+    questions: dict[str, Any] = {request.request_id: ElicitRequest(params=ElicitRequestURLParams(
+        message=_link_message(request), url=link))}
     if asked.channel == "both" and _takes_forms(ctx):
         questions[FORM_KEY] = ElicitRequest(params=ElicitRequestFormParams(
             message=asked.prompt.message, requested_schema=render_elicitation_schema(ApprovalForm)))
@@ -184,7 +184,7 @@ async def answer_round(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_i
             board.withdraw(digest, "answered in the MCP client")
             return form
     if request.answer is None:
-        link = responses.get(LINK_KEY)
+        link = responses.get(request.request_id)
         if not (isinstance(link, ElicitResult) and link.action == "accept"):
             board.withdraw(digest, "no answer")
             return refusal("the human did not open the approval link")
