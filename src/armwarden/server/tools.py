@@ -9,7 +9,10 @@ an `isError` result saying why and what a human must do. Tools talk to the Guard
 
 Approval uses the SDK's `Resolve`-injected parameters, whose markers `server.approval` builds
 (hidden from the input schema: an `approval` argument sent by a client is ignored). The resolvers only
-read state; the body runs once and does all the consuming, moving and recording.
+read state; the body runs once and does all the consuming, moving and recording. execute_plan runs the
+same resolvers by hand (`ResolvedByHand`) because under protocol 2026-07-28 its console channel
+answers with an InputRequiredResult of its own (`server.outofband`), which the SDK does not allow
+from a tool with `Resolve` parameters.
 """
 
 
