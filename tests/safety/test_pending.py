@@ -103,3 +103,26 @@ def test_the_link_points_at_the_console_page_of_the_request(board: PendingApprov
 
     assert without_console is None
     assert board.link(request) == f"http://127.0.0.1:8765/console/approvals/{request.request_id}"
+
+
+def test_a_round_nonce_is_good_for_one_retry(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+    nonce = board.start_round(request)
+
+    assert board.spend_round(request, nonce) is True
+    assert board.spend_round(request, nonce) is False
+
+
+def test_a_new_round_voids_the_nonce_of_the_one_before(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+    earlier = board.start_round(request)
+    later = board.start_round(request)
+
+    assert board.spend_round(request, earlier) is False
+    assert board.spend_round(request, later) is False  # the failed attempt spent the round too
+
+
+def test_no_round_no_retry(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)
+
+    assert board.spend_round(request, "anything") is False

@@ -41,6 +41,9 @@ class PendingRequest:
     answer: Answer | None = None
     operator: str | None = None
     via: str | None = None
+    #: the nonce of the one approval round (protocol 2026-07-28) whose retry may still read this
+    #: request; None: no round open (a retry with a spent or older round's nonce is a replay)
+    round_nonce: str | None = field(default=None, repr=False)
     #: called once when the request is answered or withdrawn (a waiting tool body wakes up)
     listeners: list[Callable[[PendingRequest], None]] = field(default_factory=list, repr=False)
 
@@ -143,6 +146,19 @@ class PendingApprovals:
             return AnswerRefusal("stale", "an e-stop latched after this request was made; its plan is void")
         request._settle("approved" if approve else "declined", operator, via)
         return request
+
+    def start_round(self, request: PendingRequest) -> str:
+        """A fresh one-time nonce for a new approval round about `request` (2026-07-28: the
+        question goes out in an InputRequiredResult and the client retries). Voids any earlier
+        round's nonce."""
+        request.round_nonce = secrets.token_urlsafe(16)
+        return request.round_nonce
+
+    def spend_round(self, request: PendingRequest, nonce: str) -> bool:
+        """Whether `nonce` is `request`'s open round; it is spent either way (a second retry
+        with the same round state is a replay)."""
+        current, request.round_nonce = request.round_nonce, None
+        return current is not None and secrets.compare_digest(current, nonce)
 
     def withdraw(self, digest: str, why: str = "withdrawn") -> None:
         """Close every open request for this digest (the plan was used, or answered elsewhere)."""

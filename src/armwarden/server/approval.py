@@ -10,6 +10,8 @@ from collections.abc import Callable
 from typing import Annotated, Any, NamedTuple
 
 from mcp.server.mcpserver import Context, Elicit, ElicitationResult, Resolve
+from mcp.server.mcpserver.resolve import build_resolver_plans, find_resolved_parameters, resolve_arguments
+from mcp_types import InputRequiredResult
 from mcp_types.version import is_version_at_least
 
 from armwarden.safety.approval import ApprovalForm, ConsoleChannel, Prompt, ServerDecision
@@ -41,15 +43,20 @@ class ApprovalGate(NamedTuple):
 
 def console_reachable(ctx: Context) -> bool:
     """Whether the out-of-band console channel can be offered on this request: the client takes
-    URL-mode elicitation, and the protocol still has server-to-client requests mid-call
-    (2025-11-25). Under 2026-07-28 the SDK's resolvers render form questions only, so the form
-    is asked there whatever the channel."""
+    URL-mode elicitation, and the link can reach it: in an InputRequiredResult (2026-07-28, see
+    `uses_rounds`) or as a server-to-client request mid-call (2025-11-25)."""
     caps = ctx.client_capabilities
     if caps is None or caps.elicitation is None or caps.elicitation.url is None:
         return False
-    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
-        return False
+    if uses_rounds(ctx):
+        return True
     return bool(ctx.session.can_send_request)
+
+
+def uses_rounds(ctx: Context) -> bool:
+    """Whether questions go out in an InputRequiredResult and come back on a retry (protocol
+    2026-07-28 and later) rather than mid-call."""
+    return bool(ctx.protocol_version) and is_version_at_least(str(ctx.protocol_version), "2026-07-28")
 
 
 def approval_parameters(precheck: Callable[..., Any], channel: str = "form") -> ApprovalGate:
@@ -79,4 +86,30 @@ def approval_parameters(precheck: Callable[..., Any], channel: str = "form") -> 
     return ApprovalGate(Resolve(ask), Resolve(shown))
 
 
-__all__ = ["ApprovalAnswer", "ApprovalGate", "ShownDigest", "approval_parameters", "can_elicit", "console_reachable"]
+class ResolvedByHand:
+    """Runs an `ApprovalGate`'s resolvers from inside a tool body, as the SDK would before it.
+
+    Why: under 2026-07-28 the out-of-band channel sends its own InputRequiredResult from the
+    body, and the SDK refuses that from a tool whose parameters use `Resolve` (one
+    input_required channel per call). A tool that needs both declares no resolved parameters
+    and calls this first: the SDK's own resolution (same resolvers, same wire keys, same sealed
+    state for the form), then the body decides."""
+
+    def __init__(self, gate: ApprovalGate, tool_arg_names: set[str]) -> None:
+        def parameters(approval: Annotated[ApprovalAnswer, gate.approval],
+                       shown: Annotated[ShownDigest, gate.shown]) -> None:
+            """The hidden parameters, as a tool would declare them."""
+
+        self._params = find_resolved_parameters(parameters)
+        self._plans = build_resolver_plans(self._params, tool_arg_names)
+
+    async def __call__(self, ctx: Context, **tool_args: Any) -> tuple[ApprovalAnswer, ShownDigest] | InputRequiredResult:
+        """(approval, shown), or the question round the SDK's resolvers asked for."""
+        resolved = await resolve_arguments(self._params, self._plans, tool_args, ctx)
+        if isinstance(resolved, InputRequiredResult):
+            return resolved
+        return resolved["approval"], resolved["shown"]
+
+
+__all__ = ["ApprovalAnswer", "ApprovalGate", "ResolvedByHand", "ShownDigest", "approval_parameters", "can_elicit",
+           "console_reachable", "uses_rounds"]

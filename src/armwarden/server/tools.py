@@ -9,7 +9,10 @@ an `isError` result saying why and what a human must do. Tools talk to the Guard
 
 Approval uses the SDK's `Resolve`-injected parameters, whose markers `server.approval` builds
 (hidden from the input schema: an `approval` argument sent by a client is ignored). The resolvers only
-read state; the body runs once and does all the consuming, moving and recording.
+read state; the body runs once and does all the consuming, moving and recording. execute_plan runs the
+same resolvers by hand (`ResolvedByHand`) because under protocol 2026-07-28 its console channel
+answers with an InputRequiredResult of its own (`server.outofband`), which the SDK does not allow
+from a tool with `Resolve` parameters.
 """
 
 
@@ -21,7 +24,7 @@ from typing import Annotated, Any
 import numpy as np
 from mcp.server.mcpserver import AcceptedElicitation, Context, MCPServer
 from mcp.server.mcpserver import Image as McpImage
-from mcp_types import CallToolResult, ToolAnnotations
+from mcp_types import CallToolResult, InputRequiredResult, ToolAnnotations
 from pydantic import BaseModel, ConfigDict, Field, Strict
 
 from armwarden.errors import RefusalCode, SafetyRefusal
@@ -47,9 +50,18 @@ from armwarden.results import (
     TransformResult,
 )
 from armwarden.safety.approval import ConsoleChannel, ServerDecision
-from armwarden.server.approval import ApprovalAnswer, ApprovalGate, ShownDigest, approval_parameters, can_elicit
+from armwarden.server.approval import (
+    ApprovalAnswer,
+    ApprovalGate,
+    ResolvedByHand,
+    ShownDigest,
+    approval_parameters,
+    can_elicit,
+    uses_rounds,
+)
 from armwarden.server.calls import mark_body_ran, ok, refused
-from armwarden.server.outofband import answer_out_of_band
+from armwarden.server.outofband import answer_out_of_band, answer_round, ask_round
+from armwarden.server.roundstate import RoundSeal
 
 logger = logging.getLogger(__name__)
 
@@ -131,18 +143,31 @@ class ToolBuilder:
 
             @functools.wraps(body)
             async def call(*args: Any, **kwargs: Any) -> CallToolResult:
-                async def admitted() -> CallToolResult:
-                    self.guard.admit(name)
-                    return await body(*args, **kwargs)
-
-                return await self._answer(name, admitted)
+                return await self._answer(name, lambda: self._admitted(name, lambda: body(*args, **kwargs)))
 
             self._add(call, name, description, annotations)
             return body
 
         return register
 
-    def _add(self, fn: Callable[..., Awaitable[CallToolResult]], name: str, description: str,
+    def registered_as(self, description: str, annotations: ToolAnnotations
+                      ) -> Callable[[Callable[..., Awaitable[Any]]], Callable[..., Awaitable[Any]]]:
+        """Register the decorated function as it is, as the tool of the same name: for a tool that
+        may answer with a question round (InputRequiredResult) before it is admitted. It calls
+        `_answer` and `_admitted` itself for the round that runs."""
+
+        def register(fn: Callable[..., Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
+            self._add(fn, fn.__name__, description, annotations)
+            return fn
+
+        return register
+
+    async def _admitted(self, tool: str, body: Callable[[], Awaitable[CallToolResult]]) -> CallToolResult:
+        """Run `body` once the call is admitted by the rate limiter (`Guard.admit`, which refuses)."""
+        self.guard.admit(tool)
+        return await body()
+
+    def _add(self, fn: Callable[..., Awaitable[Any]], name: str, description: str,
              annotations: ToolAnnotations) -> None:
         self.server.add_tool(fn, name=name, description=description, annotations=annotations)
         # Publish self-contained output schemas: every client validates each result against it, and
@@ -317,24 +342,43 @@ class ToolBuilder:
         async def precheck_execute(ctx: Context, plan_id: str) -> ServerDecision | Prompt:
             return await guard.precheck_execute(plan_id, can_elicit(ctx))
 
-        gate = approval_parameters(precheck_execute, channel=policy.approval.channel)
+        # execute_plan resolves its approval by hand (no `Resolve` parameters): under 2026-07-28 the
+        # console channel asks in an InputRequiredResult of its own (`server.outofband`)
+        resolve_approval = ResolvedByHand(approval_parameters(precheck_execute, channel=policy.approval.channel),
+                                          {"plan_id"})
+        seal = RoundSeal()
 
-        @tool("EXECUTE a previously planned motion on the robot (the only tool that moves the arm). The server re-checks "
-              "the plan, may ask a human to approve, watches the contact force while moving and streams progress. Each "
-              "plan_id runs at most once.", ACTUATING)
-        async def execute_plan(
-            plan_id: Annotated[str, Field(min_length=1, max_length=64, description="The plan_id from a plan_* result")],
-            ctx: Context, approval: Annotated[ApprovalAnswer, gate.approval], shown: Annotated[ShownDigest, gate.shown],
-        ) -> Annotated[CallToolResult, ExecutionReport]:
+        async def execute(plan_id: str, ctx: Context, approval: ApprovalAnswer, shown: ShownDigest,
+                          outcome: Any) -> CallToolResult:
             async def progress(fraction: float) -> None:
                 await ctx.report_progress(fraction, 1.0, "moving")
 
-            outcome: Any = approval
             asked: object = approval.data if isinstance(approval, AcceptedElicitation) else None
-            if isinstance(asked, ConsoleChannel):  # approval.channel url | both: the console's record decides
-                outcome = await answer_out_of_band(ctx, guard, asked)
-            report = await guard.execute(plan_id, outcome, shown, progress)
+            if isinstance(asked, ConsoleChannel) and outcome is None:  # url | both: the console's record decides
+                outcome = (await answer_round(ctx, guard, asked, plan_id, seal) if uses_rounds(ctx)
+                           else await answer_out_of_band(ctx, guard, asked))
+            report = await guard.execute(plan_id, approval if outcome is None else outcome, shown, progress)
             return ok(report, summary=f"{report.status}: {report.detail}")
+
+        @self.registered_as("EXECUTE a previously planned motion on the robot (the only tool that moves the arm). The "
+                            "server re-checks the plan, may ask a human to approve, watches the contact force while "
+                            "moving and streams progress. Each plan_id runs at most once.", ACTUATING)
+        async def execute_plan(
+            plan_id: Annotated[str, Field(min_length=1, max_length=64, description="The plan_id from a plan_* result")],
+            ctx: Context,
+        ) -> Annotated[CallToolResult, ExecutionReport] | InputRequiredResult:
+            resolved = await resolve_approval(ctx, plan_id=plan_id)
+            if isinstance(resolved, InputRequiredResult):
+                return resolved  # the SDK's form question: a question round, not admitted (nothing ran)
+            approval, shown = resolved
+            asked: object = approval.data if isinstance(approval, AcceptedElicitation) else None
+            outcome: Any = None
+            if isinstance(asked, ConsoleChannel) and uses_rounds(ctx) and ctx.request_state is None:
+                outcome = ask_round(ctx, guard, asked, plan_id, seal)
+                if isinstance(outcome, InputRequiredResult):
+                    return outcome  # the console link (and form): a question round, not admitted
+            return await self._answer("execute_plan", lambda: self._admitted(
+                "execute_plan", lambda: execute(plan_id, ctx, approval, shown, outcome)))
 
         @tool("Whether a plan is executing, its progress (0..1) and the last execution result.", READ_ONLY_LOCAL)
         async def get_motion_status() -> Annotated[CallToolResult, MotionStatus]:
