@@ -64,7 +64,15 @@ from armwarden.stopchannel.wire import (
     render_response,
 )
 
-__all__ = ["ChannelRefusal", "ChannelStop", "ConsoleDoor", "StopChannel", "token_store_authenticator"]
+__all__ = [
+    "CONSOLE_UNSIGNED_PRINCIPAL",
+    "ChannelRefusal",
+    "ChannelStop",
+    "ConsoleDoor",
+    "StopChannel",
+    "authorise_console_estop",
+    "token_store_authenticator",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -130,6 +138,21 @@ class ConsoleDoor:
     allowed_origins: frozenset[str]
     allow_loopback_without_ticket: bool = True
     back_url: str | None = None
+
+
+def authorise_console_estop(door: ConsoleDoor, ticket: str | None, peer_host: str) -> str:
+    """Who pressed the console's E-STOP: the ticket's session, or, without a ticket, a loopback
+    peer when the console allows that. `HttpRefusal` 401 otherwise (the stop is not issued)."""
+    if ticket is None:
+        if not door.allow_loopback_without_ticket:
+            raise HttpRefusal(401, "sign in to the console first (no ticket)")
+        if not is_loopback(peer_host):
+            raise HttpRefusal(401, "without sign-in the console E-STOP works only from this machine")
+        return CONSOLE_UNSIGNED_PRINCIPAL
+    principal = door.check_ticket(ticket)
+    if principal is None:
+        raise HttpRefusal(401, "unknown or expired console ticket (reload the console page)")
+    return flatten_reason(principal, 64) or "unknown"
 
 
 #: at most one refusal report per host in this interval [s]; the others are counted
@@ -391,23 +414,15 @@ class StopChannel:
             raise HttpRefusal(403, "the request comes from a page that is not this daemon's console")
 
     def _console_principal(self, conn: _Connection, body: bytes) -> str:
-        """Who pressed the console's E-STOP: the ticket's session, or loopback without sign-in."""
         assert conn.head is not None and self._console is not None
         ticket = parse_console_form(body, conn.head.content_type)
-        if ticket is None:
-            if not self._console.allow_loopback_without_ticket:
-                raise HttpRefusal(401, "sign in to the console first (no ticket)")
-            if not is_loopback(conn.peer.rsplit(":", 1)[0]):
-                raise HttpRefusal(401, "without sign-in the console E-STOP works only from this machine")
-            return CONSOLE_UNSIGNED_PRINCIPAL
         try:
-            principal = self._console.check_ticket(ticket)
+            return authorise_console_estop(self._console, ticket, conn.peer.rsplit(":", 1)[0])
+        except HttpRefusal:
+            raise
         except Exception:
             logger.exception("stop channel: the console ticket check failed; request from %s refused", conn.peer)
             raise HttpRefusal(500, "the ticket could not be checked; no stop was issued") from None
-        if principal is None:
-            raise HttpRefusal(401, "unknown or expired console ticket (reload the console page)")
-        return flatten_reason(principal, 64) or "unknown"
 
     def _console_stop(self, conn: _Connection, body: bytes) -> None:
         assert self._console is not None
@@ -417,12 +432,12 @@ class StopChannel:
             event = self._console.latch_and_stop(CONSOLE_ESTOP_REASON, conn.principal)
         except Exception as exc:
             error = flatten_reason(f"{type(exc).__name__}: {exc}", 300)
-            conn.stop = ChannelStop(conn.principal, CONSOLE_ESTOP_REASON, f"console {conn.peer}", None, None, error)
+            conn.stop = ChannelStop(conn.principal, CONSOLE_ESTOP_REASON, f"console via stop channel {conn.peer}", None, None, error)
             logger.critical("stop channel: console E-STOP by %s failed: %s", conn.principal, error, exc_info=True)
             self._answer_console(conn, 500, "E-STOP FAILED: the stop may NOT have been issued. Use the hardware e-stop.")
             return
         issued_ms = round((time.monotonic() - received) * 1000.0, 3)
-        conn.stop = ChannelStop(conn.principal, CONSOLE_ESTOP_REASON, f"console {conn.peer}", event, issued_ms)
+        conn.stop = ChannelStop(conn.principal, CONSOLE_ESTOP_REASON, f"console via stop channel {conn.peer}", event, issued_ms)
         self._answer_console(conn, 200, f"E-STOP latched: event #{event}")
 
     def _answer_console(self, conn: _Connection, status: int, message: str) -> None:
