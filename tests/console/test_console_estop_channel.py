@@ -112,13 +112,15 @@ async def test_console_estop_stops_the_motion_while_the_event_loop_is_blocked(tm
 
             async with anyio.create_task_group() as group:
                 group.start_soon(execute)
-                await wait_until(lambda: guard.motion_status().executing, WAIT_S, what="motion started")
+                await wait_until(lambda: guard.motion_status().progress > 0, WAIT_S, what="the arm moving")
                 seen = await _press_while_the_loop_is_blocked(served, ticket)
 
     assert seen["status"] == 200, seen["answer"]
     assert seen["loop_still_blocked"] is True
     assert seen["latched"] is True and seen["emergency_stops"] == 1
-    assert outcome["result"].structured_content["status"] == "aborted"
+    result = outcome["result"]
+    assert result.structured_content is not None, text_of(result)
+    assert result.structured_content["status"] == "aborted"
 
 
 async def _press_while_the_loop_is_blocked(served: ServedConsole, ticket: str) -> dict[str, Any]:
