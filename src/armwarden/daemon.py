@@ -6,6 +6,8 @@ stops the arm and the gripper, closes the backend and writes a final audit recor
 
 Two stops bypass MCP and the event loop (docs/architecture.md, "Independent stop channel"):
 SIGUSR1 always, and with `--estop-port` the stop channel (`POST /estop`, any token's role).
+Whenever the operator console is served, a stop channel listens too (`--estop-port`, or an
+ephemeral loopback port only for the console): the console's E-STOP button posts there.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, hmac_key_from_env
 from armwarden.server.app import ArmWardenServer
-from armwarden.stopchannel import StopChannel, token_store_authenticator
+from armwarden.stopchannel import ConsoleDoor, StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
 from armwarden.stopchannel.signals import SignalStop
 
@@ -100,25 +102,89 @@ async def close_assembly(assembly: Assembly, why: str) -> None:
             assembly.audit.close()
 
 
-def _start_external_stops(args: argparse.Namespace, external: ExternalStops) -> tuple[SignalStop, StopChannel | None]:
-    """SIGUSR1 and (with --estop-port) the stop channel, each on its own thread."""
+@dataclass(frozen=True)
+class ConsoleStop:
+    """What the console shares with the stop channel: its sessions (whose E-STOP tickets the
+    channel checks) and where its E-STOP button posts (None: the console's own route)."""
+
+    sessions: Any  # armwarden.console.SessionStore
+    estop_url: str | None
+
+
+def _console_address(args: argparse.Namespace) -> tuple[str, int] | None:
+    """Host and port the console is served on, or None when this daemon serves no console."""
+    if args.transport == "http":
+        return None if getattr(args, "no_console", False) else (args.host, args.port)
+    if getattr(args, "console_port", None) is not None:
+        return args.console_host, args.console_port
+    return None
+
+
+def _console_door(args: argparse.Namespace, external: ExternalStops) -> tuple[ConsoleDoor, Any] | None:
+    """The stop channel's door for the console's E-STOP and the console's sessions, if served."""
+    address = _console_address(args)
+    if address is None:
+        return None
+    from armwarden.console import SessionStore
+    from armwarden.transport.http import transport_security_settings
+    from armwarden.transport.tokens import TokenStore
+
+    host, port = address
+    sessions = SessionStore(TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
+    security = transport_security_settings(host, port, allowed_hosts=getattr(args, "allowed_host", []) or [],
+                                           allowed_origins=getattr(args, "allowed_origin", []) or [])
+    door = ConsoleDoor(
+        check_ticket=sessions.principal_for_ticket, latch_and_stop=external.latch_and_stop_for("console"),
+        allowed_origins=frozenset(security.allowed_origins or ()),
+        allow_loopback_without_ticket=not getattr(args, "console_estop_needs_sign_in", False),
+        back_url=f"http://{_link_host(host)}:{port}/console/safety")
+    return door, sessions
+
+
+def _start_external_stops(args: argparse.Namespace, external: ExternalStops,
+                          console: ConsoleDoor | None = None) -> tuple[SignalStop, StopChannel | None]:
+    """SIGUSR1 and (with --estop-port, or when the console is served) the stop channel, each on
+    its own thread. Without --estop-port the console gets a channel of its own on an ephemeral
+    loopback port, which takes no bearer tokens."""
     signals = SignalStop(external.latch_and_stop_for("signal"), on_event=external.record).start()
-    if getattr(args, "estop_port", None) is None:
+    if getattr(args, "estop_port", None) is None and console is None:
         return signals, None
     from armwarden.transport.tokens import TokenStore
 
     try:
-        channel = StopChannel(
-            authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
-            latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
-            on_refused=external.record_refusal,
-            host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
-        ).start()
+        if getattr(args, "estop_port", None) is None:
+            channel = StopChannel(authenticate=lambda _token: None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
+                                  on_event=external.record, on_refused=external.record_refusal, console=console,
+                                  host="127.0.0.1", port=0).start()
+        else:
+            channel = StopChannel(
+                authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
+                latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
+                on_refused=external.record_refusal, console=console,
+                host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
+            ).start()
     except BaseException:
         signals.close()
         raise
     logger.warning("stop channel listening: POST %s", channel.url)
     return signals, channel
+
+
+def _console_stop(args: argparse.Namespace, channel: StopChannel | None, sessions: Any) -> ConsoleStop:
+    """Where the console's button posts: the channel, when a browser of the console can reach it.
+    A console on a non-loopback address with the channel on loopback keeps its own route."""
+    address = _console_address(args)
+    if channel is None or address is None:
+        return ConsoleStop(sessions, None)
+    from armwarden.transport.http import is_loopback_host
+
+    channel_host = args.estop_host if getattr(args, "estop_port", None) is not None else "127.0.0.1"
+    if is_loopback_host(channel_host) and not is_loopback_host(address[0]):
+        logger.warning("the console on %s cannot reach the stop channel on %s: its E-STOP button posts to "
+                       "the console's own route (give --estop-host/--estop-port the browser can reach)",
+                       address[0], channel_host)
+        return ConsoleStop(sessions, None)
+    return ConsoleStop(sessions, f"http://{_link_host(channel_host)}:{channel.port}/console-estop")
 
 
 def freeze_long_lived_objects() -> None:
@@ -138,7 +204,9 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     signal_stop, channel = None, None
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
-        signal_stop, channel = _start_external_stops(args, external)
+        door = _console_door(args, external)
+        signal_stop, channel = _start_external_stops(args, external, None if door is None else door[0])
+        console_stop = _console_stop(args, channel, None if door is None else door[1])
         freeze_long_lived_objects()
         await assembly.audit.append_async(
             "startup",
@@ -183,11 +251,11 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
             group.start_soon(on_signals)
             if args.transport == "stdio":
                 if getattr(args, "console_port", None) is not None:
-                    group.start_soon(_serve_console, args, assembly, external)
+                    group.start_soon(_serve_console, args, assembly, external, console_stop)
                 await _serve_stdio(assembly, external)
                 why = "end of stdin"
             else:
-                await _serve_http(args, assembly, external, shutdown)
+                await _serve_http(args, assembly, external, shutdown, console_stop)
             group.cancel_scope.cancel()
     finally:
         if channel is not None:
@@ -199,17 +267,21 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                 signal_stop.close()
 
 
-def _console_app(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, tokens: Any) -> Any:
+def _console_app(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, tokens: Any,
+                 console_stop: ConsoleStop | None = None) -> Any:
     """The operator console for this daemon (docs/console.md): sign-in with `tokens` (None: nobody
-    can sign in), E-STOP through the stop channel's thread-safe path, approval answers when the
-    policy's `approval.channel` is url or both."""
+    can sign in), the E-STOP button posting to the stop channel (`console_stop`; its own route,
+    on the stop channel's thread-safe path, as the fallback), approval answers when the policy's
+    `approval.channel` is url or both."""
     from armwarden.console import ConsoleSettings, SessionStore, build_console_app, timed_estop
 
     settings = ConsoleSettings(
         estop_from_loopback_without_sign_in=not getattr(args, "console_estop_needs_sign_in", False),
-        answer_approvals=assembly.policy.approval.channel in ("url", "both"))
+        answer_approvals=assembly.policy.approval.channel in ("url", "both"),
+        estop_url=None if console_stop is None else console_stop.estop_url)
     hook = timed_estop(external.latch_and_stop_for("console"), external.record)
-    return build_console_app(assembly.guard, SessionStore(tokens), hook, settings)
+    sessions = SessionStore(tokens) if console_stop is None else console_stop.sessions
+    return build_console_app(assembly.guard, sessions, hook, settings)
 
 
 def _link_host(host: str) -> str:
@@ -219,13 +291,14 @@ def _link_host(host: str) -> str:
     return f"[{host}]" if ":" in host and not host.startswith("[") else host
 
 
-async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops) -> None:
+async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops,
+                         console_stop: ConsoleStop | None = None) -> None:
     """``--console-port`` (stdio): the console alone on its own port, until cancelled."""
     from armwarden.transport.http import build_console_only_app, serve_http
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
-    app = build_console_only_app(_console_app(args, assembly, external, tokens), host=args.console_host,
+    app = build_console_only_app(_console_app(args, assembly, external, tokens, console_stop), host=args.console_host,
                                  port=args.console_port, allowed_hosts=getattr(args, "allowed_host", []) or [],
                                  allowed_origins=getattr(args, "allowed_origin", []) or [])
     assembly.guard.approvals.console_url = f"http://{_link_host(args.console_host)}:{args.console_port}/console"
@@ -247,7 +320,8 @@ async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
     await serve_stdio(assembly.server.mcp, on_duplicate=on_duplicate, on_stop_request=external.stop_on_receipt)
 
 
-async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event) -> None:
+async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event,
+                      console_stop: ConsoleStop | None = None) -> None:
     from armwarden.transport.http import build_http_app, current_principal, serve_http
     from armwarden.transport.tokens import TokenStore
 
@@ -258,7 +332,8 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
         await assembly.guard.abandoned_call(tool, arguments, request_id, cancelled,
                                             principal=None if principal is None else principal.name)
 
-    console = None if getattr(args, "no_console", False) else _console_app(args, assembly, external, tokens)
+    console = None if getattr(args, "no_console", False) else _console_app(args, assembly, external, tokens,
+                                                                            console_stop)
     if console is not None:  # the link URL-mode approvals send
         assembly.guard.approvals.console_url = f"http://{_link_host(args.host)}:{args.port}/console"
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state

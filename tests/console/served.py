@@ -1,10 +1,12 @@
 """A real ArmWarden (fake backend, in memory) served over HTTP on 127.0.0.1 with its operator
-console mounted beside /mcp, for the console tests (plain HTTP and browser)."""
+console mounted beside /mcp and a stop channel for its E-STOP button, as the daemon wires them,
+for the console tests (plain HTTP and browser)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import re
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
@@ -18,8 +20,9 @@ from mcp.client.streamable_http import streamable_http_client
 
 from armwarden.console import ConsoleSettings, SessionStore, build_console_app, timed_estop
 from armwarden.policy import Policy
+from armwarden.stopchannel import ConsoleDoor, StopChannel
 from armwarden.stopchannel.external import ExternalStops
-from armwarden.transport.http import build_http_app, serve_http
+from armwarden.transport.http import build_http_app, serve_http, transport_security_settings
 from armwarden.transport.tokens import TokenStore
 from tests.helpers import free_port
 from tests.server.harness import ArmHarness, ElicitationCallback, arm_harness
@@ -34,6 +37,7 @@ class ServedConsole:
     base: str
     operator_token: str
     observer_token: str
+    channel: StopChannel
 
     @property
     def console(self) -> str:
@@ -81,9 +85,16 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
         external = ExternalStops(harness.guard.stopper, harness.audit, asyncio.get_running_loop())
         hook = timed_estop(external.latch_and_stop_for("console"), external.record)
         answer = harness.guard.policy.approval.channel in ("url", "both")
-        console = build_console_app(harness.guard, SessionStore(tokens), hook,
-                                    settings or ConsoleSettings(answer_approvals=answer))
+        settings = settings or ConsoleSettings(answer_approvals=answer)
+        sessions = SessionStore(tokens)
         port = free_port()
+        door = ConsoleDoor(sessions.principal_for_ticket, external.latch_and_stop_for("console"),
+                           frozenset(transport_security_settings(HOST, port).allowed_origins or ()),
+                           settings.estop_from_loopback_without_sign_in, f"http://{HOST}:{port}/console/safety")
+        channel = StopChannel(authenticate=lambda _token: None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
+                              on_event=external.record, on_refused=external.record_refusal, console=door).start()
+        settings = dataclasses.replace(settings, estop_url=channel.console_url)
+        console = build_console_app(harness.guard, sessions, hook, settings)
         harness.guard.approvals.console_url = f"http://{HOST}:{port}/console"
         app = build_http_app(harness.server.mcp, host=HOST, port=port, token_store=tokens, console=console,
                              on_stop_request=external.stop_on_receipt)
@@ -93,6 +104,7 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
             with anyio.fail_after(10):
                 await ready.wait()
             try:
-                yield ServedConsole(harness, f"http://{HOST}:{port}", operator, observer)
+                yield ServedConsole(harness, f"http://{HOST}:{port}", operator, observer, channel)
             finally:
                 shutdown.set()
+                channel.close()

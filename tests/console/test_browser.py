@@ -20,7 +20,7 @@ import pytest
 from armwarden.policy import Policy
 from tests.console.browser import chromium
 from tests.console.served import ServedConsole, served_console
-from tests.helpers import text_of
+from tests.helpers import records_of, text_of
 from tests.server.harness import HOME_TCP_X, policy_with
 
 URL_POLICY = {"approval.mode": "always", "approval.channel": "url"}
@@ -215,15 +215,38 @@ def test_estop_stops_an_executing_motion_and_the_latch_shows(tmp_path: Path, bro
         sign_in(browser, session.served, session.served.observer_token)
         call = session.plan_and_execute(z=0.30)
         guard = session.served.harness.guard
-        wait_for(browser, lambda b: guard.motion_status().executing)
+        wait_for(browser, lambda b: guard.motion_status().progress > 0)
+        action = browser.find_element(By.ID, "estop-form").get_attribute("action")
         browser.find_element(By.ID, "estop-button").click()
         answer = wait_for(browser, ec.presence_of_element_located((By.ID, "estop-answer"))).text
         latched = wait_for(browser, lambda b: "E-STOP LATCHED" in b.find_element(By.ID, "estop-status").text)
         result = call.result(timeout=WAIT_S)
+        channel_url = session.served.channel.console_url
+        audit_path = session.served.harness.audit_path
 
-    assert answer.startswith("E-STOP latched: event #")
+    assert action == channel_url  # the independent stop channel, not the event loop's console route
+    assert answer.startswith("E-STOP sent through the stop channel")
     assert latched
     assert result.structured_content["status"] == "aborted"
+    estop = [r for r in records_of(audit_path) if r["event"] == "estop"][-1]
+    assert estop["principal"] == "bob" and estop["extra"]["peer"].startswith("console via stop channel")
+
+
+def test_estop_without_script_shows_the_channels_answer_page(tmp_path: Path, browser: Any) -> None:
+    """A browser running no script posts the form itself and is shown the channel's answer."""
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path) as session:
+        browser.execute_cdp_cmd("Emulation.setScriptExecutionDisabled", {"value": True})
+        browser.get(session.served.console + "/login")
+        click_and_load(browser, "estop-button")
+        answer = browser.find_element(By.ID, "estop-result").text
+        back = browser.find_element(By.TAG_NAME, "a").get_attribute("href")
+        guard = session.served.harness.guard
+
+    assert answer.startswith("E-STOP latched: event #")
+    assert back == session.served.console + "/safety"
+    assert guard.latch.is_latched
 
 
 def test_reset_from_the_browser_needs_the_event_number(tmp_path: Path, browser: Any) -> None:

@@ -227,5 +227,8 @@ async def test_pages_carry_a_strict_content_security_policy(tmp_path: Path) -> N
     async with served_console(tmp_path) as served, served.browser_client() as http:
         page = await http.get("/console/login")
 
+    channel_origin = served.channel.console_url.removesuffix("/console-estop")
     assert "script-src 'self'" in page.headers["content-security-policy"]
-    assert page.headers["referrer-policy"] == "same-origin"
+    assert f"form-action 'self' {channel_origin};" in page.headers["content-security-policy"]
+    # the stop channel (another origin) must see this page's origin, not "null"; never a path
+    assert page.headers["referrer-policy"] == "strict-origin-when-cross-origin"

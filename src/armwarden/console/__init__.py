@@ -6,8 +6,9 @@ number, faults, force latch), the approval requests the server has asked about (
 findings, the plan's picture), and the audit tail with the chain's `audit verify` status.
 
 What a human can do there: sign in with a token from the HTTP token file (an HttpOnly,
-SameSite=Strict session cookie; a CSRF token on every POST), press E-STOP (on every page; from
-this machine also without signing in, unless switched off), release the e-stop by typing the
+SameSite=Strict session cookie; a CSRF token on every POST), press E-STOP (on every page; it
+posts to the independent stop channel with the session's ticket, so a busy event loop cannot
+delay it; from this machine also without signing in, unless switched off), release the e-stop by typing the
 event number shown (operators), and, when the policy's `approval.channel` is `url` or `both`,
 approve or decline a motion (operators). Every action is audited with the token's name.
 

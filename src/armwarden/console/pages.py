@@ -12,7 +12,7 @@ from typing import Any
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from starlette.responses import HTMLResponse
 
-__all__ = ["SECURITY_HEADERS", "render", "render_fragment"]
+__all__ = ["SECURITY_HEADERS", "page_headers", "render", "render_fragment"]
 
 #: headers on every console answer: no caching of live state, no framing, no referrer (an approval
 #: link must not leak to another site), only the daemon's own scripts and styles
@@ -25,6 +25,21 @@ SECURITY_HEADERS = {
                                 "connect-src 'self'; form-action 'self'; frame-ancestors 'none'; base-uri 'none'"),
 }
 
+
+
+def page_headers(estop_origin: str | None) -> dict[str, str]:
+    """`SECURITY_HEADERS` for pages whose E-STOP posts to the stop channel at `estop_origin`
+    (``http://host:port``): the form and the script may post there too, and the browser names
+    this origin in its Origin header (the channel checks it) instead of ``null``."""
+    if estop_origin is None:
+        return SECURITY_HEADERS
+    csp = SECURITY_HEADERS["Content-Security-Policy"]
+    csp = csp.replace("connect-src 'self'", f"connect-src 'self' {estop_origin}")
+    csp = csp.replace("form-action 'self'", f"form-action 'self' {estop_origin}")
+    # the origin only (no path, so no approval link) leaves for another origin
+    return {**SECURITY_HEADERS, "Content-Security-Policy": csp, "Referrer-Policy": "strict-origin-when-cross-origin"}
+
+
 _ENV = Environment(
     loader=PackageLoader("armwarden.console", "templates"),
     autoescape=select_autoescape(default=True, default_for_string=True),
@@ -33,13 +48,16 @@ _ENV = Environment(
     lstrip_blocks=True,
 )
 
-_PAGE_DEFAULTS: dict[str, Any] = {"session": None, "message": None, "message_kind": "ok", "title": "console"}
+_PAGE_DEFAULTS: dict[str, Any] = {"session": None, "message": None, "message_kind": "ok", "title": "console",
+                                  "estop_url": None}
 
 
-def render(template: str, *, status_code: int = 200, **context: Any) -> HTMLResponse:
-    """A whole page (`template` extends base.html); `base` (the console's path) must be given."""
+def render(template: str, *, status_code: int = 200, headers: dict[str, str] | None = None,
+           **context: Any) -> HTMLResponse:
+    """A whole page (`template` extends base.html); `base` (the console's path) must be given.
+    `estop_url`: where the E-STOP button posts (the stop channel; None: the console's own route)."""
     html = _ENV.get_template(template).render({**_PAGE_DEFAULTS, **context})
-    return HTMLResponse(html, status_code=status_code, headers=SECURITY_HEADERS)
+    return HTMLResponse(html, status_code=status_code, headers=headers or SECURITY_HEADERS)
 
 
 def render_fragment(template: str, **context: Any) -> HTMLResponse:

@@ -8,9 +8,12 @@ Rules every handler keeps:
   form's own token); a POST without it is refused (403) and audited.
 - Releasing the e-stop and answering approvals need the operator role; observers see, and stop.
 - Everything a human does here is audited with the session's token name (`console_*` events).
-- The E-STOP awaits nothing but its own (small) request body before the stop is issued: it
-  calls the thread-safe latch-and-stop of the independent stop channel (`EStopHook`), then
-  audits (without waiting for the disk) and answers.
+- The E-STOP button posts to the independent stop channel (`ConsoleSettings.estop_url`, its
+  ``/console-estop``), which runs on its own thread, so a busy or blocked event loop cannot
+  delay it; the page carries the session's E-STOP ticket for it. The console's own
+  ``/estop`` route stays as the fallback (no channel configured, or the channel unreachable
+  from the browser): it awaits nothing but its own small request body, calls the thread-safe
+  latch-and-stop (`EStopHook`), then audits (without waiting for the disk) and answers.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Route
 
 from armwarden.console.feed import StateFeed, request_view
-from armwarden.console.pages import SECURITY_HEADERS, render, render_fragment
+from armwarden.console.pages import SECURITY_HEADERS, page_headers, render, render_fragment
 from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, same_secret
 from armwarden.errors import SafetyRefusal
 from armwarden.guard import Guard
@@ -55,6 +58,19 @@ class ConsoleSettings:
     answer_approvals: bool = False
     #: the path the console is mounted at (links and the cookie's Path)
     path: str = CONSOLE_PATH
+    #: where the E-STOP button posts: the stop channel's ``/console-estop`` (None: this console's
+    #: own ``/estop`` route, which runs on the event loop)
+    estop_url: str | None = None
+
+
+def _origin_of(url: str | None) -> str | None:
+    """``scheme://host:port`` of `url`, for the pages' Content-Security-Policy."""
+    if url is None:
+        return None
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    return f"{parts.scheme}://{parts.netloc}"
 
 
 def _is_loopback_peer(request: Request) -> bool:
@@ -71,6 +87,7 @@ class Console:
         self.estop_hook = estop
         self.settings = settings
         self.feed = StateFeed(guard)
+        self.headers = page_headers(_origin_of(settings.estop_url))
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -95,6 +112,7 @@ class Console:
         if "application/json" in request.headers.get("accept", ""):
             return JSONResponse({"error": why}, status_code=status, headers=SECURITY_HEADERS)
         return render("login.html" if session is None else "safety.html", status_code=status, base=self.base,
+                      headers=self.headers, estop_url=self.settings.estop_url,
                       session=session, message=why, message_kind="error", login_csrf="",
                       sign_in_enabled=self.sessions.enabled, safety=self.feed.safety())
 
@@ -108,6 +126,7 @@ class Console:
     def page(self, template: str, request: Request, session: Session, **context: Any) -> Response:
         message = request.query_params.get("msg")
         return render(template, base=self.base, session=session, message=message[:300] if message else None,
+                      headers=self.headers, estop_url=self.settings.estop_url,
                       message_kind=request.query_params.get("kind", "ok"), **context)
 
     def back(self, where: str, message: str, kind: Literal["ok", "error"] = "ok") -> RedirectResponse:
@@ -121,6 +140,7 @@ class Console:
 
         token = secrets.token_urlsafe(24)
         response = render("login.html", base=self.base, login_csrf=token, sign_in_enabled=self.sessions.enabled,
+                          headers=self.headers, estop_url=self.settings.estop_url,
                           message=request.query_params.get("msg"), message_kind=request.query_params.get("kind", "ok"))
         response.set_cookie(LOGIN_COOKIE, token, httponly=True, samesite="strict", path=self.base, max_age=600)
         return response

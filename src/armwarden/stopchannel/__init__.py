@@ -1,6 +1,7 @@
 """The independent stop channel: an e-stop path beside MCP that no command load can delay.
 
-`StopChannel` serves ``POST /estop`` on its own thread and socket; `send_estop` and
+`StopChannel` serves ``POST /estop`` (and, with a `ConsoleDoor`, the operator console's
+``POST /console-estop``) on its own thread and socket; `send_estop` and
 `estop_command` are the client side (``armwarden estop``).
 """
 
@@ -17,6 +18,7 @@ from armwarden.stopchannel.client import (
 from armwarden.stopchannel.server import (
     ChannelRefusal,
     ChannelStop,
+    ConsoleDoor,
     StopChannel,
     token_store_authenticator,
 )
@@ -24,6 +26,7 @@ from armwarden.stopchannel.server import (
 __all__ = [
     "ChannelRefusal",
     "ChannelStop",
+    "ConsoleDoor",
     "EStopRefused",
     "EStopRequestError",
     "EStopTimeout",

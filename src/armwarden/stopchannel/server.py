@@ -23,6 +23,12 @@ unknown token, 404/405 wrong path/method, 408 too slow, 413 too large, 501 chunk
 when the authenticator or ``latch_and_stop`` raised (the message says whether a stop may have
 been issued). Only requests that reached ``latch_and_stop`` are reported to `on_event`.
 
+The operator console's E-STOP (`ConsoleDoor`, optional): ``POST /console-estop``, a form a
+browser posts cross-origin without a CORS preflight, with the ``ticket`` the console page embeds
+for its session (checked on this thread by `ConsoleDoor.check_ticket`, never on the event loop),
+or with no ticket from a loopback peer when the console allows that. A browser's Origin must be
+one of the console's. Its answers are tiny HTML pages (the page without script shows them).
+
 The audit hook `on_event` runs after the reply was sent, on this thread: it must be quick
 (hand the record to the audit writer) and its failure is logged, never raised.
 """
@@ -41,8 +47,9 @@ from typing import Any
 
 from armwarden.errors import ConfigurationError
 from armwarden.safety.estop import flatten_reason
-from armwarden.stopchannel.listener import open_listener
+from armwarden.stopchannel.listener import is_loopback, open_listener
 from armwarden.stopchannel.wire import (
+    CONSOLE_ESTOP_PATH,
     ESTOP_PATH,
     MAX_BODY_BYTES,
     MAX_HEAD_BYTES,
@@ -50,12 +57,22 @@ from armwarden.stopchannel.wire import (
     RequestHead,
     bearer_token,
     find_head_end,
+    parse_console_form,
     parse_head,
     parse_reason,
+    render_html_response,
     render_response,
 )
 
-__all__ = ["ChannelRefusal", "ChannelStop", "StopChannel", "token_store_authenticator"]
+__all__ = [
+    "CONSOLE_UNSIGNED_PRINCIPAL",
+    "ChannelRefusal",
+    "ChannelStop",
+    "ConsoleDoor",
+    "StopChannel",
+    "authorise_console_estop",
+    "token_store_authenticator",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -100,6 +117,44 @@ class ChannelRefusal:
     suppressed: int = 0
 
 
+#: the principal audited for a console E-STOP without a ticket (loopback, not signed in)
+CONSOLE_UNSIGNED_PRINCIPAL = "console (not signed in, loopback)"
+CONSOLE_ESTOP_REASON = "operator console E-STOP"
+
+
+@dataclass(frozen=True)
+class ConsoleDoor:
+    """How the channel takes the operator console's E-STOP (``POST /console-estop``).
+
+    `check_ticket` maps a console page's ticket to the signed-in token's name (None: unknown,
+    expired or signed out); it runs on the channel's thread, so it must be thread-safe and must
+    not wait for the event loop. `allowed_origins`: the console's own origins; a request with
+    any other Origin header (``null`` included) is refused, so no other web site can stop the
+    robot through a visitor's browser. `back_url`: the link on the answer page.
+    """
+
+    check_ticket: Callable[[str], str | None]
+    latch_and_stop: Callable[[str, str], int]
+    allowed_origins: frozenset[str]
+    allow_loopback_without_ticket: bool = True
+    back_url: str | None = None
+
+
+def authorise_console_estop(door: ConsoleDoor, ticket: str | None, peer_host: str) -> str:
+    """Who pressed the console's E-STOP: the ticket's session, or, without a ticket, a loopback
+    peer when the console allows that. `HttpRefusal` 401 otherwise (the stop is not issued)."""
+    if ticket is None:
+        if not door.allow_loopback_without_ticket:
+            raise HttpRefusal(401, "sign in to the console first (no ticket)")
+        if not is_loopback(peer_host):
+            raise HttpRefusal(401, "without sign-in the console E-STOP works only from this machine")
+        return CONSOLE_UNSIGNED_PRINCIPAL
+    principal = door.check_ticket(ticket)
+    if principal is None:
+        raise HttpRefusal(401, "unknown or expired console ticket (reload the console page)")
+    return flatten_reason(principal, 64) or "unknown"
+
+
 #: at most one refusal report per host in this interval [s]; the others are counted
 REFUSAL_REPORT_INTERVAL_S = 1.0
 #: hosts remembered for that; beyond, the memory starts afresh (source addresses vary on 127/8)
@@ -132,6 +187,7 @@ class StopChannel:
         port: int = 0,
         on_event: Callable[[ChannelStop], None] | None = None,
         on_refused: Callable[[ChannelRefusal], None] | None = None,
+        console: ConsoleDoor | None = None,
         allow_non_loopback: bool = False,
         max_connections: int = 64,
         request_timeout_s: float = 1.0,
@@ -146,6 +202,7 @@ class StopChannel:
         self._latch_and_stop = latch_and_stop
         self._on_event = on_event
         self._on_refused = on_refused
+        self._console = console
         self._refusals: dict[str, tuple[float, int]] = {}  # host -> (last report, refusals not reported since)
         self._host, self._port = host, port
         self._allow_non_loopback = allow_non_loopback
@@ -209,6 +266,11 @@ class StopChannel:
     def url(self) -> str:
         host = f"[{self._host}]" if ":" in self._host else self._host
         return f"http://{host}:{self._port}{ESTOP_PATH}"
+
+    @property
+    def console_url(self) -> str:
+        """Where the console's E-STOP button posts."""
+        return self.url.removesuffix(ESTOP_PATH) + CONSOLE_ESTOP_PATH
 
     @property
     def is_serving(self) -> bool:
@@ -328,12 +390,61 @@ class StopChannel:
                         raise HttpRefusal(413, f"request line and headers larger than {MAX_HEAD_BYTES} bytes")
                     return
                 conn.head, conn.body_start = parse_head(bytes(conn.buffer[:end])), end
-                conn.principal = self._check_token(conn)
+                if conn.head.path == CONSOLE_ESTOP_PATH:
+                    self._check_console_head(conn.head)
+                else:
+                    conn.principal = self._check_token(conn)
             body = bytes(conn.buffer[conn.body_start : conn.body_start + conn.head.content_length])
             if len(body) == conn.head.content_length:
-                self._stop(conn, body)
+                if conn.head.path == CONSOLE_ESTOP_PATH:
+                    self._console_stop(conn, body)
+                else:
+                    self._stop(conn, body)
         except HttpRefusal as refusal:
-            self._answer(conn, refusal.status, {"error": refusal.message}, refusal.headers)
+            if conn.head is not None and conn.head.path == CONSOLE_ESTOP_PATH:
+                self._answer_console(conn, refusal.status, f"E-STOP refused: {refusal.message}")
+            else:
+                self._answer(conn, refusal.status, {"error": refusal.message}, refusal.headers)
+
+    def _check_console_head(self, head: RequestHead) -> None:
+        """Refuse a console E-STOP early when this channel has no console, or the Origin is foreign."""
+        if self._console is None:
+            raise HttpRefusal(404, f"not found; this channel serves no console ({CONSOLE_ESTOP_PATH})")
+        if head.origin is not None and head.origin not in self._console.allowed_origins:
+            raise HttpRefusal(403, "the request comes from a page that is not this daemon's console")
+
+    def _console_principal(self, conn: _Connection, body: bytes) -> str:
+        assert conn.head is not None and self._console is not None
+        ticket = parse_console_form(body, conn.head.content_type)
+        try:
+            return authorise_console_estop(self._console, ticket, conn.peer.rsplit(":", 1)[0])
+        except HttpRefusal:
+            raise
+        except Exception:
+            logger.exception("stop channel: the console ticket check failed; request from %s refused", conn.peer)
+            raise HttpRefusal(500, "the ticket could not be checked; no stop was issued") from None
+
+    def _console_stop(self, conn: _Connection, body: bytes) -> None:
+        assert self._console is not None
+        conn.principal = self._console_principal(conn, body)
+        received = time.monotonic()
+        try:
+            event = self._console.latch_and_stop(CONSOLE_ESTOP_REASON, conn.principal)
+        except Exception as exc:
+            error = flatten_reason(f"{type(exc).__name__}: {exc}", 300)
+            conn.stop = ChannelStop(conn.principal, CONSOLE_ESTOP_REASON, f"console via stop channel {conn.peer}", None, None, error)
+            logger.critical("stop channel: console E-STOP by %s failed: %s", conn.principal, error, exc_info=True)
+            self._answer_console(conn, 500, "E-STOP FAILED: the stop may NOT have been issued. Use the hardware e-stop.")
+            return
+        issued_ms = round((time.monotonic() - received) * 1000.0, 3)
+        conn.stop = ChannelStop(conn.principal, CONSOLE_ESTOP_REASON, f"console via stop channel {conn.peer}", event, issued_ms)
+        self._answer_console(conn, 200, f"E-STOP latched: event #{event}")
+
+    def _answer_console(self, conn: _Connection, status: int, message: str) -> None:
+        back = None if self._console is None else self._console.back_url
+        self._send_answer(conn, render_html_response(status, message, back))
+        if status != 200:
+            self._report_refusal(conn.peer, status, message)
 
     def _check_token(self, conn: _Connection) -> str:
         assert conn.head is not None
@@ -369,11 +480,14 @@ class StopChannel:
     def _answer(
         self, conn: _Connection, status: int, payload: dict[str, object], headers: tuple[tuple[str, str], ...] = ()
     ) -> None:
-        conn.answered, conn.outgoing = True, render_response(status, payload, headers)
-        conn.deadline = time.monotonic() + _LINGER_S
-        self._send(conn)
+        self._send_answer(conn, render_response(status, payload, headers))
         if status != 200:
             self._report_refusal(conn.peer, status, str(payload.get("error", "")))
+
+    def _send_answer(self, conn: _Connection, response: bytes) -> None:
+        conn.answered, conn.outgoing = True, response
+        conn.deadline = time.monotonic() + _LINGER_S
+        self._send(conn)
 
     def _report_refusal(self, peer: str, status: int, message: str) -> None:
         """Hand a refusal to `on_refused`, at most once per host and `REFUSAL_REPORT_INTERVAL_S`."""

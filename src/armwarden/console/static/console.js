@@ -22,17 +22,33 @@
   });
 
   // E-STOP: post at once with fetch (no page load in between), then show the answer.
+  // With the stop channel (data-channel) the post is a "simple" cross-origin request
+  // (mode no-cors: no preflight, the answer is opaque), so the safety view is re-read to show
+  // the latch; only if the channel cannot be reached at all is the console's own route tried.
+  async function viaConsole(url) {
+    const data = new URLSearchParams({csrf: body.dataset.csrf || ""});
+    const reply = await fetch(url, {method: "POST", body: data, credentials: "same-origin",
+                                    headers: {"Accept": "application/json"}});
+    const answer = await reply.json();
+    return reply.ok ? "E-STOP latched: event #" + answer.event : "E-STOP FAILED: " + answer.error;
+  }
+  async function viaChannel(form) {
+    const data = new URLSearchParams(new FormData(form));
+    try {
+      await fetch(form.action, {method: "POST", body: data, mode: "no-cors", credentials: "omit",
+                                cache: "no-store", referrerPolicy: "strict-origin-when-cross-origin"});
+      return "E-STOP sent through the stop channel: see the safety status";
+    } catch (e) {
+      return "Stop channel unreachable; " + await viaConsole(form.dataset.fallback);
+    }
+  }
   const form = document.getElementById("estop-form");
   if (form) {
     form.addEventListener("submit", async (event) => {
       event.preventDefault();
-      const data = new URLSearchParams(new FormData(form));
       let text;
       try {
-        const reply = await fetch(form.action, {method: "POST", body: data, credentials: "same-origin",
-                                                headers: {"Accept": "application/json"}});
-        const answer = await reply.json();
-        text = reply.ok ? "E-STOP latched: event #" + answer.event : "E-STOP FAILED: " + answer.error;
+        text = form.dataset.channel ? await viaChannel(form) : await viaConsole(form.action);
       } catch (e) {
         text = "E-STOP request failed: use the hardware e-stop";
       }
