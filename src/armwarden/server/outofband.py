@@ -56,17 +56,26 @@ FORM_KEY = "armwarden_approval_form"
 ESTOP_POLL_S = 0.1
 
 
+def _open_request(guard: Guard, asked: ConsoleChannel) -> tuple[PendingRequest, str] | ConsoleAnswer:
+    """The board's open request for the asked plan and its console link, or the refusal that
+    says why there is nothing to ask about (the request closed, or no console served)."""
+    digest = asked.prompt.digest
+    request = guard.approvals.open_for(digest, guard.latch.generation)
+    if request is None:
+        return ConsoleAnswer(False, None, digest, "the approval request is no longer open (plan expired or e-stop)")
+    link = guard.approvals.link(request)
+    if link is None:
+        return ConsoleAnswer(False, None, digest, "approval.channel asks in the operator console, but no console is served")
+    return request, link
+
+
 async def answer_out_of_band(ctx: Context, guard: Guard, asked: ConsoleChannel) -> Any:
     """Ask as `asked.channel` says and return the outcome for `Guard.execute`: a `ConsoleAnswer`
     from the board, or the form's elicitation result when the form answered first."""
-    digest = asked.prompt.digest
-    board = guard.approvals
-    request = board.open_for(digest, guard.latch.generation)
-    if request is None:
-        return ConsoleAnswer(False, None, digest, "the approval request is no longer open (plan expired or e-stop)")
-    link = board.link(request)
-    if link is None:
-        return ConsoleAnswer(False, None, digest, "approval.channel asks in the operator console, but no console is served")
+    opened = _open_request(guard, asked)
+    if isinstance(opened, ConsoleAnswer):
+        return opened
+    request, link = opened
     answered = anyio.Event()
     request.listeners.append(lambda _request: answered.set())
     outcome: dict[str, Any] = {}
@@ -87,7 +96,7 @@ async def answer_out_of_band(ctx: Context, guard: Guard, asked: ConsoleChannel) 
             outcome["missing"] = missing
         scope.cancel()
 
-    with anyio.move_on_after(board.remaining_s(request)):
+    with anyio.move_on_after(guard.approvals.remaining_s(request)):
         async with anyio.create_task_group() as group:
             group.start_soon(by_console, group.cancel_scope)
             group.start_soon(by_link if asked.channel == "url" else by_form, group.cancel_scope)
@@ -138,21 +147,17 @@ def ask_round(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_id: str, s
     """Round one: the console link as URL-mode elicitation (for `both`, with the form question
     when the client takes forms), and the sealed round state. A `ConsoleAnswer` (refusal) when
     there is nothing to ask about (the request closed, or no console served)."""
-    digest = asked.prompt.digest
-    board = guard.approvals
-    request = board.open_for(digest, guard.latch.generation)
-    if request is None:
-        return ConsoleAnswer(False, None, digest, "the approval request is no longer open (plan expired or e-stop)")
-    link = board.link(request)
-    if link is None:
-        return ConsoleAnswer(False, None, digest, "approval.channel asks in the operator console, but no console is served")
+    opened = _open_request(guard, asked)
+    if isinstance(opened, ConsoleAnswer):
+        return opened
+    request, link = opened
     questions: dict[str, Any] = {request.request_id: ElicitRequest(params=ElicitRequestURLParams(
         message=_link_message(request), url=link))}
     if asked.channel == "both" and _takes_forms(ctx):
         questions[FORM_KEY] = ElicitRequest(params=ElicitRequestFormParams(
             message=asked.prompt.message, requested_schema=render_elicitation_schema(ApprovalForm)))
-    claims = RoundClaims(plan_id=plan_id, request_id=request.request_id, digest=digest,
-                         nonce=board.start_round(request), channel=asked.channel)
+    claims = RoundClaims(plan_id=plan_id, request_id=request.request_id, digest=request.digest,
+                         nonce=guard.approvals.start_round(request), channel=asked.channel)
     return InputRequiredResult(input_requests=questions, request_state=seal.seal(claims))
 
 
