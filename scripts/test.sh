@@ -28,9 +28,11 @@ lane_tests() {
   .venv/bin/python -m pytest -m "not slow" "$@" tests
 }
 
+# (each step returns on failure itself: a lane runs under `||`, where `set -e` does not apply)
 lane_ros() {
-  ARMWARDEN_VENV=.venv-ros ARMWARDEN_EXTRAS=dev,can,ros ARMWARDEN_CONSTRAINTS=constraints/ros.txt bash scripts/bootstrap.sh
-  .venv-ros/bin/python scripts/build_ros_interfaces.py -j2
+  ARMWARDEN_VENV=.venv-ros ARMWARDEN_EXTRAS=dev,can,ros ARMWARDEN_CONSTRAINTS=constraints/ros.txt bash scripts/bootstrap.sh \
+    || { echo "test.sh: setting up .venv-ros failed" >&2; return 1; }
+  .venv-ros/bin/python scripts/build_ros_interfaces.py -j2 || { echo "test.sh: building the ROS interfaces failed" >&2; return 1; }
   ROS_DOMAIN_ID="$((RANDOM % 100 + 1))" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ARMWARDEN_HARNESS_BACKENDS=ros2 \
     PYTHONPATH="$PWD" .venv-ros/bin/python -m pytest -m "not slow" -p tests_ros.no_skips "$@" \
     tests_ros tests/scenarios tests/backends/test_harness_backends.py
