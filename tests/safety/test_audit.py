@@ -30,6 +30,7 @@ from armwarden.safety.audit import (
     read_tail,
     sanitize,
     tail_command,
+    verify_appended,
     verify_command,
     verify_file,
 )
@@ -65,6 +66,48 @@ def test_chain_verifies_after_many_appends(tmp_path: Path) -> None:
     assert [r.seq for r in records] == list(range(1, 501))
     assert records[0].prev == GENESIS_HASH
     assert all(b.prev == a.hash for a, b in itertools.pairwise(records))
+
+
+def test_verifying_a_growing_log_again_parses_only_the_appended_records(tmp_path: Path, monkeypatch) -> None:
+    from armwarden.safety.audit import verify as verify_module
+
+    path = tmp_path / "audit.jsonl"
+    with AuditLog(path) as log:
+        for i in range(50):
+            log.append("tool_call", tool="get_robot_state", arguments={"i": i}, outcome="ok")
+        first, verified = verify_appended(path)
+        checked: list[int] = []
+        original = verify_module._check_line
+        monkeypatch.setattr(verify_module, "_check_line", lambda *a: checked.append(1) or original(*a))
+        for i in range(5):
+            log.append("tool_call", tool="get_robot_state", arguments={"i": 50 + i}, outcome="ok")
+        again, _ = verify_appended(path, previous=verified)
+    assert len(checked) == 5  # the five new records, not the fifty verified before
+    assert first.ok and first.records == 50
+    assert again == verify_file(path) and again.records == 55
+
+
+def test_an_edit_before_where_the_last_verification_ended_is_still_found(tmp_path: Path) -> None:
+    path = tmp_path / "audit.jsonl"
+    write_log(path, 5)
+    _, verified = verify_appended(path)
+    data = bytearray(path.read_bytes())
+    data[len(lines_of(path)[0]) + 10] ^= 0x01  # one byte of line 2
+    path.write_bytes(bytes(data))
+    report, resume = verify_appended(path, previous=verified)
+    assert not report.ok and report.first_bad_line == 2 and resume is None
+    assert report == verify_file(path)
+
+
+def test_a_bad_appended_record_is_named_by_its_line(tmp_path: Path) -> None:
+    path = tmp_path / "audit.jsonl"
+    write_log(path, 3)
+    _, verified = verify_appended(path)
+    with path.open("ab") as stream:
+        stream.write(b'{"not": "a record"}\n')
+    report, resume = verify_appended(path, previous=verified)
+    assert not report.ok and report.first_bad_line == 4 and resume is None
+    assert report == verify_file(path)
 
 
 def test_each_line_is_the_canonical_json_of_a_record_with_every_field(tmp_path: Path) -> None:

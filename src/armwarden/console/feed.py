@@ -5,7 +5,8 @@ the safety status, the motion status and the open approval requests into one pla
 the pages render and `/console/api/state` serves as JSON. A robot state that cannot be read
 (stale, missing) is shown as that refusal, not as old numbers. `live_picture` draws the arm as it
 stands with the plan preview renderer; `audit_status` verifies the log's chain on a worker
-thread, again only when the file has changed.
+thread, again only when the file has changed, and then parses only the records appended since
+(`verify_appended`: the bytes verified before must still hash the same, or all is verified again).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from armwarden.errors import SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.planning.trajectory import JointTrajectory
-from armwarden.safety.audit import verify_file
+from armwarden.safety.audit import VerifiedPrefix, verify_appended
 from armwarden.safety.envelope import EnvelopeReport
 from armwarden.safety.pending import PendingRequest
 
@@ -37,6 +38,7 @@ class AuditStatus:
     records: int
     detail: str
     signature: tuple[int, int]
+    verified: VerifiedPrefix | None = None  # where the next verification may resume
 
 
 def request_view(request: PendingRequest) -> dict[str, Any]:
@@ -158,7 +160,8 @@ class StateFeed:
                 return cached
             from armwarden.safety.audit import hmac_key_from_env
 
-            report = await anyio.to_thread.run_sync(lambda: verify_file(path, hmac_key_from_env()))
+            previous = cached.verified if cached is not None else None
+            report, verified = await anyio.to_thread.run_sync(lambda: verify_appended(path, hmac_key_from_env(), previous))
             detail = ("intact" if report.ok else f"BROKEN at line {report.first_bad_line}: {report.reason}")
-            self._audit_status = AuditStatus(report.ok, report.records, detail, signature)
+            self._audit_status = AuditStatus(report.ok, report.records, detail, signature, verified)
             return self._audit_status

@@ -39,7 +39,14 @@ from armwarden.safety.audit.cli import tail_command, verify_command
 from armwarden.safety.audit.log import DEFAULT_COMMIT_WINDOW_S, MAX_EVENT_CHARS, AuditEntry, AuditLog, AuditWriteError
 from armwarden.safety.audit.query import RecordFilter, parse_since
 from armwarden.safety.audit.sanitise import sanitize
-from armwarden.safety.audit.verify import MAX_TAIL, VerifyReport, read_tail, verify_file
+from armwarden.safety.audit.verify import (
+    MAX_TAIL,
+    VerifiedPrefix,
+    VerifyReport,
+    read_tail,
+    verify_appended,
+    verify_file,
+)
 from armwarden.safety.audit.writer import MAX_COMMIT_WINDOW_S, Durability
 
 __all__ = [
@@ -56,12 +63,14 @@ __all__ = [
     "AuditWriteError",
     "Durability",
     "RecordFilter",
+    "VerifiedPrefix",
     "VerifyReport",
     "hmac_key_from_env",
     "parse_since",
     "read_tail",
     "sanitize",
     "tail_command",
+    "verify_appended",
     "verify_command",
     "verify_file",
 ]

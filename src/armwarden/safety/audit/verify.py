@@ -44,6 +44,17 @@ class Scan:
     bad_is_last: bool = False  # the first bad line is the file's last line
     bad_parses: bool = False  # ...and it is a JSON object (so not a torn write)
     bad_bytes: bytes = b""  # its content without the newline
+    lines: int = 0  # lines read, fragments included (a clean scan: every line of the file)
+
+
+@dataclass(frozen=True)
+class VerifiedPrefix:
+    """Where a clean verification of a log ended (at a line boundary), so that the next one
+    (`verify_appended`) parses only what was appended since, once the prefix still hashes the same."""
+
+    size: int  # bytes verified
+    sha256: str  # of those bytes
+    scan: Scan  # the clean scan that covered them
 
 
 def _check_line(
@@ -99,11 +110,15 @@ def _fragment_claim(next_content: bytes, lineno: int) -> dict[str, Any] | None:
     return None
 
 
-def scan(stream: IO[bytes], key: bytes | None) -> Scan:
-    lines = enumerate(stream, start=1)  # binary iteration splits on b"\n" only
-    records = 0
-    last_seq, last_hash = 0, GENESIS_HASH
-    recovered: list[int] = []
+def scan(stream: IO[bytes], key: bytes | None, resume: Scan | None = None) -> Scan:
+    """Verify the lines from the stream's position to its end; `resume`: the clean scan of the
+    bytes before that position, whose chain these lines must continue."""
+    done = resume if resume is not None else Scan(VerifyReport(True, 0, None, None), 0, GENESIS_HASH)
+    lines = enumerate(stream, start=done.lines + 1)  # binary iteration splits on b"\n" only
+    records = done.report.records
+    last_seq, last_hash = done.last_seq, done.last_hash
+    recovered: list[int] = list(done.report.recovered_lines)
+    lineno = done.lines
 
     def fail(lineno: int, reason: str, is_last: bool, parses: bool, content: bytes) -> Scan:
         return Scan(
@@ -139,7 +154,7 @@ def scan(stream: IO[bytes], key: bytes | None) -> Scan:
         records += 1
         last_seq, last_hash = obj["seq"], obj["hash"]
         cur = nxt
-    return Scan(VerifyReport(True, records, None, None, recovered), last_seq, last_hash)
+    return Scan(VerifyReport(True, records, None, None, recovered), last_seq, last_hash, lines=lineno)
 
 
 def verify_file(path: str | os.PathLike[str], hmac_key: bytes | None = None) -> VerifyReport:
@@ -152,6 +167,50 @@ def verify_file(path: str | os.PathLike[str], hmac_key: bytes | None = None) -> 
     key = check_key(hmac_key)
     with open(path, "rb") as stream:
         return scan(stream, key).report
+
+
+def verify_appended(path: str | os.PathLike[str], hmac_key: bytes | None = None,
+                    previous: VerifiedPrefix | None = None) -> tuple[VerifyReport, VerifiedPrefix | None]:
+    """`verify_file`, for a reader that verifies the same growing log again and again (the
+    console): when the file still starts with exactly the bytes `previous` verified (one SHA-256
+    over them, far cheaper than parsing and hashing every record again), only the lines appended
+    since are parsed; any change to those bytes means a full verification. Returns the report
+    (the same as `verify_file`'s) and, when it is clean, where the next call may resume."""
+    key = check_key(hmac_key)
+    with open(path, "rb") as stream:
+        hasher = hashlib.sha256()
+        resume = None
+        if previous is not None and _starts_with(stream, previous, hasher):
+            resume = previous.scan
+        else:
+            stream.seek(0)
+            hasher = hashlib.sha256()
+        start = stream.tell()
+        scanned = scan(stream, key, resume)
+        if not scanned.report.ok:
+            return scanned.report, None
+        end = stream.tell()
+        stream.seek(start)
+        _hash_range(stream, end - start, hasher)
+    return scanned.report, VerifiedPrefix(end, hasher.hexdigest(), scanned)
+
+
+def _starts_with(stream: IO[bytes], previous: VerifiedPrefix, hasher: Any) -> bool:
+    """Whether the stream's first `previous.size` bytes hash to `previous.sha256` (fed into
+    `hasher`, the stream left after them)."""
+    return _hash_range(stream, previous.size, hasher) == previous.size and hasher.hexdigest() == previous.sha256
+
+
+def _hash_range(stream: IO[bytes], size: int, hasher: Any, block: int = 1 << 20) -> int:
+    """Feed the next `size` bytes of the stream to `hasher`; how many there were."""
+    fed = 0
+    while fed < size:
+        chunk = stream.read(min(block, size - fed))
+        if not chunk:
+            break
+        hasher.update(chunk)
+        fed += len(chunk)
+    return fed
 
 
 # --------------------------------------------------------------------------------------------
