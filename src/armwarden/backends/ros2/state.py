@@ -114,16 +114,14 @@ class JointStateCache:
         """`fresh`, with the sample's header stamp [s, the sender's clock]."""
         with self._lock:
             sample = self._sample
-        state = None if sample is None else sample.state
-        if state is None:
+        if sample is None:
             why = f"; {self.dropped} message(s) not used: {self.last_drop}" if self.dropped else ""
             raise BackendError(f"no joint state received on {self.topic} yet{why}")
-        age = self._clock() - state.stamp
+        age = self._clock() - sample.state.stamp
         if age > self.max_age_s:
             why = f"; {self.dropped} message(s) not used, the last because {self.last_drop}" if self.dropped else ""
             raise BackendError(f"joint states on {self.topic} are {age:.2f} s old (limit {self.max_age_s:g} s){why}")
-        assert sample is not None
-        return state, sample.header_s
+        return sample.state, sample.header_s
 
     def wait_first(self, timeout_s: float) -> bool:
         """Block until a complete sample arrived (any thread but the executor's)."""
