@@ -264,7 +264,7 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: 
     threshold, switch_interval = gc.get_threshold(), sys.getswitchinterval()
     if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
         freeze_long_lived_objects()  # before the physics starts: the collection itself takes ~100 ms
-    if backend == "ros2":  # as the daemon does: the cell's and the backend's threads take turns on the interpreter lock
+    if backend in REAL_TIME:  # as the daemon does: the cell's and the backend's threads take turns on the interpreter lock
         sys.setswitchinterval(SWITCH_INTERVAL_S)
     async with contextlib.AsyncExitStack() as stack:
         cell = _ros_cell(stack) if backend == "ros2" else None
