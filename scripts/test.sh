@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Set up, then run the whole test suite as two parallel lanes, each logging to build/test-logs/
-# (printed as each lane ends); fails if either lane fails or collects no test:
+# Set up .venv and .venv-ros (extras dev,can,ros pinned by constraints/ros.txt, then the
+# control_msgs/controller_manager_msgs/tf2_msgs interfaces built into it), then run the whole test
+# suite as two parallel lanes, each logging to build/test-logs/ (printed as each lane ends); fails
+# if a set-up step fails, or either lane fails or collects no test:
 #
 #   tests  `tests/` in .venv (no ROS)
-#   ros    sets up .venv-ros (extras dev,can,ros pinned by constraints/ros.txt, then the
-#          control_msgs/controller_manager_msgs/tf2_msgs interfaces built into it), then runs
-#          `tests_ros/` and the scenario suite on the ros2 backend only
+#   ros    `tests_ros/` and the scenario suite on the ros2 backend only
 #          (ARMWARDEN_HARNESS_BACKENDS=ros2, see tests/server/harness.py), with
 #          `-p tests_ros.no_skips`: a skipped test there is a failure.
 #
@@ -19,6 +19,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
+# the ROS venv and its interfaces before the lanes start, not inside the ros lane: building them
+# keeps both cores busy for minutes, and the tests lane starts with the real-time CAN tests
+ARMWARDEN_VENV=.venv-ros ARMWARDEN_EXTRAS=dev,can,ros ARMWARDEN_CONSTRAINTS=constraints/ros.txt bash scripts/bootstrap.sh
+.venv-ros/bin/python scripts/build_ros_interfaces.py -j2
 export PYTHONHASHSEED=0
 logs=build/test-logs
 mkdir -p "$logs"
@@ -28,11 +32,7 @@ lane_tests() {
   .venv/bin/python -m pytest -m "not slow" "$@" tests
 }
 
-# (each step returns on failure itself: a lane runs under `||`, where `set -e` does not apply)
 lane_ros() {
-  ARMWARDEN_VENV=.venv-ros ARMWARDEN_EXTRAS=dev,can,ros ARMWARDEN_CONSTRAINTS=constraints/ros.txt bash scripts/bootstrap.sh \
-    || { echo "test.sh: setting up .venv-ros failed" >&2; return 1; }
-  .venv-ros/bin/python scripts/build_ros_interfaces.py -j2 || { echo "test.sh: building the ROS interfaces failed" >&2; return 1; }
   ROS_DOMAIN_ID="$((RANDOM % 100 + 1))" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ARMWARDEN_HARNESS_BACKENDS=ros2 \
     PYTHONPATH="$PWD" .venv-ros/bin/python -m pytest -m "not slow" -p tests_ros.no_skips "$@" \
     tests_ros tests/scenarios tests/backends/test_harness_backends.py
