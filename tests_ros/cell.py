@@ -356,10 +356,11 @@ class Cell:
             return self._switches.frozen_stamp
 
     def die(self) -> None:
-        """The cell goes silent: no topic, no feedback, no result, no service answer."""
+        """The cell goes silent: no topic, no feedback, no result, no service answer. When it
+        returns, the last joint state has been sent (`last_joint_state_stamp`)."""
         if self._hard_death:
             os._exit(3)
-        with self._lock:
+        with self._joint_publish_lock, self._wrench_publish_lock, self._lock:
             self._switches.dead = True
 
     @property
