@@ -3,11 +3,22 @@
 from __future__ import annotations
 
 import io
+import struct
+import zlib
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from armwarden.server.images import BandedPngEncoder, encode_png
+from armwarden.server.images import (
+    IMAGE_BLOCK_BYTES,
+    KEPT_IMAGE_BLOCKS,
+    BandedPngEncoder,
+    adler32_combine,
+    encode_png,
+    keep_freed_image_blocks,
+)
 
 Image = pytest.importorskip("PIL.Image")
 ImageDraw = pytest.importorskip("PIL.ImageDraw")
@@ -55,6 +66,73 @@ def test_a_height_that_is_not_a_multiple_of_the_band_keeps_every_pixel() -> None
     assert np.array_equal(pixels(BandedPngEncoder(reference, band_rows=32).encode(changed)), np.asarray(changed))
 
 
+def test_a_width_whose_rows_are_not_whole_words_keeps_every_pixel() -> None:
+    reference = picture(width=201, height=50)
+    changed = picture(width=201, height=50, seed=2)
+    assert np.array_equal(pixels(BandedPngEncoder(reference, band_rows=8).encode(changed)), np.asarray(changed))
+
+
+def idat(png: bytes) -> bytes:
+    """The IDAT chunk's data (the writers put all pixels in one)."""
+    offset = 8
+    while offset < len(png):
+        length, kind = struct.unpack(">I4s", png[offset:offset + 8])
+        if kind == b"IDAT":
+            return png[offset + 8:offset + 8 + length]
+        offset += 12 + length
+    raise AssertionError("no IDAT chunk")
+
+
+def test_the_banded_stream_passes_zlibs_own_checksum_check() -> None:
+    """zlib verifies the stream's Adler-32 (a decoder that stops at the last row may not)."""
+    reference = picture(height=77)
+    changed = reference.copy()
+    ImageDraw.Draw(changed).line([(0, 20), (199, 60)], fill=(0, 80, 230), width=3)
+    raw = zlib.decompress(idat(BandedPngEncoder(reference, band_rows=16).encode(changed)))
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(77, 1 + 3 * 200)
+    assert np.all(rows[:, 0] == 0)
+    assert np.array_equal(rows[:, 1:].reshape(77, 200, 3), np.asarray(changed))
+
+
+@given(st.binary(max_size=3000), st.binary(max_size=3000))
+def test_combined_checksums_equal_the_checksum_of_the_joined_bytes(first: bytes, second: bytes) -> None:
+    assert adler32_combine(zlib.adler32(first), zlib.adler32(second), len(second)) == zlib.adler32(first + second)
+
+
+def test_combined_checksums_hold_for_parts_longer_than_the_modulus() -> None:
+    first, second = bytes(range(256)) * 300, b"\xff" * 200_003
+    assert adler32_combine(zlib.adler32(first), zlib.adler32(second), len(second)) == zlib.adler32(first + second)
+
+
 def test_a_picture_of_another_size_is_refused() -> None:
     with pytest.raises(ValueError, match="expected an RGB picture"):
         BandedPngEncoder(picture()).encode(picture(width=100))
+
+
+@pytest.fixture
+def pillow_allocator():
+    """Pillow's process-wide allocator settings, restored after the test."""
+    core = Image.core
+    saved = core.get_blocks_max(), core.get_block_size()
+    yield core
+    core.set_blocks_max(saved[0])
+    core.set_block_size(saved[1])
+
+
+def test_the_previewer_keeps_a_bounded_number_of_small_freed_blocks(pillow_allocator, monkeypatch) -> None:
+    monkeypatch.delenv("PILLOW_BLOCKS_MAX", raising=False)
+    monkeypatch.delenv("PILLOW_BLOCK_SIZE", raising=False)
+    pillow_allocator.set_blocks_max(0)
+
+    assert keep_freed_image_blocks()
+    assert pillow_allocator.get_blocks_max() == KEPT_IMAGE_BLOCKS
+    assert pillow_allocator.get_block_size() == IMAGE_BLOCK_BYTES
+    assert KEPT_IMAGE_BLOCKS * IMAGE_BLOCK_BYTES <= 8 << 20  # what stays reserved, at most
+
+
+def test_a_users_own_pillow_allocator_settings_are_left_alone(pillow_allocator, monkeypatch) -> None:
+    monkeypatch.setenv("PILLOW_BLOCKS_MAX", "2")
+    pillow_allocator.set_blocks_max(2)
+
+    assert not keep_freed_image_blocks()
+    assert pillow_allocator.get_blocks_max() == 2

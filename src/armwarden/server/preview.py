@@ -64,6 +64,8 @@ _BASE = (30, 30, 30)
 _VIOLATION = (255, 0, 0)  # the only saturated red in the picture
 _STATUS_COLOUR = {"ok": (0, 125, 45), "needs_approval": (185, 115, 0), "rejected": (150, 0, 0)}
 _SEPARATOR = (215, 215, 215)
+#: palette of the swept links' pixels: unused, fill, outlines of the earlier poses, the goal pose's outline
+_SWEEP_PALETTE = [0, 0, 0, *_LINK_FILL, *_LINK_EDGE, *_LINK_GOAL]
 
 _NICE_STEPS = (0.05, 0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0)
 
@@ -347,11 +349,16 @@ class _View:
     def px(self, u: float, v: float) -> tuple[float, float]:
         return (self.ox + (u - self.cu) * self.scale, self.oy - (v - self.cv) * self.scale)
 
-    def pts(self, points: np.ndarray) -> list[tuple[float, float]]:
+    def coordinates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel x and y (rounded to 0.01 px) of base-frame points (..., 3), flattened."""
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         x = self.ox + (points[:, 0] - self.cu) * self.scale
         y = self.oy - (points[:, self.axis_v] - self.cv) * self.scale
-        return list(zip(np.round(x, 2).tolist(), np.round(y, 2).tolist(), strict=True))
+        return np.round(x, 2), np.round(y, 2)
+
+    def pts(self, points: np.ndarray) -> list[tuple[float, float]]:
+        x, y = self.coordinates(points)
+        return list(zip(x.tolist(), y.tolist(), strict=True))
 
     def rect(self, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float, float, float]:
         x0, y1 = self.px(lo[0], lo[self.axis_v])
@@ -427,57 +434,54 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
 
     radii = geometry.radii.tolist()
     r_max = max(1.0, max(radii, default=0.0) * view.scale)
-    samples = [view.pts(sample) for sample in geometry.capsules]
-    xs = [p[0] for ends in samples for p in ends]
-    ys = [p[1] for ends in samples for p in ends]
-    if not xs:
+    if not geometry.capsules.size:
         return
+    n_samples = len(geometry.capsules)
+    xs, ys = view.coordinates(geometry.capsules)  # every sample's end points in one pass
     # work only on the pixels the sweep can cover (within the plot)
-    x0 = max(view.box[0], math.floor(min(xs) - r_max) - 2)
-    y0 = max(view.box[1], math.floor(min(ys) - r_max) - 2)
-    x1 = min(view.box[2], math.ceil(max(xs) + r_max) + 2)
-    y1 = min(view.box[3], math.ceil(max(ys) + r_max) + 2)
+    x0 = max(view.box[0], math.floor(float(xs.min()) - r_max) - 2)
+    y0 = max(view.box[1], math.floor(float(ys.min()) - r_max) - 2)
+    x1 = min(view.box[2], math.ceil(float(xs.max()) + r_max) + 2)
+    y1 = min(view.box[3], math.ceil(float(ys.max()) + r_max) + 2)
     if x1 <= x0 or y1 <= y0:
         return
     w, h = x1 - x0 + 1, y1 - y0 + 1
     gap = 2 * math.ceil(r_max) + 4  # strokes cut at the region's edge spill into the gap, not the next band
     stride = h + gap
-    tall = Image.new("L", (w, stride * len(samples)), 0)
+    tall = Image.new("L", (w, stride * n_samples), 0)
     # Pillow's drawing primitives, without `ImageDraw`'s per-call colour parsing (hundreds of
     # strokes per picture, all of one ink): the same calls `ImageDraw.line`/`ellipse` make
     pen = ImageDraw.Draw(tall).draw
     r_pxs = [float(max(1.0, radius * view.scale)) for radius in radii]  # Python floats: round() gives an int
     widths = [max(1, round(2 * r_px)) for r_px in r_pxs]
-    for k, ends in enumerate(samples):
-        dy = k * stride - y0
-        ends = [(px - x0, py + dy) for px, py in ends]
+    band_x = (xs.reshape(n_samples, -1) - x0).tolist()
+    band_y = (ys.reshape(n_samples, -1) + (np.arange(n_samples) * stride - y0)[:, None]).tolist()
+    for px, py in zip(band_x, band_y, strict=True):
         for b, r_px in enumerate(r_pxs):
-            a, c = ends[2 * b], ends[2 * b + 1]
+            a, c = (px[2 * b], py[2 * b]), (px[2 * b + 1], py[2 * b + 1])
             pen.draw_lines([a, c], 255, widths[b])
-            for px, py in (a, c):
-                pen.draw_ellipse((px - r_px, py - r_px, px + r_px, py + r_px), 255, 1)
-    bands: np.ndarray = np.frombuffer(tall.tobytes(), dtype=np.uint8).reshape(len(samples), stride, w)[:, :h] > 0
+            for ex, ey in (a, c):
+                pen.draw_ellipse((ex - r_px, ey - r_px, ex + r_px, ey + r_px), 255, 1)
+    bands: np.ndarray = np.frombuffer(tall.tobytes(), dtype=np.uint8).reshape(n_samples, stride, w)[:, :h] > 0
     outlines: np.ndarray = bands & ~_interior(bands)  # (S, h, w)
-    union: np.ndarray = np.any(bands, axis=0)
-    edges: np.ndarray = np.any(outlines[:-1], axis=0)
-    # colour the region's pixels in NumPy and paste it back whole (one paste, not three masked ones)
-    region = np.array(image.crop((x0, y0, x0 + w, y0 + h)))
-    region[union] = _LINK_FILL
-    region[edges] = _LINK_EDGE
-    region[outlines[-1]] = _LINK_GOAL
-    image.paste(Image.fromarray(region), (x0, y0))
+    # one palette index per pixel (0 untouched, then fill, earlier outlines, the goal's outline),
+    # coloured by Pillow and pasted through the union as mask: one C pass, no per-colour NumPy masking
+    union = np.any(bands, axis=0).view(np.uint8)
+    index = np.maximum(union, np.any(outlines[:-1], axis=0).view(np.uint8) * np.uint8(2))
+    index = np.maximum(index, outlines[-1].view(np.uint8) * np.uint8(3))
+    colours = Image.frombytes("P", (w, h), index.tobytes())
+    colours.putpalette(_SWEEP_PALETTE)
+    image.paste(colours.convert("RGB"), (x0, y0), Image.frombytes("L", (w, h), (union * np.uint8(255)).tobytes()))
 
 
 def _interior(masks: np.ndarray) -> np.ndarray:
     """Pixels of (S, h, w) boolean masks whose 8 neighbours are all set (outside the image counts
-    as unset, so a set pixel on the border is an outline pixel, as Pillow's FIND_EDGES leaves it)."""
-    padded = np.pad(masks, ((0, 0), (1, 1), (1, 1)))
-    h, w = masks.shape[1:]
-    inner = masks.copy()
-    for dy in (0, 1, 2):
-        for dx in (0, 1, 2):
-            if dy != 1 or dx != 1:
-                inner &= padded[:, dy:dy + h, dx:dx + w]
+    as unset, so a set pixel on the border is an outline pixel, as Pillow's FIND_EDGES leaves it).
+    The 3×3 neighbourhood is a row of three then a column of three: four ANDs, not eight."""
+    across = np.zeros_like(masks)
+    across[:, :, 1:-1] = masks[:, :, :-2] & masks[:, :, 1:-1] & masks[:, :, 2:]
+    inner = np.zeros_like(masks)
+    inner[:, 1:-1, :] = across[:, :-2, :] & across[:, 1:-1, :] & across[:, 2:, :]
     return inner
 
 
