@@ -156,6 +156,27 @@ def goal_kind(model: RuntimeModel, start: np.ndarray, target: PoseTarget, seeds:
     return kind
 
 
+def within_caps(model: RuntimeModel, start: np.ndarray, target: PoseTarget, seeds: int = 64) -> bool:
+    """Whether one plan from `start` can reach `target` under the policy's per-plan caps at all,
+    by two necessary conditions: the straight TCP distance is within the TCP path cap (no path is
+    shorter), and some collision-free goal configuration lies within the joint travel cap of
+    `start` in every joint (no path travels less). Goals are sought by IK from the start, home and
+    `seeds` configurations within the travel cap around the start. False: no planner could solve
+    the target in one plan, whatever it does."""
+    limits, robot, ik = model.envelope.limits, model.robot, model.planner.ik
+    if np.linalg.norm(target.position - robot.tcp_pose(start).position) > limits.max_cartesian_step_m:
+        return False
+    cap = limits.max_joint_step_rad
+    rng = np.random.default_rng(98)
+    around = [np.clip(start + rng.uniform(-cap, cap, robot.nq), robot.lower, robot.upper) for _ in range(seeds)]
+    for seed_q in [start, model.planner.settings.home_rad, *around]:
+        result = ik.solve_from(target.position, target.rotation, seed_q)
+        if (result.success and np.max(np.abs(result.q - start)) <= cap
+                and not any(v.is_hard for v in model.envelope.check_path(result.q))):
+            return True
+    return False
+
+
 def run_target(model: RuntimeModel, start: np.ndarray, target: PoseTarget) -> dict[str, Any]:
     began = time.perf_counter()
     outcome, report = plan_and_check(model, "pose", start, {"target": target})
@@ -173,6 +194,7 @@ def run_scene(base: RuntimeModel, scene: Scene) -> list[dict[str, Any]]:
         rows.append({
             "scene": scene.name,
             "goal": goal_kind(ours, scene.start, target),
+            "within_caps": within_caps(ours, scene.start, target),
             "straight": run_target(straight, scene.start, target),
             "detour": run_target(ours, scene.start, target),
         })
@@ -182,7 +204,9 @@ def run_scene(base: RuntimeModel, scene: Scene) -> list[dict[str, Any]]:
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     with_goal = [r for r in rows if r["goal"] != "none"]
     approachable = [r for r in rows if r["goal"] == "approachable"]
-    out: dict[str, Any] = {"targets": len(rows), "with_goal": len(with_goal), "approachable": len(approachable)}
+    reachable = [r for r in with_goal if r["within_caps"]]
+    out: dict[str, Any] = {"targets": len(rows), "with_goal": len(with_goal), "approachable": len(approachable),
+                           "within_caps": len(reachable)}
     for name in ("straight", "detour"):
         solved = [r for r in rows if r[name]["solved"]]
         times_ms = [r[name]["time_s"] * 1e3 for r in rows]
@@ -195,6 +219,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "solved_fraction_with_goal": (sum(r[name]["solved"] for r in with_goal) / len(with_goal)) if with_goal else float("nan"),
             "solved_fraction": len(solved) / len(rows) if rows else float("nan"),
             "solved_approachable": sum(r[name]["solved"] for r in approachable),
+            "solved_within_caps": sum(r[name]["solved"] for r in reachable),
             "solved_fraction_approachable": (sum(r[name]["solved"] for r in approachable) / len(approachable))
             if approachable else float("nan"),
             "time_ms_median": statistics.median(times_ms) if times_ms else float("nan"),
@@ -239,7 +264,8 @@ def report_planner(r: dict[str, Any]) -> None:
 
     def block(title: str, s: dict[str, Any], goal: bool) -> None:
         print(f"{title}: {s['targets']} targets, {s['with_goal']} with a collision-free goal configuration, "
-              f"{s['approachable']} of them approachable (a short motion into the goal passes the envelope)")
+              f"{s['approachable']} of them approachable (a short motion into the goal passes the envelope), "
+              f"{s['within_caps']} of them within the per-plan caps (straight TCP distance and some goal's joint travel)")
         for name in ("straight", "detour"):
             f = s[name]
             verdicts = ""
@@ -250,7 +276,7 @@ def report_planner(r: dict[str, Any]) -> None:
             print(f"  {name:8s} solved {f['solved_with_goal']}/{s['with_goal']} with a goal "
                   f"({100 * f['solved_fraction_with_goal']:.0f} %), {f['solved']}/{s['targets']} overall "
                   f"({100 * f['solved_fraction']:.0f} %), {f['solved_approachable']}/{s['approachable']} approachable "
-                  f"({100 * f['solved_fraction_approachable']:.0f} %); "
+                  f"({100 * f['solved_fraction_approachable']:.0f} %), {f['solved_within_caps']}/{s['within_caps']} within the caps; "
                   f"time median {f['time_ms_median']:.1f} ms, p95 {f['time_ms_p95']:.1f} ms; "
                   f"TCP path / the refused straight line's: median {f['path_ratio_median']:.2f}, max {f['path_ratio_max']:.2f}{verdicts}")
         print(f"  straight line blocked by: {', '.join(s['blocked_codes_straight']) or '-'}; "
