@@ -55,6 +55,16 @@ def test_batched_body_points_agree_with_pinocchio_geometry_placements(robot: Rob
         np.testing.assert_allclose(p0[k, -1], robot.tcp_pose(q).position, atol=1e-12)
 
 
+def test_batched_tcp_points_are_the_tcp_poses(robot: RobotModel) -> None:
+    rng = np.random.default_rng(3)
+    qs = rng.uniform(robot.lower, robot.upper, size=(20, robot.nq))
+
+    points = robot.tcp_points(qs)
+
+    assert points.shape == (20, 3)
+    assert np.allclose(points, [robot.tcp_pose(q).position for q in qs], atol=1e-12)
+
+
 def test_reach_bounds_the_real_point_motion_for_small_joint_steps(robot: RobotModel) -> None:
     rng = np.random.default_rng(5)
     for _ in range(200):
@@ -126,3 +136,26 @@ def test_policy_limits_looser_than_the_description_are_refused(fr3_policy) -> No
     loose_robot = fr3_policy.robot.model_copy(update={"joint_limits": limits})
     with pytest.raises(RobotModelError, match="exceed the description"):
         build_robot(fr3_policy.model_copy(update={"robot": loose_robot}))
+
+
+def test_batched_tcp_points_are_in_a_base_frame_that_is_not_the_world(tmp_path) -> None:
+    urdf = tmp_path / "mounted.urdf"
+    urdf.write_text(
+        """<robot name="mounted">
+  <link name="world"/>
+  <joint name="mount" type="fixed"><origin xyz="0.5 0.2 0.8" rpy="0 0 1.5707963"/><parent link="world"/><child link="base"/></joint>
+  <link name="base"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <link name="l1"><collision><origin xyz="0.2 0 0"/><geometry><box size="0.4 0.1 0.06"/></geometry></collision></link>
+  <joint name="tip" type="fixed"><origin xyz="0.4 0 0.1"/><parent link="l1"/><child link="tool"/></joint>
+  <link name="tool"/>
+</robot>"""
+    )
+    model = RobotModel(urdf, ["j1"], "base", "tool")
+    qs = np.array([[-0.7], [0.0], [0.4]])
+
+    points = model.tcp_points(qs)
+
+    assert np.allclose(points, [model.tcp_pose(q).position for q in qs], atol=1e-12)
+    assert np.allclose(points[1], [0.4, 0.0, 0.1], atol=1e-9)  # in the base frame, not the world's

@@ -209,3 +209,35 @@ def test_keep_out_marks_lie_inside_the_drawn_zone(runtime: RuntimeModel, into_mo
             assert left <= x <= right and min(top, bottom) <= y <= max(top, bottom), (view.axis_v, (x, y))
             r, g, b = rgb[round(y), round(x)]
             assert r > 200 and g < 60 and b < 60
+
+
+TITLE = [("   duration ", False), ("12.07", True), (" s   TCP path ", False), ("0.489", True), (" m", False),
+         ("   violations: ", False), ("3", True), (" hard, ", False), ("10", True), (" soft", False)]
+
+
+def _title_scene(runtime: RuntimeModel):
+    from armwarden.server.preview import PlanPreviewer
+
+    previewer = PlanPreviewer(runtime.envelope.limits)
+    limits = runtime.envelope.limits
+    return previewer._scene(np.asarray(limits.workspace.lo, dtype=float), np.asarray(limits.workspace.hi, dtype=float))
+
+
+def test_a_title_drawn_from_stamps_is_the_title_pillow_draws(runtime: RuntimeModel) -> None:
+    from PIL import ImageDraw
+
+    scene = _title_scene(runtime)
+    stamped, drawn = scene.image.copy(), scene.image.copy()
+
+    assert scene.line(stamped, 40.0, 2.0, TITLE, (40, 40, 40))
+    ImageDraw.Draw(drawn).text((40.0, 2.0), "".join(text for text, _ in TITLE), fill=(40, 40, 40), font=scene.font)
+    differing = np.any(np.asarray(stamped).astype(int) != np.asarray(drawn).astype(int), axis=-1)
+    assert np.sum(differing) <= 2  # where two glyphs' anti-aliased edges overlap
+
+
+def test_a_title_that_would_not_land_on_whole_pixels_is_left_to_pillow(runtime: RuntimeModel) -> None:
+    scene = _title_scene(runtime)
+    image = scene.image.copy()
+
+    assert not scene.line(image, 40.5, 2.0, TITLE, (40, 40, 40))
+    assert image.tobytes() == scene.image.tobytes()

@@ -299,6 +299,21 @@ class RobotModel:
             out = np.einsum("ij,nkjl->nkil", self._base_from_world.homogeneous, out)
         return out
 
+    def tcp_points(self, qs: np.ndarray) -> np.ndarray:
+        """TCP positions (N, 3) of a batch of configurations, base frame, metres: `body_points`'
+        TCP alone, reading one joint placement per configuration instead of every body's."""
+        model, data, ref = self.model, self.data, self._joint_refs[self._tcp_slot]
+        forward = pin.forwardKinematics
+        frames = []
+        append = frames.append
+        for q in qs:
+            forward(model, data, q)
+            append(ref.np)
+        placements = np.array(frames).reshape(len(qs), 4, 4)
+        if self._base_from_world is not None:
+            placements = np.einsum("ij,njl->nil", self._base_from_world.homogeneous, placements)
+        return placements[:, :3, :3] @ self._tcp_in_joint + placements[:, :3, 3]
+
     def body_points(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Segment end points (N, B+1, 3) of every capsule plus the TCP (last, as a point).
 

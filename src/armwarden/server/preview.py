@@ -118,11 +118,14 @@ class PlanPreviewer:
         n_hard, n_soft = len(report.hard), len(report.soft)
         title_y = 2
         scene.text(image, (6, title_y), status.upper(), _STATUS_COLOUR.get(status, _TEXT))
-        x = 6 + draw.textlength(status.upper(), font=font)
-        details = f"   duration {duration:.2f} s   TCP path {report.tcp_path_length_m:.3f} m"
+        x = 6 + scene.text_length(status.upper())
+        # the words are the same in every title, the numbers are not: (text, is a number) runs
+        runs = [("   duration ", False), (f"{duration:.2f}", True), (" s   TCP path ", False),
+                (f"{report.tcp_path_length_m:.3f}", True), (" m", False)]
         if n_hard or n_soft:
-            details += f"   violations: {n_hard} hard, {n_soft} soft"
-        draw.text((x, title_y), details, fill=_TEXT, font=font)
+            runs += [("   violations: ", False), (str(n_hard), True), (" hard, ", False), (str(n_soft), True), (" soft", False)]
+        if not scene.line(image, x, title_y, runs, _TEXT):
+            draw.text((x, title_y), "".join(text for text, _ in runs), fill=_TEXT, font=font)
 
         for view in scene.views:
             _draw_plan(image, draw, scene, view, self.limits, geometry)
@@ -184,18 +187,16 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
     timed = [(v, v.time_s) for v in report.violations if v.time_s is not None and math.isfinite(v.time_s)]
     mark_q = [trajectory.sample(time_s) for _, time_s in timed]
 
-    qs = np.vstack([positions[path_index], *sweep_q, *mark_q]) if mark_q else np.vstack([positions[path_index], *sweep_q])
-    p0, p1 = robot.body_points(robot.joint_frames(qs))  # (N, B+1, 3), the TCP last
-    n_path, n_sweep = len(path_index), len(sweep_q)
-    tcp_path = p0[:n_path, -1]
-    sweep = slice(n_path, n_path + n_sweep)
-    capsules = np.stack([p0[sweep, :-1], p1[sweep, :-1]], axis=2)
+    tcp_path = robot.tcp_points(positions[path_index])  # the path needs the TCP only
+    p0, p1 = robot.body_points(robot.joint_frames(np.vstack([*sweep_q, *mark_q])))  # (N, B+1, 3), the TCP last
+    n_sweep = len(sweep_q)
+    capsules = np.stack([p0[:n_sweep, :-1], p1[:n_sweep, :-1]], axis=2)
 
     centres = (p0[:, :-1] + p1[:, :-1]) / 2.0
     index = _body_index(robot)
     marks = []
     for k, (violation, _) in enumerate(timed):
-        row = n_path + n_sweep + k
+        row = n_sweep + k
         bodies = [index.get(part) for part in (violation.body or "").split("|")]
         found = [b for b in bodies if b is not None]
         if violation.code.value == "KEEP_OUT" and limits is not None and limits.keep_out:
@@ -277,6 +278,7 @@ class _Scene:
         step = next((s for s in _NICE_STEPS if s * scale >= 4.5 * text_h), _NICE_STEPS[-1])
 
         self._stamps: dict[tuple[str, float, float], _TextStamp] = {}
+        self._lengths: dict[str, float] = {}
         self.views: list[_View] = []
         for index, (axis_v, name) in enumerate(((1, "TOP (x-y)"), (2, "SIDE (x-z)"))):
             left = index * panel_w + margin_l
@@ -301,14 +303,40 @@ class _Scene:
             self._encoder = BandedPngEncoder(reference)
         return self._encoder.encode(image)
 
-    def text(self, image: Any, xy: tuple[float, float], text: str, fill: tuple[int, int, int]) -> None:
+    def text_length(self, text: str) -> float:
+        """`ImageDraw.textlength` of `text` in the scene's font, measured once per text."""
+        length = self._lengths.get(text)
+        if length is None:
+            length = self._lengths[text] = float(self.font.getlength(text))
+        return length
+
+    def line(self, image: Any, x: float, y: float, runs: list[tuple[str, bool]], fill: tuple[int, int, int]) -> bool:
+        """Draw one line of text from stamps: each fixed run as one stamp, each variable run
+        (a number) glyph by glyph, so that the stamps kept stay few (the runs of the titles and
+        one per character). Exact only where every glyph lands on a whole pixel, as in the
+        default font (whole-pixel advances, no kerning): the line is then the same as
+        `ImageDraw.text` draws it. Returns False, drawing nothing, where that does not hold."""
+        pieces: list[tuple[str, float]] = []
+        for text, variable in runs:
+            for piece in (text if variable else (text,)):
+                pieces.append((piece, x))
+                x += self.text_length(piece)
+        if not all(float(at).is_integer() for _, at in pieces) or not float(y).is_integer():
+            return False
+        for piece, at in pieces:
+            if piece.strip():
+                self.text(image, (0.0, y), piece, fill, shift=int(at))
+        return True
+
+    def text(self, image: Any, xy: tuple[float, float], text: str, fill: tuple[int, int, int], shift: int = 0) -> None:
         """`ImageDraw.text` for text every picture of this scene repeats (zone names, the status
-        word): rendered by FreeType once, then pasted."""
+        word, the title's words and digits): rendered by FreeType once at `xy`, then pasted there,
+        or `shift` whole pixels to the right (the same glyphs, since the fraction is unchanged)."""
         key = (text, *xy)
         stamp = self._stamps.get(key)
         if stamp is None:
             stamp = self._stamps[key] = _TextStamp(self.font, text, xy)
-        stamp.paste(image, fill)
+        stamp.paste(image, fill, shift)
 
 
 class _TextStamp:
@@ -330,8 +358,8 @@ class _TextStamp:
         ImageDraw.Draw(self.mask).text((x - int(x) + shift_x, y - int(y) + shift_y), text, fill=255, font=font)
         self.origin = (int(x) - shift_x, int(y) - shift_y)
 
-    def paste(self, image: Any, fill: tuple[int, int, int]) -> None:
-        image.paste(fill, self.origin, mask=self.mask)
+    def paste(self, image: Any, fill: tuple[int, int, int], shift: int = 0) -> None:
+        image.paste(fill, (self.origin[0] + shift, self.origin[1]), mask=self.mask)
 
 
 class _View:
@@ -454,14 +482,18 @@ def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
     pen = ImageDraw.Draw(tall).draw
     r_pxs = [float(max(1.0, radius * view.scale)) for radius in radii]  # Python floats: round() gives an int
     widths = [max(1, round(2 * r_px)) for r_px in r_pxs]
-    band_x = (xs.reshape(n_samples, -1) - x0).tolist()
-    band_y = (ys.reshape(n_samples, -1) + (np.arange(n_samples) * stride - y0)[:, None]).tolist()
-    for px, py in zip(band_x, band_y, strict=True):
-        for b, r_px in enumerate(r_pxs):
-            a, c = (px[2 * b], py[2 * b]), (px[2 * b + 1], py[2 * b + 1])
-            pen.draw_lines([a, c], 255, widths[b])
-            for ex, ey in (a, c):
-                pen.draw_ellipse((ex - r_px, ey - r_px, ex + r_px, ey + r_px), 255, 1)
+    # every stroke's arguments in one pass: (S, B, 2 ends, 2) end points in the tall mask, and
+    # each end's round cap as a bounding box; all strokes are one ink, so their order is free
+    ends = np.stack([xs.reshape(n_samples, -1) - x0,
+                     ys.reshape(n_samples, -1) + (np.arange(n_samples) * stride - y0)[:, None]], axis=-1)
+    ends = ends.reshape(n_samples, len(r_pxs), 2, 2)
+    r_ends = np.array(r_pxs)[None, :, None, None]
+    caps = np.concatenate([ends - r_ends, ends + r_ends], axis=-1).reshape(-1, 4).tolist()
+    for sample in ends.tolist():
+        for stroke, width in zip(sample, widths, strict=True):
+            pen.draw_lines(stroke, 255, width)
+    for cap in caps:
+        pen.draw_ellipse(cap, 255, 1)
     bands: np.ndarray = np.frombuffer(tall.tobytes(), dtype=np.uint8).reshape(n_samples, stride, w)[:, :h] > 0
     outlines: np.ndarray = bands & ~_interior(bands)  # (S, h, w)
     # one palette index per pixel (0 untouched, then fill, earlier outlines, the goal's outline),
