@@ -10,10 +10,12 @@ duration and TCP path length.
 Cheap enough to stay on by default (issue 13: ≤ 3 ms p95 for a typical plan). `PlanPreviewer`
 keeps, per policy, the static scene (frames, ticks, labels, scale bars) for each picture scale
 it has drawn — every plan inside the workspace box has the same one — and per plan draws only
-what changes: the title, the sweep, the zones over it, the path and the marks. The sweep's masks
-and outlines are computed in NumPy (one capsule drawing pass, no per-sample image filters), and
-the PNG is encoded without per-row filter search, compressing only the row bands the plan drew
-on (`images.BandedPngEncoder`; the scene's own bands are compressed once).
+what changes: the title (its words and digits pasted from stamps rendered once), the sweep, the
+zones over it, the path and the marks. The sweep's masks and outlines are computed in NumPy (one
+capsule drawing pass, no per-sample image filters), the path needs forward kinematics for the
+TCP alone, and the PNG is encoded without per-row filter search, compressing only the row bands
+the plan drew on (`images.BandedPngEncoder`; the scene's own bands are compressed once). The
+daemon's previewer also lets Pillow reuse freed image memory (`images.keep_freed_image_blocks`).
 
 Pillow is optional (`armwarden[image]`); without it the renderer returns None. The output is
 deterministic: the same inputs give the same bytes (Pillow's built-in default font, no
