@@ -156,7 +156,7 @@ def goal_kind(model: RuntimeModel, start: np.ndarray, target: PoseTarget, seeds:
     return kind
 
 
-def within_caps(model: RuntimeModel, start: np.ndarray, target: PoseTarget, seeds: int = 64) -> bool:
+def within_caps(model: RuntimeModel, start: np.ndarray, target: PoseTarget, seeds: int = 254) -> bool:
     """Whether one plan from `start` can reach `target` under the policy's per-plan caps at all,
     by two necessary conditions: the straight TCP distance is within the TCP path cap (no path is
     shorter), and some collision-free goal configuration lies within the joint travel cap of
