@@ -6,6 +6,7 @@ import itertools
 import time
 
 import numpy as np
+import pytest
 
 from armwarden.planning.detour import DetourSearch
 from armwarden.preflight import RuntimeModel
@@ -48,3 +49,63 @@ def test_a_stop_request_ends_the_search(runtime: RuntimeModel) -> None:
     result = search.find(base_turn(0.6), [READY], seed=1, deadline=began + 5, should_stop=lambda: next(calls) > 20)
     assert result.path is None and result.stopped_early
     assert time.monotonic() - began < 1.0
+
+
+def test_a_found_path_keeps_every_joint_within_the_travel_cap_of_the_start(runtime: RuntimeModel) -> None:
+    """The search looks only where a plan may go: a joint further than the per-plan travel cap
+    from its start would fail the whole-plan check anyway."""
+    model = with_zones(runtime, PILLAR)
+    cap = model.envelope.limits.max_joint_step_rad
+    result = DetourSearch(model.envelope).find(PILLAR_START, [PILLAR_GOAL], seed=3, deadline=time.monotonic() + 2)
+    assert result.path is not None
+    assert np.all(np.abs(result.path - PILLAR_START) <= cap + 1e-12)
+
+
+def wandering_path() -> tuple[np.ndarray, float]:
+    """Start, a corner where joint 1 (the second) is 0.3 rad off its straight line, goal; and
+    where that straight line puts joint 1 at the corner (the corner's share of the path length)."""
+    start = READY.copy()
+    goal = READY + 0.2
+    corner = (start + goal) / 2
+    corner[1] += 0.3
+    path = np.vstack([start, corner, goal])
+    legs = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    return path, start[1] + legs[0] / legs.sum() * (goal[1] - start[1])
+
+
+def test_a_wandering_joint_is_put_back_on_its_straight_line_where_that_is_clear(runtime: RuntimeModel) -> None:
+    search = DetourSearch(runtime.envelope)
+    path, straight = wandering_path()
+
+    straightened = search._straighten_joints(path)
+
+    assert straightened[1, 1] == pytest.approx(straight, abs=1e-12)
+    assert np.sum(np.abs(np.diff(straightened[:, 1]))) == pytest.approx(0.2, abs=1e-12)  # no wander left
+
+
+def test_a_wandering_joint_whose_straight_line_is_blocked_keeps_half_its_wander(runtime: RuntimeModel, monkeypatch) -> None:
+    search = DetourSearch(runtime.envelope)
+    path, straight = wandering_path()
+    wander = path[1, 1] - straight
+    # a leg is clear only while the corner's joint 1 stays 0.1 rad or more off its straight line
+    monkeypatch.setattr(search, "segment_is_clear", lambda a, b: abs(a[1] - straight) >= 0.1 or abs(b[1] - straight) >= 0.1)
+
+    straightened = search._straighten_joints(path)
+
+    assert straightened[1, 1] == pytest.approx(straight + 0.5 * wander, abs=1e-12)
+
+
+def test_a_joint_that_wanders_a_little_past_the_travel_cap_is_straightened(runtime: RuntimeModel) -> None:
+    """A wander below the threshold is kept, unless it takes the joint's travel over the cap."""
+    search = DetourSearch(runtime.envelope)
+    cap = runtime.envelope.limits.max_joint_step_rad
+    start = READY.copy()
+    goal = READY.copy()
+    goal[6] -= cap - 0.01  # joint 7 travels 0.01 rad short of the cap, straight
+    corner = (start + goal) / 2
+    corner[6] -= 0.02  # a 0.02 rad wander (below the 0.05 rad threshold): 0.03 rad over the cap in all
+    path = np.vstack([start, corner, goal])
+
+    straightened = search._straighten_joints(path)
+
+    assert np.sum(np.abs(np.diff(straightened[:, 6]))) <= cap

@@ -9,6 +9,7 @@ import numpy as np
 from armwarden.planning.goals import GoalSelector
 from armwarden.preflight import RuntimeModel
 from armwarden.safety.envelope import Box
+from armwarden.safety.violations import Code, Violation
 from tests.helpers import DOWN, READY
 from tests.planning.scenarios import with_zones
 
@@ -74,3 +75,30 @@ def test_goals_with_a_clear_approach_come_first_and_their_approach_line_passes_t
             assert not [v for v in model.envelope.check_path(np.vstack([approach, goal])) if v.is_hard]
             gap = np.linalg.norm(model.robot.tcp_pose(approach).position - model.robot.tcp_pose(goal).position)
             assert abs(gap - chooser.options.retreat_m) < 1e-3  # a few centimetres back, as asked
+
+
+def hand_blocked_unless_turned_to(model: RuntimeModel, angle: float, monkeypatch) -> None:
+    """The envelope refuses every configuration whose last joint is not at `angle` (as a zone
+    beside the fingers would at the other angles)."""
+    blocked = (Violation(Code.KEEP_OUT, "fr3_hand enters keep-out zone 'beside'", 0.0, "fr3_hand"),)
+    monkeypatch.setattr(model.envelope, "check_path", lambda qs, **_: () if abs(np.atleast_2d(qs)[-1][-1] - angle) < 1e-12
+                        else blocked)
+
+
+def test_a_blocked_solution_for_a_position_target_turns_the_hand_about_its_own_axis(runtime: RuntimeModel, monkeypatch) -> None:
+    q = READY.copy()
+    q[-1] += 0.6  # a solution with the hand turned 0.6 rad from where it starts
+    hand_blocked_unless_turned_to(runtime, READY[-1], monkeypatch)
+
+    turned = selector(runtime)._turned_clear(q, READY, runtime.envelope.limits.max_joint_step_rad)
+
+    assert turned is not None
+    np.testing.assert_array_equal(turned[0][:-1], q[:-1])
+    assert turned[0][-1] == READY[-1]  # back where the start has it: no travel for the wrist
+    np.testing.assert_allclose(runtime.robot.tcp_pose(turned[0]).position, runtime.robot.tcp_pose(q).position, atol=1e-12)
+
+
+def test_a_solution_blocked_at_every_turn_of_the_hand_stays_blocked(runtime: RuntimeModel, monkeypatch) -> None:
+    hand_blocked_unless_turned_to(runtime, 99.0, monkeypatch)  # no angle the joint can reach
+
+    assert selector(runtime)._turned_clear(READY + 0.1, READY, runtime.envelope.limits.max_joint_step_rad) is None

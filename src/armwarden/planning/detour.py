@@ -15,6 +15,10 @@ the same sweep bound between samples as the final check. OMPL's own discrete mot
 (fixed-resolution state sampling) is replaced, never used. Whatever this module returns is a
 proposal: the caller times it and the unchanged `Envelope.check` decides.
 
+**Only where a plan may go.** The search space is the joint limits (inside the soft margin)
+intersected with the per-plan travel cap around the start: a path leaving that box travels too
+far in some joint and would fail the final check whatever else it did.
+
 **Reproducible.** OMPL draws every random number from generators seeded from one process-wide
 seed; it is set from the request-derived seed right before the search objects are built, and
 only fixed-step simplification is used (no time-bounded polishing), so the same request, start
@@ -43,6 +47,8 @@ if TYPE_CHECKING:
 
 #: extra travel of one joint over its straight start-to-goal travel that `_straighten_joints` removes [rad]
 _WANDER_RAD = 0.05
+#: how much of a wandering joint's deviation from its straight line `_straighten_joints` tries to keep
+_WANDER_KEPT = (0.0, 0.5, 0.25)
 
 
 
@@ -147,8 +153,13 @@ class DetourSearch:
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
         every = np.vstack([start, *goals])
-        lower = np.minimum(self._lower, every.min(axis=0))  # the start or a goal may sit inside the margin
-        upper = np.maximum(self._upper, every.max(axis=0))
+        # no joint further from the start than the per-plan travel cap: a path that goes there
+        # travels too far and fails the final check anyway, so the search need not look there
+        cap = self.envelope.limits.max_joint_step_rad
+        lower = np.maximum(self._lower, start - cap)
+        upper = np.minimum(self._upper, start + cap)
+        lower = np.minimum(lower, every.min(axis=0))  # the start or a goal may sit inside the margin
+        upper = np.maximum(upper, every.max(axis=0))
         for i in range(n):
             bounds.setLow(i, float(lower[i]))
             bounds.setHigh(i, float(upper[i]))
@@ -202,21 +213,25 @@ class DetourSearch:
     def _straighten_joints(self, positions: np.ndarray) -> np.ndarray:
         """Per joint, deterministic: a joint that wanders (the random tree turns the wrist back and
         forth while it searches for the elbow's way) is put back on its straight line from start to
-        goal along the path, wherever the path stays clear. Joint travel counts against the
-        policy's per-plan cap, so a wandering joint can get a good path rejected."""
+        goal along the path, wherever the path stays clear; where the straight line is not clear,
+        halfway and three quarters of the way back to it are tried. Joint travel counts against
+        the policy's per-plan cap, so a wandering joint can get a good path rejected."""
         if len(positions) < 3:
             return positions
         steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
         fraction = np.concatenate([[0.0], np.cumsum(steps)]) / max(float(np.sum(steps)), 1e-12)
+        cap = self.envelope.limits.max_joint_step_rad
         for j in range(positions.shape[1]):
             straight = positions[0, j] + fraction * (positions[-1, j] - positions[0, j])
             travel = float(np.sum(np.abs(np.diff(positions[:, j]))))
-            if travel - abs(positions[-1, j] - positions[0, j]) < _WANDER_RAD:
-                continue
-            candidate = positions.copy()
-            candidate[:, j] = straight
-            if all(self.segment_is_clear(a, b) for a, b in itertools.pairwise(candidate)):
-                positions = candidate
+            if travel - abs(positions[-1, j] - positions[0, j]) < _WANDER_RAD and travel <= cap:
+                continue  # a little wander is harmless, unless it takes the joint past the travel cap
+            for kept in _WANDER_KEPT:  # the share of the wander left: none first
+                candidate = positions.copy()
+                candidate[:, j] = straight + kept * (positions[:, j] - straight)
+                if all(self.segment_is_clear(a, b) for a, b in itertools.pairwise(candidate)):
+                    positions = candidate
+                    break
         return positions
 
     def _state(self, si, q: np.ndarray):

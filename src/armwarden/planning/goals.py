@@ -5,7 +5,9 @@ space). The nearest one may fold the wrist into the forearm or park the elbow in
 while another is free. So: solve IK from the current state, from home and from seeded random
 configurations; drop every solution whose configuration fails the envelope's own static checks
 (`Envelope.check_path` on that one configuration: joint limits, workspace, keep-out,
-self-collision) or that lies beyond the joint travel cap from the start; find each one's
+self-collision) or that lies beyond the joint travel cap from the start (for a position-only
+target a blocked solution first gets its last joint turned, if the TCP lies on that joint's axis:
+the hand turns out of the way without moving the TCP); find each one's
 approach (a configuration a few centimetres back from which the line in is clear); rank those
 with an approach first, those inside the soft joint-limit margin last, then by weighted joint
 travel from the start, the weight of
@@ -29,6 +31,9 @@ import numpy as np
 from armwarden.robot.ik import IkSolver
 from armwarden.safety.envelope import Envelope
 
+#: two TCP positions closer than this are the same (far inside any IK tolerance) [m]
+_SAME_POSITION_M = 1e-9
+
 
 @dataclass(frozen=True)
 class GoalOptions:
@@ -37,7 +42,7 @@ class GoalOptions:
     local_seeds: int = 8  # IK restarts from seeded random configurations near the start (±`local_spread_rad`)
     local_spread_rad: float = 0.6
     random_seeds: int = 8  # then from seeded random configurations anywhere within the limits
-    extra_seeds: int = 16  # while no goal has a clear approach: more random restarts (deadline permitting)
+    extra_seeds: int = 16  # while no goal has a clear approach: more restarts within the travel cap (deadline permitting)
     max_goals: int = 4  # stop once this many distinct goals with a clear approach are found
     distinct_rad: float = 0.1  # solutions whose largest joint difference is below this are one
     retreat_m: float = 0.06  # how far the TCP backs off from a goal for its approach [m]
@@ -90,6 +95,25 @@ class GoalSelector:
                 return result.q
         return None
 
+    def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float) -> tuple[np.ndarray, tuple] | None:
+        """For a position-only target whose solution `q` is blocked: `q` with the last joint turned
+        to another angle (where the start has it first, then in quarter turns) that passes the
+        envelope's static checks, with its findings; None if none does, or if turning the last
+        joint moves the TCP (it then does not lie on that joint's axis)."""
+        robot = self.envelope.robot
+        position = robot.tcp_pose(q).position
+        for angle in (start[-1], q[-1] + np.pi / 2, q[-1] - np.pi / 2, q[-1] + np.pi / 4, q[-1] - np.pi / 4):
+            if not robot.lower[-1] <= angle <= robot.upper[-1] or abs(angle - start[-1]) > travel_cap:
+                continue
+            turned = q.copy()
+            turned[-1] = angle
+            if np.linalg.norm(robot.tcp_pose(turned).position - position) > _SAME_POSITION_M:
+                return None
+            findings = self.envelope.check_path(turned)
+            if not any(v.is_hard for v in findings):
+                return turned, findings
+        return None
+
     def select(
         self, start: np.ndarray, position: np.ndarray, rotation: np.ndarray | None, seed: int, deadline: float,
         first: np.ndarray | None = None,
@@ -117,10 +141,11 @@ class GoalSelector:
             return sum(approach is not None for _, _, approach in ranked)
 
         def extra() -> Iterator[np.ndarray]:
+            # within the travel cap of the start: a solution far beyond it could never be a goal
             for _ in range(opts.extra_seeds):
                 if approachable():
                     return
-                yield rng.uniform(lower, upper)
+                yield np.clip(start + rng.uniform(-travel_cap, travel_cap, len(start)), lower, upper)
 
         candidates = chain([first] if first is not None else [], seeds, extra())
         for index, seed_q in enumerate(candidates):
@@ -141,9 +166,16 @@ class GoalSelector:
                 continue
             findings = self.envelope.check_path(q)
             hard = [v for v in findings if v.is_hard]
-            if hard:
+            if hard and rotation is not None:
                 blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
                 continue
+            if hard:  # a position target: the hand may turn about its own axis out of the way
+                turned = self._turned_clear(q, start, travel_cap)
+                if turned is None:
+                    blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
+                    continue
+                q, findings = turned
+                found.append(q)
             approach = self.approach(q)
             ranked.append(((approach is None, bool(findings), self.weighted_travel(start, q)), q, approach))
         ranked.sort(key=lambda item: item[0])
