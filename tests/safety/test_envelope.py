@@ -326,3 +326,24 @@ def test_check_path_first_only_may_be_more_conservative_than_the_full_check(enve
     assert [v for v in checked.check_path(path) if v.is_hard] == []
     zoned = DenseOracle(checked.robot, checked.limits)
     assert zoned.violations(JointTrajectory(checked.robot.joint_names, [0.0, 1.0], path)) == []
+
+
+@settings(max_examples=60, **FUZZ)
+@given(seed=SEEDS)
+def test_one_configuration_is_judged_as_a_path_that_stays_there_is(seed: int, robot: RobotModel, envelope: Envelope) -> None:
+    """`check_path(q)` takes a one-pass shortcut; a two-waypoint path that does not move goes the
+    general way (coarse pass, fine pass). Both must find the same, zones and self-collision alike
+    (the times differ: waypoint 0 of one configuration, waypoint 1 of the two)."""
+    rng = np.random.default_rng(seed)
+    zones = []
+    for k in range(int(rng.integers(0, 4))):
+        lo = rng.uniform([-0.6, -0.6, 0.0], [0.6, 0.6, 0.8])
+        zones.append(Box.of(f"zone{k}", lo.tolist(), (lo + rng.uniform(0.05, 0.4, 3)).tolist()))
+    checked = _with_zones(envelope, *zones)
+    q = rng.uniform(robot.lower - 0.1, robot.upper + 0.1)  # now and then past a limit
+    first_only = bool(rng.integers(0, 2))
+
+    alone = checked.check_path(q, first_only=first_only)
+    staying = checked.check_path(np.vstack([q, q]), first_only=first_only)
+
+    assert [(v.code, v.body, v.detail) for v in alone] == [(v.code, v.body, v.detail) for v in staying]

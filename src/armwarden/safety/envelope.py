@@ -222,14 +222,27 @@ class Envelope:
         fewer than one when there is any).
         """
         positions = np.atleast_2d(np.asarray(positions, dtype=float))
-        if len(positions) == 1:
+        single = len(positions) == 1
+        if single:
             positions = np.vstack([positions, positions])
         index = np.arange(len(positions), dtype=float)
         violations = waypoints.check_joint_limits(self.limits, self.robot.joint_names, index, positions)
         if first_only and any(v.is_hard for v in violations):
             return tuple(violations)
-        geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
+        if single:  # one configuration does not move: one pass without sweep allowance is the whole check
+            geometric = self._check_configuration(positions[0], first_only)
+        else:
+            geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
         return tuple(violations + geometric)
+
+    def _check_configuration(self, q: np.ndarray, first_only: bool) -> list[Violation]:
+        """The geometry of one configuration: what `_check_geometry` finds for a path that stays
+        there (its samples all sit at `q`, their sweep allowance is zero, so coarse and fine
+        passes see the same), in one pass instead of a coarse and a fine one."""
+        samples = _Samples(times=np.zeros(1), positions=q[None], inflation=np.zeros((1, len(self._padded_radii))),
+                           pair_inflation=np.zeros((1, len(self._pairs))))
+        found, _, _ = self._geometry_pass(samples, "first" if first_only else "all")
+        return sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
 
     # ------------------------------------------------------------------ geometry
     def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:
