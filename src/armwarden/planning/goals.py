@@ -30,6 +30,7 @@ import numpy as np
 
 from armwarden.robot.ik import IkSolver
 from armwarden.safety.envelope import Envelope
+from armwarden.safety.violations import Violation
 
 #: two TCP positions closer than this are the same (far inside any IK tolerance) [m]
 _SAME_POSITION_M = 1e-9
@@ -95,11 +96,12 @@ class GoalSelector:
                 return result.q
         return None
 
-    def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float) -> tuple[np.ndarray, tuple] | None:
-        """For a position-only target whose solution `q` is blocked: `q` with the last joint turned
-        to another angle (where the start has it first, then in quarter turns) that passes the
-        envelope's static checks, with its findings; None if none does, or if turning the last
-        joint moves the TCP (it then does not lie on that joint's axis)."""
+    def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float,
+                      ) -> tuple[np.ndarray, tuple[Violation, ...]] | None:
+        """For a position-only target whose solution `q` is blocked: `q` with the last joint
+        turned to another angle (where the start has it first, then in quarter and eighth turns)
+        that passes the envelope's static checks, with its findings; None if none does, or if
+        turning the last joint moves the TCP (it then does not lie on that joint's axis)."""
         robot = self.envelope.robot
         position = robot.tcp_pose(q).position
         for angle in (start[-1], q[-1] + np.pi / 2, q[-1] - np.pi / 2, q[-1] + np.pi / 4, q[-1] - np.pi / 4):
