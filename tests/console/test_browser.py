@@ -88,11 +88,27 @@ def wait_for(browser: Any, condition: Any) -> Any:
 def click_and_load(browser: Any, element_id: str) -> None:
     """Click a submit button and wait until the page it leads to has replaced this one."""
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support import expected_conditions as ec
 
     button = browser.find_element(By.ID, element_id)
     button.click()
-    wait_for(browser, ec.staleness_of(button))
+    wait_for(browser, lambda _: detached(button))
+
+
+def detached(element: Any) -> bool:
+    """Whether `element`'s document has been replaced. Like Selenium's `staleness_of`, and also
+    true on the answer Chrome gives while it tears the old document down ("Node with given id
+    does not belong to the document"), which `staleness_of` lets escape as an error."""
+    from selenium.common.exceptions import StaleElementReferenceException, WebDriverException
+
+    try:
+        element.is_enabled()
+    except StaleElementReferenceException:
+        return True
+    except WebDriverException as exc:
+        if "does not belong to the document" in str(exc):
+            return True
+        raise
+    return False
 
 
 def screenshot(browser: Any, name: str) -> None:
