@@ -38,7 +38,7 @@ SCENE_NAMES = [scene.name for scene in SCENES.scene_set()]
 
 def oracle_findings(runtime: RuntimeModel, scene) -> tuple[int, list[str]]:
     """(accepted plans, the oracle's findings on them) for every target of `scene`."""
-    model = with_zones(runtime, *scene.zones)
+    model = with_zones(runtime, *scene.zones, budget_s=runtime.policy.motion.planning_time_s)  # as the benchmark
     oracle = oracle_for(model)
     accepted, findings = 0, []
     for target in scene.targets:
