@@ -286,7 +286,18 @@ class RobotModel:
     # ------------------------------------------------------------------ batch queries (the envelope's hot path)
     def joint_frames(self, qs: np.ndarray) -> np.ndarray:
         """Homogeneous placements (N, J, 4, 4) of the joints that carry capsules or the TCP."""
-        model, data, refs = self.model, self.data, self._joint_refs
+        return self._placements(qs, self._joint_refs)
+
+    def tcp_points(self, qs: np.ndarray) -> np.ndarray:
+        """TCP positions (N, 3) of a batch of configurations, base frame, metres: `body_points`'
+        TCP alone, reading one joint placement per configuration instead of every body's."""
+        placements = self._placements(qs, self._joint_refs[self._tcp_slot:self._tcp_slot + 1])[:, 0]
+        return placements[:, :3, :3] @ self._tcp_in_joint + placements[:, :3, 3]
+
+    def _placements(self, qs: np.ndarray, refs: Sequence[pin.SE3]) -> np.ndarray:
+        """Homogeneous placements (N, len(refs), 4, 4), base frame, of the joints `refs` (live
+        references into Data) after forward kinematics of each configuration in `qs`."""
+        model, data = self.model, self.data
         forward = pin.forwardKinematics
         frames = []
         append = frames.append
@@ -298,21 +309,6 @@ class RobotModel:
         if self._base_from_world is not None:
             out = np.einsum("ij,nkjl->nkil", self._base_from_world.homogeneous, out)
         return out
-
-    def tcp_points(self, qs: np.ndarray) -> np.ndarray:
-        """TCP positions (N, 3) of a batch of configurations, base frame, metres: `body_points`'
-        TCP alone, reading one joint placement per configuration instead of every body's."""
-        model, data, ref = self.model, self.data, self._joint_refs[self._tcp_slot]
-        forward = pin.forwardKinematics
-        frames = []
-        append = frames.append
-        for q in qs:
-            forward(model, data, q)
-            append(ref.np)
-        placements = np.array(frames).reshape(len(qs), 4, 4)
-        if self._base_from_world is not None:
-            placements = np.einsum("ij,njl->nil", self._base_from_world.homogeneous, placements)
-        return placements[:, :3, :3] @ self._tcp_in_joint + placements[:, :3, 3]
 
     def body_points(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Segment end points (N, B+1, 3) of every capsule plus the TCP (last, as a point).
