@@ -123,11 +123,7 @@ def encode_png(image: Any) -> bytes:
     """
     if image.mode != "RGB":
         raise ValueError(f"encode_png takes an RGB image, got mode {image.mode}")
-    width, height = image.size
-    rows = _png_rows(image)
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, no interlace
-    return b"".join((PNG_SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", zlib.compress(rows.tobytes(), PNG_ZLIB_LEVEL)),
-                     _chunk(b"IEND", b"")))
+    return _rgb_png(image.size, zlib.compress(_png_rows(image).tobytes(), PNG_ZLIB_LEVEL))
 
 
 class BandedPngEncoder:
@@ -153,11 +149,9 @@ class BandedPngEncoder:
         self._row_bytes = 3 * width
         self._starts = range(0, height, band_rows)
         self._reference = _pixel_words(reference)
-        rows = _png_rows(reference)
-        bands = [rows[start:start + band_rows] for start in self._starts]
+        bands = [self._band(self._reference, start) for start in self._starts]
         self._segments = [_deflate_segment(band) for band in bands]
         self._checksums = [zlib.adler32(band.data) for band in bands]
-        self._header = _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
 
     def encode(self, image: Any) -> bytes:
         if image.mode != "RGB" or image.size != self.size:
@@ -169,7 +163,7 @@ class BandedPngEncoder:
         for index, start in enumerate(self._starts):
             stop = start + self._band_rows
             if changed_rows[start:stop].any():
-                band = _scanlines(words[start:stop].view(np.uint8)[:, :self._row_bytes])
+                band = self._band(words, start)
                 segment, band_checksum = _deflate_segment(band), zlib.adler32(band.data)
             else:
                 segment, band_checksum = self._segments[index], self._checksums[index]
@@ -177,7 +171,11 @@ class BandedPngEncoder:
             checksum = adler32_combine(checksum, band_checksum, (min(stop, self.size[1]) - start) * (1 + self._row_bytes))
         pieces.append(b"\x03\x00")  # an empty final block (fixed Huffman codes)
         pieces.append(struct.pack(">I", checksum))
-        return b"".join((PNG_SIGNATURE, self._header, _chunk(b"IDAT", b"".join(pieces)), _chunk(b"IEND", b"")))
+        return _rgb_png(self.size, b"".join(pieces))
+
+    def _band(self, words: np.ndarray, start: int) -> np.ndarray:
+        """PNG scanlines of the band of rows from `start`, from a picture's `_pixel_words`."""
+        return _scanlines(words[start:start + self._band_rows].view(np.uint8)[:, :self._row_bytes])
 
 
 #: the modulus of Adler-32 (the largest prime below 2**16)
@@ -230,6 +228,13 @@ def _png_rows(image: Any) -> np.ndarray:
 def _deflate_segment(rows: np.ndarray) -> bytes:
     compressor = zlib.compressobj(PNG_ZLIB_LEVEL, zlib.DEFLATED, -15)  # raw deflate: the header is shared
     return compressor.compress(np.ascontiguousarray(rows).data) + compressor.flush(zlib.Z_FULL_FLUSH)
+
+
+def _rgb_png(size: tuple[int, int], idat: bytes) -> bytes:
+    """A PNG file of an 8-bit RGB picture of `size` (no interlace) from its zlib stream `idat`,
+    without metadata chunks: the same pixels always give the same bytes."""
+    header = struct.pack(">IIBBBBB", size[0], size[1], 8, 2, 0, 0, 0)
+    return b"".join((PNG_SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", idat), _chunk(b"IEND", b"")))
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
