@@ -242,7 +242,7 @@ class Envelope:
         samples = _Samples(times=np.zeros(1), positions=q[None], inflation=np.zeros((1, len(self._padded_radii))),
                            pair_inflation=np.zeros((1, len(self._pairs))))
         found, _, _ = self._geometry_pass(samples, "first" if first_only else "all")
-        return sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
+        return _in_time_order(found)
 
     # ------------------------------------------------------------------ geometry
     def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:
@@ -322,8 +322,7 @@ class Envelope:
                 if first_only and found:
                     break
         tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
-        ordered = sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
-        return ordered, tcp_length, self.robot.tcp_pose(positions[-1]), checked
+        return _in_time_order(found), tcp_length, self.robot.tcp_pose(positions[-1]), checked
 
     def _geometry_pass(self, samples: _Samples, confirm: Literal["all", "first", "none"] = "all",
                        ) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
@@ -452,6 +451,11 @@ class _Samples:
     positions: np.ndarray  # (N, n)
     inflation: np.ndarray  # (N, B+1) per body [m], the TCP point last
     pair_inflation: np.ndarray  # (N, P) per self-collision pair [m]
+
+
+def _in_time_order(found: dict[tuple[str, str, str], Violation]) -> list[Violation]:
+    """The findings of geometry passes, earliest first (then by code)."""
+    return sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
 
 
 def _half_neighbour_bound(cumulative: np.ndarray) -> np.ndarray:
