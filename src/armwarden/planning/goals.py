@@ -168,11 +168,8 @@ class GoalSelector:
                 continue
             findings = self.envelope.check_path(q)
             hard = [v for v in findings if v.is_hard]
-            if hard and rotation is not None:
-                blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
-                continue
-            if hard:  # a position target: the hand may turn about its own axis out of the way
-                turned = self._turned_clear(q, start, travel_cap)
+            if hard:  # a position target's hand may turn about its own axis out of the way
+                turned = self._turned_clear(q, start, travel_cap) if rotation is None else None
                 if turned is None:
                     blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
                     continue
