@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, overload
 
@@ -79,9 +80,10 @@ def robot_state(robot: RobotModel, state: JointState, wrench: Wrench | None, gri
     tcp = robot.tcp_pose(state.positions)
     qx, qy, qz, qw = tcp.quaternion_xyzw.tolist()
     forces = None
-    if wrench is not None and np.all(np.isfinite(wrench.force)) and np.all(np.isfinite(wrench.torque)):
-        (fx, fy, fz), (tx, ty, tz) = wrench.force.tolist(), wrench.torque.tolist()
-        forces = {"force": {"x": fx, "y": fy, "z": fz}, "torque": {"x": tx, "y": ty, "z": tz}}
+    if wrench is not None:
+        (fx, fy, fz), (tx, ty, tz) = force, torque = wrench.force.tolist(), wrench.torque.tolist()
+        if all(map(math.isfinite, force + torque)):  # plain floats: a tenth of NumPy's cost on six numbers
+            forces = {"force": {"x": fx, "y": fy, "z": fz}, "torque": {"x": tx, "y": ty, "z": tz}}
     px, py, pz = tcp.position.tolist()
     return RobotState.model_validate({
         "joint_names": list(robot.joint_names),

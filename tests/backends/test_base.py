@@ -8,7 +8,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, CameraImage, Capabilities, ExecutionResult, JointState
+from armwarden.backends.base import Backend, CameraImage, Capabilities, ExecutionResult, GripperState, JointState
 from armwarden.errors import BackendError, BackendTimeout
 
 NAMES = ("j1", "j2")
@@ -108,8 +108,23 @@ class _SlowGripper(_Probe):
     async def _graph(self):
         await asyncio.sleep(3600)
 
+    async def _gripper_state(self) -> GripperState:
+        await asyncio.sleep(3600)
+        raise AssertionError("never answers")
+
     async def _stop(self) -> None:
         self.stops += 1
+
+
+class _PublishingGripper(_SlowGripper):
+    """A gripper whose state is published (as every shipped backend's is): read without waiting."""
+
+    def __init__(self, published: GripperState) -> None:
+        super().__init__()
+        self.gripper_published = published
+
+    def _latest_gripper_state(self) -> GripperState:
+        return self.gripper_published
 
 
 def _call(backend: _Probe, call):
@@ -137,6 +152,20 @@ def test_a_reading_call_past_its_deadline_is_a_backend_timeout_without_a_stop():
     with pytest.raises(BackendTimeout, match="graph description"):
         _call(backend, lambda b: b.graph())
     assert backend.stops == 1  # only close()'s
+
+
+def test_a_gripper_state_read_past_its_deadline_is_a_backend_timeout():
+    backend = _SlowGripper()
+    backend.gripper_state_timeout_s = 0.05
+    with pytest.raises(BackendTimeout, match=r"gripper state read did not finish within 0\.05 s"):
+        _call(backend, lambda b: b.gripper_state())
+
+
+def test_a_published_gripper_state_is_returned_without_the_slow_read():
+    published = GripperState(0.04, False, False, 3.0)
+    backend = _PublishingGripper(published)
+    backend.gripper_state_timeout_s = 0.05
+    assert _call(backend, lambda b: b.gripper_state()) is published
 
 
 def test_the_gripper_deadline_grows_with_the_travel_time_at_the_requested_speed():

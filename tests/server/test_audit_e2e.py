@@ -136,3 +136,19 @@ async def test_image_bytes_and_huge_strings_in_arguments_are_redacted_and_trunca
     status = next(r for r in records if r["tool"] == "get_safety_status")
     assert status["arguments"]["image_base64"].startswith("<redacted")
     assert max(len(line) for line in text.splitlines()) < 64_000
+
+
+@pytest.mark.anyio
+async def test_each_connection_has_its_own_session_name_and_sessionless_calls_are_named_by_their_client(tmp_path) -> None:
+    async with arm_harness(tmp_path) as arm:
+        for mode in ("legacy", "legacy", "2026-07-28"):
+            async with arm.client(mode) as client:
+                for _ in range(2):
+                    assert not (await client.call_tool("get_robot_state", {})).is_error
+        arm.audit.flush()
+        names = [r["session"] for r in records_of(arm.audit_path) if r.get("tool") == "get_robot_state"]
+    first, second, sessionless = names[0:2], names[2:4], names[4:6]
+    assert first[0] == first[1] and second[0] == second[1]  # one name per connection ...
+    assert first[0] != second[0] and first[0].startswith(sessionless[0] + "#")  # ... of the same client software
+    # a 2026-07-28 call has no connection beyond itself: its client's name, not a new random one per call
+    assert sessionless[0] == sessionless[1] and "#" not in sessionless[0]

@@ -54,8 +54,8 @@ Rules every backend follows
   with new samples. Freshness is never assumed: the Guard refuses stale ones.
 - Blocking work (hardware I/O, simulation stepping) lives on the backend's own thread; results
   cross into asyncio with `armwarden.handoff.settle_threadsafe`. A backend whose thread publishes
-  every sample answers `_latest_joint_state` / `_latest_wrench` from that snapshot without
-  awaiting; the read deadline is then skipped.
+  every sample answers `_latest_joint_state` / `_latest_wrench` / `_latest_gripper_state` from that snapshot
+  without awaiting; the read deadline is then skipped.
 - A fault the backend finds on its own thread (a physical arm's health watch) is handled there
   first — the arm stopped or damped, the stop epoch bumped — then reported to the listener set
   with `set_fault_listener` (the Guard latches its e-stop from any thread). A fault during an
@@ -491,6 +491,9 @@ class Backend(abc.ABC):
         self._require_open()
         if not self.capabilities.gripper:
             return None
+        published = self._latest_gripper_state()
+        if published is not None:
+            return published
         return await self._bounded("gripper state read", self.gripper_state_timeout_s, self._gripper_state)
 
     async def gripper_move(self, width_m: float, speed_mps: float, *, stop_epoch: int | None = None) -> GripperResult:
@@ -630,6 +633,10 @@ class Backend(abc.ABC):
     def _emergency_stop_now(self) -> None:
         """Synchronous, thread-safe e-stop (see `emergency_stop_now`); default: `_stop_now`."""
         self._stop_now()
+
+    def _latest_gripper_state(self) -> GripperState | None:
+        """Like `_latest_joint_state`, for the gripper: its published state, without waiting."""
+        return None
 
     async def _gripper_state(self) -> GripperState | None:
         return None

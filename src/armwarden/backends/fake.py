@@ -332,7 +332,7 @@ class FakeBackend(Backend, ServoHooks):
         return self.table_stiffness_n_per_m * penetration_m
 
     # ================================================================ gripper (event loop side)
-    async def _gripper_state(self) -> GripperState:
+    def _latest_gripper_state(self) -> GripperState:
         motion = self._gripper_motion
         width = motion.width_at(time.perf_counter()) if motion is not None else self._gripper_width_m
         moving = motion is not None and motion.halted_at is None

@@ -51,7 +51,7 @@ class Readings:
         except (BackendError, TimeoutError) as exc:
             raise SafetyRefusal(RefusalCode.NO_STATE, f"cannot read the joint state from the backend: {exc}") from exc
         age = self._clock() - state.stamp
-        if not np.all(np.isfinite(state.positions)) or age > MAX_STATE_AGE_S:
+        if not np.isfinite(state.positions).all() or age > MAX_STATE_AGE_S:
             raise SafetyRefusal(RefusalCode.STALE_STATE,
                                 f"the joint state is invalid or {age:.3f} s old; refusing to plan or move on it")
         return state

@@ -218,7 +218,10 @@ class ArmWardenServer:
 class SessionNames:
     """A short random name per client connection, so the audit log tells two clients apart even when
     they run the same software (the HTTP session id the SDK bound, when there is one; otherwise
-    `<client>/<version>#<name>`)."""
+    `<client>/<version>#<name>`). A sessionless (2026-07-28) request has no connection that
+    outlives it, so it is named by its client alone (`<client>/<version>`): a random name per
+    request would tell the log's reader nothing (its token's name, when there is one, is in the
+    record's `principal`)."""
 
     def __init__(self) -> None:
         self._names: weakref.WeakKeyDictionary[Any, str] = weakref.WeakKeyDictionary()
@@ -232,14 +235,16 @@ class SessionNames:
         bound = getattr(connection, "session_id", None)
         if isinstance(bound, str) and bound:
             return bound[:64]
+        info = getattr(getattr(session, "client_params", None), "client_info", None)
+        client = "unknown-client" if info is None else f"{info.name}/{info.version}"[:48]
+        if _sessionless(ctx):
+            return client
         try:
             name = self._names.get(connection)
             if name is None:
                 name = self._names[connection] = secrets.token_hex(4)
         except TypeError:  # not weak-referenceable: fall back to the client's name alone
             name = None
-        info = getattr(getattr(session, "client_params", None), "client_info", None)
-        client = "unknown-client" if info is None else f"{info.name}/{info.version}"[:48]
         return client if name is None else f"{client}#{name}"
 
 
@@ -254,9 +259,14 @@ def _caller(ctx: ServerRequestContext, session: str | None, principal: Principal
 
         access = get_access_token()
         return f"token:{principal.name}:{access.subject if access is not None else ''}"
-    if ctx.protocol_version and is_version_at_least(ctx.protocol_version, "2026-07-28"):
+    if _sessionless(ctx):
         return "unauthenticated"
     return f"session:{session}"
+
+
+def _sessionless(ctx: ServerRequestContext) -> bool:
+    """A 2026-07-28 request: each one is served on a connection of its own, with no session."""
+    return bool(ctx.protocol_version) and is_version_at_least(ctx.protocol_version, "2026-07-28")
 
 
 def _as_model(result: Any) -> Any:

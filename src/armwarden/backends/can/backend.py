@@ -514,7 +514,7 @@ class CanBackend(Backend, ServoHooks):
         return self._command_frame(a, MotorCommand(g.direction * position + g.homing_offset_rad, g.direction * velocity,
                                                    g.kp_nm_per_rad, g.kd_nms_per_rad, 0.0))
 
-    async def _gripper_state(self) -> GripperState:
+    def _latest_gripper_state(self) -> GripperState:
         g = self._gripper_config()
         motion = self._gripper_motion
         return GripperState(g.width_of(self._gripper_position()), self._gripper_grasped,

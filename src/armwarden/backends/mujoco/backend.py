@@ -398,7 +398,7 @@ class MujocoBackend(Backend, ServoHooks):
             self._fingers = _FingerTarget(width, width, 1.0, sim_s, fingers.force_n)
 
     # ================================================================ gripper
-    async def _gripper_state(self) -> GripperState:
+    def _latest_gripper_state(self) -> GripperState:
         sample = self._measured
         moving = self._gripper_busy or abs(sample.gripper_speed_mps) > GRIPPER_STILL_MPS
         return GripperState(sample.gripper_width_m, self._gripper_grasped, moving, sample.stamp)

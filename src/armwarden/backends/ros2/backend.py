@@ -711,7 +711,7 @@ class Ros2Backend(Backend):
         handle.cancel_goal_async()
         self.stop_records.append(StopRecord("gripper cancel", time.monotonic()))
 
-    async def _gripper_state(self) -> GripperState:
+    def _latest_gripper_state(self) -> GripperState:
         assert self.fingers is not None
         state = self.fingers.fresh()
         moving = self._gripper_run is not None or bool(np.max(np.abs(state.velocities)) > 1e-3)
