@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from contextlib import AsyncExitStack, asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from bench_common import (  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
@@ -201,7 +201,51 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
     assert png is not None
     out = median_p95(times[10:])
     out["png_bytes"] = len(png)
+    out.update(_library_share_ms(lambda: preview(runtime, trajectory, report), repeats))
+    # Pinocchio's calls go through Boost.Python, which cProfile does not see: its forward
+    # kinematics for the picture (the swept poses and the thinned TCP path) is timed apart
+    from armwarden.server.preview import MAX_PATH_POINTS, SWEEP_SAMPLES
+
+    robot, positions = runtime.robot, np.asarray(trajectory.positions)
+    swept = np.vstack([trajectory.sample(t) for t in np.linspace(0.0, trajectory.duration_s, SWEEP_SAMPLES)])
+    path = positions[np.linspace(0, len(positions) - 1, MAX_PATH_POINTS).round().astype(int)]
+    kinematics = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        robot.joint_frames(swept)
+        robot.tcp_points(path)
+        kinematics.append(time.perf_counter() - start)
+    out["library_ms"]["forward kinematics"] = float(np.median(kinematics)) * 1e3
     return out
+
+
+#: the libraries' calls a picture cannot do without, by the name cProfile gives them
+LIBRARY_CALLS = {
+    "zlib": ("zlib.Compress",),  # deflating the changed row bands (compress, flush)
+    "strokes": ("ImagingDraw",),  # Pillow's line, ellipse, rectangle and polygon primitives
+}
+
+
+def _library_share_ms(render: Callable[[], Any], repeats: int) -> dict[str, Any]:
+    """Per picture, the time spent inside the C calls of zlib and of Pillow's drawing primitives
+    (cProfile's own time of those calls, which its overhead barely touches): with forward
+    kinematics, the floor of drawing this picture with these libraries."""
+    import cProfile
+    import pstats
+
+    profile = cProfile.Profile()
+    profile.enable()
+    for _ in range(repeats):
+        render()
+    profile.disable()
+    stats = cast("dict[tuple[str, int, str], tuple[Any, ...]]", pstats.Stats(profile).stats)  # type: ignore[attr-defined]
+    share = dict.fromkeys(LIBRARY_CALLS, 0.0)
+    for (filename, _, name), (_, _, own_s, _, _) in stats.items():
+        where = f"{filename} {name}"
+        for library, markers in LIBRARY_CALLS.items():
+            if any(marker in where for marker in markers):
+                share[library] += own_s
+    return {"library_ms": {library: seconds / repeats * 1e3 for library, seconds in share.items()}}
 
 
 def bench_own_share(policy_path: Path, directory: Path, rounds: int = 6) -> dict[str, Any]:
@@ -257,9 +301,18 @@ def report_own_share(r: dict[str, Any]) -> None:
     print(f"preview picture alone (typical 0.5 rad plan, {render['png_bytes']} bytes): {render['median_ms']:.2f} ms median, "
           f"{render['p95_ms']:.2f} ms p95 (target ≤ {RENDER_P95_TARGET_MS:g} ms p95: "
           f"{'met' if render['p95_ms'] <= RENDER_P95_TARGET_MS else 'MISSED'})")
+    library = render["library_ms"]
+    floor = sum(library.values())
+    print("  of which inside the libraries (the floor of this picture): "
+          + ", ".join(f"{name} {ms:.2f} ms" for name, ms in library.items()) + f"; together {floor:.2f} ms")
     ratio = r["preview_ratio_stdio"]
+    stdio = r["transports"]["stdio"]
+    budget = (PREVIEW_RATIO_TARGET - 1.0) * stdio["plan_to_pose, no preview"]["armwarden"]["median_ms"]
+    carried = (stdio["plan_to_pose, with preview"]["floor"]["median_ms"]
+               - stdio["plan_to_pose, no preview"]["floor"]["median_ms"])
     print(f"plan_to_pose over stdio, with preview / without: {ratio:.2f}x (target ≤ {PREVIEW_RATIO_TARGET:g}x: "
-          f"{'met' if ratio <= PREVIEW_RATIO_TARGET else 'MISSED'})")
+          f"{'met' if ratio <= PREVIEW_RATIO_TARGET else 'MISSED'}); the target leaves {budget:.2f} ms for the picture, "
+          f"of which the SDK's carrying it takes {carried:.2f} ms and the libraries' floor {floor:.2f} ms")
 
 
 __all__ = ["bench_own_share", "report_own_share"]

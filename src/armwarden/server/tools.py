@@ -286,7 +286,7 @@ class ToolBuilder:
                        f"{list(robot.joint_names)}; limits: {limits_text}")
         frame = Field(default=None, max_length=128, description=f"Must be {robot.base_frame} (the default)")
         preview_png = Field(description="Attach a PNG preview (top and side views of the swept links against the "
-                            "workspace and keep-out zones); ~20 ms")
+                            "workspace and keep-out zones); about 3 ms of server time")
 
         async def planned(kind: PlanKind, request: dict[str, Any]) -> CallToolResult:
             summary, preview = await guard.plan(kind, request)
