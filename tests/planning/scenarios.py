@@ -44,16 +44,17 @@ def pillar_at(runtime: RuntimeModel, angle: float) -> Box:
     return Box.of("pillar", [centre[0] - 0.03, centre[1] - 0.02, 0.0], [centre[0] + 0.03, centre[1] + 0.02, 0.50])
 
 
-def hemmed_block(runtime: RuntimeModel) -> Box:
-    """A block 1 mm below the padded hand at the ready pose: the ready pose itself is clear, but every
-    motion into it sweeps the hand into the block (the sweep allowance at the last sample is more
-    than 1 mm), so no plan can end there and a search for one runs out of budget."""
+def hemmed_block(runtime: RuntimeModel, gap_m: float = 0.001) -> Box:
+    """A block `gap_m` below the padded hand at the ready pose. With the default 1 mm the ready pose
+    itself is clear, but every motion into or out of it sweeps the hand into the block (the sweep
+    allowance of a plan's first and last sample is more than 1 mm): no plan can end there (a plan
+    into it is refused at once) and a search for a way out runs out of budget."""
     robot = runtime.robot
     p0, p1 = robot.body_points(robot.joint_frames(READY[None]))
     padding = runtime.envelope.limits.link_padding_m
     hand = [i for i, capsule in enumerate(robot.capsules) if "hand" in capsule.link]
     lowest = min(min(p0[0, i, 2], p1[0, i, 2]) - robot.capsule_radii[i] - padding for i in hand)
-    return Box.of("block", [0.15, -0.12, 0.0], [0.45, 0.12, lowest - 0.001])
+    return Box.of("block", [0.15, -0.12, 0.0], [0.45, 0.12, lowest - gap_m])
 
 
 def oracle_for(model: RuntimeModel) -> DenseOracle:

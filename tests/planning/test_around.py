@@ -91,8 +91,8 @@ def test_a_pose_target_whose_nearest_solution_is_blocked_gets_another_solution_o
 def test_no_detour_within_the_budget_is_a_rejection_naming_the_blocker_and_the_budget(runtime: RuntimeModel) -> None:
     budget = 0.25
     model = with_zones(runtime, hemmed_block(runtime), budget_s=budget)
-    began = time.monotonic()
-    outcome, report = plan_and_check(model, "joints", base_turn(0.6), {"joint_positions": READY})
+    began = time.monotonic()  # out of the hemmed ready pose: every way out sweeps the hand into the block
+    outcome, report = plan_and_check(model, "joints", READY, {"joint_positions": base_turn(0.6)})
     elapsed = time.monotonic() - began
     assert report is not None and Code.KEEP_OUT in {v.code for v in report.hard}
     (no_detour,) = [v for v in outcome.violations if v.code is Code.NO_DETOUR]
@@ -103,12 +103,33 @@ def test_no_detour_within_the_budget_is_a_rejection_naming_the_blocker_and_the_b
 
 def test_a_stop_request_ends_the_search_at_once(runtime: RuntimeModel) -> None:
     model = with_zones(runtime, hemmed_block(runtime), budget_s=2.0)
-    straight = model.planner.plan_to_joints(base_turn(0.6), READY)
+    straight = model.planner.plan_to_joints(READY, base_turn(0.6))
     report = model.envelope.check(straight.trajectory)
     began = time.monotonic()
-    outcome = model.detours.plan("joints", base_turn(0.6), straight, report, should_stop=lambda: True)
+    outcome = model.detours.plan("joints", READY, straight, report, should_stop=lambda: True)
     assert time.monotonic() - began < 0.5
     assert any(v.code is Code.NO_DETOUR and "e-stop" in v.detail for v in outcome.violations)
+
+
+def test_a_goal_no_plan_can_end_at_is_refused_at_once_saying_why(runtime: RuntimeModel, monkeypatch) -> None:
+    """The ready pose 1 mm above a block: clear in itself, but the final check gives a plan's last
+    sample more sweep allowance than that, so no plan into it can pass; no search is started."""
+    model = with_zones(runtime, hemmed_block(runtime), budget_s=2.0)
+    monkeypatch.setattr(model.detours.search, "find", lambda *a, **k: pytest.fail("searched for a goal no plan can end at"))
+    outcome, report = plan_and_check(model, "joints", base_turn(0.6), {"joint_positions": READY})
+    assert report is not None and Code.KEEP_OUT in {v.code for v in report.hard}
+    (no_detour,) = [v for v in outcome.violations if v.code is Code.NO_DETOUR]
+    assert "sweep allowance of a plan's last sample" in no_detour.detail
+    assert "'block'" in no_detour.detail and "motion.sweep_resolution_m" in no_detour.detail
+
+
+def test_a_pose_target_no_plan_can_end_at_is_refused_naming_the_allowance(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, hemmed_block(runtime), budget_s=2.0)
+    pose = runtime.robot.tcp_pose(READY)  # the hand pointing as it does at ready: every solution hovers 1 mm above
+    outcome, _ = plan_and_check(model, "pose", base_turn(0.6), {"target": PoseTarget(pose.position, pose.rotation)})
+    (no_detour,) = [v for v in outcome.violations if v.code is Code.NO_DETOUR]
+    assert "a plan can end at" in no_detour.detail and "sweep allowance of a plan's last sample" in no_detour.detail
+    assert "move the target a few millimetres" in no_detour.detail
 
 
 def test_a_goal_past_a_joint_limit_is_refused_without_a_search(runtime: RuntimeModel, monkeypatch) -> None:

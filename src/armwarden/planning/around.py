@@ -35,7 +35,7 @@ from typing import Literal
 import numpy as np
 
 from armwarden.planning.detour import DetourSearch, SearchResult
-from armwarden.planning.goals import GoalSelection, GoalSelector
+from armwarden.planning.goals import ARRIVAL_MARK, GoalSelection, GoalSelector
 from armwarden.planning.planners import Planner, PlanOutcome, PoseTarget
 from armwarden.planning.timing import TimingError, time_parameterize
 from armwarden.safety.envelope import Envelope, EnvelopeReport
@@ -51,6 +51,11 @@ _GOAL_SHARE = 0.35
 _RESERVE_SHARE = 0.05
 #: searches per plan call (each after the previous path failed the whole-plan check), budget permitting
 _MAX_SEARCHES = 4
+#: what to do about a goal clear in itself but too close to a zone for any plan to end there
+_TOO_CLOSE = ("such a goal is clear, but so close to a zone or the workspace edge that the final check, which "
+              "gives a plan's last sample the sweep allowance of the motion before it, refuses every plan ending "
+              "there: move the target a few millimetres further away, or lower motion.sweep_resolution_m (finer "
+              "checks, slower planning)")
 
 Kind = Literal["joints", "pose"]
 
@@ -98,6 +103,10 @@ class DetourPlanner:
         else:
             if not self.search.configuration_is_clear(first_goal):
                 return self._refuse(straight, report, "the goal configuration itself violates the envelope")
+            rank, near = self.goals.arrival(first_goal)
+            if rank is None and near is not None:
+                return self._refuse(straight, report, "with the sweep allowance of a plan's last sample the goal "
+                                    f"configuration is not clear ({near.code.value}: {near.detail}); {_TOO_CLOSE}")
             goals, retreats = (first_goal,), (self.goals.approach(first_goal),)
 
         # cheap candidates first: a clear straight line to another goal configuration; then, since
@@ -204,8 +213,11 @@ def request_seed(kind: str, start: np.ndarray, goal: np.ndarray | PoseTarget | N
 
 
 def _no_goal_reason(selection: GoalSelection) -> str:
-    return (f"none of the {selection.solutions} IK solution(s) found is a collision-free goal configuration "
-            f"(blocked: {selection.describe_blocked()})")
+    reason = (f"none of the {selection.solutions} IK solution(s) found is a collision-free goal configuration "
+              f"a plan can end at (blocked: {selection.describe_blocked()})")
+    if any(ARRIVAL_MARK in blocked for blocked in selection.blocked):
+        reason += f"; {_TOO_CLOSE}"
+    return reason
 
 
 def _search_failure(result: SearchResult, n_goals: int, budget_s: float, rejected: list[str]) -> str:

@@ -7,7 +7,10 @@ configurations; drop every solution whose configuration fails the envelope's own
 (`Envelope.check_path` on that one configuration: joint limits, workspace, keep-out,
 self-collision) or that lies beyond the joint travel cap from the start (for a position-only
 target a blocked solution first gets its last joint turned, if the TCP lies on that joint's axis:
-the hand turns out of the way without moving the TCP); find each one's
+the hand turns out of the way without moving the TCP); drop every solution so close to a zone
+that no plan can end there (the final check inflates a plan's last sample by the sweep allowance
+of the interval before it: `Envelope.check_arrival`), and rank those clear even with the largest
+such allowance before those clear only with the smallest; find each one's
 approach (a configuration a few centimetres back from which the line in is clear); rank those
 with an approach first, those inside the soft joint-limit margin last, then by weighted joint
 travel from the start, the weight of
@@ -34,6 +37,9 @@ from armwarden.safety.violations import Violation
 
 #: two TCP positions closer than this are the same (far inside any IK tolerance) [m]
 _SAME_POSITION_M = 1e-9
+#: sweep allowances of a plan's last sample, as shares of `motion.sweep_resolution_m`
+#: (`Envelope.check_arrival`): the largest any motion gets, then the smallest a longer one gets
+ARRIVAL_SHARES = (0.5, 0.25)
 
 
 @dataclass(frozen=True)
@@ -96,12 +102,27 @@ class GoalSelector:
                 return result.q
         return None
 
+    def arrival(self, q: np.ndarray) -> tuple[int | None, Violation | None]:
+        """How surely a checked plan can end at `q` (which passes the static checks): 0 when `q`
+        is clear with the largest sweep allowance the final check gives a plan's last sample, 1
+        when only with the smallest (whether a plan passes then depends on where its samples
+        fall), None when not even with that, with the finding that blocks it: the final check
+        would refuse every plan ending there, however it got there."""
+        blocking = None
+        for rank, share in enumerate(ARRIVAL_SHARES):
+            hard = [v for v in self.envelope.check_arrival(q, share) if v.is_hard]
+            if not hard:
+                return rank, None
+            blocking = hard[0]
+        return None, blocking
+
     def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float,
-                      ) -> tuple[np.ndarray, tuple[Violation, ...]] | None:
+                      ) -> tuple[np.ndarray, tuple[Violation, ...], int] | None:
         """For a position-only target whose solution `q` is blocked: `q` with the last joint
         turned to another angle (where the start has it first, then in quarter and eighth turns)
-        that passes the envelope's static checks, with its findings; None if none does, or if
-        turning the last joint moves the TCP (it then does not lie on that joint's axis)."""
+        that passes the envelope's static checks and can end a plan (`arrival`), with its
+        findings and arrival rank; None if none does, or if turning the last joint moves the TCP
+        (it then does not lie on that joint's axis)."""
         robot = self.envelope.robot
         position = robot.tcp_pose(q).position
         for angle in (start[-1], q[-1] + np.pi / 2, q[-1] - np.pi / 2, q[-1] + np.pi / 4, q[-1] - np.pi / 4):
@@ -113,7 +134,9 @@ class GoalSelector:
                 return None
             findings = self.envelope.check_path(turned)
             if not any(v.is_hard for v in findings):
-                return turned, findings
+                rank, _ = self.arrival(turned)
+                if rank is not None:
+                    return turned, findings, rank
         return None
 
     def select(
@@ -121,8 +144,9 @@ class GoalSelector:
         first: np.ndarray | None = None,
     ) -> GoalSelection:
         """Goal configurations for the TCP at `position` (and `rotation`, None: free), best first:
-        those with a clear approach before those without, those inside the soft joint-limit
-        margin last, then by weighted joint travel from `start`.
+        those with a clear approach before those without, then those a plan surely can end at
+        (`arrival` 0) before the others, those inside the soft joint-limit margin last, then by
+        weighted joint travel from `start`.
 
         `first` is a solution already known (the straight-line planner's); `deadline` is on the
         `time.monotonic` clock and stops the search early (the goals found so far are kept).
@@ -136,7 +160,7 @@ class GoalSelector:
         seeds += [rng.uniform(lower, upper) for _ in range(opts.random_seeds)]
         travel_cap = self.envelope.limits.max_joint_step_rad
         found: list[np.ndarray] = []
-        ranked: list[tuple[tuple[bool, bool, float], np.ndarray, np.ndarray | None]] = []
+        ranked: list[tuple[tuple[bool, int, bool, float], np.ndarray, np.ndarray | None]] = []
         blocked: Counter[str] = Counter()
 
         def approachable() -> int:
@@ -168,15 +192,28 @@ class GoalSelector:
                 continue
             findings = self.envelope.check_path(q)
             hard = [v for v in findings if v.is_hard]
-            if hard:  # a position target's hand may turn about its own axis out of the way
+            rank, near = (None, None) if hard else self.arrival(q)
+            if rank is None:  # a position target's hand may turn about its own axis out of the way
                 turned = self._turned_clear(q, start, travel_cap) if rotation is None else None
                 if turned is None:
-                    blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
+                    blocked[f"{hard[0].code.value} {hard[0].body}" if hard else _arrival_reason(near, self.envelope)] += 1
                     continue
-                q, findings = turned
+                q, findings, rank = turned
                 found.append(q)
             approach = self.approach(q)
-            ranked.append(((approach is None, bool(findings), self.weighted_travel(start, q)), q, approach))
+            ranked.append(((approach is None, rank, bool(findings), self.weighted_travel(start, q)), q, approach))
         ranked.sort(key=lambda item: item[0])
         ranked = ranked[: opts.max_goals]
         return GoalSelection(tuple(q for _, q, _ in ranked), tuple(a for _, _, a in ranked), len(found), blocked)
+
+
+#: the mark of a solution dropped because no plan can end there (see `_arrival_reason`)
+ARRIVAL_MARK = "sweep allowance of a plan's last sample"
+
+
+def _arrival_reason(violation: Violation | None, envelope: Envelope) -> str:
+    """Why a solution clear in itself was dropped: what its padded bodies reach into once given the
+    smallest sweep allowance of a plan's last sample."""
+    allowance_mm = ARRIVAL_SHARES[-1] * envelope.limits.sweep_resolution_m * 1e3
+    what = "unknown" if violation is None else f"{violation.code.value} {violation.body}"
+    return f"{what} within the {allowance_mm:.1f} mm {ARRIVAL_MARK}"

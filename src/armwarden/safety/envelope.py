@@ -235,14 +235,27 @@ class Envelope:
             geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
         return tuple(violations + geometric)
 
-    def _check_configuration(self, q: np.ndarray, first_only: bool) -> list[Violation]:
+    def _check_configuration(self, q: np.ndarray, first_only: bool, allowance_m: float = 0.0) -> list[Violation]:
         """The geometry of one configuration: what `_check_geometry` finds for a path that stays
         there (its samples all sit at `q`, their sweep allowance is zero, so coarse and fine
-        passes see the same), in one pass instead of a coarse and a fine one."""
-        samples = _Samples(times=np.zeros(1), positions=q[None], inflation=np.zeros((1, len(self._padded_radii))),
+        passes see the same), in one pass instead of a coarse and a fine one. `allowance_m`
+        inflates every body (not the self-collision pairs) as a sweep allowance would."""
+        samples = _Samples(times=np.zeros(1), positions=q[None],
+                           inflation=np.full((1, len(self._padded_radii)), float(allowance_m)),
                            pair_inflation=np.zeros((1, len(self._pairs))))
         found, _, _ = self._geometry_pass(samples, "first" if first_only else "all")
         return _in_time_order(found)
+
+    def check_arrival(self, q: np.ndarray, share: float) -> tuple[Violation, ...]:
+        """The geometry of `q` as the last sample of a motion that ends there: every body inflated
+        by `share` × `sweep_resolution_m`. The final check inflates a plan's last sample by half
+        the motion bound of the sampling interval before it; that interval is at most one fine
+        unit, in which no body moves more than `sweep_resolution_m` (share 0.5 covers any motion),
+        and at least half a unit when the path is longer than one, so a body that bounds its
+        intervals (the hand, nearly always) gets at least a quarter of it (share 0.25). A goal hit
+        with share 0.25 cannot end any such plan; planners rank and drop goals with this
+        (`planning.goals`), the final check is unchanged."""
+        return tuple(self._check_configuration(np.asarray(q, dtype=float), True, share * self.limits.sweep_resolution_m))
 
     # ------------------------------------------------------------------ geometry
     def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:
