@@ -43,7 +43,8 @@ Sections
   bin-sized box, TCP targets 2-10 cm outside its faces, seeded): solved fraction among targets
   with a collision-free goal configuration (goal >= 90 %) and overall, planning time median (goal
   <= 50 ms) and p95 (goal <= 500 ms), TCP path length relative to the refused straight line;
-  again with the per-plan caps raised, to separate the planner from the policy's caps. About 1 min.
+  again with the per-plan caps raised, to separate the planner from the policy's caps, and once
+  more with a finer sweep resolution as well (goals a few millimetres from the box). About 1 min.
 - can (opt-in: 60 s per rate): the CAN servo loop at 500 Hz and 1 kHz for 7 emulated RobStride
   actuators on the virtual bus while an SDK client keeps the server busy: achieved rate,
   deadline-miss rate (goal < 0.5 % at 1 kHz), p99 period jitter, and `estop` sent → first damping
