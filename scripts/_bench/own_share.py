@@ -178,7 +178,7 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
         yield armwarden, floor
 
 
-def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
+def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, Any]:
     """The preview renderer alone, as the daemon runs it (one previewer per policy), on a typical
     0.5 rad plan: p50 and p95 over `repeats` pictures."""
     from armwarden.assembly import plan_previewer
@@ -199,9 +199,8 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
         png = preview(runtime, trajectory, report)
         times.append(time.perf_counter() - start)
     assert png is not None
-    out = median_p95(times[10:])
-    out["png_bytes"] = len(png)
-    out.update(_library_share_ms(lambda: preview(runtime, trajectory, report), repeats))
+    out: dict[str, Any] = {**median_p95(times[10:]), "png_bytes": len(png)}
+    library = _library_share_ms(lambda: preview(runtime, trajectory, report), repeats)
     # Pinocchio's calls go through Boost.Python, which cProfile does not see: its forward
     # kinematics for the picture (the swept poses and the thinned TCP path) is timed apart
     from armwarden.server.preview import MAX_PATH_POINTS, SWEEP_SAMPLES
@@ -215,7 +214,8 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, float]:
         robot.joint_frames(swept)
         robot.tcp_points(path)
         kinematics.append(time.perf_counter() - start)
-    out["library_ms"]["forward kinematics"] = float(np.median(kinematics)) * 1e3
+    library["forward kinematics"] = float(np.median(kinematics)) * 1e3
+    out["library_ms"] = library
     return out
 
 
@@ -226,7 +226,7 @@ LIBRARY_CALLS = {
 }
 
 
-def _library_share_ms(render: Callable[[], Any], repeats: int) -> dict[str, Any]:
+def _library_share_ms(render: Callable[[], Any], repeats: int) -> dict[str, float]:
     """Per picture, the time spent inside the C calls of zlib and of Pillow's drawing primitives
     (cProfile's own time of those calls, which its overhead barely touches): with forward
     kinematics, the floor of drawing this picture with these libraries."""
@@ -245,7 +245,7 @@ def _library_share_ms(render: Callable[[], Any], repeats: int) -> dict[str, Any]
         for library, markers in LIBRARY_CALLS.items():
             if any(marker in where for marker in markers):
                 share[library] += own_s
-    return {"library_ms": {library: seconds / repeats * 1e3 for library, seconds in share.items()}}
+    return {library: seconds / repeats * 1e3 for library, seconds in share.items()}
 
 
 def bench_own_share(policy_path: Path, directory: Path, rounds: int = 6) -> dict[str, Any]:
