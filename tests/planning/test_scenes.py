@@ -70,6 +70,15 @@ def test_accepted_plans_of_the_near_obstacle_set_pass_the_dense_oracle(runtime: 
     assert accepted >= 1 and findings == []
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("finer", [False, True], ids=["caps raised", "caps raised, finer sweep resolution"])
+def test_accepted_plans_of_the_near_obstacle_set_with_relaxed_limits_pass_the_dense_oracle(runtime: RuntimeModel,
+                                                                                          finer: bool) -> None:
+    relaxed = SCENES.with_raised_caps(runtime, SCENES.FINER_SWEEP_RESOLUTION_M if finer else None)
+    accepted, findings = oracle_findings(relaxed, SCENES.near_obstacle_set())
+    assert accepted >= 1 and findings == []
+
+
 def test_a_target_farther_than_the_tcp_path_cap_is_beyond_the_per_plan_caps(runtime: RuntimeModel) -> None:
     start = SCENES.READY
     here = runtime.robot.tcp_pose(start).position
