@@ -9,7 +9,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from armwarden.planning.goals import GoalSelector
+from armwarden.planning.goals import CLOSE_TO_A_ZONE, GoalSelector
 from armwarden.preflight import RuntimeModel
 from armwarden.safety.envelope import Box
 from armwarden.safety.violations import Code, Violation
@@ -107,42 +107,39 @@ def test_a_solution_blocked_at_every_turn_of_the_hand_stays_blocked(runtime: Run
     assert selector(runtime)._turned_clear(READY + 0.1, READY, runtime.envelope.limits.max_joint_step_rad) is None
 
 
-def test_arrival_ranks_a_goal_by_the_sweep_allowance_a_plan_ending_there_gets(runtime: RuntimeModel) -> None:
-    """The ready pose a few millimetres above a block: with a 1 cm sweep resolution a plan's last
-    sample gets at most 5 mm of allowance, and at least 2.5 mm once the plan is longer than one
-    sampling interval."""
+def test_arrival_ranks_a_goal_by_how_close_its_bodies_are_to_a_zone(runtime: RuntimeModel) -> None:
+    """The ready pose a few millimetres above a block, with a 1 cm sweep resolution: clear with
+    5 mm of growth (what a plan's last sample gets at most), 2.5 mm, or neither."""
     assert runtime.envelope.limits.sweep_resolution_m == 0.01
     ranks = {}
     for gap_mm in (1.0, 4.0, 6.0):
         model = with_zones(runtime, hemmed_block(runtime, gap_mm / 1e3))
         assert not [v for v in model.envelope.check_path(READY) if v.is_hard]  # clear in itself
-        rank, blocking = selector(model).arrival(READY)
-        ranks[gap_mm] = rank
-        assert (blocking is None) == (rank is not None)
-    assert ranks == {1.0: None, 4.0: 1, 6.0: 0}
+        ranks[gap_mm] = selector(model).arrival(READY)
+    assert ranks == {1.0: CLOSE_TO_A_ZONE, 4.0: 1, 6.0: 0}
 
 
-def test_a_goal_no_plan_can_end_at_is_dropped_with_the_allowance_as_its_reason(runtime: RuntimeModel) -> None:
+def test_a_goal_close_to_a_zone_is_kept_and_ranked_after_the_others(runtime: RuntimeModel) -> None:
     model = with_zones(runtime, hemmed_block(runtime))
-    position, rotation = ready_target(model)
+    position, rotation = ready_target(model)  # every solution's hand hovers 1 mm above the block
     selection = selector(model).select(READY + 0.3, position, rotation, seed=5, deadline=time.monotonic() + 2)
-    assert selection.goals == ()
-    assert selection.solutions > 0
-    reasons = {reason for reason in selection.blocked if reason != "STEP_TOO_LARGE"}  # far branches: travel cap
-    assert reasons == {"KEEP_OUT fr3_hand#fr3_hand_1 within the 2.5 mm sweep allowance of a plan's last sample"}
+    assert selection.goals and set(selection.arrivals) == {CLOSE_TO_A_ZONE}
+    assert len(selection.arrivals) == len(selection.goals)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(direction=arrays(np.float64, 7, elements=st.floats(-1.0, 1.0)), distance=st.floats(0.05, 0.6))
-def test_no_plan_into_a_goal_arrival_rules_out_passes_the_final_check(runtime: RuntimeModel, direction, distance) -> None:
-    """Dropping such goals costs nothing: every plan into one, from anywhere the TCP is at
-    least 2 cm away, is refused by the unchanged final check."""
-    model = with_zones(runtime, hemmed_block(runtime))
+@given(direction=arrays(np.float64, 7, elements=st.floats(-1.0, 1.0)), distance=st.floats(0.0, 0.6))
+def test_a_goal_clear_with_the_largest_allowance_is_never_what_the_final_check_refuses(runtime: RuntimeModel, direction,
+                                                                                       distance) -> None:
+    """Rank 0 is a guarantee about the goal: a plan into it from anywhere, the block 6 mm below the
+    padded hand, is refused (if at all) only before its last sample."""
+    model = with_zones(runtime, hemmed_block(runtime, 0.006))
     assume(np.linalg.norm(direction) > 0.1)
+    assert selector(model).arrival(READY) == 0
     start = np.clip(READY + distance * direction / np.linalg.norm(direction), model.robot.lower, model.robot.upper)
-    assume(np.linalg.norm(model.robot.tcp_pose(start).position - model.robot.tcp_pose(READY).position) >= 0.02)
-    assert selector(model).arrival(READY)[0] is None
     plan = model.planner.plan_to_joints(start, READY)
     assert plan.trajectory is not None
-    report = model.envelope.check(plan.trajectory)
-    assert any(v.code is Code.KEEP_OUT and "'block'" in v.detail for v in report.hard)
+    duration = plan.trajectory.duration_s
+    at_the_goal = [v for v in model.envelope.check(plan.trajectory).hard
+                   if v.code is Code.KEEP_OUT and v.time_s is not None and v.time_s >= duration and "fr3_tcp" not in (v.body or "")]
+    assert at_the_goal == []

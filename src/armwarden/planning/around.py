@@ -35,7 +35,7 @@ from typing import Literal
 import numpy as np
 
 from armwarden.planning.detour import DetourSearch, SearchResult
-from armwarden.planning.goals import ARRIVAL_MARK, GoalSelection, GoalSelector
+from armwarden.planning.goals import CLOSE_TO_A_ZONE, GoalSelection, GoalSelector
 from armwarden.planning.planners import Planner, PlanOutcome, PoseTarget
 from armwarden.planning.timing import TimingError, time_parameterize
 from armwarden.safety.envelope import Envelope, EnvelopeReport
@@ -51,11 +51,12 @@ _GOAL_SHARE = 0.35
 _RESERVE_SHARE = 0.05
 #: searches per plan call (each after the previous path failed the whole-plan check), budget permitting
 _MAX_SEARCHES = 4
-#: what to do about a goal clear in itself but too close to a zone for any plan to end there
-_TOO_CLOSE = ("such a goal is clear, but so close to a zone or the workspace edge that the final check, which "
-              "gives a plan's last sample the sweep allowance of the motion before it, refuses every plan ending "
-              "there: move the target a few millimetres further away, or lower motion.sweep_resolution_m (finer "
-              "checks, slower planning)")
+#: what may help when every goal lies within a few millimetres of a zone (`GoalSelector.arrival`)
+_CLOSE_TO_A_ZONE = ("every goal configuration found lies within a few millimetres of a zone or the workspace edge, "
+                    "and the final check gives a plan's last sample a sweep allowance of up to half of "
+                    "motion.sweep_resolution_m, so most plans ending there fail it: moving the target a few "
+                    "millimetres further away, or a finer motion.sweep_resolution_m (slower planning), may help")
+
 
 Kind = Literal["joints", "pose"]
 
@@ -100,20 +101,19 @@ class DetourPlanner:
                 return self._refuse(straight, report, _no_goal_reason(selection))
             goals: Sequence[np.ndarray] = selection.goals
             retreats: Sequence[np.ndarray | None] = selection.approaches
+            arrivals = selection.arrivals
         else:
             if not self.search.configuration_is_clear(first_goal):
                 return self._refuse(straight, report, "the goal configuration itself violates the envelope")
-            rank, near = self.goals.arrival(first_goal)
-            if rank is None and near is not None:
-                return self._refuse(straight, report, "with the sweep allowance of a plan's last sample the goal "
-                                    f"configuration is not clear ({near.code.value}: {near.detail}); {_TOO_CLOSE}")
             goals, retreats = (first_goal,), (self.goals.approach(first_goal),)
+            arrivals: Sequence[int] = (self.goals.arrival(first_goal),)
 
         # cheap candidates first: a clear straight line to another goal configuration; then, since
         # a goal close to an obstacle can only be entered from a few directions, lines to its
         # approach configuration a few centimetres back (directly, or through home) and straight in
         rejected: list[str] = []
         context = _Context(straight, report, began, rejected)
+        hint = f"; {_CLOSE_TO_A_ZONE}" if all(rank == CLOSE_TO_A_ZONE for rank in arrivals) else ""
         home = self.planner.settings.home_rad
         for goal, retreat in zip(goals, retreats, strict=True):
             near = [goal] if retreat is None else [retreat, goal]
@@ -130,7 +130,7 @@ class DetourPlanner:
         for _ in range(_MAX_SEARCHES):
             result = self.search.find(start, entries, seed, deadline, should_stop, reseed=not rejected_by_search(rejected))
             if result.path is None or result.goal_index is None:
-                return self._refuse(straight, report, _search_failure(result, len(goals), self.budget_s, rejected))
+                return self._refuse(straight, report, _search_failure(result, len(goals), self.budget_s, rejected) + hint)
             path = result.path
             if retreats[result.goal_index] is not None:
                 path = np.vstack([path, goals[result.goal_index]])
@@ -138,7 +138,7 @@ class DetourPlanner:
             if proposal is not None:
                 return proposal
             rejected[-1] = "search: " + rejected[-1]
-        return self._refuse(straight, report, "every path found fails the envelope as a whole (" + rejected[-1] + ")")
+        return self._refuse(straight, report, "every path found fails the envelope as a whole (" + rejected[-1] + ")" + hint)
 
     # ------------------------------------------------------------------ helpers
     def _clear(self, path: Sequence[np.ndarray]) -> bool:
@@ -213,11 +213,8 @@ def request_seed(kind: str, start: np.ndarray, goal: np.ndarray | PoseTarget | N
 
 
 def _no_goal_reason(selection: GoalSelection) -> str:
-    reason = (f"none of the {selection.solutions} IK solution(s) found is a collision-free goal configuration "
-              f"a plan can end at (blocked: {selection.describe_blocked()})")
-    if any(ARRIVAL_MARK in blocked for blocked in selection.blocked):
-        reason += f"; {_TOO_CLOSE}"
-    return reason
+    return (f"none of the {selection.solutions} IK solution(s) found is a collision-free goal configuration "
+            f"(blocked: {selection.describe_blocked()})")
 
 
 def _search_failure(result: SearchResult, n_goals: int, budget_s: float, rejected: list[str]) -> str:

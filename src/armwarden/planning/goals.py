@@ -7,10 +7,10 @@ configurations; drop every solution whose configuration fails the envelope's own
 (`Envelope.check_path` on that one configuration: joint limits, workspace, keep-out,
 self-collision) or that lies beyond the joint travel cap from the start (for a position-only
 target a blocked solution first gets its last joint turned, if the TCP lies on that joint's axis:
-the hand turns out of the way without moving the TCP); drop every solution so close to a zone
-that no plan can end there (the final check inflates a plan's last sample by the sweep allowance
-of the interval before it: `Envelope.check_arrival`), and rank those clear even with the largest
-such allowance before those clear only with the smallest; find each one's
+the hand turns out of the way without moving the TCP); rank solutions clear even with the largest
+sweep allowance the final check can give a plan's last sample before those only clear with less
+(`GoalSelector.arrival`: a goal a few millimetres from a zone makes many plans into it fail the
+final check, however they get there); find each one's
 approach (a configuration a few centimetres back from which the line in is clear); rank those
 with an approach first, those inside the soft joint-limit margin last, then by weighted joint
 travel from the start, the weight of
@@ -37,9 +37,11 @@ from armwarden.safety.violations import Violation
 
 #: two TCP positions closer than this are the same (far inside any IK tolerance) [m]
 _SAME_POSITION_M = 1e-9
-#: sweep allowances of a plan's last sample, as shares of `motion.sweep_resolution_m`
-#: (`Envelope.check_arrival`): the largest any motion gets, then the smallest a longer one gets
+#: body growths, as shares of `motion.sweep_resolution_m`, a goal is tried with (`Envelope.check_arrival`):
+#: the largest sweep allowance the final check can give a plan's last sample, then half of it
 ARRIVAL_SHARES = (0.5, 0.25)
+#: the arrival rank of a goal clear with none of `ARRIVAL_SHARES` (see `GoalSelector.arrival`)
+CLOSE_TO_A_ZONE = len(ARRIVAL_SHARES)
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,7 @@ class GoalSelection:
     approaches: tuple[np.ndarray | None, ...]
     solutions: int  # distinct IK solutions found
     blocked: Counter[str] = field(default_factory=Counter)  # "KEEP_OUT fr3_link5" → how many solutions
+    arrivals: tuple[int, ...] = ()  # each goal's `GoalSelector.arrival` rank
 
     def describe_blocked(self) -> str:
         """One line: why solutions were dropped (most common first)."""
@@ -102,27 +105,26 @@ class GoalSelector:
                 return result.q
         return None
 
-    def arrival(self, q: np.ndarray) -> tuple[int | None, Violation | None]:
-        """How surely a checked plan can end at `q` (which passes the static checks): 0 when `q`
-        is clear with the largest sweep allowance the final check gives a plan's last sample, 1
-        when only with the smallest (whether a plan passes then depends on where its samples
-        fall), None when not even with that, with the finding that blocks it: the final check
-        would refuse every plan ending there, however it got there."""
-        blocking = None
+    def arrival(self, q: np.ndarray) -> int:
+        """How likely the final check is to let a plan end at `q` (which passes the static checks),
+        as far as `q` itself decides: 0 when `q` is clear with its bodies grown by half of
+        `motion.sweep_resolution_m` — no body's allowance at a plan's last sample is larger, so `q`
+        itself never fails a plan there; 1 when clear only with a quarter; `CLOSE_TO_A_ZONE` when
+        not even then. The allowance a plan's last sample gets depends on the motion into it (a
+        body that barely moves gets almost none), so a goal ranked low can still end some plans:
+        goals are ranked by it, never dropped."""
         for rank, share in enumerate(ARRIVAL_SHARES):
-            hard = [v for v in self.envelope.check_arrival(q, share) if v.is_hard]
-            if not hard:
-                return rank, None
-            blocking = hard[0]
-        return None, blocking
+            if not any(v.is_hard for v in self.envelope.check_arrival(q, share)):
+                return rank
+        return CLOSE_TO_A_ZONE
 
-    def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float,
+    def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float, below: int = CLOSE_TO_A_ZONE + 1,
                       ) -> tuple[np.ndarray, tuple[Violation, ...], int] | None:
-        """For a position-only target whose solution `q` is blocked: `q` with the last joint
-        turned to another angle (where the start has it first, then in quarter and eighth turns)
-        that passes the envelope's static checks and can end a plan (`arrival`), with its
-        findings and arrival rank; None if none does, or if turning the last joint moves the TCP
-        (it then does not lie on that joint's axis)."""
+        """For a position-only target whose solution `q` is blocked, or ranks `below` (see
+        `arrival`) or worse: `q` with the last joint turned to another angle (where the start has
+        it first, then in quarter and eighth turns) that passes the envelope's static checks and
+        ranks better than `below`, with its findings and rank; None if none does, or if turning
+        the last joint moves the TCP (it then does not lie on that joint's axis)."""
         robot = self.envelope.robot
         position = robot.tcp_pose(q).position
         for angle in (start[-1], q[-1] + np.pi / 2, q[-1] - np.pi / 2, q[-1] + np.pi / 4, q[-1] - np.pi / 4):
@@ -133,10 +135,8 @@ class GoalSelector:
             if np.linalg.norm(robot.tcp_pose(turned).position - position) > _SAME_POSITION_M:
                 return None
             findings = self.envelope.check_path(turned)
-            if not any(v.is_hard for v in findings):
-                rank, _ = self.arrival(turned)
-                if rank is not None:
-                    return turned, findings, rank
+            if not any(v.is_hard for v in findings) and (rank := self.arrival(turned)) < below:
+                return turned, findings, rank
         return None
 
     def select(
@@ -144,9 +144,10 @@ class GoalSelector:
         first: np.ndarray | None = None,
     ) -> GoalSelection:
         """Goal configurations for the TCP at `position` (and `rotation`, None: free), best first:
-        those with a clear approach before those without, then those a plan surely can end at
-        (`arrival` 0) before the others, those inside the soft joint-limit margin last, then by
-        weighted joint travel from `start`.
+        those with a clear approach before those without, then by `arrival` rank, those inside
+        the soft joint-limit margin last, then by weighted joint travel from `start`. Goal
+        seeking continues until `max_goals` goals with an approach and an arrival rank better
+        than `CLOSE_TO_A_ZONE` are found (or the seeds or the deadline run out).
 
         `first` is a solution already known (the straight-line planner's); `deadline` is on the
         `time.monotonic` clock and stops the search early (the goals found so far are kept).
@@ -164,7 +165,7 @@ class GoalSelector:
         blocked: Counter[str] = Counter()
 
         def approachable() -> int:
-            return sum(approach is not None for _, _, approach in ranked)
+            return sum(approach is not None and key[1] < CLOSE_TO_A_ZONE for key, _, approach in ranked)
 
         def extra() -> Iterator[np.ndarray]:
             # within the travel cap of the start: a solution far beyond it could never be a goal
@@ -192,28 +193,23 @@ class GoalSelector:
                 continue
             findings = self.envelope.check_path(q)
             hard = [v for v in findings if v.is_hard]
-            rank, near = (None, None) if hard else self.arrival(q)
-            if rank is None:  # a position target's hand may turn about its own axis out of the way
+            if hard:  # a position target's hand may turn about its own axis out of the way
                 turned = self._turned_clear(q, start, travel_cap) if rotation is None else None
                 if turned is None:
-                    blocked[f"{hard[0].code.value} {hard[0].body}" if hard else _arrival_reason(near, self.envelope)] += 1
+                    blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
                     continue
                 q, findings, rank = turned
                 found.append(q)
+            else:
+                rank = self.arrival(q)
+                better = self._turned_clear(q, start, travel_cap, below=rank) if rotation is None and rank else None
+                if better is not None:  # the hand turned away from a zone it came close to
+                    q, findings, rank = better
+                    found.append(q)
             approach = self.approach(q)
             ranked.append(((approach is None, rank, bool(findings), self.weighted_travel(start, q)), q, approach))
         ranked.sort(key=lambda item: item[0])
         ranked = ranked[: opts.max_goals]
-        return GoalSelection(tuple(q for _, q, _ in ranked), tuple(a for _, _, a in ranked), len(found), blocked)
+        return GoalSelection(tuple(q for _, q, _ in ranked), tuple(a for _, _, a in ranked), len(found), blocked,
+                             tuple(key[1] for key, _, _ in ranked))
 
-
-#: the mark of a solution dropped because no plan can end there (see `_arrival_reason`)
-ARRIVAL_MARK = "sweep allowance of a plan's last sample"
-
-
-def _arrival_reason(violation: Violation | None, envelope: Envelope) -> str:
-    """Why a solution clear in itself was dropped: what its padded bodies reach into once given the
-    smallest sweep allowance of a plan's last sample."""
-    allowance_mm = ARRIVAL_SHARES[-1] * envelope.limits.sweep_resolution_m * 1e3
-    what = "unknown" if violation is None else f"{violation.code.value} {violation.body}"
-    return f"{what} within the {allowance_mm:.1f} mm {ARRIVAL_MARK}"

@@ -247,14 +247,15 @@ class Envelope:
         return _in_time_order(found)
 
     def check_arrival(self, q: np.ndarray, share: float) -> tuple[Violation, ...]:
-        """The geometry of `q` as the last sample of a motion that ends there: every body inflated
-        by `share` × `sweep_resolution_m`. The final check inflates a plan's last sample by half
-        the motion bound of the sampling interval before it; that interval is at most one fine
-        unit, in which no body moves more than `sweep_resolution_m` (share 0.5 covers any motion),
-        and at least half a unit when the path is longer than one, so a body that bounds its
-        intervals (the hand, nearly always) gets at least a quarter of it (share 0.25). A goal hit
-        with share 0.25 cannot end any such plan; planners rank and drop goals with this
-        (`planning.goals`), the final check is unchanged."""
+        """The geometry of `q` with every body grown by `share` × `sweep_resolution_m` (the
+        self-collision pairs not): hard findings first-only. The final check grows a plan's last
+        sample by half the motion bound of the sampling interval before it, and no body moves
+        more than `sweep_resolution_m` in one interval, so a configuration clear with share 0.5
+        is never refused, as a plan's last sample, for where its bodies are (the motion into it
+        still may be). How much less a body gets depends on the
+        motion into `q` (one that barely moves gets almost none), so with a smaller share this is
+        a likelihood, not a verdict: planners rank goals with it (`planning.goals`), and the
+        final check is unchanged."""
         return tuple(self._check_configuration(np.asarray(q, dtype=float), True, share * self.limits.sweep_resolution_m))
 
     # ------------------------------------------------------------------ geometry

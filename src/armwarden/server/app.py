@@ -219,9 +219,9 @@ class SessionNames:
     """A short random name per client connection, so the audit log tells two clients apart even when
     they run the same software (the HTTP session id the SDK bound, when there is one; otherwise
     `<client>/<version>#<name>`). A sessionless (2026-07-28) request has no connection that
-    outlives it, so it is named by its client alone (`<client>/<version>`): a random name per
-    request would tell the log's reader nothing (its token's name, when there is one, is in the
-    record's `principal`)."""
+    outlives it, so it is named `<client>/<version> (sessionless)`: a random name per request would
+    tell the log's reader nothing, and the marker keeps the client's own words from passing for a
+    connection (its token's name, when there is one, is in the record's `principal`)."""
 
     def __init__(self) -> None:
         self._names: weakref.WeakKeyDictionary[Any, str] = weakref.WeakKeyDictionary()
@@ -238,7 +238,7 @@ class SessionNames:
         info = getattr(getattr(session, "client_params", None), "client_info", None)
         client = "unknown-client" if info is None else f"{info.name}/{info.version}"[:48]
         if _sessionless(ctx):
-            return client
+            return f"{client} (sessionless)"
         try:
             name = self._names.get(connection)
             if name is None:

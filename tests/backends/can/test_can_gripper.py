@@ -5,7 +5,9 @@ freezes on a stop and is damped with the arm on an e-stop."""
 from __future__ import annotations
 
 import asyncio
+import time
 
+import anyio
 import pytest
 
 from armwarden.backends import parse_backend_config
@@ -96,3 +98,15 @@ async def test_an_estop_damps_the_gripper_with_the_arm(arm: CanBackend):
             await arm.gripper_move(0.02, 0.1)
     finally:
         spy.close()
+
+
+async def test_the_gripper_state_carries_the_time_its_reading_arrived_not_the_time_it_was_read(arm: CanBackend):
+    _, emulator = gripper_of(arm)
+    fresh = await arm.gripper_state()
+    assert fresh is not None and time.monotonic() - fresh.stamp < 0.5
+    emulator.silence(GRIPPER_ID)  # its replies stop: the last reading ages
+    await anyio.sleep(0.05)
+    last = (await arm.gripper_state()).stamp
+    await anyio.sleep(0.2)
+    aged = await arm.gripper_state()
+    assert aged is not None and aged.stamp == last and time.monotonic() - aged.stamp >= 0.2

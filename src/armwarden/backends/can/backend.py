@@ -101,6 +101,7 @@ class _Actuator:
     unwrapper: mit.PositionUnwrapper | None
     raw_position: float | None = None
     raw_velocity: float = 0.0
+    reported_at: float | None = None  # monotonic time its last position arrived
     temperature_c: float | None = None
     fault_bits: tuple[str, ...] = ()  # reported in the latest feedback (current)
     fault_frames: tuple[str, ...] = ()  # RobStride type-21 reports (latched until recovery)
@@ -477,13 +478,17 @@ class CanBackend(Backend, ServoHooks):
 
     def _gripper_position(self) -> float:
         """The measured gripper position [rad] (see `GripperConfig`)."""
+        return self._gripper_reading()[0]
+
+    def _gripper_reading(self) -> tuple[float, float]:
+        """The measured gripper position [rad] and when it arrived (monotonic clock [s])."""
         g, a = self._gripper_config(), self._gripper
         assert a is not None
         with self._state_lock:
-            raw = a.raw_position
-        if raw is None:
+            raw, stamp = a.raw_position, a.reported_at
+        if raw is None or stamp is None:
             raise BackendError(f"can backend: {a.label} reported no position")
-        return g.direction * (raw - g.homing_offset_rad)
+        return g.direction * (raw - g.homing_offset_rad), stamp
 
     def _freeze_gripper(self) -> None:
         """Any thread, on every stop and fault: end the gripper's action and hold where it is."""
@@ -517,8 +522,8 @@ class CanBackend(Backend, ServoHooks):
     def _latest_gripper_state(self) -> GripperState:
         g = self._gripper_config()
         motion = self._gripper_motion
-        return GripperState(g.width_of(self._gripper_position()), self._gripper_grasped,
-                            motion is not None and not motion.settled, time.monotonic())
+        position, stamp = self._gripper_reading()  # stamped when it arrived, not when it is read
+        return GripperState(g.width_of(position), self._gripper_grasped, motion is not None and not motion.settled, stamp)
 
     def _check_gripper_width_speed(self, width_m: float, speed_mps: float) -> GripperConfig:
         g = self._gripper_config()
@@ -782,6 +787,7 @@ class CanBackend(Backend, ServoHooks):
             assert a.unwrapper is not None
             a.raw_position = a.unwrapper.update(reply.position)
             a.raw_velocity = reply.velocity
+            a.reported_at = time.monotonic()
             if reply.temperature_c is not None:
                 a.temperature_c = float(reply.temperature_c)
             a.fault_bits = () if reply.error in (None, mit.MitError.NONE) else (reply.error.name,)
@@ -794,6 +800,7 @@ class CanBackend(Backend, ServoHooks):
         if comm_type == rs.CommType.FEEDBACK:
             feedback = rs.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
             a.raw_position, a.raw_velocity = feedback.position, feedback.velocity
+            a.reported_at = time.monotonic()
             a.temperature_c, a.mode = feedback.temperature_c, feedback.mode
             a.fault_bits = rs.flag_names(feedback.faults)
         elif comm_type == rs.CommType.FAULT:
