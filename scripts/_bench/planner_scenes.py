@@ -12,9 +12,9 @@ For every target both planners run in the same process, one after the other, thr
 `plan_and_check` the Guard uses (straight line = `detours` switched off), and the verdict is the
 envelope's. "Has a goal" means some IK solution from 66 seeds (start, home, 64 random) passes the
 envelope's static checks; "arrivable" that one of them is also clear with the largest sweep
-allowance the final check can give a plan's last sample, so that the goal itself never makes the
-final check refuse a plan ending there (see `goal_kind`; a target without such a goal may still be
-solved); "within the caps" that one plan can
+allowance the final check can give a plan's last sample, so that no zone makes the final check
+refuse a plan at its last sample there (see `goal_kind`; a target without such a goal may still
+be solved); "within the caps" that one plan can
 reach the target under the per-plan caps (see `within_caps`). The solved fraction is reported
 among these and overall; the TCP path ratio only where the straight line was refused.
 """
@@ -143,8 +143,8 @@ def goal_kind(model: RuntimeModel, start: np.ndarray, target: PoseTarget, seeds:
     """"none": no IK solution from 66 seeds passes the envelope's static checks; "close": some do,
     but none is clear once its bodies grow by the largest sweep allowance the final check can give
     a plan's last sample (`Envelope.check_arrival`, share 0.5: whether a plan can end there
-    depends on the motion into it); "arrivable": one is (the goal itself never refuses a plan
-    ending there). A "close" target may still be solved: this is a likelihood, not a bound."""
+    depends on the motion into it); "arrivable": one is (no zone refuses a plan at its last
+    sample there). A "close" target may still be solved: this is a likelihood, not a bound."""
     rng = np.random.default_rng(99)
     robot, ik, envelope = model.robot, model.planner.ik, model.envelope
     kind = "none"
@@ -207,7 +207,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     with_goal = [r for r in rows if r["goal"] != "none"]
     arrivable = [r for r in rows if r["goal"] == "arrivable"]
     reachable = [r for r in with_goal if r["within_caps"]]
-    fair = [r for r in arrivable if r["within_caps"]]  # within the caps, and a goal that never refuses a plan itself
+    fair = [r for r in arrivable if r["within_caps"]]  # within the caps, and a goal no zone refuses at a plan's end
     out: dict[str, Any] = {"targets": len(rows), "with_goal": len(with_goal), "arrivable": len(arrivable),
                            "within_caps": len(reachable), "arrivable_within_caps": len(fair)}
     for name in ("straight", "detour"):
@@ -241,8 +241,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 RAISED_CAPS = {"max_cartesian_step_m": 1.5, "max_joint_step_rad": 3.14}
 
 
-#: the finer sweep resolution of the last run [m]: the final check gives a plan's last sample half
-#: the allowance, so goals a few millimetres from the box become goals a plan can end at
+#: the finer sweep resolution of the last run [m]: the final check gives a plan's last sample at
+#: most half of it, so goals a few millimetres from the box become arrivable
 FINER_SWEEP_RESOLUTION_M = 0.005
 
 

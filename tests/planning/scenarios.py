@@ -1,5 +1,6 @@
 """Scenes the detour tests share: the runtime model with extra keep-out zones, a pillar in the
-way of a base rotation (a detour exists), and a goal hemmed in by a zone (no plan can end there)."""
+way of a base rotation (a detour exists), and a goal hemmed in by a zone (plans into or out of it
+fail the final check)."""
 
 from __future__ import annotations
 
@@ -46,9 +47,9 @@ def pillar_at(runtime: RuntimeModel, angle: float) -> Box:
 
 def hemmed_block(runtime: RuntimeModel, gap_m: float = 0.001) -> Box:
     """A block `gap_m` below the padded hand at the ready pose. With the default 1 mm the ready pose
-    itself is clear, but every motion into or out of it sweeps the hand into the block (the sweep
-    allowance of a plan's first and last sample is more than 1 mm): no plan can end there (a plan
-    into it is refused at once) and a search for a way out runs out of budget."""
+    itself is clear, but motions that move the hand into or out of it sweep it into the block (the
+    sweep allowance of a plan's first and last sample is more than 1 mm for them): a search for a
+    way out runs out of budget."""
     robot = runtime.robot
     p0, p1 = robot.body_points(robot.joint_frames(READY[None]))
     padding = runtime.envelope.limits.link_padding_m

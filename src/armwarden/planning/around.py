@@ -130,7 +130,8 @@ class DetourPlanner:
         for _ in range(_MAX_SEARCHES):
             result = self.search.find(start, entries, seed, deadline, should_stop, reseed=not rejected_by_search(rejected))
             if result.path is None or result.goal_index is None:
-                return self._refuse(straight, report, _search_failure(result, len(goals), self.budget_s, rejected) + hint)
+                why = _search_failure(result, len(goals), self.budget_s, rejected)
+                return self._refuse(straight, report, why if result.stopped_early else why + hint)
             path = result.path
             if retreats[result.goal_index] is not None:
                 path = np.vstack([path, goals[result.goal_index]])

@@ -107,10 +107,10 @@ class GoalSelector:
 
     def arrival(self, q: np.ndarray) -> int:
         """How likely the final check is to let a plan end at `q` (which passes the static checks),
-        as far as `q` itself decides: 0 when `q` is clear with its bodies grown by half of
-        `motion.sweep_resolution_m` — no body's allowance at a plan's last sample is larger, so `q`
-        itself never fails a plan there; 1 when clear only with a quarter; `CLOSE_TO_A_ZONE` when
-        not even then. The allowance a plan's last sample gets depends on the motion into it (a
+        as far as zones and the workspace box decide: 0 when `q` is clear of them with its bodies
+        grown by half of `motion.sweep_resolution_m` — no body's allowance at a plan's last sample
+        is larger, so no zone fails a plan there at its last sample; 1 when clear only with a
+        quarter; `CLOSE_TO_A_ZONE` when not even then. The allowance a plan's last sample gets depends on the motion into it (a
         body that barely moves gets almost none), so a goal ranked low can still end some plans:
         goals are ranked by it, never dropped."""
         for rank, share in enumerate(ARRIVAL_SHARES):
@@ -200,13 +200,15 @@ class GoalSelector:
                     continue
                 q, findings, rank = turned
                 found.append(q)
+                approach = self.approach(q)
             else:
-                rank = self.arrival(q)
+                rank, approach = self.arrival(q), self.approach(q)
                 better = self._turned_clear(q, start, travel_cap, below=rank) if rotation is None and rank else None
-                if better is not None:  # the hand turned away from a zone it came close to
+                # the hand turned away from a zone it came close to, unless that loses the way in
+                if better is not None and ((turned_approach := self.approach(better[0])) is not None or approach is None):
                     q, findings, rank = better
+                    approach = turned_approach
                     found.append(q)
-            approach = self.approach(q)
             ranked.append(((approach is None, rank, bool(findings), self.weighted_travel(start, q)), q, approach))
         ranked.sort(key=lambda item: item[0])
         ranked = ranked[: opts.max_goals]

@@ -247,15 +247,16 @@ class Envelope:
         return _in_time_order(found)
 
     def check_arrival(self, q: np.ndarray, share: float) -> tuple[Violation, ...]:
-        """The geometry of `q` with every body grown by `share` × `sweep_resolution_m` (the
-        self-collision pairs not): hard findings first-only. The final check grows a plan's last
-        sample by half the motion bound of the sampling interval before it, and no body moves
-        more than `sweep_resolution_m` in one interval, so a configuration clear with share 0.5
-        is never refused, as a plan's last sample, for where its bodies are (the motion into it
-        still may be). How much less a body gets depends on the
-        motion into `q` (one that barely moves gets almost none), so with a smaller share this is
-        a likelihood, not a verdict: planners rank goals with it (`planning.goals`), and the
-        final check is unchanged."""
+        """Keep-out zones and the workspace box at `q` with every body grown by `share` ×
+        `sweep_resolution_m` (self-collision is not checked with growth: the pairs get none), hard
+        findings first-only. The final check grows each body at a plan's last sample by half its
+        motion bound over the sampling interval before it, and no body moves more than
+        `sweep_resolution_m` in one interval, so a configuration clear here with share 0.5 is
+        never refused, as a plan's last sample, for a zone or the workspace edge (the motion into
+        it still may be, and self-collision pairs get their own allowance). How much less a body
+        gets depends on the motion into `q` (one that barely moves gets almost none), so with a
+        smaller share this is a likelihood, not a verdict: planners rank goals with it
+        (`planning.goals`), and the final check is unchanged."""
         return tuple(self._check_configuration(np.asarray(q, dtype=float), True, share * self.limits.sweep_resolution_m))
 
     # ------------------------------------------------------------------ geometry
