@@ -35,8 +35,8 @@ def test_scaling_above_the_cap_is_clamped_and_the_plan_says_so(planner: Planner,
     assert any("acceleration_scaling 0.9" in note for note in outcome.notes)
 
 
-@pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), float("inf")])
-def test_non_positive_or_non_finite_scaling_is_malformed(planner: Planner, bad: float) -> None:
+@pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), float("inf"), 1e-300, 0.0099])
+def test_non_positive_non_finite_or_tiny_scaling_is_malformed(planner: Planner, bad: float) -> None:
     outcome = planner.plan_to_joints(READY, READY + 0.1, velocity_scaling=bad)
     assert outcome.trajectory is None
     assert [v.code for v in outcome.violations] == [Code.MALFORMED]

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from armwarden.planning.timing import time_parameterize
+from armwarden.planning.timing import MAX_WAYPOINTS, TimingError, time_parameterize
 from armwarden.safety.envelope import estimate_accelerations, estimate_velocities
 
 NAMES = tuple(f"j{i}" for i in range(3))
@@ -62,3 +63,15 @@ def test_the_slowest_joint_sets_the_duration() -> None:
     path = np.array([[0.0, 0.0, 0.0], [0.1, 0.1, 1.0]])
     trajectory = time_parameterize(NAMES, path, VMAX, AMAX)
     assert abs(trajectory.duration_s - 2.25) < 0.02
+
+
+def test_a_motion_that_would_need_too_many_waypoints_is_refused_before_they_are_built() -> None:
+    path = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    with pytest.raises(TimingError, match="waypoints"):
+        time_parameterize(NAMES, path, VMAX * 1e-7, AMAX)  # 0.5 rad at 1e-7 rad/s: 5e8 waypoints of 10 ms
+
+
+def test_a_slow_motion_within_the_waypoint_cap_is_timed() -> None:
+    path = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    trajectory = time_parameterize(NAMES, path, VMAX * 0.01, AMAX * 0.01)
+    assert len(trajectory.positions) <= MAX_WAYPOINTS and trajectory.duration_s > 50.0

@@ -76,12 +76,12 @@ FIELDS: dict[str, dict[str, str]] = {
     "lookup_transform": {"target_frame": "name", "source_frame": "name"},
     "get_audit_tail": {"n": "count"},
     "camera_snapshot": {"camera": "name"},
-    "plan_to_joints": {"joint_positions": "joints", "velocity_scaling": "optional_number",
-                       "acceleration_scaling": "optional_number", "preview": "flag"},
+    "plan_to_joints": {"joint_positions": "joints", "velocity_scaling": "scaling",
+                       "acceleration_scaling": "scaling", "preview": "flag"},
     "plan_to_pose": {"position": "point", "orientation": "quaternion", "frame_id": "frame",
-                     "velocity_scaling": "optional_number", "acceleration_scaling": "optional_number", "preview": "flag"},
-    "plan_cartesian_path": {"waypoints": "waypoints", "frame_id": "frame", "velocity_scaling": "optional_number",
-                            "acceleration_scaling": "optional_number", "preview": "flag"},
+                     "velocity_scaling": "scaling", "acceleration_scaling": "scaling", "preview": "flag"},
+    "plan_cartesian_path": {"waypoints": "waypoints", "frame_id": "frame", "velocity_scaling": "scaling",
+                            "acceleration_scaling": "scaling", "preview": "flag"},
     "execute_plan": {"plan_id": "name"},
     "gripper_move": {"width_m": "number", "speed_mps": "optional_number"},
     "gripper_grasp": {"width_m": "number", "force_n": "number", "speed_mps": "optional_number",
@@ -96,6 +96,8 @@ _NUMBER_JUNK = ["0.3", "1", "NaN", "Infinity", "-inf", "1e999", True, False, 1e3
 BAD_VALUES: dict[str, list[Any]] = {
     "number": [*_NUMBER_JUNK, NAN, INF, -INF, None],  # NaN/Inf arrive as null: refused, the value is required
     "optional_number": _NUMBER_JUNK,  # NaN/Inf arrive as null = "use the default": see the direct test
+    # and below the floor: a motion that would take hours and grow without bound (waypoints ∝ 1/scaling)
+    "scaling": [*_NUMBER_JUNK, 0.0, -0.1, 0.0099, 1e-4, 1e-300, 5e-324],
     "flag": [1, 0, 0.0, NAN, "yes", "True", [True], {"on": True}, HUGE_TEXT, None],
     "count": ["5", 5.0, 5.5, True, NAN, INF, -INF, 10**30, -1, 0, 101, [5], {"n": 5}, HUGE_TEXT, None],
     "name": ["", HUGE_TEXT, 42, 0.3, True, NAN, ["wrist"], {"name": "wrist"}, "no such thing \u202e\n", None, NESTED],
@@ -245,6 +247,7 @@ def _bad_point(keys: str) -> st.SearchStrategy[Any]:
 STRATEGIES: dict[str, st.SearchStrategy[Any]] = {
     "number": st.one_of(_bad_float, _junk, st.none()),
     "optional_number": st.one_of(_huge_float, _junk),
+    "scaling": st.one_of(_huge_float, _junk, st.floats(min_value=-1.0, max_value=0.0099)),
     "flag": st.one_of(st.integers(), st.floats(), _not_json_text, st.lists(st.booleans(), min_size=1, max_size=2),
                       st.none()),
     "count": st.one_of(st.floats(), st.integers(min_value=101), st.integers(max_value=0), _junk, st.none()),

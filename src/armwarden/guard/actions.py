@@ -70,9 +70,10 @@ class ControlActions:
 
     def round(self, tool: str) -> str:
         """Part of every action's approval digest and prompt: it changes after each completed action
-        of `tool` and with each e-stop, so an approval (or a replayed protocol round carrying one)
-        never carries over to a later request, nor across an e-stop and its reset."""
-        return f"{self._door.latch.generation}.{self._done.get(tool, 0)}"
+        of `tool`, with each e-stop and with each stop, so an approval (or a replayed protocol round
+        carrying one) never carries over to a later request, across an e-stop and its reset, or
+        past a stop pressed while a human decided."""
+        return f"{self._door.latch.generation}.{self._door.stopper.generation}.{self._done.get(tool, 0)}"
 
     def _bind(self, tool: ControlTool, arguments: dict[str, Any]) -> ControlAction:
         door = self._door
@@ -99,8 +100,8 @@ class ControlActions:
         action = self._bind(tool, arguments)
         action.check()
         door.require_audit(tool)
-        door.require_not_estopped(tool)
-        stop_epoch = door.backend.stop_epoch  # decided now: a stop from here on keeps it from starting
+        stop_epoch = door.backend.stop_epoch  # decided now: a stop from here on keeps it from starting ...
+        door.require_not_estopped(tool)  # ... and an e-stop latched before it refuses
         approval = door.interpret_approval(approval_outcome, approval_required(door.policy, tool))
         if not approval.granted:
             raise approval.refusal(tool)

@@ -208,7 +208,7 @@ class Guard:
         if decision is not None:
             return decision
         prompt = prompts.execute_prompt(self.policy, plan, self.backend.name, self.backend.capabilities.wrench, self.dry_run)
-        self.approvals.offer(plan, prompt.message, self.latch.generation)  # idempotent: the console shows it
+        self.approvals.offer(plan, prompt.message, self.latch.generation, self.stopper.generation)  # idempotent: the console shows it
         return prompt
 
     def interpret_approval(self, outcome: Any, required: bool) -> Approval:
@@ -233,10 +233,14 @@ class Guard:
             plan = self.plans.consume(plan_id, self.latch.generation, current_caller())
             if isinstance(plan, PlanRefusal):
                 raise refuse(plan.code, plan.message)
+            asked_at = self.approvals.asked_at(plan.digest, self.latch.generation)
             self.approvals.withdraw(plan.digest, "the plan was used")
             approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
             if not approval.granted:
                 raise approval.refusal(f"execute_plan {plan.plan_id}")
+            if approval.via in ("elicitation", "console") and asked_at is not None and asked_at != self.stopper.generation:
+                raise refuse(RefusalCode.STOPPED, "a stop arrived while a human was deciding about this plan; the approval "
+                             "does not outlast it and nothing moved (plan again to ask again)")
             if approval.via in ("elicitation", "console") and shown_digest != plan.digest:
                 raise refuse(RefusalCode.APPROVAL_MISMATCH, "the approval was given for a different plan; nothing was done")
             self.require_not_estopped("execute_plan")

@@ -34,8 +34,8 @@ class GripperFlow:
                   epsilon_inner_m: float, epsilon_outer_m: float) -> GripperResultModel:
         door = self._door
         door.require_audit(tool)
-        door.require_not_estopped(tool)
-        stop_epoch = door.backend.stop_epoch  # decided now: any stop from here on keeps the fingers still
+        stop_epoch = door.backend.stop_epoch  # decided now: any stop from here on keeps the fingers still ...
+        door.require_not_estopped(tool)  # ... and an e-stop latched before it refuses
         speed = checks.check_gripper(door.policy, width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
         if self.busy:
             raise SafetyRefusal(RefusalCode.BUSY, "another gripper action is running")

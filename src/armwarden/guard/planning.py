@@ -216,8 +216,8 @@ class PlanningFlow:
         """Plan and check a motion (never moves); the plan belongs to the caller. Returns the
         summary and an optional preview PNG."""
         door = self._door
-        door.require_not_estopped("planning")
-        generation = door.latch.generation  # an e-stop while planning voids the result
+        generation = door.latch.generation  # an e-stop from now on (any thread) voids the result ...
+        door.require_not_estopped("planning")  # ... and one before it refuses
         start = (await door.readings.joint_state()).positions.copy()
         model, previewer = door.planning, self._previewer  # the Guard's model, as it is now
         call = current_call()

@@ -21,6 +21,9 @@ from armwarden.robot.ik import IkResult, IkSolver
 from armwarden.robot.model import RobotModel
 from armwarden.safety.violations import Code, Violation
 
+#: the smallest velocity or acceleration scaling a plan may ask for: below it a motion takes
+#: minutes to hours and its trajectory grows without bound (waypoints ∝ 1 / scaling)
+MIN_SCALING = 0.01
 
 @dataclass(frozen=True)
 class PlannerSettings:
@@ -92,8 +95,9 @@ class Planner:
             if value is None:
                 chosen.append(default)
                 continue
-            if not np.isfinite(value) or value <= 0.0:
-                problems.append(Violation(Code.MALFORMED, f"{label}_scaling must be a finite number in (0, 1], got {value!r}"))
+            if not np.isfinite(value) or value < MIN_SCALING:
+                problems.append(Violation(Code.MALFORMED, f"{label}_scaling must be a finite number in "
+                                          f"[{MIN_SCALING:g}, 1], got {value!r}"))
                 chosen.append(default)
                 continue
             if value > cap:

@@ -19,6 +19,9 @@ from armwarden.planning.trajectory import DEFAULT_DT_S, JointTrajectory
 from armwarden.safety.waypoints import estimate_accelerations, estimate_velocities
 
 _MAX_STRETCHES = 30
+#: the most waypoints a timed plan may have (about 20 minutes at the default 10 ms spacing): a
+#: longer one is refused, not built, so no request can make the planning thread exhaust memory
+MAX_WAYPOINTS = 120_000
 _MIN_STEP_RAD = 1e-9  # smaller joint steps are numerical noise, not motion
 _NEGLIGIBLE_SLOPE = 1e-12  # |dq_i/ds| below this: joint i does not limit the path acceleration
 
@@ -97,6 +100,11 @@ def time_leg(
         return JointTrajectory(joint_names, np.array([0.0, dt_s]), np.vstack([path[0], path[0]]))
     # path parameter: time each segment takes at full speed on its limiting joint
     seg = np.max(np.abs(np.diff(path, axis=0)) / max_velocity, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        needed = float(np.sum(np.maximum(1.0, np.ceil(seg / dt_s))))
+    if not needed <= MAX_WAYPOINTS:  # also NaN
+        raise TimingError(f"the motion would need about {needed:.3g} waypoints, more than {MAX_WAYPOINTS}: "
+                          "it is far too slow (raise the velocity scaling) or too long")
     pieces = np.maximum(1, np.ceil(seg / dt_s).astype(int))
     dense = [path[:1]]
     for k, n in enumerate(pieces):

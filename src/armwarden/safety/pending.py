@@ -38,6 +38,8 @@ class PendingRequest:
     plan: StoredPlan
     prompt: str
     estop_generation: int
+    #: the Guard's stop generation when the question was first posted: a stop after it voids the answer
+    stop_generation: int = 0
     answer: Answer | None = None
     operator: str | None = None
     via: str | None = None
@@ -101,16 +103,25 @@ class PendingApprovals:
         """Seconds until the request's plan expires [s] (0 when it has)."""
         return max(0.0, request.expires_mono - self._clock())
 
-    def offer(self, plan: StoredPlan, prompt: str, estop_generation: int) -> PendingRequest:
-        """The open request for this plan under this e-stop generation, created on first offer."""
+    def offer(self, plan: StoredPlan, prompt: str, estop_generation: int, stop_generation: int = 0) -> PendingRequest:
+        """The open request for this plan under this e-stop generation, created on first offer (and
+        stamped with the stop generation then)."""
         for request in self._requests.values():
             if request.digest == plan.digest and request.estop_generation == estop_generation and request.answer is None:
                 return request
-        request = PendingRequest(secrets.token_urlsafe(24), plan, prompt, estop_generation)
+        request = PendingRequest(secrets.token_urlsafe(24), plan, prompt, estop_generation, stop_generation=stop_generation)
         self._requests[request.request_id] = request
         while len(self._requests) > MAX_REQUESTS:
             self._requests.popitem(last=False)
         return request
+
+    def asked_at(self, digest: str, estop_generation: int) -> int | None:
+        """The stop generation when the newest question about this plan (under this e-stop
+        generation) was posted, answered or not; None if none was."""
+        for request in reversed(self._requests.values()):
+            if request.digest == digest and request.estop_generation == estop_generation:
+                return request.stop_generation
+        return None
 
     def get(self, request_id: str) -> PendingRequest | None:
         return self._requests.get(request_id) if isinstance(request_id, str) else None

@@ -29,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, Strict
 
 from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard, PlanKind, Prompt
-from armwarden.planning.planners import PoseTarget
+from armwarden.planning.planners import MIN_SCALING, PoseTarget
 from armwarden.policy import TOOL_GROUPS
 from armwarden.results import (
     ActionResult,
@@ -279,7 +279,8 @@ class ToolBuilder:
         motion = policy.motion
         # the parameters' schema metadata depends on the policy (type checkers want the types spelled out
         # at each parameter; the metadata may be any value)
-        scaling = Field(gt=0.0, le=1.0, description=f"Fraction of the joint limits in (0, 1]; values above the policy cap "
+        scaling = Field(ge=MIN_SCALING, le=1.0,
+                        description=f"Fraction of the joint limits in [{MIN_SCALING:g}, 1]; values above the policy cap "
                         f"are clamped to it (velocity cap {motion.max_velocity_scaling:g}, acceleration cap "
                         f"{motion.max_acceleration_scaling:g}); default from the policy")
         joints = Field(min_length=n, max_length=n, description=f"{n} joint positions [rad] in the order "
