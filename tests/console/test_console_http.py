@@ -145,6 +145,24 @@ async def test_signed_in_estop_is_audited_with_the_token_name(tmp_path: Path) ->
     assert estops[-1]["principal"] == "bob"
 
 
+async def test_a_signed_in_estop_with_a_stale_csrf_token_still_stops_and_says_so(tmp_path: Path) -> None:
+    """A tab opened before a newer sign-in in another tab carries an old CSRF token: its E-STOP
+    must not be refused for it."""
+    settings = ConsoleSettings(estop_from_loopback_without_sign_in=False)  # not the unsigned rule at work
+    async with served_console(tmp_path, settings=settings) as served, served.browser_client() as http:
+        await sign_in(http, served.observer_token)
+        old_tab = await http.get("/console/")
+        await sign_in(http, served.observer_token)  # the other tab: a new session replaces the cookie
+        stop = await http.post("/console/estop", data={"csrf": csrf_of(old_tab.text)},
+                               headers={"Accept": "application/json"})
+
+    assert stop.status_code == 200 and stop.json()["estopped"] is True
+    assert served.harness.guard.latch.is_latched
+    served.harness.audit.flush()
+    estops = [r for r in records_of(served.harness.audit_path) if r["event"] == "estop"]
+    assert estops[-1]["principal"] == "bob (stale CSRF token)"
+
+
 async def test_reset_needs_the_number_of_the_latched_event(tmp_path: Path) -> None:
     async with served_console(tmp_path) as served, served.browser_client() as http:
         await sign_in(http, served.operator_token)

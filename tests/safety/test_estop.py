@@ -207,3 +207,14 @@ def test_flatten_reason_on_any_text_fits_the_default_limit(text: str) -> None:
 def test_flatten_reason_with_a_silly_limit_still_returns_something_short() -> None:
     assert len(flatten_reason("abc", limit=0)) == 1
     assert flatten_reason(math.nan) == "nan"
+
+
+def test_the_events_held_since_the_last_release_are_all_kept_until_it() -> None:
+    latch = EStopLatch()
+    first = latch.latch("force", "force_monitor", force_violation={"detail": "95 N"})
+    second = latch.latch("pause", "estop")
+    assert latch.held_events == (first, second)
+    assert latch.release(second.number).released
+    assert latch.held_events == ()
+    third = latch.latch("again", "estop")
+    assert latch.held_events == (third,)

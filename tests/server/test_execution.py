@@ -425,3 +425,20 @@ async def test_an_execution_is_on_disk_before_the_arm_moves(tmp_path) -> None:
         started = [r for r in records if r["event"] == "execution_started"]
         assert [r["arguments"] for r in started] == [{"plan_id": summary["plan_id"]}]
         assert moved_at_record == [started[0]["seq"]]  # the record was the last one written when motion began
+
+
+@pytest.mark.anyio
+async def test_a_later_estop_does_not_hide_a_force_violation_from_the_human_who_releases_both(tmp_path) -> None:
+    human = approve("bob")
+    async with arm_harness(tmp_path) as arm, arm.client("legacy", human) as client:
+        # what the force monitor does when the limit is crossed ...
+        await arm.guard.emergency_stop("force monitor: 95.0 N > 30 N", source="force_monitor",
+                                       force={"detail": "contact force 95.0 N above the 30 N limit"})
+        # ... then the agent's own e-stop on top, with a soothing reason
+        assert not (await client.call_tool("estop", {"reason": "routine pause, nothing happened"})).is_error
+        reset = await client.call_tool("reset_estop", {})
+    assert not reset.is_error, text_of(reset)
+    (prompt,) = human.prompts
+    assert "#2" in prompt
+    assert "Also latched: #1" in prompt and "force_monitor" in prompt
+    assert "Force violation (#1)" in prompt and "contact force 95.0 N above the 30 N limit" in prompt

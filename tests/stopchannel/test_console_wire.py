@@ -114,11 +114,16 @@ def test_a_known_ticket_works_from_another_machine() -> None:
     assert authorise_console_estop(door(), TICKET, "192.0.2.7") == "alice"
 
 
-def test_a_wrong_ticket_is_refused() -> None:
-    assert refusal_of(authorise_console_estop, door(), TICKET[:-1] + "x", "127.0.0.1").status == 401
+@pytest.mark.parametrize("peer", ["192.0.2.7", "::ffff:192.0.2.7"])
+def test_a_wrong_ticket_from_another_machine_is_refused(peer: str) -> None:
+    assert refusal_of(authorise_console_estop, door(), TICKET[:-1] + "x", peer).status == 401
 
 
-@pytest.mark.parametrize("peer", ["127.0.0.1", "127.3.2.1", "::1"])
+def test_a_wrong_ticket_from_loopback_is_the_unsigned_console() -> None:
+    assert authorise_console_estop(door(), TICKET[:-1] + "x", "127.0.0.1") == CONSOLE_UNSIGNED_PRINCIPAL
+
+
+@pytest.mark.parametrize("peer", ["127.0.0.1", "127.3.2.1", "::1", "::ffff:127.0.0.1"])
 def test_no_ticket_from_loopback_is_the_unsigned_console(peer: str) -> None:
     assert authorise_console_estop(door(), None, peer) == CONSOLE_UNSIGNED_PRINCIPAL
 

@@ -206,6 +206,28 @@ def test_load_refuses_file_writable_by_others(token_path: Path) -> None:
         TokenStore.load(token_path)
 
 
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() != 0, reason="giving a file away needs root")
+def test_load_refuses_a_file_owned_by_another_user(token_path: Path) -> None:
+    TokenStore.add(token_path, "operator")
+    os.chown(token_path, 65534, 65534)  # nobody
+
+    with pytest.raises(ConfigurationError, match="belongs to user id 65534"):
+        TokenStore.load(token_path)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+def test_a_chmod_after_a_refused_edit_is_picked_up_without_another_edit(token_path: Path) -> None:
+    token = TokenStore.add(token_path, "operator", name="alice")
+    store = TokenStore.load(token_path)
+    token_path.chmod(0o664)
+    token_path.write_text(json.dumps(json.loads(token_path.read_text()), indent=4))  # edited while group-writable
+    assert store.authenticate(token) is None  # fails closed
+    token_path.chmod(0o600)  # what the refusal says to do; the content and its mtime stay as they are
+
+    principal = store.authenticate(token)
+    assert principal is not None and principal.name == "alice"
+
+
 @pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
 def test_load_warns_about_file_readable_by_others(token_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     TokenStore.add(token_path, "operator")

@@ -303,7 +303,7 @@ class Guard:
         if event is None:
             return ServerDecision.refused(RefusalCode.NOT_ESTOPPED, "the e-stop is not latched; nothing to reset")
         decision = client_decision(self.policy, "reset_estop", True, can_elicit)
-        return decision if decision is not None else prompts.reset_prompt(event)
+        return decision if decision is not None else prompts.reset_prompt(event, self.latch.held_events)
 
     def reset_estop(self, approval_outcome: Any, shown_event: str | None) -> results.ResetResult:
         approval = self.interpret_approval(approval_outcome, True)

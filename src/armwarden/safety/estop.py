@@ -142,6 +142,7 @@ class EStopLatch:
         self._generation = 0
         self._current: EStopEvent | None = None
         self._last: EStopEvent | None = None
+        self._held: tuple[EStopEvent, ...] = ()  # every event latched since the last release, oldest first
         self._lock = threading.Lock()
 
     @property
@@ -152,6 +153,12 @@ class EStopLatch:
     def current_event(self) -> EStopEvent | None:
         """The newest latched event while latched, else None."""
         return self._current
+
+    @property
+    def held_events(self) -> tuple[EStopEvent, ...]:
+        """Every event latched since the last release, oldest first (empty when not latched): a
+        release lets go of them all, so whoever approves it must see them all."""
+        return self._held
 
     @property
     def last_event(self) -> EStopEvent | None:
@@ -179,6 +186,7 @@ class EStopLatch:
             force_violation=MappingProxyType(dict(force_violation)) if force_violation is not None else None,
         )
         self._current = self._last = event
+        self._held = (*self._held, event)
         return event
 
     def release(self, event_number: object) -> ReleaseResult:
@@ -206,4 +214,5 @@ class EStopLatch:
                 False, f"there is no e-stop #{event_number}; the latched e-stop is #{current.number}", current
             )
         self._current = None
+        self._held = ()
         return ReleaseResult(True, f"e-stop #{current.number} released", current)

@@ -50,14 +50,20 @@ def execute_prompt(policy: Policy, plan: StoredPlan, backend_name: str, force_mo
     return Prompt(compose_prompt("APPROVE ROBOT MOTION?", facts, warnings), plan.digest)
 
 
-def reset_prompt(event: EStopEvent) -> Prompt:
+def reset_prompt(event: EStopEvent, held: Sequence[EStopEvent] = ()) -> Prompt:
+    """The release question for the newest event `event`; `held` are all events latched since the
+    last release (a release lets go of every one): the earlier ones are listed too, with any force
+    violation, so a later e-stop (an agent's, with a soothing reason) cannot hide why the first latched."""
     facts = [
         ("E-stop event", f"#{event.number}"),
         ("Latched at", iso_utc(event.wall_time)),
         ("Source", event.source),
     ]
-    if event.force_violation:
-        facts.append(("Force violation", flatten_reason(event.force_violation.get("detail", ""), 200)))
+    for earlier in (e for e in held if e.number != event.number):
+        facts.append((f"Also latched: #{earlier.number}", f"{earlier.source} at {iso_utc(earlier.wall_time)}"))
+    for latched in {e.number: e for e in (*held, event)}.values():  # oldest first, the newest once
+        if latched.force_violation:
+            facts.append((f"Force violation (#{latched.number})", flatten_reason(latched.force_violation.get("detail", ""), 200)))
     message = compose_prompt(
         "RELEASE THE SOFTWARE E-STOP?",
         facts,

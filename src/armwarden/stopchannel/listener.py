@@ -15,11 +15,16 @@ __all__ = ["is_loopback", "open_listener"]
 
 
 def is_loopback(address: str) -> bool:
-    """Whether the numeric `address` (IPv4 or IPv6, optional ``%zone``) is a loopback address."""
+    """Whether the numeric `address` (IPv4 or IPv6, optional ``%zone``) is a loopback address; an
+    IPv4-mapped IPv6 address (a dual-stack socket's IPv4 peer, ``::ffff:127.0.0.1``) counts as
+    the IPv4 address it carries."""
     try:
-        return ipaddress.ip_address(address.split("%")[0]).is_loopback
+        parsed = ipaddress.ip_address(address.split("%")[0])
     except ValueError:
         return False
+    if isinstance(parsed, ipaddress.IPv6Address) and parsed.ipv4_mapped is not None:
+        parsed = parsed.ipv4_mapped
+    return parsed.is_loopback
 
 
 def open_listener(host: str, port: int, *, allow_non_loopback: bool = False) -> socket.socket:

@@ -141,18 +141,20 @@ class ConsoleDoor:
 
 
 def authorise_console_estop(door: ConsoleDoor, ticket: str | None, peer_host: str) -> str:
-    """Who pressed the console's E-STOP: the ticket's session, or, without a ticket, a loopback
-    peer when the console allows that. `HttpRefusal` 401 otherwise (the stop is not issued)."""
-    if ticket is None:
-        if not door.allow_loopback_without_ticket:
-            raise HttpRefusal(401, "sign in to the console first (no ticket)")
-        if not is_loopback(peer_host):
-            raise HttpRefusal(401, "without sign-in the console E-STOP works only from this machine")
-        return CONSOLE_UNSIGNED_PRINCIPAL
-    principal = door.check_ticket(ticket)
-    if principal is None:
-        raise HttpRefusal(401, "unknown or expired console ticket (reload the console page)")
-    return flatten_reason(principal, 64) or "unknown"
+    """Who pressed the console's E-STOP: the ticket's session, or, without a valid ticket, a
+    loopback peer when the console allows that. A ticket that is no longer valid (its session
+    signed out, expired or pushed out by newer ones) counts as none: the page that carries it must
+    stop the robot wherever a page without one would. `HttpRefusal` 401 otherwise (the stop is
+    not issued)."""
+    principal = None if ticket is None else door.check_ticket(ticket)
+    if principal is not None:
+        return flatten_reason(principal, 64) or "unknown"
+    why = "no ticket" if ticket is None else "its ticket is unknown or expired: reload the console page"
+    if not door.allow_loopback_without_ticket:
+        raise HttpRefusal(401, f"sign in to the console first ({why})")
+    if not is_loopback(peer_host):
+        raise HttpRefusal(401, f"without sign-in the console E-STOP works only from this machine ({why})")
+    return CONSOLE_UNSIGNED_PRINCIPAL
 
 
 #: at most one refusal report per host in this interval [s]; the others are counted

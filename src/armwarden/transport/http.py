@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import ipaddress
 import logging
 import socket
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
@@ -58,6 +57,7 @@ from starlette.routing import Mount, Route
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.errors import ConfigurationError
+from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
 from armwarden.transport.jsonrpc import StopOnReceipt
@@ -98,13 +98,7 @@ def is_loopback_host(host: str) -> bool:
         return True
     if name.startswith("[") and name.endswith("]"):
         name = name[1:-1]
-    try:
-        address = ipaddress.ip_address(name)
-    except ValueError:
-        return False  # other host names may resolve anywhere: not loopback
-    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
-        address = address.ipv4_mapped
-    return address.is_loopback
+    return is_loopback(name)  # other host names may resolve anywhere: not loopback
 
 
 def check_bind_safety(host: str, token_store: TokenStore | None) -> None:

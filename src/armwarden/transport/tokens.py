@@ -143,6 +143,11 @@ def _is_yaml(path: Path) -> bool:
 def _check_permissions(path: Path, st: os.stat_result) -> None:
     if os.name != "posix":  # pragma: no cover - permission bits are POSIX-only
         return
+    if st.st_uid not in (os.geteuid(), 0):
+        raise ConfigurationError(
+            f"token file {path} belongs to user id {st.st_uid}, neither this server's ({os.geteuid()}) nor root; "
+            f"whoever owns it can grant themselves access. Run: chown {os.geteuid()} {path}"
+        )
     mode = stat.S_IMODE(st.st_mode)
     if mode & 0o022:
         raise ConfigurationError(
@@ -153,11 +158,13 @@ def _check_permissions(path: Path, st: os.stat_result) -> None:
         logger.warning("token file %s is readable by group or others (mode %04o); chmod 600 recommended", path, mode)
 
 
-def _signature(st: os.stat_result) -> tuple[int, int, int, int]:
-    return (st.st_ino, st.st_dev, st.st_mtime_ns, st.st_size)
+def _signature(st: os.stat_result) -> tuple[int, ...]:
+    """What tells a changed token file: its content (inode, size, modification time), and its
+    mode and owner (change time), so a `chmod 600` after a refusal is picked up at once."""
+    return (st.st_ino, st.st_dev, st.st_mtime_ns, st.st_size, st.st_ctime_ns, st.st_mode, st.st_uid)
 
 
-def _read_file(path: Path) -> tuple[TokenFile, tuple[int, int, int, int]]:
+def _read_file(path: Path) -> tuple[TokenFile, tuple[int, ...]]:
     """Read and validate `path`; raise ConfigurationError with every problem listed."""
     try:
         with open(path, "rb") as handle:
@@ -232,7 +239,7 @@ def _check_role(role: str) -> Role:
 class TokenStore:
     """The tokens of one file, loaded for authentication; class methods edit the file."""
 
-    def __init__(self, path: Path, content: TokenFile, signature: tuple[int, int, int, int] | None) -> None:
+    def __init__(self, path: Path, content: TokenFile, signature: tuple[int, ...] | None) -> None:
         self.path = path
         self._entries: tuple[TokenEntry, ...] = tuple(content.tokens)
         #: the tokens of the last version of the file that could be used (see `authenticate`)
