@@ -440,5 +440,5 @@ async def test_a_later_estop_does_not_hide_a_force_violation_from_the_human_who_
     assert not reset.is_error, text_of(reset)
     (prompt,) = human.prompts
     assert "#2" in prompt
-    assert "Also latched: #1" in prompt and "force_monitor" in prompt
+    assert "#1, force_monitor at" in prompt
     assert "Force violation (#1)" in prompt and "contact force 95.0 N above the 30 N limit" in prompt

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import threading
 from typing import Any
 
@@ -492,8 +493,8 @@ async def test_reset_approved_for_an_older_event_while_a_newer_latch_exists_is_r
             if len(prompts) == 1:  # while the human reads about #1, someone else hits e-stop again
                 newer = await other.call_tool("estop", {"reason": "second person in the cell"})
                 assert newer.structured_content["estop_event"]["number"] == 2
-            # this human approves only the event they first looked at (#1)
-            approve_it = "#1" in params.message
+            # this human approves only the event they first looked at (#1), not a question about #2
+            approve_it = re.search(r"E-stop event\s*: #1\b", params.message) is not None
             return types.ElicitResult(action="accept" if approve_it else "decline",
                                       content={"approve": approve_it, "operator": "bob"})
 

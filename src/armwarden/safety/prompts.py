@@ -60,7 +60,7 @@ def reset_prompt(event: EStopEvent, held: Sequence[EStopEvent] = ()) -> Prompt:
         ("Source", event.source),
     ]
     for earlier in (e for e in held if e.number != event.number):
-        facts.append((f"Also latched: #{earlier.number}", f"{earlier.source} at {iso_utc(earlier.wall_time)}"))
+        facts.append(("Also latched", f"#{earlier.number}, {earlier.source} at {iso_utc(earlier.wall_time)}"))
     for latched in {e.number: e for e in (*held, event)}.values():  # oldest first, the newest once
         if latched.force_violation:
             facts.append((f"Force violation (#{latched.number})", flatten_reason(latched.force_violation.get("detail", ""), 200)))
