@@ -238,10 +238,11 @@ class Guard:
             approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
             if not approval.granted:
                 raise approval.refusal(f"execute_plan {plan.plan_id}")
-            if approval.via in ("elicitation", "console") and asked_at is not None and asked_at != self.stopper.generation:
+            asked_a_human = approval.via in ("elicitation", "console")
+            if asked_a_human and asked_at is not None and asked_at != self.stopper.generation:
                 raise refuse(RefusalCode.STOPPED, "a stop arrived while a human was deciding about this plan; the approval "
                              "does not outlast it and nothing moved (plan again to ask again)")
-            if approval.via in ("elicitation", "console") and shown_digest != plan.digest:
+            if asked_a_human and shown_digest != plan.digest:
                 raise refuse(RefusalCode.APPROVAL_MISMATCH, "the approval was given for a different plan; nothing was done")
             self.require_not_estopped("execute_plan")
             recheck = await self.planning_flow.on_thread(lambda: self.planning.envelope.check(plan.trajectory))

@@ -57,7 +57,6 @@ _CLOSE_TO_A_ZONE = ("every goal configuration found lies within a few millimetre
                     "motion.sweep_resolution_m, so most plans ending there fail it: moving the target a few "
                     "millimetres further away, or a finer motion.sweep_resolution_m (slower planning), may help")
 
-
 Kind = Literal["joints", "pose"]
 
 
@@ -101,12 +100,12 @@ class DetourPlanner:
                 return self._refuse(straight, report, _no_goal_reason(selection))
             goals: Sequence[np.ndarray] = selection.goals
             retreats: Sequence[np.ndarray | None] = selection.approaches
-            arrivals = selection.arrivals
+            arrivals: Sequence[int] = selection.arrivals
         else:
             if not self.search.configuration_is_clear(first_goal):
                 return self._refuse(straight, report, "the goal configuration itself violates the envelope")
             goals, retreats = (first_goal,), (self.goals.approach(first_goal),)
-            arrivals: Sequence[int] = (self.goals.arrival(first_goal),)
+            arrivals = (self.goals.arrival(first_goal),)
 
         # cheap candidates first: a clear straight line to another goal configuration; then, since
         # a goal close to an obstacle can only be entered from a few directions, lines to its

@@ -110,9 +110,9 @@ class GoalSelector:
         as far as zones and the workspace box decide: 0 when `q` is clear of them with its bodies
         grown by half of `motion.sweep_resolution_m` — no body's allowance at a plan's last sample
         is larger, so no zone fails a plan there at its last sample; 1 when clear only with a
-        quarter; `CLOSE_TO_A_ZONE` when not even then. The allowance a plan's last sample gets depends on the motion into it (a
-        body that barely moves gets almost none), so a goal ranked low can still end some plans:
-        goals are ranked by it, never dropped."""
+        quarter; `CLOSE_TO_A_ZONE` when not even then. The allowance a plan's last sample gets
+        depends on the motion into it (a body that barely moves gets almost none), so a goal
+        ranked low can still end some plans: goals are ranked by it, never dropped."""
         for rank, share in enumerate(ARRIVAL_SHARES):
             if not any(v.is_hard for v in self.envelope.check_arrival(q, share)):
                 return rank
@@ -214,4 +214,3 @@ class GoalSelector:
         ranked = ranked[: opts.max_goals]
         return GoalSelection(tuple(q for _, q, _ in ranked), tuple(a for _, _, a in ranked), len(found), blocked,
                              tuple(key[1] for key, _, _ in ranked))
-

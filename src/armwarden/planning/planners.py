@@ -25,6 +25,7 @@ from armwarden.safety.violations import Code, Violation
 #: minutes to hours and its trajectory grows without bound (waypoints ∝ 1 / scaling)
 MIN_SCALING = 0.01
 
+
 @dataclass(frozen=True)
 class PlannerSettings:
     """Limits and defaults the planners use (from the policy)."""

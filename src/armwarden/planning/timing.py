@@ -101,11 +101,12 @@ def time_leg(
     # path parameter: time each segment takes at full speed on its limiting joint
     seg = np.max(np.abs(np.diff(path, axis=0)) / max_velocity, axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
-        needed = float(np.sum(np.maximum(1.0, np.ceil(seg / dt_s))))
+        steps = np.maximum(1.0, np.ceil(seg / dt_s))  # waypoints per segment, as floats: no overflow yet
+    needed = float(np.sum(steps))
     if not needed <= MAX_WAYPOINTS:  # also NaN
         raise TimingError(f"the motion would need about {needed:.3g} waypoints, more than {MAX_WAYPOINTS}: "
                           "it is far too slow (raise the velocity scaling) or too long")
-    pieces = np.maximum(1, np.ceil(seg / dt_s).astype(int))
+    pieces = steps.astype(int)
     dense = [path[:1]]
     for k, n in enumerate(pieces):
         alpha = (np.arange(1, n + 1) / n)[:, None]

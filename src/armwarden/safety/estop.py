@@ -140,19 +140,19 @@ class EStopLatch:
         self._clock = clock
         self._wall_clock = wall_clock
         self._generation = 0
-        self._current: EStopEvent | None = None
         self._last: EStopEvent | None = None
         self._held: tuple[EStopEvent, ...] = ()  # every event latched since the last release, oldest first
         self._lock = threading.Lock()
 
     @property
     def is_latched(self) -> bool:
-        return self._current is not None
+        return bool(self._held)
 
     @property
     def current_event(self) -> EStopEvent | None:
         """The newest latched event while latched, else None."""
-        return self._current
+        held = self._held
+        return held[-1] if held else None
 
     @property
     def held_events(self) -> tuple[EStopEvent, ...]:
@@ -185,7 +185,7 @@ class EStopLatch:
             mono_time=self._clock(),
             force_violation=MappingProxyType(dict(force_violation)) if force_violation is not None else None,
         )
-        self._current = self._last = event
+        self._last = event
         self._held = (*self._held, event)
         return event
 
@@ -195,7 +195,7 @@ class EStopLatch:
             return self._release_locked(event_number)
 
     def _release_locked(self, event_number: object) -> ReleaseResult:
-        current = self._current
+        current = self.current_event
         if current is None:
             done = f" (the last one, #{self._last.number}, was already reset)" if self._last is not None else ""
             return ReleaseResult(False, f"the e-stop is not latched; nothing to reset{done}")
@@ -213,6 +213,5 @@ class EStopLatch:
             return ReleaseResult(
                 False, f"there is no e-stop #{event_number}; the latched e-stop is #{current.number}", current
             )
-        self._current = None
         self._held = ()
         return ReleaseResult(True, f"e-stop #{current.number} released", current)

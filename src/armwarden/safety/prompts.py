@@ -59,11 +59,10 @@ def reset_prompt(event: EStopEvent, held: Sequence[EStopEvent] = ()) -> Prompt:
         ("Latched at", iso_utc(event.wall_time)),
         ("Source", event.source),
     ]
-    for earlier in (e for e in held if e.number != event.number):
-        facts.append(("Also latched", f"#{earlier.number}, {earlier.source} at {iso_utc(earlier.wall_time)}"))
-    for latched in {e.number: e for e in (*held, event)}.values():  # oldest first, the newest once
-        if latched.force_violation:
-            facts.append((f"Force violation (#{latched.number})", flatten_reason(latched.force_violation.get("detail", ""), 200)))
+    earlier = [e for e in held if e.number != event.number]
+    facts += [("Also latched", f"#{e.number}, {e.source} at {iso_utc(e.wall_time)}") for e in earlier]
+    facts += [(f"Force violation (#{e.number})", flatten_reason(e.force_violation.get("detail", ""), 200))
+              for e in (*earlier, event) if e.force_violation]
     message = compose_prompt(
         "RELEASE THE SOFTWARE E-STOP?",
         facts,
