@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import anyio
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
@@ -54,6 +55,18 @@ def text_of(result: Any) -> str:
 def records_of(path: Path) -> list[dict[str, Any]]:
     """Every record of a JSON-lines audit log."""
     return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+async def wait_for_record(path: Path, predicate, timeout_s: float = 10.0) -> list[dict[str, Any]]:
+    """Every record of the daemon's audit log, once one of them satisfies `predicate` (a read-only
+    call's record reaches the file within the audit log's commit window, not before the reply)."""
+    with anyio.fail_after(timeout_s):
+        while True:
+            if await anyio.Path(path).exists():
+                records = records_of(path)
+                if any(predicate(r) for r in records):
+                    return records
+            await anyio.sleep(0.05)
 
 
 def child_env() -> dict[str, str]:

@@ -74,3 +74,35 @@ def test_a_record_submitted_while_the_log_closes_is_refused_not_reordered_or_los
     events = [record["event"] for record in log_records(tmp_path / "audit.jsonl")]
     assert events[-1] == "slow" and "estop" not in events
     assert not [t for t in threading.enumerate() if t.name == "armwarden-audit" and t.is_alive()]
+
+
+def test_a_record_being_handed_over_when_the_log_closes_is_written_not_lost(tmp_path: Path, monkeypatch) -> None:
+    """`close` cannot slip its stop marker in between the closing check and the queueing of a
+    record another thread is handing over: the record lands before the marker and is written."""
+    audit = AuditLog(tmp_path / "audit.jsonl")
+    audit.submit("first")
+    audit.flush()
+    writer = audit._writer_thread
+    assert writer is not None
+    queueing, go_on = threading.Event(), threading.Event()
+    put = writer.put
+
+    def slow_put(job):
+        if not queueing.is_set():
+            queueing.set()
+            go_on.wait(10)  # another thread closes the log meanwhile
+        put(job)
+
+    monkeypatch.setattr(writer, "put", slow_put)
+    submitter = threading.Thread(target=audit.submit, args=("handed-over",))
+    submitter.start()
+    assert queueing.wait(10)
+    closer = threading.Thread(target=audit.close)
+    closer.start()
+    closer.join(0.2)  # close waits for the hand-over in progress
+    go_on.set()
+    submitter.join(10)
+    closer.join(10)
+    assert not closer.is_alive()
+    events = [record["event"] for record in log_records(tmp_path / "audit.jsonl")]
+    assert events[-1] == "handed-over"

@@ -20,7 +20,7 @@ import pytest
 from mcp import Client, MCPError
 from mcp.client.streamable_http import streamable_http_client
 
-from tests.helpers import CLI, HOME, REPO, child_env, records_of, text_of
+from tests.helpers import CLI, HOME, REPO, child_env, records_of, text_of, wait_for_record
 from tests.server.harness import MODES
 from tests.server.harness import approve as approving
 from tests.server.http_daemon import Daemon, RawSession, add_token, http_daemon, session
@@ -198,7 +198,10 @@ async def test_the_audit_session_is_the_one_the_sdk_bound_never_a_session_id_hea
                                        "mcp-session-id": "someone-elses-session"})
     async with http, Client(streamable_http_client(daemon.url, http_client=http), mode="2026-07-28") as client:
         assert not (await client.call_tool("get_safety_status", {})).is_error
-    mine = [r for r in records_of(daemon.audit) if r.get("principal") == "bob" and r.get("tool") == "get_safety_status"]
+    def bobs_status_call(r: dict) -> bool:
+        return r.get("principal") == "bob" and r.get("tool") == "get_safety_status"
+
+    mine = [r for r in await wait_for_record(daemon.audit, bobs_status_call) if bobs_status_call(r)]
     assert mine and all(r["session"] != "someone-elses-session" for r in mine)
 
 

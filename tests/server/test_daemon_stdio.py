@@ -23,7 +23,7 @@ import pytest
 from mcp import Client, StdioServerParameters
 
 from armwarden.policy import bundled_policy, load_policy, policy_digest
-from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, text_of
+from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, text_of, wait_for_record
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
 
@@ -42,17 +42,6 @@ def serve_params(audit: Path, config: Path) -> StdioServerParameters:
         env={"PYTHONPATH": str(SRC)},
         cwd=str(REPO),
     )
-
-
-async def wait_for_record(path: Path, predicate, timeout_s: float = 10.0) -> list[dict[str, Any]]:
-    """Every record of the daemon's audit log, once one of them satisfies `predicate`."""
-    with anyio.fail_after(timeout_s):
-        while True:
-            if await anyio.Path(path).exists():
-                records = records_of(path)
-                if any(predicate(r) for r in records):
-                    return records
-            await anyio.sleep(0.05)
 
 
 # ------------------------------------------------------------------ a session over stdio

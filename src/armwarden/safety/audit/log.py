@@ -110,7 +110,10 @@ class AuditLog:
             )
         self._max_chars = max_string_chars
         self._texter = Sanitizer(max_string_chars, 1, 1, 1)  # text() only; stateless
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the file, the chain's head, the broken flag (held while a record is built)
+        # the writer thread and the closing flag: never held while a record is built, so handing a
+        # record over never waits for the writer thread's work (a lock convoy under the GIL)
+        self._handover_lock = threading.Lock()
         if isinstance(commit_window_s, bool) or not isinstance(commit_window_s, (int, float)) or not (
             0.0 <= commit_window_s <= MAX_COMMIT_WINDOW_S
         ):
@@ -336,7 +339,7 @@ class AuditLog:
         call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
         loop = asyncio.get_running_loop()
         future: asyncio.Future[AuditRecord] = loop.create_future()
-        self._writer().put(Job(call, Durability.NOW, loop, future))
+        self._hand_over(Job(call, Durability.NOW, loop, future))
         return await asyncio.shield(future)
 
     def append_soon(self, entry: AuditEntry | str, /, **fields: Any) -> None:
@@ -352,7 +355,7 @@ class AuditLog:
                 f"audit log {str(self._path)!r} is unusable after an earlier write failure: {self._broken}"
             )
         call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
-        self._writer().put(Job(call, Durability.WINDOW))
+        self._hand_over(Job(call, Durability.WINDOW))
 
     def submit(self, entry: AuditEntry | str, /, **fields: Any) -> None:
         """From any thread, without waiting: hand a record to the writer thread (after the ones
@@ -361,7 +364,7 @@ class AuditLog:
         cannot be written is logged, and the log is then broken like after any failed write.
         Raises `AuditWriteError` if the log is closed."""
         call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
-        self._writer().put(Job(call, Durability.NOW))
+        self._hand_over(Job(call, Durability.NOW))
 
     def flush(self, timeout_s: float = 30.0) -> None:
         """Block until every record handed over so far is written and fsync-ed (window records
@@ -371,7 +374,7 @@ class AuditLog:
         if self._fd is None:
             return
         waiter: concurrent.futures.Future[None] = concurrent.futures.Future()
-        self._writer().put(Job(lambda: None, Durability.NOW, waiter=waiter))
+        self._hand_over(Job(lambda: None, Durability.NOW, waiter=waiter))
         try:
             waiter.result(timeout_s)
         except concurrent.futures.TimeoutError as exc:
@@ -383,15 +386,18 @@ class AuditLog:
         record is on disk before its caller is answered."""
         return self._window_s
 
-    def _writer(self) -> Writer:
-        with self._lock:
+    def _hand_over(self, job: Job) -> None:
+        """Queue ``job`` on the writer thread (started on first use), or raise AuditWriteError if
+        the log is closing or closed. Checked and queued under one lock that `close` also takes,
+        so a job is either queued before the writer's stop marker (and written) or refused."""
+        with self._handover_lock:
             if self._closing:
                 raise AuditWriteError(f"audit log {self.path} is closing")
             if self._writer_thread is None:
                 if self._fd is None:
                     raise AuditWriteError(f"audit log {self.path} is closed")
                 self._writer_thread = Writer(self._fsync_written, self._window_s)
-            return self._writer_thread
+            self._writer_thread.put(job)
 
     # -- reading ---------------------------------------------------------------------------
     def tail(self, n: int = 20) -> list[dict[str, Any]]:
@@ -407,7 +413,7 @@ class AuditLog:
         """`tail` in call order: the records handed to the writer before this call are in it."""
         loop = asyncio.get_running_loop()
         future: asyncio.Future[list[dict[str, Any]]] = loop.create_future()
-        self._writer().put(Job(functools.partial(self.tail, n), Durability.NONE, loop, future))
+        self._hand_over(Job(functools.partial(self.tail, n), Durability.NONE, loop, future))
         return await asyncio.shield(future)
 
     # -- closing ---------------------------------------------------------------------------
@@ -415,7 +421,7 @@ class AuditLog:
         """Release the file. Idempotent; writes nothing (a ``shutdown`` record is the caller's).
 
         Records already handed to the writer thread are written first."""
-        with self._lock:
+        with self._handover_lock:
             self._closing = True  # a record handed over from another thread from now on is refused, not lost
             writer, self._writer_thread = self._writer_thread, None
         if writer is not None:
