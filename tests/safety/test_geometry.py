@@ -63,9 +63,49 @@ def test_segment_box_slab_test_agrees_with_dense_sampling(p0, p1) -> None:
         assert not sampled
 
 
-def test_capsule_box_distance_is_signed_and_exact_for_a_simple_case() -> None:
+def coal_capsule_box_distance(p0: np.ndarray, p1: np.ndarray, radius: float, lo: np.ndarray, hi: np.ndarray) -> float:
+    capsule, placement = coal_capsule(p0, p1, radius)
+    box = coal.Box(*(hi - lo))
+    result = coal.DistanceResult()
+    coal.distance(capsule, placement, box, coal.Transform3s(np.eye(3), (lo + hi) / 2), coal.DistanceRequest(), result)
+    return float(result.min_distance)
+
+
+box_corner = st.tuples(coords, coords, coords).map(np.array)
+box_size = st.tuples(*[st.floats(0.01, 1.0)] * 3).map(np.array)
+
+
+@settings(max_examples=500, deadline=None)
+@given(point, point, box_corner, box_size, st.floats(0.0, 0.2))
+def test_segment_box_distance_matches_coal_capsule_box_distance(p0, p1, lo, size, radius) -> None:
+    hi = lo + size
+    expected = coal_capsule_box_distance(p0, p1, radius, lo, hi)
+    got = float(geometry.segment_box_distance(p0, p1, lo, hi))
+    if expected > 1e-6:
+        # apart: the distance of the surfaces (coal's GJK is within ≈ 1e-6 relative far apart; ours is exact)
+        assert abs((got - radius) - expected) < 1e-6 + 5e-6 * expected
+    elif expected < -1e-6:
+        assert got <= radius + 1e-12  # overlapping: a hit, as for coal (up to rounding)
+    else:
+        assert abs(got - radius) < 1e-5  # touching
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(point, point, box_corner, box_size), min_size=1, max_size=12))
+def test_segment_box_distance_of_a_batch_is_each_pairs_own(pairs) -> None:
+    p0, p1, lo, size = (np.array(column) for column in zip(*pairs, strict=True))
+    batch = geometry.segment_box_distance(p0, p1, lo, lo + size)
+    one_by_one = [float(geometry.segment_box_distance(*row[:3], row[2] + row[3])) for row in pairs]
+    assert np.allclose(batch, one_by_one, rtol=0.0, atol=1e-12)
+
+
+def test_segment_box_distance_of_simple_cases() -> None:
     lo, hi = np.zeros(3), np.ones(3)
-    above = geometry.capsule_box_distance(np.array([0.5, 0.5, 1.3]), np.array([0.5, 0.5, 2.0]), 0.1, lo, hi)
-    assert abs(above - 0.2) < 1e-6
-    inside = geometry.capsule_box_distance(np.array([0.5, 0.5, 0.5]), np.array([0.5, 0.5, 0.6]), 0.1, lo, hi)
-    assert inside <= 0.0
+    above = geometry.segment_box_distance(np.array([0.5, 0.5, 1.3]), np.array([0.5, 0.5, 2.0]), lo, hi)
+    assert abs(above - 0.3) < 1e-12
+    through = geometry.segment_box_distance(np.array([-1.0, 0.5, 0.5]), np.array([2.0, 0.5, 0.5]), lo, hi)
+    assert through == 0.0
+    past_an_edge = geometry.segment_box_distance(np.array([-1.0, 2.0, 0.5]), np.array([2.0, -1.0 + 1.0, 2.5]), lo, hi)
+    assert past_an_edge > 0.0
+    a_point = geometry.segment_box_distance(np.array([2.0, 2.0, 2.0]), np.array([2.0, 2.0, 2.0]), lo, hi)
+    assert abs(a_point - np.sqrt(3.0)) < 1e-12

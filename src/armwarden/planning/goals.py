@@ -134,7 +134,7 @@ class GoalSelector:
             turned[-1] = angle
             if np.linalg.norm(robot.tcp_pose(turned).position - position) > _SAME_POSITION_M:
                 return None
-            findings = self.envelope.check_path(turned)
+            findings = self.envelope.check_path(turned, first_only=True)
             if not any(v.is_hard for v in findings) and (rank := self.arrival(turned)) < below:
                 return turned, findings, rank
         return None
@@ -191,7 +191,7 @@ class GoalSelector:
             if np.max(np.abs(q - start)) > travel_cap:  # every path there travels at least this far
                 blocked["STEP_TOO_LARGE"] += 1
                 continue
-            findings = self.envelope.check_path(q)
+            findings = self.envelope.check_path(q, first_only=True)
             hard = [v for v in findings if v.is_hard]
             if hard:  # a position target's hand may turn about its own axis out of the way
                 turned = self._turned_clear(q, start, travel_cap) if rotation is None else None

@@ -23,7 +23,6 @@ nothing can slip through a zone between samples, however thin the zone or fast t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
@@ -217,9 +216,9 @@ class Envelope:
         same joint-limit check and the same sweep-bounded geometry pass as `check` (workspace,
         keep-out, self-collision, every padded capsule and the TCP), without what only a whole timed
         plan has (timing, travel caps, TCP path length). Violation times are waypoint indices.
-        `first_only`: a search only needs to know *whether* something is hit, so the exact
-        keep-out confirmation stops at its first hit (the findings are then incomplete, never
-        fewer than one when there is any).
+        `first_only`: a search only needs to know *whether* something is hit, so the check stops
+        at the first hard joint-limit finding or the first sample range with a geometric one (the
+        findings are then incomplete, never fewer than one when there is any).
         """
         positions = np.atleast_2d(np.asarray(positions, dtype=float))
         single = len(positions) == 1
@@ -243,7 +242,7 @@ class Envelope:
         samples = _Samples(times=np.zeros(1), positions=q[None],
                            inflation=np.full((1, len(self._padded_radii)), float(allowance_m)),
                            pair_inflation=np.zeros((1, len(self._pairs))))
-        found, _, _ = self._geometry_pass(samples, "first" if first_only else "all")
+        found, _, _ = self._geometry_pass(samples)
         return _in_time_order(found)
 
     def check_arrival(self, q: np.ndarray, share: float) -> tuple[Violation, ...]:
@@ -322,14 +321,13 @@ class Envelope:
         path = self._path_parameter(times, positions)
         coarse = _unit_targets(0.0, path.total, COARSE_FACTOR)
         samples = self._samples_at(path, coarse)
-        # first_only: coarse candidates need no exact confirmation (they are all re-checked finely)
-        found, flagged, tcp = self._geometry_pass(samples, "none" if first_only else "all")
+        found, flagged, tcp = self._geometry_pass(samples)
         checked = len(samples.times)
         if np.any(flagged):
             found = {}
             for start, end in _merged_ranges(coarse, np.flatnonzero(flagged)):
                 fine_samples = self._samples_at(path, _unit_targets(start, end))
-                fine, _, _ = self._geometry_pass(fine_samples, "first" if first_only else "all")
+                fine, _, _ = self._geometry_pass(fine_samples)
                 checked += len(fine_samples.times)
                 for key, violation in fine.items():
                     if key not in found or violation.time_s < found[key].time_s:
@@ -339,12 +337,10 @@ class Envelope:
         tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
         return _in_time_order(found), tcp_length, self.robot.tcp_pose(positions[-1]), checked
 
-    def _geometry_pass(self, samples: _Samples, confirm: Literal["all", "first", "none"] = "all",
-                       ) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
+    def _geometry_pass(self, samples: _Samples) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
         """One check of consecutive samples. Returns the first violation per (code, body, what),
-        which samples found anything, and the TCP positions. `confirm`: which keep-out candidates
-        of the broad phase are confirmed exactly — all, up to the first hit, or none (every
-        candidate counts as a hit: only for a coarse pass whose hits are all checked again finely)."""
+        which samples found anything, and the TCP positions. Every keep-out candidate of the
+        broad phase is confirmed exactly (`_confirm_keep_out`)."""
         robot, lim = self.robot, self.limits
         t_s, q_s, inflation = samples.times, samples.positions, samples.inflation
         p0, p1 = robot.body_points(robot.joint_frames(q_s))  # (N, B+1, 3); last body is the TCP point
@@ -361,7 +357,7 @@ class Envelope:
         flagged |= np.any(outside, axis=1)
         self._first_per_body(found, outside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
 
-        # keep-out: bounds that overlap a zone are confirmed exactly with coal
+        # keep-out: bounds that overlap a zone are confirmed exactly (capsule–box distance)
         if len(lim.keep_out):
             overlap = np.all(lo[:, :, None] <= self._ko_hi, axis=-1) & np.all(hi[:, :, None] >= self._ko_lo, axis=-1)
             if len(tcp) > 1:  # the TCP's straight segments between samples, too
@@ -370,8 +366,7 @@ class Envelope:
                 seg_hi = np.maximum(tcp[:-1], tcp[1:]) + r_tcp
                 overlap[1:, -1] |= np.all(seg_lo[:, None] <= self._ko_hi, axis=-1) & np.all(seg_hi[:, None] >= self._ko_lo, axis=-1)
             if np.any(overlap):
-                confirmed = overlap if confirm == "none" else self._confirm_keep_out(
-                    overlap, p0, p1, radius, tcp, first_only=confirm == "first")
+                confirmed = self._confirm_keep_out(overlap, p0, p1, radius, tcp)
                 flagged |= np.any(confirmed, axis=(1, 2))
                 for zone_index, zone in enumerate(lim.keep_out):
                     self._first_per_body(
@@ -383,21 +378,19 @@ class Envelope:
             flagged |= self._check_self_collision(found, t_s, p0, p1, samples.pair_inflation)
         return found, flagged, tcp
 
-    def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, tcp: np.ndarray,
-                          first_only: bool = False) -> np.ndarray:
-        """Exact test of the broad-phase candidates: coal's capsule–box distance, and the TCP segments
-        (`first_only`: up to the first hit)."""
+    def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray,
+                          tcp: np.ndarray) -> np.ndarray:
+        """Exact test of the broad-phase candidates, all at once: each capsule's distance to the
+        zone against its radius, and for the TCP also its straight segment from the previous sample."""
         confirmed = np.zeros_like(overlap)
-        tcp_body = radius.shape[1] - 1
-        for k, body, zone in zip(*np.nonzero(overlap), strict=True):
-            zone_lo, zone_hi = self._ko_lo[zone], self._ko_hi[zone]
-            r = float(radius[k, body])
-            hit = geometry.capsule_box_distance(p0[k, body], p1[k, body], r, zone_lo, zone_hi) <= 0.0
-            if not hit and body == tcp_body and k > 0:
-                hit = bool(geometry.segments_hit_boxes(tcp[k - 1], tcp[k], zone_lo - r, zone_hi + r))
-            confirmed[k, body, zone] = hit
-            if hit and first_only:
-                break
+        k, body, zone = np.nonzero(overlap)
+        zone_lo, zone_hi, r = self._ko_lo[zone], self._ko_hi[zone], radius[k, body]
+        hit = geometry.segment_box_distance(p0[k, body], p1[k, body], zone_lo, zone_hi) <= r
+        segment = ~hit & (body == radius.shape[1] - 1) & (k > 0)  # the TCP, between samples
+        if np.any(segment):
+            ks, rs = k[segment], r[segment, None]
+            hit[segment] = geometry.segments_hit_boxes(tcp[ks - 1], tcp[ks], zone_lo[segment] - rs, zone_hi[segment] + rs)
+        confirmed[k, body, zone] = hit
         return confirmed
 
     def _check_self_collision(
