@@ -17,6 +17,7 @@ import anyio.from_thread
 import mcp_types as types
 import pytest
 
+from armwarden.console.routes import ConsoleSettings
 from armwarden.policy import Policy
 from tests.console.browser import chromium
 from tests.console.served import ServedConsole, served_console
@@ -64,9 +65,10 @@ class Session:
 
 
 @contextlib.contextmanager
-def console(tmp_path: Path, policy: Policy | None = None, **fake: Any) -> Iterator[Session]:
+def console(tmp_path: Path, policy: Policy | None = None, settings: ConsoleSettings | None = None,
+            **fake: Any) -> Iterator[Session]:
     with anyio.from_thread.start_blocking_portal() as portal, \
-            portal.wrap_async_context_manager(served_console(tmp_path, policy, **fake)) as served:
+            portal.wrap_async_context_manager(served_console(tmp_path, policy, settings, **fake)) as served:
         yield Session(portal, served)
 
 
@@ -241,11 +243,30 @@ def test_estop_stops_an_executing_motion_and_the_latch_shows(tmp_path: Path, bro
         audit_path = session.served.harness.audit_path
 
     assert action == channel_url  # the independent stop channel, not the event loop's console route
-    assert answer.startswith("E-STOP sent through the stop channel")
+    assert answer.startswith("E-STOP latched through the stop channel: event #")  # read back, not assumed
     assert latched
     assert result.structured_content["status"] == "aborted"
     estop = [r for r in records_of(audit_path) if r["event"] == "estop"][-1]
     assert estop["principal"] == "bob" and estop["extra"]["peer"].startswith("console via stop channel")
+
+
+def test_an_estop_the_channel_refuses_is_shown_as_failed_never_as_sent(tmp_path: Path, browser: Any) -> None:
+    """The channel's answer to the page is opaque (no-cors): a page not signed in, on a console
+    that needs sign-in for a stop, is refused by the channel and must say so, not "sent"."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    with console(tmp_path, settings=ConsoleSettings(estop_from_loopback_without_sign_in=False)) as session:
+        browser.get(session.served.console + "/login")
+        action = browser.find_element(By.ID, "estop-form").get_attribute("action")
+        browser.find_element(By.ID, "estop-button").click()
+        answer = wait_for(browser, ec.presence_of_element_located((By.ID, "estop-answer"))).text
+        latched = session.served.harness.guard.latch.is_latched
+
+    assert action == session.served.channel.console_url
+    assert answer.startswith("Stop channel not confirmed; E-STOP FAILED:"), answer
+    assert "sign-in" in answer
+    assert not latched
 
 
 def test_estop_without_script_shows_the_channels_answer_page(tmp_path: Path, browser: Any) -> None:

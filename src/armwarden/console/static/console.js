@@ -23,8 +23,10 @@
 
   // E-STOP: post at once with fetch (no page load in between), then show the answer.
   // With the stop channel (data-channel) the post is a "simple" cross-origin request
-  // (mode no-cors: no preflight, the answer is opaque), so the safety view is re-read to show
-  // the latch; only if the channel cannot be reached at all is the console's own route tried.
+  // (mode no-cors: no preflight), whose answer is opaque: it cannot say whether the channel
+  // latched or refused. So the latch is read back from the console (signed in), and where it
+  // cannot be read or does not show, the console's own route is asked and its answer shown:
+  // the page never says "sent" for a stop it cannot confirm.
   async function viaConsole(url) {
     const data = new URLSearchParams({csrf: body.dataset.csrf || ""});
     const reply = await fetch(url, {method: "POST", body: data, credentials: "same-origin",
@@ -32,15 +34,30 @@
     const answer = await reply.json();
     return reply.ok ? "E-STOP latched: event #" + answer.event : "E-STOP FAILED: " + answer.error;
   }
+  // the latched event's number, null when the e-stop is released, undefined when unreadable
+  async function latchedEvent() {
+    const reply = await fetch(base + "/api/state", {credentials: "same-origin", cache: "no-store"});
+    if (!reply.ok) { return undefined; }
+    const safety = (await reply.json()).safety;
+    return safety.estopped && safety.event ? safety.event.number : null;
+  }
+  const CONFIRM_TRIES = 10, CONFIRM_PAUSE_MS = 100;  // the channel latches before it answers
   async function viaChannel(form) {
     const data = new URLSearchParams(new FormData(form));
     try {
       await fetch(form.action, {method: "POST", body: data, mode: "no-cors", credentials: "omit",
                                 cache: "no-store", referrerPolicy: "strict-origin-when-cross-origin"});
-      return "E-STOP sent through the stop channel: see the safety status";
     } catch (e) {
       return "Stop channel unreachable; " + await viaConsole(form.dataset.fallback);
     }
+    for (let attempt = 0; attempt < CONFIRM_TRIES; attempt++) {
+      let event;
+      try { event = await latchedEvent(); } catch (e) { event = undefined; }
+      if (event === undefined) { break; }
+      if (event !== null) { return "E-STOP latched through the stop channel: event #" + event; }
+      await new Promise((resolve) => setTimeout(resolve, CONFIRM_PAUSE_MS));
+    }
+    return "Stop channel not confirmed; " + await viaConsole(form.dataset.fallback);
   }
   const form = document.getElementById("estop-form");
   if (form) {
