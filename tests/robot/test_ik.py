@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from armwarden.robot import RobotModel
 from armwarden.robot.ik import IkOptions, IkSolver
@@ -76,3 +77,9 @@ def test_giving_up_stalled_seeds_changes_no_solution_on_random_poses(robot: Robo
         b = default.solve(pose.position, pose.rotation, [READY])
         assert a.success == b.success
         np.testing.assert_array_equal(a.q, b.q)
+
+
+def test_damping_must_be_positive_for_the_cholesky_step() -> None:
+    for damping in (0.0, -1e-3, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="damping"):
+            IkOptions(damping=damping)

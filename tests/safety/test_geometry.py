@@ -109,3 +109,17 @@ def test_segment_box_distance_of_simple_cases() -> None:
     assert past_an_edge > 0.0
     a_point = geometry.segment_box_distance(np.array([2.0, 2.0, 2.0]), np.array([2.0, 2.0, 2.0]), lo, hi)
     assert abs(a_point - np.sqrt(3.0)) < 1e-12
+
+
+def test_segment_box_distance_finds_the_minimum_inside_a_piece_that_barely_slopes() -> None:
+    """A segment a micrometre from the box, moving less than a micrometre out of the slabs it is
+    outside of: its closest point lies inside a piece whose slope is tiny but not zero (found by
+    review: a 'nearly flat' shortcut once evaluated only the piece's ends and middle there)."""
+    lo, hi = np.zeros(3), np.ones(3)
+    p0 = np.array([1.000000823534618, 0.5, 1.000000083433075])
+    p1 = np.array([1.000000148949435, 0.8, 1.0000004618304457])
+    a, b = p0[0] - 1.0, p0[2] - 1.0  # how far out along x and z at the start
+    da, db = p1[0] - p0[0], p1[2] - p0[2]
+    t = np.clip(-(a * da + b * db) / (da * da + db * db), 0.0, 1.0)  # the exact closest parameter
+    exact = np.hypot(a + da * t, b + db * t)
+    assert abs(float(geometry.segment_box_distance(p0, p1, lo, hi)) - exact) < 1e-12

@@ -39,6 +39,12 @@ class IkOptions:
     random_seeds: int = 24
     rng_seed: int = 7
 
+    def __post_init__(self) -> None:
+        # J Jᵀ + λI is positive definite only for λ > 0, and the Cholesky step (eigenpy's LLT)
+        # does not report a matrix that is not: it returns a wrong step in silence
+        if not (math.isfinite(self.damping) and self.damping > 0.0):
+            raise ValueError(f"IK damping must be a finite number > 0, got {self.damping!r}")
+
 
 @dataclass(frozen=True)
 class IkResult:

@@ -229,12 +229,12 @@ class Envelope:
         if first_only and any(v.is_hard for v in violations):
             return tuple(violations)
         if single:  # one configuration does not move: one pass without sweep allowance is the whole check
-            geometric = self._check_configuration(positions[0], first_only)
+            geometric = self._check_configuration(positions[0])
         else:
             geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
         return tuple(violations + geometric)
 
-    def _check_configuration(self, q: np.ndarray, first_only: bool, allowance_m: float = 0.0) -> list[Violation]:
+    def _check_configuration(self, q: np.ndarray, allowance_m: float = 0.0) -> list[Violation]:
         """The geometry of one configuration: what `_check_geometry` finds for a path that stays
         there (its samples all sit at `q`, their sweep allowance is zero, so coarse and fine
         passes see the same), in one pass instead of a coarse and a fine one. `allowance_m`
@@ -247,16 +247,16 @@ class Envelope:
 
     def check_arrival(self, q: np.ndarray, share: float) -> tuple[Violation, ...]:
         """Keep-out zones and the workspace box at `q` with every body grown by `share` ×
-        `sweep_resolution_m` (self-collision is not checked with growth: the pairs get none), hard
-        findings first-only. The final check grows each body at a plan's last sample by half its
-        motion bound over the sampling interval before it, and no body moves more than
-        `sweep_resolution_m` in one interval, so a configuration clear here with share 0.5 is
-        never refused, as a plan's last sample, for a zone or the workspace edge (the motion into
-        it still may be, and self-collision pairs get their own allowance). How much less a body
-        gets depends on the motion into `q` (one that barely moves gets almost none), so with a
-        smaller share this is a likelihood, not a verdict: planners rank goals with it
-        (`planning.goals`), and the final check is unchanged."""
-        return tuple(self._check_configuration(np.asarray(q, dtype=float), True, share * self.limits.sweep_resolution_m))
+        `sweep_resolution_m` (self-collision is not checked with growth: the pairs get none), every
+        finding. The final check grows each
+        body at a plan's last sample by half its motion bound over the sampling interval before it,
+        and no body moves more than `sweep_resolution_m` in one interval, so a configuration clear
+        here with share 0.5 is never refused, as a plan's last sample, for a zone or the workspace
+        edge (the motion into it still may be, and self-collision pairs get their own allowance).
+        How much less a body gets depends on the motion into `q` (one that barely moves gets almost
+        none), so with a smaller share this is a likelihood, not a verdict: planners rank goals with
+        it (`planning.goals`), and the final check is unchanged."""
+        return tuple(self._check_configuration(np.asarray(q, dtype=float), share * self.limits.sweep_resolution_m))
 
     # ------------------------------------------------------------------ geometry
     def _path_parameter(self, times: np.ndarray, positions: np.ndarray) -> _PathParameter:

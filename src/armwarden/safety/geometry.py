@@ -81,9 +81,10 @@ def segment_box_distance(p0: np.ndarray, p1: np.ndarray, lo: np.ndarray, hi: np.
     slope = np.where(active, d[..., None, :], 0.0)
     curvature = np.sum(slope * slope, axis=-1)
     pull = np.sum(slope * (bound - p0[..., None, :]), axis=-1)
-    # a flat piece keeps one distance all along (zero where the segment is inside the box): its
-    # middle, where rounding cannot put the point outside a slab it is inside
-    flat = curvature <= _EPS
+    # a flat piece (no axis outside its slab moves: exactly zero) keeps one distance all along,
+    # zero where the segment is inside the box: its middle, where rounding cannot put the point
+    # outside a slab it is inside. Any other piece, however slight its slope, gets its minimiser.
+    flat = curvature == 0.0
     minimiser = np.where(flat, (start + end) / 2.0, np.clip(pull / np.where(flat, 1.0, curvature), start, end))
     candidates = np.concatenate([knots, minimiser], axis=-1)  # (..., 15)
     points = p0[..., None, :] + candidates[..., None] * d[..., None, :]
