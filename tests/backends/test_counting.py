@@ -80,6 +80,18 @@ def test_a_fault_listener_set_on_the_wrapper_hears_the_inner_backends_faults() -
     assert heard == ["joint 3: over-temperature"]
 
 
+def test_a_fault_reported_before_any_listener_is_told_to_the_first_one_set() -> None:
+    """Between the servo thread's start and the Guard's building nobody listens: a fault found
+    then is kept and told at once to the listener set next (found by review: it was only logged,
+    and the Guard never latched its e-stop)."""
+    inner = MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01)
+    inner._report_fault("joint 3: over-current on enable")
+    heard: list[str] = []
+    CountingBackend(inner).set_fault_listener(heard.append)
+    inner._report_fault("joint 5: encoder")
+    assert heard == ["joint 3: over-current on enable", "joint 5: encoder"]
+
+
 def test_a_failing_fault_listener_does_not_reach_the_reporting_thread(caplog: pytest.LogCaptureFixture) -> None:
     inner = MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01)
 

@@ -271,6 +271,8 @@ class Backend(abc.ABC):
         self._opened = False
         self._closed = False
         self._fault_listener: FaultListener | None = None
+        self._fault_report_lock = threading.Lock()
+        self._unheard_faults: list[str] = []  # reported while no listener was set, for the next one
 
     @property
     def last_stop_stamp(self) -> float | None:
@@ -314,15 +316,29 @@ class Backend(abc.ABC):
     def set_fault_listener(self, listener: FaultListener | None) -> None:
         """Who to tell about a fault the backend finds on its own, outside any call (the Guard
         latches its e-stop). Called from the backend's thread: the listener must be thread-safe and
-        quick, and must not wait for the event loop."""
-        self._fault_listener = listener
+        quick, and must not wait for the event loop. Faults found while nobody listened (between
+        the servo thread's start and the Guard's building) are told to the new listener at once,
+        so none is lost: a fault at start-up latches the e-stop like any other."""
+        with self._fault_report_lock:
+            self._fault_listener = listener
+            unheard, self._unheard_faults = self._unheard_faults, []
+        if listener is not None:
+            for reason in unheard:
+                self._tell(listener, reason)
 
     def _report_fault(self, reason: str) -> None:
-        """Any thread: the arm is already stopped or damped; tell the listener why."""
-        listener = self._fault_listener
+        """Any thread: the arm is already stopped or damped; tell the listener why (or keep it for
+        the next listener)."""
+        with self._fault_report_lock:
+            listener = self._fault_listener
+            if listener is None:
+                self._unheard_faults.append(reason)
         if listener is None:
-            logger.error("backend %s fault with no listener: %s", self.name, reason)
+            logger.error("backend %s fault with no listener yet (kept for it): %s", self.name, reason)
             return
+        self._tell(listener, reason)
+
+    def _tell(self, listener: FaultListener, reason: str) -> None:
         try:
             listener(reason)
         except Exception:  # the backend has stopped the arm either way; the report must not kill its thread

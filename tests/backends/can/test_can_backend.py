@@ -388,6 +388,45 @@ async def test_a_fault_while_idle_latches_the_guards_estop_and_shows_in_the_safe
     assert any("fr3_joint5" in fault for fault in status.faults)
 
 
+@pytest.mark.anyio
+async def test_a_fault_before_the_guard_is_built_latches_its_estop_when_it_is(arm: CanBackend):
+    """Found by review: a fault between `open()` and `build_guard` was reported to nobody, and the
+    first execution's recovery cleared it without any human reset."""
+    assert arm.emulator is not None
+    arm.emulator.raise_fault(5, rs.FeedbackFault.MAGNETIC_ENCODER)
+    await wait_until(lambda: _async_true(arm.fault is not None))
+    guard = build_guard(POLICY, arm, None)
+    assert guard.latch.is_latched
+    assert "fr3_joint5" in str(guard.safety_status().estop_event.reason)
+
+
+@pytest.mark.anyio
+async def test_a_fault_while_the_actuators_are_enabled_refuses_the_start_up(monkeypatch: pytest.MonkeyPatch):
+    """A fault frame that arrives after the servo loop starts and before enabling ends (over-current
+    on enable) refuses `open()` as a fault found before would, and the actuators are disabled."""
+    from armwarden.backends.servo import ServoLoop
+
+    backend = build()
+    start = ServoLoop.start
+
+    async def start_then_fault(self: ServoLoop, *args: Any, **kwargs: Any) -> None:
+        await start(self, *args, **kwargs)
+        assert backend.emulator is not None
+        backend.emulator.emit_fault_frame(3, rs.FaultFlag.PHASE_A_OVER_CURRENT)
+        await wait_until(lambda: _async_true(backend.fault is not None))
+
+    monkeypatch.setattr(ServoLoop, "start", start_then_fault)
+    try:
+        with pytest.raises(BackendError, match=r"while enabling the actuators.*PHASE_A_OVER_CURRENT"):
+            await backend.open()
+        assert not backend.is_open
+        emulator = backend.emulator
+        assert emulator is not None
+        assert not any(emulator.snapshot(joint.can_id).enabled for joint in backend.config.joints)  # disabled again
+    finally:
+        await backend.close()
+
+
 async def _async_true(value: bool) -> bool:
     return value
 
@@ -474,3 +513,77 @@ async def test_start_up_refuses_when_the_servo_thread_cannot_have_its_realtime_p
     with pytest.raises(BackendError, match="SCHED_FIFO priority 50"):
         await backend.open()
     await backend.close()
+
+
+# ---------------------------------------------------------------------------- found by review
+@pytest.mark.anyio
+async def test_a_velocity_the_actuator_cannot_carry_damps_and_faults_the_servo_loop_keeps_running(arm: CanBackend):
+    """0.2 rad in 10 ms asks an RS04 for 20 rad/s, beyond its ±15 rad/s field, with every position
+    inside the limits: never sent, damped and a fault, as a position past a limit is (it once
+    killed the servo thread: nothing was streamed after, not even damping)."""
+    spy = Spy(arm)
+    try:
+        q = (await arm.read_joint_state()).positions.copy()
+        goal = q.copy()
+        goal[0] += 0.2
+        with pytest.raises(BackendError, match=r"fr3_joint1 \(can id 1\): command refused: velocity"):
+            await arm.execute(straight_line(arm.joint_names, q, goal, 0.01))
+        assert arm.servo is not None and arm.servo.thread is not None and arm.servo.thread.is_alive()
+        assert arm.health()["damping"] is True
+        mark = len(spy.seen())
+        await wait_until(lambda: _async_true(len([s for s in spy.seen()[mark:] if s.command is not None]) >= 14))
+        assert all(s.command.kp == 0.0 for s in spy.seen()[mark:] if s.command is not None)  # damping, streamed
+        arm.emergency_stop_now()  # a later stop still works
+    finally:
+        spy.close()
+
+
+def test_a_policy_finger_speed_the_gripper_actuator_cannot_carry_refuses_the_config():
+    """0.08 m of stroke over 8 actuator radians at the policy's 0.5 m/s is 50 rad/s, beyond an
+    RS00's ±33 rad/s: refused when the backend is built, not found mid-move."""
+    from tests.server.harness import policy_with
+
+    document = config_document()
+    document["gripper"]["open_position_rad"] = 8.0
+    fast = policy_with(**{"gripper.max_speed_mps": 0.5})
+    with pytest.raises(ConfigurationError, match=r"gripper: the policy's finger speed 0.5 m/s .* does not fit the RS00 velocity"):
+        create_backend(ROBOT, fast, parse_backend_config("can", document))
+
+
+@pytest.mark.anyio
+async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was():
+    """Found by review: leaving damping after a reset cleared the damping flag before the hold
+    moved the setpoint to the measured position, so a tick in between sent the setpoint frozen at
+    the e-stop, stiffly, to an arm that sagged while limp. Here the tick is made to fall in between."""
+    document = config_document()
+    document["simulate"]["loads"]["fr3_joint2"]["gravity_torque_nm"] = 25.0  # sags while limp ...
+    document["joints"][1]["damping_kd_nms_per_rad"] = 100.0  # ... slowly
+    backend = create_backend(ROBOT, POLICY, parse_backend_config("can", document))
+    await backend.open()
+    spy = Spy(backend)
+    try:
+        servo = backend.servo
+        assert servo is not None
+        await backend.emergency_stop()
+        stale = servo.latest.positions.copy()
+        await asyncio.sleep(0.8)
+        q = (await backend.read_joint_state()).positions.copy()
+        assert abs(q[1] - stale[1]) > 0.03  # it sagged
+        freeze = backend._freeze_gripper
+
+        def freeze_then_lose_the_cpu() -> None:  # two ticks run while `_recover` is between its steps
+            freeze()
+            ticks = servo.tick_count
+            while servo.tick_count < ticks + 2:
+                time.sleep(0.0005)
+
+        backend._freeze_gripper = freeze_then_lose_the_cpu  # type: ignore[method-assign]
+        mark = len(spy.seen())
+        await backend.execute(straight_line(backend.joint_names, q, q + 0.02, 0.5))
+        stiff = [s for s in spy.seen()[mark:] if s.motor == 2 and s.command is not None and s.command.kp > 0]
+        joint = backend.config.joints[1]
+        first = (stiff[0].command.position - joint.homing_offset_rad) / joint.direction
+        assert abs(first - q[1]) < 0.01, f"the first stiff setpoint {first:.4f} rad is not where the arm is ({q[1]:.4f})"
+    finally:
+        spy.close()
+        await backend.close()

@@ -279,6 +279,10 @@ class CanBackend(Backend, ServoHooks):
                 self._send_mit(a, mit.Special.ENTER_MOTOR_MODE.value, FrameKind.MODE)
         await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or a.mode is rs.MotorMode.RUN,
                               "did not enter run mode")
+        # 6. a fault the servo loop found while the actuators were enabled (over-current on enable)
+        # refuses the start-up as one found before it would (the actuators are then disabled)
+        if self.fault is not None:
+            raise BackendError(f"can backend: refusing to start: a fault while enabling the actuators: {self.fault}")
         self._enabled = True
         logger.info("can backend: %d actuators enabled at %.0f Hz", len(self._actuators), config.control_rate_hz)
 
@@ -437,9 +441,11 @@ class CanBackend(Backend, ServoHooks):
         with self._fault_lock:
             if self._stop_landed():  # an e-stop or fault since this execution was decided: stay damped
                 return  # (the servo loop refuses the trajectory as "stopped before it started")
-            self.fault, self._damping, self._limit_violation, self._estopped = None, False, None, False
+            # hold where the arm is *before* damping ends: a tick between the two would otherwise
+            # send the setpoint frozen when damping began, stiffly, to an arm that sagged since
             self._freeze_gripper()  # the fingers hold where damping left them
-            self._require_servo().hold()  # from damping to holding where the arm is
+            self._require_servo().hold()
+            self.fault, self._damping, self._limit_violation, self._estopped = None, False, None, False
         logger.warning("can backend: damping ended after a reset; holding again")
 
     async def _stop(self) -> None:
@@ -692,10 +698,17 @@ class CanBackend(Backend, ServoHooks):
     def _send_commands(self, positions: np.ndarray, velocities: np.ndarray, *, following: bool) -> None:
         """This tick's command to every actuator: every frame is encoded (a value the model
         cannot carry refuses the whole tick before anything is sent), then sent as one batch."""
+        frames: list[_OutFrame] = []
         if not self._damping:
             bad = self._outside_limits(positions, "commanded" if following else "hold")
             if bad:  # never sent: damp instead, and the next tick turns it into a fault
                 self._limit_violation = bad[0]
+                self._damping = True
+        if not self._damping:
+            try:
+                frames = self._following_frames(positions, velocities)
+            except BackendError as exc:  # a value the model cannot carry (a velocity beyond its field):
+                self._limit_violation = str(exc)  # never sent; damp as for a position past a limit
                 self._damping = True
         if self._damping:  # every actuator that can be damped is, whatever another one refuses
             frames, refused = [], []
@@ -710,6 +723,16 @@ class CanBackend(Backend, ServoHooks):
             if refused:
                 raise refused[0]
             return
+        self._send_batch(frames, FrameKind.COMMAND)
+        if following:
+            self.motion_frames += len(self._actuators)
+            if not self._moved_this_execution:
+                self._moved_this_execution = True
+                self.moving_executions += 1
+
+    def _following_frames(self, positions: np.ndarray, velocities: np.ndarray) -> list[_OutFrame]:
+        """Every actuator's stiff command of this tick (the gripper's too), all encoded before any is
+        sent; `BackendError` if one cannot be."""
         raw = (self._direction * positions + self._offset).tolist()
         raw_velocity = (self._direction * velocities).tolist()
         frames = [self._command_frame(a, MotorCommand(raw[a.index], raw_velocity[a.index], a.joint.kp_nm_per_rad,
@@ -718,12 +741,7 @@ class CanBackend(Backend, ServoHooks):
         gripper = self._gripper_frame()
         if gripper is not None:
             frames.append(gripper)
-        self._send_batch(frames, FrameKind.COMMAND)
-        if following:
-            self.motion_frames += len(self._actuators)
-            if not self._moved_this_execution:
-                self._moved_this_execution = True
-                self.moving_executions += 1
+        return frames
 
     def _command_frame(self, a: _Actuator, command: MotorCommand) -> _OutFrame:
         """`command` for `a` as a frame; `BackendError` (nothing sent) if the model cannot carry it."""
@@ -827,7 +845,8 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config, *,
                    bus_factory: BusFactory = open_interface) -> CanBackend:
     """Registry factory: the actuators `config` names, checked against `policy`'s joints and limits."""
     r = policy.robot
-    joints = check_against_policy(config, tuple(r.joint_names), r.lower_limits, r.upper_limits)
+    joints = check_against_policy(config, tuple(r.joint_names), r.lower_limits, r.upper_limits, r.velocity_limits,
+                                  None if policy.gripper is None else policy.gripper.max_speed_mps)
     return CanBackend(robot, config, joints, lower=r.lower_limits, upper=r.upper_limits, home=r.home_joint_positions,
                       start_tolerance_rad=policy.motion.start_tolerance_rad, bus_factory=bus_factory)
 

@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from armwarden.backends.can.bus import BusConfig
 from armwarden.backends.can.errors import UnknownModel
-from armwarden.backends.can.ranges import ModelRanges, Protocol, model_ranges
+from armwarden.backends.can.ranges import ModelRanges, Protocol, Range, model_ranges
 from armwarden.errors import ConfigurationError
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -181,9 +181,13 @@ class Config(BaseModel):
 
 
 def check_against_policy(config: Config, joint_names: tuple[str, ...], lower: tuple[float, ...],
-                         upper: tuple[float, ...]) -> tuple[JointConfig, ...]:
+                         upper: tuple[float, ...], max_velocity: tuple[float, ...] | None = None,
+                         max_finger_speed_mps: float | None = None) -> tuple[JointConfig, ...]:
     """The joint configs in policy order; `ConfigurationError` if a policy joint is missing or an
-    extra one is configured, or a joint's limits do not map into its model's position range."""
+    extra one is configured, a joint's limits do not map into its model's position range, or a
+    speed the policy allows (a joint's `max_velocity`, the gripper's finger speed) does not fit
+    its model's velocity field: such a command could never be sent, and the backend would have
+    to damp the arm mid-motion instead."""
     by_name = {j.name: j for j in config.joints}
     missing = [n for n in joint_names if n not in by_name]
     extra = [n for n in by_name if n not in joint_names]
@@ -198,7 +202,20 @@ def check_against_policy(config: Config, joint_names: tuple[str, ...], lower: tu
             raise ConfigurationError(
                 f"invalid can backend config: joint {joint.name} limits [{lo}, {hi}] rad map to actuator positions "
                 f"[{raw[0]:.3f}, {raw[1]:.3f}] rad, outside the {joint.model} range [{position.lo:.3f}, {position.hi:.3f}]")
+    for joint, speed in zip(ordered, max_velocity or (), strict=False):
+        _speed_fits(joint.name, joint.model, joint.ranges.velocity, speed, f"max_velocity {speed:g} rad/s")
+    gripper = config.gripper
+    if gripper is not None and max_finger_speed_mps is not None:
+        speed = max_finger_speed_mps / abs(gripper.width_per_rad_m)
+        _speed_fits(gripper.name, gripper.model, gripper.ranges.velocity, speed,
+                    f"the policy's finger speed {max_finger_speed_mps:g} m/s ({speed:.2f} rad/s at the actuator)")
     return ordered
+
+
+def _speed_fits(name: str, model: str, velocity: Range, speed: float, what: str) -> None:
+    if not (velocity.lo <= -speed and speed <= velocity.hi):
+        raise ConfigurationError(f"invalid can backend config: {name}: {what} does not fit the {model} velocity range "
+                                 f"[{velocity.lo:g}, {velocity.hi:g}] rad/s")
 
 
 __all__ = ["Config", "GripperConfig", "JointConfig", "SimulatedLoad", "Simulation", "check_against_policy"]
