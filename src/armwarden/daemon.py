@@ -19,7 +19,7 @@ import logging
 import os
 import signal
 import sys
-from collections.abc import Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -307,17 +307,24 @@ async def _serve_console(args: argparse.Namespace, assembly: Assembly, external:
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
-    from armwarden.transport.jsonrpc import duplicate_id_message
     from armwarden.transport.stdio import serve_stdio
 
-    async def on_duplicate(method: str, params: Mapping[str, Any] | None, request_id: Any) -> None:
-        tool = params.get("name") if method == "tools/call" and params is not None else None
-        arguments = params.get("arguments") if tool is not None and params is not None else None
-        await assembly.audit.append_async("request_refused", tool=None if tool is None else str(tool),
-                                          arguments=arguments, outcome="duplicate_request_id",
-                                          detail=f"{method} refused: {duplicate_id_message(request_id)}")
+    await serve_stdio(assembly.server.mcp, on_refused=_refusal_recorder(assembly),
+                      on_stop_request=external.stop_on_receipt)
 
-    await serve_stdio(assembly.server.mcp, on_duplicate=on_duplicate, on_stop_request=external.stop_on_receipt)
+
+def _refusal_recorder(assembly: Assembly) -> Callable[[str | None, Any, Any, str, str], Awaitable[None]]:
+    """Audits a request a transport refused before the tools saw it (`request_refused`, on disk
+    before its answer where the transport waits for it)."""
+
+    async def record(method: str | None, params: Any, request_id: Any, outcome: str, why: str) -> None:
+        tool = params.get("name") if method == "tools/call" and isinstance(params, Mapping) else None
+        arguments = params.get("arguments") if tool is not None else None
+        await assembly.audit.append_async("request_refused", tool=None if tool is None else str(tool)[:128],
+                                          arguments=arguments, outcome=outcome, detail=why,
+                                          extra=None if request_id is None else {"request_id": str(request_id)[:64]})
+
+    return record
 
 
 async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event,
@@ -339,6 +346,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
                          on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt, console=console,
+                         on_refused=_refusal_recorder(assembly),
                          allowed_hosts=getattr(args, "allowed_host", []) or [],
                          allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)

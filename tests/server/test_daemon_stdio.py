@@ -413,6 +413,37 @@ def test_an_unreadable_line_gets_a_json_rpc_error_and_the_session_keeps_working(
     assert state["result"]["structuredContent"]["joint_positions"] == pytest.approx(HOME, abs=1e-6)
 
 
+def test_an_estop_whose_arguments_are_not_an_object_latches_and_is_recorded(tmp_path) -> None:
+    """Found by review: the SDK refused such a call (-32602) before the tool ran: the arm was held
+    on receipt, but the e-stop never latched and no call was recorded."""
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=20)
+    try:
+        answer = rpc.request("tools/call", {"name": "estop", "arguments": ["person in the cell"]})
+        status = rpc.request("tools/call", {"name": "get_safety_status", "arguments": {}})
+    finally:
+        stop_raw_daemon(process)
+    assert answer["result"]["structuredContent"]["estopped"] is True
+    assert status["result"]["structuredContent"]["estopped"] is True
+    [call] = [r for r in records_of(audit) if r["event"] == "tool_call" and r["tool"] == "estop"]
+    assert call["outcome"] == "ok" and call["arguments"] == {"reason": ["person in the cell"]}
+
+
+def test_a_call_the_sdk_refuses_for_malformed_params_is_recorded(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=20)
+    try:
+        answer = rpc.request("tools/call", {"name": "gripper_move", "arguments": [0.04]})
+        # written by its own task (a stop behind it is never held up by this fsync)
+        records = anyio.run(wait_for_record, audit, lambda r: r["event"] == "request_refused")
+        state = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})
+    finally:
+        stop_raw_daemon(process)
+    assert answer["error"]["code"] == -32602
+    [refused] = [r for r in records if r["event"] == "request_refused"]
+    assert refused["tool"] == "gripper_move" and refused["outcome"] == "invalid_params"
+    assert refused["arguments"] == [0.04] and "not an object" in refused["detail"]
+    assert "result" in state
+
+
 # ------------------------------------------------------------------ what serving on stdio imports
 WATCH_IMPORTS = """
 import json, sys

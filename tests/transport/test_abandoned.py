@@ -225,3 +225,41 @@ async def test_a_request_id_already_open_in_the_session_is_refused_and_the_open_
     assert statuses[:2] == [409, 200]
     assert [c["params"]["requestId"] for c in cancellations(app)] == [777]
     assert reports == [("execute_plan", {"plan_id": "p"}, 777, True)]
+
+
+async def pass_through(body: bytes) -> tuple[Recorder, list[tuple]]:
+    """`body` through the middleware with an on_refused recorder; what the app saw, what was refused."""
+    app, refused = Recorder(answer=True), []
+
+    async def on_refused(method: Any, params: Any, request_id: Any, outcome: str, why: str) -> None:
+        refused.append((method, params, request_id, outcome, why))
+
+    messages = [{"type": "http.request", "body": body, "more_body": False}]
+
+    async def receive() -> dict:
+        return messages.pop(0) if messages else {"type": "http.disconnect"}
+
+    async def send(message: dict) -> None:
+        pass
+
+    middleware = AbandonedMotionStop(app, "/mcp", on_refused=on_refused)
+    headers = [SESSION, (b"content-length", str(len(body)).encode())]
+    await middleware({"type": "http", "method": "POST", "path": "/mcp", "headers": headers}, receive, send)
+    return app, refused
+
+
+@pytest.mark.anyio
+async def test_an_estop_whose_arguments_are_not_an_object_reaches_the_sdk_with_them_as_its_reason():
+    app, refused = await pass_through(rpc("estop", ["person in the cell"]))
+    [(scope, body)] = app.seen
+    assert json.loads(body)["params"] == {"name": "estop", "arguments": {"reason": ["person in the cell"]}}
+    assert dict(scope["headers"])[b"content-length"] == str(len(body)).encode()  # the length of what is replayed
+    assert refused == []
+
+
+@pytest.mark.anyio
+async def test_a_call_with_malformed_params_is_reported_before_it_is_passed_on():
+    app, refused = await pass_through(rpc("gripper_move", [0.04]))
+    assert len(app.seen) == 1  # the SDK answers it (-32602)
+    assert refused == [("tools/call", {"name": "gripper_move", "arguments": [0.04]}, 7, "invalid_params",
+                        "tools/call of gripper_move refused: its arguments are not an object")]

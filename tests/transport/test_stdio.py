@@ -42,15 +42,17 @@ class Wire:
         stdout_send, self.stdout_receive = anyio.create_memory_object_stream[SessionMessage](16)
         self.refused: list[tuple[str, Any, Any]] = []
         self.stops: list[tuple[str, Any]] = []
+        self.outcomes: list[tuple[str, str]] = []
 
-        async def on_duplicate(method: str, params: Any, request_id: Any) -> None:
+        async def on_refused(method: str | None, params: Any, request_id: Any, outcome: str, why: str) -> None:
             self.refused.append((method, params, request_id))
+            self.outcomes.append((outcome, why))
 
         def spawn(fn, *args) -> None:
             self.spawned.append((fn, args))
 
         self.spawned: list[tuple[Any, tuple]] = []
-        self.server_read, self.server_write = gate_streams(stdin_receive, stdout_send, spawn, on_duplicate,
+        self.server_read, self.server_write = gate_streams(stdin_receive, stdout_send, spawn, on_refused,
                                                            lambda tool, principal: self.stops.append((tool, principal)))
 
     async def client(self, item: SessionMessage | Exception) -> None:
@@ -195,3 +197,51 @@ async def test_a_stop_request_holds_the_robot_even_when_its_id_is_refused() -> N
     await wire.passed_request()
     assert wire.stops == [("estop", None)]
     assert wire.sent()[0].error.code == INVALID_REQUEST
+
+
+def call(request_id: Any, name: str, arguments: Any) -> SessionMessage:
+    return SessionMessage(types.JSONRPCRequest(jsonrpc="2.0", id=request_id, method="tools/call",
+                                               params={"name": name, "arguments": arguments}))
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("arguments", [["person in the cell"], "person in the cell", 3])
+async def test_an_estop_whose_arguments_are_not_an_object_reaches_the_tool_with_them_as_its_reason(arguments: Any) -> None:
+    """Found by review: the SDK refuses such params before any tool runs, so the arm was held on
+    receipt but the e-stop never latched and nothing was recorded."""
+    wire = Wire()
+    await wire.client(call(3, "estop", arguments))
+    passed = await wire.passed_request()
+    assert passed.params == {"name": "estop", "arguments": {"reason": arguments}}
+    assert wire.stops == [("estop", None)]
+    await wire.report()
+    assert wire.refused == []
+
+
+@pytest.mark.anyio
+async def test_a_stop_motion_whose_arguments_are_not_an_object_reaches_the_tool() -> None:
+    wire = Wire()
+    await wire.client(call(4, "stop_motion", ["now"]))
+    assert (await wire.passed_request()).params == {"name": "stop_motion", "arguments": {"given": ["now"]}}
+
+
+@pytest.mark.anyio
+async def test_a_call_with_malformed_params_is_reported_and_left_for_the_sdk_to_answer() -> None:
+    wire = Wire()
+    await wire.client(call(5, "gripper_move", [0.04]))
+    passed = await wire.passed_request()  # the SDK answers it -32602
+    await wire.report()
+    assert passed.id == 5
+    assert wire.refused == [("tools/call", {"name": "gripper_move", "arguments": [0.04]}, 5)]
+    assert wire.outcomes == [("invalid_params", "tools/call of gripper_move refused: its arguments are not an object")]
+
+
+@pytest.mark.anyio
+async def test_an_unreadable_line_is_reported() -> None:
+    wire = Wire()
+    await wire.client(unreadable("{not json"))
+    await wire.client(request(1))
+    await wire.passed()
+    await wire.report()
+    assert wire.refused == [(None, None, None)]
+    assert wire.outcomes[0][0] == "unreadable"

@@ -18,7 +18,11 @@ that one call wherever it is (prechecks, approval question, motion) and the Guar
 path stops the robot and audits it. Nothing else is touched: another client's motion keeps going.
 `on_abandoned` is told afterwards, for the audit log.
 
-It never blocks, changes or drops a message of a request it passes on.
+It also repairs a stopping tool's call whose `arguments` is not an object (`stop_params_repaired`:
+the SDK would refuse it before the e-stop latches) and reports (`on_refused`, awaited before the
+request goes on, so the daemon's record is on disk before the answer) every `tools/call` the SDK
+will refuse before any tool sees it and every duplicate id it refuses itself. Apart from that
+repair it never blocks, changes or drops a message of a request it passes on.
 """
 
 from __future__ import annotations
@@ -31,7 +35,16 @@ from typing import Any
 import anyio
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from armwarden.transport.jsonrpc import INVALID_REQUEST, StopOnReceipt, duplicate_id_message, request_id_key, stop_call
+from armwarden.transport.jsonrpc import (
+    INVALID_REQUEST,
+    RefusedCallback,
+    StopOnReceipt,
+    duplicate_id_message,
+    malformed_call,
+    request_id_key,
+    stop_call,
+    stop_params_repaired,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -149,11 +162,12 @@ class AbandonedMotionStop:
     """ASGI middleware: see the module docstring."""
 
     def __init__(self, app: ASGIApp, path: str, on_abandoned: AbandonedCallback | None = None,
-                 on_stop_request: StopOnReceipt | None = None) -> None:
+                 on_stop_request: StopOnReceipt | None = None, on_refused: RefusedCallback | None = None) -> None:
         self.app = app
         self.path = path.rstrip("/")
         self.on_abandoned = on_abandoned
         self.on_stop_request = on_stop_request
+        self.on_refused = on_refused
         self._open_requests: set[tuple[str, bytes, str]] = set()  # (principal, session, id) of POSTs not ended
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -173,10 +187,19 @@ class AbandonedMotionStop:
             tool = stop_call(message.get("method"), message.get("params"))
             if tool is not None:  # hold the robot now, even if the request is refused below
                 self.on_stop_request(tool, _principal(scope) or None)
+        if message is not None and (repaired := stop_params_repaired(message.get("method"), message.get("params"))) is not None:
+            message = {**message, "params": repaired}
+            body = json.dumps(message).encode()
+            scope = {**scope, "headers": [(key, str(len(body)).encode() if key == b"content-length" else value)
+                                          for key, value in scope.get("headers", [])]}
+        elif message is not None and (why := malformed_call(message.get("method"), message.get("params"))) is not None:
+            await self._report(message, "invalid_params", why)  # the SDK answers it
         key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
             request_id = message.get("id") if message else None
+            await self._report(message, "duplicate_request_id",
+                               f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}")
             await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
         if key is not None:
@@ -186,6 +209,16 @@ class AbandonedMotionStop:
         finally:
             if key is not None:
                 self._open_requests.discard(key)
+
+    async def _report(self, message: dict[str, Any] | None, outcome: str, why: str) -> None:
+        if self.on_refused is None or message is None:
+            return
+        params = message.get("params")
+        try:
+            await self.on_refused(message.get("method"), params if isinstance(params, dict) else None,
+                                  message.get("id"), outcome, why)
+        except Exception:
+            logger.exception("reporting the refused request %r failed", message.get("id"))
 
     async def _pass_on(self, scope: Scope, receive: Receive, send: Send, body: bytes,
                        message: dict[str, Any] | None) -> None:

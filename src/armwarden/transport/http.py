@@ -60,7 +60,7 @@ from armwarden.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
-from armwarden.transport.jsonrpc import StopOnReceipt
+from armwarden.transport.jsonrpc import RefusedCallback, StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
@@ -230,6 +230,7 @@ def build_http_app(
     on_abandoned: AbandonedCallback | None = None,
     on_stop_request: StopOnReceipt | None = None,
     console: ASGIApp | None = None,
+    on_refused: RefusedCallback | None = None,
 ) -> Starlette:
     """The ASGI app: ``/mcp`` (stateful streamable HTTP), ``/healthz`` and, when given, the
     operator `console` at ``/console`` (its own sign-in instead of bearer tokens; Host/Origin
@@ -242,6 +243,8 @@ def build_http_app(
     call's request ended without its response and the call was cancelled (see `abandoned.py`).
     `on_stop_request(tool, principal)` is called the moment an `estop`/`stop_motion` request is read,
     before the SDK queues it: it must be quick and thread-safe (it holds the robot).
+    `on_refused(method, params, request_id, outcome, why)` is awaited for a request refused before
+    the tools saw it (a duplicate id, malformed `tools/call` params), before it is answered.
     """
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     mcp_app = server.streamable_http_app(
@@ -274,7 +277,7 @@ def build_http_app(
                                      own_auth_prefixes=(CONSOLE_PATH,) if console is not None else ()))
     # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
     middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned,
-                                 on_stop_request=on_stop_request))
+                                 on_stop_request=on_stop_request, on_refused=on_refused))
     routes: list[Route | Mount] = [Route(HEALTH_PATH, healthz, methods=["GET"])]
     if console is not None:
         routes.append(Mount(CONSOLE_PATH, app=console))

@@ -5,7 +5,7 @@ Lean on purpose (no Starlette, no uvicorn): the stdio transport imports it.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
 from mcp.shared.dispatcher import coerce_request_id
@@ -28,6 +28,10 @@ def request_id_key(request_id: Any) -> str:
 STOP_TOOLS = frozenset({"estop", "stop_motion"})
 #: (tool, principal or None): hold the robot now; the tool itself runs later and does the rest
 StopOnReceipt = Callable[[str, "str | None"], None]
+#: (method, params, request id, outcome, why) of a request a transport refused, or knows the SDK
+#: will refuse, before the server's tools saw it — its id was open, it was unreadable (method,
+#: params and id then None), its `tools/call` params were malformed — for the audit log
+RefusedCallback = Callable[[Any, "Mapping[str, Any] | None", Any, str, str], Awaitable[None]]
 
 
 def stop_call(method: Any, params: Any) -> str | None:
@@ -36,6 +40,39 @@ def stop_call(method: Any, params: Any) -> str | None:
         return None
     name = params.get("name")
     return name if isinstance(name, str) and name in STOP_TOOLS else None
+
+
+def stop_params_repaired(method: Any, params: Any) -> dict[str, Any] | None:
+    """For a `tools/call` of a stopping tool whose `arguments` is not an object (a list, a string,
+    a number): the same params with that value kept under an argument the tool takes — `reason`
+    for `estop`, `given` for `stop_motion` (stopping tools accept any) — so the call reaches the
+    tool, which latches or holds and is audited like any other. The SDK refuses such params
+    (-32602) before any tool or the audit sees them: the arm was held on receipt, but the e-stop
+    never latched and nothing said why. None: nothing to repair."""
+    tool = stop_call(method, params)
+    if tool is None:
+        return None
+    arguments = params.get("arguments")
+    if arguments is None or isinstance(arguments, dict):
+        return None
+    return {**params, "arguments": {"reason" if tool == "estop" else "given": arguments}}
+
+
+def malformed_call(method: Any, params: Any) -> str | None:
+    """Why the SDK will refuse this `tools/call` request (-32602) before any tool, and so before
+    the audit middleware, sees it: params that are not an object, no tool name (a string), or
+    `arguments` that are neither an object nor absent. None: well formed, or not a `tools/call`.
+    The transports audit these refusals themselves."""
+    if method != "tools/call":
+        return None
+    if not isinstance(params, dict):
+        return "tools/call refused: its params are not an object"
+    if not isinstance(params.get("name"), str):
+        return "tools/call refused: no tool name (a string)"
+    arguments = params.get("arguments")
+    if arguments is not None and not isinstance(arguments, dict):
+        return f"tools/call of {str(params['name'])[:64]} refused: its arguments are not an object"
+    return None
 
 
 def duplicate_id_message(request_id: Any) -> str:

@@ -11,6 +11,12 @@ server. Two gaps, closed here by a thin layer around its streams:
   cancellable. Here the second request is answered with a -32600 error under its id and never
   reaches the SDK, as the HTTP transport refuses it with 409 (`abandoned.py`).
 
+Two more, shared with the HTTP transport (`jsonrpc.py`): a stopping tool's call whose `arguments`
+is not an object is passed on with that value as its argument (`stop_params_repaired`: the SDK would
+refuse it before the tool latches), and every request refused before the server's tools see it —
+an unreadable line, a reused id, a `tools/call` with malformed params (the SDK answers that one) —
+is reported through `on_refused`, so the daemon audits it.
+
 An id is open from its request until the answer is written, or until the SDK settles the request
 without one (it was cancelled: the SDK's `on_request_unanswered` hook). Ids are compared the way
 the SDK matches them (`request_id_key`). Everything else passes unchanged, in order; stdout carries
@@ -22,7 +28,7 @@ Lean on purpose: serving on stdio imports nothing of the HTTP transport.
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Callable, Coroutine, Mapping
+from collections.abc import Callable, Coroutine, Mapping
 from types import TracebackType
 from typing import Any
 
@@ -43,19 +49,20 @@ from pydantic import ValidationError
 from armwarden.transport.jsonrpc import (
     INVALID_REQUEST,
     PARSE_ERROR,
+    RefusedCallback,
     StopOnReceipt,
     duplicate_id_message,
+    malformed_call,
     request_id_key,
     stop_call,
+    stop_params_repaired,
 )
 
-__all__ = ["DuplicateCallback", "GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
+__all__ = ["GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
 
 logger = logging.getLogger(__name__)
 
-#: (method, params, request id) of a request refused because its id was open; awaited in its own
-#: task, so a slow audit write never holds up the messages behind it (a stop among them)
-DuplicateCallback = Callable[[str, Mapping[str, Any] | None, RequestId], Awaitable[None]]
+
 
 
 def unreadable_line_error(exc: Exception) -> ErrorData:
@@ -103,13 +110,13 @@ class GatedReadStream:
     """Read side: answers unreadable lines and duplicate open ids itself, passes the rest on."""
 
     def __init__(self, inner: ReadStream[SessionMessage | Exception], writer: GatedWriteStream, open_ids: set[str],
-                 spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None,
+                 spawn: Callable[..., None], on_refused: RefusedCallback | None = None,
                  on_stop_request: StopOnReceipt | None = None) -> None:
         self._inner = inner
         self._writer = writer
         self._open_ids = open_ids
         self._spawn = spawn
-        self._on_duplicate = on_duplicate
+        self._on_refused = on_refused
         self._on_stop_request = on_stop_request
 
     @property
@@ -124,19 +131,24 @@ class GatedReadStream:
                 error = unreadable_line_error(item)
                 logger.warning("stdio: answered an unreadable line with error %d", error.code)
                 await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=error))
+                self._report(None, None, None, "unreadable", error.message)
                 continue
             if not isinstance(item.message, JSONRPCRequest):
                 return item
             request = item.message
             if self._on_stop_request is not None and (tool := stop_call(request.method, request.params)) is not None:
                 self._on_stop_request(tool, None)  # hold the robot now, even if the request is refused below
+            if (repaired := stop_params_repaired(request.method, request.params)) is not None:
+                request = request.model_copy(update={"params": repaired})
+            elif (why := malformed_call(request.method, request.params)) is not None:
+                self._report(request.method, request.params, request.id, "invalid_params", why)  # the SDK answers it
             key = request_id_key(request.id)
             if key in self._open_ids:
                 logger.warning("stdio: refused %s: request id %r is still open", request.method, request.id)
                 await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=request.id, error=ErrorData(
                     code=INVALID_REQUEST, message=duplicate_id_message(request.id))))
-                if self._on_duplicate is not None:
-                    self._spawn(self._report_duplicate, request)
+                self._report(request.method, request.params, request.id, "duplicate_request_id",
+                             f"{request.method} refused: {duplicate_id_message(request.id)}")
                 continue
             self._open_ids.add(key)
             return SessionMessage(request, self._closing_on_settle(item.metadata, key))
@@ -158,12 +170,18 @@ class GatedReadStream:
         metadata.on_request_unanswered = settled_unanswered
         return metadata
 
-    async def _report_duplicate(self, request: JSONRPCRequest) -> None:
-        assert self._on_duplicate is not None
+    def _report(self, method: str | None, params: Mapping[str, Any] | None, request_id: RequestId | None,
+                outcome: str, why: str) -> None:
+        if self._on_refused is not None:
+            self._spawn(self._report_refusal, method, params, request_id, outcome, why)
+
+    async def _report_refusal(self, method: str | None, params: Mapping[str, Any] | None, request_id: RequestId | None,
+                              outcome: str, why: str) -> None:
+        assert self._on_refused is not None
         try:
-            await self._on_duplicate(request.method, request.params, request.id)
+            await self._on_refused(method, params, request_id, outcome, why)
         except Exception:
-            logger.exception("reporting the refused duplicate request %r failed", request.id)
+            logger.exception("reporting the refused request %r failed", request_id)
 
     async def aclose(self) -> None:
         await self._inner.aclose()
@@ -187,15 +205,15 @@ class GatedReadStream:
 
 
 def gate_streams(read_stream: ReadStream[SessionMessage | Exception], write_stream: WriteStream[SessionMessage],
-                 spawn: Callable[..., None], on_duplicate: DuplicateCallback | None = None,
+                 spawn: Callable[..., None], on_refused: RefusedCallback | None = None,
                  on_stop_request: StopOnReceipt | None = None) -> tuple[GatedReadStream, GatedWriteStream]:
     """Wrap a server's stream pair (see the module docstring). `spawn(fn, *args)` runs a task."""
     open_ids: set[str] = set()
     writer = GatedWriteStream(write_stream, open_ids)
-    return GatedReadStream(read_stream, writer, open_ids, spawn, on_duplicate, on_stop_request), writer
+    return GatedReadStream(read_stream, writer, open_ids, spawn, on_refused, on_stop_request), writer
 
 
-async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | None = None,
+async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None = None,
                       on_stop_request: StopOnReceipt | None = None) -> None:
     """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
     with the gate in between). Pending duplicate reports finish before this returns."""
@@ -206,5 +224,5 @@ async def serve_stdio(server: MCPServer, *, on_duplicate: DuplicateCallback | No
         def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
             reports.start_soon(fn, *args)
 
-        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_duplicate, on_stop_request)
+        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request)
         await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
