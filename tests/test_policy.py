@@ -1063,3 +1063,15 @@ def test_json_schema_describes_every_field() -> None:
     missing += [prop for prop, body in schema["properties"].items() if not body.get("description")]
     assert missing == []
     assert all(d.get("additionalProperties") is False for d in schema["$defs"].values() if "properties" in d)
+
+
+@pytest.mark.parametrize("field", ["global_per_minute", "default_per_minute"])
+def test_a_rate_too_large_to_be_a_float_is_refused_at_load_not_at_serve(doc: dict[str, Any], field: str) -> None:
+    """Found by review: 10**400 passed check-policy, then the limiter's float() overflowed at start-up."""
+    doc["rate_limits"][field] = 10**400
+    assert paths_of(doc) == [f"rate_limits.{field}"]
+
+
+def test_a_finger_speed_below_the_floor_is_refused(doc: dict[str, Any]) -> None:
+    doc["gripper"]["max_speed_mps"] = 0.0005
+    assert paths_of(doc) == ["gripper.max_speed_mps"]

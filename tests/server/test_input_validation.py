@@ -83,8 +83,8 @@ FIELDS: dict[str, dict[str, str]] = {
     "plan_cartesian_path": {"waypoints": "waypoints", "frame_id": "frame", "velocity_scaling": "scaling",
                             "acceleration_scaling": "scaling", "preview": "flag"},
     "execute_plan": {"plan_id": "name"},
-    "gripper_move": {"width_m": "number", "speed_mps": "optional_number"},
-    "gripper_grasp": {"width_m": "number", "force_n": "number", "speed_mps": "optional_number",
+    "gripper_move": {"width_m": "number", "speed_mps": "speed"},
+    "gripper_grasp": {"width_m": "number", "force_n": "number", "speed_mps": "speed",
                       "epsilon_inner_m": "number", "epsilon_outer_m": "number"},
     "switch_controllers": {"activate": "names", "deactivate": "names"},
     "set_collision_thresholds": {"force_n": "number", "torque_nm": "number"},
@@ -98,6 +98,8 @@ BAD_VALUES: dict[str, list[Any]] = {
     "optional_number": _NUMBER_JUNK,  # NaN/Inf arrive as null = "use the default": see the direct test
     # and below the floor: a motion that would take hours and grow without bound (waypoints ∝ 1/scaling)
     "scaling": [*_NUMBER_JUNK, 0.0, -0.1, 0.0099, 1e-4, 1e-300, 5e-324],
+    # and below the floor: a gripper call that would take hours and hold every other one off (found by review)
+    "speed": [*_NUMBER_JUNK, 0.0, -0.1, 0.00099, 1e-6, 1e-300, 5e-324],
     "flag": [1, 0, 0.0, NAN, "yes", "True", [True], {"on": True}, HUGE_TEXT, None],
     "count": ["5", 5.0, 5.5, True, NAN, INF, -INF, 10**30, -1, 0, 101, [5], {"n": 5}, HUGE_TEXT, None],
     "name": ["", HUGE_TEXT, 42, 0.3, True, NAN, ["wrist"], {"name": "wrist"}, "no such thing \u202e\n", None, NESTED],
@@ -248,6 +250,7 @@ STRATEGIES: dict[str, st.SearchStrategy[Any]] = {
     "number": st.one_of(_bad_float, _junk, st.none()),
     "optional_number": st.one_of(_huge_float, _junk),
     "scaling": st.one_of(_huge_float, _junk, st.floats(min_value=-1.0, max_value=0.0099)),
+    "speed": st.one_of(_huge_float, _junk, st.floats(min_value=-1.0, max_value=0.00099)),
     "flag": st.one_of(st.integers(), st.floats(), _not_json_text, st.lists(st.booleans(), min_size=1, max_size=2),
                       st.none()),
     "count": st.one_of(st.floats(), st.integers(min_value=101), st.integers(max_value=0), _junk, st.none()),

@@ -646,6 +646,22 @@ async def test_controller_outside_the_allowlist_is_refused_without_asking_anyone
 
 @pytest.mark.anyio
 @mode_param
+async def test_a_contradictory_or_repeated_controller_switch_is_refused_without_asking_anyone(tmp_path, mode) -> None:
+    """Found by review: one controller in both lists, or twice in one, was put to a human (and
+    only the backend refused it, after the approval)."""
+    ask = approve()
+    async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client(mode, ask) as client:
+        both = await client.call_tool("switch_controllers", {"activate": ["fr3_arm_controller"],
+                                                             "deactivate": ["fr3_arm_controller"]})
+        twice = await client.call_tool("switch_controllers", {"activate": ["fr3_arm_controller", "fr3_arm_controller"]})
+        assert "both activated and deactivated" in assert_refused(both, "INVALID")
+        assert "named twice" in assert_refused(twice, "INVALID")
+        assert ask.prompts == []
+        assert arm.actuations == []
+
+
+@pytest.mark.anyio
+@mode_param
 async def test_collision_thresholds_over_the_force_cap_are_refused(tmp_path, mode) -> None:
     ask = approve()
     async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client(mode, ask) as client:

@@ -16,6 +16,9 @@ MAX_GRIPPER_WIDTH_M = 0.5
 MAX_GRASP_FORCE_N = 250.0
 #: Fastest finger speed [m/s] (common parallel grippers: 0.05–0.15).
 MAX_FINGER_SPEED_MPS = 0.5
+#: the slowest finger speed a call may ask [m/s]: a full 0.2 m stroke then takes 200 s; slower
+#: would let one call hold the gripper (and every other gripper call) for hours
+MIN_FINGER_SPEED_MPS = 0.001
 
 
 class GripperConfig(BaseModel):
@@ -33,7 +36,8 @@ class GripperConfig(BaseModel):
         gt=0, le=MAX_GRASP_FORCE_N, description=f"Largest grasp force [N], in (0, {MAX_GRASP_FORCE_N:g}]."
     )
     max_speed_mps: float = finite(
-        gt=0, le=MAX_FINGER_SPEED_MPS, description=f"Largest finger speed [m/s], in (0, {MAX_FINGER_SPEED_MPS:g}]."
+        ge=MIN_FINGER_SPEED_MPS, le=MAX_FINGER_SPEED_MPS,
+        description=f"Largest finger speed [m/s], in [{MIN_FINGER_SPEED_MPS:g}, {MAX_FINGER_SPEED_MPS:g}].",
     )
 
     @model_validator(mode="after")

@@ -89,7 +89,10 @@ Coordinate = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_CO
 #: [x, y, z] in metres, in the robot base frame.
 Vector3 = tuple[Coordinate, Coordinate, Coordinate]
 StrictBool = Annotated[bool, Field(strict=True)]
-Rate = Annotated[int, Field(strict=True, ge=1)]
+#: The largest calls-per-minute a rate limit may name: far beyond any client (one call every 6 µs),
+#: and small enough to be a float exactly (a bigger int overflowed the limiter at start-up)
+MAX_RATE_PER_MINUTE = 10_000_000
+Rate = Annotated[int, Field(strict=True, ge=1, le=MAX_RATE_PER_MINUTE)]
 
 MODEL_CONFIG = ConfigDict(extra="forbid", frozen=True)
 

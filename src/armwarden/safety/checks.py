@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
+from armwarden.policy.devices import MIN_FINGER_SPEED_MPS
 from armwarden.safety.estop import flatten_reason
 
 __all__ = ["check_camera", "check_controllers", "check_gripper", "check_thresholds"]
@@ -28,8 +29,8 @@ def check_gripper(policy: Policy, width_m: float | None, force_n: float | None, 
     speed = cfg.max_speed_mps if speed_mps is None else speed_mps
     if width_m is not None and not (cfg.min_width_m <= width_m <= cfg.max_width_m):
         raise _out_of_range(f"width_m {width_m:g} must be in [{cfg.min_width_m:g}, {cfg.max_width_m:g}] m")
-    if not (0.0 < speed <= cfg.max_speed_mps):
-        raise _out_of_range(f"speed_mps {speed:g} must be in (0, {cfg.max_speed_mps:g}] m/s")
+    if not (MIN_FINGER_SPEED_MPS <= speed <= cfg.max_speed_mps):
+        raise _out_of_range(f"speed_mps {speed:g} must be in [{MIN_FINGER_SPEED_MPS:g}, {cfg.max_speed_mps:g}] m/s")
     if force_n is not None and not (0.0 < force_n <= cfg.max_grasp_force_n):
         raise _out_of_range(f"force_n {force_n:g} must be in (0, {cfg.max_grasp_force_n:g}] N")
     for name, eps in (("epsilon_inner_m", epsilon_inner_m), ("epsilon_outer_m", epsilon_outer_m)):
@@ -47,6 +48,13 @@ def check_controllers(policy: Policy, activate: Sequence[str], deactivate: Seque
                             f"not in the policy's allowlist {sorted(allowed)}")
     if not activate and not deactivate:
         raise SafetyRefusal(RefusalCode.INVALID, "nothing to switch: give activate and/or deactivate")
+    # a switch a human approves must mean one thing: what one controller ends up doing
+    repeated = sorted({c for names in (activate, deactivate) for c in names if list(names).count(c) > 1})
+    if repeated:
+        raise SafetyRefusal(RefusalCode.INVALID, f"controller(s) {repeated} named twice in one list")
+    both = sorted(set(activate) & set(deactivate))
+    if both:
+        raise SafetyRefusal(RefusalCode.INVALID, f"controller(s) {both} both activated and deactivated: say which")
 
 
 def check_thresholds(policy: Policy, force_n: float, torque_nm: float) -> None:

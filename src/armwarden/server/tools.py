@@ -31,6 +31,7 @@ from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard, PlanKind, Prompt
 from armwarden.planning.planners import MIN_SCALING, PoseTarget
 from armwarden.policy import TOOL_GROUPS
+from armwarden.policy.devices import MIN_FINGER_SPEED_MPS
 from armwarden.results import (
     ActionResult,
     AuditTail,
@@ -391,7 +392,8 @@ class ToolBuilder:
         cfg = self.policy.gripper
         assert cfg is not None
         width = Field(ge=cfg.min_width_m, le=cfg.max_width_m, description=f"[m], {cfg.min_width_m:g}..{cfg.max_width_m:g}")
-        speed = Field(gt=0.0, le=cfg.max_speed_mps, description=f"[m/s], at most {cfg.max_speed_mps:g} (the default)")
+        speed = Field(ge=MIN_FINGER_SPEED_MPS, le=cfg.max_speed_mps,
+                      description=f"[m/s], {MIN_FINGER_SPEED_MPS:g}..{cfg.max_speed_mps:g} (the default: the most)")
         epsilon = Field(ge=0.0, le=cfg.max_width_m, description="[m] tolerance on the grasp width")
         grasp_force = Field(gt=0.0, le=cfg.max_grasp_force_n, description=f"[N], at most {cfg.max_grasp_force_n:g}")
 
