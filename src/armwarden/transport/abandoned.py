@@ -40,10 +40,8 @@ from armwarden.transport.jsonrpc import (
     RefusedCallback,
     StopOnReceipt,
     duplicate_id_message,
-    malformed_call,
     request_id_key,
-    stop_call,
-    stop_params_repaired,
+    screen_call,
 )
 
 logger = logging.getLogger(__name__)
@@ -183,17 +181,16 @@ class AbandonedMotionStop:
             await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
             return
         message = decode_message(body)
-        if self.on_stop_request is not None and message is not None:
-            tool = stop_call(message.get("method"), message.get("params"))
-            if tool is not None:  # hold the robot now, even if the request is refused below
-                self.on_stop_request(tool, _principal(scope) or None)
-        if message is not None and (repaired := stop_params_repaired(message.get("method"), message.get("params"))) is not None:
-            message = {**message, "params": repaired}
-            body = json.dumps(message).encode()
-            scope = {**scope, "headers": [(key, str(len(body)).encode() if key == b"content-length" else value)
-                                          for key, value in scope.get("headers", [])]}
-        elif message is not None and (why := malformed_call(message.get("method"), message.get("params"))) is not None:
-            await self._report(message, "invalid_params", why)  # the SDK answers it
+        if message is not None:
+            params, malformed = screen_call(message.get("method"), message.get("params"), self.on_stop_request,
+                                            _principal(scope) or None)
+            if params is not message.get("params"):  # a stopping call, repaired: replay the new body
+                message = {**message, "params": params}
+                body = json.dumps(message).encode()
+                scope = {**scope, "headers": [(key, str(len(body)).encode() if key == b"content-length" else value)
+                                              for key, value in scope.get("headers", [])]}
+            elif malformed is not None:
+                await self._report(message, "invalid_params", malformed)  # the SDK answers it
         key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled

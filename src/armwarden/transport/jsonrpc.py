@@ -75,6 +75,20 @@ def malformed_call(method: Any, params: Any) -> str | None:
     return None
 
 
+def screen_call(method: Any, params: Any, on_stop_request: StopOnReceipt | None,
+                principal: str | None) -> tuple[Any, str | None]:
+    """What both transports do with a request the moment it is read, before the SDK: a stopping
+    tool's call holds the robot at once (`on_stop_request`) and is repaired if its arguments are
+    not an object (`stop_params_repaired`); any other `tools/call` the SDK will refuse before the
+    tools see it is named (`malformed_call`), for the audit. Returns (the params to pass on — the
+    same object unless repaired —, why the SDK will refuse it or None)."""
+    if on_stop_request is not None and (tool := stop_call(method, params)) is not None:
+        on_stop_request(tool, principal)  # hold the robot now, even if the request is refused later
+    if (repaired := stop_params_repaired(method, params)) is not None:
+        return repaired, None
+    return params, malformed_call(method, params)
+
+
 def duplicate_id_message(request_id: Any) -> str:
     """Why a request was refused: its id is still open. Without the refusal the SDK would replace
     the open call's entry, and that call (perhaps a motion) could no longer be cancelled."""

@@ -52,10 +52,8 @@ from armwarden.transport.jsonrpc import (
     RefusedCallback,
     StopOnReceipt,
     duplicate_id_message,
-    malformed_call,
     request_id_key,
-    stop_call,
-    stop_params_repaired,
+    screen_call,
 )
 
 __all__ = ["GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
@@ -136,12 +134,11 @@ class GatedReadStream:
             if not isinstance(item.message, JSONRPCRequest):
                 return item
             request = item.message
-            if self._on_stop_request is not None and (tool := stop_call(request.method, request.params)) is not None:
-                self._on_stop_request(tool, None)  # hold the robot now, even if the request is refused below
-            if (repaired := stop_params_repaired(request.method, request.params)) is not None:
-                request = request.model_copy(update={"params": repaired})
-            elif (why := malformed_call(request.method, request.params)) is not None:
-                self._report(request.method, request.params, request.id, "invalid_params", why)  # the SDK answers it
+            params, malformed = screen_call(request.method, request.params, self._on_stop_request, None)
+            if params is not request.params:
+                request = request.model_copy(update={"params": params})
+            elif malformed is not None:
+                self._report(request.method, request.params, request.id, "invalid_params", malformed)  # the SDK answers it
             key = request_id_key(request.id)
             if key in self._open_ids:
                 logger.warning("stdio: refused %s: request id %r is still open", request.method, request.id)
