@@ -261,6 +261,32 @@ async def test_the_topic_fallback_publishes_the_waypoints_and_a_stop_publishes_a
     assert not np.allclose(held, trajectory.goal)
 
 
+async def test_a_topic_fallback_stop_with_stale_joint_states_holds_where_the_arm_is_driven_not_where_it_was(
+        cell: Cell) -> None:
+    """Found by review: the joint states stop mid-motion while the arm moves on; the fault's hold
+    was published at the last (half a second old) measurement, to be reached in 50 ms — a fast
+    jump back along the path. With stale states it now holds at the published trajectory's
+    setpoint for the moment of the stop, which the controller is driving the arm to."""
+    config = example_config(trajectory={"action": None, "topic": "/fr3_arm_controller/joint_trajectory"})
+    async with opened(config) as backend:
+        faults: list[str] = []
+        backend.set_fault_listener(faults.append)
+        q = (await backend.read_joint_state()).positions.copy()
+        task = asyncio.create_task(backend.execute(straight_line(backend.joint_names, q, q + 0.6, 3.0)))
+        await wait_for(lambda: cell.positions()[0] > q[0] + 0.05, "the cell moving")
+        cell.pause_joint_states()
+        await wait_for(lambda: bool(faults), "a fault")
+        with pytest.raises(Exception):
+            await task
+        await wait_for(lambda: cell.counters().topic_trajectories == 2, "the hold reaching the cell")
+        arm = cell.positions()
+        hold = cell.counters().last_topic_trajectory
+    assert hold is not None and len(hold.points) == 1
+    # the trajectory moves 0.2 rad/s and the hold is reached in 0.05 s: the arm is within about
+    # 0.01 rad of it (the hold at the stale measurement was 0.1 rad behind)
+    assert float(np.max(np.abs(np.array(hold.points[0].positions) - arm))) <= 0.01
+
+
 class SpareController:
     """A bare FollowJointTrajectory server in its own context, to take away while the backend watches."""
 

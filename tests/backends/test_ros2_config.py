@@ -72,6 +72,16 @@ def test_joint_names_map_to_ros_names_with_identity_by_default(fr3_policy: Polic
     assert names[0] == "panda_joint1" and names[1:] == tuple(fr3_policy.robot.joint_names[1:])
 
 
+def test_a_joint_mapped_to_another_policy_joints_own_name_is_refused(fr3_policy: Policy) -> None:
+    """Found by review: fr3_joint1 → fr3_joint2 passed (the mapped names were only compared with
+    each other), and joint 1 then read joint 2's position."""
+    config = parse_backend_config("ros2", {"joints": {"fr3_joint1": "fr3_joint2"}})
+    assert isinstance(config, Config)
+    with pytest.raises(ConfigurationError, match=r"two policy joints would read the same JointState name "
+                                                 r"\(fr3_joint2: fr3_joint1, fr3_joint2\)"):
+        check_against_policy(config, tuple(fr3_policy.robot.joint_names))
+
+
 def test_without_rclpy_creating_the_backend_names_the_install_command(
         monkeypatch, fr3_policy: Policy, robot: RobotModel) -> None:
     monkeypatch.setitem(sys.modules, "armwarden.backends.ros2.backend", None)  # as if rclpy were missing

@@ -205,6 +205,7 @@ class _TopicRun:
     epoch: int
     duration_s: float
     sent_at: float
+    trajectory: JointTrajectory | None = None  # what was published: where the controller is told to be
     held_at: float | None = None  # when the stop's hold was published (monotonic [s])
     held_measured: float | None = None  # header stamp of the latest joint state then [s, the cell's clock]
 
@@ -629,7 +630,7 @@ class Ros2Backend(Backend):
         with self._motion_lock:
             if self._stop_landed():
                 return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
-            run = _TopicRun(self._execution_epoch, trajectory.duration_s, time.monotonic())
+            run = _TopicRun(self._execution_epoch, trajectory.duration_s, time.monotonic(), trajectory)
             self._run = run
             publisher.publish(message)
         try:
@@ -673,14 +674,24 @@ class Ros2Backend(Backend):
             await anyio.sleep(POLL_S)
 
     def _hold(self, run: _TopicRun) -> None:
-        """Any thread: publish a one-point hold at the measured positions (once per run)."""
+        """Any thread: publish a one-point hold (once per run) at the measured positions — or, when
+        the latest joint state is older than the hold's own time (the states stopped or lag), at
+        the published trajectory's setpoint for now, where the controller is driving the arm: a
+        hold at a stale measurement would drive a moving arm back to where it was, fast."""
         publisher = self._endpoints.trajectory_topic
         if publisher is None or run.held_at is not None:
             return
-        state = self.joint_states.latest()
-        if state is None:
+        hold_s = self.config.trajectory.hold_time_s
+        state, age = self.joint_states.latest(), self.joint_states.age_s()
+        if state is not None and age is not None and age <= hold_s:
+            positions = state.positions
+        elif run.trajectory is not None:
+            positions = run.trajectory.sample(time.monotonic() - run.sent_at)
+        elif state is not None:
+            positions = state.positions
+        else:
             raise BackendError("cannot hold: no joint state to hold at")
-        publisher.publish(hold_message(state.positions, self.ros_names, self.config.trajectory.hold_time_s))
+        publisher.publish(hold_message(positions, self.ros_names, hold_s))
         run.held_at = time.monotonic()
         run.held_measured = self.joint_states.latest_header_s()
         self.stop_records.append(StopRecord("hold", run.held_at))

@@ -155,7 +155,16 @@ def check_against_policy(config: Config, joint_names: tuple[str, ...]) -> tuple[
         lines = "\n".join(f"  joints.{name}: not a joint of the policy (policy joints: {', '.join(joint_names)})"
                           for name in unknown)
         raise ConfigurationError(f"invalid ros2 backend config:\n{lines}")
-    return tuple(config.joints.get(name, name) for name in joint_names)
+    ros_names = tuple(config.joints.get(name, name) for name in joint_names)
+    # a mapped name must not be another policy joint's own (unmapped) name: that joint's readings
+    # would then be taken for this one's, and the arm planned from a wrong pose
+    shared = sorted({n for n in ros_names if ros_names.count(n) > 1})
+    if shared:
+        owners = "; ".join(f"{n}: {', '.join(j for j, r in zip(joint_names, ros_names, strict=True) if r == n)}"
+                           for n in shared)
+        raise ConfigurationError(f"invalid ros2 backend config:\n  joints: two policy joints would read the same "
+                                 f"JointState name ({owners})")
+    return ros_names
 
 
 __all__ = [
