@@ -276,7 +276,7 @@ async def test_a_topic_fallback_stop_with_stale_joint_states_holds_where_the_arm
         await wait_for(lambda: cell.positions()[0] > q[0] + 0.05, "the cell moving")
         cell.pause_joint_states()
         await wait_for(lambda: bool(faults), "a fault")
-        with pytest.raises(Exception):
+        with pytest.raises(BackendError):
             await task
         await wait_for(lambda: cell.counters().topic_trajectories == 2, "the hold reaching the cell")
         arm = cell.positions()

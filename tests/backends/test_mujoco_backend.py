@@ -276,3 +276,47 @@ def test_a_home_outside_the_joint_limits_is_refused():
     outside = np.asarray(POLICY.robot.home_joint_positions, dtype=float) + np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
     with pytest.raises(BackendError, match="joint limits"):
         MujocoBackend(ROBOT, cell, outside)
+
+
+# ---------------------------------------------------------------------------- found by review
+def _blow_up(backend: MujocoBackend, force: float) -> None:
+    """A force on the hand that makes the next physics step unstable."""
+    hand = backend._model.body(backend.cell.flange_body).id
+    backend._data.xfrc_applied[hand, 0] = force
+
+
+def test_an_unstable_step_is_a_divergence_never_a_reset_published_as_fresh_state() -> None:
+    """MuJoCo's automatic reset put the arm back at the model's defaults after an unstable step,
+    and that was published as a fresh, valid state (an idle, held arm 'moved' 2.3 rad)."""
+    async def scenario(backend: MujocoBackend) -> str:
+        _blow_up(backend, 1e14)
+        await asyncio.sleep(0.05)
+        with pytest.raises(BackendError) as refused:
+            await backend.read_joint_state()
+        return str(refused.value)
+
+    assert "diverged" in run_opened(lambda: create_backend(ROBOT, POLICY, Config()), scenario)
+
+
+@pytest.mark.parametrize("listening", ["before", "after"])
+def test_a_dead_physics_thread_is_reported_to_the_fault_listener(listening: str) -> None:
+    """Found by review: the physics thread's death was reported to nobody, so an idle arm's e-stop
+    never latched; one that dies before the Guard listens is told to it when it does."""
+    heard: list[str] = []
+
+    async def scenario(backend: MujocoBackend) -> None:
+        if listening == "before":
+            backend.set_fault_listener(heard.append)
+        _blow_up(backend, float("nan"))
+        servo = backend.servo
+        assert servo is not None
+        for _ in range(200):
+            if servo.error is not None:
+                break
+            await asyncio.sleep(0.01)
+        assert servo.error is not None
+        if listening == "after":
+            backend.set_fault_listener(heard.append)
+
+    run_opened(lambda: create_backend(ROBOT, POLICY, Config()), scenario)
+    assert len(heard) == 1 and "physics thread stopped" in heard[0] and "diverged" in heard[0]

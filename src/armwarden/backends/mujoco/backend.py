@@ -242,6 +242,13 @@ class MujocoBackend(Backend, ServoHooks):
             raise BackendError(f"the MuJoCo model's arm joints {cell.arm_joints} are not the robot's {robot.joint_names}")
         self.cell = cell
         model = cell.model
+        # an unstable step must end the simulation, not restart it: MuJoCo's automatic reset would
+        # put the arm back at the model's defaults (time back to 0) and that would be published as
+        # a fresh, valid state (found by review: an idle, held arm "moved" 2.3 rad)
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        # MuJoCo writes its warnings to MUJOCO_LOG.TXT in the working directory unless told
+        # otherwise (process-wide, set once here): they go to the log on stderr instead
+        mujoco.set_mju_user_warning(_log_mujoco_warning)
         self._model = model
         self._data = mujoco.MjData(model)
         self.timestep_s = float(model.opt.timestep)
@@ -545,8 +552,9 @@ class MujocoBackend(Backend, ServoHooks):
                 model.actuator_forcerange[self._gripper] = (-fingers.force_n, fingers.force_n)
             mujoco.mj_step(model, data)
         self.step_count += steps
-        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
-            raise BackendError("the simulation diverged (non-finite state)")
+        unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
+        if unstable or not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+            raise BackendError("the simulation diverged (" + ("unstable accelerations" if unstable else "non-finite state") + ")")
         self._measured = self._measure()
         self.peak_robot_penetration_m = max(self.peak_robot_penetration_m, self._measured.robot_penetration_m)
         if setpoint.following:  # the physics has reached this sample's time: how far off is the arm?
@@ -566,6 +574,12 @@ class MujocoBackend(Backend, ServoHooks):
     def servo_hold(self, setpoint: Setpoint) -> None:
         """Any thread: brake from the next physics step on (see `_set_brake`)."""
         self._target = _ArmTarget(setpoint.positions, setpoint.velocities, braking=True)
+
+    def servo_failed(self, error: BaseException) -> None:
+        """Physics thread, dying: tell the Guard (it latches the e-stop; one found before it listens
+        is kept for it). Nothing is simulated any more, so nothing moves (found by review: the
+        death was reported to nobody, and an idle arm's e-stop never latched)."""
+        self._report_fault(f"mujoco backend: the physics thread stopped ({error})")
 
     def _set_brake(self, braking: bool) -> None:
         """Physics thread: the arm actuators become pure dampers (force = −kv_brake·q̇, saturating
@@ -624,6 +638,10 @@ class MujocoBackend(Backend, ServoHooks):
         involved = self._robot_geom[contacts.geom1[:data.ncon]] | self._robot_geom[contacts.geom2[:data.ncon]]
         depths = -contacts.dist[:data.ncon][involved]
         return float(max(0.0, depths.max())) if depths.size else 0.0
+
+
+def _log_mujoco_warning(text: str) -> None:
+    logger.warning("mujoco: %s", text.strip())
 
 
 def _site_name(model: mujoco.MjModel, body_id: int) -> str:
