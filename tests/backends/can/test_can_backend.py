@@ -557,8 +557,9 @@ async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was(
     moved the setpoint to the measured position, so a tick in between sent the setpoint frozen at
     the e-stop, stiffly, to an arm that sagged while limp. Here the tick is made to fall in between."""
     document = config_document()
-    document["simulate"]["loads"]["fr3_joint2"]["gravity_torque_nm"] = 25.0  # sags while limp ...
-    document["joints"][1]["damping_kd_nms_per_rad"] = 100.0  # ... slowly
+    document["simulate"]["loads"]["fr3_joint2"]["gravity_torque_nm"] = 5.0  # sags while limp ...
+    document["joints"][1]["damping_kd_nms_per_rad"] = 100.0  # ... slowly (≈ 0.05 rad/s: the start check's
+    # 0.01 rad tolerance holds between reading the arm and the execution's start, even on a loaded host)
     backend = create_backend(ROBOT, POLICY, parse_backend_config("can", document))
     await backend.open()
     spy = Spy(backend)
@@ -567,7 +568,7 @@ async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was(
         assert servo is not None
         await backend.emergency_stop()
         stale = servo.latest.positions.copy()
-        await asyncio.sleep(0.8)
+        await asyncio.sleep(1.2)
         q = (await backend.read_joint_state()).positions.copy()
         assert abs(q[1] - stale[1]) > 0.03  # it sagged
         freeze = backend._freeze_gripper

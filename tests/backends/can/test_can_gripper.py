@@ -105,10 +105,11 @@ async def test_the_gripper_state_carries_the_time_its_reading_arrived_not_the_ti
     fresh = await arm.gripper_state()
     assert fresh is not None and time.monotonic() - fresh.stamp < 0.5
     emulator.silence(GRIPPER_ID)  # its replies stop: the last reading ages
-    last = (await arm.gripper_state()).stamp
-    while (latest := (await arm.gripper_state()).stamp) != last:  # a reply still on its way
-        last = latest
+    last, since = (await arm.gripper_state()).stamp, time.monotonic()
+    while time.monotonic() - since < 0.3:  # replies still on their way (a loaded host delays them): settle first
         await anyio.sleep(0.05)
+        if (latest := (await arm.gripper_state()).stamp) != last:
+            last, since = latest, time.monotonic()
     await anyio.sleep(0.2)
     aged = await arm.gripper_state()
     assert aged is not None and aged.stamp == last and time.monotonic() - aged.stamp >= 0.2
