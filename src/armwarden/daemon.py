@@ -19,10 +19,10 @@ import logging
 import os
 import signal
 import sys
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
@@ -40,6 +40,9 @@ from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel import ConsoleDoor, StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
 from armwarden.stopchannel.signals import SignalStop
+
+if TYPE_CHECKING:
+    from armwarden.transport.jsonrpc import RefusedCallback
 
 logger = logging.getLogger("armwarden")
 
@@ -313,7 +316,7 @@ async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
                       on_stop_request=external.stop_on_receipt)
 
 
-def _refusal_recorder(assembly: Assembly) -> Callable[[str | None, Any, Any, str, str], Awaitable[None]]:
+def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
     """Audits a request a transport refused before the tools saw it (`request_refused`, on disk
     before its answer where the transport waits for it)."""
 

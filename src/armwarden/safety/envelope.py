@@ -248,11 +248,11 @@ class Envelope:
     def check_arrival(self, q: np.ndarray, share: float) -> tuple[Violation, ...]:
         """Keep-out zones and the workspace box at `q` with every body grown by `share` ×
         `sweep_resolution_m` (self-collision is not checked with growth: the pairs get none), every
-        finding. The final check grows each
-        body at a plan's last sample by half its motion bound over the sampling interval before it,
-        and no body moves more than `sweep_resolution_m` in one interval, so a configuration clear
-        here with share 0.5 is never refused, as a plan's last sample, for a zone or the workspace
-        edge (the motion into it still may be, and self-collision pairs get their own allowance).
+        finding. The final check grows each body at a plan's last sample by half its motion bound
+        over the sampling interval before it, and no body moves more than `sweep_resolution_m` in
+        one interval, so a configuration clear here with share 0.5 is never refused, as a plan's
+        last sample, for a zone or the workspace edge (the motion into it still may be, and
+        self-collision pairs get their own allowance).
         How much less a body gets depends on the motion into `q` (one that barely moves gets almost
         none), so with a smaller share this is a likelihood, not a verdict: planners rank goals with
         it (`planning.goals`), and the final check is unchanged."""

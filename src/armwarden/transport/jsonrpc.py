@@ -42,19 +42,17 @@ def stop_call(method: Any, params: Any) -> str | None:
     return name if isinstance(name, str) and name in STOP_TOOLS else None
 
 
-def stop_params_repaired(method: Any, params: Any) -> dict[str, Any] | None:
-    """For a `tools/call` of a stopping tool whose `arguments` is not an object (a list, a string,
-    a number): the same params with that value kept under an argument the tool takes — `reason`
-    for `estop`, `given` for `stop_motion` (stopping tools accept any) — so the call reaches the
-    tool, which latches or holds and is audited like any other. The SDK refuses such params
-    (-32602) before any tool or the audit sees them: the arm was held on receipt, but the e-stop
-    never latched and nothing said why. None: nothing to repair."""
-    tool = stop_call(method, params)
-    if tool is None:
-        return None
+def stop_params_repaired(tool: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The params of a `tools/call` of the stopping `tool` (see `stop_call`) as they go on: the
+    same object, unless its `arguments` is not an object (a list, a string, a number) — then a
+    copy with that value kept under an argument the tool takes, `reason` for `estop`, `given` for
+    `stop_motion` (stopping tools accept any), so the call reaches the tool, which latches or
+    holds and is audited like any other. The SDK refuses such params (-32602) before any tool or
+    the audit sees them: the arm was held on receipt, but the e-stop never latched and nothing
+    said why."""
     arguments = params.get("arguments")
     if arguments is None or isinstance(arguments, dict):
-        return None
+        return params
     return {**params, "arguments": {"reason" if tool == "estop" else "given": arguments}}
 
 
@@ -82,11 +80,12 @@ def screen_call(method: Any, params: Any, on_stop_request: StopOnReceipt | None,
     not an object (`stop_params_repaired`); any other `tools/call` the SDK will refuse before the
     tools see it is named (`malformed_call`), for the audit. Returns (the params to pass on — the
     same object unless repaired —, why the SDK will refuse it or None)."""
-    if on_stop_request is not None and (tool := stop_call(method, params)) is not None:
+    tool = stop_call(method, params)
+    if tool is None:
+        return params, malformed_call(method, params)
+    if on_stop_request is not None:
         on_stop_request(tool, principal)  # hold the robot now, even if the request is refused later
-    if (repaired := stop_params_repaired(method, params)) is not None:
-        return repaired, None
-    return params, malformed_call(method, params)
+    return stop_params_repaired(tool, params), None
 
 
 def duplicate_id_message(request_id: Any) -> str:

@@ -61,8 +61,6 @@ __all__ = ["GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
 logger = logging.getLogger(__name__)
 
 
-
-
 def unreadable_line_error(exc: Exception) -> ErrorData:
     """The JSON-RPC error for a line the SDK could not read as a message."""
     if isinstance(exc, ValidationError) and not any(e.get("type") == "json_invalid" for e in exc.errors()):

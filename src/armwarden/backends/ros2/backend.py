@@ -682,7 +682,7 @@ class Ros2Backend(Backend):
         if publisher is None or run.held_at is not None:
             return
         hold_s = self.config.trajectory.hold_time_s
-        state, age = self.joint_states.latest(), self.joint_states.age_s()
+        state, age = self.joint_states.latest_with_age()
         if state is not None and age is not None and age <= hold_s:
             positions = state.positions
         elif run.trajectory is not None:

@@ -103,8 +103,12 @@ class JointStateCache:
             return None if self._sample is None else self._sample.header_s
 
     def age_s(self) -> float | None:
+        return self.latest_with_age()[1]
+
+    def latest_with_age(self) -> tuple[JointState | None, float | None]:
+        """The latest sample and its age [s] (since it arrived), read together."""
         state = self.latest()
-        return None if state is None else self._clock() - state.stamp
+        return state, None if state is None else self._clock() - state.stamp
 
     def fresh(self) -> JointState:
         """The latest sample, or `BackendError` naming how old it is (or that none came)."""
