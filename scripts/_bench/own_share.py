@@ -4,7 +4,10 @@ For each transport — in memory, stdio, streamable HTTP under protocol 2025-11-
 2026-07-28 — two servers run side by side: ArmWarden (fake backend, the benchmark policy, audit
 log on, HTTP with a bearer token) and the SDK floor (`trivial_server.py`: constant results of the
 same model and output schema, captured from ArmWarden's own answers at the start, over the same
-transport). For `get_robot_state`, `get_safety_status`, `plan_to_pose` without and with the
+transport; over stdio a second time through ArmWarden's own stdio transport, which serves
+stdin and stdout from the event loop where the SDK's hops to a thread per line: the first stdio
+row is what a client pays above the SDK, the second what ArmWarden's tools and audit add on
+their own). For `get_robot_state`, `get_safety_status`, `plan_to_pose` without and with the
 preview picture, and `estop`, blocks of `BLOCK` calls alternate between the two servers, round
 after round, so machine drift hits both alike; the own share is the difference of the medians.
 After each round's e-stop block ArmWarden's latch is reset through an approved `reset_estop`
@@ -57,9 +60,13 @@ CASES: tuple[tuple[str, str, Callable[[int], dict[str, Any]], str], ...] = (
 #: the last one is the comparison with the audit log as it was before issue 13: every record,
 #: also a state poll's, fsynced before its reply (`--audit-commit-window-ms 0`)
 STRICT_AUDIT = "http 2026-07-28, fsync before every reply"
-TRANSPORTS = ("memory", "stdio", "http 2025-11-25", "http 2026-07-28", STRICT_AUDIT)
+#: stdio again, the floor now served through ArmWarden's own stdio transport: what ArmWarden's
+#: tools, middleware and audit add, with the transport's gain over the SDK's taken out
+STDIO_SAME_TRANSPORT = "stdio, floor on ArmWarden's transport"
+TRANSPORTS = ("memory", "stdio", STDIO_SAME_TRANSPORT, "http 2025-11-25", "http 2026-07-28", STRICT_AUDIT)
 #: own-share targets [ms] for get_robot_state (issue 13)
-TARGETS_MS = {"memory": 0.15, "stdio": 0.15, "http 2025-11-25": 0.5, "http 2026-07-28": 0.5}
+TARGETS_MS = {"memory": 0.15, "stdio": 0.15, STDIO_SAME_TRANSPORT: 0.15, "http 2025-11-25": 0.5,
+              "http 2026-07-28": 0.5}
 RENDER_P95_TARGET_MS = 3.0
 PREVIEW_RATIO_TARGET = 1.3
 
@@ -134,7 +141,9 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
             return
         floor_args = [sys.executable, str(TRIVIAL_SERVER)] + (["--shapes", str(shapes_path)] if shapes_path else [])
         env = {**os.environ, "PYTHONPATH": str(SRC)}
-        if transport == "stdio":
+        if transport in ("stdio", STDIO_SAME_TRANSPORT):
+            if transport == STDIO_SAME_TRANSPORT:
+                floor_args.append("--armwarden-stdio")
             armwarden = await stack.enter_async_context(Client(StdioServerParameters(
                 command=sys.executable, env={"PYTHONPATH": str(SRC)},
                 args=["-m", "armwarden.cli", "serve", "--policy", str(policy_path),

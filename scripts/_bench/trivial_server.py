@@ -10,8 +10,11 @@ of ArmWarden behind them.
   `plan_to_pose_preview_shape` (the same summary plus the same PNG, as image content), each
   with the model and output schema of the ArmWarden tool it stands for.
 
-Run as a script: `trivial_server.py [--shapes FILE] [--http PORT]` serves stdio, or streamable
-HTTP on 127.0.0.1:PORT (the SDK's defaults: stateful sessions, SSE responses, as ArmWarden).
+Run as a script: `trivial_server.py [--shapes FILE] [--http PORT | --armwarden-stdio]` serves
+stdio with the SDK's transport, streamable HTTP on 127.0.0.1:PORT (the SDK's defaults: stateful
+sessions, SSE responses, as ArmWarden), or stdio through ArmWarden's own stdio transport
+(`armwarden.transport.stdio`: its gate, and pipes served from the event loop), so ArmWarden's
+tools can be measured apart from its transport.
 """
 
 import argparse
@@ -98,9 +101,17 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("--shapes", default=None)
     parser.add_argument("--http", type=int, default=None, metavar="PORT")
+    parser.add_argument("--armwarden-stdio", action="store_true",
+                        help="serve stdio through ArmWarden's stdio transport instead of the SDK's")
     args = parser.parse_args()
     floor = build(json.loads(Path(args.shapes).read_text()) if args.shapes else None)
-    if args.http is None:
+    if args.http is None and args.armwarden_stdio:
+        import anyio
+
+        from armwarden.transport.stdio import serve_stdio
+
+        anyio.run(serve_stdio, floor)
+    elif args.http is None:
         floor.run("stdio")
     else:
         import anyio

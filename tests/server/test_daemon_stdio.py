@@ -9,12 +9,14 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import pty
 import select
 import signal
 import socket
 import subprocess
 import sys
 import time
+import tty
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +25,7 @@ import pytest
 from mcp import Client, StdioServerParameters
 
 from armwarden.policy import bundled_policy, load_policy, policy_digest
-from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, text_of, wait_for_record
+from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, stop_process, text_of, wait_for_record
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
 
@@ -501,3 +503,109 @@ def test_an_estop_request_holds_the_arm_as_it_is_read_and_the_call_then_latches(
     assert len(held) == 1 and held[0]["tool"] == "estop" and held[0]["outcome"] == "stopped"
     call = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "estop")
     assert held[0]["seq"] < call["seq"]  # held before the call itself ran and was recorded
+
+
+# ------------------------------------------------------------------ how stdin and stdout are served
+HELLO = {"jsonrpc": "2.0", "id": 1, "method": "initialize", "params": {
+    "protocolVersion": "2025-11-25", "capabilities": {}, "clientInfo": {"name": "raw-stdio", "version": "1"}}}
+INITIALIZED = {"jsonrpc": "2.0", "method": "notifications/initialized"}
+STATE_CALL = {"jsonrpc": "2.0", "id": 2, "method": "tools/call", "params": {"name": "get_robot_state", "arguments": {}}}
+
+
+def serve_command(audit: Path) -> list[str]:
+    return [*CLI, "serve", "--audit-log", str(audit), "--log-level", "INFO"]
+
+
+def answers_of(wire: bytes) -> dict[Any, dict[str, Any]]:
+    return {message.get("id"): message for message in map(json.loads, wire.decode().splitlines())}
+
+
+def test_a_client_on_sockets_as_node_launches_servers_is_served_from_the_event_loop(tmp_path) -> None:
+    stdin_parent, stdin_child = socket.socketpair()  # libuv (Claude Desktop, Cursor, the TS SDK) uses socket pairs
+    stdout_parent, stdout_child = socket.socketpair()
+    process = subprocess.Popen(serve_command(tmp_path / "audit.jsonl"), stdin=stdin_child, stdout=stdout_child,
+                               stderr=subprocess.PIPE, cwd=REPO, env=child_env())
+    stdin_child.close()
+    stdout_child.close()
+    wire = b""
+    try:
+        for message in (HELLO, INITIALIZED, STATE_CALL):
+            stdin_parent.sendall(json.dumps(message).encode() + b"\r\n")  # CR LF ends a line, as for the SDK
+        stdout_parent.settimeout(30)
+        while wire.count(b"\n") < 2:
+            chunk = stdout_parent.recv(65536)
+            assert chunk, "the daemon closed stdout"
+            wire += chunk
+        stdin_parent.shutdown(socket.SHUT_WR)  # end of input: the daemon exits
+        _, stderr = process.communicate(timeout=30)
+    finally:
+        stop_process(process, 10)
+        stdin_parent.close()
+        stdout_parent.close()
+    answers = answers_of(wire)
+    assert answers[1]["result"]["serverInfo"]["name"] == "armwarden"
+    assert len(answers[2]["result"]["structuredContent"]["joint_positions"]) == 7
+    assert b"serving stdin and stdout from the event loop" in stderr
+    assert process.returncode == 0
+
+
+def test_stdin_from_a_terminal_is_served_by_the_sdks_threads(tmp_path) -> None:
+    controller, terminal = pty.openpty()  # a terminal's flags are shared with whatever else uses it
+    tty.setraw(terminal)
+    process = subprocess.Popen(serve_command(tmp_path / "audit.jsonl"), stdin=terminal, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, cwd=REPO, env=child_env())
+    os.close(terminal)
+    assert process.stdout is not None
+    try:
+        os.write(controller, b"".join(json.dumps(m).encode() + b"\n" for m in (HELLO, INITIALIZED, STATE_CALL)))
+        wire = _read_until_answered(process.stdout, 2)
+    finally:
+        os.close(controller)  # the terminal hangs up: end of input
+        stop_process(process, 10)
+        stderr = process.stderr.read() if process.stderr is not None else b""
+        process.stdout.close()
+    assert b"the SDK's threads serve them" in stderr
+    answers = answers_of(wire)
+    assert len(answers[2]["result"]["structuredContent"]["joint_positions"]) == 7
+
+
+@pytest.mark.anyio
+async def test_a_client_that_stops_reading_cannot_hold_back_an_estop(tmp_path) -> None:
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(serve_command(audit), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, cwd=REPO, env=child_env())
+    assert process.stdin is not None and process.stdout is not None
+    polls = [{**STATE_CALL, "id": 100 + i} for i in range(200)]  # ~280 KB of answers: stdout fills up
+    estop = {"jsonrpc": "2.0", "id": 99, "method": "tools/call",
+             "params": {"name": "estop", "arguments": {"reason": "the client stopped reading"}}}
+    lines = b"".join(json.dumps(m).encode() + b"\n" for m in (HELLO, INITIALIZED, *polls, estop))
+    try:
+        await anyio.to_thread.run_sync(_write_all, process.stdin, lines)  # nothing is read meanwhile
+        records = await wait_for_record(audit, lambda r: r["event"] == "tool_call" and r["tool"] == "estop", 30)
+        assert any(r["event"] == "stop_on_receipt" and r["tool"] == "estop" for r in records)
+        wire = await anyio.to_thread.run_sync(_read_until_answered, process.stdout, 99)  # now read
+        process.stdin.close()
+    finally:
+        stop_process(process, 10)
+        process.stdout.close()
+    answers = answers_of(wire)
+    assert answers[99]["result"]["structuredContent"]["estopped"] is True
+    assert {m["id"] for m in polls} <= answers.keys()
+
+
+def _write_all(stream: Any, data: bytes) -> None:
+    stream.write(data)
+    stream.flush()
+
+
+def _read_until_answered(stream: Any, request_id: int, timeout_s: float = 30.0) -> bytes:
+    wire, deadline = b"", time.monotonic() + timeout_s
+    while f'"id":{request_id},'.encode() not in wire:
+        assert time.monotonic() < deadline, f"no answer to request {request_id} within {timeout_s} s"
+        if select.select([stream], [], [], 0.5)[0]:
+            chunk = os.read(stream.fileno(), 65536)
+            assert chunk, "the daemon closed stdout"
+            wire += chunk
+    while not wire.endswith(b"\n"):  # the rest of that answer's line
+        wire += os.read(stream.fileno(), 65536)
+    return wire

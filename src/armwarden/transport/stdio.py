@@ -55,6 +55,7 @@ from armwarden.transport.jsonrpc import (
     request_id_key,
     screen_call,
 )
+from armwarden.transport.pipes import PipeLineReader, PipeWriter, claimed_pipes
 
 __all__ = ["GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
 
@@ -215,9 +216,12 @@ async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None =
     # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
     # between the two; the low-level server is the documented way to serve custom streams.
     lowlevel = server._lowlevel_server
-    async with stdio_server() as (read_stream, write_stream), anyio.create_task_group() as reports:
-        def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
-            reports.start_soon(fn, *args)
+    with claimed_pipes() as wires:
+        stdin: Any = None if wires is None else PipeLineReader(wires[0])
+        stdout: Any = None if wires is None else PipeWriter(wires[1])
+        async with stdio_server(stdin, stdout) as (read_stream, write_stream), anyio.create_task_group() as reports:
+            def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
+                reports.start_soon(fn, *args)
 
-        gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request)
-        await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
+            gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request)
+            await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
