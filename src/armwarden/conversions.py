@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, overload
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -16,7 +16,6 @@ from armwarden.results import (
     PlanSummary,
     PoseModel,
     Quaternion,
-    RobotState,
     Vector3,
     ViolationModel,
     WrenchModel,
@@ -73,10 +72,12 @@ def estop_info(event: EStopEvent | None) -> EStopInfo | None:
     return EStopInfo(number=event.number, reason=event.reason, source=event.source, wall_time=iso_utc(event.wall_time))
 
 
-def robot_state(robot: RobotModel, state: JointState, wrench: Wrench | None, gripper: GripperState | None) -> RobotState:
-    """The state as its wire model, validated in one pass: the nested models are given as plain
-    data (`model_validate` checks them all at once, several times cheaper than building each
-    nested model on its own — this runs on every state poll)."""
+def robot_state_data(robot: RobotModel, state: JointState, wrench: Wrench | None,
+                     gripper: GripperState | None) -> dict[str, Any]:
+    """The state as `RobotState`'s JSON data, in its field order. Plain data: it runs on every state
+    poll, and the one validation it needs happens where it crosses a boundary — the SDK validates
+    a tool's structured result against the tool's output model (`RobotState`), and `Readings.robot_state`
+    validates the console's copy."""
     tcp = robot.tcp_pose(state.positions)
     qx, qy, qz, qw = tcp.quaternion_xyzw.tolist()
     forces = None
@@ -85,7 +86,7 @@ def robot_state(robot: RobotModel, state: JointState, wrench: Wrench | None, gri
         if all(map(math.isfinite, force + torque)):  # plain floats: a tenth of NumPy's cost on six numbers
             forces = {"force": {"x": fx, "y": fy, "z": fz}, "torque": {"x": tx, "y": ty, "z": tz}}
     px, py, pz = tcp.position.tolist()
-    return RobotState.model_validate({
+    return {
         "joint_names": list(robot.joint_names),
         "joint_positions": np.asarray(state.positions, dtype=float).tolist(),
         "joint_velocities": np.asarray(state.velocities, dtype=float).tolist(),
@@ -95,7 +96,7 @@ def robot_state(robot: RobotModel, state: JointState, wrench: Wrench | None, gri
         "gripper": None if gripper is None
         else {"width_m": gripper.width_m, "is_grasped": gripper.is_grasped, "moving": gripper.moving},
         "stamp": state.stamp,
-    })
+    }
 
 
 def plan_notes(planner_notes: Sequence[str], force_monitoring: bool, require_wrench: bool, dry_run: bool) -> list[str]:

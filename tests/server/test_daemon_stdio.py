@@ -15,6 +15,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import tty
 from pathlib import Path
@@ -25,6 +26,7 @@ import pytest
 from mcp import Client, StdioServerParameters
 
 from armwarden.policy import bundled_policy, load_policy, policy_digest
+from armwarden.transport.pipes import MAX_LINE_BYTES
 from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, stop_process, text_of, wait_for_record
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
@@ -609,3 +611,45 @@ def _read_until_answered(stream: Any, request_id: int, timeout_s: float = 30.0) 
     while not wire.endswith(b"\n"):  # the rest of that answer's line
         wire += os.read(stream.fileno(), 65536)
     return wire
+
+
+def test_a_line_over_the_limit_is_answered_as_unreadable_and_the_session_goes_on(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=1)
+    try:
+        rpc.send_line(b'{"jsonrpc":"2.0","id":7,"method":"tools/call","params":{"pad":"' + b"x" * (MAX_LINE_BYTES + 1) + b'"}}')
+        refused = rpc.receive()
+        state = rpc.request("tools/call", {"name": "get_robot_state", "arguments": {}})
+    finally:
+        stop_raw_daemon(process)
+    assert refused["id"] is None and refused["error"]["code"] == -32700
+    assert len(state["result"]["structuredContent"]["joint_positions"]) == 7
+    assert any(r["event"] == "request_refused" and r["outcome"] == "unreadable" for r in records_of(audit))
+
+
+def test_a_client_streaming_an_endless_line_cannot_keep_the_daemon_from_stopping_on_sigterm(tmp_path) -> None:
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(serve_command(audit), stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL, cwd=REPO, env=child_env())
+    assert process.stdin is not None
+    streaming = threading.Event()
+
+    def stream() -> None:
+        try:
+            process.stdin.write(json.dumps(HELLO).encode() + b"\n" + b'{"pad":"')
+            while True:
+                process.stdin.write(b"x" * 65536)
+                streaming.set()
+        except (BrokenPipeError, ValueError, OSError):
+            return  # the daemon exited
+
+    feeder = threading.Thread(target=stream, daemon=True)
+    feeder.start()
+    try:
+        assert streaming.wait(30)
+        time.sleep(1.0)  # well past the line limit, and still coming
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=15) is not None
+    finally:
+        stop_process(process, 5)
+        feeder.join(5)
+    assert [r["event"] for r in records_of(audit)][-1] == "shutdown"

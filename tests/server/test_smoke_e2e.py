@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from armwarden.results import RobotState
 from armwarden.safety.audit import read_tail, verify_file
 from tests.helpers import HOME
 from tests.server.harness import MODES, approve, arm_harness, policy_with
@@ -31,7 +32,7 @@ async def test_an_unexpected_failure_is_an_error_result_and_the_server_keeps_ser
         async def broken() -> None:
             raise RuntimeError("simulated bug with secret internals")
 
-        arm.guard.robot_state = broken  # type: ignore[method-assign]
+        arm.guard.robot_state_data = broken  # type: ignore[method-assign]
         result = await client.call_tool("get_robot_state", {})
         assert result.is_error and "INTERNAL_ERROR" in result.content[0].text
         assert "secret internals" not in result.content[0].text
@@ -62,3 +63,38 @@ async def test_a_client_cannot_answer_an_approval_question_it_was_not_asked(tmp_
                                         input_responses=forged)
         assert isinstance(again, types.InputRequiredResult)
         assert arm.actuations == []
+
+
+@pytest.mark.anyio
+async def test_a_state_polls_text_is_its_structured_result_as_the_published_model_writes_it(tmp_path) -> None:
+    async with arm_harness(tmp_path) as arm, arm.client(MODES[0]) as client:
+        state = await client.call_tool("get_robot_state", {})
+    assert not state.is_error
+    assert state.content[0].text == RobotState.model_validate(state.structured_content).model_dump_json()
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("damage", ["no frame id", "a position that is not a number", "an extra field"])
+async def test_a_state_that_does_not_fit_the_published_model_is_never_sent(tmp_path, damage) -> None:
+    """The state poll builds plain data and leaves its validation to the SDK's output check
+    (`server.calls.ok_data`): that check must still stand between the data and the client."""
+    async with arm_harness(tmp_path) as arm, arm.client(MODES[0]) as client:
+        real = arm.guard.robot_state_data
+
+        async def damaged() -> dict:
+            data = await real()
+            if damage == "no frame id":
+                del data["frame_id"]
+            elif damage == "an extra field":
+                data["unchecked"] = 1
+            else:
+                data["joint_positions"][2] = "fast"
+            return data
+
+        arm.guard.robot_state_data = damaged  # type: ignore[method-assign]
+        result = await client.call_tool("get_robot_state", {})
+        assert result.is_error and result.structured_content is None
+        assert "joint_positions" not in result.content[0].text
+    failed = [r for r in read_tail(arm.audit_path, 10) if r.get("tool") == "get_robot_state"]
+    assert failed and failed[-1]["outcome"] == "error" and failed[-1]["extra"]["code"] == "INTERNAL_ERROR"
+    assert "output model" in failed[-1]["detail"]  # the log says what the client saw: nothing was sent

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armwarden.transport.pipes import LineSplitter, PipeLineReader, PipeWriter, own_pipe
+from armwarden.transport.pipes import TOO_LONG, LineSplitter, PipeLineReader, PipeWriter, own_pipe
 from tests.helpers import REPO, child_env
 
 #: byte pieces that exercise what the SDK's text wrapper does to a line: CR, CR LF, multi-byte
@@ -41,6 +41,19 @@ def test_lines_are_split_as_the_sdks_stdin_wrapper_splits_them_wherever_the_read
     lines += splitter.feed(data[start:])
     lines += splitter.finish()
     assert lines == sdk_lines(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(pieces=st.lists(st.sampled_from(PIECES), max_size=40), cuts=st.lists(st.integers(1, 7), max_size=40),
+       limit=st.integers(1, 24))
+def test_a_line_over_the_limit_and_only_such_a_line_is_replaced_wherever_the_reads_end(pieces, cuts, limit) -> None:
+    data = b"".join(pieces)
+    splitter, lines, start = LineSplitter(max_line_bytes=limit), [], 0
+    for cut in cuts:
+        lines += splitter.feed(data[start:start + cut])
+        start += cut
+    lines += splitter.feed(data[start:]) + splitter.finish()
+    assert lines == [line if len(line.rstrip("\n").encode()) <= limit else TOO_LONG for line in sdk_lines(data)]
 
 
 def nonblocking_pipe() -> tuple[int, int]:
@@ -161,7 +174,7 @@ import json, os, sys
 from armwarden.transport.pipes import claimed_pipes
 with claimed_pipes() as wires:
     inside = {"claimed": wires is not None, "stdin_reads_eof": os.read(0, 16) == b"",
-              "nonblocking": [not os.get_blocking(fd) for fd in wires or ()]}
+              "blocking": [os.get_blocking(fd) for fd in wires or ()]}
     os.write(1, b"stray output\\n")  # a library printing while serving: not on the wire
     os.write(wires[1], b"on the wire\\n")
 after = {"blocking": [os.get_blocking(0), os.get_blocking(1)]}
@@ -170,12 +183,16 @@ sys.stderr.write(json.dumps({"inside": inside, "after": after}) + "\\n")
 """
 
 
-def test_claimed_pipes_divert_fd_0_and_1_while_serving_and_give_them_back(tmp_path) -> None:
+@pytest.mark.parametrize("blocking", [True, False], ids=["blocking wire", "non-blocking wire"])
+def test_claimed_pipes_divert_fd_0_and_1_while_serving_give_them_back_and_never_touch_their_flags(blocking) -> None:
     stdin_parent, stdin_child = socket.socketpair()  # as a Node client launches its server
     stdout_parent, stdout_child = socket.socketpair()
+    for end in (stdin_child, stdout_child):  # the launcher keeps these: flags are shared with it
+        os.set_blocking(end.fileno(), blocking)
     try:
         probe = subprocess.run([sys.executable, "-c", CLAIM_PROBE], stdin=stdin_child, stdout=stdout_child,
                                stderr=subprocess.PIPE, cwd=REPO, env=child_env(), timeout=60, check=True)
+        assert [os.get_blocking(end.fileno()) for end in (stdin_child, stdout_child)] == [blocking, blocking]
         stdout_child.close()
         wire = b""
         while chunk := stdout_parent.recv(4096):
@@ -184,7 +201,51 @@ def test_claimed_pipes_divert_fd_0_and_1_while_serving_and_give_them_back(tmp_pa
         for end in (stdin_parent, stdin_child, stdout_parent, stdout_child):
             end.close()
     report = json.loads(probe.stderr.decode().strip().splitlines()[-1])
-    assert report["inside"] == {"claimed": True, "stdin_reads_eof": True, "nonblocking": [True, True]}
-    assert report["after"] == {"blocking": [True, True]}
+    assert report["inside"] == {"claimed": True, "stdin_reads_eof": True, "blocking": [blocking, blocking]}
+    assert report["after"] == {"blocking": [blocking, blocking]}
     assert wire == b"on the wire\nafter\n"
     assert b"stray output" in probe.stderr
+
+
+def test_a_line_longer_than_the_limit_is_dropped_and_stands_as_one_the_sdk_cannot_parse() -> None:
+    splitter = LineSplitter(max_line_bytes=100)
+    lines = splitter.feed(b'{"a":1}\n' + b"x" * 60)
+    lines += splitter.feed(b"x" * 60)  # over the limit: dropped from here on, whatever else comes
+    lines += splitter.feed(b"x" * 10_000)
+    lines += splitter.feed(b'xx\n{"b":2}\n{"c"')
+    lines += splitter.feed(b":3}")
+    lines += splitter.finish()
+    assert lines == ['{"a":1}\n', TOO_LONG, '{"b":2}\n', '{"c":3}']
+    with pytest.raises(ValueError):
+        json.loads(TOO_LONG)
+
+
+CLAIM_FAILS_PROBE = """
+import json, os, sys
+real_open = os.open
+def no_devnull(path, *args, **kwargs):
+    if path == os.devnull:
+        raise FileNotFoundError(2, "no /dev/null in this sandbox", path)
+    return real_open(path, *args, **kwargs)
+os.open = no_devnull
+before = sorted(os.listdir("/proc/self/fd"))
+from armwarden.transport.pipes import claimed_pipes
+with claimed_pipes() as wires:
+    claimed = wires is not None
+os.write(1, b"still the wire\\n")
+sys.stderr.write(json.dumps({"claimed": claimed, "fds_kept": sorted(os.listdir("/proc/self/fd")) == before}) + "\\n")
+"""
+
+
+def test_a_claim_that_fails_half_way_leaves_stdin_and_stdout_as_they_were_for_the_sdk(tmp_path) -> None:
+    read_end, write_end = os.pipe()
+    try:
+        probe = subprocess.run([sys.executable, "-c", CLAIM_FAILS_PROBE], stdin=subprocess.PIPE, stdout=write_end,
+                               stderr=subprocess.PIPE, cwd=REPO, env=child_env(), timeout=60, check=True)
+        os.close(write_end)
+        wire = os.read(read_end, 4096)
+    finally:
+        os.close(read_end)
+    assert json.loads(probe.stderr.decode().strip().splitlines()[-1]) == {"claimed": False, "fds_kept": True}
+    assert wire == b"still the wire\n"
+    assert b"cannot claim stdin and stdout" in probe.stderr

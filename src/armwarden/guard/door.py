@@ -142,6 +142,10 @@ class Guard:
     async def robot_state(self) -> results.RobotState:
         return await self.readings.robot_state()
 
+    async def robot_state_data(self) -> dict[str, Any]:
+        """`robot_state` as plain JSON data, for a caller whose boundary validates it (the tool)."""
+        return await self.readings.robot_state_data()
+
     def safety_envelope(self, registered_tools: list[str]) -> results.EnvelopeModel:
         return self.readings.safety_envelope(registered_tools)
 

@@ -65,14 +65,18 @@ class Readings:
         except (BackendError, TimeoutError, NotImplementedError) as exc:
             raise SafetyRefusal(RefusalCode.BACKEND_ERROR, f"the backend could not {what}: {exc}") from exc
 
-    async def robot_state(self) -> RobotState:
+    async def robot_state_data(self) -> dict[str, Any]:
+        """The state as `RobotState`'s JSON data, not yet validated (see `conversions.robot_state_data`)."""
         state = await self.joint_state()
         try:
             wrench = await self.backend.read_wrench()
         except (BackendError, TimeoutError):
             wrench = None
         gripper = await self.backend.gripper_state() if self.backend.capabilities.gripper else None
-        return conversions.robot_state(self.robot, state, wrench, gripper)
+        return conversions.robot_state_data(self.robot, state, wrench, gripper)
+
+    async def robot_state(self) -> RobotState:
+        return RobotState.model_validate(await self.robot_state_data())
 
     def safety_envelope(self, registered_tools: list[str]) -> EnvelopeModel:
         return conversions.envelope_model(self.policy, self.robot, registered_tools)

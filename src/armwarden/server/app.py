@@ -156,7 +156,13 @@ class ArmWardenServer:
             )
             return
         if isinstance(result, CallToolResult):
-            if result.is_error and record.outcome is None:
+            if result.is_error and record.outcome == "ok":
+                # the body answered, then the SDK refused its result (it did not fit the tool's output
+                # model): the client got an error, and so must the log
+                record.outcome, record.code = "error", RefusalCode.INTERNAL_ERROR.value
+                record.detail = f"the result did not fit the tool's output model and was not sent: {_text_of(result)}"
+                record.extra.pop("result", None)
+            elif result.is_error and record.outcome is None:
                 record.outcome = "invalid" if not record.body_ran else "error"
                 record.code = record.code or (RefusalCode.INVALID_ARGUMENTS.value if not record.body_ran else "ERROR")
                 record.detail = _text_of(result)

@@ -60,7 +60,7 @@ from armwarden.server.approval import (
     can_elicit,
     uses_rounds,
 )
-from armwarden.server.calls import mark_body_ran, ok, refused
+from armwarden.server.calls import mark_body_ran, ok, ok_data, refused
 from armwarden.server.outofband import answer_out_of_band, answer_round, ask_round
 from armwarden.server.roundstate import RoundSeal
 
@@ -224,7 +224,7 @@ class ToolBuilder:
         @tool("Current joint positions [rad] and velocities, TCP pose [m, quaternion xyzw] in the base frame "
               f"{robot.base_frame}, estimated external wrench [N, N·m] and gripper state.", READ_ONLY)
         async def get_robot_state() -> Annotated[CallToolResult, RobotState]:
-            return ok(await guard.robot_state())
+            return ok_data(await guard.robot_state_data())  # validated as RobotState by the SDK
 
         @tool("The limits the server enforces: joint limits, workspace box, keep-out zones, speed/step caps, force "
               "limits, gripper limits, allowlists and approval mode. Read this before planning.", READ_ONLY_LOCAL)

@@ -3,15 +3,24 @@
 The SDK's stdio transport reads every line and writes every answer through `anyio.wrap_file`:
 each `readline`, `write` and `flush` runs on a worker thread, three thread round trips per
 request, which under the interpreter lock cost more than a state poll's own work. When stdin and
-stdout are pipes or sockets of this process's own (what every MCP client launches a server with),
-`claimed_pipes` takes them as the SDK would — fd 0 then reads /dev/null and fd 1 writes to stderr
-while serving, so stray output from a library never reaches the wire; both are restored on exit —
-and serves private, non-blocking duplicates from the event loop (`PipeLineReader`,
-`PipeWriter`). The SDK's own reader and writer tasks still parse and serialise every message, so
-what goes over the wire is byte for byte what the SDK would send.
+stdout are pipes or sockets of this process's own (what every MCP client launches a server with;
+Node-based clients pass socket pairs), `claimed_pipes` takes them as the SDK would — fd 0 then
+reads /dev/null and fd 1 writes to stderr while serving, so stray output from a library never
+reaches the wire; both are restored on exit — and serves private duplicates from the event loop
+(`PipeLineReader`, `PipeWriter`). The SDK's own reader and writer tasks still parse and
+serialise every message, so what goes over the wire is what the SDK would send.
 
-Anything else — a terminal, a regular file, /dev/null, a descriptor shared with stderr (where a
-non-blocking flag would leak into the log's writes) — is left to the SDK's threads.
+The descriptors' flags are never touched: an `O_NONBLOCK` would be shared with every process
+holding the same pipe (a launching shell, `npx`, `uv run`) and would outlive a killed daemon.
+Sockets are read and written with `MSG_DONTWAIT`; a pipe is read only when `poll` says it has
+data (or has ended), and written in pieces of at most `PIPE_BUF` bytes only when `poll` says it
+has room: such a write is atomic and does not block. The loop gets a turn after every read, and
+a line longer than `MAX_LINE_BYTES` is dropped and replaced by one the SDK cannot parse (it is
+answered with a parse error), so neither a client's endless line nor its flood can hold the loop
+or exhaust memory.
+
+Anything else — a terminal, a regular file, /dev/null, a descriptor shared with stderr — is left
+to the SDK's threads, as is everything when claiming fails.
 """
 
 from __future__ import annotations
@@ -21,18 +30,24 @@ import codecs
 import io
 import logging
 import os
+import select
+import socket
 import stat
 import sys
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 
-__all__ = ["LineSplitter", "PipeLineReader", "PipeWriter", "claimed_pipes", "own_pipe"]
+__all__ = ["MAX_LINE_BYTES", "TOO_LONG", "LineSplitter", "PipeLineReader", "PipeWriter", "Wire", "claimed_pipes", "own_pipe"]
 
 logger = logging.getLogger(__name__)
 
 #: bytes asked for per read (a whole request fits in one read almost always)
 READ_CHUNK = 1 << 16
+#: the longest line kept [bytes]; requests are small (the largest, a waypoint plan, is a few KiB)
+MAX_LINE_BYTES = 1 << 22
+#: what stands for a dropped line: not JSON, so the SDK's reader reports it and the gate answers -32700
+TOO_LONG = "<a line longer than the limit was dropped>\n"
 
 
 def own_pipe(fd: int, stderr_fd: int = 2) -> bool:
@@ -43,6 +58,8 @@ def own_pipe(fd: int, stderr_fd: int = 2) -> bool:
         return False
     if not (stat.S_ISFIFO(info.st_mode) or stat.S_ISSOCK(info.st_mode)):
         return False
+    if stat.S_ISSOCK(info.st_mode) and socket.getdefaulttimeout() is not None:
+        return False  # a socket object would set O_NONBLOCK on the shared descriptor (see `Wire`)
     return (info.st_dev, info.st_ino) != (err.st_dev, err.st_ino)
 
 
@@ -65,31 +82,60 @@ class LineSplitter:
     """Bytes in, lines out, as the SDK's stdin wrapper (`io.TextIOWrapper`, UTF-8 with undecodable
     bytes replaced, universal newlines) yields them: each line ends with a newline, a character
     or a CR LF split between two reads is joined, and at the end an unterminated last line is
-    still a line."""
+    still a line. Work is linear in the input (a line's pieces are joined once, when it ends).
 
-    def __init__(self) -> None:
+    A line longer than `max_line_bytes` (counted as received, before decoding) is not kept: its
+    bytes are dropped up to its end, and `TOO_LONG` stands for it (see the module docstring)."""
+
+    def __init__(self, max_line_bytes: int = 0) -> None:
         self._decoder = io.IncrementalNewlineDecoder(codecs.getincrementaldecoder("utf-8")(errors="replace"),
                                                      translate=True)
-        self._partial = ""
+        self._pieces: list[str] = []
+        self._held = 0  # bytes of the line being received
+        self._max = max_line_bytes
+        self._dropping = False
 
     def feed(self, data: bytes) -> list[str]:
-        *complete, self._partial = (self._partial + self._decoder.decode(data)).split("\n")
-        return [line + "\n" for line in complete]
+        return self._split(self._decoder.decode(data))
 
     def finish(self) -> list[str]:
-        """The lines the end of the input completes (at most one, without a newline)."""
-        tail = self._partial + self._decoder.decode(b"", final=True)  # a held-back CR becomes a newline
-        self._partial = ""
-        *complete, last = tail.split("\n")
-        return [line + "\n" for line in complete] + ([last] if last else [])
+        """The lines the end of the input completes (the last one without a newline)."""
+        lines = self._split(self._decoder.decode(b"", final=True))  # a held-back CR becomes a newline
+        if self._dropping:
+            lines.append(TOO_LONG)
+        elif self._pieces:
+            lines.append("".join(self._pieces))
+        self._pieces, self._held, self._dropping = [], 0, False
+        return lines
+
+    def _split(self, text: str) -> list[str]:
+        lines: list[str] = []
+        *complete, rest = text.split("\n")
+        for piece in complete:  # each ends a line
+            self._hold(piece)
+            lines.append(TOO_LONG if self._dropping else "".join(self._pieces) + "\n")
+            self._pieces, self._held, self._dropping = [], 0, False
+        self._hold(rest)
+        return lines
+
+    def _hold(self, piece: str) -> None:
+        """Add `piece` to the line being received, or start dropping it once it is too long."""
+        if self._dropping or not piece:
+            return
+        self._held += len(piece.encode("utf-8", "surrogatepass"))
+        if self._max and self._held > self._max:
+            self._pieces, self._dropping = [], True
+        else:
+            self._pieces.append(piece)
 
 
 class PipeLineReader:
-    """The lines of a non-blocking descriptor (see `LineSplitter`), read from the event loop."""
+    """The lines of a pipe or socket (see `LineSplitter`), read from the event loop without ever
+    blocking it (see the module docstring)."""
 
-    def __init__(self, fd: int) -> None:
-        self._fd = fd
-        self._splitter = LineSplitter()
+    def __init__(self, fd: int, max_line_bytes: int = 0) -> None:
+        self._wire = Wire(fd)
+        self._splitter = LineSplitter(max_line_bytes or MAX_LINE_BYTES)
         self._lines: deque[str] = deque()
         self._ended = False
 
@@ -100,43 +146,88 @@ class PipeLineReader:
         while not self._lines:
             if self._ended:
                 raise StopAsyncIteration
-            await self._fill()
+            data = await self._wire.read(READ_CHUNK)
+            if data:
+                self._lines.extend(self._splitter.feed(data))
+                await asyncio.sleep(0)  # a turn for the loop after every read: a flood cannot hold it
+            else:
+                self._ended = True
+                self._lines.extend(self._splitter.finish())
         return self._lines.popleft()
 
-    async def _fill(self) -> None:
-        try:
-            data = os.read(self._fd, READ_CHUNK)
-        except BlockingIOError:
-            loop = asyncio.get_running_loop()
-            await _ready(self._fd, loop.add_reader, loop.remove_reader)
-            return
-        if data:
-            self._lines.extend(self._splitter.feed(data))
-        else:
-            self._ended = True
-            self._lines.extend(self._splitter.finish())
+    def close(self) -> None:
+        self._wire.close()
 
 
 class PipeWriter:
-    """Writes text to a non-blocking descriptor as UTF-8, whole, from the event loop."""
+    """Writes text to a pipe or socket as UTF-8, whole, from the event loop without blocking it."""
 
     def __init__(self, fd: int) -> None:
-        self._fd = fd
+        self._wire = Wire(fd)
 
     async def write(self, text: str) -> int:
         view = memoryview(text.encode("utf-8"))
-        loop = asyncio.get_running_loop()
         while view:
-            try:
-                written = os.write(self._fd, view)
-            except BlockingIOError:  # the client is not reading yet: wait, never block the loop
-                await _ready(self._fd, loop.add_writer, loop.remove_writer)
-                continue
-            view = view[written:]
+            view = view[await self._wire.write(view):]
         return len(text)
 
     async def flush(self) -> None:
         """Nothing is buffered here."""
+
+    def close(self) -> None:
+        self._wire.close()
+
+
+class Wire:
+    """One descriptor, read or written without blocking and without changing its flags."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        # a socket object for MSG_DONTWAIT, on a duplicate of its own (closing it closes only that)
+        self._socket = socket.socket(fileno=os.dup(fd)) if stat.S_ISSOCK(os.fstat(fd).st_mode) else None
+
+    def close(self) -> None:
+        if self._socket is not None:
+            self._socket.close()
+
+    async def read(self, size: int) -> bytes:
+        """Up to `size` bytes; b"" at the end of the input."""
+        loop = asyncio.get_running_loop()
+        while True:
+            if self._socket is not None:
+                try:
+                    return self._socket.recv(size, socket.MSG_DONTWAIT)
+                except BlockingIOError:
+                    pass
+            elif _poll(self.fd, select.POLLIN):  # data, or the other end closed: read cannot block
+                try:
+                    return os.read(self.fd, size)
+                except BlockingIOError:  # a launcher's O_NONBLOCK, and another reader was faster
+                    pass
+            await _ready(self.fd, loop.add_reader, loop.remove_reader)
+
+    async def write(self, data: memoryview) -> int:
+        """Write some of `data` (at least one byte); how many."""
+        loop = asyncio.get_running_loop()
+        while True:
+            if self._socket is not None:
+                try:
+                    return self._socket.send(data, socket.MSG_DONTWAIT)
+                except BlockingIOError:
+                    pass
+            elif _poll(self.fd, select.POLLOUT):  # room for PIPE_BUF bytes: such a write is atomic, never blocks
+                try:
+                    return os.write(self.fd, data[:select.PIPE_BUF])
+                except BlockingIOError:  # a launcher's O_NONBLOCK, and another writer was faster
+                    pass
+            await _ready(self.fd, loop.add_writer, loop.remove_writer)
+
+
+def _poll(fd: int, event: int) -> bool:
+    """Whether `fd` is ready for `event` now (or has an error or hang-up to report)."""
+    poller = select.poll()
+    poller.register(fd, event)
+    return bool(poller.poll(0))
 
 
 @contextmanager
@@ -151,37 +242,38 @@ def claimed_pipes() -> Iterator[tuple[int, int] | None]:
 
     with suppress(ValueError, OSError):
         sys.stdout.flush()  # nothing of ours should be buffered, but nothing may be lost either
+    wires: list[int] = []
+    diverted: list[int] = []
     try:
-        wire_in = fcntl.fcntl(0, fcntl.F_DUPFD_CLOEXEC, 3)
-    except OSError as exc:
-        logger.warning("stdio: cannot duplicate stdin (%s); the SDK's threads serve it", exc)
-        yield None
-        return
-    try:
-        wire_out = fcntl.fcntl(1, fcntl.F_DUPFD_CLOEXEC, 3)
-    except OSError as exc:
-        os.close(wire_in)
-        logger.warning("stdio: cannot duplicate stdout (%s); the SDK's threads serve it", exc)
-        yield None
-        return
-    try:
+        wires.append(fcntl.fcntl(0, fcntl.F_DUPFD_CLOEXEC, 3))
+        wires.append(fcntl.fcntl(1, fcntl.F_DUPFD_CLOEXEC, 3))
         null = os.open(os.devnull, os.O_RDONLY)
         try:
             os.dup2(null, 0)
         finally:
             os.close(null)
+        diverted.append(0)
         os.dup2(2, 1)
-        os.set_blocking(wire_in, False)
-        os.set_blocking(wire_out, False)
-        logger.info("stdio: serving stdin and stdout from the event loop")
-        yield wire_in, wire_out
+        diverted.append(1)
+    except OSError as exc:  # as the SDK: whatever cannot be claimed is served as it is, by its threads
+        _give_back(wires, diverted)
+        logger.warning("stdio: cannot claim stdin and stdout (%s); the SDK's threads serve them", exc)
+        yield None
+        return
+    logger.info("stdio: serving stdin and stdout from the event loop")
+    try:
+        yield wires[0], wires[1]
     finally:
-        for fd, wire in ((0, wire_in), (1, wire_out)):
-            with suppress(OSError):
-                os.set_blocking(wire, True)
-            try:
-                os.dup2(wire, fd)
-            except OSError:  # pragma: no cover - the descriptor itself is gone
-                logger.warning("could not give fd %d back its stdio wire", fd)
-            with suppress(OSError):
-                os.close(wire)
+        _give_back(wires, diverted)
+
+
+def _give_back(wires: list[int], diverted: list[int]) -> None:
+    """Point every diverted fd back at its wire, then close the private duplicates."""
+    for fd in diverted:
+        try:
+            os.dup2(wires[fd], fd)
+        except OSError:  # pragma: no cover - the descriptor itself is gone
+            logger.warning("could not give fd %d back its stdio wire", fd)
+    for wire in wires:
+        with suppress(OSError):
+            os.close(wire)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Coroutine, Mapping
 from types import TracebackType
-from typing import Any
+from typing import Any, cast
 
 import anyio
 from mcp.server.mcpserver import MCPServer
@@ -217,11 +217,17 @@ async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None =
     # between the two; the low-level server is the documented way to serve custom streams.
     lowlevel = server._lowlevel_server
     with claimed_pipes() as wires:
-        stdin: Any = None if wires is None else PipeLineReader(wires[0])
-        stdout: Any = None if wires is None else PipeWriter(wires[1])
-        async with stdio_server(stdin, stdout) as (read_stream, write_stream), anyio.create_task_group() as reports:
-            def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
-                reports.start_soon(fn, *args)
+        stdin = None if wires is None else PipeLineReader(wires[0])
+        stdout = None if wires is None else PipeWriter(wires[1])
+        try:
+            async with stdio_server(cast(Any, stdin), cast(Any, stdout)) as (read_stream, write_stream), \
+                    anyio.create_task_group() as reports:
+                def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
+                    reports.start_soon(fn, *args)
 
-            gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request)
-            await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
+                gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request)
+                await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
+        finally:
+            for end in (stdin, stdout):
+                if end is not None:
+                    end.close()
