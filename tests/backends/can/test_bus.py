@@ -219,3 +219,32 @@ def test_a_batch_on_a_closed_bus_is_refused(channel: str) -> None:
     bus = CanBus(BusConfig(channel=channel))
     with pytest.raises(BackendError, match="not open"):
         bus.send_frames([(0x01, bytes(8), False)], FrameKind.COMMAND)
+
+
+def test_once_reading_is_handed_over_frames_wait_for_drain_and_are_handled_in_order(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    with CanBus(BusConfig(channel=channel), recorder) as bus:
+        bus.hand_over_reading()
+        for arbitration_id in range(1, 6):
+            peer.send(can.Message(arbitration_id=arbitration_id, data=bytes(8), is_extended_id=False))
+        threading.Event().wait(0.2)  # no reader thread any more: nothing is handled meanwhile
+        assert recorder.ids() == []
+        assert bus.drain() == 5
+        assert recorder.ids() == [1, 2, 3, 4, 5]
+        assert bus.drain() == 0
+        bus.take_back_reading()  # the reader thread again: frames are handled as they come
+        peer.send(can.Message(arbitration_id=6, data=bytes(8), is_extended_id=False))
+        eventually(lambda: recorder.ids() == [1, 2, 3, 4, 5, 6], "the reader thread handled the new frame")
+        assert bus.drain() == 0  # never two readers: drain does nothing while the thread reads
+
+
+def test_one_drain_handles_at_most_its_limit_and_leaves_the_rest_for_the_next(channel: str, peer: can.BusABC) -> None:
+    recorder = Recorder()
+    with CanBus(BusConfig(channel=channel), recorder) as bus:
+        bus.hand_over_reading()
+        for arbitration_id in range(1, 11):
+            peer.send(can.Message(arbitration_id=arbitration_id, data=bytes(8), is_extended_id=False))
+        assert bus.drain(limit=4) == 4  # the virtual bus queues a frame as it is sent
+        assert recorder.ids() == [1, 2, 3, 4]
+        assert bus.drain() == 6
+        assert recorder.ids() == list(range(1, 11))

@@ -271,6 +271,7 @@ class CanBackend(Backend, ServoHooks):
             self._gripper_hold_rad = self._gripper_position()
         self.servo = ServoLoop(self, q, period_s=self.period_s, idle_period_s=self.period_s, speedup=self._speedup,
                                name="can backend", realtime_priority=self.config.realtime_priority)
+        await anyio.to_thread.run_sync(self.bus.hand_over_reading)  # each tick reads what arrived before it
         await self.servo.start("armwarden-can-servo")
         for a in self._everyone:
             if a.joint.protocol is Protocol.ROBSTRIDE:
@@ -294,6 +295,8 @@ class CanBackend(Backend, ServoHooks):
         if self.servo is not None:
             await self.servo.shutdown()
         bus = self.bus
+        if bus is not None:
+            bus.take_back_reading()  # the servo loop read the bus; the disable replies still come in
         if bus is not None and bus.is_open:
             for a in self._everyone:  # disable: zero torque (the actuators' watchdog would do it anyway)
                 try:
@@ -616,6 +619,8 @@ class CanBackend(Backend, ServoHooks):
         servo = self.servo
         if servo is None or threading.current_thread() is not servo.thread:
             return
+        if self.bus is not None:
+            self.bus.drain()  # every frame that arrived before this tick, a fault among them, counts now
         now = time.monotonic()
         self._publish(now)
         measured = self._published.positions if self._published is not None else None

@@ -1,7 +1,11 @@
 """A CAN bus on python-can: open any interface from config, read on a Notifier, watch health.
 
-One `CanBus` owns one python-can bus and the Notifier thread that reads it. Every received
-data frame goes to the owner's handler on that thread; the handler raises `InvalidFrame` for a
+One `CanBus` owns one python-can bus and the Notifier thread that reads it — until the owner
+takes reading over (`hand_over_reading`): a servo loop then reads what has arrived at the start
+of every tick (`drain`), so a fault frame that reached the bus before a tick is handled before
+that tick commands, however late the reader thread would have been scheduled under load; one
+reader at a time, so frames are handled in the order they arrived. Every received data frame
+goes to the owner's handler on the reading thread; the handler raises `InvalidFrame` for a
 malformed frame (counted, INVALID_FRAME) and any other exception is a handler bug (counted,
 logged, LISTENER_ERROR) — neither stops the reader, so state updates never silently end. Error
 frames are decoded into health flags (SocketCAN reports bus-off only this way; python-can's
@@ -32,6 +36,8 @@ logger = logging.getLogger(__name__)
 
 #: how long the reader waits in one `recv` [s]; bounds how long `close` waits for it
 READ_TIMEOUT_S = 0.05
+#: the most frames one `drain` handles (a flood must not hold a servo tick; the rest wait a tick)
+DRAIN_LIMIT = 256
 #: at most one log line per this many seconds for a repeating reader error [s]
 ERROR_LOG_PERIOD_S = 1.0
 
@@ -214,6 +220,38 @@ class CanBus:
         self.open()
         return self
 
+    # ---------------------------------------------------------------- who reads
+    def hand_over_reading(self) -> None:
+        """Stop the reader thread: from now on the caller reads, with `drain` (see the module
+        docstring). Frames that arrive meanwhile wait in the interface; none is lost."""
+        notifier, self._notifier = self._notifier, None
+        if notifier is not None:
+            notifier.stop(timeout=10 * READ_TIMEOUT_S)
+
+    def take_back_reading(self) -> None:
+        """Start the reader thread again (the caller's loop has stopped)."""
+        if self._bus is not None and not self._closed and self._notifier is None:
+            self._notifier = can.Notifier(self._bus, [_Listener(self)], timeout=READ_TIMEOUT_S)
+
+    def drain(self, limit: int = DRAIN_LIMIT) -> int:
+        """Handle, on the calling thread, every frame that has arrived (at most `limit`); how
+        many. Only while reading is handed over (two readers would handle frames out of order)."""
+        bus = self._bus
+        if bus is None or self._closed or self._notifier is not None:
+            return 0
+        handled = 0
+        while handled < limit:
+            try:
+                msg = bus.recv(timeout=0)
+            except Exception as exc:  # as the reader thread: latched, never raised into the servo loop
+                self._reader_failed(exc)
+                break
+            if msg is None:
+                break
+            self._received(msg)
+            handled += 1
+        return handled
+
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
         self.close()
 
@@ -318,6 +356,7 @@ class CanBus:
 
 
 __all__ = [
+    "DRAIN_LIMIT",
     "ERROR_CLASSES",
     "NO_FLAGS",
     "BusConfig",
