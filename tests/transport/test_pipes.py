@@ -3,6 +3,7 @@ reader yields them, reads and writes that never block the loop, and the claim on
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -249,3 +250,60 @@ def test_a_claim_that_fails_half_way_leaves_stdin_and_stdout_as_they_were_for_th
     assert json.loads(probe.stderr.decode().strip().splitlines()[-1]) == {"claimed": False, "fds_kept": True}
     assert wire == b"still the wire\n"
     assert b"cannot claim stdin and stdout" in probe.stderr
+
+
+@pytest.mark.anyio
+async def test_a_writer_sharing_its_pipe_with_another_never_blocks_the_loop() -> None:
+    """Another process holding the same pipe can fill it between a readiness report and our
+    write; the write must then wait on the loop, never inside the kernel (the pipe's flags are
+    blocking, as a launcher left them). The reader pauses 0.5 s after each pipeful."""
+    read_end, write_end = os.pipe()
+    stop = threading.Event()
+    received = bytearray()
+
+    def compete() -> None:  # another writer on the same pipe, filling every gap
+        while not stop.is_set():
+            try:
+                os.write(write_end, b"#" * 4095)
+            except OSError:
+                return
+
+    def drain_in_fits() -> None:  # a reader that takes one pipeful, then pauses
+        while not stop.is_set():
+            received.extend(os.read(read_end, 65536))
+            stop.wait(0.5)
+
+    threads = [threading.Thread(target=compete, daemon=True), threading.Thread(target=drain_in_fits, daemon=True)]
+    gaps: list[float] = []
+
+    async def watch() -> None:
+        last = time.monotonic()
+        while True:
+            await anyio.sleep(0.005)
+            now = time.monotonic()
+            gaps.append(now - last)
+            last = now
+
+    writer = PipeWriter(write_end)
+    try:
+        for thread in threads:
+            thread.start()
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(watch)
+            started = time.monotonic()
+            with anyio.fail_after(60):
+                await writer.write("x" * 150_000)
+            took = time.monotonic() - started
+            tasks.cancel_scope.cancel()
+    finally:
+        stop.set()
+        writer.close()
+        os.close(write_end)
+        with contextlib.suppress(OSError):
+            while os.read(read_end, 65536):
+                pass
+        for thread in threads:
+            thread.join(5)
+        os.close(read_end)
+    assert took > 0.5  # the write outlasted at least one of the reader's pauses ...
+    assert max(gaps) < 0.4  # ... and the loop ran throughout: a write blocked in the kernel would show as a gap

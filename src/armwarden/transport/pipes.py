@@ -12,9 +12,8 @@ serialise every message, so what goes over the wire is what the SDK would send.
 
 The descriptors' flags are never touched: an `O_NONBLOCK` would be shared with every process
 holding the same pipe (a launching shell, `npx`, `uv run`) and would outlive a killed daemon.
-Sockets are read and written with `MSG_DONTWAIT`; a pipe is read only when `poll` says it has
-data (or has ended), and written in pieces of at most `PIPE_BUF` bytes only when `poll` says it
-has room: such a write is atomic and does not block. The loop gets a turn after every read, and
+Sockets are read and written with `MSG_DONTWAIT`; pipes through a private non-blocking pipe with
+`splice(SPLICE_F_NONBLOCK)`, non-blocking per call (see `Wire`). The loop gets a turn after every read, and
 a line longer than `MAX_LINE_BYTES` is dropped and replaced by one the SDK cannot parse (it is
 answered with a parse error), so neither a client's endless line nor its flood can hold the loop
 or exhaust memory.
@@ -30,7 +29,6 @@ import codecs
 import io
 import logging
 import os
-import select
 import socket
 import stat
 import sys
@@ -60,6 +58,8 @@ def own_pipe(fd: int, stderr_fd: int = 2) -> bool:
         return False
     if stat.S_ISSOCK(info.st_mode) and socket.getdefaulttimeout() is not None:
         return False  # a socket object would set O_NONBLOCK on the shared descriptor (see `Wire`)
+    if stat.S_ISFIFO(info.st_mode) and not hasattr(os, "splice"):
+        return False  # a pipe is served through splice (Linux; see `Wire`)
     return (info.st_dev, info.st_ino) != (err.st_dev, err.st_ino)
 
 
@@ -179,55 +179,64 @@ class PipeWriter:
 
 
 class Wire:
-    """One descriptor, read or written without blocking and without changing its flags."""
+    """One descriptor, read or written without blocking whatever its flags, and without changing
+    them: a socket with `MSG_DONTWAIT`; a pipe through a private non-blocking pipe of ours (the
+    stage) with `splice(SPLICE_F_NONBLOCK)`, which never waits on either pipe — even if another
+    process shares the wire and empties or fills it between a readiness report and our call."""
 
     def __init__(self, fd: int) -> None:
         self.fd = fd
+        is_socket = stat.S_ISSOCK(os.fstat(fd).st_mode)
         # a socket object for MSG_DONTWAIT, on a duplicate of its own (closing it closes only that)
-        self._socket = socket.socket(fileno=os.dup(fd)) if stat.S_ISSOCK(os.fstat(fd).st_mode) else None
+        self._socket = socket.socket(fileno=os.dup(fd)) if is_socket else None
+        self._stage = None if is_socket else os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._staged = 0  # bytes in the stage on their way out (written, not yet spliced to the wire)
 
     def close(self) -> None:
         if self._socket is not None:
             self._socket.close()
+        for end in self._stage or ():
+            with suppress(OSError):
+                os.close(end)
+        self._stage = None
 
     async def read(self, size: int) -> bytes:
-        """Up to `size` bytes; b"" at the end of the input."""
+        """Up to `size` bytes (at most a pipe's capacity); b"" at the end of the input."""
         loop = asyncio.get_running_loop()
         while True:
             if self._socket is not None:
-                try:
+                with suppress(BlockingIOError):
                     return self._socket.recv(size, socket.MSG_DONTWAIT)
-                except BlockingIOError:
-                    pass
-            elif _poll(self.fd, select.POLLIN):  # data, or the other end closed: read cannot block
-                try:
-                    return os.read(self.fd, size)
-                except BlockingIOError:  # a launcher's O_NONBLOCK, and another reader was faster
-                    pass
+            else:
+                stage_out, stage_in = self._require_stage()
+                with suppress(BlockingIOError):
+                    moved = os.splice(self.fd, stage_in, size, flags=os.SPLICE_F_NONBLOCK)
+                    return os.read(stage_out, moved) if moved else b""  # 0: every writer is gone
             await _ready(self.fd, loop.add_reader, loop.remove_reader)
 
     async def write(self, data: memoryview) -> int:
-        """Write some of `data` (at least one byte); how many."""
+        """Write some of `data` (at least one byte) to the wire; how many."""
         loop = asyncio.get_running_loop()
-        while True:
-            if self._socket is not None:
-                try:
+        if self._socket is not None:
+            while True:
+                with suppress(BlockingIOError):
                     return self._socket.send(data, socket.MSG_DONTWAIT)
-                except BlockingIOError:
-                    pass
-            elif _poll(self.fd, select.POLLOUT):  # room for PIPE_BUF bytes: such a write is atomic, never blocks
-                try:
-                    return os.write(self.fd, data[:select.PIPE_BUF])
-                except BlockingIOError:  # a launcher's O_NONBLOCK, and another writer was faster
-                    pass
-            await _ready(self.fd, loop.add_writer, loop.remove_writer)
+                await _ready(self.fd, loop.add_writer, loop.remove_writer)
+        stage_out, stage_in = self._require_stage()
+        taken = 0
+        if not self._staged:  # (a cancelled write may have left bytes staged: those go first)
+            taken = self._staged = os.write(stage_in, data)  # private and empty: takes up to its capacity
+        while self._staged:
+            try:
+                self._staged -= os.splice(stage_out, self.fd, self._staged, flags=os.SPLICE_F_NONBLOCK)
+            except BlockingIOError:
+                await _ready(self.fd, loop.add_writer, loop.remove_writer)
+        return taken
 
-
-def _poll(fd: int, event: int) -> bool:
-    """Whether `fd` is ready for `event` now (or has an error or hang-up to report)."""
-    poller = select.poll()
-    poller.register(fd, event)
-    return bool(poller.poll(0))
+    def _require_stage(self) -> tuple[int, int]:
+        if self._stage is None:
+            raise ValueError("this wire is closed")
+        return self._stage
 
 
 @contextmanager
