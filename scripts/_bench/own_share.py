@@ -19,6 +19,7 @@ over stdio `plan_to_pose` with the preview against the same call without it.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import socket
@@ -188,9 +189,10 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
 
 
 def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, Any]:
-    """The preview renderer alone, as the daemon runs it (one previewer per policy), on a typical
-    0.5 rad plan: p50 and p95 over `repeats` pictures."""
+    """The preview renderer alone, as the daemon runs it (one previewer per policy, the daemon's
+    garbage-collector regime), on a typical 0.5 rad plan: p50 and p95 over `repeats` pictures."""
     from armwarden.assembly import plan_previewer
+    from armwarden.daemon import freeze_long_lived_objects
     from armwarden.policy import load_policy
     from armwarden.preflight import load_runtime_model
 
@@ -203,10 +205,19 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, Any]:
     report = runtime.envelope.check(trajectory)
     preview = plan_previewer()
     times, png = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        png = preview(runtime, trajectory, report)
-        times.append(time.perf_counter() - start)
+    # in the daemon's garbage-collector regime (`freeze_long_lived_objects` at start-up): this
+    # process's own heap, grown by the transports measured before, must not lend the picture
+    # collections that the daemon's frozen heap does not see
+    threshold = gc.get_threshold()
+    freeze_long_lived_objects()
+    try:
+        for _ in range(repeats):
+            start = time.perf_counter()
+            png = preview(runtime, trajectory, report)
+            times.append(time.perf_counter() - start)
+    finally:
+        gc.unfreeze()
+        gc.set_threshold(*threshold)
     assert png is not None
     out: dict[str, Any] = {**median_p95(times[10:]), "png_bytes": len(png)}
     library = _library_share_ms(lambda: preview(runtime, trajectory, report), repeats)
@@ -285,11 +296,83 @@ def bench_own_share(policy_path: Path, directory: Path, rounds: int = 6) -> dict
             figures[label] = {"armwarden": aw, "floor": fl, "own_ms": aw["median_ms"] - fl["median_ms"],
                               "own_p95_ms": aw["p95_ms"] - fl["p95_ms"]}
         results["transports"][transport] = figures
+    results["raw_stdio"] = _raw_stdio_round_trips(policy_path, directory)
     results["render"] = _render_p95_ms(policy_path)
     stdio = results["transports"]["stdio"]
     results["preview_ratio_stdio"] = (stdio["plan_to_pose, with preview"]["armwarden"]["median_ms"]
                                       / stdio["plan_to_pose, no preview"]["armwarden"]["median_ms"])
     return results
+
+
+#: the three servers of the raw stdio comparison: (label, command after the interpreter, tool)
+RAW_SERVERS = (
+    ("SDK floor (the SDK's stdio transport)", [str(TRIVIAL_SERVER)], "robot_state_shape"),
+    ("floor on ArmWarden's stdio transport", [str(TRIVIAL_SERVER), "--armwarden-stdio"], "robot_state_shape"),
+    ("ArmWarden", None, "get_robot_state"),
+)
+
+
+def _raw_stdio_round_trips(policy_path: Path, directory: Path, calls: int = 4000, rounds: int = 20) -> dict[str, Any]:
+    """`get_robot_state` (and the floor's constant of its shape) over stdio from a bare JSON-RPC
+    client — one line out, one line back, nothing else in the client — so the servers' side of a
+    round trip is seen without the SDK client's own cost (≈ 0.8 ms of Python per call). Blocks of
+    calls alternate between the servers; also each server's CPU time per call (user + system,
+    from /proc)."""
+    servers = []
+    for label, args, tool in RAW_SERVERS:
+        command = [sys.executable, *(args or ["-m", "armwarden.cli", "serve", "--policy", str(policy_path),
+                                              "--audit-log", str(directory / "raw-stdio-audit.jsonl"),
+                                              "--log-level", "WARNING"])]
+        process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                   env={**os.environ, "PYTHONPATH": str(SRC)})
+        servers.append((label, process, tool))
+    per_block = calls // rounds
+    times: dict[str, list[float]] = {label: [] for label, _, _ in servers}
+    cpu = dict.fromkeys(times, 0.0)
+    try:
+        for _, process, tool in servers:
+            _raw_call(process, "initialize", {"protocolVersion": "2025-11-25", "capabilities": {},
+                                              "clientInfo": {"name": "raw-bench", "version": "1"}})
+            _raw_send(process, {"jsonrpc": "2.0", "method": "notifications/initialized"})
+            for _ in range(WARM):
+                _raw_call(process, "tools/call", {"name": tool, "arguments": {}})
+        for r in range(rounds):
+            for label, process, tool in servers if r % 2 == 0 else servers[::-1]:
+                before = _cpu_s(process)
+                for i in range(per_block):
+                    start = time.perf_counter()
+                    _raw_call(process, "tools/call", {"name": tool, "arguments": {}})
+                    if i >= WARM:
+                        times[label].append(time.perf_counter() - start)
+                cpu[label] += _cpu_s(process) - before
+    finally:
+        for _, process, _ in servers:
+            stop_process(process, 30)
+    return {label: {**median_p95(series), "cpu_ms": cpu[label] / (rounds * per_block) * 1e3}
+            for label, series in times.items()}
+
+
+def _raw_send(process: subprocess.Popen, message: dict[str, Any]) -> None:
+    assert process.stdin is not None
+    process.stdin.write(json.dumps(message).encode() + b"\n")
+    process.stdin.flush()
+
+
+def _raw_call(process: subprocess.Popen, method: str, params: dict[str, Any]) -> None:
+    assert process.stdout is not None
+    _raw_send(process, {"jsonrpc": "2.0", "id": 1, "method": method, "params": params})
+    answer = process.stdout.readline()
+    if not answer or b'"isError":true' in answer or b'"error"' in answer[:40]:
+        raise RuntimeError(f"{method} failed in the raw stdio benchmark: {answer[:300]!r}")
+
+
+def _cpu_s(process: subprocess.Popen) -> float:
+    """The process's user + system CPU time [s] (Linux /proc; 0 elsewhere)."""
+    try:
+        fields = Path(f"/proc/{process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def report_own_share(r: dict[str, Any]) -> None:
@@ -306,6 +389,12 @@ def report_own_share(r: dict[str, Any]) -> None:
             print(f"| {transport} | {label} | {f['floor']['median_ms']:.2f} ms (p95 {f['floor']['p95_ms']:.2f}) "
                   f"| {f['armwarden']['median_ms']:.2f} ms (p95 {f['armwarden']['p95_ms']:.2f}) "
                   f"| {f['own_ms']:.2f} ms | {target} |")
+    raw = r["raw_stdio"]
+    print("## get_robot_state over stdio from a bare JSON-RPC client (the servers' side of a round trip)")
+    print("| server | round trip, median | p95 | CPU per call |")
+    print("|---|---|---|---|")
+    for label, f in raw.items():
+        print(f"| {label} | {f['median_ms']:.3f} ms | {f['p95_ms']:.3f} ms | {f['cpu_ms']:.3f} ms |")
     render = r["render"]
     print(f"preview picture alone (typical 0.5 rad plan, {render['png_bytes']} bytes): {render['median_ms']:.2f} ms median, "
           f"{render['p95_ms']:.2f} ms p95 (target ≤ {RENDER_P95_TARGET_MS:g} ms p95: "
