@@ -266,6 +266,43 @@ def test_torn_last_line_is_reported_then_recovered_on_reopen(tmp_path: Path) -> 
         assert log.recovery_record is None and log.last_seq == 5
 
 
+def test_a_recovery_cut_short_is_recovered_with_its_fragment_on_the_next_open(tmp_path: Path) -> None:
+    """A full disk or a power cut can tear a write, and then tear the recovery record written for
+    it at the next start: the log must still open, and claim both torn lines as one tail."""
+    path = tmp_path / "audit.jsonl"
+    good = write_log(path, 3)
+    torn_record = b'{"arguments":{"i":3},"detail":null,"ev'
+    torn_recovery = b'{"event":"recovery","extra":{"torn_by'  # the first recovery, cut short
+    with open(path, "ab") as f:
+        f.write(torn_record + b"\n" + torn_recovery)
+    report = verify_file(path)
+    assert not report.ok and report.first_bad_line == 4 and report.records == 3
+
+    with AuditLog(path) as log:
+        recovery = log.recovery_record
+        assert recovery is not None and recovery.seq == 4 and recovery.prev == good[-1].hash
+        assert recovery.extra is not None and recovery.extra["torn_line"] == 4
+        assert recovery.extra["torn_bytes"] == len(torn_record) + 1 + len(torn_recovery)
+        assert recovery.detail is not None and "lines 4-5" in recovery.detail
+        log.append("startup")
+    report = verify_file(path)
+    assert report.ok and report.records == 5 and report.recovered_lines == [4, 5]
+
+
+def test_a_recovery_record_claiming_only_part_of_the_torn_lines_before_it_fails(tmp_path: Path) -> None:
+    path = tmp_path / "audit.jsonl"
+    write_log(path, 2)
+    with open(path, "ab") as f:
+        f.write(b'{"seq":3,"ev\n{"seq":3,"detail"')
+    AuditLog(path).close()  # recovers lines 3-4 as one tail
+    assert verify_file(path).recovered_lines == [3, 4]
+    lines = lines_of(path)
+    del lines[2]  # drop the first fragment: the claim no longer matches what precedes it
+    path.write_bytes(b"".join(lines))
+    report = verify_file(path)
+    assert not report.ok and report.first_bad_line == 3
+
+
 def test_complete_record_missing_only_its_newline_is_treated_as_torn(tmp_path: Path) -> None:
     path = tmp_path / "audit.jsonl"
     write_log(path, 3)

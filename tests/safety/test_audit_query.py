@@ -87,3 +87,18 @@ def test_since_without_a_zone_is_utc_and_a_zone_is_honoured() -> None:
     record = {"wall_time": "2026-11-24T04:00:00.000001Z"}
     assert RecordFilter(since=parse_since("2026-11-24T04:00Z")).matches(record)
     assert not RecordFilter(since=parse_since("2026-11-24T04:00:01Z")).matches(record)
+
+
+def test_a_record_with_a_lone_surrogate_is_printed_as_its_escape_not_a_traceback(tmp_path: Path) -> None:
+    """Only a damaged or forged file holds one (the writer replaces them); tail must still print."""
+    import subprocess
+    import sys
+
+    from tests.helpers import REPO, child_env
+
+    path = tmp_path / "forged.jsonl"
+    path.write_text('{"seq":1,"tool":"\\ud800","outcome":"ok"}\n', encoding="ascii")
+    shown = subprocess.run([sys.executable, "-m", "armwarden.cli", "audit", "tail", str(path)], capture_output=True,
+                           cwd=REPO, env=child_env(), timeout=60)
+    assert shown.returncode == 0, shown.stderr.decode()
+    assert json.loads(shown.stdout)["tool"] == "\ud800"  # the escape it was read from, read back the same

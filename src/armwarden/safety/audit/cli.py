@@ -49,5 +49,8 @@ def tail_command(path: str | os.PathLike[str], n: int = 20, where: RecordFilter 
         print(f"cannot read {os.fspath(path)}: {exc}", file=sys.stderr)
         return 1
     for record in records:
-        print(json.dumps(record, indent=2, ensure_ascii=False, sort_keys=False))
+        text = json.dumps(record, indent=2, ensure_ascii=False, sort_keys=False)
+        # a lone surrogate (only a damaged or forged file has one: the writer replaces them) is
+        # printed as the JSON escape it was read from, not raised as an encoding error
+        print(text.encode("utf-8", "backslashreplace").decode("utf-8"))
     return 0

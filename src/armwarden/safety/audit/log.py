@@ -181,11 +181,15 @@ class AuditLog:
             raise
 
     def _recover(self, lineno: int, fragment: bytes) -> None:
-        """Terminate a torn last line (if needed) and chain a recovery record past it."""
+        """Terminate a torn tail (if needed) and chain a recovery record past it: the tail is the
+        lines from `lineno` to the end, `fragment` their bytes joined by newlines (several lines
+        only if an earlier recovery was itself cut short)."""
+        last = lineno + fragment.count(b"\n")
+        lines = f"line {lineno}" if last == lineno else f"lines {lineno}-{last}"
         record, line = self._build(
             AuditEntry(
                 "recovery",
-                detail=f"torn last line {lineno} ({len(fragment)} bytes) from an interrupted write; "
+                detail=f"torn {lines} ({len(fragment)} bytes) from an interrupted write; "
                 "left in place, chain continues from the last good record",
                 outcome="recovered",
                 extra={

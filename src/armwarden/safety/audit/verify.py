@@ -41,9 +41,9 @@ class Scan:
     report: VerifyReport
     last_seq: int
     last_hash: str
-    bad_is_last: bool = False  # the first bad line is the file's last line
-    bad_parses: bool = False  # ...and it is a JSON object (so not a torn write)
-    bad_bytes: bytes = b""  # its content without the newline
+    bad_is_last: bool = False  # from the first bad line on, the file holds nothing but torn writes
+    bad_parses: bool = False  # the first bad line is a JSON object (so not a torn write)
+    bad_bytes: bytes = b""  # its content without the newline (a torn tail: all of it, lines joined)
     lines: int = 0  # lines read, fragments included (a clean scan: every line of the file)
 
 
@@ -130,30 +130,46 @@ def scan(stream: IO[bytes], key: bytes | None, resume: Scan | None = None) -> Sc
             bad_bytes=content,
         )
 
+    # consecutive lines that are not records at all (torn writes): a recovery record right after
+    # them claims them as one fragment (their bytes joined by newlines), or they end the file (a
+    # torn tail a writer recovers); anything else after them fails at the first of them. More than
+    # one only when a recovery itself was cut short (a full disk, a power cut at start-up).
+    pending: list[tuple[int, bytes, str]] = []  # (line, content, why it is not a record)
     cur = next(lines, None)
     while cur is not None:
         nxt = next(lines, None)
         lineno, raw = cur
         terminated = raw.endswith(b"\n")
         content = raw[:-1] if terminated else raw
-        claim = _fragment_claim(nxt[1].rstrip(b"\n"), lineno) if nxt is not None else None
+        first = pending[0][0] if pending else lineno
+        joined = b"\n".join([*(c for _, c, _ in pending), content])
+        claim = _fragment_claim(nxt[1].rstrip(b"\n"), first) if nxt is not None else None
         if claim is not None:
-            if claim.get("torn_bytes") != len(content) or claim.get(
+            if claim.get("torn_bytes") != len(joined) or claim.get(
                 "torn_sha256"
-            ) != hashlib.sha256(content).hexdigest():
-                return fail(lineno, "fragment does not match its recovery record", False, False, content)
-            recovered.append(lineno)
+            ) != hashlib.sha256(joined).hexdigest():
+                return fail(first, "fragment does not match its recovery record", False, False, joined)
+            recovered.extend(range(first, lineno + 1))
+            pending = []
             cur = nxt
             continue
         if not terminated:  # only the last line can lack its newline
-            return fail(lineno, "torn last line", True, False, content)
+            return fail(first, pending[0][2] if pending else "torn last line", True, False, joined)
         obj, reason, parses = _check_line(content, last_seq + 1, last_hash, key)
+        if reason is not None and not parses:
+            pending.append((lineno, content, reason))  # a fragment: claimed by what follows, or a torn tail
+            cur = nxt
+            continue
+        if pending:  # a record (good or bad) after fragments nothing claimed
+            return fail(first, pending[0][2], False, False, pending[0][1])
         if reason is not None:
             return fail(lineno, reason, nxt is None, parses, content)
         assert obj is not None
         records += 1
         last_seq, last_hash = obj["seq"], obj["hash"]
         cur = nxt
+    if pending:  # the file ends in fragments only: a torn tail
+        return fail(pending[0][0], pending[0][2], True, False, b"\n".join(c for _, c, _ in pending))
     return Scan(VerifyReport(True, records, None, None, recovered), last_seq, last_hash, lines=lineno)
 
 
