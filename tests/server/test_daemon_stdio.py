@@ -574,7 +574,7 @@ def test_stdin_from_a_terminal_is_served_by_the_sdks_threads(tmp_path) -> None:
 @pytest.mark.anyio
 async def test_a_client_that_stops_reading_cannot_hold_back_an_estop(tmp_path) -> None:
     audit = tmp_path / "audit.jsonl"
-    process = subprocess.Popen(serve_command(audit), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    process = subprocess.Popen(serve_command(audit), stdin=subprocess.PIPE, stdout=subprocess.PIPE,  # noqa: ASYNC220 - set-up
                                stderr=subprocess.DEVNULL, cwd=REPO, env=child_env())
     assert process.stdin is not None and process.stdout is not None
     polls = [{**STATE_CALL, "id": 100 + i} for i in range(200)]  # ~280 KB of answers: stdout fills up

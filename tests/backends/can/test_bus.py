@@ -221,12 +221,17 @@ def test_a_batch_on_a_closed_bus_is_refused(channel: str) -> None:
         bus.send_frames([(0x01, bytes(8), False)], FrameKind.COMMAND)
 
 
+def send_after_hand_over(bus: CanBus, peer: can.BusABC, count: int) -> None:
+    """Hand reading over, then have the peer send frames 1..count."""
+    bus.hand_over_reading()
+    for arbitration_id in range(1, count + 1):
+        peer.send(can.Message(arbitration_id=arbitration_id, data=bytes(8), is_extended_id=False))
+
+
 def test_once_reading_is_handed_over_frames_wait_for_drain_and_are_handled_in_order(channel: str, peer: can.BusABC) -> None:
     recorder = Recorder()
     with CanBus(BusConfig(channel=channel), recorder) as bus:
-        bus.hand_over_reading()
-        for arbitration_id in range(1, 6):
-            peer.send(can.Message(arbitration_id=arbitration_id, data=bytes(8), is_extended_id=False))
+        send_after_hand_over(bus, peer, 5)
         threading.Event().wait(0.2)  # no reader thread any more: nothing is handled meanwhile
         assert recorder.ids() == []
         assert bus.drain() == 5
@@ -241,9 +246,7 @@ def test_once_reading_is_handed_over_frames_wait_for_drain_and_are_handled_in_or
 def test_one_drain_handles_at_most_its_limit_and_leaves_the_rest_for_the_next(channel: str, peer: can.BusABC) -> None:
     recorder = Recorder()
     with CanBus(BusConfig(channel=channel), recorder) as bus:
-        bus.hand_over_reading()
-        for arbitration_id in range(1, 11):
-            peer.send(can.Message(arbitration_id=arbitration_id, data=bytes(8), is_extended_id=False))
+        send_after_hand_over(bus, peer, 10)
         assert bus.drain(limit=4) == 4  # the virtual bus queues a frame as it is sent
         assert recorder.ids() == [1, 2, 3, 4]
         assert bus.drain() == 6
