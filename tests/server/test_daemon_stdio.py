@@ -116,11 +116,14 @@ async def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exit
 
     records = await wait_for_record(audit, lambda r: r["event"] == "shutdown")
     events = [r["event"] for r in records]
-    assert "execution_interrupted" in events
-    assert events.index("execution_interrupted") < events.index("shutdown")
-    assert any(r["tool"] == "execute_plan" and r["outcome"] == "cancelled" for r in records)
-    assert records[-1]["event"] == "shutdown"
-    assert not any(r["tool"] == "execute_plan" and r["outcome"] == "ok" for r in records)
+    # held the moment the client's input ended, then the open call ended (answered as aborted, or
+    # cancelled if the client stopped the daemon first), then the shutdown
+    gone = events.index("client_gone")
+    assert records[gone]["outcome"] == "stopped"
+    execution = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan")
+    assert gone < records.index(execution) < events.index("shutdown") == len(records) - 1
+    status = (execution.get("extra") or {}).get("result", {}).get("status")
+    assert execution["outcome"] == "cancelled" or status == "aborted", execution
 
 
 # ------------------------------------------------------------------ SIGTERM
@@ -653,3 +656,37 @@ def test_a_client_streaming_an_endless_line_cannot_keep_the_daemon_from_stopping
         stop_process(process, 5)
         feeder.join(5)
     assert [r["event"] for r in records_of(audit)][-1] == "shutdown"
+
+
+def test_calls_read_before_the_input_ends_are_answered(tmp_path) -> None:
+    """`printf '<requests>' | armwarden serve`: the client writes its requests and closes its end."""
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(serve_command(audit), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, cwd=REPO, env=child_env())
+    plan = {"jsonrpc": "2.0", "id": 3, "method": "tools/call",
+            "params": {"name": "plan_to_pose", "arguments": {"position": {"x": 0.4, "y": 0.05, "z": 0.35}}}}
+    wire, _ = process.communicate(b"".join(json.dumps(m).encode() + b"\n" for m in (HELLO, INITIALIZED, STATE_CALL, plan)),
+                                  timeout=60)
+    answers = answers_of(wire)
+    assert len(answers[2]["result"]["structuredContent"]["joint_positions"]) == 7
+    assert answers[3]["result"]["structuredContent"]["status"] in ("ok", "needs_approval")
+    assert process.returncode == 0
+    assert [r["event"] for r in records_of(audit)][-1] == "shutdown"
+
+
+def test_a_motion_open_when_the_input_ends_is_stopped_at_once_then_answered(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
+    try:
+        motion_id = start_motion(rpc)
+        assert process.stdin is not None
+        process.stdin.close()  # the client leaves mid-motion
+        done = receive_until(rpc, lambda m: m.get("id") == motion_id)
+        assert process.wait(timeout=30) == 0
+    finally:
+        stop_raw_daemon(process)
+    assert done["result"]["structuredContent"]["status"] in ("aborted", "stopped"), done
+    records = records_of(audit)
+    gone = [r for r in records if r["event"] == "client_gone"]
+    assert len(gone) == 1 and gone[0]["outcome"] == "stopped"
+    execution = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan")
+    assert gone[0]["seq"] < execution["seq"] < records[-1]["seq"] and records[-1]["event"] == "shutdown"

@@ -75,6 +75,15 @@ class ExternalStops:
                            detail=f"robot held as the {tool} request was read" if failure is None
                            else f"holding the robot as the {tool} request was read FAILED: {failure}")
 
+    def hold_as_the_client_leaves(self) -> None:
+        """The client closed its input with calls still open: hold the robot at once (no motion
+        outlives its client), while those calls finish and are answered for whoever still reads.
+        Audited (without waiting) as `client_gone`."""
+        failure = self._stopper.hold_now(emergency=False)
+        self._submit("client_gone", outcome="stopped" if failure is None else "stop_failed",
+                     detail="the client closed its input with calls open: robot held while they are answered"
+                     if failure is None else f"holding the robot as the client left FAILED: {failure}")
+
     def _submit(self, event: str, **fields: Any) -> None:
         """Hand a record to the audit writer; a log that is closing or closed is said loudly (the
         stop itself has happened either way)."""

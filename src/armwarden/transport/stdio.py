@@ -18,7 +18,11 @@ an unreadable line, a reused id, a `tools/call` with malformed params (the SDK a
 is reported through `on_refused`, so the daemon audits it.
 
 An id is open from its request until the answer is written, or until the SDK settles the request
-without one (it was cancelled: the SDK's `on_request_unanswered` hook). Ids are compared the way
+without one (it was cancelled: the SDK's `on_request_unanswered` hook). When the input ends with
+ids still open, the robot is held at once (`on_input_end`) and those calls get up to
+`INPUT_END_GRACE_S` to finish and be answered before the session ends (the SDK would cancel
+them unanswered: a client that writes its requests and closes its end, `printf ... | armwarden
+serve`, got no answer). Ids are compared the way
 the SDK matches them (`request_id_key`). Everything else passes unchanged, in order; stdout carries
 only MCP messages.
 
@@ -57,9 +61,12 @@ from armwarden.transport.jsonrpc import (
 )
 from armwarden.transport.pipes import PipeLineReader, PipeWriter, claimed_pipes
 
-__all__ = ["GatedReadStream", "GatedWriteStream", "gate_streams", "serve_stdio"]
+__all__ = ["INPUT_END_GRACE_S", "GatedReadStream", "GatedWriteStream", "OpenIds", "gate_streams", "serve_stdio"]
 
 logger = logging.getLogger(__name__)
+
+#: how long calls already read may still run, and be answered, once the input has ended [s]
+INPUT_END_GRACE_S = 3.0
 
 
 def unreadable_line_error(exc: Exception) -> ErrorData:
@@ -69,10 +76,38 @@ def unreadable_line_error(exc: Exception) -> ErrorData:
     return ErrorData(code=PARSE_ERROR, message="Parse error: the line is not valid JSON")
 
 
+class OpenIds:
+    """The keys (`request_id_key`) of the requests read and not yet settled."""
+
+    def __init__(self) -> None:
+        self._keys: set[str] = set()
+        self._none_left: anyio.Event | None = None
+
+    def __contains__(self, key: str) -> bool:
+        return key in self._keys
+
+    def __bool__(self) -> bool:
+        return bool(self._keys)
+
+    def add(self, key: str) -> None:
+        self._keys.add(key)
+
+    def discard(self, key: str) -> None:
+        self._keys.discard(key)
+        if not self._keys and self._none_left is not None:
+            self._none_left.set()
+
+    async def all_settled(self) -> None:
+        """Return once no request is open."""
+        if self._keys:
+            self._none_left = anyio.Event()
+            await self._none_left.wait()
+
+
 class GatedWriteStream:
     """Write side: passes every message on; an answer closes its request's id first."""
 
-    def __init__(self, inner: WriteStream[SessionMessage], open_ids: set[str]) -> None:
+    def __init__(self, inner: WriteStream[SessionMessage], open_ids: OpenIds) -> None:
         self._inner = inner
         self._open_ids = open_ids
 
@@ -106,15 +141,16 @@ class GatedWriteStream:
 class GatedReadStream:
     """Read side: answers unreadable lines and duplicate open ids itself, passes the rest on."""
 
-    def __init__(self, inner: ReadStream[SessionMessage | Exception], writer: GatedWriteStream, open_ids: set[str],
+    def __init__(self, inner: ReadStream[SessionMessage | Exception], writer: GatedWriteStream, open_ids: OpenIds,
                  spawn: Callable[..., None], on_refused: RefusedCallback | None = None,
-                 on_stop_request: StopOnReceipt | None = None) -> None:
+                 on_stop_request: StopOnReceipt | None = None, on_input_end: Callable[[], None] | None = None) -> None:
         self._inner = inner
         self._writer = writer
         self._open_ids = open_ids
         self._spawn = spawn
         self._on_refused = on_refused
         self._on_stop_request = on_stop_request
+        self._on_input_end = on_input_end
 
     @property
     def last_context(self) -> Any:
@@ -123,7 +159,11 @@ class GatedReadStream:
 
     async def receive(self) -> SessionMessage | Exception:
         while True:
-            item = await self._inner.receive()
+            try:
+                item = await self._inner.receive()
+            except anyio.EndOfStream:
+                await self._answer_open_calls()
+                raise
             if isinstance(item, Exception):
                 error = unreadable_line_error(item)
                 logger.warning("stdio: answered an unreadable line with error %d", error.code)
@@ -148,6 +188,17 @@ class GatedReadStream:
                 continue
             self._open_ids.add(key)
             return SessionMessage(request, self._closing_on_settle(item.metadata, key))
+
+    async def _answer_open_calls(self) -> None:
+        """The input has ended: let the calls already read finish and be answered (for a client
+        that wrote its requests and closed its end, `printf ... | armwarden serve`), within
+        `INPUT_END_GRACE_S`; the robot is held first (`on_input_end`) so no motion runs on."""
+        if not self._open_ids:
+            return
+        if self._on_input_end is not None:
+            self._on_input_end()
+        with anyio.move_on_after(INPUT_END_GRACE_S):
+            await self._open_ids.all_settled()
 
     def _closing_on_settle(self, metadata: Any, key: str) -> ServerMessageMetadata:
         """Metadata whose `on_request_unanswered` closes `key`: a cancelled request is never answered."""
@@ -202,15 +253,17 @@ class GatedReadStream:
 
 def gate_streams(read_stream: ReadStream[SessionMessage | Exception], write_stream: WriteStream[SessionMessage],
                  spawn: Callable[..., None], on_refused: RefusedCallback | None = None,
-                 on_stop_request: StopOnReceipt | None = None) -> tuple[GatedReadStream, GatedWriteStream]:
+                 on_stop_request: StopOnReceipt | None = None,
+                 on_input_end: Callable[[], None] | None = None) -> tuple[GatedReadStream, GatedWriteStream]:
     """Wrap a server's stream pair (see the module docstring). `spawn(fn, *args)` runs a task."""
-    open_ids: set[str] = set()
+    open_ids = OpenIds()
     writer = GatedWriteStream(write_stream, open_ids)
-    return GatedReadStream(read_stream, writer, open_ids, spawn, on_refused, on_stop_request), writer
+    return GatedReadStream(read_stream, writer, open_ids, spawn, on_refused, on_stop_request, on_input_end), writer
 
 
 async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None = None,
-                      on_stop_request: StopOnReceipt | None = None) -> None:
+                      on_stop_request: StopOnReceipt | None = None,
+                      on_input_end: Callable[[], None] | None = None) -> None:
     """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
     with the gate in between). Pending duplicate reports finish before this returns."""
     # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
@@ -225,7 +278,8 @@ async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None =
                 def spawn(fn: Callable[..., Coroutine[Any, Any, None]], *args: Any) -> None:
                     reports.start_soon(fn, *args)
 
-                gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request)
+                gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request,
+                                                       on_input_end)
                 await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
         finally:
             for end in (stdin, stdout):
