@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 
 import can
@@ -251,3 +252,61 @@ def test_one_drain_handles_at_most_its_limit_and_leaves_the_rest_for_the_next(ch
         assert recorder.ids() == [1, 2, 3, 4]
         assert bus.drain() == 6
         assert recorder.ids() == list(range(1, 11))
+
+
+class StallsOnFirst(Recorder):
+    """A handler whose first frame takes `stall_s` (a stalled log write, say), noting the thread."""
+
+    def __init__(self, stall_s: float) -> None:
+        super().__init__()
+        self.stall_s = stall_s
+        self.entered = threading.Event()
+        self.threads: list[str] = []
+
+    def __call__(self, msg: can.Message) -> None:
+        if not self.entered.is_set():
+            self.entered.set()
+            time.sleep(self.stall_s)
+        self.threads.append(threading.current_thread().name)
+        super().__call__(msg)
+
+
+def test_reading_is_not_handed_over_while_the_reader_thread_is_still_handling_a_frame(
+        channel: str, peer: can.BusABC) -> None:
+    handler = StallsOnFirst(1.5)
+    with CanBus(BusConfig(channel=channel), handler) as bus:
+        peer.send(can.Message(arbitration_id=1, data=bytes(8), is_extended_id=False))
+        assert handler.entered.wait(5)
+        with pytest.raises(BackendError, match="did not stop"):
+            bus.hand_over_reading()  # two readers would handle the next frames out of order
+        peer.send(can.Message(arbitration_id=2, data=bytes(8), is_extended_id=False))
+        assert bus.drain() == 0  # not handed over: the caller does not read
+        eventually(lambda: handler.ids() == [1], "the stalled frame handled")
+
+
+def test_taking_reading_back_waits_for_a_drain_under_way_and_later_drains_do_nothing(
+        channel: str, peer: can.BusABC) -> None:
+    handler = StallsOnFirst(0.5)
+    with CanBus(BusConfig(channel=channel), handler) as bus:
+        bus.hand_over_reading()
+        peer.send(can.Message(arbitration_id=1, data=bytes(8), is_extended_id=False))
+        servo = threading.Thread(target=bus.drain, name="servo")
+        servo.start()
+        assert handler.entered.wait(5)
+        bus.take_back_reading()  # as close does after a servo loop that did not stop in time
+        for arbitration_id in range(2, 8):
+            peer.send(can.Message(arbitration_id=arbitration_id, data=bytes(8), is_extended_id=False))
+        servo.join(5)
+        eventually(lambda: len(handler.ids()) == 7, "every frame handled")
+        assert handler.ids() == list(range(1, 8))
+        assert handler.threads[0] == "servo" and "servo" not in handler.threads[1:]
+        assert bus.drain() == 0
+
+
+def test_a_drain_stops_when_its_time_budget_is_spent_and_leaves_the_rest(channel: str, peer: can.BusABC) -> None:
+    handler = StallsOnFirst(0.01)  # each call is slow enough for a 1 ms budget to end the drain
+    with CanBus(BusConfig(channel=channel), handler) as bus:
+        send_after_hand_over(bus, peer, 20)
+        assert bus.drain(budget_s=0.001) == 1
+        assert bus.drain() == 19
+        assert handler.ids() == list(range(1, 21))

@@ -26,6 +26,7 @@ from armwarden.backends.base import Backend
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.backend import CanBackend, create_backend
+from armwarden.backends.can.bus import HealthFlag
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config
 from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
@@ -479,6 +480,25 @@ async def test_closing_the_host_bus_mid_motion_lets_the_actuators_can_timeout_st
     assert all(emulator.snapshot(m).torque_nm == 0.0 for m in all_motors(arm))
     assert "the servo loop died" in str(arm.health()["fault"])
     await _ended_without_completing(task)
+
+
+@pytest.mark.anyio
+async def test_once_the_servo_loop_dies_the_reader_thread_reads_the_bus_again(arm: CanBackend):
+    """The servo loop read the bus on every tick: when it dies, a bus-off or a fault frame
+    must still be seen and latched."""
+    emulator, bus = arm.emulator, arm.bus
+    assert emulator is not None and bus is not None and arm.servo is not None
+    original = arm._publish
+
+    def broken(stamp: float) -> None:
+        raise RuntimeError("injected servo-thread bug")
+
+    arm._publish = broken  # type: ignore[method-assign]  # the next tick raises: the servo thread dies
+    await wait_until(lambda: _async_true(arm.servo is not None and arm.servo.error is not None))
+    arm._publish = original  # type: ignore[method-assign]
+    emulator.emit_error_frame(0x40)  # bus-off
+    await wait_until(lambda: _async_true(HealthFlag.BUS_OFF in bus.flags))
+    assert "the servo loop died" in str(arm.health()["fault"])
 
 
 # ---------------------------------------------------------------------------- the daemon

@@ -84,6 +84,8 @@ logger = logging.getLogger(__name__)
 
 #: how often start-up and settling look at the replies [s]
 POLL_S = 0.002
+#: the share of a servo period the tick may spend handling received frames (the rest wait a tick)
+DRAIN_BUDGET = 0.3
 #: fingers still this long short of their target are blocked (by an object) [s]
 BLOCKED_S = 0.05
 #: finger speed of `gripper_home` [m/s]
@@ -352,6 +354,8 @@ class CanBackend(Backend, ServoHooks):
                 missing = [a for a in self._everyone if not ready(a)]
             if not missing:
                 return
+            if self.servo is not None:  # it reads the bus once it runs: its death is the cause, not the actuators
+                self.servo.require_running()
             if time.monotonic() > deadline:
                 names = ", ".join(a.label for a in missing)
                 raise BackendError(f"can backend: {names} {what} within {self.config.startup_timeout_s} s")
@@ -619,8 +623,8 @@ class CanBackend(Backend, ServoHooks):
         servo = self.servo
         if servo is None or threading.current_thread() is not servo.thread:
             return
-        if self.bus is not None:
-            self.bus.drain()  # every frame that arrived before this tick, a fault among them, counts now
+        if self.bus is not None:  # the frames that arrived before this tick, a fault among them, count now
+            self.bus.drain(budget_s=DRAIN_BUDGET * self.period_s)
         now = time.monotonic()
         self._publish(now)
         measured = self._published.positions if self._published is not None else None
@@ -649,6 +653,8 @@ class CanBackend(Backend, ServoHooks):
         with self._fault_lock:  # the health report says why nothing is commanded any more
             if self.fault is None:
                 self.fault = f"all joints: the servo loop died ({error}); nothing is commanded"
+        if self.bus is not None:  # the servo loop read the bus: the reader thread reads again (bus-off, faults)
+            self.bus.take_back_reading()
         self._report_fault(f"can backend: the servo loop died ({error!r}); the actuators' CAN timeout disables them")
 
     # ================================================================ faults (servo thread)

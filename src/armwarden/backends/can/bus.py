@@ -180,6 +180,9 @@ class CanBus:
         self._counters = _Counters()
         self._last_error_log = float("-inf")
         self._closed = False
+        # held while frames are handled off the reader thread (`drain`) and while reading changes
+        # hands or the bus closes: never two readers, never a drain on a closed bus
+        self._read_lock = threading.Lock()
 
     # ---------------------------------------------------------------- lifecycle
     @property
@@ -206,54 +209,72 @@ class CanBus:
 
     def close(self) -> None:
         """Stop reading and release the interface. Safe twice and before `open`."""
-        if self._closed:
-            return
-        self._closed = True
-        if self._notifier is not None:
-            self._notifier.stop(timeout=10 * READ_TIMEOUT_S)
-        if self._bus is not None:
-            with self._send_lock:
-                self._bus.shutdown()
-            logger.info("CAN bus %s:%s closed", self.config.interface, self.config.channel)
+        with self._read_lock:  # a drain under way finishes first
+            if self._closed:
+                return
+            self._closed = True
+            if self._notifier is not None:
+                self._notifier.stop(timeout=10 * READ_TIMEOUT_S)
+            if self._bus is not None:
+                with self._send_lock:
+                    self._bus.shutdown()
+                logger.info("CAN bus %s:%s closed", self.config.interface, self.config.channel)
 
     def __enter__(self) -> CanBus:
         self.open()
         return self
 
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
     # ---------------------------------------------------------------- who reads
     def hand_over_reading(self) -> None:
         """Stop the reader thread: from now on the caller reads, with `drain` (see the module
-        docstring). Frames that arrive meanwhile wait in the interface; none is lost."""
-        notifier, self._notifier = self._notifier, None
-        if notifier is not None:
+        docstring). Frames that arrive meanwhile wait in the interface; none is lost.
+        `BackendError` if the reader thread does not stop in time (a handler stalled): two
+        readers would handle frames out of order, so reading is not handed over."""
+        with self._read_lock:
+            notifier = self._notifier
+            if notifier is None:
+                return
             notifier.stop(timeout=10 * READ_TIMEOUT_S)
+            # python-can keeps its reader threads in `_readers`; stop() returns when the wait ends,
+            # stopped or not
+            if any(isinstance(r, threading.Thread) and r.is_alive() for r in getattr(notifier, "_readers", ())):
+                raise BackendError(f"CAN bus {self.config.channel}: the reader thread did not stop within "
+                                   f"{10 * READ_TIMEOUT_S:g} s; reading is not handed over")
+            self._notifier = None
 
     def take_back_reading(self) -> None:
-        """Start the reader thread again (the caller's loop has stopped)."""
-        if self._bus is not None and not self._closed and self._notifier is None:
-            self._notifier = can.Notifier(self._bus, [_Listener(self)], timeout=READ_TIMEOUT_S)
+        """Start the reader thread again (the caller no longer drains: its loop stopped or died).
+        A drain under way finishes first; later drains do nothing."""
+        with self._read_lock:
+            if self._bus is not None and not self._closed and self._notifier is None:
+                self._notifier = can.Notifier(self._bus, [_Listener(self)], timeout=READ_TIMEOUT_S)
 
-    def drain(self, limit: int = DRAIN_LIMIT) -> int:
-        """Handle, on the calling thread, every frame that has arrived (at most `limit`); how
-        many. Only while reading is handed over (two readers would handle frames out of order)."""
-        bus = self._bus
-        if bus is None or self._closed or self._notifier is not None:
-            return 0
-        handled = 0
-        while handled < limit:
-            try:
-                msg = bus.recv(timeout=0)
-            except Exception as exc:  # as the reader thread: latched, never raised into the servo loop
-                self._reader_failed(exc)
-                break
-            if msg is None:
-                break
-            self._received(msg)
-            handled += 1
-        return handled
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
-        self.close()
+    def drain(self, limit: int = DRAIN_LIMIT, budget_s: float | None = None) -> int:
+        """Handle, on the calling thread, the frames that have arrived — at most `limit`, and no
+        more once `budget_s` has passed (the rest wait for the next call); how many. Only while
+        reading is handed over (two readers would handle frames out of order)."""
+        with self._read_lock:
+            bus = self._bus
+            if bus is None or self._closed or self._notifier is not None:
+                return 0
+            deadline = None if budget_s is None else time.perf_counter() + budget_s
+            handled = 0
+            while handled < limit:
+                try:
+                    msg = bus.recv(timeout=0)
+                except Exception as exc:  # as the reader thread: latched, never raised into the servo loop
+                    self._reader_failed(exc)
+                    break
+                if msg is None:
+                    break
+                self._received(msg)
+                handled += 1
+                if deadline is not None and time.perf_counter() > deadline:
+                    break
+            return handled
 
     # ---------------------------------------------------------------- sending (any thread)
     def send(self, message: can.Message, kind: FrameKind) -> bool:
