@@ -13,10 +13,10 @@ serialise every message, so what goes over the wire is what the SDK would send.
 The descriptors' flags are never touched: an `O_NONBLOCK` would be shared with every process
 holding the same pipe (a launching shell, `npx`, `uv run`) and would outlive a killed daemon.
 Sockets are read and written with `MSG_DONTWAIT`; pipes through a private non-blocking pipe with
-`splice(SPLICE_F_NONBLOCK)`, non-blocking per call (see `Wire`). The loop gets a turn after every read, and
-a line longer than `MAX_LINE_BYTES` is dropped and replaced by one the SDK cannot parse (it is
-answered with a parse error), so neither a client's endless line nor its flood can hold the loop
-or exhaust memory.
+`splice(SPLICE_F_NONBLOCK)`, non-blocking per call (see `Wire`). The loop gets a turn after every
+read, and a line longer than `MAX_LINE_BYTES` is dropped and replaced by one the SDK cannot parse
+(it is answered with a parse error), so neither a client's endless line nor its flood can hold
+the loop or exhaust memory.
 
 Anything else — a terminal, a regular file, /dev/null, a descriptor shared with stderr — is left
 to the SDK's threads, as is everything when claiming fails.
@@ -84,8 +84,8 @@ class LineSplitter:
     or a CR LF split between two reads is joined, and at the end an unterminated last line is
     still a line. Work is linear in the input (a line's pieces are joined once, when it ends).
 
-    A line longer than `max_line_bytes` (counted as received, before decoding) is not kept: its
-    bytes are dropped up to its end, and `TOO_LONG` stands for it (see the module docstring)."""
+    A line longer than `max_line_bytes` (its decoded text, counted in UTF-8 bytes) is not kept:
+    the rest of it is dropped as it arrives, and `TOO_LONG` stands for it (see the module docstring)."""
 
     def __init__(self, max_line_bytes: int = 0) -> None:
         self._decoder = io.IncrementalNewlineDecoder(codecs.getincrementaldecoder("utf-8")(errors="replace"),
