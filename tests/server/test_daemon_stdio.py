@@ -119,7 +119,7 @@ async def test_stdio_client_exit_mid_motion_stops_the_arm_before_the_daemon_exit
     # held the moment the client's input ended, then the open call ended (answered as aborted, or
     # cancelled if the client stopped the daemon first), then the shutdown
     gone = events.index("client_gone")
-    assert records[gone]["outcome"] == "stopped"
+    assert records[gone]["outcome"] == "latched"
     execution = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan")
     assert gone < records.index(execution) < events.index("shutdown") == len(records) - 1
     status = (execution.get("extra") or {}).get("result", {}).get("status")
@@ -669,7 +669,9 @@ def test_calls_read_before_the_input_ends_are_answered(tmp_path) -> None:
                                   timeout=60)
     answers = answers_of(wire)
     assert len(answers[2]["result"]["structuredContent"]["joint_positions"]) == 7
-    assert answers[3]["result"]["structuredContent"]["status"] in ("ok", "needs_approval")
+    planned = answers[3]["result"]  # answered: planned, or refused once the e-stop latched as the input ended
+    assert planned.get("structuredContent", {}).get("status") in ("ok", "needs_approval") or (
+        planned["isError"] and "ESTOPPED" in planned["content"][0]["text"]), planned
     assert process.returncode == 0
     assert [r["event"] for r in records_of(audit)][-1] == "shutdown"
 
@@ -687,6 +689,28 @@ def test_a_motion_open_when_the_input_ends_is_stopped_at_once_then_answered(tmp_
     assert done["result"]["structuredContent"]["status"] in ("aborted", "stopped"), done
     records = records_of(audit)
     gone = [r for r in records if r["event"] == "client_gone"]
-    assert len(gone) == 1 and gone[0]["outcome"] == "stopped"
+    assert len(gone) == 1 and gone[0]["outcome"] == "latched"
     execution = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan")
     assert gone[0]["seq"] < execution["seq"] < records[-1]["seq"] and records[-1]["event"] == "shutdown"
+
+
+def test_a_motion_call_read_just_before_the_input_ends_never_starts(tmp_path) -> None:
+    """The client wrote `execute_plan` and left: nothing may start moving for a client that can no
+    longer stop it (the e-stop is latched as the input ends; the call is answered refused)."""
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=0.5)
+    try:
+        plan = rpc.request("tools/call", {"name": "plan_to_pose",
+                                          "arguments": {"position": {"x": 0.3069, "y": 0.0, "z": 0.35}}})
+        plan_id = plan["result"]["structuredContent"]["plan_id"]
+        rpc.send({"jsonrpc": "2.0", "id": 50, "method": "tools/call",
+                  "params": {"name": "execute_plan", "arguments": {"plan_id": plan_id}}})
+        assert process.stdin is not None
+        process.stdin.close()
+        done = receive_until(rpc, lambda m: m.get("id") == 50)
+        assert process.wait(timeout=30) == 0
+    finally:
+        stop_raw_daemon(process)
+    result = done["result"]
+    assert result.get("isError") or result["structuredContent"]["status"] in ("aborted", "stopped"), done
+    records = records_of(audit)
+    assert not any(r["tool"] == "execute_plan" and "succeeded" in str(r.get("detail")) for r in records)

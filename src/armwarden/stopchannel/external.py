@@ -76,13 +76,21 @@ class ExternalStops:
                            else f"holding the robot as the {tool} request was read FAILED: {failure}")
 
     def hold_as_the_client_leaves(self) -> None:
-        """The client closed its input with calls still open: hold the robot at once (no motion
-        outlives its client), while those calls finish and are answered for whoever still reads.
-        Audited (without waiting) as `client_gone`."""
-        failure = self._stopper.hold_now(emergency=False)
-        self._submit("client_gone", outcome="stopped" if failure is None else "stop_failed",
-                     detail="the client closed its input with calls open: robot held while they are answered"
-                     if failure is None else f"holding the robot as the client left FAILED: {failure}")
+        """The client closed its input with calls still open: latch the e-stop and stop the arm at
+        once — the session is over, and nothing may start moving for a client that can no longer
+        stop it (a motion call read just before the end is refused, one already moving is
+        stopped) — while those calls are answered for whoever still reads. Audited (without
+        waiting) as `client_gone`."""
+        reason = "the stdio client closed its input with calls still open"
+        try:
+            event = self._stopper.latch_and_stop(reason, "client_gone", self._on_loop)
+        except Exception as exc:  # latched all the same (stop_failed on top); say so loudly
+            logger.critical("client gone: the stop could not be issued: %s", exc)
+            self._submit("client_gone", outcome="stop_failed", detail=f"{reason}: e-stop latched, but the stop "
+                         f"could NOT be issued: {exc}")
+            return
+        self._submit("client_gone", outcome="latched", detail=f"{reason}: e-stop #{event.number} latched and the "
+                     "arm stopped while they are answered", extra={"estop_event": event.number})
 
     def _submit(self, event: str, **fields: Any) -> None:
         """Hand a record to the audit writer; a log that is closing or closed is said loudly (the

@@ -19,7 +19,8 @@ is reported through `on_refused`, so the daemon audits it.
 
 An id is open from its request until the answer is written, or until the SDK settles the request
 without one (it was cancelled: the SDK's `on_request_unanswered` hook). When the input ends with
-ids still open, the robot is held at once (`on_input_end`) and those calls get up to
+ids still open, the robot is stopped at once (`on_input_end`: the daemon latches the e-stop, so no
+motion starts for a client that is gone) and those calls get up to
 `INPUT_END_GRACE_S` to finish and be answered before the session ends (the SDK would cancel
 them unanswered: a client that writes its requests and closes its end, `printf ... | armwarden
 serve`, got no answer). Ids are compared the way
@@ -192,7 +193,7 @@ class GatedReadStream:
     async def _answer_open_calls(self) -> None:
         """The input has ended: let the calls already read finish and be answered (for a client
         that wrote its requests and closed its end, `printf ... | armwarden serve`), within
-        `INPUT_END_GRACE_S`; the robot is held first (`on_input_end`) so no motion runs on."""
+        `INPUT_END_GRACE_S`; the robot is stopped first (`on_input_end`), so no motion runs on or starts."""
         if not self._open_ids:
             return
         if self._on_input_end is not None:
