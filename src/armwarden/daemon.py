@@ -313,7 +313,7 @@ async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
     from armwarden.transport.stdio import serve_stdio
 
     await serve_stdio(assembly.server.mcp, on_refused=_refusal_recorder(assembly),
-                      on_stop_request=external.stop_on_receipt, on_input_end=external.hold_as_the_client_leaves)
+                      on_stop_request=external.stop_on_receipt, on_input_end=external.latch_as_the_client_leaves)
 
 
 def _refusal_recorder(assembly: Assembly) -> RefusedCallback:

@@ -160,16 +160,11 @@ class BandedPngEncoder:
         changed_rows = np.any(words != self._reference, axis=1)
         pieces = [b"\x78\x01"]  # zlib header: deflate, 32 KiB window, fastest
         checksum = 1  # Adler-32 of nothing
-        # one compressor for the picture's changed bands (setting one up costs ~30 us): a full flush
-        # ends each band's segment and forgets what came before, so a segment never refers back
-        # into another band, and the reference's segments can sit between them
-        compressor: Any = None
         for index, start in enumerate(self._starts):
             stop = start + self._band_rows
             if changed_rows[start:stop].any():
                 band = self._band(words, start)
-                compressor = compressor or zlib.compressobj(PNG_ZLIB_LEVEL, zlib.DEFLATED, -15)
-                segment, band_checksum = _deflate_segment(band, compressor), zlib.adler32(band.data)
+                segment, band_checksum = _deflate_segment(band), zlib.adler32(band.data)
             else:
                 segment, band_checksum = self._segments[index], self._checksums[index]
             pieces.append(segment)
@@ -230,10 +225,8 @@ def _png_rows(image: Any) -> np.ndarray:
     return _scanlines(np.frombuffer(image.tobytes(), dtype=np.uint8).reshape(height, 3 * width))
 
 
-def _deflate_segment(rows: np.ndarray, compressor: Any = None) -> bytes:
-    """Raw deflate of `rows` ended by a full flush: byte-aligned, and referring to nothing before it."""
-    if compressor is None:
-        compressor = zlib.compressobj(PNG_ZLIB_LEVEL, zlib.DEFLATED, -15)  # raw deflate: the header is shared
+def _deflate_segment(rows: np.ndarray) -> bytes:
+    compressor = zlib.compressobj(PNG_ZLIB_LEVEL, zlib.DEFLATED, -15)  # raw deflate: the header is shared
     return compressor.compress(np.ascontiguousarray(rows).data) + compressor.flush(zlib.Z_FULL_FLUSH)
 
 

@@ -75,7 +75,7 @@ class ExternalStops:
                            detail=f"robot held as the {tool} request was read" if failure is None
                            else f"holding the robot as the {tool} request was read FAILED: {failure}")
 
-    def hold_as_the_client_leaves(self) -> None:
+    def latch_as_the_client_leaves(self) -> None:
         """The client closed its input with calls still open: latch the e-stop and stop the arm at
         once — the session is over, and nothing may start moving for a client that can no longer
         stop it (a motion call read just before the end is refused, one already moving is

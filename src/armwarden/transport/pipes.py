@@ -215,7 +215,8 @@ class Wire:
             await _ready(self.fd, loop.add_reader, loop.remove_reader)
 
     async def write(self, data: memoryview) -> int:
-        """Write some of `data` (at least one byte) to the wire; how many."""
+        """Write some of `data` to the wire; how many bytes of it were taken (none only when bytes a
+        cancelled write left staged went out first: the caller writes again)."""
         loop = asyncio.get_running_loop()
         if self._socket is not None:
             while True:

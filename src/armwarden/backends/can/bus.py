@@ -36,7 +36,7 @@ logger = logging.getLogger(__name__)
 
 #: how long the reader waits in one `recv` [s]; bounds how long `close` waits for it
 READ_TIMEOUT_S = 0.05
-#: the most frames one `drain` handles (a flood must not hold a servo tick; the rest wait a tick)
+#: the most frames one `drain` handles (the servo loop also gives it a time budget; the rest wait a tick)
 DRAIN_LIMIT = 256
 #: at most one log line per this many seconds for a repeating reader error [s]
 ERROR_LOG_PERIOD_S = 1.0

@@ -142,9 +142,9 @@ def scan(stream: IO[bytes], key: bytes | None, resume: Scan | None = None) -> Sc
         terminated = raw.endswith(b"\n")
         content = raw[:-1] if terminated else raw
         first = pending[0][0] if pending else lineno
-        joined = b"\n".join([*(c for _, c, _ in pending), content])
         claim = _fragment_claim(nxt[1].rstrip(b"\n"), first) if nxt is not None else None
         if claim is not None:
+            joined = _joined(pending, content)
             if claim.get("torn_bytes") != len(joined) or claim.get(
                 "torn_sha256"
             ) != hashlib.sha256(joined).hexdigest():
@@ -154,7 +154,7 @@ def scan(stream: IO[bytes], key: bytes | None, resume: Scan | None = None) -> Sc
             cur = nxt
             continue
         if not terminated:  # only the last line can lack its newline
-            return fail(first, pending[0][2] if pending else "torn last line", True, False, joined)
+            return fail(first, pending[0][2] if pending else "torn last line", True, False, _joined(pending, content))
         obj, reason, parses = _check_line(content, last_seq + 1, last_hash, key)
         if reason is not None and not parses:
             pending.append((lineno, content, reason))  # a fragment: claimed by what follows, or a torn tail
@@ -169,8 +169,13 @@ def scan(stream: IO[bytes], key: bytes | None, resume: Scan | None = None) -> Sc
         last_seq, last_hash = obj["seq"], obj["hash"]
         cur = nxt
     if pending:  # the file ends in fragments only: a torn tail
-        return fail(pending[0][0], pending[0][2], True, False, b"\n".join(c for _, c, _ in pending))
+        return fail(pending[0][0], pending[0][2], True, False, _joined(pending[:-1], pending[-1][1]))
     return Scan(VerifyReport(True, records, None, None, recovered), last_seq, last_hash, lines=lineno)
+
+
+def _joined(fragments: list[tuple[int, bytes, str]], last: bytes) -> bytes:
+    """The bytes of consecutive torn lines as one fragment: their contents joined by newlines."""
+    return b"\n".join([*(content for _, content, _ in fragments), last])
 
 
 def verify_file(path: str | os.PathLike[str], hmac_key: bytes | None = None) -> VerifyReport:
