@@ -28,12 +28,8 @@ if TYPE_CHECKING:
 def plan_previewer() -> Previewer:
     """The plan preview renderer the daemon attaches to every plan summary: one `PlanPreviewer`
     (which caches the static scene) per policy's limits, rebuilt only if the runtime model's
-    limits are replaced. Called on the planning thread only, like the robot model it uses.
-    Tunes Pillow's allocator for it (`images.keep_freed_image_blocks`)."""
-    from armwarden.server.images import keep_freed_image_blocks
+    limits are replaced. Called on the planning thread only, like the robot model it uses."""
     from armwarden.server.preview import PlanPreviewer
-
-    keep_freed_image_blocks()
 
     previewers: list[PlanPreviewer] = []  # the current one; a list so the closure can replace it
 

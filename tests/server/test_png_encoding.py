@@ -12,12 +12,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from armwarden.server.images import (
-    IMAGE_BLOCK_BYTES,
-    KEPT_IMAGE_BLOCKS,
     BandedPngEncoder,
     adler32_combine,
     encode_png,
-    keep_freed_image_blocks,
+    rgbx_image,
+    rgbx_words,
 )
 
 Image = pytest.importorskip("PIL.Image")
@@ -109,30 +108,55 @@ def test_a_picture_of_another_size_is_refused() -> None:
         BandedPngEncoder(picture()).encode(picture(width=100))
 
 
-@pytest.fixture
-def pillow_allocator():
-    """Pillow's process-wide allocator settings, restored after the test."""
-    core = Image.core
-    saved = core.get_blocks_max(), core.get_block_size()
-    yield core
-    core.set_blocks_max(saved[0])
-    core.set_block_size(saved[1])
+def test_pillow_draws_into_the_words_of_an_rgbx_image() -> None:
+    words = np.zeros((6, 10), dtype=np.uint32)
+    image = rgbx_image(words)
+    ImageDraw.Draw(image).line([(0, 1), (9, 1)], fill=(1, 2, 3), width=1)
+    image.paste((7, 8, 9), (2, 3, 5, 5))
+
+    channels = words.view(np.uint8).reshape(6, 10, 4)
+    assert np.all(channels[1, :, :3] == (1, 2, 3))
+    assert np.all(channels[3:5, 2:5, :3] == (7, 8, 9))
+    assert np.all(channels[0] == 0) and np.all(channels[5] == 0)
 
 
-def test_the_previewer_keeps_a_bounded_number_of_small_freed_blocks(pillow_allocator, monkeypatch) -> None:
-    monkeypatch.delenv("PILLOW_BLOCKS_MAX", raising=False)
-    monkeypatch.delenv("PILLOW_BLOCK_SIZE", raising=False)
-    pillow_allocator.set_blocks_max(0)
-
-    assert keep_freed_image_blocks()
-    assert pillow_allocator.get_blocks_max() == KEPT_IMAGE_BLOCKS
-    assert pillow_allocator.get_block_size() == IMAGE_BLOCK_BYTES
-    assert KEPT_IMAGE_BLOCKS * IMAGE_BLOCK_BYTES <= 8 << 20  # what stays reserved, at most
+def test_words_round_trip_through_an_rgbx_image() -> None:
+    image = picture(width=37, height=11)
+    words = rgbx_words(image)
+    assert words.shape == (11, 37)
+    assert rgbx_image(words).tobytes("raw", "RGB") == image.tobytes()
 
 
-def test_a_users_own_pillow_allocator_settings_are_left_alone(pillow_allocator, monkeypatch) -> None:
-    monkeypatch.setenv("PILLOW_BLOCKS_MAX", "2")
-    pillow_allocator.set_blocks_max(2)
+@pytest.mark.parametrize("words", [
+    np.zeros((4, 4), dtype=np.uint8),  # not one word per pixel
+    np.zeros((4, 8), dtype=np.uint32)[:, ::2],  # not contiguous
+    np.zeros(16, dtype=np.uint32),  # not rows of pixels
+])
+def test_an_rgbx_image_is_not_laid_over_memory_of_another_shape(words: np.ndarray) -> None:
+    with pytest.raises(ValueError, match="writable C-contiguous"):
+        rgbx_image(words)
 
-    assert not keep_freed_image_blocks()
-    assert pillow_allocator.get_blocks_max() == 2
+
+def test_an_rgbx_image_is_not_laid_over_read_only_memory() -> None:
+    words = np.zeros((4, 4), dtype=np.uint32)
+    words.setflags(write=False)
+    with pytest.raises(ValueError, match="writable"):
+        rgbx_image(words)
+
+
+@pytest.mark.parametrize("width", [200, 201])  # rows of whole 64-bit words, and not
+def test_a_picture_given_as_words_keeps_every_pixel(width: int) -> None:
+    reference, changed = picture(width=width, height=77), picture(width=width, height=77, seed=3)
+    png = BandedPngEncoder(rgbx_words(reference), band_rows=16).encode(rgbx_words(changed))
+    assert np.array_equal(pixels(png), np.asarray(changed))
+
+
+def test_runs_of_changed_bands_and_unchanged_bands_between_them_keep_every_pixel() -> None:
+    reference = picture(height=160)
+    changed = reference.copy()
+    draw = ImageDraw.Draw(changed)
+    draw.line([(0, 3), (199, 70)], fill=(0, 80, 230), width=3)  # bands 0 to 4, one run
+    draw.rectangle((10, 130, 50, 140), fill=(9, 9, 9))  # band 8 alone, after unchanged bands
+    raw = zlib.decompress(idat(BandedPngEncoder(reference, band_rows=16).encode(changed)))
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(160, 1 + 3 * 200)
+    assert np.array_equal(rows[:, 1:].reshape(160, 200, 3), np.asarray(changed))

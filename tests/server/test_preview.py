@@ -223,11 +223,16 @@ def _title_scene(runtime: RuntimeModel):
     return previewer._scene(np.asarray(limits.workspace.lo, dtype=float), np.asarray(limits.workspace.hi, dtype=float))
 
 
+def _plain_picture(scene):
+    """The scene's picture without a plan, as an RGB Pillow image of its own."""
+    return scene.start().convert("RGB")
+
+
 def test_a_title_drawn_from_stamps_is_the_title_pillow_draws(runtime: RuntimeModel) -> None:
     from PIL import ImageDraw
 
     scene = _title_scene(runtime)
-    stamped, drawn = scene.image.copy(), scene.image.copy()
+    stamped, drawn = _plain_picture(scene), _plain_picture(scene)
 
     assert scene.line(stamped, 40.0, 2.0, TITLE, (40, 40, 40))
     ImageDraw.Draw(drawn).text((40.0, 2.0), "".join(text for text, _ in TITLE), fill=(40, 40, 40), font=scene.font)
@@ -237,7 +242,22 @@ def test_a_title_drawn_from_stamps_is_the_title_pillow_draws(runtime: RuntimeMod
 
 def test_a_title_that_would_not_land_on_whole_pixels_is_left_to_pillow(runtime: RuntimeModel) -> None:
     scene = _title_scene(runtime)
-    image = scene.image.copy()
+    image = _plain_picture(scene)
 
     assert not scene.line(image, 40.5, 2.0, TITLE, (40, 40, 40))
-    assert image.tobytes() == scene.image.tobytes()
+    assert image.tobytes() == _plain_picture(scene).tobytes()
+
+
+def test_a_title_pillow_must_place_itself_is_still_drawn(runtime: RuntimeModel, accepted, monkeypatch) -> None:
+    """Where the title's glyphs would not land on whole pixels, the renderer stamps the title as
+    one piece instead: the picture shows the same title."""
+    from armwarden.server.preview import PlanPreviewer, _Scene
+
+    trajectory, report = accepted
+    stamped = np.asarray(_decode(PlanPreviewer(runtime.envelope.limits).render(runtime.robot, trajectory, report)))
+    monkeypatch.setattr(_Scene, "line", lambda *args, **kwargs: False)
+    whole = np.asarray(_decode(PlanPreviewer(runtime.envelope.limits).render(runtime.robot, trajectory, report)))
+
+    assert np.sum(np.any(stamped != whole, axis=-1)) <= 2  # where two glyphs' anti-aliased edges overlap
+    title_rows = whole[:14, 60:]
+    assert np.sum(np.any(title_rows != 255, axis=-1)) > 100  # the words after the status are there

@@ -11,7 +11,6 @@ decompressed, so a small file claiming a huge image (a decompression bomb) is re
 from __future__ import annotations
 
 import io
-import os
 import struct
 import warnings
 import zlib
@@ -24,9 +23,6 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_ZLIB_LEVEL = 1
 #: largest image (width × height) `downscale_png` will decode
 MAX_PIXELS = 40_000_000
-#: freed Pillow memory blocks kept for reuse (`keep_freed_image_blocks`), and their largest size
-KEPT_IMAGE_BLOCKS = 8
-IMAGE_BLOCK_BYTES = 1 << 20
 
 
 class ImageSupportMissing(RuntimeError):
@@ -41,28 +37,6 @@ def pillow_available() -> bool:
         import PIL.Image  # noqa: F401
     except ImportError:
         return False
-    return True
-
-
-def keep_freed_image_blocks() -> bool:
-    """Let Pillow reuse the memory of freed images instead of returning it to the system.
-
-    A preview allocates about ten images (the picture, its masks, the palette patches); by
-    default Pillow frees each one's memory, and the next allocation of that size faults its
-    pages in afresh (≈ 1 ms of a 4 ms preview). Pillow then keeps up to `KEPT_IMAGE_BLOCKS`
-    freed blocks, and images are allocated in blocks of at most `IMAGE_BLOCK_BYTES` (a preview
-    fits in one), so at most 8 MiB stays reserved whatever size of image was freed. Process-wide
-    (Pillow's allocator), so the daemon calls it once, when it builds its previewer; a user's own
-    `PILLOW_BLOCKS_MAX` / `PILLOW_BLOCK_SIZE` are left as set. Returns whether it changed anything.
-    """
-    if os.environ.get("PILLOW_BLOCKS_MAX") or os.environ.get("PILLOW_BLOCK_SIZE"):
-        return False
-    try:
-        from PIL import Image
-    except ImportError:
-        return False
-    Image.core.set_block_size(IMAGE_BLOCK_BYTES)
-    Image.core.set_blocks_max(KEPT_IMAGE_BLOCKS)
     return True
 
 
@@ -129,53 +103,116 @@ def encode_png(image: Any) -> bytes:
 class BandedPngEncoder:
     """`encode_png` for pictures that differ from one `reference` picture in a few rows only.
 
-    The pixel rows are compressed in bands of `band_rows`, each band as its own deflate segment
-    (a fresh compressor ended with a full flush: its bytes depend on that band alone, and
-    segments concatenate into one valid zlib stream). The reference's segments and their Adler-32
-    checksums are computed once; a picture then costs one comparison with the reference (as
-    64-bit words), the scanlines and compression of the bands it changed, and a checksum combined
-    from the bands' (`adler32_combine`). Same pixels, same chunks as `encode_png`, only the IDAT
-    bytes differ.
+    Pictures are given as `rgbx_words` arrays (one 32-bit word per pixel, as Pillow keeps an RGB
+    image in memory; the preview draws straight into one), or as RGB Pillow images, converted.
+    The pixel rows are cut in bands of `band_rows`, and the stream is made of deflate segments
+    (each from a fresh compressor ended with a full flush: its bytes depend on its own rows
+    alone, and segments concatenate into one valid zlib stream). The reference's bands are
+    compressed once, a segment each, with their Adler-32 checksums; a picture then costs one
+    comparison with the reference (two pixels per 64-bit word), the scanlines, checksum and
+    compression (still a segment per band) of each run of consecutive bands it changed, and a
+    checksum combined from the parts' (`adler32_combine`). Same pixels, same chunks as
+    `encode_png`, only the IDAT bytes differ.
     """
 
     def __init__(self, reference: Any, band_rows: int = 32) -> None:
-        if reference.mode != "RGB":
-            raise ValueError(f"BandedPngEncoder takes an RGB reference, got mode {reference.mode}")
         if band_rows < 1:
             raise ValueError(f"band_rows must be at least 1, got {band_rows}")
-        self.size = reference.size
+        words = _as_words(reference, None)
+        height, width = words.shape
+        self.size = (width, height)
         self._band_rows = band_rows
-        width, height = self.size
         self._row_bytes = 3 * width
         self._starts = range(0, height, band_rows)
-        self._reference = _pixel_words(reference)
-        bands = [self._band(self._reference, start) for start in self._starts]
+        self._reference = words if not words.flags.writeable else words.copy()  # never changes under us
+        self._compared = _comparable(self._reference)
+        bands = [self._scanlines(self._reference, start, start + band_rows) for start in self._starts]
         self._segments = [_deflate_segment(band) for band in bands]
         self._checksums = [zlib.adler32(band.data) for band in bands]
 
-    def encode(self, image: Any) -> bytes:
-        if image.mode != "RGB" or image.size != self.size:
-            raise ValueError(f"expected an RGB picture of {self.size}, got {image.mode} {image.size}")
-        words = _pixel_words(image)
-        changed_rows = np.any(words != self._reference, axis=1)
+    def encode(self, picture: Any) -> bytes:
+        words = _as_words(picture, self.size)
+        changed_rows = np.any(_comparable(words) != self._compared, axis=1)
+        changed = np.logical_or.reduceat(changed_rows, np.asarray(self._starts)).tolist()
         pieces = [b"\x78\x01"]  # zlib header: deflate, 32 KiB window, fastest
         checksum = 1  # Adler-32 of nothing
-        for index, start in enumerate(self._starts):
-            stop = start + self._band_rows
-            if changed_rows[start:stop].any():
-                band = self._band(words, start)
-                segment, band_checksum = _deflate_segment(band), zlib.adler32(band.data)
+        index = 0
+        while index < len(changed):
+            if changed[index]:  # a run of changed bands: one segment
+                end = index + 1
+                while end < len(changed) and changed[end]:
+                    end += 1
+                rows = self._scanlines(words, self._starts[index], self._starts[end - 1] + self._band_rows)
+                # a segment per band all the same: a compressor fed more than its 64 KiB buffer
+                # slides its window, which costs more than starting a fresh one
+                pieces += [_deflate_segment(rows[k:k + self._band_rows]) for k in range(0, len(rows), self._band_rows)]
+                checksum = adler32_combine(checksum, zlib.adler32(rows.data), rows.size)
             else:
-                segment, band_checksum = self._segments[index], self._checksums[index]
-            pieces.append(segment)
-            checksum = adler32_combine(checksum, band_checksum, (min(stop, self.size[1]) - start) * (1 + self._row_bytes))
+                end = index + 1
+                pieces.append(self._segments[index])
+                checksum = adler32_combine(checksum, self._checksums[index], self._band_length(index))
+            index = end
         pieces.append(b"\x03\x00")  # an empty final block (fixed Huffman codes)
         pieces.append(struct.pack(">I", checksum))
         return _rgb_png(self.size, b"".join(pieces))
 
-    def _band(self, words: np.ndarray, start: int) -> np.ndarray:
-        """PNG scanlines of the band of rows from `start`, from a picture's `_pixel_words`."""
-        return _scanlines(words[start:start + self._band_rows].view(np.uint8)[:, :self._row_bytes])
+    def _band_length(self, index: int) -> int:
+        """Bytes of scanlines in band `index` (the last may be short)."""
+        start = self._starts[index]
+        return (min(start + self._band_rows, self.size[1]) - start) * (1 + self._row_bytes)
+
+    def _scanlines(self, words: np.ndarray, start: int, stop: int) -> np.ndarray:
+        """PNG scanlines of the rows from `start` to `stop`: Pillow packs the words' RGB bytes (one
+        C pass over those rows, no copy of the rest of the picture)."""
+        from PIL import Image
+
+        rows = np.ascontiguousarray(words[start:stop])
+        height, width = rows.shape
+        packed = Image.frombuffer("RGBX", (width, height), rows, "raw", "RGBX", 0, 1).tobytes("raw", "RGB")
+        return _scanlines(np.frombuffer(packed, dtype=np.uint8).reshape(height, self._row_bytes))
+
+
+def rgbx_words(image: Any) -> np.ndarray:
+    """An RGB Pillow image's pixels as a (height, width) array of 32-bit words, the bytes R, G,
+    B, 255 of each pixel in memory order (Pillow's own layout of an RGB image)."""
+    if image.mode != "RGB":
+        raise ValueError(f"expected an RGB image, got mode {image.mode}")
+    width, height = image.size
+    return np.frombuffer(image.tobytes("raw", "RGBX"), dtype=np.uint32).reshape(height, width).copy()
+
+
+def rgbx_image(words: np.ndarray) -> Any:
+    """A writable RGBX Pillow image over `words` ((height, width) uint32, C-contiguous), sharing
+    its memory: what Pillow draws on it lands in the array, without a copy either way.
+
+    Pillow marks images over foreign memory read-only and copies them on the first write; the
+    array is ours and writable, so the mark is cleared. `tests/server/test_png_encoding.py`
+    checks that drawing still lands in the array."""
+    from PIL import Image
+
+    if words.dtype != np.uint32 or words.ndim != 2 or not words.flags.c_contiguous or not words.flags.writeable:
+        raise ValueError("expected a writable C-contiguous (height, width) uint32 array")
+    height, width = words.shape
+    image = Image.frombuffer("RGBX", (width, height), words, "raw", "RGBX", 0, 1)
+    image.readonly = 0
+    return image
+
+
+def _as_words(picture: Any, size: tuple[int, int] | None) -> np.ndarray:
+    words = picture if isinstance(picture, np.ndarray) else rgbx_words(picture)
+    if words.dtype != np.uint32 or words.ndim != 2:
+        raise ValueError(f"expected (height, width) uint32 pixel words, got {words.dtype} {words.shape}")
+    if size is not None and (words.shape[1], words.shape[0]) != size:
+        raise ValueError(f"expected an RGB picture of {size}, got {(words.shape[1], words.shape[0])}")
+    return words
+
+
+def _comparable(words: np.ndarray) -> np.ndarray:
+    """The words as 64-bit (two pixels each) where the width allows it: an eighth as many
+    elements to compare as bytes."""
+    if words.shape[1] % 2 == 0 and words.flags.c_contiguous:
+        return words.view(np.uint64)
+    return words
 
 
 #: the modulus of Adler-32 (the largest prime below 2**16)
@@ -195,20 +232,6 @@ def adler32_combine(first: int, second: int, second_length: int) -> int:
     a = (a1 + a2 - 1) % _ADLER_MOD
     b = (b1 + b2 + second_length * (a1 - 1)) % _ADLER_MOD
     return (b << 16) | a
-
-
-def _pixel_words(image: Any) -> np.ndarray:
-    """The picture's RGB rows as 64-bit words (height, ⌈3·width / 8⌉), zero-padded at the end of
-    each row where 3·width is not a multiple of 8: comparing two pictures compares an eighth as
-    many elements as bytes. Rows of whole words (the preview's widths) are viewed, not copied."""
-    width, height = image.size
-    row_bytes = 3 * width
-    pixels = np.frombuffer(image.tobytes(), dtype=np.uint8).reshape(height, row_bytes)
-    if row_bytes % 8 == 0:
-        return pixels.view(np.uint64)
-    padded = np.zeros((height, 8 * -(-row_bytes // 8)), dtype=np.uint8)
-    padded[:, :row_bytes] = pixels
-    return padded.view(np.uint64)
 
 
 def _scanlines(pixels: np.ndarray) -> np.ndarray:
@@ -242,4 +265,4 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
 
 
 __all__ = ["MAX_PIXELS", "BandedPngEncoder", "ImageSupportMissing", "adler32_combine", "downscale_png", "encode_png",
-           "keep_freed_image_blocks", "pillow_available"]
+           "pillow_available", "rgbx_image", "rgbx_words"]

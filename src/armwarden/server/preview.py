@@ -8,32 +8,37 @@ base, and a red X wherever a violation with a time was found. The title line giv
 duration and TCP path length.
 
 Cheap enough to stay on by default (issue 13: ≤ 3 ms p95 for a typical plan). `PlanPreviewer`
-keeps, per policy, the static scene (frames, ticks, labels, scale bars) for each picture scale
-it has drawn — every plan inside the workspace box has the same one — and per plan draws only
-what changes: the title (its words and digits pasted from stamps rendered once), the sweep, the
-zones over it, the path and the marks. The sweep's masks and outlines are computed in NumPy (one
-capsule drawing pass, no per-sample image filters), the path needs forward kinematics for the
-TCP alone, and the PNG is encoded without per-row filter search, compressing only the row bands
-the plan drew on (`images.BandedPngEncoder`; the scene's own bands are compressed once). The
-daemon's previewer also lets Pillow reuse freed image memory (`images.keep_freed_image_blocks`).
+keeps, per policy, the static scene of each picture scale it has drawn (every plan inside the
+workspace box has the same one): the frames, ticks, labels and scale bars, the picture with the
+zones and the base and no plan, and, for each of the sweep's three colours, how a pixel of that
+colour looks under the zones, their names, the workspace outline and the base. A plan then costs
+its forward kinematics (the TCP alone for the path), its title (words and digits pasted from
+stamps rendered once), the sweep's masks (computed in NumPy, one capsule drawing pass, no
+per-sample image filters) chosen pixel by pixel from those layers, the path and marks, and the
+PNG: the picture is drawn straight into a NumPy array (`images.rgbx_image`), which the encoder
+compares with the plan-less picture and compresses only in the row bands the plan drew on,
+without per-row filter search (`images.BandedPngEncoder`). Per picture, Pillow allocates no
+image memory of its own: the masks and the canvas are NumPy arrays it draws into.
 
 Pillow is optional (`armwarden[image]`); without it the renderer returns None. The output is
 deterministic: the same inputs give the same bytes (Pillow's built-in default font, no
 timestamps or other metadata in the PNG).
 
 Not thread safe on its own: it runs forward kinematics on `robot`, whose Pinocchio data is
-shared, and keeps its scene cache unlocked, so call it wherever the robot model is otherwise
-used (the Guard's planning thread).
+shared, keeps its scene cache unlocked and draws every picture of a scene on that scene's one
+canvas, so call it wherever the robot model is otherwise used (the Guard's planning thread,
+one call at a time).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armwarden.server.images import BandedPngEncoder
+from armwarden.server.images import BandedPngEncoder, rgbx_image, rgbx_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from armwarden.planning.trajectory import JointTrajectory
@@ -46,8 +51,9 @@ SWEEP_SAMPLES = 8
 MAX_PATH_POINTS = 64
 MIN_SIZE = (160, 96)
 DEFAULT_SIZE = (640, 320)
-#: static scenes kept per previewer (one per picture scale; plans inside the workspace share one)
-MAX_SCENES = 8
+#: static scenes kept per previewer (one per picture scale; plans inside the workspace share one),
+#: about 5 MB each at the default size
+MAX_SCENES = 4
 
 _WHITE = (255, 255, 255)
 _FRAME = (165, 165, 165)
@@ -66,8 +72,9 @@ _BASE = (30, 30, 30)
 _VIOLATION = (255, 0, 0)  # the only saturated red in the picture
 _STATUS_COLOUR = {"ok": (0, 125, 45), "needs_approval": (185, 115, 0), "rejected": (150, 0, 0)}
 _SEPARATOR = (215, 215, 215)
-#: palette of the swept links' pixels: unused, fill, outlines of the earlier poses, the goal pose's outline
-_SWEEP_PALETTE = [0, 0, 0, *_LINK_FILL, *_LINK_EDGE, *_LINK_GOAL]
+#: the swept links' colours, by their index in the sweep's masks (0 is a pixel the sweep left alone):
+#: fill, outlines of the earlier poses, the goal pose's outline
+_SWEEP_COLOURS = (_LINK_FILL, _LINK_EDGE, _LINK_GOAL)
 
 _NICE_STEPS = (0.05, 0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0)
 
@@ -111,9 +118,8 @@ class PlanPreviewer:
 
         geometry = _plan_geometry(robot, trajectory, report, self.limits)
         scene = self._scene(*_bounds(self.limits, geometry))
-        image = scene.image.copy()
-        draw = ImageDraw.Draw(image, "RGBA")  # RGBA drawing blends translucent fills onto the RGB image
-        font = scene.font
+        image = scene.start()
+        draw = ImageDraw.Draw(image)  # every stroke drawn per plan is opaque: no blending needed
 
         # ---- title line
         duration = trajectory.duration_s if geometry is not None and trajectory is not None else 0.0
@@ -127,11 +133,13 @@ class PlanPreviewer:
         if n_hard or n_soft:
             runs += [("   violations: ", False), (str(n_hard), True), (" hard, ", False), (str(n_soft), True), (" soft", False)]
         if not scene.line(image, x, title_y, runs, _TEXT):
-            draw.text((x, title_y), "".join(text for text, _ in runs), fill=_TEXT, font=font)
+            _TextStamp(scene.font, "".join(text for text, _ in runs), (x, title_y)).paste(image, _TEXT)
 
-        for view in scene.views:
-            _draw_plan(image, draw, scene, view, self.limits, geometry)
-        return scene.encode(image, self.limits)
+        if geometry is not None:
+            _draw_sweeps(scene.canvas, scene, geometry)
+            for view in scene.views:
+                _draw_path(draw, view, geometry)
+        return scene.encoder.encode(scene.canvas)
 
     def _scene(self, lo: np.ndarray, hi: np.ndarray) -> _Scene:
         key = (*np.round(lo, 9).tolist(), *np.round(hi, 9).tolist())
@@ -139,7 +147,7 @@ class PlanPreviewer:
         if scene is None:
             if len(self._scenes) >= MAX_SCENES:
                 self._scenes.pop(next(iter(self._scenes)))  # the oldest: plans far outside the box are rare
-            scene = self._scenes[key] = _Scene(self.size, lo, hi)
+            scene = self._scenes[key] = _Scene(self.size, lo, hi, self.limits)
         return scene
 
 
@@ -195,7 +203,7 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
     capsules = np.stack([p0[:n_sweep, :-1], p1[:n_sweep, :-1]], axis=2)
 
     centres = (p0[:, :-1] + p1[:, :-1]) / 2.0
-    index = _body_index(robot)
+    index = _body_index(robot) if timed else {}
     marks = []
     for k, (violation, _) in enumerate(timed):
         row = n_sweep + k
@@ -256,15 +264,23 @@ def _bounds(limits: EnvelopeLimits, geometry: _PlanGeometry | None) -> tuple[np.
 
 # ---------------------------------------------------------------------------- drawing
 class _Scene:
-    """What every plan drawn at one scale shares: the white picture with the panel frames, ticks,
-    axis labels, panel names and scale bars already drawn, and each panel's `_View`."""
+    """What every plan drawn at one scale shares: each panel's `_View`; the picture with the panel
+    frames, ticks, axis labels, panel names and scale bars, the zones and the base, and no plan
+    (`plain`, the encoder's reference); per panel, the layers the sweep's pixels are chosen from
+    (`under`); and the canvas every picture is drawn on.
 
-    def __init__(self, size: tuple[int, int], lo: np.ndarray, hi: np.ndarray) -> None:
+    The zones, their names, the workspace outline and the base are drawn over the sweep, and each
+    of them changes a pixel by a function of that pixel alone (an opaque stroke, a translucent
+    fill, a text mask's blend). So a swept pixel of a given colour ends up as it does in a copy of
+    the picture whose plot boxes were painted that colour before those overlays were drawn: the
+    layers hold these copies, cut to each panel's box, and the sweep picks from them."""
+
+    def __init__(self, size: tuple[int, int], lo: np.ndarray, hi: np.ndarray, limits: EnvelopeLimits) -> None:
         from PIL import Image, ImageDraw, ImageFont
 
         width, height = size
         self.font = font = ImageFont.load_default()
-        self.image = image = Image.new("RGB", (width, height), _WHITE)
+        image = Image.new("RGB", (width, height), _WHITE)
         draw = ImageDraw.Draw(image, "RGBA")
         text_h = _text_height(draw, font)
         top = 2 + text_h + 4  # below the title line
@@ -290,20 +306,34 @@ class _Scene:
             self.views.append(view)
             if index == 0:
                 draw.line([(panel_w, top), (panel_w, height - 2)], fill=_SEPARATOR, width=1)
-        self._encoder: BandedPngEncoder | None = None
 
-    def encode(self, image: Any, limits: EnvelopeLimits) -> bytes:
-        """PNG of a picture drawn on this scene: only the row bands that differ from the scene with
-        its zones and base (and no plan) are compressed (`BandedPngEncoder`)."""
-        if self._encoder is None:
-            from PIL import ImageDraw
+        layers = [rgbx_words(self._overlaid(image, limits, None))]
+        layers += [rgbx_words(self._overlaid(image, limits, colour)) for colour in _SWEEP_COLOURS]
+        self.plain = layers[0]
+        self.plain.setflags(write=False)  # shared with the encoder, as its reference
+        self.under = [_SweepLayers(layers, view.box) for view in self.views]
+        self.encoder = BandedPngEncoder(self.plain)
+        self.canvas = self.plain.copy()
+        self._picture = rgbx_image(self.canvas)
 
-            reference = self.image.copy()
-            draw = ImageDraw.Draw(reference, "RGBA")
-            for view in self.views:
-                _draw_plan(reference, draw, self, view, limits, None)
-            self._encoder = BandedPngEncoder(reference)
-        return self._encoder.encode(image)
+    def start(self) -> Any:
+        """The canvas reset to the plain picture, as a Pillow image drawing into it. One picture at
+        a time: the next call resets the same memory (the PNG is encoded before that)."""
+        np.copyto(self.canvas, self.plain)
+        return self._picture
+
+    def _overlaid(self, static: Any, limits: EnvelopeLimits, sweep_colour: tuple[int, int, int] | None) -> Any:
+        """The static picture with every plot box painted `sweep_colour` (None: left as is), then
+        the zones, their names, the workspace outline and the base drawn over it."""
+        from PIL import ImageDraw
+
+        image = static.copy()
+        draw = ImageDraw.Draw(image, "RGBA")  # RGBA drawing blends translucent fills onto the RGB image
+        for view in self.views:
+            if sweep_colour is not None:
+                image.paste(sweep_colour, (view.box[0], view.box[1], view.box[2] + 1, view.box[3] + 1))
+            _draw_overlay(image, draw, self, view, limits)
+        return image
 
     def text_length(self, text: str) -> float:
         """`ImageDraw.textlength` of `text` in the scene's font, measured once per text."""
@@ -341,6 +371,27 @@ class _Scene:
         stamp.paste(image, fill, shift)
 
 
+class _SweepLayers:
+    """One panel's box in each of the scene's layers (the plain picture, then each sweep colour's),
+    from which `paint` takes every pixel of a sweep: a gather by flat index, one pass."""
+
+    def __init__(self, layers: list[np.ndarray], box: tuple[int, int, int, int]) -> None:
+        x0, y0, x1, y1 = box
+        self.origin = (x0, y0)
+        self._width = x1 - x0 + 1
+        self._plane = (y1 - y0 + 1) * self._width
+        self._pixels = np.stack([layer[y0:y1 + 1, x0:x1 + 1] for layer in layers]).reshape(-1)
+
+    def paint(self, canvas: np.ndarray, index: np.ndarray, x0: int, y0: int) -> None:
+        """Set the canvas's (h, w) pixels from (`x0`, `y0`), inside the box, to the layer `index`
+        names for each (0: the plain picture)."""
+        h, w = index.shape
+        left, top = x0 - self.origin[0], y0 - self.origin[1]
+        rows = np.arange(top, top + h, dtype=np.intp)[:, None] * self._width
+        flat = index.astype(np.intp) * self._plane + rows + np.arange(left, left + w, dtype=np.intp)
+        canvas[y0:y0 + h, x0:x0 + w] = self._pixels[flat]
+
+
 class _TextStamp:
     """One line of text at one position, rendered once as a coverage mask (what `ImageDraw.text`
     blends the ink with), so that drawing it again is one masked paste."""
@@ -359,9 +410,18 @@ class _TextStamp:
         shift_x, shift_y = self.PAD - min(math.floor(left), 0), self.PAD - min(math.floor(top), 0)
         ImageDraw.Draw(self.mask).text((x - int(x) + shift_x, y - int(y) + shift_y), text, fill=255, font=font)
         self.origin = (int(x) - shift_x, int(y) - shift_y)
+        inked = self.mask.getbbox()  # only the inked pixels are pasted: None when nothing is
+        self._paste_area = None if inked is None else (inked, self.mask.crop(inked).im)
 
     def paste(self, image: Any, fill: tuple[int, int, int], shift: int = 0) -> None:
-        image.paste(fill, (self.origin[0] + shift, self.origin[1]), mask=self.mask)
+        """`Image.paste(fill, …, mask=self.mask)`, made on the image's core directly (the stamps
+        are pasted some twenty times per picture, and `Image.paste` checks its arguments anew each
+        time), and only over the inked part of the mask; the core clips the box to the image."""
+        if self._paste_area is None:
+            return
+        (left, top, right, bottom), mask = self._paste_area
+        x, y = self.origin[0] + shift + left, self.origin[1] + top
+        image.im.paste(fill, (x, y, x + right - left, y + bottom - top), mask)
 
 
 class _View:
@@ -421,12 +481,9 @@ def _draw_frame(draw: Any, font: Any, text_h: int, view: _View, name: str, v_nam
     draw.text((sx1 - bar - 4 - draw.textlength(label, font=font), sy - text_h / 2 - 1), label, fill=_TEXT, font=font)
 
 
-def _draw_plan(image: Any, draw: Any, scene: _Scene, view: _View, limits: EnvelopeLimits,
-               geometry: _PlanGeometry | None) -> None:
-    """A panel's plan-dependent parts, in z-order: the sweep, the zones over it, the base, the path."""
-    # swept links first, so the translucent zones and the workspace outline stay visible over them
-    if geometry is not None:
-        _draw_sweep(image, view, geometry)
+def _draw_overlay(image: Any, draw: Any, scene: _Scene, view: _View, limits: EnvelopeLimits) -> None:
+    """What a panel draws over the swept links, the same for every plan: the workspace outline,
+    the zones (translucent, so the links stay visible under them), their names and the base."""
     draw.rectangle(view.rect(limits.workspace.lo, limits.workspace.hi), outline=_WORKSPACE, width=2)
     for zone in limits.keep_out:
         rect = view.rect(zone.lo, zone.hi)
@@ -434,12 +491,14 @@ def _draw_plan(image: Any, draw: Any, scene: _Scene, view: _View, limits: Envelo
     for zone in limits.keep_out:  # names on top of every fill, so overlapping zones stay legible
         rect = view.rect(zone.lo, zone.hi)
         scene.text(image, (rect[0] + 2, rect[1] + 1), zone.name, _KEEP_OUT_TEXT)
-
     # robot base at the origin, over the links
     bx, by = view.px(0.0, 0.0)
     draw.rectangle((bx - 5, by - 5, bx + 5, by + 5), fill=_BASE)
-    if geometry is None:
-        return
+
+
+def _draw_path(draw: Any, view: _View, geometry: _PlanGeometry) -> None:
+    """A panel's strokes over everything else: the TCP path, a red X at each violation, and the
+    start and goal dots."""
     path = view.pts(geometry.tcp_path)
     if len(path) > 1:
         draw.line(path, fill=_PATH, width=2, joint="curve")
@@ -451,67 +510,116 @@ def _draw_plan(image: Any, draw: Any, scene: _Scene, view: _View, limits: Envelo
         draw.ellipse((px - 3, py - 3, px + 3, py + 3), fill=colour)
 
 
-def _draw_sweep(image: Any, view: _View, geometry: _PlanGeometry) -> None:
-    """Swept links: the union of all sampled capsules filled light grey, each sample outlined.
+def _draw_sweeps(canvas: np.ndarray, scene: _Scene, geometry: _PlanGeometry) -> None:
+    """Swept links in every panel: the union of all sampled capsules filled light grey, each
+    sample outlined.
 
     Every capsule is a thick line with round caps (width ∝ radius) drawn into its sample's mask,
     so overlapping capsules do not darken each other; the outline of each sampled pose is its
-    mask's edge (mask pixels with a background pixel among their 8 neighbours), darker for the
-    goal pose. All samples are drawn into one tall mask, one band per sample, and the union and
-    outlines are computed on the bands at once.
-    """
-    from PIL import Image, ImageDraw
+    mask's edge (mask pixels with a background pixel among their 8 neighbours; the edge of the
+    region a panel's sweep can cover counts as background), darker for the goal pose.
 
-    radii = geometry.radii.tolist()
-    r_max = max(1.0, max(radii, default=0.0) * view.scale)
+    Both panels' samples are drawn into one tall mask, one band per panel and sample; the bands
+    are then packed into one bit per sample in each pixel's byte(s), so the union and every
+    sample's outline are computed at once, on an eighth of the bytes. Each pixel of the canvas
+    is then taken from the panel's layer (`_Scene.under`) of its colour: the zones and the base
+    over it come with it.
+    """
+    from PIL import ImageDraw
+
     if not geometry.capsules.size:
         return
+    radii = geometry.radii.tolist()
     n_samples = len(geometry.capsules)
-    xs, ys = view.coordinates(geometry.capsules)  # every sample's end points in one pass
-    # work only on the pixels the sweep can cover (within the plot)
-    x0 = max(view.box[0], math.floor(float(xs.min()) - r_max) - 2)
-    y0 = max(view.box[1], math.floor(float(ys.min()) - r_max) - 2)
-    x1 = min(view.box[2], math.ceil(float(xs.max()) + r_max) + 2)
-    y1 = min(view.box[3], math.ceil(float(ys.max()) + r_max) + 2)
-    if x1 <= x0 or y1 <= y0:
+    scale = scene.views[0].scale  # one scale for every panel
+    r_max = max(1.0, max(radii, default=0.0) * scale)
+    regions: list[_SweepRegion] = []
+    for view, under in zip(scene.views, scene.under, strict=True):
+        xs, ys = view.coordinates(geometry.capsules)  # every sample's end points in one pass
+        # work only on the pixels the sweep can cover (within the plot)
+        x0 = max(view.box[0], math.floor(float(xs.min()) - r_max) - 2)
+        y0 = max(view.box[1], math.floor(float(ys.min()) - r_max) - 2)
+        x1 = min(view.box[2], math.ceil(float(xs.max()) + r_max) + 2)
+        y1 = min(view.box[3], math.ceil(float(ys.max()) + r_max) + 2)
+        if x1 > x0 and y1 > y0:
+            regions.append(_SweepRegion(under, xs - x0, ys - y0, x0, y0, x1 - x0 + 1, y1 - y0 + 1))
+    if not regions:
         return
-    w, h = x1 - x0 + 1, y1 - y0 + 1
-    gap = 2 * math.ceil(r_max) + 4  # strokes cut at the region's edge spill into the gap, not the next band
+    w, h = max(region.width for region in regions), max(region.height for region in regions)
+    gap = 2 * math.ceil(r_max) + 4  # strokes cut at a region's edge spill into the gap, not the next band
     stride = h + gap
-    tall = Image.new("L", (w, stride * n_samples), 0)
-    # Pillow's drawing primitives, without `ImageDraw`'s per-call colour parsing (hundreds of
-    # strokes per picture, all of one ink): the same calls `ImageDraw.line`/`ellipse` make
-    pen = ImageDraw.Draw(tall).draw
-    r_pxs = [float(max(1.0, radius * view.scale)) for radius in radii]  # Python floats: round() gives an int
+    n_bands = n_samples * len(regions)
+    tall = np.zeros((stride * n_bands, w), dtype=np.uint8)
+    # Pillow's drawing primitives on the array's memory, without `ImageDraw`'s per-call colour
+    # parsing (hundreds of strokes per picture, all of one ink): the calls `ImageDraw.line` and
+    # `ImageDraw.ellipse` make
+    pen = ImageDraw.Draw(_mask_image(tall)).draw
+    r_pxs = [float(max(1.0, radius * scale)) for radius in radii]  # Python floats: round() gives an int
     widths = [max(1, round(2 * r_px)) for r_px in r_pxs]
-    # every stroke's arguments in one pass: (S, B, 2 ends, 2) end points in the tall mask, and
-    # each end's round cap as a bounding box; all strokes are one ink, so their order is free
-    ends = np.stack([xs.reshape(n_samples, -1) - x0,
-                     ys.reshape(n_samples, -1) + (np.arange(n_samples) * stride - y0)[:, None]], axis=-1)
-    ends = ends.reshape(n_samples, len(r_pxs), 2, 2)
+    # every stroke's arguments in one pass: (panel·S, B, 2 ends, 2) end points in the tall mask,
+    # and each end's round cap as a bounding box; all strokes are one ink, so their order is free
+    xs = np.concatenate([region.xs for region in regions]).reshape(n_bands, -1)
+    ys = np.concatenate([region.ys for region in regions]).reshape(n_bands, -1) + (np.arange(n_bands) * stride)[:, None]
+    ends = np.stack([xs, ys], axis=-1).reshape(n_bands, len(r_pxs), 2, 2)
     r_ends = np.array(r_pxs)[None, :, None, None]
     caps = np.concatenate([ends - r_ends, ends + r_ends], axis=-1).reshape(-1, 4).tolist()
-    for sample in ends.tolist():
-        for stroke, width in zip(sample, widths, strict=True):
-            pen.draw_lines(stroke, 255, width)
+    draw_lines, draw_ellipse = pen.draw_lines, pen.draw_ellipse
+    for stroke, width in zip(ends.reshape(-1, 2, 2).tolist(), widths * n_bands, strict=True):
+        draw_lines(stroke, 255, width)
     for cap in caps:
-        pen.draw_ellipse(cap, 255, 1)
-    bands: np.ndarray = np.frombuffer(tall.tobytes(), dtype=np.uint8).reshape(n_samples, stride, w)[:, :h] > 0
-    outlines: np.ndarray = bands & ~_interior(bands)  # (S, h, w)
-    # one palette index per pixel (0 untouched, then fill, earlier outlines, the goal's outline),
-    # coloured by Pillow and pasted through the union as mask: one C pass, no per-colour NumPy masking
-    union = np.any(bands, axis=0).view(np.uint8)
-    index = np.maximum(union, np.any(outlines[:-1], axis=0).view(np.uint8) * np.uint8(2))
-    index = np.maximum(index, outlines[-1].view(np.uint8) * np.uint8(3))
-    colours = Image.frombytes("P", (w, h), index.tobytes())
-    colours.putpalette(_SWEEP_PALETTE)
-    image.paste(colours.convert("RGB"), (x0, y0), Image.frombytes("L", (w, h), (union * np.uint8(255)).tobytes()))
+        draw_ellipse(cap, 255, 1)
+
+    # bit s % 8 of byte s // 8 of each pixel: whether sample s covers it (the mask's 255 masked
+    # down to that bit; a loop of byte-wide ORs is far cheaper than `np.packbits` across bands)
+    n_bytes = -(-n_samples // 8)
+    bands = tall.reshape(n_bands, stride, w)
+    samples = np.zeros((len(regions), n_bytes, h, w), dtype=np.uint8)
+    for panel, region in enumerate(regions):
+        rows, columns = slice(0, region.height), slice(0, region.width)
+        packed = samples[panel, :, rows, columns]  # outside the region stays clear: its edge is background
+        for sample in range(n_samples):
+            packed[sample // 8] |= bands[panel * n_samples + sample, rows, columns] & np.uint8(1 << (sample % 8))
+    outlines = samples & ~_interior(samples.reshape(-1, h, w)).reshape(samples.shape)
+    goal_byte, goal_bit = divmod(n_samples - 1, 8)
+    goal = outlines[:, goal_byte] & np.uint8(1 << goal_bit)
+    outlines[:, goal_byte] &= np.uint8(~(1 << goal_bit) & 0xFF)  # the earlier samples' outlines
+    # one colour index per pixel (0 untouched, then fill, earlier outlines, the goal's outline)
+    index = np.any(samples, axis=1).view(np.uint8)
+    index = np.maximum(index, np.any(outlines, axis=1).view(np.uint8) * np.uint8(2))
+    index = np.maximum(index, (goal != 0).view(np.uint8) * np.uint8(3))
+    for panel, region in enumerate(regions):
+        region.under.paint(canvas, index[panel, :region.height, :region.width], region.x0, region.y0)
+
+
+@dataclass(frozen=True)
+class _SweepRegion:
+    """The part of one panel a sweep can cover: its layers, its end points in the region's own
+    pixels (flattened, as `_View.coordinates` gives them), and where the region lies in the picture."""
+
+    under: _SweepLayers
+    xs: np.ndarray
+    ys: np.ndarray
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+
+def _mask_image(mask: np.ndarray) -> Any:
+    """A writable "L" Pillow image over a C-contiguous (height, width) uint8 array, sharing its
+    memory (see `images.rgbx_image` for why the read-only mark is cleared)."""
+    from PIL import Image
+
+    image = Image.frombuffer("L", (mask.shape[1], mask.shape[0]), mask, "raw", "L", 0, 1)
+    image.readonly = 0
+    return image
 
 
 def _interior(masks: np.ndarray) -> np.ndarray:
-    """Pixels of (S, h, w) boolean masks whose 8 neighbours are all set (outside the image counts
-    as unset, so a set pixel on the border is an outline pixel, as Pillow's FIND_EDGES leaves it).
-    The 3×3 neighbourhood is a row of three then a column of three: four ANDs, not eight."""
+    """Pixels of (K, h, w) masks whose 8 neighbours are all set (outside the image counts as unset,
+    so a set pixel on the border is an outline pixel, as Pillow's FIND_EDGES leaves it). Bitwise:
+    booleans, or bytes holding one mask per bit. The 3×3 neighbourhood is a row of three then a
+    column of three: four ANDs, not eight."""
     across = np.zeros_like(masks)
     across[:, :, 1:-1] = masks[:, :, :-2] & masks[:, :, 1:-1] & masks[:, :, 2:]
     inner = np.zeros_like(masks)
