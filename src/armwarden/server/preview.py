@@ -564,7 +564,7 @@ def _draw_sweeps(canvas: np.ndarray, scene: _Scene, geometry: _PlanGeometry) -> 
     r_ends = np.array(r_pxs)[None, :, None, None]
     caps = np.concatenate([ends - r_ends, ends + r_ends], axis=-1).reshape(-1, 4).tolist()
     draw_lines, draw_ellipse = pen.draw_lines, pen.draw_ellipse
-    for stroke, width in zip(ends.reshape(-1, 2, 2).tolist(), widths * n_bands, strict=True):
+    for stroke, width in zip(ends.reshape(-1, 4).tolist(), widths * n_bands, strict=True):  # flat x0, y0, x1, y1
         draw_lines(stroke, 255, width)
     for cap in caps:
         draw_ellipse(cap, 255, 1)
