@@ -255,8 +255,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
             if args.transport == "stdio":
                 if getattr(args, "console_port", None) is not None:
                     group.start_soon(_serve_console, args, assembly, external, console_stop)
-                await _serve_stdio(assembly, external)
-                why = "end of stdin"
+                why = await _serve_stdio(assembly, external)
             else:
                 await _serve_http(args, assembly, external, shutdown, console_stop)
             group.cancel_scope.cancel()
@@ -309,11 +308,17 @@ async def _serve_console(args: argparse.Namespace, assembly: Assembly, external:
     await serve_http(app, args.console_host, args.console_port)
 
 
-async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> None:
-    from armwarden.transport.stdio import serve_stdio
+async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
+    """Serve until the client leaves; returns how it left, for the shutdown record."""
+    from armwarden.transport.stdio import OutputClosed, serve_stdio
 
-    await serve_stdio(assembly.server.mcp, on_refused=_refusal_recorder(assembly),
-                      on_stop_request=external.stop_on_receipt, on_input_end=external.latch_as_the_client_leaves)
+    try:
+        await serve_stdio(assembly.server.mcp, on_refused=_refusal_recorder(assembly),
+                          on_stop_request=external.stop_on_receipt, on_input_end=external.latch_as_the_client_leaves)
+    except OutputClosed:
+        logger.warning("the client closed the daemon's stdout: its open calls are cancelled and the daemon stops")
+        return "the client closed stdout"
+    return "end of stdin"
 
 
 def _refusal_recorder(assembly: Assembly) -> RefusedCallback:

@@ -26,6 +26,7 @@ import pytest
 from mcp import Client, StdioServerParameters
 
 from armwarden.policy import bundled_policy, load_policy, policy_digest
+from armwarden.safety.audit import verify_file
 from armwarden.transport.pipes import MAX_LINE_BYTES
 from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, stop_process, text_of, wait_for_record
 from tests.server.harness import MODES, MotionStarted
@@ -319,12 +320,13 @@ def test_serve_refuses_a_non_loopback_http_bind_without_tokens(tmp_path) -> None
 
 
 # ------------------------------------------------------------------ duplicate ids, unreadable lines
-def start_raw_daemon(tmp_path: Path, speedup: float) -> tuple[subprocess.Popen, RawStdio, Path]:
+def start_raw_daemon(tmp_path: Path, speedup: float, stderr: int = subprocess.DEVNULL,
+                     ) -> tuple[subprocess.Popen, RawStdio, Path]:
     audit = tmp_path / "audit.jsonl"
     process = subprocess.Popen(
         [*CLI, "serve", "--audit-log", str(audit), "--backend-config", str(backend_config(tmp_path, speedup)),
          "--log-level", "WARNING"],
-        cwd=REPO, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+        cwd=REPO, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=stderr,
     )
     rpc = RawStdio(process)
     hello = rpc.request("initialize", {"protocolVersion": "2025-11-25", "capabilities": {},
@@ -714,3 +716,51 @@ def test_a_motion_call_read_just_before_the_input_ends_never_starts(tmp_path) ->
     assert result.get("isError") or result["structuredContent"]["status"] in ("aborted", "stopped"), done
     records = records_of(audit)
     assert not any(r["tool"] == "execute_plan" and "succeeded" in str(r.get("detail")) for r in records)
+
+
+# ------------------------------------------------------------------ the client closes stdout
+def test_a_client_that_closes_the_daemons_stdout_mid_motion_stops_the_arm_and_the_daemon_exits_cleanly(
+        tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, 0.5, stderr=subprocess.PIPE)
+    try:
+        start_motion(rpc)
+        assert process.stdout is not None
+        process.stdout.close()  # the client stops listening: the motion's next progress note meets EPIPE
+        _, stderr = process.communicate(timeout=30)
+    finally:
+        stop_process(process, 10)
+
+    assert process.returncode == 0
+    assert b"Traceback" not in stderr and b"the client closed the daemon's stdout" in stderr
+    records = records_of(audit)
+    assert verify_file(audit).ok
+    assert records[-1]["event"] == "shutdown" and records[-1]["detail"] == "the client closed stdout"
+    execution = next(r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan")
+    status = (execution.get("extra") or {}).get("result", {}).get("status")
+    assert execution["outcome"] == "cancelled" or status == "aborted", execution
+
+
+def test_a_client_on_sockets_that_closes_the_daemons_stdout_ends_the_session_cleanly(tmp_path) -> None:
+    stdin_parent, stdin_child = socket.socketpair()
+    stdout_parent, stdout_child = socket.socketpair()
+    audit = tmp_path / "audit.jsonl"
+    process = subprocess.Popen(serve_command(audit), stdin=stdin_child, stdout=stdout_child,
+                               stderr=subprocess.PIPE, cwd=REPO, env=child_env())
+    stdin_child.close()
+    stdout_child.close()
+    try:
+        for message in (HELLO, INITIALIZED):
+            stdin_parent.sendall(json.dumps(message).encode() + b"\n")
+        stdout_parent.settimeout(30)
+        assert b"serverInfo" in stdout_parent.recv(65536)
+        stdout_parent.close()  # gone, while its input stays open
+        for _ in range(3):  # answers now have nowhere to go
+            stdin_parent.sendall(json.dumps(STATE_CALL).encode() + b"\n")
+        _, stderr = process.communicate(timeout=30)
+    finally:
+        stop_process(process, 10)
+        stdin_parent.close()
+
+    assert process.returncode == 0
+    assert b"Traceback" not in stderr and b"the client closed the daemon's stdout" in stderr
+    assert records_of(audit)[-1]["detail"] == "the client closed stdout"

@@ -62,12 +62,28 @@ from armwarden.transport.jsonrpc import (
 )
 from armwarden.transport.pipes import PipeLineReader, PipeWriter, claimed_pipes
 
-__all__ = ["INPUT_END_GRACE_S", "GatedReadStream", "GatedWriteStream", "OpenIds", "gate_streams", "serve_stdio"]
+__all__ = ["INPUT_END_GRACE_S", "GatedReadStream", "GatedWriteStream", "OpenIds", "OutputClosed", "gate_streams",
+           "serve_stdio"]
 
 logger = logging.getLogger(__name__)
 
 #: how long calls already read may still run, and be answered, once the input has ended [s]
 INPUT_END_GRACE_S = 3.0
+
+
+class OutputClosed(ConnectionError):
+    """The client closed its end of the daemon's stdout during the session: no answer can reach it
+    any more, so the session ends, as it does when the input ends (the calls still open are
+    cancelled, which stops a motion)."""
+
+
+def _only_a_closed_output(exc: BaseException) -> bool:
+    """Whether `exc`, as the SDK's stdio task groups raise it (nested exception groups), holds
+    nothing but a stdout whose reader is gone: EPIPE on a pipe, a reset or EPIPE on a socket."""
+    if isinstance(exc, (BrokenPipeError, ConnectionResetError)):
+        return True
+    inner = getattr(exc, "exceptions", None)  # an exception group (anyio's backport on 3.10)
+    return bool(inner) and all(_only_a_closed_output(e) for e in inner)
 
 
 def unreadable_line_error(exc: Exception) -> ErrorData:
@@ -266,7 +282,9 @@ async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None =
                       on_stop_request: StopOnReceipt | None = None,
                       on_input_end: Callable[[], None] | None = None) -> None:
     """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
-    with the gate in between). Pending duplicate reports finish before this returns."""
+    with the gate in between). Pending duplicate reports finish before this returns. Raises
+    `OutputClosed` when the client closed the daemon's stdout (the SDK's transport would end the
+    session with a traceback of nested exception groups)."""
     # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
     # between the two; the low-level server is the documented way to serve custom streams.
     lowlevel = server._lowlevel_server
@@ -282,6 +300,10 @@ async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None =
                 gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request,
                                                        on_input_end)
                 await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
+        except BaseException as exc:
+            if _only_a_closed_output(exc):
+                raise OutputClosed("the client closed the daemon's stdout") from None
+            raise
         finally:
             for end in (stdin, stdout):
                 if end is not None:
