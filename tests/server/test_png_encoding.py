@@ -160,3 +160,22 @@ def test_runs_of_changed_bands_and_unchanged_bands_between_them_keep_every_pixel
     raw = zlib.decompress(idat(BandedPngEncoder(reference, band_rows=16).encode(changed)))
     rows = np.frombuffer(raw, dtype=np.uint8).reshape(160, 1 + 3 * 200)
     assert np.array_equal(rows[:, 1:].reshape(160, 200, 3), np.asarray(changed))
+
+
+def test_a_picture_given_as_a_strided_view_keeps_every_pixel() -> None:
+    reference = rgbx_words(picture(width=40, height=64))
+    wider = np.zeros((64, 80), dtype=np.uint32)
+    wider[:, :40] = rgbx_words(picture(width=40, height=64, seed=4))
+    png = BandedPngEncoder(reference, band_rows=16).encode(wider[:, :40])  # a crop of a wider canvas
+    assert np.array_equal(pixels(png), np.asarray(picture(width=40, height=64, seed=4)))
+
+
+def test_the_encoder_keeps_its_own_reference_whatever_the_caller_does_with_its_buffer() -> None:
+    buffer = rgbx_words(picture(width=40, height=64))
+    view = buffer.view()
+    view.setflags(write=False)  # read-only here, but the caller still writes the buffer
+    encoder = BandedPngEncoder(view, band_rows=16)
+    buffer[:] = rgbx_words(Image.new("RGB", (40, 64), (0, 0, 0)))
+
+    assert np.array_equal(pixels(encoder.encode(buffer.copy())), np.zeros((64, 40, 3), dtype=np.uint8))
+    assert not encoder.reference.flags.writeable

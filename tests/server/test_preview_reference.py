@@ -5,6 +5,8 @@ tolerance, and the cached static scene never carries one plan's strokes into the
 from __future__ import annotations
 
 import io
+import sys
+import threading
 from importlib import resources
 from pathlib import Path
 
@@ -102,3 +104,30 @@ def test_a_malformed_trajectory_draws_the_boxes_alone_as_before(runtime: Runtime
     before = preview_before.render_plan_preview(runtime.robot, runtime.envelope.limits, broken, report)
     now = PlanPreviewer(runtime.envelope.limits).render(runtime.robot, broken, report)
     assert differing_share(pixels(before), pixels(now)) <= PIXEL_SHARE_TOLERANCE
+
+
+def test_a_previewer_shared_by_two_threads_gives_each_plan_its_own_picture() -> None:
+    """Each thread brings its own robot model (Pinocchio's data is not thread safe); the previewer,
+    whose pictures share one canvas per scene, draws one at a time."""
+    policy = load_policy(Path(str(resources.files("armwarden") / "policies" / "fr3.yaml")))
+    runtimes = [load_runtime_model(policy), load_runtime_model(policy)]
+    plans = [plan(runtimes[0], "small_turn"), plan(runtimes[0], "into_monitor")]  # one scene, two pictures
+    shared = PlanPreviewer(runtimes[0].envelope.limits)
+    expected = [shared.render(runtimes[0].robot, *planned) for planned in plans]
+    wrong = [0, 0]
+
+    def draw(k: int) -> None:
+        for _ in range(100):
+            wrong[k] += shared.render(runtimes[k].robot, *plans[k]) != expected[k]
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-5)  # threads take turns often: a picture shared between them shows at once
+    try:
+        threads = [threading.Thread(target=draw, args=(k,)) for k in (0, 1)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert wrong == [0, 0]

@@ -124,11 +124,17 @@ class BandedPngEncoder:
         self._band_rows = band_rows
         self._row_bytes = 3 * width
         self._starts = range(0, height, band_rows)
-        self._reference = words if not words.flags.writeable else words.copy()  # never changes under us
+        self._reference = words.copy()  # its own: the cached segments must match it whatever the caller does
+        self._reference.setflags(write=False)
         self._compared = _comparable(self._reference)
         bands = [self._scanlines(self._reference, start, start + band_rows) for start in self._starts]
         self._segments = [_deflate_segment(band) for band in bands]
         self._checksums = [zlib.adler32(band.data) for band in bands]
+
+    @property
+    def reference(self) -> np.ndarray:
+        """The reference picture's words (read-only)."""
+        return self._reference
 
     def encode(self, picture: Any) -> bytes:
         words = _as_words(picture, self.size)
@@ -199,20 +205,19 @@ def rgbx_image(words: np.ndarray) -> Any:
 
 
 def _as_words(picture: Any, size: tuple[int, int] | None) -> np.ndarray:
+    """A picture's words, C-contiguous (a strided view, a crop of a wider canvas, is copied)."""
     words = picture if isinstance(picture, np.ndarray) else rgbx_words(picture)
     if words.dtype != np.uint32 or words.ndim != 2:
         raise ValueError(f"expected (height, width) uint32 pixel words, got {words.dtype} {words.shape}")
     if size is not None and (words.shape[1], words.shape[0]) != size:
         raise ValueError(f"expected an RGB picture of {size}, got {(words.shape[1], words.shape[0])}")
-    return words
+    return np.ascontiguousarray(words)
 
 
 def _comparable(words: np.ndarray) -> np.ndarray:
-    """The words as 64-bit (two pixels each) where the width allows it: an eighth as many
+    """C-contiguous words as 64-bit (two pixels each) where the width allows it: an eighth as many
     elements to compare as bytes."""
-    if words.shape[1] % 2 == 0 and words.flags.c_contiguous:
-        return words.view(np.uint64)
-    return words
+    return words.view(np.uint64) if words.shape[1] % 2 == 0 else words
 
 
 #: the modulus of Adler-32 (the largest prime below 2**16)

@@ -24,21 +24,22 @@ Pillow is optional (`armwarden[image]`); without it the renderer returns None. T
 deterministic: the same inputs give the same bytes (Pillow's built-in default font, no
 timestamps or other metadata in the PNG).
 
-Not thread safe on its own: it runs forward kinematics on `robot`, whose Pinocchio data is
-shared, keeps its scene cache unlocked and draws every picture of a scene on that scene's one
-canvas, so call it wherever the robot model is otherwise used (the Guard's planning thread,
-one call at a time).
+Threads: a previewer draws one picture at a time (every picture of a scene is drawn on that
+scene's one canvas, under a lock), but it runs forward kinematics on the `robot` it is given,
+whose Pinocchio data is not thread safe: call it wherever that robot model is otherwise used
+(the Guard's planning thread).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armwarden.server.images import BandedPngEncoder, rgbx_image, rgbx_words
+from armwarden.server.images import BandedPngEncoder, pillow_available, rgbx_image, rgbx_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from armwarden.planning.trajectory import JointTrajectory
@@ -93,6 +94,8 @@ class PlanPreviewer:
         self.limits = limits
         self.size = (width, height)
         self._scenes: dict[tuple[float, ...], _Scene] = {}
+        #: one picture at a time: a scene's pictures are all drawn on its one canvas
+        self._drawing = threading.Lock()
 
     def render(
         self,
@@ -109,14 +112,18 @@ class PlanPreviewer:
         planner findings that are not in the envelope report). A missing or malformed
         trajectory is drawn as the boxes alone.
         """
-        try:
-            from PIL import ImageDraw
-        except ImportError:
+        if not pillow_available():
             return None
         if status is None:
             status = "rejected" if report.hard else ("needs_approval" if report.soft else "ok")
-
         geometry = _plan_geometry(robot, trajectory, report, self.limits)
+        with self._drawing:
+            return self._draw(geometry, trajectory, report, status)
+
+    def _draw(self, geometry: _PlanGeometry | None, trajectory: JointTrajectory | None, report: EnvelopeReport,
+              status: str) -> bytes:
+        from PIL import ImageDraw
+
         scene = self._scene(*_bounds(self.limits, geometry))
         image = scene.start()
         draw = ImageDraw.Draw(image)  # every stroke drawn per plan is opaque: no blending needed
@@ -309,10 +316,9 @@ class _Scene:
 
         layers = [rgbx_words(self._overlaid(image, limits, None))]
         layers += [rgbx_words(self._overlaid(image, limits, colour)) for colour in _SWEEP_COLOURS]
-        self.plain = layers[0]
-        self.plain.setflags(write=False)  # shared with the encoder, as its reference
         self.under = [_SweepLayers(layers, view.box) for view in self.views]
-        self.encoder = BandedPngEncoder(self.plain)
+        self.encoder = BandedPngEncoder(layers[0])
+        self.plain = self.encoder.reference  # read-only, the encoder's own copy
         self.canvas = self.plain.copy()
         self._picture = rgbx_image(self.canvas)
 
