@@ -144,17 +144,16 @@ class BandedPngEncoder:
         checksum = 1  # Adler-32 of nothing
         index = 0
         while index < len(changed):
-            if changed[index]:  # a run of changed bands: one segment
-                end = index + 1
+            end = index + 1
+            if changed[index]:  # a run of changed bands: packed and checksummed at once
                 while end < len(changed) and changed[end]:
                     end += 1
                 rows = self._scanlines(words, self._starts[index], self._starts[end - 1] + self._band_rows)
-                # a segment per band all the same: a compressor fed more than its 64 KiB buffer
+                # but deflated a segment per band: a compressor fed more than its 64 KiB buffer
                 # slides its window, which costs more than starting a fresh one
                 pieces += [_deflate_segment(rows[k:k + self._band_rows]) for k in range(0, len(rows), self._band_rows)]
                 checksum = adler32_combine(checksum, zlib.adler32(rows.data), rows.size)
             else:
-                end = index + 1
                 pieces.append(self._segments[index])
                 checksum = adler32_combine(checksum, self._checksums[index], self._band_length(index))
             index = end
@@ -170,12 +169,9 @@ class BandedPngEncoder:
     def _scanlines(self, words: np.ndarray, start: int, stop: int) -> np.ndarray:
         """PNG scanlines of the rows from `start` to `stop`: Pillow packs the words' RGB bytes (one
         C pass over those rows, no copy of the rest of the picture)."""
-        from PIL import Image
-
         rows = np.ascontiguousarray(words[start:stop])
-        height, width = rows.shape
-        packed = Image.frombuffer("RGBX", (width, height), rows, "raw", "RGBX", 0, 1).tobytes("raw", "RGB")
-        return _scanlines(np.frombuffer(packed, dtype=np.uint8).reshape(height, self._row_bytes))
+        packed = _image_over(rows, "RGBX").tobytes("raw", "RGB")
+        return _scanlines(np.frombuffer(packed, dtype=np.uint8).reshape(rows.shape[0], self._row_bytes))
 
 
 def rgbx_words(image: Any) -> np.ndarray:
@@ -189,17 +185,36 @@ def rgbx_words(image: Any) -> np.ndarray:
 
 def rgbx_image(words: np.ndarray) -> Any:
     """A writable RGBX Pillow image over `words` ((height, width) uint32, C-contiguous), sharing
-    its memory: what Pillow draws on it lands in the array, without a copy either way.
+    its memory: what Pillow draws on it lands in the array, without a copy either way."""
+    return _drawable(_image_over(words, "RGBX"), words)
 
-    Pillow marks images over foreign memory read-only and copies them on the first write; the
-    array is ours and writable, so the mark is cleared. `tests/server/test_png_encoding.py`
-    checks that drawing still lands in the array."""
+
+def mask_image(mask: np.ndarray) -> Any:
+    """A writable "L" Pillow image over `mask` ((height, width) uint8, C-contiguous), sharing its
+    memory, as `rgbx_image`."""
+    return _drawable(_image_over(mask, "L"), mask)
+
+
+#: the array each Pillow mode laid over an array takes: one element per pixel
+_MODE_DTYPES = {"RGBX": np.uint32, "L": np.uint8}
+
+
+def _image_over(array: np.ndarray, mode: str) -> Any:
+    """A Pillow image of `mode` over a (height, width) array's memory (read-only, as Pillow marks it)."""
     from PIL import Image
 
-    if words.dtype != np.uint32 or words.ndim != 2 or not words.flags.c_contiguous or not words.flags.writeable:
-        raise ValueError("expected a writable C-contiguous (height, width) uint32 array")
-    height, width = words.shape
-    image = Image.frombuffer("RGBX", (width, height), words, "raw", "RGBX", 0, 1)
+    if array.dtype != _MODE_DTYPES[mode] or array.ndim != 2 or not array.flags.c_contiguous:
+        raise ValueError(f"expected a writable C-contiguous (height, width) {np.dtype(_MODE_DTYPES[mode])} array")
+    height, width = array.shape
+    return Image.frombuffer(mode, (width, height), array, "raw", mode, 0, 1)
+
+
+def _drawable(image: Any, array: np.ndarray) -> Any:
+    """`image`, over `array`'s memory, made writable in place. Pillow marks images over foreign
+    memory read-only and copies them on the first write; the array is ours and writable, so the
+    mark is cleared. `tests/server/test_png_encoding.py` checks that drawing lands in the array."""
+    if not array.flags.writeable:
+        raise ValueError("expected a writable C-contiguous array, got a read-only one")
     image.readonly = 0
     return image
 
@@ -270,4 +285,4 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
 
 
 __all__ = ["MAX_PIXELS", "BandedPngEncoder", "ImageSupportMissing", "adler32_combine", "downscale_png", "encode_png",
-           "pillow_available", "rgbx_image", "rgbx_words"]
+           "mask_image", "pillow_available", "rgbx_image", "rgbx_words"]

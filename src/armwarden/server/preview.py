@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armwarden.server.images import BandedPngEncoder, pillow_available, rgbx_image, rgbx_words
+from armwarden.server.images import BandedPngEncoder, mask_image, pillow_available, rgbx_image, rgbx_words
 
 if TYPE_CHECKING:  # pragma: no cover
     from armwarden.planning.trajectory import JointTrajectory
@@ -143,7 +143,7 @@ class PlanPreviewer:
             _TextStamp(scene.font, "".join(text for text, _ in runs), (x, title_y)).paste(image, _TEXT)
 
         if geometry is not None:
-            _draw_sweeps(scene.canvas, scene, geometry)
+            _draw_sweeps(scene, geometry)
             for view in scene.views:
                 _draw_path(draw, view, geometry)
         return scene.encoder.encode(scene.canvas)
@@ -516,7 +516,7 @@ def _draw_path(draw: Any, view: _View, geometry: _PlanGeometry) -> None:
         draw.ellipse((px - 3, py - 3, px + 3, py + 3), fill=colour)
 
 
-def _draw_sweeps(canvas: np.ndarray, scene: _Scene, geometry: _PlanGeometry) -> None:
+def _draw_sweeps(scene: _Scene, geometry: _PlanGeometry) -> None:
     """Swept links in every panel: the union of all sampled capsules filled light grey, each
     sample outlined.
 
@@ -559,7 +559,7 @@ def _draw_sweeps(canvas: np.ndarray, scene: _Scene, geometry: _PlanGeometry) -> 
     # Pillow's drawing primitives on the array's memory, without `ImageDraw`'s per-call colour
     # parsing (hundreds of strokes per picture, all of one ink): the calls `ImageDraw.line` and
     # `ImageDraw.ellipse` make
-    pen = ImageDraw.Draw(_mask_image(tall)).draw
+    pen = ImageDraw.Draw(mask_image(tall)).draw
     r_pxs = [float(max(1.0, radius * scale)) for radius in radii]  # Python floats: round() gives an int
     widths = [max(1, round(2 * r_px)) for r_px in r_pxs]
     # every stroke's arguments in one pass: (panel·S, B, 2 ends, 2) end points in the tall mask,
@@ -594,7 +594,7 @@ def _draw_sweeps(canvas: np.ndarray, scene: _Scene, geometry: _PlanGeometry) -> 
     index = np.maximum(index, np.any(outlines, axis=1).view(np.uint8) * np.uint8(2))
     index = np.maximum(index, (goal != 0).view(np.uint8) * np.uint8(3))
     for panel, region in enumerate(regions):
-        region.under.paint(canvas, index[panel, :region.height, :region.width], region.x0, region.y0)
+        region.under.paint(scene.canvas, index[panel, :region.height, :region.width], region.x0, region.y0)
 
 
 @dataclass(frozen=True)
@@ -609,16 +609,6 @@ class _SweepRegion:
     y0: int
     width: int
     height: int
-
-
-def _mask_image(mask: np.ndarray) -> Any:
-    """A writable "L" Pillow image over a C-contiguous (height, width) uint8 array, sharing its
-    memory (see `images.rgbx_image` for why the read-only mark is cleared)."""
-    from PIL import Image
-
-    image = Image.frombuffer("L", (mask.shape[1], mask.shape[0]), mask, "raw", "L", 0, 1)
-    image.readonly = 0
-    return image
 
 
 def _interior(masks: np.ndarray) -> np.ndarray:
