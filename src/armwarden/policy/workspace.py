@@ -65,8 +65,11 @@ class WorkspaceConfig(BaseModel):
     )
     check_links: Annotated[UniqueNames, AfterValidator(not_empty)] | None = Field(
         default=None,
-        description="Links (no unit) whose collision geometry is checked; null means every link that moves. "
-        "An empty list is an error: it would silently check no link at all.",
+        description="Links (no unit) whose collision geometry is checked; null (the default) means every link "
+        "that moves. A list must name every link that moves with a driven joint and carries collision geometry "
+        "(links fixed to the base may be added; they cannot move into anything): check-policy and serve refuse "
+        "one that leaves such a link out, naming it, since the workspace, keep-out and self-collision checks "
+        "would silently skip it. There is no opt-out. An empty list is an error: it would check no link at all.",
     )
     self_collision: StrictBool = Field(default=True, description="Check links against each other (boolean).")
 

@@ -167,6 +167,7 @@ class RobotModel:
             unknown = [name for name in check_links if name not in link_names]
             if unknown:
                 raise RobotModelError(f"unknown link(s) in check_links {unknown}; valid links: {sorted(link_names)}")
+            self._refuse_unchecked_moving_links(set(check_links))
         wanted = None if check_links is None else set(check_links)
         capsules = []
         for obj in self.geometry.geometryObjects:
@@ -187,6 +188,30 @@ class RobotModel:
                 )
             )
         return tuple(capsules)
+
+    def moving_links_with_geometry(self) -> list[str]:
+        """Links that move with a driven joint and carry collision geometry, in description order:
+        the bodies the envelope must check (a link fixed to the world, or one without geometry,
+        adds nothing to check)."""
+        links: list[str] = []
+        for obj in self.geometry.geometryObjects:
+            link = self.model.frames[obj.parentFrame].name
+            if obj.parentJoint != 0 and link not in links:
+                links.append(link)
+        return links
+
+    def _refuse_unchecked_moving_links(self, check_links: set[str]) -> None:
+        """A `check_links` that leaves out a moving body switches the workspace, keep-out and
+        self-collision checks off for it without a word (`[fr3_link0]` checked nothing at all).
+        There is no opt-out: every moving body with collision geometry is checked."""
+        moving = self.moving_links_with_geometry()
+        unchecked = [link for link in moving if link not in check_links]
+        if unchecked:
+            raise RobotModelError(
+                f"check_links leaves {len(unchecked)} moving link(s) with collision geometry unchecked: {unchecked}; "
+                f"the workspace, keep-out and self-collision checks would not see them. Name every one of {moving} "
+                "(links fixed to the base may be added), or use null for every moving link"
+            )
 
     def _build_batch_tables(self) -> None:
         """Index tables so a batch of configurations maps to capsule end points in a few numpy ops."""
