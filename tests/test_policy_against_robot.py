@@ -70,11 +70,56 @@ def test_check_links_naming_every_moving_body_is_accepted(
     assert "Robot model: 11 collision capsules on 8 links" in output
 
 
+# ------------------------------------------------------------------ robot.tcp_frame
+@pytest.mark.parametrize("tcp_frame", ["fr3_link0", "fr3_link5", "fr3_link6"])
+def test_a_tcp_frame_that_does_not_move_with_the_last_joint_is_refused_naming_the_candidates(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], tcp_frame: str
+) -> None:
+    code, output = _check_policy(tmp_path, {"robot.tcp_frame": tcp_frame}, capsys)
+
+    assert code == 2, output
+    (message,) = _errors_at(output, "robot.tcp_frame")
+    assert f"TCP frame {tcp_frame!r} does not move with the last joint fr3_joint7" in message
+    candidates = message.split("candidates: ", 1)[1].split(", ")
+    assert {"fr3_link7", "fr3_link8", "fr3_hand", "fr3_hand_tcp"} <= set(candidates)
+    assert not {"fr3_link0", "fr3_link5", "fr3_link6"} & set(candidates)
+
+
+@pytest.mark.parametrize("tcp_frame", ["fr3_link8", "fr3_hand", "fr3_leftfinger"])
+def test_a_tcp_frame_beyond_the_last_joint_is_accepted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], tcp_frame: str
+) -> None:
+    code, output = _check_policy(tmp_path, {"robot.tcp_frame": tcp_frame}, capsys)
+
+    assert code == 0, output
+
+
+def test_an_unknown_tcp_frame_is_reported_at_robot_tcp_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, output = _check_policy(tmp_path, {"robot.tcp_frame": "tool0"}, capsys)
+
+    assert code == 2, output
+    (message,) = _errors_at(output, "robot.tcp_frame")
+    assert "'tool0'" in message and "fr3_hand_tcp" in message
+
+
+def test_an_unknown_base_frame_is_reported_at_robot_base_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, output = _check_policy(tmp_path, {"robot.base_frame": "world0"}, capsys)
+
+    assert code == 2, output
+    (message,) = _errors_at(output, "robot.base_frame")
+    assert "'world0'" in message
+
+
 # ------------------------------------------------------------------ serve refuses the same policies
 @pytest.mark.parametrize(
     ("overrides", "expected"),
     [
         ({"workspace.check_links": ["fr3_link0"]}, "workspace.check_links: "),
+        ({"robot.tcp_frame": "fr3_link0"}, "robot.tcp_frame: "),
     ],
 )
 def test_serve_refuses_a_policy_that_would_switch_a_check_off_with_exit_2(

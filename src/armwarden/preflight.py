@@ -54,12 +54,14 @@ def _path_for(message: str) -> str:
     """Best YAML path for a robot-model error message."""
     if "check_links" in message:
         return "workspace.check_links"
+    if message.startswith("base frame"):  # before "joint": these messages list or name joints too
+        return "robot.base_frame"
+    if message.startswith("TCP frame"):
+        return "robot.tcp_frame"
     if "joint" in message and "limits" in message:
         return "robot.joint_limits"
     if "joint" in message:
         return "robot.joint_names"
-    if "base frame" in message:
-        return "robot.base_frame"
     if "frame" in message:
         return "robot.tcp_frame"
     return "robot.description"

@@ -77,7 +77,12 @@ class RobotConfig(BaseModel):
         ),
     )
     base_frame: Name = Field(description="Frame (no unit) every position in the policy and the tools is expressed in.")
-    tcp_frame: Name = Field(description="Tool-centre-point frame (no unit) that pose targets refer to.")
+    tcp_frame: Name = Field(
+        description="Tool-centre-point frame (no unit) that pose targets refer to and whose path length "
+        "`motion.max_cartesian_step_m` caps. It must move with the last joint of `joint_names`: check-policy and "
+        "serve refuse a frame on the base or on an inner link (the cap would measure nothing), listing the "
+        "frames that qualify."
+    )
     joint_names: Annotated[UniqueNames, AfterValidator(not_empty)] = Field(
         json_schema_extra={"minItems": 1},
         description="Driven joints (no unit), in the kinematic order of the description; at least one.",

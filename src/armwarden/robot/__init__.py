@@ -24,6 +24,7 @@ def build_robot(policy) -> RobotModel:
         robot_cfg.tcp_frame,
         check_links=policy.workspace.check_links,
     )
+    robot.require_tcp_beyond_last_joint()
     lower = np.array(robot_cfg.lower_limits)
     upper = np.array(robot_cfg.upper_limits)
     tolerance = 1e-6

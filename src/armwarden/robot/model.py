@@ -112,7 +112,7 @@ class RobotModel:
         self.base_frame = base_frame
         self.tcp_frame = tcp_frame
         self._base_from_world = self._fixed_frame_inverse(base_frame)
-        self._tcp_frame_id = self.frame_id(tcp_frame)
+        self._tcp_frame_id = self._named_frame_id("TCP frame", tcp_frame)
         tcp = self.model.frames[self._tcp_frame_id]
         self._tcp_joint = int(tcp.parentJoint)
         self._tcp_in_joint = tcp.placement.translation.copy()
@@ -150,8 +150,43 @@ class RobotModel:
     def link_names(self) -> list[str]:
         return [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]
 
+    def _named_frame_id(self, role: str, frame: str) -> int:
+        """`frame_id`, its error saying which configured frame is unknown (`robot.base_frame` or
+        `robot.tcp_frame`): the list of valid frames names joints too, so the message alone is ambiguous."""
+        if not self.model.existFrame(frame):
+            raise RobotModelError(f"{role} {frame!r} is unknown; valid frames: {', '.join(self.frame_names())}")
+        return int(self.model.getFrameId(frame))
+
+    def _moves_with(self, joint_id: int, moving_joint_id: int) -> bool:
+        """Whether a body on joint `joint_id` moves with joint `moving_joint_id` (it is on its chain)."""
+        while joint_id > 0:
+            if joint_id == moving_joint_id:
+                return True
+            joint_id = int(self.model.parents[joint_id])
+        return False
+
+    def tcp_frame_candidates(self) -> list[str]:
+        """Body and operational frames that move with the last driven joint: the valid TCP frames."""
+        last = self.model.njoints - 1
+        kinds = (pin.FrameType.BODY, pin.FrameType.OP_FRAME)
+        return [f.name for f in self.model.frames if f.type in kinds and self._moves_with(int(f.parentJoint), last)]
+
+    def require_tcp_beyond_last_joint(self) -> None:
+        """Refuse a TCP frame that does not move with the last driven joint.
+
+        The TCP path length is what `motion.max_cartesian_step_m` caps and pose targets refer to;
+        a TCP on the base (or on an inner link) does not follow the tool, so the cap would measure
+        nothing (a frame on the base never moves) and pose targets would not mean the tool."""
+        last = self.model.njoints - 1
+        if not self._moves_with(self._tcp_joint, last):
+            raise RobotModelError(
+                f"TCP frame {self.tcp_frame!r} does not move with the last joint {self.model.names[last]}, so the "
+                "TCP path length cap (motion.max_cartesian_step_m) and pose targets would not follow the tool; "
+                f"candidates: {', '.join(self.tcp_frame_candidates())}"
+            )
+
     def _fixed_frame_inverse(self, frame: str) -> pin.SE3 | None:
-        frame_id = self.frame_id(frame)
+        frame_id = self._named_frame_id("base frame", frame)
         placement = self.model.frames[frame_id]
         if placement.parentJoint != 0:
             raise RobotModelError(f"base frame {frame!r} must be fixed to the world (it moves with a joint)")
