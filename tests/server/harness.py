@@ -41,7 +41,7 @@ from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from armwarden.robot import build_robot
-from armwarden.safety.audit import AuditLog, verify_file
+from armwarden.safety.audit import OS_DISK, AuditLog, Disk, verify_file
 from armwarden.server.app import ArmWardenServer
 from tests.backends.minimal_backend import MinimalBackend
 from tests.helpers import text_of
@@ -253,14 +253,16 @@ async def _first_wrench(backend: Backend, timeout_s: float = 15.0) -> None:
 
 @contextlib.asynccontextmanager
 async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: str = "fake",
-                      **fake_options: Any) -> AsyncIterator[ArmHarness]:
+                      audit_disk: Disk = OS_DISK, **fake_options: Any) -> AsyncIterator[ArmHarness]:
+    """The harness on `backend`; `audit_disk` is the audit log's file system (a test's
+    `tests.fulldisk.SmallDisk` to fill it up)."""
     policy = policy or _policy_for(backend)
     if backend in REAL_TIME:
         policy = _for_an_in_process_cell(policy)
     inner = _backend(backend, policy, fake_options)
     counting = CountingBackend(inner)
     audit_path = tmp_path / "audit.jsonl"
-    audit = AuditLog(audit_path)
+    audit = AuditLog(audit_path, disk=audit_disk)
     threshold, switch_interval = gc.get_threshold(), sys.getswitchinterval()
     if backend in REAL_TIME:  # as the daemon does: the test process's large heap must not stall the clock
         freeze_long_lived_objects()  # before the physics starts: the collection itself takes ~100 ms

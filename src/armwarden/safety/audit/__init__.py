@@ -36,7 +36,15 @@ from armwarden.safety.audit.chain import (
     hmac_key_from_env,
 )
 from armwarden.safety.audit.cli import tail_command, verify_command
-from armwarden.safety.audit.log import DEFAULT_COMMIT_WINDOW_S, MAX_EVENT_CHARS, AuditEntry, AuditLog, AuditWriteError
+from armwarden.safety.audit.log import (
+    DEFAULT_COMMIT_WINDOW_S,
+    MAX_EVENT_CHARS,
+    OS_DISK,
+    AuditEntry,
+    AuditLog,
+    AuditWriteError,
+    Disk,
+)
 from armwarden.safety.audit.query import RecordFilter, parse_since
 from armwarden.safety.audit.sanitise import sanitize
 from armwarden.safety.audit.verify import (
@@ -56,11 +64,13 @@ __all__ = [
     "MAX_COMMIT_WINDOW_S",
     "MAX_EVENT_CHARS",
     "MAX_TAIL",
+    "OS_DISK",
     "RECORD_FIELDS",
     "AuditEntry",
     "AuditLog",
     "AuditRecord",
     "AuditWriteError",
+    "Disk",
     "Durability",
     "RecordFilter",
     "VerifiedPrefix",

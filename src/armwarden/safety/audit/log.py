@@ -23,7 +23,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from armwarden.errors import ArmWardenError, ConfigurationError
 from armwarden.safety.audit.chain import (
@@ -53,6 +53,30 @@ DEFAULT_COMMIT_WINDOW_S = 0.02
 
 class AuditWriteError(ArmWardenError):
     """A record could not be made durable (log closed, disk error). Callers must fail closed."""
+
+
+class Disk(Protocol):
+    """What the log asks of the file system once the file is open: write some bytes (``os.write``
+    semantics: may write fewer than given) and fsync. The default is the OS (`OS_DISK`); tests
+    inject a disk that fills up, so a full disk is reproduced without root or a real tiny file
+    system."""
+
+    def write(self, fd: int, data: memoryview) -> int: ...
+
+    def fsync(self, fd: int) -> None: ...
+
+
+class _OsDisk:
+    """The real file system (looked up at call time, so a patched ``os.fsync`` still applies)."""
+
+    def write(self, fd: int, data: memoryview) -> int:
+        return os.write(fd, data)
+
+    def fsync(self, fd: int) -> None:
+        os.fsync(fd)
+
+
+OS_DISK: Disk = _OsDisk()
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,8 +123,10 @@ class AuditLog:
         hmac_key: bytes | None = None,
         max_string_chars: int = 500,
         commit_window_s: float = DEFAULT_COMMIT_WINDOW_S,
+        disk: Disk = OS_DISK,
     ) -> None:
         self._path = Path(path)
+        self._disk = disk
         self._key = check_key(hmac_key)
         if isinstance(max_string_chars, bool) or not isinstance(max_string_chars, int) or not (
             16 <= max_string_chars <= 1_000_000
@@ -234,6 +260,16 @@ class AuditLog:
         return self._broken
 
     @property
+    def unusable(self) -> str | None:
+        """Why no record can be written now (a failed write, closing, closed); None while records
+        can be. What callers show a human who must know that the log is not recording."""
+        if self._broken is not None:
+            return f"audit log {str(self._path)!r} is unusable after a failed write: {self._broken}"
+        if self.closed:
+            return f"audit log {str(self._path)!r} is closed"
+        return None
+
+    @property
     def recovery_record(self) -> AuditRecord | None:
         """The recovery record written on open, if the file ended with a torn line."""
         return self._recovery
@@ -283,10 +319,10 @@ class AuditLog:
         assert self._fd is not None
         view = memoryview(data)
         while view:
-            written = os.write(self._fd, view)
+            written = self._disk.write(self._fd, view)
             view = view[written:]
         if sync:
-            os.fsync(self._fd)
+            self._disk.fsync(self._fd)
 
     def _fsync_written(self) -> None:
         """fsync what was written without it (a group commit by the writer thread).
@@ -299,7 +335,7 @@ class AuditLog:
         if fd is None:
             raise AuditWriteError(f"audit log {str(self._path)!r} is closed")
         try:
-            os.fsync(fd)
+            self._disk.fsync(fd)
         except OSError as exc:
             with self._lock:
                 self._broken = str(exc)
