@@ -20,23 +20,35 @@ path stops the robot and audits it. Nothing else is touched: another client's mo
 
 It also repairs a stopping tool's call whose `arguments` is not an object (`stop_params_repaired`:
 the SDK would refuse it before the e-stop latches) and reports (`on_refused`, awaited before the
-request goes on, so the daemon's record is on disk before the answer) every `tools/call` the SDK
-will refuse before any tool sees it and every duplicate id it refuses itself. Apart from that
-repair it never blocks, changes or drops a message of a request it passes on.
+answer leaves, so the daemon's record is on disk first) every request refused before the server's
+tools saw it, as stdio does: a body over the limit (by its size, and the digest of what was read:
+never the body), a duplicate id, a `tools/call` with malformed params, and every error answer the
+SDK gives a `tools/call` (or a body nobody could read) before its dispatch reached the tools —
+a routing header that disagrees with the body (2026-07-28, -32020), a body its JSON parser
+rejects (-32700), an unknown session. Such an answer is held back until its record is written;
+whether the dispatch was reached is told by `mark_dispatched`, an MCP server middleware the
+HTTP app installs outermost, so a call the tools saw (and the tool layer recorded) is not
+recorded twice. Apart from the repair it never changes or drops a message of a request it passes on.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 from collections.abc import Awaitable, Callable
+from contextvars import ContextVar
 from typing import Any
 
 import anyio
+from mcp.server.context import CallNext, ServerRequestContext
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from armwarden.transport.jsonrpc import (
+    HEADER_MISMATCH,
+    INVALID_PARAMS,
     INVALID_REQUEST,
+    PARSE_ERROR,
     RefusedCallback,
     StopOnReceipt,
     duplicate_id_message,
@@ -54,9 +66,36 @@ MAX_BODY_BYTES = 1024 * 1024
 CANCEL_TIMEOUT_S = 2.0
 SESSION_HEADER = b"mcp-session-id"
 
+#: a refused request's arguments go into its record only up to this body size [bytes]; a larger
+#: body is recorded by its size and digest (and its tool's name)
+RECORDED_BODY_BYTES = 16 * 1024
+#: how much of an error answer is read to name its JSON-RPC code [bytes]
+_ERROR_ANSWER_BYTES = 64 * 1024
+#: what an SDK error answer's JSON-RPC code makes of the refusal in the audit log (else "refused")
+_REFUSAL_OUTCOMES = {PARSE_ERROR: "unreadable", INVALID_REQUEST: "unreadable", HEADER_MISMATCH: "header_mismatch",
+                     INVALID_PARAMS: "invalid_params"}
+
 #: (tool, arguments, request id, cancelled): True = the cancellation was accepted by the SDK; False =
 #: it was not; None = no session, so there was nothing to cancel (the SDK ends such a call itself)
 AbandonedCallback = Callable[[str, dict[str, Any], Any, "bool | None"], Awaitable[None]]
+
+#: per POST to the MCP endpoint: `mark_dispatched` notes there that its `tools/call` reached the
+#: server's middleware chain (the tool layer's audit records such a call itself)
+_DISPATCHED: ContextVar[list[str] | None] = ContextVar("armwarden_dispatched", default=None)
+
+
+async def mark_dispatched(ctx: ServerRequestContext[Any, Any], call_next: CallNext) -> Any:
+    """MCP server middleware, installed outermost by the HTTP app: notes that the `tools/call` of
+    the request being served reached the tools' side, so an error answer to it is not recorded
+    again as a refusal (`AbandonedMotionStop`)."""
+    if ctx.method == "tools/call" and (seen := _DISPATCHED.get()) is not None:
+        seen.append(ctx.method)
+    return await call_next(ctx)
+
+
+def body_digest(body: bytes) -> str:
+    """What a record says of a body it does not carry: its size and SHA-256."""
+    return f"{len(body)} bytes, sha256 {hashlib.sha256(body).hexdigest()}"
 
 
 def decode_message(body: bytes) -> dict[str, Any] | None:
@@ -87,8 +126,8 @@ class _ClientGone(Exception):
     """The client disconnected before its request body arrived."""
 
 
-async def _read_body(receive: Receive) -> bytes | None:
-    """The whole request body, or None once it exceeds `MAX_BODY_BYTES`."""
+async def _read_body(receive: Receive) -> tuple[bytes, bool]:
+    """(the request body, True), or (what was read, False) once it exceeds `MAX_BODY_BYTES`."""
     body = bytearray()
     while True:
         message = await receive()
@@ -96,9 +135,9 @@ async def _read_body(receive: Receive) -> bytes | None:
             raise _ClientGone
         body.extend(message.get("body", b""))
         if len(body) > MAX_BODY_BYTES:
-            return None
+            return bytes(body), False
         if not message.get("more_body", False):
-            return bytes(body)
+            return bytes(body), True
 
 
 def _replaying(body: bytes, afterwards: Callable[[], Awaitable[Message]]) -> Receive:
@@ -173,14 +212,22 @@ class AbandonedMotionStop:
             await self.app(scope, receive, send)
             return
         declared = _declared_length(scope)
-        try:  # a declared oversize is refused before reading: no "100 Continue" for it
-            body = None if declared is not None and declared > MAX_BODY_BYTES else await _read_body(receive)
+        too_large = f"request body over {MAX_BODY_BYTES} bytes refused"
+        if declared is not None and declared > MAX_BODY_BYTES:  # refused before reading: no "100 Continue" for it
+            await self._report(None, "too_large", f"{too_large} (HTTP 413): declared {declared} bytes, not read", 0)
+            await _refuse(send, 413, too_large)
+            return
+        try:
+            body, whole = await _read_body(receive)
         except _ClientGone:
             return  # nothing was asked, nothing runs
-        if body is None:
-            await _refuse(send, 413, f"request body over {MAX_BODY_BYTES} bytes refused")
+        if not whole:
+            await self._report(None, "too_large", f"{too_large} (HTTP 413): sent without a declared length, cut off "
+                               f"after {body_digest(body)}", len(body))
+            await _refuse(send, 413, too_large)
             return
         message = decode_message(body)
+        reported = False
         if message is not None:
             params, malformed = screen_call(message.get("method"), message.get("params"), self.on_stop_request,
                                             _principal(scope) or None)
@@ -190,46 +237,96 @@ class AbandonedMotionStop:
                 scope = {**scope, "headers": [(key, str(len(body)).encode() if key == b"content-length" else value)
                                               for key, value in scope.get("headers", [])]}
             elif malformed is not None:
-                await self._report(message, "invalid_params", malformed)  # the SDK answers it
+                await self._report(message, "invalid_params", malformed, len(body))  # the SDK answers it
+                reported = True
         key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
             request_id = message.get("id") if message else None
             await self._report(message, "duplicate_request_id",
-                               f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}")
+                               f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}",
+                               len(body))
             await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
         if key is not None:
             self._open_requests.add(key)
         try:
-            await self._pass_on(scope, receive, send, body, message)
+            await self._pass_on(scope, receive, send, body, message, reported)
         finally:
             if key is not None:
                 self._open_requests.discard(key)
 
-    async def _report(self, message: dict[str, Any] | None, outcome: str, why: str) -> None:
-        if self.on_refused is None or message is None:
+    async def _report(self, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int) -> None:
+        """Hand a refusal to `on_refused`: the message's method, params and id (its params without
+        the arguments when the body was over `RECORDED_BODY_BYTES`), or Nones for a body that
+        was not read or not understood."""
+        if self.on_refused is None:
             return
-        params = message.get("params")
+        method = request_id = params = None
+        if message is not None:
+            method, request_id, params = message.get("method"), message.get("id"), message.get("params")
+            if not isinstance(params, dict):
+                params = None
+            elif body_bytes > RECORDED_BODY_BYTES:
+                params = {"name": params["name"]} if isinstance(params.get("name"), str) else None
         try:
-            await self.on_refused(message.get("method"), params if isinstance(params, dict) else None,
-                                  message.get("id"), outcome, why)
+            await self.on_refused(method, params, request_id, outcome, why)
         except Exception:
-            logger.exception("reporting the refused request %r failed", message.get("id"))
+            logger.exception("reporting the refused request %r failed", request_id)
+
+    async def _report_sdk_refusal(self, message: dict[str, Any] | None, body: bytes, answer: list[Message]) -> None:
+        """Record an error answer the SDK gave a request before its dispatch reached the tools."""
+        status = int(answer[0]["status"])
+        text = b"".join(part.get("body", b"") for part in answer[1:])[:_ERROR_ANSWER_BYTES]
+        code: Any = None
+        said = ""
+        try:
+            error = json.loads(text)["error"]
+            code, said = error.get("code"), str(error.get("message", ""))[:200]
+        except (ValueError, TypeError, KeyError, AttributeError, RecursionError):
+            said = text[:200].decode("utf-8", "replace")
+        params = message.get("params") if message is not None else None
+        name = params.get("name") if isinstance(params, dict) else None
+        what = f"tools/call of {str(name)[:64]}" if isinstance(name, str) else "a request"
+        rpc = f", JSON-RPC {code}" if isinstance(code, int) else ""
+        why = f"{what} refused by the MCP SDK before any tool saw it (HTTP {status}{rpc}: {said}); body {body_digest(body)}"
+        outcome = _REFUSAL_OUTCOMES.get(code, "refused") if isinstance(code, int) else "refused"
+        await self._report(message, outcome, why, len(body))
 
     async def _pass_on(self, scope: Scope, receive: Receive, send: Send, body: bytes,
-                       message: dict[str, Any] | None) -> None:
+                       message: dict[str, Any] | None, reported: bool) -> None:
         answered = False
+        # an error answer to a `tools/call` (or to a body nobody could read) that the tools never
+        # saw is held until its refusal is recorded; a refusal already reported is not watched
+        watched = not reported and (message is None or message.get("method") == "tools/call")
+        dispatched: list[str] = []
+        held: list[Message] = []
 
-        async def send_and_note(message: Message) -> None:
+        async def send_and_note(out: Message) -> None:
             nonlocal answered
-            await send(message)
-            if message["type"] == "http.response.body" and not message.get("more_body", False):
+            if out["type"] == "http.response.start" and watched and int(out["status"]) >= 400 and not dispatched:
+                held.append(out)
+                return
+            if held:
+                held.append(out)
+                if out["type"] != "http.response.body" or out.get("more_body", False):
+                    return
+                with anyio.CancelScope(shield=True):  # the record, then the answer
+                    await self._report_sdk_refusal(message, body, held)
+                for part in held:
+                    await send(part)
+                held.clear()
+                answered = True
+                return
+            await send(out)
+            if out["type"] == "http.response.body" and not out.get("more_body", False):
                 answered = True
 
+        token = _DISPATCHED.set(dispatched)
         try:
             await self.app(scope, _replaying(body, receive), send_and_note)  # then: the client's disconnect, if any
         finally:
+            _DISPATCHED.reset(token)
             if not answered and (call := motion_call(message)) is not None:
                 with anyio.CancelScope(shield=True):  # runs also when this request task was cancelled
                     await self._abandoned(scope, *call)

@@ -58,7 +58,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
-from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
+from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, mark_dispatched
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
 from armwarden.transport.jsonrpc import RefusedCallback, StopOnReceipt
 from armwarden.transport.tokens import TokenStore
@@ -244,7 +244,8 @@ def build_http_app(
     `on_stop_request(tool, principal)` is called the moment an `estop`/`stop_motion` request is read,
     before the SDK queues it: it must be quick and thread-safe (it holds the robot).
     `on_refused(method, params, request_id, outcome, why)` is awaited for a request refused before
-    the tools saw it (a duplicate id, malformed `tools/call` params), before it is answered.
+    the tools saw it (a body over 1 MiB, a duplicate id, malformed `tools/call` params, any error
+    answer the SDK gives a `tools/call` before its dispatch), before it is answered.
     """
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     mcp_app = server.streamable_http_app(
@@ -255,6 +256,8 @@ def build_http_app(
         host=host,
     )
     session_manager = server.session_manager  # created by streamable_http_app(); run() works once
+    if mark_dispatched not in server.middleware:  # outermost: tells AbandonedMotionStop what the tools saw
+        server.middleware.insert(0, mark_dispatched)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette) -> AsyncIterator[None]:

@@ -14,6 +14,10 @@ from mcp.shared.dispatcher import coerce_request_id
 PARSE_ERROR = -32700
 #: JSON, but not a request this server takes (not a JSON-RPC message, or an id already open)
 INVALID_REQUEST = -32600
+#: the params do not fit the method
+INVALID_PARAMS = -32602
+#: 2026-07-28 over HTTP: a routing header (`Mcp-Method`, `Mcp-Name`, ...) disagrees with the body
+HEADER_MISMATCH = -32020
 
 
 def request_id_key(request_id: Any) -> str:
