@@ -218,3 +218,23 @@ def test_the_events_held_since_the_last_release_are_all_kept_until_it() -> None:
     assert latch.held_events == ()
     third = latch.latch("again", "estop")
     assert latch.held_events == (third,)
+
+
+def test_check_release_answers_like_release_without_releasing() -> None:
+    latch, _, _ = make_latch()
+    latch.latch("a", "estop")
+    newest = latch.latch("b", "estop")
+    allowed = latch.check_release(newest.number)
+    assert allowed.released and allowed.event is newest and latch.is_latched
+    for number in (1, 3, "2", None):
+        checked, released = latch.check_release(number), latch.release(number)
+        assert not checked.released and checked.message == released.message and latch.is_latched
+
+
+def test_a_latch_after_the_check_makes_the_release_refused() -> None:
+    latch, _, _ = make_latch()
+    event = latch.latch("a", "estop")
+    assert latch.check_release(event.number).released  # the caller records the release now ...
+    latch.latch("b", "stop_channel")  # ... while another thread latches again
+    result = latch.release(event.number)
+    assert not result.released and "a newer e-stop (#2)" in result.message and latch.is_latched

@@ -7,6 +7,10 @@ event, and if another latch happened while they were deciding, the reset is refu
 nobody ever releases a stop they have not seen (docs/architecture.md, "Where each limit is
 enforced": releasing an e-stop).
 
+A release is recorded before it takes effect (`guard.stopping.Stopper.release`): the caller asks
+`check_release`, writes the record, then `release` checks again; a release that cannot be
+recorded does not happen.
+
 `generation` counts latches. The Guard records it before validating or asking and compares it
 afterwards: anything that started before a latch must not run after the reset.
 
@@ -189,12 +193,31 @@ class EStopLatch:
         self._held = (*self._held, event)
         return event
 
+    def check_release(self, event_number: object) -> ReleaseResult:
+        """What `release(event_number)` would answer now, without releasing anything: the caller
+        records the release before it takes effect, then calls `release`, which checks again (a
+        latch in between changes the newest event, so the release is then refused)."""
+        with self._lock:
+            refusal = self._refusal_locked(event_number)
+            if refusal is not None:
+                return refusal
+            current = self.current_event
+            assert current is not None
+            return ReleaseResult(True, f"e-stop #{current.number} may be released", current)
+
     def release(self, event_number: object) -> ReleaseResult:
         """Release the latch if `event_number` is the newest latched event; otherwise refuse and say why."""
         with self._lock:
-            return self._release_locked(event_number)
+            refusal = self._refusal_locked(event_number)
+            if refusal is not None:
+                return refusal
+            current = self.current_event
+            assert current is not None
+            self._held = ()
+            return ReleaseResult(True, f"e-stop #{current.number} released", current)
 
-    def _release_locked(self, event_number: object) -> ReleaseResult:
+    def _refusal_locked(self, event_number: object) -> ReleaseResult | None:
+        """Why `event_number` may not be released now, or None when it may."""
         current = self.current_event
         if current is None:
             done = f" (the last one, #{self._last.number}, was already reset)" if self._last is not None else ""
@@ -213,5 +236,4 @@ class EStopLatch:
             return ReleaseResult(
                 False, f"there is no e-stop #{event_number}; the latched e-stop is #{current.number}", current
             )
-        self._held = ()
-        return ReleaseResult(True, f"e-stop #{current.number} released", current)
+        return None
