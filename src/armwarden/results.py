@@ -6,7 +6,7 @@ Units: metres, radians, seconds, newtons; positions in the robot base frame; qua
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -121,22 +121,35 @@ class SafetyStatus(_Result):
     dry_run: bool
     last_violation: ViolationModel | None
     faults: list[str]
+    audit_ok: bool = Field(description="Whether the audit log can be written. False: nothing actuates, no e-stop "
+                           "can be released, and this answer itself may be unrecorded")
+    audit_error: str | None = Field(default=None, description="Why the audit log cannot be written (e.g. its disk "
+                                    "is full), or null")
+
+
+def _audit_error() -> Any:
+    """The field a stopping or releasing result sets when its own audit record could not be written."""
+    return Field(default=None, description="Set when this call's audit record could not be written (e.g. a full "
+                 "disk): what the result says still happened, but the log does not show it")
 
 
 class EStopResult(_Result):
     estopped: bool
     estop_event: EStopInfo
+    audit_error: str | None = _audit_error()
 
 
 class StopResult(_Result):
     stopped: bool
     detail: str
+    audit_error: str | None = _audit_error()
 
 
 class ResetResult(_Result):
     estopped: bool
     released_event: int | None
     detail: str
+    audit_error: str | None = _audit_error()
 
 
 class GripperResultModel(_Result):

@@ -128,11 +128,15 @@ class Guard:
         return refuse(RefusalCode.ESTOPPED, f"{what} refused: the software e-stop #{event.number} is latched "
                       f"({event.source}: {event.reason}). A human must approve reset_estop before anything can move again.")
 
+    def audit_unusable(self) -> str | None:
+        """Why the audit log cannot be written now (None while it can, or when there is no log)."""
+        return None if self.audit is None else self.audit.unusable
+
     def require_audit(self, what: str) -> None:
         """Nothing actuates unless it can be audited: a log that failed a write refuses, and so do we."""
-        if self.audit is not None and (self.audit.closed or self.audit.broken is not None):
+        if (why := self.audit_unusable()) is not None:
             raise refuse(RefusalCode.AUDIT_UNAVAILABLE, f"{what} refused: the audit log cannot be written "
-                         f"({self.audit.broken or 'closed'}); nothing moves until it is repaired and the daemon restarted")
+                         f"({why}); nothing moves until it is repaired and the daemon restarted")
 
     def require_not_estopped(self, what: str) -> None:
         if (refusal := self.estop_refusal(what)) is not None:
@@ -171,6 +175,7 @@ class Guard:
         )
 
     def safety_status(self) -> results.SafetyStatus:
+        audit_error = self.audit_unusable()
         return results.SafetyStatus(
             estopped=self.latch.is_latched,
             estop_event=conversions.estop_info(self.latch.current_event or self.latch.last_event),
@@ -178,6 +183,8 @@ class Guard:
             dry_run=self.dry_run,
             last_violation=None if self.last_violation is None else conversions.violation_model(self.last_violation),
             faults=list(self.faults),
+            audit_ok=audit_error is None,
+            audit_error=audit_error,
         )
 
     # ================================================================== planning (see planning.py)

@@ -9,7 +9,9 @@ The middleware (outermost) does two jobs for each `tools/call`:
    when refused) or of an unknown tool is on disk (fsynced, on the writer thread) before its
    reply leaves; a read-only call's record (`read_only_hint`: introspection, perception,
    planning, status) is handed to the writer without waiting and fsynced within the log's
-   group-commit window (docs/threat-model.md, "Audit durability").
+   group-commit window (docs/threat-model.md, "Audit durability"). A call whose record cannot be
+   written fails closed with a protocol error, except a stop, an e-stop, a reset and the safety
+   status: they are answered and say that their record is missing (`unrecorded`).
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ from armwarden import __version__
 from armwarden.errors import RefusalCode
 from armwarden.guard import Guard
 from armwarden.policy import ALL_TOOLS
-from armwarden.safety.audit import AuditEntry
+from armwarden.safety.audit import AuditEntry, AuditWriteError
 from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
+from armwarden.server.unrecorded import answer_unrecorded
 from armwarden.transport.access import current_principal, role_allows
 
 if TYPE_CHECKING:
@@ -123,7 +126,13 @@ class ArmWardenServer:
         finally:
             CURRENT_CALL.reset(token)
         self._classify(record, result)
-        await self._audit(record)
+        try:
+            await self._audit(record)
+        except AuditWriteError as exc:  # a stop, its status and a refused release are still answered
+            answer = answer_unrecorded(record.tool, _as_model(result), exc)
+            if answer is None:
+                raise
+            return answer
         return result
 
     async def _unknown_arguments(self, tool: str, arguments: Any) -> CallToolResult | None:
@@ -207,7 +216,8 @@ class ArmWardenServer:
                 await audit.append_async(entry)  # on disk before the reply
         except Exception:  # an audit failure must be loud, but it is not the caller's fault
             logger.exception("audit write failed for %s", record.tool)
-            self.guard.faults.append("audit log write failed")
+            if "audit log write failed" not in self.guard.faults:  # once: get_safety_status says the rest
+                self.guard.faults.append("audit log write failed")
             raise
 
     def _filter_tools(self, result: Any, role: str) -> Any:

@@ -493,8 +493,8 @@ class ToolBuilder:
             ) -> Annotated[CallToolResult, ActionResult]:
                 return ok(await guard.run_action("error_recovery", approval, shown))
 
-        @tool("E-stop state and event, latched force violation, dry-run flag, the last envelope violation and backend "
-              "faults. Never rate limited.", READ_ONLY_LOCAL)
+        @tool("E-stop state and event, latched force violation, dry-run flag, the last envelope violation, backend "
+              "faults and whether the audit log can be written. Never rate limited.", READ_ONLY_LOCAL)
         async def get_safety_status() -> Annotated[CallToolResult, SafetyStatus]:
             return ok(guard.safety_status())
 
