@@ -1,9 +1,10 @@
 """A full audit disk, end to end through the SDK client (issue 24, item 2).
 
-The audit log's disk fills up (`tests.fulldisk.SmallDisk`: every write fails with ENOSPC). Then
-a stop or an e-stop still takes effect and says, as a success, that its record could not be
-written; `get_safety_status` answers and says the log is unusable; the stop channel still
-latches and stops the arm.
+The audit log's disk fills up (`tests.fulldisk.SmallDisk`: every write fails with ENOSPC). Then:
+an e-stop is never released unrecorded — a reset whose record cannot be written does not take
+effect and the human is told so; a stop or an e-stop still takes effect and says, as a success,
+that its record could not be written; `get_safety_status` answers and says the log is unusable;
+the stop channel still latches and stops the arm.
 """
 
 from __future__ import annotations
@@ -11,12 +12,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from pathlib import Path
 from typing import Any
 
 import anyio
 import pytest
 
-from armwarden.errors import RefusalCode
+from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.safety.plans import PlanRefusal
 from armwarden.stopchannel import StopChannel
 from armwarden.stopchannel.external import ExternalStops
@@ -40,6 +42,75 @@ async def safety(client: Any) -> dict[str, Any]:
     result = await client.call_tool("get_safety_status", {})
     assert not result.is_error, text_of(result)
     return result.structured_content
+
+
+def released_in(path: Path) -> list[dict[str, Any]]:
+    """The records of releases, and of reset calls that answered ok."""
+    return [r for r in records_of(path)
+            if r["event"] == "estop_release" or (r["tool"] == "reset_estop" and r["outcome"] == "ok")]
+
+
+# ------------------------------------------------------------------ reset_estop
+@pytest.mark.parametrize("mode", MODES)
+async def test_a_reset_on_a_full_audit_disk_leaves_the_estop_latched_and_says_it_was_not_applied(tmp_path, mode) -> None:
+    disk = SmallDisk()
+    async with arm_harness(tmp_path, audit_disk=disk) as arm, arm.client(mode, approve("erin")) as client:
+        number = (await estop(client))["estop_event"]["number"]
+        disk.fill()
+        reset = await client.call_tool("reset_estop", {})
+        assert reset.is_error, text_of(reset)
+        text = text_of(reset)
+        assert RefusalCode.AUDIT_UNAVAILABLE.value in text and "stays latched" in text and "nothing was released" in text, text
+        assert ENOSPC_TEXT in text
+        latched = arm.guard.latch.current_event
+        assert latched is not None and latched.number == number
+        status = await safety(client)
+        assert status["estopped"] is True and status["audit_ok"] is False
+    assert released_in(arm.audit_path) == []
+
+
+async def test_a_reset_is_not_put_to_a_human_while_the_audit_log_is_unusable(tmp_path) -> None:
+    disk = SmallDisk()
+    human = approve("erin")
+    async with arm_harness(tmp_path, audit_disk=disk) as arm, arm.client("legacy", human) as client:
+        await estop(client)
+        disk.fill()
+        await estop(client, "again")  # its record fails: the log is now unusable
+        reset = await client.call_tool("reset_estop", {})
+        assert reset.is_error and RefusalCode.AUDIT_UNAVAILABLE.value in text_of(reset), text_of(reset)
+        assert arm.guard.latch.is_latched
+    assert human.prompts == []  # type: ignore[attr-defined]  # nobody is asked to approve what cannot be done
+
+
+async def test_a_reset_is_on_disk_before_the_estop_is_released(tmp_path) -> None:
+    async with arm_harness(tmp_path) as arm, arm.client("legacy", approve("erin")) as client:
+        number = (await estop(client))["estop_event"]["number"]
+        on_disk_at_release: list[list[dict[str, Any]]] = []
+        release = arm.guard.latch.release
+
+        def note_then_release(event_number: object):
+            on_disk_at_release.append(released_in(arm.audit_path))
+            return release(event_number)
+
+        arm.guard.latch.release = note_then_release  # type: ignore[method-assign]
+        reset = await client.call_tool("reset_estop", {})
+        assert not reset.is_error, text_of(reset)
+        assert not arm.guard.latch.is_latched
+    ((record,),) = on_disk_at_release
+    assert record["event"] == "estop_release" and record["operator"] == "erin"
+    assert record["extra"]["estop_event"] == number
+
+
+async def test_a_console_reset_on_a_full_audit_disk_leaves_the_estop_latched(tmp_path) -> None:
+    disk = SmallDisk()
+    async with arm_harness(tmp_path, audit_disk=disk) as arm, arm.client() as client:
+        number = (await estop(client))["estop_event"]["number"]
+        disk.fill()
+        with pytest.raises(SafetyRefusal) as refused:
+            await arm.guard.reset_estop_typed(str(number), operator="op")
+        assert refused.value.code is RefusalCode.AUDIT_UNAVAILABLE and ENOSPC_TEXT in str(refused.value)
+        assert arm.guard.latch.is_latched
+    assert released_in(arm.audit_path) == []
 
 
 # ------------------------------------------------------------------ estop, stop_motion, get_safety_status

@@ -18,9 +18,10 @@ Rules every handler keeps:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib import resources
 from typing import Any, Literal
@@ -35,6 +36,7 @@ from armwarden.console.pages import SECURITY_HEADERS, page_headers, render, rend
 from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, same_secret
 from armwarden.errors import SafetyRefusal
 from armwarden.guard import Guard
+from armwarden.safety.audit import AuditWriteError
 from armwarden.safety.pending import AnswerRefusal
 from armwarden.transport.http import CONSOLE_PATH, is_loopback_host
 
@@ -296,11 +298,13 @@ class Console:
             return await self.refuse(request, session, 403, "release refused: observers cannot release the e-stop")
         typed = form.get("event", "").strip().lstrip("#")
         try:
-            result = self.guard.reset_estop_typed(typed)
+            result = await self.guard.reset_estop_typed(typed, operator=session.name)  # recorded before it takes effect
         except SafetyRefusal as exc:
-            await self.audit("console_reset_estop", session, "refused", str(exc), typed_event=typed[:32])
+            with _told_even_if_unrecorded():  # a full audit disk may be why it was refused
+                await self.audit("console_reset_estop", session, "refused", str(exc), typed_event=typed[:32])
             return self.back("/safety", str(exc), "error")
-        await self.audit("console_reset_estop", session, "released", result.detail, released_event=result.released_event)
+        with _told_even_if_unrecorded():  # the release itself was recorded before it took effect
+            await self.audit("console_reset_estop", session, "released", result.detail, released_event=result.released_event)
         return self.back("/safety", f"E-stop #{result.released_event} released by {session.name}")
 
     async def answer(self, request: Request) -> Response:
@@ -377,3 +381,12 @@ def timed_estop(latch_and_stop: Callable[[str, str], int], record: Callable[[Any
         return event
 
     return hook
+
+@contextlib.contextmanager
+def _told_even_if_unrecorded() -> Iterator[None]:
+    """The console's own record of a reset could not be written: logged, and the operator is still
+    told what happened (the release, if any, was recorded before it took effect)."""
+    try:
+        yield
+    except AuditWriteError as exc:
+        logger.critical("console reset_estop: its record could not be written: %s", exc)

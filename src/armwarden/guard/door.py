@@ -18,7 +18,8 @@ a `SafetyRefusal` at the first that says no. The tool layer admits every call fi
 - gripper_* (`gripper`): audit → e-stop latch → arguments (`safety.checks`) → one at a time;
 - switch_controllers, set_collision_thresholds, error_recovery (`actions`): arguments → audit
   → e-stop latch → approval, given for this very request;
-- reset_estop: approval → release of the event shown (`stopping.Stopper.release`);
+- reset_estop: audit writable → approval → the release recorded → release of the event shown
+  (`stopping.Stopper.release`; a release that cannot be recorded does not happen);
 - stop_motion, emergency_stop (`stopping`): no rate limit, no approval, no gate; they wait for
   nothing but the backend's stop, and a stop that fails latches the e-stop;
 - reads (`readings`): fresh data or a refusal.
@@ -84,7 +85,7 @@ class Guard:
         #: approval questions asked about plans, for the operator console (`safety.pending`)
         self.approvals = PendingApprovals(clock=clock)
         self.readings = Readings(policy, state_robot, backend, clock)
-        self.stopper = Stopper(backend, self.latch, self.plans)
+        self.stopper = Stopper(backend, self.latch, self.plans, audit)
         self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
         backend.set_fault_listener(self.stopper.backend_fault)  # faults a backend finds on its own thread
         self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
@@ -314,22 +315,27 @@ class Guard:
         event = self.latch.current_event
         if event is None:
             return ServerDecision.refused(RefusalCode.NOT_ESTOPPED, "the e-stop is not latched; nothing to reset")
+        if (why := self.audit_unusable()) is not None:  # a release could not be recorded: do not ask anyone
+            return ServerDecision.refused(RefusalCode.AUDIT_UNAVAILABLE, f"reset_estop refused: the audit log cannot be "
+                                          f"written ({why}), so no release can be recorded and none is made: e-stop "
+                                          f"#{event.number} stays latched")
         decision = client_decision(self.policy, "reset_estop", True, can_elicit)
         return decision if decision is not None else prompts.reset_prompt(event, self.latch.held_events)
 
-    def reset_estop(self, approval_outcome: Any, shown_event: str | None) -> results.ResetResult:
+    async def reset_estop(self, approval_outcome: Any, shown_event: str | None) -> results.ResetResult:
+        """Release the e-stop a human approved resetting; recorded before it takes effect."""
         approval = self.interpret_approval(approval_outcome, True)
         if not approval.granted:
             raise approval.refusal("reset_estop")
-        return self.stopper.release(shown_event)
+        return await self.stopper.release(shown_event, approval.operator, approval.via)
 
-    def reset_estop_typed(self, typed_event: str) -> results.ResetResult:
+    async def reset_estop_typed(self, typed_event: str, operator: str | None = None) -> results.ResetResult:
         """Release from the operator console: a signed-in operator typed the number of the event
         they were shown (the console's equivalent of approving `reset_estop`). Only that event,
-        and only while it is still the one latched."""
+        only while it is still the one latched, and only once the release is recorded."""
         if not (isinstance(typed_event, str) and typed_event.isascii() and typed_event.isdigit()):
             raise refuse(RefusalCode.RESET_REFUSED, "reset refused: type the number of the latched e-stop event")
-        return self.stopper.release(typed_event)
+        return await self.stopper.release(typed_event, operator, "console")
 
     # ================================================================== control actions and gripper (own modules)
     def precheck_action(self, tool: ControlTool, can_elicit: bool, **arguments: Any) -> ServerDecision | Prompt:

@@ -5,6 +5,10 @@ stop generation (an execution still being checked sees it and does not start) an
 synchronously, then await the backend. A stop that fails latches the software e-stop and voids
 every plan; the human is told to use the hardware e-stop. Each stop's timing (issued, confirmed,
 arm still) goes on the call's audit record.
+
+Stops never wait for the audit log (a full disk must not keep the arm moving); a release does:
+it is written and fsynced before the latch lets go, and one that cannot be recorded does not
+happen (`release`).
 """
 
 from __future__ import annotations
@@ -15,9 +19,10 @@ from typing import Any
 
 from armwarden import conversions
 from armwarden.backends.base import Backend
-from armwarden.callcontext import note_stop_timing
+from armwarden.callcontext import current_call, note_stop_timing
 from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.results import EStopResult, ResetResult, StopResult
+from armwarden.safety.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import EStopEvent, EStopLatch
 from armwarden.safety.plans import PlanStore
 
@@ -25,10 +30,12 @@ from armwarden.safety.plans import PlanStore
 class Stopper:
     """Stops arm and gripper, latches the e-stop, and keeps the faults a failed stop leaves."""
 
-    def __init__(self, backend: Backend, latch: EStopLatch, plans: PlanStore) -> None:
+    def __init__(self, backend: Backend, latch: EStopLatch, plans: PlanStore, audit: AuditLog | None = None) -> None:
         self.backend = backend
         self.latch = latch
         self.plans = plans
+        #: where a release is recorded before it takes effect (None: no log, tests only)
+        self.audit = audit
         #: bumped by every stop; an execution that saw another value before moving does not move
         self.generation = 0
         self.faults: list[str] = []
@@ -126,19 +133,46 @@ class Stopper:
                 outcome, detail = "stop_failed", detail + f"; the stop FAILED, e-stop #{event.number} latched ({event.reason})"
         return outcome, detail
 
-    def release(self, shown_event: str | None) -> ResetResult:
+    async def release(self, shown_event: str | None, operator: str | None, via: str) -> ResetResult:
         """Release the e-stop a human approved resetting: only the event they were shown (none
-        shown: the current one), and only if it is still the one latched."""
+        shown: the current one), and only if it is still the one latched. Recorded first: the
+        `estop_release` record is on disk before the latch lets go; if it cannot be written,
+        nothing is released and the refusal says why (AUDIT_UNAVAILABLE)."""
         current = self.latch.current_event
         try:
             shown = int(shown_event) if shown_event is not None else (current.number if current else -1)
         except ValueError:
             shown = -1
-        result = self.latch.release(shown)
+        allowed = self.latch.check_release(shown)
+        if not allowed.released:
+            raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {allowed.message}")
+        await self._record_release(shown, operator, via)
+        result = self.latch.release(shown)  # checks again: an e-stop latched while the record was written wins
         if not result.released:
             raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {result.message}")
         self.force_violation_latched = False
         return ResetResult(estopped=self.latch.is_latched, released_event=shown, detail=result.message)
+
+    async def _record_release(self, number: int, operator: str | None, via: str) -> None:
+        """`estop_release` on disk, or SafetyRefusal(AUDIT_UNAVAILABLE) and the latch stays."""
+        if self.audit is None:
+            return
+        held = [event.number for event in self.latch.held_events]
+        call = current_call()
+        try:
+            await self.audit.append_async(
+                "estop_release", session=None if call is None else call.session,
+                principal=None if call is None else call.principal, tool=None if call is None else call.tool,
+                outcome="releasing", operator=operator,
+                detail=f"e-stop #{number} approved for release via {via} (releasing the held events {held}); it takes "
+                       "effect only after this record is on disk, and only if no newer e-stop latched meanwhile",
+                extra={"estop_event": number, "held_events": held, "via": via},
+            )
+        except AuditWriteError as exc:
+            raise SafetyRefusal(RefusalCode.AUDIT_UNAVAILABLE, f"reset_estop refused: the release could not be "
+                                f"recorded ({exc}), so it was NOT applied: nothing was released, e-stop #{number} "
+                                "stays latched. A release needs a working audit log: make room on its disk (the "
+                                "daemon reopens the log when it restarts)") from exc
 
     def _latch_estop_stop_failure(self, event: EStopEvent, exc: BaseException) -> EStopEvent:
         """The stop of e-stop `event` could not be issued: record the fault and latch again on top."""

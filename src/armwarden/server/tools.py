@@ -478,7 +478,7 @@ class ToolBuilder:
               "specific e-stop event they were shown.", RELEASING)
         async def reset_estop(approval: Annotated[ApprovalAnswer, reset_gate.approval],
                               shown: Annotated[ShownDigest, reset_gate.shown]) -> Annotated[CallToolResult, ResetResult]:
-            return ok(guard.reset_estop(approval, shown))
+            return ok(await guard.reset_estop(approval, shown))
 
         if self.capabilities.error_recovery:
             async def precheck_recovery(ctx: Context) -> ServerDecision | Prompt:
