@@ -103,6 +103,8 @@ class StateFeed:
             "force_latched": status.force_violation_latched,
             "dry_run": status.dry_run,
             "faults": list(status.faults),
+            "audit_ok": status.audit_ok,
+            "audit_error": status.audit_error,
             "last_violation": None if status.last_violation is None else status.last_violation.model_dump(),
             "executing": motion.executing,
             "plan_id": motion.plan_id,
