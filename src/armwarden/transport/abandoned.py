@@ -19,10 +19,13 @@ path stops the robot and audits it. Nothing else is touched: another client's mo
 `on_abandoned` is told afterwards, for the audit log.
 
 It also repairs a stopping tool's call whose `arguments` is not an object (`stop_params_repaired`:
-the SDK would refuse it before the e-stop latches) and reports (`on_refused`, awaited before the
+the SDK would refuse it before the e-stop latches), refuses (400, -32600) a `tools/call` without a
+usable id (`unanswerable_call`: the SDK would drop it as a notification, unanswered and unrun, as
+stdio refuses it), and reports (`on_refused`, awaited before the
 answer leaves, so the daemon's record is on disk first) every request refused before the server's
 tools saw it, as stdio does: a body over the limit (by its size, and the digest of what was read:
-never the body), a duplicate id, a `tools/call` with malformed params, and every error answer the
+never the body), a duplicate id, a call without a usable id, a `tools/call` with malformed params,
+and every error answer the
 SDK gives a `tools/call` (or a body nobody could read) before its dispatch reached the tools —
 a routing header that disagrees with the body (2026-07-28, -32020), a body its JSON parser
 rejects (-32700), an unknown session. Such an answer is held back until its record is written;
@@ -54,6 +57,8 @@ from armwarden.transport.jsonrpc import (
     duplicate_id_message,
     request_id_key,
     screen_call,
+    unanswerable_call,
+    usable_request_id,
 )
 
 logger = logging.getLogger(__name__)
@@ -113,8 +118,8 @@ def motion_call(message: dict[str, Any] | None) -> tuple[str, dict[str, Any], An
     if message is None or message.get("method") != "tools/call":
         return None
     request_id = message.get("id")
-    if isinstance(request_id, bool) or not isinstance(request_id, (int, str)):
-        return None  # without a usable id it is a notification: the SDK runs nothing
+    if not usable_request_id(request_id):
+        return None  # refused before the SDK sees it (`unanswerable_call`): nothing runs
     params = message.get("params")
     if not isinstance(params, dict) or params.get("name") not in MOTION_TOOLS:
         return None
@@ -236,7 +241,12 @@ class AbandonedMotionStop:
                 body = json.dumps(message).encode()
                 scope = {**scope, "headers": [(key, str(len(body)).encode() if key == b"content-length" else value)
                                               for key, value in scope.get("headers", [])]}
-            elif malformed is not None:
+            if not usable_request_id(message.get("id")) and (
+                    idless := unanswerable_call(message.get("method"), params)) is not None:
+                await self._report(message, "invalid_request", idless, len(body))
+                await _refuse(send, 400, idless)
+                return
+            if malformed is not None:
                 await self._report(message, "invalid_params", malformed, len(body))  # the SDK answers it
                 reported = True
         key = _request_key(scope, message)

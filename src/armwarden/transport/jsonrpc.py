@@ -92,6 +92,27 @@ def screen_call(method: Any, params: Any, on_stop_request: StopOnReceipt | None,
     return stop_params_repaired(tool, params), None
 
 
+def usable_request_id(request_id: Any) -> bool:
+    """Whether a request id can be answered: a string or an integer (the SDK's `RequestId`). A
+    message without one (null, true, 1.0, or no id at all) is a notification to the SDK."""
+    return isinstance(request_id, (int, str)) and not isinstance(request_id, bool)
+
+
+def unanswerable_call(method: Any, params: Any) -> str | None:
+    """Why a request of `method` sent without a usable id (`usable_request_id`) is refused, for a
+    `tools/call`; None for any other method. The SDK would take such a call for a notification
+    and drop it: the tool would not run and the client would never know (an `estop` sent that
+    way did not latch). Both transports refuse it with -32600 Invalid Request, id null, and
+    audit it; a stopping tool's call has already held the robot as it was read (`screen_call`)."""
+    if method != "tools/call":
+        return None
+    name = params.get("name") if isinstance(params, dict) else None
+    tool = str(name)[:64] if isinstance(name, str) else "a tool"
+    return (f"Invalid Request: tools/call of {tool} refused: it has no usable id (a string or an integer; "
+            "not null, true or 1.0, and not left out), so it could not be answered; the tool did not run. "
+            "Send it again with an id.")
+
+
 def duplicate_id_message(request_id: Any) -> str:
     """Why a request was refused: its id is still open. Without the refusal the SDK would replace
     the open call's entry, and that call (perhaps a motion) could no longer be cancelled."""

@@ -1,11 +1,15 @@
 """MCP over stdio, with the two answers the SDK's stdio transport does not give.
 
 The SDK reads stdin line by line and hands each parsed message (or the parse failure) to the
-server. Two gaps, closed here by a thin layer around its streams:
+server. Three gaps, closed here by a thin layer around its streams:
 
 - An unparseable line is dropped in silence (logged at debug level): a client waiting for an
   answer waits for ever. Here it gets a JSON-RPC error with id null: -32700 for a line that is not
   JSON, -32600 for JSON that is not a JSON-RPC message. The session goes on.
+- A `tools/call` without a usable id (null, true, 1.0, or none) is parsed by the SDK as a
+  notification and dropped: the tool does not run and the client is never told (an `estop` sent
+  that way did not latch). Here it is answered with -32600 and id null, as over HTTP
+  (`unanswerable_call`); a stopping tool's call holds the robot as it is read, as any stop call.
 - A request whose id is still open (no answer sent yet) replaces the open call's entry in the SDK,
   so a `notifications/cancelled` could no longer reach that call — an open motion would not be
   cancellable. Here the second request is answered with a -32600 error under its id and never
@@ -14,7 +18,8 @@ server. Two gaps, closed here by a thin layer around its streams:
 Two more, shared with the HTTP transport (`jsonrpc.py`): a stopping tool's call whose `arguments`
 is not an object is passed on with that value as its argument (`stop_params_repaired`: the SDK would
 refuse it before the tool latches), and every request refused before the server's tools see it —
-an unreadable line, a reused id, a `tools/call` with malformed params (the SDK answers that one) —
+an unreadable line, a reused id, a call without a usable id, a `tools/call` with malformed params
+(the SDK answers that one) —
 is reported through `on_refused`, so the daemon audits it.
 
 An id is open from its request until the answer is written, or until the SDK settles the request
@@ -45,6 +50,7 @@ from mcp.shared.message import ServerMessageMetadata, SessionMessage
 from mcp_types import (
     ErrorData,
     JSONRPCError,
+    JSONRPCNotification,
     JSONRPCRequest,
     JSONRPCResponse,
     RequestId,
@@ -59,6 +65,7 @@ from armwarden.transport.jsonrpc import (
     duplicate_id_message,
     request_id_key,
     screen_call,
+    unanswerable_call,
 )
 from armwarden.transport.pipes import PipeLineReader, PipeWriter, claimed_pipes
 
@@ -187,6 +194,11 @@ class GatedReadStream:
                 await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=error))
                 self._report(None, None, None, "unreadable", error.message)
                 continue
+            if isinstance(item.message, JSONRPCNotification) and (
+                    idless := unanswerable_call(item.message.method, item.message.params)) is not None:
+                # a call whose id was missing or unusable, parsed by the SDK as a notification
+                await self._refuse_idless_call(item.message, idless)
+                continue
             if not isinstance(item.message, JSONRPCRequest):
                 return item
             request = item.message
@@ -205,6 +217,15 @@ class GatedReadStream:
                 continue
             self._open_ids.add(key)
             return SessionMessage(request, self._closing_on_settle(item.metadata, key))
+
+    async def _refuse_idless_call(self, call: JSONRPCNotification, why: str) -> None:
+        """Refuse a `tools/call` without a usable id visibly (-32600, id null) and report it, as the
+        HTTP transport does; a stopping tool's call holds the robot first, as any stop call read."""
+        screen_call(call.method, call.params, self._on_stop_request, None)
+        logger.warning("stdio: refused a tools/call without a usable id")
+        await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=ErrorData(code=INVALID_REQUEST,
+                                                                                      message=why)))
+        self._report(call.method, call.params, None, "invalid_request", why)
 
     async def _answer_open_calls(self) -> None:
         """The input has ended: let the calls already read finish and be answered (for a client
