@@ -274,6 +274,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     ("approval.require_for", None, "approval.require_for"),
     ("approval.require_for", ["launch"], "approval.require_for[0]"),
     ("approval.require_for", ["execute", 3], "approval.require_for[1]"),
+    *_bools("approval.allow_self_approval"),
     *_bools("dry_run"),
 ]
 
@@ -1049,6 +1050,14 @@ def test_summary_states_the_facts_an_operator_checks() -> None:
 def test_summary_flags_dry_run_and_missing_gripper() -> None:
     text = summarize_policy(load_policy(READONLY_YAML).with_dry_run(True))
     assert "Dry run: ON" in text and "Gripper: none" in text
+
+
+def test_summary_flags_self_approval_only_when_allowed(doc: dict[str, Any]) -> None:
+    allowed = summarize_policy(parse_policy(set_at(doc, "approval.allow_self_approval", True)))
+    default = summarize_policy(load_policy(FR3_YAML))
+
+    assert "SELF-APPROVAL ALLOWED" in allowed
+    assert "SELF-APPROVAL" not in default
 
 
 def test_json_schema_describes_every_field() -> None:

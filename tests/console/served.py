@@ -38,6 +38,8 @@ class ServedConsole:
     operator_token: str
     observer_token: str
     channel: StopChannel
+    #: a second operator ("dana"): approves in the console what alice's MCP client asked for
+    approver_token: str = ""
 
     @property
     def console(self) -> str:
@@ -80,6 +82,7 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
     tokens_path = tmp_path / "tokens.json"
     operator = TokenStore.add(tokens_path, "operator", name="alice")
     observer = TokenStore.add(tokens_path, "observer", name="bob")
+    approver = TokenStore.add(tokens_path, "operator", name="dana")
     tokens = TokenStore.load(tokens_path)
     async with arm_harness(tmp_path, policy, **fake_options) as harness:
         external = ExternalStops(harness.guard.stopper, harness.audit, asyncio.get_running_loop())
@@ -104,7 +107,7 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
             with anyio.fail_after(10):
                 await ready.wait()
             try:
-                yield ServedConsole(harness, f"http://{HOST}:{port}", operator, observer, channel)
+                yield ServedConsole(harness, f"http://{HOST}:{port}", operator, observer, channel, approver)
             finally:
                 shutdown.set()
                 channel.close()

@@ -154,7 +154,7 @@ def test_approve_in_the_browser_and_execute_plan_completes(tmp_path: Path, brows
     from selenium.webdriver.common.by import By
 
     with console(tmp_path, policy_with(**URL_POLICY)) as session:
-        sign_in(browser, session.served, session.served.operator_token)
+        sign_in(browser, session.served, session.served.approver_token)
         call = session.plan_and_execute()
         browser.get(session.wait_for_link())
         picture_loaded = wait_for(browser, lambda b: b.execute_script(
@@ -167,7 +167,7 @@ def test_approve_in_the_browser_and_execute_plan_completes(tmp_path: Path, brows
     assert picture_loaded
     assert not result.is_error, text_of(result)
     assert result.structured_content["status"] == "succeeded"
-    assert result.structured_content["approval"]["operator"] == "alice"
+    assert result.structured_content["approval"]["operator"] == "dana"
     assert moved
 
 
@@ -175,7 +175,7 @@ def test_decline_in_the_browser_refuses_and_nothing_moves(tmp_path: Path, browse
     from selenium.webdriver.common.by import By
 
     with console(tmp_path, policy_with(**URL_POLICY)) as session:
-        sign_in(browser, session.served, session.served.operator_token)
+        sign_in(browser, session.served, session.served.approver_token)
         call = session.plan_and_execute()
         browser.get(session.wait_for_link())
         browser.find_element(By.ID, "decline").click()
@@ -190,7 +190,7 @@ def test_a_replayed_approval_link_is_refused(tmp_path: Path, browser: Any) -> No
     from selenium.webdriver.common.by import By
 
     with console(tmp_path, policy_with(**URL_POLICY)) as session:
-        sign_in(browser, session.served, session.served.operator_token)
+        sign_in(browser, session.served, session.served.approver_token)
         call = session.plan_and_execute()
         link = session.wait_for_link()
         browser.get(link)

@@ -24,7 +24,8 @@ URL_POLICY = {"approval.mode": "always", "approval.channel": "url"}
 
 def console_operator(served: ServedConsole, decision: str, links: list[str],
                      after: Callable[[], Awaitable[None]] | None = None) -> Any:
-    """An elicitation callback: a URL-mode request is opened in the console as operator alice and
+    """An elicitation callback: a URL-mode request is opened in the console as operator dana (not the
+    requesting token, alice) and
     answered with `decision`; the client then reports that the human opened the link."""
 
     async def callback(context: Any, params: Any) -> types.ElicitResult:
@@ -34,7 +35,7 @@ def console_operator(served: ServedConsole, decision: str, links: list[str],
         links.append(params.url)
         path = params.url.removeprefix(served.base)
         async with httpx2.AsyncClient(base_url=served.base, timeout=30) as http:
-            await sign_in(http, served.operator_token)
+            await sign_in(http, served.approver_token)
             page = await http.get(path)
             if after is not None:
                 await after()
@@ -56,7 +57,7 @@ async def test_approved_in_the_console_the_motion_runs(tmp_path: Path) -> None:
 
     assert not result.is_error, text_of(result)
     assert result.structured_content["status"] == "succeeded"
-    assert result.structured_content["approval"] == {"required": True, "operator": "alice", "via": "console"}
+    assert result.structured_content["approval"] == {"required": True, "operator": "dana", "via": "console"}
     assert links and links[0].startswith(served.console + "/approvals/")
     assert "execute" in served.harness.actuations
 
@@ -81,7 +82,7 @@ async def test_a_replayed_link_is_refused(tmp_path: Path) -> None:
             plan = await plan_down(client, 0.40)
             await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]})
         async with served.browser_client() as http:
-            await sign_in(http, served.operator_token)
+            await sign_in(http, served.approver_token)
             path = links[0].removeprefix(served.base)
             page = await http.get(path)
             replay = await http.post(path, data={"decision": "approve", "csrf": csrf_of(page.text)})
@@ -142,7 +143,7 @@ async def test_both_channels_the_console_answer_wins_and_the_form_is_withdrawn(t
                 await form_asked.wait()
             request = served.harness.guard.approvals.live(served.harness.guard.latch.generation)[0]
             async with served.browser_client() as http:
-                await sign_in(http, served.operator_token)
+                await sign_in(http, served.approver_token)
                 path = f"/console/approvals/{request.request_id}"
                 page = await http.get(path)
                 await http.post(path, data={"decision": "approve", "csrf": csrf_of(page.text)})
@@ -182,4 +183,4 @@ async def test_console_answers_are_audited_with_the_token_name(tmp_path: Path) -
             await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]})
 
     answers = [r for r in records_of(served.harness.audit_path) if r["event"] == "console_approval"]
-    assert [(r["principal"], r["outcome"]) for r in answers] == [("alice", "approved")]
+    assert [(r["principal"], r["outcome"]) for r in answers] == [("dana", "approved")]

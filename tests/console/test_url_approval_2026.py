@@ -31,10 +31,10 @@ ACCEPT = types.ElicitResult(action="accept")
 
 async def answer_in_console(served: ServedConsole, link: str, decision: str,
                             after_page: Callable[[], Awaitable[None]] | None = None) -> httpx2.Response:
-    """Operator alice opens `link` in the console and answers `decision`; the console's response."""
+    """Operator dana (not the requesting token, alice) opens `link` in the console and answers `decision`; the console's response."""
     path = link.removeprefix(served.base)
     async with served.browser_client() as http:
-        await sign_in(http, served.operator_token)
+        await sign_in(http, served.approver_token)
         page = await http.get(path)
         if after_page is not None:
             await after_page()
@@ -114,7 +114,7 @@ async def test_approved_in_the_console_the_motion_runs(tmp_path: Path) -> None:
 
     assert not result.is_error, text_of(result)
     assert result.structured_content["status"] == "succeeded"
-    assert result.structured_content["approval"] == {"required": True, "operator": "alice", "via": "console"}
+    assert result.structured_content["approval"] == {"required": True, "operator": "dana", "via": "console"}
     assert [p.mode for p in seen] == ["url"]
     assert "execute" in served.harness.actuations
 
@@ -265,8 +265,8 @@ async def test_the_round_and_the_console_answer_are_audited(tmp_path: Path) -> N
     calls = [r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan"]
     assert [r["outcome"] for r in calls] == ["input_required", "ok"]
     assert "operator console" in calls[0]["detail"]
-    assert calls[1]["operator"] == "alice"
-    assert [r["principal"] for r in records if r["event"] == "console_approval"] == ["alice"]
+    assert calls[1]["operator"] == "dana"
+    assert [r["principal"] for r in records if r["event"] == "console_approval"] == ["dana"]
 
 
 # ---------------------------------------------------------------------------------------------- both
@@ -315,7 +315,7 @@ async def test_both_channels_a_console_decision_before_the_retry_wins_over_the_f
                 result = await client.call_tool("execute_plan", {"plan_id": plan["plan_id"]})
 
     assert not result.is_error, text_of(result)
-    assert result.structured_content["approval"] == {"required": True, "operator": "alice", "via": "console"}
+    assert result.structured_content["approval"] == {"required": True, "operator": "dana", "via": "console"}
 
 
 async def test_both_channels_a_form_declined_after_the_console_stayed_silent_is_refused(tmp_path: Path) -> None:

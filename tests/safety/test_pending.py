@@ -126,3 +126,37 @@ def test_no_round_no_retry(board: PendingApprovals, plan: StoredPlan) -> None:
     request = board.offer(plan, "prompt", estop_generation=0)
 
     assert board.spend_round(request, "anything") is False
+
+
+def test_the_requesting_token_cannot_approve_its_own_request(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0, requester="alice")
+
+    own = board.answer(request.request_id, True, "alice", estop_generation=0)
+    other = board.answer(request.request_id, True, "dana", estop_generation=0)
+
+    assert isinstance(own, AnswerRefusal) and own.reason == "self_approval"
+    assert isinstance(other, PendingRequest) and other.operator == "dana" and not other.self_approved
+
+
+def test_the_requesting_token_may_decline_its_own_request(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0, requester="alice")
+
+    declined = board.answer(request.request_id, False, "alice", estop_generation=0)
+
+    assert isinstance(declined, PendingRequest) and declined.answer == "declined"
+
+
+def test_self_approval_when_allowed_is_marked(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0, requester="alice")
+
+    own = board.answer(request.request_id, True, "alice", estop_generation=0, allow_self_approval=True)
+
+    assert isinstance(own, PendingRequest) and own.answer == "approved" and own.self_approved
+
+
+def test_a_request_without_a_token_may_be_approved_by_any_operator(board: PendingApprovals, plan: StoredPlan) -> None:
+    request = board.offer(plan, "prompt", estop_generation=0)  # e.g. a stdio client: no token to compare
+
+    answered = board.answer(request.request_id, True, "alice", estop_generation=0)
+
+    assert isinstance(answered, PendingRequest) and not answered.self_approved

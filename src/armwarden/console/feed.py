@@ -57,6 +57,8 @@ def request_view(request: PendingRequest) -> dict[str, Any]:
         "violations": [{"code": c, "severity": s, "detail": d} for c, s, d in request.violations],
         "answer": request.answer,
         "operator": request.operator,
+        "requester": request.requester,
+        "self_approved": request.self_approved,
     }
 
 

@@ -201,7 +201,8 @@ class Console:
         if pending is None:
             return self.back("/approvals", "No such approval request.", "error")
         return self.page("approval.html", request, session, title=f"approve {pending.plan_id}", r=request_view(pending),
-                         answerable=self.settings.answer_approvals)
+                         answerable=self.settings.answer_approvals, own_request=pending.is_requested_by(session.name),
+                         self_approval_allowed=self.guard.policy.approval.allow_self_approval)
 
     async def audit_page(self, request: Request, session: Session) -> Response:
         return self.page("audit.html", request, session, title="audit", records=await self.feed.audit_tail(),
@@ -324,14 +325,21 @@ class Console:
         if decision not in ("approve", "decline"):
             return await self.refuse(request, session, 400, "answer refused: decision must be approve or decline")
         request_id = request.path_params["request_id"]
+        pending = self.guard.approvals.get(request_id)
+        requester = None if pending is None else pending.requester
         outcome = self.guard.approvals.answer(request_id, decision == "approve", session.name,
-                                              self.guard.latch.generation)
+                                              self.guard.latch.generation,
+                                              allow_self_approval=self.guard.policy.approval.allow_self_approval)
         if isinstance(outcome, AnswerRefusal):
-            await self.audit("console_approval", session, f"refused_{outcome.reason}", outcome.message)
-            return await self.refuse(request, session, 409, f"answer refused: {outcome.message}")
-        await self.audit("console_approval", session, outcome.answer or "?",
-                         f"plan {outcome.plan_id} {outcome.answer} in the console", plan_id=outcome.plan_id,
-                         approval_code=outcome.code)
+            await self.audit("console_approval", session, f"refused_{outcome.reason}", outcome.message,
+                             requester=requester)
+            status = 403 if outcome.reason == "self_approval" else 409
+            return await self.refuse(request, session, status, f"answer refused: {outcome.message}")
+        detail = f"plan {outcome.plan_id} {outcome.answer} in the console"
+        if outcome.self_approved:
+            detail += f" by its own requester {session.name} (approval.allow_self_approval is on)"
+        await self.audit("console_approval", session, outcome.answer or "?", detail, plan_id=outcome.plan_id,
+                         approval_code=outcome.code, requester=requester, self_approval=outcome.self_approved)
         return self.back(f"/approvals/{request_id}", f"Plan {outcome.plan_id} {outcome.answer}.")
 
     # ------------------------------------------------------------------ the app

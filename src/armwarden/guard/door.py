@@ -44,7 +44,7 @@ from typing import Any
 
 from armwarden import conversions, results
 from armwarden.backends.base import Backend, Capabilities
-from armwarden.callcontext import current_caller, note_approval
+from armwarden.callcontext import current_call, current_caller, note_approval
 from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.actions import ControlActions, ControlTool
 from armwarden.guard.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
@@ -220,13 +220,17 @@ class Guard:
         if decision is not None:
             return decision
         prompt = prompts.execute_prompt(self.policy, plan, self.backend.name, self.backend.capabilities.wrench, self.dry_run)
-        self.approvals.offer(plan, prompt.message, self.latch.generation, self.stopper.generation)  # idempotent: the console shows it
+        call = current_call()  # the requester: its token may not approve in the console (safety.pending)
+        self.approvals.offer(plan, prompt.message, self.latch.generation, self.stopper.generation,  # idempotent: the console shows it
+                             requester=None if call is None else call.principal)
         return prompt
 
     def interpret_approval(self, outcome: Any, required: bool) -> Approval:
         """The resolver's outcome as an Approval, noted on the call's audit record."""
         approval = interpret(outcome, required)
         note_approval(approval.granted, approval.via, approval.operator, type(outcome).__name__)
+        if approval.self_approved and (call := current_call()) is not None:
+            call.extra["approval"]["self_approval"] = True  # the approver was the requester (policy allows it)
         return approval
 
     async def execute(self, plan_id: str, approval_outcome: Any, shown_digest: str | None,

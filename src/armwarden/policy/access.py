@@ -16,7 +16,7 @@ from armwarden.policy.constants import (
     ApprovalAction,
     ToolGroup,
 )
-from armwarden.policy.fields import MODEL_CONFIG, FrozenMap, Rate, freeze_map, serialize_map
+from armwarden.policy.fields import MODEL_CONFIG, FrozenMap, Rate, StrictBool, freeze_map, serialize_map
 
 
 def _normalise_groups(groups: tuple[str, ...]) -> tuple[str, ...]:
@@ -106,5 +106,11 @@ class ApprovalConfig(BaseModel):
     require_for: Annotated[tuple[ApprovalAction, ...], AfterValidator(_normalise_require_for)] = Field(
         default=APPROVAL_ACTIONS,
         description="Actions (no unit) that go through approval; `reset_estop` is always included.",
+    )
+    allow_self_approval: StrictBool = Field(
+        default=False,
+        description="Whether the token that requested a motion may approve it itself in the operator console "
+        "(boolean). Off: another operator must approve (the requester may still decline). On, for single-user "
+        "desks: the console page and the audit record say the approver is the requester.",
     )
 

@@ -91,6 +91,8 @@ def summarize_policy(policy: Policy) -> str:
     lines.append(
         f"Approval: mode {ap.mode}; required for {', '.join(ap.require_for)}; "
         f"client without elicitation: {ap.on_client_without_elicitation}"
+        + ("; SELF-APPROVAL ALLOWED: the token that asked may approve its own motion in the console"
+           if ap.allow_self_approval else "")
     )
     lines.append("Dry run: ON (nothing actuates)" if policy.dry_run else "Dry run: off (execution moves the robot)")
     return "\n".join(lines)

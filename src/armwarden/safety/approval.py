@@ -88,6 +88,8 @@ class ConsoleAnswer:
     operator: str | None
     digest: str
     missing: str | None = None
+    #: the operator was the token that requested the motion (`approval.allow_self_approval`)
+    self_approved: bool = False
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,8 @@ class Approval:
     operator: str | None = None
     refusal_code: RefusalCode | None = None
     refusal_message: str = ""
+    #: granted in the console by the token that requested it (the policy allows that); audited
+    self_approved: bool = False
 
     def info(self) -> ApprovalInfo:
         return ApprovalInfo(required=self.required, operator=self.operator, via=self.via)
@@ -118,7 +122,7 @@ def interpret(outcome: Any, required: bool) -> Approval:
     if isinstance(outcome, ConsoleAnswer):
         operator = flatten_reason(outcome.operator, 64) if outcome.operator else None
         if outcome.approved and outcome.missing is None:
-            return Approval(True, "console", True, operator)
+            return Approval(True, "console", True, operator, self_approved=outcome.self_approved)
         why = outcome.missing or "the operator declined in the console"
         return Approval(False, "console", True, operator, RefusalCode.APPROVAL_DENIED, f"{why}; nothing was done")
     if isinstance(outcome, AcceptedElicitation):

@@ -40,9 +40,14 @@ class PendingRequest:
     estop_generation: int
     #: the Guard's stop generation when the question was first posted: a stop after it voids the answer
     stop_generation: int = 0
+    #: the HTTP token name of the call that asked (None: no token, e.g. stdio); it may not approve
+    #: its own request unless the policy says so (`approval.allow_self_approval`)
+    requester: str | None = None
     answer: Answer | None = None
     operator: str | None = None
     via: str | None = None
+    #: the approver was the requester (allowed by the policy); said in the audit record
+    self_approved: bool = False
     #: the nonce of the one approval round (protocol 2026-07-28) whose retry may still read this
     #: request; None: no round open (a retry with a spent or older round's nonce is a replay)
     round_nonce: str | None = field(default=None, repr=False)
@@ -71,8 +76,12 @@ class PendingRequest:
         """The approval code the client's prompt shows too, to match the two up."""
         return approval_code(self.digest)
 
-    def _settle(self, answer: Answer, operator: str | None, via: str) -> None:
-        self.answer, self.operator, self.via = answer, operator, via
+    def is_requested_by(self, principal: str) -> bool:
+        """Whether `principal` (a token name) is the one that asked for this request."""
+        return self.requester is not None and principal == self.requester
+
+    def _settle(self, answer: Answer, operator: str | None, via: str, self_approved: bool = False) -> None:
+        self.answer, self.operator, self.via, self.self_approved = answer, operator, via, self_approved
         listeners, self.listeners = self.listeners, []
         for listener in listeners:
             listener(self)
@@ -82,7 +91,7 @@ class PendingRequest:
 class AnswerRefusal:
     """Why an answer from the console was not taken."""
 
-    reason: Literal["unknown", "answered", "expired", "stale"]
+    reason: Literal["unknown", "answered", "expired", "stale", "self_approval"]
     message: str
 
 
@@ -103,13 +112,15 @@ class PendingApprovals:
         """Seconds until the request's plan expires [s] (0 when it has)."""
         return max(0.0, request.expires_mono - self._clock())
 
-    def offer(self, plan: StoredPlan, prompt: str, estop_generation: int, stop_generation: int = 0) -> PendingRequest:
+    def offer(self, plan: StoredPlan, prompt: str, estop_generation: int, stop_generation: int = 0,
+              requester: str | None = None) -> PendingRequest:
         """The open request for this plan under this e-stop generation, created on first offer (and
-        stamped with the stop generation then)."""
+        stamped with the stop generation and the requesting token's name then)."""
         for request in self._requests.values():
             if request.digest == plan.digest and request.estop_generation == estop_generation and request.answer is None:
                 return request
-        request = PendingRequest(secrets.token_urlsafe(24), plan, prompt, estop_generation, stop_generation=stop_generation)
+        request = PendingRequest(secrets.token_urlsafe(24), plan, prompt, estop_generation, stop_generation=stop_generation,
+                                 requester=requester)
         self._requests[request.request_id] = request
         while len(self._requests) > MAX_REQUESTS:
             self._requests.popitem(last=False)
@@ -142,9 +153,12 @@ class PendingApprovals:
                 if r.answer is None and now < r.expires_mono and r.estop_generation == estop_generation]
 
     def answer(self, request_id: str, approve: bool, operator: str, estop_generation: int,
-               via: str = "console") -> PendingRequest | AnswerRefusal:
+               via: str = "console", allow_self_approval: bool = False) -> PendingRequest | AnswerRefusal:
         """Record a human's answer once. Refused: unknown id, already answered (a replayed link),
-        plan expired, or an e-stop latched since the question was asked."""
+        plan expired, an e-stop latched since the question was asked, or an approval by the very
+        token that asked (`operator` is its requester) unless `allow_self_approval`. Why: the
+        agent's own client could otherwise sign in with its token and approve its own motion. A
+        decline by the requester is taken: it can only keep the arm still."""
         request = self.get(request_id)
         if request is None:
             return AnswerRefusal("unknown", "no such approval request")
@@ -155,7 +169,11 @@ class PendingApprovals:
             return AnswerRefusal("expired", f"plan {request.plan_id} has expired; nothing was approved")
         if request.estop_generation != estop_generation:
             return AnswerRefusal("stale", "an e-stop latched after this request was made; its plan is void")
-        request._settle("approved" if approve else "declined", operator, via)
+        own = approve and request.is_requested_by(operator)
+        if own and not allow_self_approval:
+            return AnswerRefusal("self_approval", f"{operator} requested this motion and cannot approve it too: another "
+                                 "operator must approve it (approval.allow_self_approval is off); you may decline it")
+        request._settle("approved" if approve else "declined", operator, via, self_approved=own)
         return request
 
     def start_round(self, request: PendingRequest) -> str:

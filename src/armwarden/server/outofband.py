@@ -126,7 +126,8 @@ async def _outcome(ctx: Context, guard: Guard, request: PendingRequest, outcome:
     if request.answer in ("approved", "declined"):
         if notify:
             await _complete(ctx, request)
-        return ConsoleAnswer(request.answer == "approved", request.operator, request.digest)
+        return ConsoleAnswer(request.answer == "approved", request.operator, request.digest,
+                             self_approved=request.self_approved)
     if "form" in outcome:
         guard.approvals.withdraw(request.digest, "answered in the MCP client")
         return outcome["form"]
