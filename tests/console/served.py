@@ -8,7 +8,7 @@ import asyncio
 import contextlib
 import dataclasses
 import re
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,9 @@ class ServedConsole:
     channel: StopChannel
     #: a second operator ("dana"): approves in the console what alice's MCP client asked for
     approver_token: str = ""
+    #: the console's sign-ins (the stop channel checks their E-STOP tickets)
+    sessions: SessionStore | None = None
+    tokens_path: Path | None = None
 
     @property
     def console(self) -> str:
@@ -77,8 +80,10 @@ def csrf_of(html: str) -> str:
 
 @contextlib.asynccontextmanager
 async def served_console(tmp_path: Path, policy: Policy | None = None,
-                         settings: ConsoleSettings | None = None, **fake_options: Any) -> AsyncIterator[ServedConsole]:
-    """The harness's Guard and MCP server, served with the console on a free loopback port."""
+                         settings: ConsoleSettings | None = None, session_clock: Callable[[], float] | None = None,
+                         **fake_options: Any) -> AsyncIterator[ServedConsole]:
+    """The harness's Guard and MCP server, served with the console on a free loopback port
+    (`session_clock`: the clock console sessions expire by, e.g. a `FakeClock`; None: monotonic)."""
     tokens_path = tmp_path / "tokens.json"
     operator = TokenStore.add(tokens_path, "operator", name="alice")
     observer = TokenStore.add(tokens_path, "observer", name="bob")
@@ -89,7 +94,7 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
         hook = timed_estop(external.latch_and_stop_for("console"), external.record)
         answer = harness.guard.policy.approval.channel in ("url", "both")
         settings = settings or ConsoleSettings(answer_approvals=answer)
-        sessions = SessionStore(tokens)
+        sessions = SessionStore(tokens) if session_clock is None else SessionStore(tokens, clock=session_clock)
         port = free_port()
         door = ConsoleDoor(sessions.principal_for_ticket, external.latch_and_stop_for("console"),
                            frozenset(transport_security_settings(HOST, port).allowed_origins or ()),
@@ -107,7 +112,8 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
             with anyio.fail_after(10):
                 await ready.wait()
             try:
-                yield ServedConsole(harness, f"http://{HOST}:{port}", operator, observer, channel, approver)
+                yield ServedConsole(harness, f"http://{HOST}:{port}", operator, observer, channel, approver,
+                                    sessions, tokens_path)
             finally:
                 shutdown.set()
                 channel.close()

@@ -269,6 +269,33 @@ def test_an_estop_the_channel_refuses_is_shown_as_failed_never_as_sent(tmp_path:
     assert not latched
 
 
+def test_the_estop_of_a_page_whose_session_ended_still_stops(tmp_path: Path, browser: Any) -> None:
+    """With --console-estop-needs-sign-in, a page left open while its session expired (here: its
+    session expires by the store's clock) must still stop, and must not say E-STOP FAILED."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    from armwarden.console.sessions import SESSION_TTL_S
+    from tests.helpers import FakeClock
+
+    clock = FakeClock(0.0)
+    settings = ConsoleSettings(estop_from_loopback_without_sign_in=False)
+    with console(tmp_path, settings=settings, session_clock=clock) as session:
+        sign_in(browser, session.served, session.served.observer_token)
+        wait_for(browser, ec.presence_of_element_located((By.ID, "who")))
+        clock.advance(SESSION_TTL_S)  # the page stays open; its session is over
+        browser.find_element(By.ID, "estop-button").click()
+        answer = wait_for(browser, ec.presence_of_element_located((By.ID, "estop-answer"))).text
+        latched = session.served.harness.guard.latch.is_latched
+        audit_path = session.served.harness.audit_path
+        session.served.harness.audit.flush()
+
+    assert "E-STOP latched" in answer and "FAILED" not in answer, answer
+    assert latched
+    estops = [r for r in records_of(audit_path) if r["event"] == "estop"]
+    assert estops and all(r["principal"] == "bob (session ended)" for r in estops)
+
+
 def test_estop_without_script_shows_the_channels_answer_page(tmp_path: Path, browser: Any) -> None:
     """A browser running no script posts the form itself and is shown the channel's answer."""
     from selenium.webdriver.common.by import By

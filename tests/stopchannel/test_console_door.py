@@ -60,8 +60,8 @@ def test_no_ticket_from_loopback_stops_as_the_unsigned_console(make_channel: Cal
 
 
 def test_a_stale_ticket_from_loopback_stops_as_the_unsigned_console(make_channel: Callable[..., StopChannel]) -> None:
-    """A page whose session is gone (signed out, expired, pushed out) stops wherever a page
-    without a ticket would: here, from this machine."""
+    """A ticket that names nobody (unknown, or its token revoked) stops wherever a page without
+    a ticket would: here, from this machine."""
     console_latch = Latch()
     channel = make_channel(console=door(console_latch))
 
@@ -78,7 +78,7 @@ def test_a_wrong_ticket_is_refused_and_nothing_stops_when_the_console_needs_sign
 
     status, page = press(channel.port, b"ticket=not-the-ticket", {"Origin": ORIGIN})
 
-    assert status == 401 and "E-STOP refused" in page and "reload the console page" in page
+    assert status == 401 and "E-STOP refused" in page and "sign in again" in page
     assert console_latch.calls == [] and latch.calls == []
 
 

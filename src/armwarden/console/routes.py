@@ -33,7 +33,7 @@ from starlette.routing import Route
 
 from armwarden.console.feed import StateFeed, request_view
 from armwarden.console.pages import SECURITY_HEADERS, page_headers, render, render_fragment
-from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, same_secret
+from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, SignInRefused, same_secret
 from armwarden.errors import SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.safety.audit import AuditWriteError
@@ -153,10 +153,12 @@ class Console:
         if not expected or not same_secret(form.get("csrf"), expected):
             return await self.refuse(request, None, 403, "sign-in refused: the form's CSRF token is missing or wrong")
         session = self.sessions.sign_in(form.get("token"))
-        if session is None:
-            await self.audit("console_sign_in", None, "refused", "a sign-in with an unknown or revoked token",
+        if isinstance(session, SignInRefused):
+            detail = ("a sign-in with an unknown or revoked token" if session.reason == "invalid_token"
+                      else f"a sign-in refused: {session.message}")
+            await self.audit("console_sign_in", None, "refused", detail, reason=session.reason,
                              peer=request.client.host if request.client else None)
-            return self.back("/login", "That token is not valid (unknown or revoked).", "error")
+            return self.back("/login", session.message, "error")
         await self.audit("console_sign_in", session, "ok", f"signed in as {session.name} ({session.role})",
                          token=session.token_fingerprint)
         response = RedirectResponse(f"{self.base}/", status_code=303)
@@ -261,13 +263,18 @@ class Console:
         """Latch and stop first, then audit and answer. Signed in: stops, and says so when the page's
         CSRF token is stale (a page open before a newer sign-in in another tab): a stop is never
         refused for it, since it can only make the robot safer and a request from another web site
-        never gets here (the Host/Origin check refuses it first). Not signed in: only from
-        loopback, and only if the settings allow it."""
+        never gets here (the Host/Origin check refuses it first). A page whose session has ended
+        (expired, pushed out, signed out) stops with its E-STOP ticket while its token is valid,
+        as through the stop channel. Otherwise, not signed in: only from loopback, and only if the
+        settings allow it."""
         session = self.session_of(request)
         peer = request.client.host if request.client else "?"
         form = await self.form_of(request)
+        ticket_principal = None if session is not None else self.sessions.principal_for_ticket(form.get("ticket"))
         if session is not None:
             principal = session.name if self.csrf_ok(request, form, session) else f"{session.name} (stale CSRF token)"
+        elif ticket_principal is not None:
+            principal = ticket_principal
         elif self.settings.estop_from_loopback_without_sign_in and _is_loopback_peer(request):
             principal = f"console (not signed in, {peer})"
         else:

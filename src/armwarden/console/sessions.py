@@ -7,11 +7,22 @@ session has its own CSRF token, which every POST must echo (form field or header
 in memory only: a daemon restart signs everyone out. The token is re-checked against the token
 file on each request, so revoking it ends its sessions at once.
 
+Room is shared fairly: at most `MAX_SESSIONS_PER_PRINCIPAL` sessions per token name (a new
+sign-in ends that token's own oldest one) and `MAX_SESSIONS` in all. A sign-in never ends a
+session of another token to make room: when the table is full of other tokens' sessions, the
+new sign-in is refused with a message that says so. (Before, any token holder could sign in 64
+times and sign everyone else out.)
+
 The E-STOP button posts to the independent stop channel, another origin that cannot see the
 cookie. So each session also has an E-STOP ticket the page embeds: an HMAC of the session id
 under a secret drawn per store (per daemon), unguessable and revealing nothing of the session
 id. The stop channel's thread checks it (`principal_for_ticket`) without the event loop, hence
-the lock around the session table.
+the lock around the session table. A ticket outlives its session: a page left open while its
+session expired, was pushed out or signed out in another tab still shows an E-STOP, and a stop
+is always safe to accept, so the ticket stops for as long as its token is valid (a revoked
+token's ticket does not), audited as "NAME (session ended)". The tickets of ended sessions are
+kept per token name, at most `MAX_ENDED_TICKETS_PER_PRINCIPAL` each: one token's churn never
+forgets another's.
 """
 
 from __future__ import annotations
@@ -25,17 +36,25 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 from armwarden.transport.tokens import Principal, TokenStore
 
-__all__ = ["COOKIE", "LOGIN_COOKIE", "Session", "SessionStore", "same_secret"]
+__all__ = ["COOKIE", "LOGIN_COOKIE", "Session", "SessionStore", "SignInRefused", "same_secret"]
 
 COOKIE = "armwarden_console"
 #: a random value set with the sign-in form and echoed by it (CSRF on the one POST without a session)
 LOGIN_COOKIE = "armwarden_console_login"
 #: a session ends this long after sign-in [s]
 SESSION_TTL_S = 8 * 3600.0
+#: sessions in all; when full of other tokens' sessions, a sign-in is refused (none is ended for it)
 MAX_SESSIONS = 64
+#: sessions of one token name; its new sign-in ends its own oldest session
+MAX_SESSIONS_PER_PRINCIPAL = 8
+#: tickets of ended sessions kept per token name, so their pages' E-STOP still stops
+MAX_ENDED_TICKETS_PER_PRINCIPAL = 32
+#: how the principal of a stop from the page of an ended session is audited
+SESSION_ENDED = "session ended"
 
 
 def same_secret(presented: object, expected: str) -> bool:
@@ -60,16 +79,40 @@ class Session:
         return self.role == "operator"
 
 
+@dataclass(frozen=True)
+class SignInRefused:
+    """Why a sign-in got no session: `invalid_token` (unknown, revoked, none given, or sign-in is
+    off) or `full` (the console holds `MAX_SESSIONS` sessions of other tokens)."""
+
+    reason: Literal["invalid_token", "full"]
+    message: str
+
+
+@dataclass(frozen=True)
+class _Ticket:
+    """What an E-STOP ticket stands for: its session and the token that signed in."""
+
+    session_id: str
+    name: str
+    presented: str  # the token, to re-check it (revoked: the ticket no longer stops)
+
+
 class SessionStore:
     """Sessions of one console, keyed by an unguessable id."""
 
     def __init__(self, tokens: TokenStore | None, clock: Callable[[], float] = time.monotonic,
-                 ttl_s: float = SESSION_TTL_S) -> None:
+                 ttl_s: float = SESSION_TTL_S, max_sessions: int = MAX_SESSIONS,
+                 max_per_principal: int = MAX_SESSIONS_PER_PRINCIPAL) -> None:
+        if max_sessions < 1 or not 1 <= max_per_principal <= max_sessions:
+            raise ValueError(f"session limits must satisfy 1 <= per token ({max_per_principal}) <= all ({max_sessions})")
         self._tokens = tokens
         self._clock = clock
         self._ttl_s = ttl_s
-        self._sessions: OrderedDict[str, tuple[Session, str]] = OrderedDict()
-        self._tickets: dict[str, str] = {}  # E-STOP ticket -> session id
+        self._max_sessions = max_sessions
+        self._max_per_principal = max_per_principal
+        self._sessions: OrderedDict[str, tuple[Session, str]] = OrderedDict()  # oldest sign-in first
+        self._tickets: dict[str, _Ticket] = {}  # E-STOP ticket -> what it stands for (live and ended sessions)
+        self._ended: dict[str, OrderedDict[str, None]] = {}  # token name -> tickets of its ended sessions, oldest first
         self._secret = secrets.token_bytes(32)
         self._lock = threading.Lock()  # the stop channel's thread reads the table too
 
@@ -78,23 +121,30 @@ class SessionStore:
         """Sign-in needs a token file; without one nobody can sign in (the E-STOP still works)."""
         return self._tokens is not None
 
-    def sign_in(self, token: object) -> Session | None:
-        """A new session for a valid token; None for anything else."""
+    def sign_in(self, token: object) -> Session | SignInRefused:
+        """A new session for a valid token, or why not. At the token's own limit its oldest
+        session ends; a table full of other tokens' sessions refuses (never ends one of theirs)."""
         if self._tokens is None or not isinstance(token, str) or not token.strip():
-            return None
+            return SignInRefused("invalid_token", "That token is not valid (unknown or revoked).")
         presented = token.strip()
         principal = self._tokens.authenticate(presented)
         if principal is None:
-            return None
+            return SignInRefused("invalid_token", "That token is not valid (unknown or revoked).")
+        self._end_dead_sessions()
         session_id = secrets.token_urlsafe(32)
         session = Session(session_id, principal.name, principal.role, secrets.token_urlsafe(32),
                           self._clock() + self._ttl_s, _fingerprint(presented), self._ticket_for(session_id))
         with self._lock:
+            own = [sid for sid, (s, _) in self._sessions.items() if s.name == principal.name]
+            if len(own) >= self._max_per_principal:
+                self._end_locked(own[0])  # this token's own oldest sign-in makes room
+            elif len(self._sessions) >= self._max_sessions:
+                return SignInRefused("full", (
+                    f"The console already has {len(self._sessions)} sessions open (at most {self._max_per_principal} "
+                    "per token); no one else is signed out to make room. Ask someone to sign out, or wait until a "
+                    "session ends."))
             self._sessions[session.session_id] = (session, presented)
-            self._tickets[session.estop_ticket] = session.session_id
-            while len(self._sessions) > MAX_SESSIONS:
-                oldest, _ = self._sessions.popitem(last=False)  # the oldest sign-in goes first
-                self._tickets = {t: s for t, s in self._tickets.items() if s != oldest}
+            self._tickets[session.estop_ticket] = _Ticket(session.session_id, principal.name, presented)
         return session
 
     def lookup(self, session_id: object) -> Session | None:
@@ -108,33 +158,65 @@ class SessionStore:
         session, presented = entry
         principal: Principal | None = self._tokens.authenticate(presented)
         if self._clock() >= session.expires_mono or principal is None or principal.role != session.role:
-            self._forget(session_id)
+            self._end(session_id)
             return None
         return session
 
     def principal_for_ticket(self, ticket: object) -> str | None:
-        """The token name of the live session an E-STOP `ticket` belongs to; None for anything else.
-        Thread-safe: the stop channel calls it on its own thread."""
-        if not isinstance(ticket, str) or not ticket:
+        """Who pressed the E-STOP of a page carrying `ticket`: the token's name while its session
+        lives, "NAME (session ended)" once it has ended (expired, pushed out, signed out), None for
+        anything else (unknown, forged, or its token revoked). A token file that became unusable
+        does not refuse a stop: its last usable version decides. Thread-safe: the stop channel
+        calls it on its own thread."""
+        if not isinstance(ticket, str) or not ticket or self._tokens is None:
             return None
         with self._lock:
-            session_id = self._tickets.get(ticket)
-        if session_id is None:
+            entry = self._tickets.get(ticket)
+        if entry is None or not same_secret(ticket, self._ticket_for(entry.session_id)):
             return None
-        session = self.lookup(session_id)
-        return None if session is None or not same_secret(ticket, session.estop_ticket) else session.name
+        principal = self._tokens.authenticate(entry.presented, last_good_while_unusable=True)
+        if principal is None or principal.name != entry.name:
+            return None
+        with self._lock:
+            live = self._sessions.get(entry.session_id)
+        if live is not None and self._clock() < live[0].expires_mono:
+            return entry.name
+        return f"{entry.name} ({SESSION_ENDED})"
 
     def sign_out(self, session_id: object) -> Session | None:
         if not isinstance(session_id, str):
             return None
-        return self._forget(session_id)
+        return self._end(session_id)
 
-    def _forget(self, session_id: str) -> Session | None:
+    def _end_dead_sessions(self) -> None:
+        """End expired sessions, and those whose token was revoked or changed role, so they take
+        no room (the token check runs outside the lock: it may read the token file)."""
+        if self._tokens is None:
+            return
+        now = self._clock()
         with self._lock:
-            entry = self._sessions.pop(session_id, None)
-            if entry is not None:
-                self._tickets.pop(entry[0].estop_ticket, None)
-        return None if entry is None else entry[0]
+            entries = list(self._sessions.values())
+        for session, presented in entries:
+            principal = None if now >= session.expires_mono else self._tokens.authenticate(presented)
+            if principal is None or principal.role != session.role:
+                self._end(session.session_id)
+
+    def _end(self, session_id: str) -> Session | None:
+        with self._lock:
+            return self._end_locked(session_id)
+
+    def _end_locked(self, session_id: str) -> Session | None:
+        """End a session; its ticket is kept (bounded, per token name) for its page's E-STOP."""
+        entry = self._sessions.pop(session_id, None)
+        if entry is None:
+            return None
+        session = entry[0]
+        ended = self._ended.setdefault(session.name, OrderedDict())
+        ended[session.estop_ticket] = None
+        while len(ended) > MAX_ENDED_TICKETS_PER_PRINCIPAL:
+            forgotten, _ = ended.popitem(last=False)
+            self._tickets.pop(forgotten, None)
+        return session
 
     def _ticket_for(self, session_id: str) -> str:
         mac = hmac.new(self._secret, b"console-estop\0" + session_id.encode(), hashlib.sha256).digest()

@@ -142,14 +142,16 @@ class ConsoleDoor:
 
 def authorise_console_estop(door: ConsoleDoor, ticket: str | None, peer_host: str) -> str:
     """Who pressed the console's E-STOP: the ticket's session, or, without a valid ticket, a
-    loopback peer when the console allows that. A ticket that is no longer valid (its session
-    signed out, expired or pushed out by newer ones) counts as none: the page that carries it must
-    stop the robot wherever a page without one would. `HttpRefusal` 401 otherwise (the stop is
+    loopback peer when the console allows that. The ticket of a page whose session has ended
+    (signed out, expired, pushed out by its token's newer sign-ins) still names its token while
+    the token is valid (`SessionStore.principal_for_ticket`); a ticket that names nobody (unknown,
+    or its token revoked) counts as none: the page that carries it must stop the robot wherever
+    a page without one would. `HttpRefusal` 401 otherwise (the stop is
     not issued)."""
     principal = None if ticket is None else door.check_ticket(ticket)
     if principal is not None:
         return flatten_reason(principal, 64) or "unknown"
-    why = "no ticket" if ticket is None else "its ticket is unknown or expired: reload the console page"
+    why = "no ticket" if ticket is None else "its ticket is unknown or its token revoked: sign in again"
     if not door.allow_loopback_without_ticket:
         raise HttpRefusal(401, f"sign in to the console first ({why})")
     if not is_loopback(peer_host):

@@ -27,8 +27,12 @@
   // latched or refused. So the latch is read back from the console (signed in), and where it
   // cannot be read or does not show, the console's own route is asked and its answer shown:
   // the page never says "sent" for a stop it cannot confirm.
+  // The page's E-STOP ticket goes along: it stops even when the session has ended since the
+  // page was loaded (expired, or signed out in another tab), while the token is still valid.
   async function viaConsole(url) {
     const data = new URLSearchParams({csrf: body.dataset.csrf || ""});
+    const ticket = document.querySelector("#estop-form input[name=ticket]");
+    if (ticket) { data.set("ticket", ticket.value); }
     const reply = await fetch(url, {method: "POST", body: data, credentials: "same-origin",
                                     headers: {"Accept": "application/json"}});
     const answer = await reply.json();
