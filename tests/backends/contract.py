@@ -8,7 +8,10 @@ A backend's test module subclasses it and implements `build()` (a new, unopened 
 
 The suite checks the rules in `armwarden.backends.base`: lifecycle, stop at any time (also from
 another thread while the event loop is blocked), exact execution, progress, cancel → stop,
-refused trajectories move nothing, stamps, and capabilities against the optional calls.
+refused trajectories move nothing, stamps, capabilities against the optional calls, and the death
+of each of the backend's own threads (killed through `Backend.inject_worker_failure`) behind the
+real Guard: the e-stop latched for the backend fault, audited, named by `get_safety_status`,
+motion refused by the Guard and by the backend.
 Assertions are about order and outcome, never about how fast something happened.
 """
 
@@ -18,15 +21,20 @@ import contextlib
 import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
 from typing import Any, ClassVar
 
 import anyio
 import numpy as np
 import pytest
 
+from armwarden.assembly import build_guard
 from armwarden.backends.base import PREEMPTED, Backend, Capabilities
-from armwarden.errors import BackendError
+from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.planning.trajectory import JointTrajectory
+from armwarden.policy import bundled_policy, load_policy
+from armwarden.safety.audit import AuditLog
+from tests.helpers import records_of
 
 
 def straight_line(joint_names, q_start, q_goal, duration_s: float, dt_s: float = 0.01) -> JointTrajectory:
@@ -372,3 +380,50 @@ class BackendContract:
     async def test_gripper_state_matches_the_gripper_capability(self, backend: Backend) -> None:
         state = await backend.gripper_state()
         assert (state is not None) == backend.capabilities.gripper
+
+    # ------------------------------------------------------------------ the backend's own threads
+    async def test_a_dead_backend_thread_is_a_latched_audited_fault_and_motion_is_refused(self, tmp_path: Path) -> None:
+        workers = self.build().worker_threads
+        if not workers:  # nothing of its own to die; the seam says so
+            async with self.opened_backend() as backend:
+                with pytest.raises(BackendError, match="has no thread 'worker'"):
+                    backend.inject_worker_failure("worker", RuntimeError("injected"))
+            return
+        for worker in workers:  # each on a fresh backend: one death at a time
+            await self.assert_thread_death_is_a_fault(worker, tmp_path / f"audit-{worker}.jsonl")
+
+    @contextlib.asynccontextmanager
+    async def opened_backend(self) -> AsyncIterator[Backend]:
+        backend = self.build()
+        await backend.open()
+        try:
+            yield backend
+        finally:
+            await backend.close()
+
+    async def assert_thread_death_is_a_fault(self, worker: str, audit_path: Path) -> None:
+        """Kill `worker` behind the real Guard; the fault must be latched, audited, reported by
+        the safety status, and every motion refused."""
+        async with self.opened_backend() as backend:
+            with AuditLog(audit_path) as audit:
+                guard = build_guard(load_policy(bundled_policy("fr3")), backend, audit)
+                q_start = await self.positions(backend)
+                backend.inject_worker_failure(worker, RuntimeError(f"injected: the {worker} thread dies"))
+                await wait_until(lambda: _true_when(guard.latch.is_latched))
+                died = f"the {worker} thread stopped (RuntimeError: injected: the {worker} thread dies)"
+                event = guard.latch.current_event
+                assert event is not None and event.source == "backend_fault" and died in event.reason, event
+                status = guard.safety_status()
+                assert status.estopped and any(died in fault for fault in status.faults), status
+                audit.flush()
+                records = records_of(audit_path)
+                assert any(r["event"] == "backend_fault" and died in r["detail"] for r in records), records
+                with pytest.raises(SafetyRefusal) as refused:  # the Guard refuses: the e-stop is latched
+                    await guard.plan("joints", {"joint_positions": q_start.tolist()})
+                assert refused.value.code is RefusalCode.ESTOPPED
+                with pytest.raises(BackendError, match=f"the {worker} thread stopped"):  # and so does the backend
+                    await backend.execute(straight_line(backend.joint_names, q_start, q_start + self.reach_rad,
+                                                        self.short_motion_s))
+                with pytest.raises(BackendError, match=f"the {worker} thread stopped"):  # reads name the cause
+                    await backend.read_joint_state()
+        self.assert_nothing_reached_the_arm(backend)

@@ -60,6 +60,12 @@ Rules every backend follows
   first — the arm stopped or damped, the stop epoch bumped — then reported to the listener set
   with `set_fault_listener` (the Guard latches its e-stop from any thread). A fault during an
   execution also makes `execute` raise `BackendError` naming it.
+- The backend's own threads (a servo or physics loop, a ROS executor) are named in
+  `worker_threads`. One that ends while the backend is open calls `_worker_died` on its way out:
+  the e-stop's stop is issued (as far as the rest still can), the fault is reported once, and
+  from then on every call but stop and close is refused naming the dead thread (a thread never
+  comes back: only a restart recovers). `inject_worker_failure` is the test seam the conformance
+  suite kills each thread with; a worker calls `_worker_checkpoint` on its own thread every turn.
 - Deadlines (class attributes, seconds): reads `read_timeout_s`, stops `stop_timeout_s`, and one
   per optional capability (`*_timeout_s`; gripper motions get `gripper_timeout_s` plus the time
   `gripper_travel_m` takes at the requested speed; camera snapshots get `camera_setup_timeout_s`
@@ -273,6 +279,8 @@ class Backend(abc.ABC):
         self._fault_listener: FaultListener | None = None
         self._fault_report_lock = threading.Lock()
         self._unheard_faults: list[str] = []  # reported while no listener was set, for the next one
+        self._dead_workers: dict[str, str] = {}  # worker thread -> why it is gone (see `_worker_died`)
+        self._injected_failures: dict[str, BaseException] = {}  # worker -> what its next turn raises
 
     @property
     def last_stop_stamp(self) -> float | None:
@@ -344,6 +352,54 @@ class Backend(abc.ABC):
         except Exception:  # the backend has stopped the arm either way; the report must not kill its thread
             logger.exception("backend %s: fault listener failed for %r", self.name, reason)
 
+    # ---------------------------------------------------------------- the backend's own threads
+    #: the backend's own threads, by the names `inject_worker_failure` and `_worker_died` use
+    worker_threads: tuple[str, ...] = ()
+
+    @property
+    def worker_failure(self) -> str | None:
+        """Why a thread of the backend's own is gone (the first that died), or None."""
+        dead = self._dead_workers
+        return next(iter(dead.values())) if dead else None
+
+    def _worker_died(self, worker: str, error: BaseException | None) -> None:
+        """Any thread (the dying one, on its way out): the backend's thread `worker` ended before
+        `close` (`error`: why; None: it returned when it must not). Issue the e-stop's
+        stop as far as the rest of the backend still can, refuse every later call but stop and close
+        (`_require_open`), and report the fault once: a dead thread's duties (state, health watch,
+        motion) are silently not done any more, so the Guard must latch and record it."""
+        if self._closed:
+            return  # closing ends the threads on purpose
+        why = "" if error is None else f" ({type(error).__name__}: {error})"
+        reason = (f"backend {self.name}: the {worker} thread stopped{why}; nothing it did is done any more "
+                  "(restart the daemon)")
+        with self._fault_report_lock:
+            if worker in self._dead_workers:
+                return
+            self._dead_workers[worker] = reason
+        logger.error("%s", reason)
+        try:
+            self.emergency_stop_now()
+        except Exception as exc:  # the dead thread may have been the one that stops: report it all the same
+            logger.error("backend %s: the stop after the %s thread died failed: %s", self.name, worker, exc)
+        self._report_fault(reason)
+
+    def inject_worker_failure(self, worker: str, error: BaseException) -> None:
+        """Test seam (the conformance suite kills each thread): `worker` raises `error` on its own
+        thread at its next turn (`_worker_checkpoint`) and dies through its real failure path."""
+        self._require_open()
+        if worker not in self.worker_threads:
+            names = ", ".join(self.worker_threads) or "none"
+            raise BackendError(f"backend {self.name} has no thread {worker!r} (its threads: {names})")
+        self._injected_failures[worker] = error
+
+    def _worker_checkpoint(self, worker: str) -> None:
+        """Called by `worker` on its own thread every turn: raises a failure injected for it."""
+        if self._injected_failures:
+            error = self._injected_failures.pop(worker, None)
+            if error is not None:
+                raise error
+
     # ---------------------------------------------------------------- lifecycle
     @property
     def is_open(self) -> bool:
@@ -376,6 +432,8 @@ class Backend(abc.ABC):
     def _require_open(self) -> None:
         if not self.is_open:
             raise BackendError(f"backend {self.name} is not open")
+        if (failure := self.worker_failure) is not None:
+            raise BackendError(failure)
 
     @property
     @abc.abstractmethod
@@ -415,7 +473,10 @@ class Backend(abc.ABC):
             await self._check_start(trajectory)
             if self._stop_landed():
                 return ExecutionResult(False, PREEMPTED, (await self.read_joint_state()).positions.copy())
-            return await self._execute(trajectory, progress or (lambda _fraction: None))
+            result = await self._execute(trajectory, progress or (lambda _fraction: None))
+            if (failure := self.worker_failure) is not None:  # its stop ended the run: a fault, not a stop
+                raise BackendError(f"execution aborted: {failure}")
+            return result
         except BaseException:
             with anyio.CancelScope(shield=True):
                 try:

@@ -42,6 +42,7 @@ class CountingBackend(Backend):
         super().__init__(inner.joint_names, start_tolerance_rad=inner.start_tolerance_rad)
         self.inner = inner
         self.name = inner.name
+        self.worker_threads = inner.worker_threads
         self.actuations: list[str] = []
         self.stops = 0
         #: of `stops`, how many were e-stops (`emergency_stop`/`emergency_stop_now`)
@@ -81,6 +82,13 @@ class CountingBackend(Backend):
 
     def set_fault_listener(self, listener: FaultListener | None) -> None:
         self.inner.set_fault_listener(listener)
+
+    @property
+    def worker_failure(self) -> str | None:
+        return self.inner.worker_failure
+
+    def inject_worker_failure(self, worker: str, error: BaseException) -> None:
+        self.inner.inject_worker_failure(worker, error)
 
     async def open(self) -> None:
         await self.inner.open()

@@ -21,6 +21,8 @@ Fault injection for tests: `fail_stop` (stop raises and is not delivered), `free
 wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that
 long), `fault` (the robot is in an error state until `error_recovery`), `object_width_m` (the
 object between the fingers). All of them are plain attributes that can be changed at run time.
+The control thread dies like any backend thread (`inject_worker_failure("control", ...)`): a
+latched fault, every later call refused.
 """
 
 from __future__ import annotations
@@ -104,6 +106,7 @@ class FakeBackend(Backend, ServoHooks):
     """Kinematic FR3 + Franka Hand driven by a servo loop (see the module docstring)."""
 
     name = "fake"
+    worker_threads = ("control",)  # the servo loop
 
     def __init__(
         self,
@@ -308,6 +311,7 @@ class FakeBackend(Backend, ServoHooks):
     # ================================================================ servo hooks (servo thread)
     def servo_prepare(self, setpoint: Setpoint) -> tuple[np.ndarray, float]:
         """The TCP position and the contact force [N] at the setpoint (forward kinematics)."""
+        self._worker_checkpoint("control")
         tcp = self._compute_tcp(setpoint.positions)
         return tcp, self._contact_force_n(tcp)
 
@@ -317,6 +321,7 @@ class FakeBackend(Backend, ServoHooks):
 
     def servo_failed(self, error: BaseException) -> None:
         self.fault, self.fault_reason = True, f"control thread failed: {error!r}"
+        self._worker_died("control", error)  # reported: the Guard latches and records it
 
     def _compute_tcp(self, q: np.ndarray) -> np.ndarray:
         """TCP position in the base frame; forward kinematics only when q changed (thread side)."""

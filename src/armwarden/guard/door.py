@@ -38,6 +38,7 @@ stop that arrives during its checks wins.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from typing import Any
@@ -63,6 +64,8 @@ from armwarden.safety.plans import PlanRefusal, PlanStore
 from armwarden.safety.ratelimit import RateLimiter
 from armwarden.safety.violations import Violation
 
+logger = logging.getLogger(__name__)
+
 
 def refuse(code: RefusalCode | str, message: str) -> SafetyRefusal:
     return SafetyRefusal(code, message)
@@ -87,7 +90,7 @@ class Guard:
         self.readings = Readings(policy, state_robot, backend, clock)
         self.stopper = Stopper(backend, self.latch, self.plans, audit)
         self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
-        backend.set_fault_listener(self.stopper.backend_fault)  # faults a backend finds on its own thread
+        backend.set_fault_listener(self._backend_fault)  # faults a backend finds on its own thread
         self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
                                    emergency_stop=self.stopper.emergency_stop, stop_for=self.stopper.stop_for,
                                    record=self._record)
@@ -281,6 +284,19 @@ class Guard:
         finally:
             if self._execution is execution:
                 self._execution = None
+
+    def _backend_fault(self, reason: str) -> None:
+        """From the backend's thread (a fault it found, a thread of its own that died): latch the
+        e-stop (`Stopper.backend_fault`) and record it, handed to the audit writer without waiting
+        (the latch holds whether or not the record can be written; a lost one is said loudly)."""
+        event = self.stopper.backend_fault(reason)
+        if self.audit is None:
+            return
+        try:
+            self.audit.submit("backend_fault", outcome="latched", detail=f"e-stop #{event.number}: {reason}",
+                              extra={"estop_event": event.number})
+        except Exception as exc:
+            logger.critical("backend fault not audited (%s): e-stop #%d: %s", exc, event.number, reason)
 
     def _record(self, report: results.ExecutionReport) -> results.ExecutionReport:
         self.last_result = report

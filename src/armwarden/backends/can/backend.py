@@ -134,6 +134,8 @@ class CanBackend(Backend, ServoHooks):
     """The arm of CAN actuators (see the module docstring)."""
 
     name = "can"
+    #: the servo loop; python-can's reader thread reads only before it starts and after it is gone
+    worker_threads = ("servo",)
 
     def __init__(self, robot: RobotModel, config: Config, joints: tuple[JointConfig, ...], *,
                  lower: Iterable[float], upper: Iterable[float], home: Iterable[float], start_tolerance_rad: float,
@@ -623,6 +625,7 @@ class CanBackend(Backend, ServoHooks):
         servo = self.servo
         if servo is None or threading.current_thread() is not servo.thread:
             return
+        self._worker_checkpoint("servo")
         if self.bus is not None:  # the frames that arrived before this tick, a fault among them, count now
             self.bus.drain(budget_s=DRAIN_BUDGET * self.period_s)
         now = time.monotonic()
@@ -655,7 +658,7 @@ class CanBackend(Backend, ServoHooks):
                 self.fault = f"all joints: the servo loop died ({error}); nothing is commanded"
         if self.bus is not None:  # the servo loop read the bus: the reader thread reads again (bus-off, faults)
             self.bus.take_back_reading()
-        self._report_fault(f"can backend: the servo loop died ({error!r}); the actuators' CAN timeout disables them")
+        self._worker_died("servo", error)  # damping frames once; then the actuators' CAN timeout disables them
 
     # ================================================================ faults (servo thread)
     def _enter_fault(self, problems: list[str]) -> None:

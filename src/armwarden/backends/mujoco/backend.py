@@ -230,6 +230,7 @@ class MujocoBackend(Backend, ServoHooks):
     """The simulated arm (see the module docstring)."""
 
     name = "mujoco"
+    worker_threads = ("physics",)  # the servo loop; the render thread only runs submitted frames
     goal_accuracy_rad = SETTLE_POSITION_RAD
     hold_accuracy_rad = HOLD_ACCURACY_RAD
     rest_speed_rad_s = SETTLE_SPEED_RAD_S
@@ -512,6 +513,7 @@ class MujocoBackend(Backend, ServoHooks):
         """Servo thread: run the physics up to now (× speedup) with the current targets."""
         if self._last_wall is None or threading.current_thread() is not self.servo.thread:
             return  # the loop's first setpoint is prepared at construction, before physics runs
+        self._worker_checkpoint("physics")
         now = time.perf_counter()
         self._pending_sim_s += (now - self._last_wall) * self.servo.speedup
         self._last_wall = now
@@ -578,8 +580,9 @@ class MujocoBackend(Backend, ServoHooks):
     def servo_failed(self, error: BaseException) -> None:
         """Physics thread, dying: tell the Guard (it latches the e-stop; one found before it listens
         is kept for it). Nothing is simulated any more, so nothing moves (found by review: the
-        death was reported to nobody, and an idle arm's e-stop never latched)."""
-        self._report_fault(f"mujoco backend: the physics thread stopped ({error})")
+        death was reported to nobody, and an idle arm's e-stop never latched); every later call is
+        refused naming it."""
+        self._worker_died("physics", error)
 
     def _set_brake(self, braking: bool) -> None:
         """Physics thread: the arm actuators become pure dampers (force = −kv_brake·q̇, saturating

@@ -32,6 +32,12 @@ execution as "stopped", whatever answer the cell sends to the close's cancel.
 Open waits (`joint_states.startup_timeout_s`) for the first arm joint state, and for the first
 finger state and wrench when those are configured, so reads right after open find them.
 
+Threads: every callback runs on the bridge's executor thread, which owns the rclpy entities
+(`armwarden.backends.ros2.bridge`): the endpoints are made before it spins, a camera's
+subscription is made and destroyed on it (`armwarden.backends.ros2.camera`). Its death is a fault
+for good: the goal cancelled, the fault reported once (the Guard latches and records it), every
+later call but stop and close refused naming it.
+
 Declared accuracies: `goal_accuracy_rad` 1e-3 rad, `hold_accuracy_rad` 2e-3 rad, `rest_speed_rad_s`
 1e-3 rad/s. A ros2_control position controller ends within its goal tolerance and a cancelled one
 holds where the cancel reached it. The test cell ends exactly at the goal and publishes exact zero
@@ -94,6 +100,7 @@ from armwarden.backends.base import (
 )
 from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import RosBridge
+from armwarden.backends.ros2.camera import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache
@@ -240,6 +247,7 @@ class Ros2Backend(Backend):
     """A ros2_control arm over rclpy (see the module docstring)."""
 
     name = "ros2"
+    worker_threads = ("executor",)  # rclpy's executor: every subscription, action and service callback
     goal_accuracy_rad = 1e-3
     hold_accuracy_rad = 2e-3
     rest_speed_rad_s = 1e-3
@@ -273,6 +281,9 @@ class Ros2Backend(Backend):
             self.gripper_travel_m = gripper.max_width_m
         if config.cameras:
             self.camera_timeout_s = max(c.timeout_s for c in config.cameras.values()) + 0.5
+        image_qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
+        self._cameras = {name: CameraFeed(self.bridge, spec.topic, CompressedImage if spec.kind == "compressed" else Image,
+                                          image_qos) for name, spec in config.cameras.items()}
         self._capabilities = Capabilities(
             wrench=config.wrench is not None,
             gripper=gripper is not None,
@@ -295,9 +306,9 @@ class Ros2Backend(Backend):
 
     # ================================================================ lifecycle
     async def _open(self) -> None:
-        await anyio.to_thread.run_sync(self.bridge.start)
+        self.bridge.on_death = lambda error: self._worker_died("executor", error)
+        await anyio.to_thread.run_sync(self.bridge.start, self._create_endpoints)  # made before it spins
         try:
-            self._create_endpoints()
             await self._wait_for_first_state()
         except BaseException:
             with anyio.CancelScope(shield=True):
@@ -305,6 +316,8 @@ class Ros2Backend(Backend):
             raise
 
     def _create_endpoints(self) -> None:
+        """The endpoints that live as long as the node, made before the executor spins (see
+        `armwarden.backends.ros2.bridge`: the executor thread owns the entities)."""
         node, group, cfg, e = self.bridge.node, self.bridge.group, self.config, self._endpoints
         subscribe = e.subscriptions.append
         subscribe(node.create_subscription(JointStateMsg, cfg.joint_states.topic, self.joint_states.accept, 10,
@@ -346,6 +359,7 @@ class Ros2Backend(Backend):
         deadline = time.monotonic() + timeout_s
         for cache in (self.joint_states, self.fingers):
             while cache is not None and cache.latest() is None:
+                self._require_spinning()
                 if time.monotonic() > deadline:
                     why = f" ({cache.last_drop})" if cache.dropped else ""
                     raise BackendError(f"no joint state naming {', '.join(cache.ros_names)} arrived on "
@@ -389,8 +403,14 @@ class Ros2Backend(Backend):
                 return f"the trajectory action server {self.config.trajectory.action} vanished"
         return None
 
+    def _require_spinning(self) -> None:
+        """`BackendError` naming a dead executor thread (nothing arrives without it)."""
+        if not self.bridge.spinning:
+            raise BackendError(self.worker_failure or "ros2 backend: the ROS executor thread is not running")
+
     def _watch(self) -> None:
         """Executor thread: a fault found while open is stopped and reported once (until healthy)."""
+        self._worker_checkpoint("executor")  # the test seam: an injected failure ends the executor here
         if not self.is_open:
             return
         try:
@@ -425,6 +445,8 @@ class Ros2Backend(Backend):
         """Event loop, during an execution decided under stop epoch `epoch`: look at the cell's
         health; if a fault was found since (now, or already by the watchdog), raise `BackendError`
         naming it (`sent`: what stopped the arm, for the message)."""
+        if (failure := self.worker_failure) is not None:  # the executor died: no result or state will come
+            raise BackendError(f"execution aborted: {failure}; {sent}")
         problem = self._health_problem()
         if problem is not None:
             self._fault(problem)
@@ -824,24 +846,14 @@ class Ros2Backend(Backend):
 
     # ================================================================ cameras
     async def _camera_snapshot(self, camera: str) -> CameraImage:
+        """The next image on the camera's topic (subscribed only while snapshots wait, by the
+        executor thread: `armwarden.backends.ros2.camera`)."""
         spec = self.config.cameras[camera]
-        loop = asyncio.get_running_loop()
-        arrived: asyncio.Future[Any] = loop.create_future()
-
-        def take(msg: Any) -> None:  # executor thread
-            if not loop.is_closed():
-                loop.call_soon_threadsafe(lambda: arrived.done() or arrived.set_result(msg))
-
-        kind = CompressedImage if spec.kind == "compressed" else Image
-        qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
-        node = self.bridge.node
-        subscription = node.create_subscription(kind, spec.topic, take, qos, callback_group=self.bridge.group)
         try:
-            msg = await asyncio.wait_for(arrived, spec.timeout_s)
+            msg = await self._cameras[camera].next_message(spec.timeout_s)
         except TimeoutError:
+            self._require_spinning()  # a dead executor is why, not the camera
             raise BackendError(f"camera {camera!r}: no image on {spec.topic} within {spec.timeout_s:g} s") from None
-        finally:
-            node.destroy_subscription(subscription)
         width, height, png = png_from_compressed(msg) if spec.kind == "compressed" else png_from_image(msg)
         return CameraImage(camera, width, height, png, time.monotonic())
 

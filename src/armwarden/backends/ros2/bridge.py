@@ -11,6 +11,19 @@ dead cell (measured: docs/benchmarks.md, "ROS 2 executor"). `close` shuts the
 executor down and *joins* its thread before destroying the node: a thread left spinning aborts
 the process at exit.
 
+Who owns the rclpy entities: the executor thread. The executor walks the node's subscriptions,
+timers and clients on every turn, and one destroyed by another thread in the middle of that walk
+kills it (`InvalidHandle: cannot use Destroyable because destruction was requested`; found by
+review: concurrent camera snapshots, each subscribing and unsubscribing from the event loop, did
+it, and the daemon then served stale data while reporting itself healthy). So the endpoints that
+live as long as the node are made by `start`'s `setup` before the thread spins, and destroyed
+with the node after it has been joined; anything made or destroyed in between goes through
+`call_soon`, which runs it on the executor thread between two turns.
+
+The executor thread's death is never silent: an exception out of `spin`, or `spin` returning
+before `close` (the context shut down under it), is logged and handed to `on_death` (the backend
+reports a latched fault).
+
 rclpy futures are not awaitable by asyncio; `result` bridges one with `add_done_callback` (called
 on an executor thread) and `loop.call_soon_threadsafe` (see `armwarden.handoff`), guarded against
 a loop that has closed meanwhile.
@@ -45,6 +58,8 @@ SHUTDOWN_TIMEOUT_S = 5.0
 
 #: builds the executor from the bridge's context
 ExecutorFactory = Callable[..., rclpy.executors.Executor]
+#: told (on the dying executor thread) that it ended before `close`: the exception, or None if it returned
+DeathListener = Callable[[BaseException | None], object]
 
 
 def domain_from_environment() -> int:
@@ -77,6 +92,8 @@ class RosBridge:
         #: one group for every endpoint (callbacks guard their own state: they run on the executor
         #: thread while the event loop and stopping threads read it)
         self.group = rclpy.callback_groups.ReentrantCallbackGroup()
+        #: told when the executor thread ends before `close` (see the module docstring)
+        self.on_death: DeathListener | None = None
 
     @property
     def node(self) -> rclpy.node.Node:
@@ -84,7 +101,9 @@ class RosBridge:
             raise BackendError("the ROS node is not running")
         return self._node
 
-    def start(self) -> None:
+    def start(self, setup: Callable[[], None] | None = None) -> None:
+        """Make the context, the node and the executor, call `setup` (it creates the endpoints that
+        live as long as the node, before anything spins), then spin on the executor thread."""
         domain = self.domain_id if self.domain_id is not None else domain_from_environment()
         context = rclpy.context.Context()
         rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
@@ -93,6 +112,8 @@ class RosBridge:
             self._node = rclpy.create_node(self.node_name, context=context)
             self._executor = self._executor_factory(context=context)
             self._executor.add_node(self._node)
+            if setup is not None:
+                setup()
         except BaseException:
             self.close()
             raise
@@ -103,11 +124,40 @@ class RosBridge:
     def _spin(self) -> None:
         executor = self._executor
         assert executor is not None
+        error: BaseException | None = None
         try:
             executor.spin()
-        except Exception:  # the context shut down under it while closing; anything else is a bug to log
-            if not self._closed.is_set():
-                logger.exception("ros2: the executor thread failed")
+        except BaseException as exc:  # while closing: the context shut down under it; else the thread died
+            error = exc
+        if self._closed.is_set():
+            return
+        if error is not None:
+            logger.error("ros2: the executor thread failed", exc_info=error)
+        else:
+            logger.error("ros2: the executor stopped spinning before close (its context was shut down)")
+        listener = self.on_death
+        if listener is not None:
+            try:
+                listener(error)
+            except Exception:
+                logger.exception("ros2: reporting the executor thread's death failed")
+
+    def call_soon(self, work: Callable[[], None]) -> None:
+        """Run `work` on the executor thread between two turns (any thread may ask): where rclpy
+        entities are made and destroyed while the node lives. `work` must be quick; an exception
+        from it is logged, never raised into the executor (it would end the thread). `BackendError`
+        if the executor is not spinning (nothing would run it)."""
+        executor = self._executor
+        if executor is None or not self.spinning:
+            raise BackendError("the ROS executor thread is not running")
+
+        def guarded() -> None:
+            try:
+                work()
+            except Exception:
+                logger.exception("ros2: work on the executor thread failed")
+
+        executor.create_task(guarded)
 
     @property
     def spinning(self) -> bool:
@@ -150,4 +200,4 @@ class RosBridge:
         return await asyncio.wait_for(waiter, timeout_s)
 
 
-__all__ = ["ExecutorFactory", "RosBridge", "domain_from_environment"]
+__all__ = ["DeathListener", "ExecutorFactory", "RosBridge", "domain_from_environment"]
