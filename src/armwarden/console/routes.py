@@ -38,6 +38,7 @@ from armwarden.errors import SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.safety.audit import AuditWriteError
 from armwarden.safety.pending import AnswerRefusal
+from armwarden.safety.refusals import RefusalReports
 from armwarden.transport.http import CONSOLE_PATH, is_loopback_host
 
 __all__ = ["CONSOLE_PATH", "ConsoleSettings", "EStopHook", "build_console_app", "timed_estop"]
@@ -90,6 +91,8 @@ class Console:
         self.settings = settings
         self.feed = StateFeed(guard)
         self.headers = page_headers(_origin_of(settings.estop_url))
+        #: records of refusals of nobody in particular, per host (one per second, the rest counted)
+        self.anonymous_refusals = RefusalReports()
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -99,18 +102,34 @@ class Console:
     def session_of(self, request: Request) -> Session | None:
         return self.sessions.lookup(request.cookies.get(COOKIE))
 
-    async def audit(self, event: str, session: Session | None, outcome: str, detail: str, **extra: Any) -> None:
+    async def audit(self, event: str, session: Session | None, outcome: str, detail: str, *,
+                    principal: str | None = None, **extra: Any) -> None:
+        """An audit record of the console (`principal`: who, when there is no session)."""
         audit = self.guard.audit
         if audit is None:
             return
-        await audit.append_async(event, principal=None if session is None else session.name, outcome=outcome,
-                                 operator=None if session is None else session.name, detail=detail,
-                                 extra={"via": "console", **extra})
+        name = principal if session is None else session.name
+        await audit.append_async(event, principal=name, outcome=outcome, operator=None if session is None else session.name,
+                                 detail=detail, extra={"via": "console", **extra})
+
+    async def audit_anonymous_refusal(self, request: Request, event: str, detail: str, **extra: Any) -> None:
+        """A refusal of nobody in particular (no session, no valid token): at most one record per
+        host and second, the ones left out counted into the next (`safety.refusals`), so a flood
+        of them cannot buy a disk flush each."""
+        host = request.client.host if request.client else "?"
+        left_out = self.anonymous_refusals.admit(host)
+        if left_out is not None:
+            await self.audit(event, None, "refused", detail, peer=host, not_reported_since_last=left_out, **extra)
 
     async def refuse(self, request: Request, session: Session | None, status: int, why: str) -> Response:
-        """A refused console action: audited, answered with the reason."""
-        await self.audit("console_refused", session, "refused", f"{request.method} {request.url.path}: {why}",
-                         peer=request.client.host if request.client else None)
+        """A refused console action: audited (without a session, as `audit_anonymous_refusal`),
+        answered with the reason."""
+        detail = f"{request.method} {request.url.path}: {why}"
+        if session is None:
+            await self.audit_anonymous_refusal(request, "console_refused", detail)
+        else:
+            await self.audit("console_refused", session, "refused", detail,
+                             peer=request.client.host if request.client else None)
         if "application/json" in request.headers.get("accept", ""):
             return JSONResponse({"error": why}, status_code=status, headers=SECURITY_HEADERS)
         return render("login.html" if session is None else "safety.html", status_code=status, base=self.base,
@@ -154,10 +173,13 @@ class Console:
             return await self.refuse(request, None, 403, "sign-in refused: the form's CSRF token is missing or wrong")
         session = self.sessions.sign_in(form.get("token"))
         if isinstance(session, SignInRefused):
-            detail = ("a sign-in with an unknown or revoked token" if session.reason == "invalid_token"
-                      else f"a sign-in refused: {session.message}")
-            await self.audit("console_sign_in", None, "refused", detail, reason=session.reason,
-                             peer=request.client.host if request.client else None)
+            if session.name is None:
+                await self.audit_anonymous_refusal(request, "console_sign_in", "a sign-in with an unknown or revoked token",
+                                                   reason=session.reason)
+            else:  # a valid token the full console had no room for
+                await self.audit("console_sign_in", None, "refused", f"a sign-in refused: {session.message}",
+                                 principal=session.name, reason=session.reason,
+                                 peer=request.client.host if request.client else None)
             return self.back("/login", session.message, "error")
         await self.audit("console_sign_in", session, "ok", f"signed in as {session.name} ({session.role})",
                          token=session.token_fingerprint)

@@ -86,6 +86,8 @@ class SignInRefused:
 
     reason: Literal["invalid_token", "full"]
     message: str
+    #: the token's name when the token was valid (`full`); None for an invalid one
+    name: str | None = None
 
 
 @dataclass(frozen=True)
@@ -142,7 +144,7 @@ class SessionStore:
                 return SignInRefused("full", (
                     f"The console already has {len(self._sessions)} sessions open (at most {self._max_per_principal} "
                     "per token); no one else is signed out to make room. Ask someone to sign out, or wait until a "
-                    "session ends."))
+                    "session ends."), principal.name)
             self._sessions[session.session_id] = (session, presented)
             self._tickets[session.estop_ticket] = _Ticket(session.session_id, principal.name, presented)
         return session

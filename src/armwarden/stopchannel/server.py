@@ -47,6 +47,7 @@ from typing import Any
 
 from armwarden.errors import ConfigurationError
 from armwarden.safety.estop import flatten_reason
+from armwarden.safety.refusals import RefusalReports
 from armwarden.stopchannel.listener import is_loopback, open_listener
 from armwarden.stopchannel.wire import (
     CONSOLE_ESTOP_PATH,
@@ -159,12 +160,6 @@ def authorise_console_estop(door: ConsoleDoor, ticket: str | None, peer_host: st
     return CONSOLE_UNSIGNED_PRINCIPAL
 
 
-#: at most one refusal report per host in this interval [s]; the others are counted
-REFUSAL_REPORT_INTERVAL_S = 1.0
-#: hosts remembered for that; beyond, the memory starts afresh (source addresses vary on 127/8)
-MAX_REPORTED_HOSTS = 1024
-
-
 @dataclass(eq=False)
 class _Connection:
     sock: socket.socket
@@ -207,7 +202,7 @@ class StopChannel:
         self._on_event = on_event
         self._on_refused = on_refused
         self._console = console
-        self._refusals: dict[str, tuple[float, int]] = {}  # host -> (last report, refusals not reported since)
+        self._refusals = RefusalReports()  # at most one refusal report per host and second
         self._host, self._port = host, port
         self._allow_non_loopback = allow_non_loopback
         self._max_connections = max_connections
@@ -494,19 +489,14 @@ class StopChannel:
         self._send(conn)
 
     def _report_refusal(self, peer: str, status: int, message: str) -> None:
-        """Hand a refusal to `on_refused`, at most once per host and `REFUSAL_REPORT_INTERVAL_S`."""
+        """Hand a refusal to `on_refused`, at most once per host and second (`safety.refusals`)."""
         if self._on_refused is None:
             return
-        host, now = peer.rsplit(":", 1)[0], time.monotonic()
-        last, pending = self._refusals.get(host, (float("-inf"), 0))
-        if now - last < REFUSAL_REPORT_INTERVAL_S:
-            self._refusals[host] = (last, pending + 1)
+        left_out = self._refusals.admit(peer.rsplit(":", 1)[0])
+        if left_out is None:
             return
-        if len(self._refusals) >= MAX_REPORTED_HOSTS:
-            self._refusals.clear()
-        self._refusals[host] = (now, 0)
         try:
-            self._on_refused(ChannelRefusal(peer, status, flatten_reason(message, 200), pending))
+            self._on_refused(ChannelRefusal(peer, status, flatten_reason(message, 200), left_out))
         except Exception:
             logger.exception("stop channel: on_refused failed")
 

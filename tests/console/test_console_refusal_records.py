@@ -1,0 +1,68 @@
+"""Refused console requests of nobody in particular (failed sign-ins, POSTs without a session)
+are audited at most once per host and second; the records left out are counted in the next one
+(issue 24, item 7: 300 of them in half a second wrote 300 fsynced records). Refusals of a
+signed-in session are each recorded: they name who did it."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import anyio
+import httpx2
+import pytest
+
+from armwarden.safety.refusals import REPORT_INTERVAL_S
+from tests.console.served import ServedConsole, served_console, sign_in
+from tests.helpers import records_of
+
+pytestmark = pytest.mark.anyio
+
+FLOOD = 60
+
+
+def unauthenticated(served: ServedConsole) -> list[dict]:
+    return [r for r in records_of(served.harness.audit_path)
+            if r["event"] in ("console_sign_in", "console_refused") and r["outcome"] == "refused" and r["principal"] is None]
+
+
+async def flood(http: httpx2.AsyncClient, served: ServedConsole, count: int) -> float:
+    """`count` refused requests, alternating a wrong token and a POST without a session; seconds taken."""
+    started = time.monotonic()
+    for i in range(count):
+        if i % 2:
+            answer = await sign_in(http, "aw_not-a-real-token")
+            assert answer.status_code == 303
+        else:
+            answer = await http.post("/console/reset", data={"event": "1"})
+            assert answer.status_code == 401
+    return time.monotonic() - started
+
+
+async def after_the_interval() -> None:
+    """Long enough that the next refusal of this host is reported."""
+    await anyio.sleep(REPORT_INTERVAL_S * 1.2)
+
+
+async def test_a_flood_of_unauthenticated_refusals_is_recorded_once_per_second_and_counted(tmp_path: Path) -> None:
+    async with served_console(tmp_path) as served, served.browser_client() as http:
+        took_s = await flood(http, served, FLOOD)
+        await after_the_interval()
+        await flood(http, served, 1)  # reported, with the count of those left out before it
+        records = unauthenticated(served)
+
+    assert len(records) <= took_s / REPORT_INTERVAL_S + 2  # one per started second, and the last one
+    assert len(records) + sum(r["extra"]["not_reported_since_last"] for r in records) == FLOOD + 1
+    assert records[0]["extra"]["not_reported_since_last"] == 0
+    assert records[-1]["extra"]["not_reported_since_last"] > 0
+
+
+async def test_refusals_of_a_signed_in_session_are_each_recorded(tmp_path: Path) -> None:
+    async with served_console(tmp_path) as served, served.browser_client() as http:
+        await sign_in(http, served.operator_token)
+        for _ in range(5):
+            refused = await http.post("/console/reset", data={"event": "1"})  # no CSRF token
+            assert refused.status_code == 403
+
+    records = [r for r in records_of(served.harness.audit_path) if r["event"] == "console_refused"]
+    assert [r["principal"] for r in records] == ["alice"] * 5
