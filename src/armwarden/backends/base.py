@@ -66,6 +66,9 @@ Rules every backend follows
   from then on every call but stop and close is refused naming the dead thread (a thread never
   comes back: only a restart recovers). `inject_worker_failure` is the test seam the conformance
   suite kills each thread with; a worker calls `_worker_checkpoint` on its own thread every turn.
+- `fault_behind_stale_data()` says whether the backend itself is why its data stopped (a dead
+  thread, a cell gone silent): the Guard asks when the force monitor finds no usable wrench, so
+  the cause is reported, not the symptom.
 - Deadlines (class attributes, seconds): reads `read_timeout_s`, stops `stop_timeout_s`, and one
   per optional capability (`*_timeout_s`; gripper motions get `gripper_timeout_s` plus the time
   `gripper_travel_m` takes at the requested speed; camera snapshots get `camera_setup_timeout_s`
@@ -399,6 +402,17 @@ class Backend(abc.ABC):
             error = self._injected_failures.pop(worker, None)
             if error is not None:
                 raise error
+
+    async def fault_behind_stale_data(self) -> str | None:
+        """Whether the backend itself is why its data (the wrench, the joint states) stopped: the
+        fault (a dead thread, a cell gone silent), or None when it is not, as far as the backend
+        can tell within its own fault-detection time. The Guard asks once the force monitor found
+        no usable wrench and the arm is stopped: the cause is reported, not the symptom."""
+        return self.worker_failure or await self._fault_behind_stale_data()
+
+    async def _fault_behind_stale_data(self) -> str | None:
+        """Hook of `fault_behind_stale_data` (default: no fault of its own besides a dead thread)."""
+        return None
 
     # ---------------------------------------------------------------- lifecycle
     @property

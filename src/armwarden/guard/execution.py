@@ -7,6 +7,9 @@ arm moves (a crash mid-motion still leaves a trace), then executes while the mon
 progress streams, and ends every path with the arm stopped or the e-stop latched:
 
 - force limit crossed (while moving or in one last sample after) → e-stop, FORCE_LIMIT;
+- no usable wrench (missing, slow, frozen, stale) → stop, then the backend is asked whether it is
+  the cause (a dead thread, a dead cell: `Backend.fault_behind_stale_data`) → e-stop,
+  BACKEND_FAULT naming it; otherwise FORCE_LIMIT;
 - backend fault mid-motion → e-stop, BACKEND_FAULT;
 - the call cancelled (client cancel, disconnect, timeout) → stop (e-stop if the stop fails),
   recorded as aborted with the time the arm actually moved.
@@ -39,6 +42,8 @@ EStop = Callable[..., Awaitable[Any]]
 #: stop arm and gripper for a call that cannot; None if the stop was issued, else the e-stop it latched
 StopFor = Callable[[str], Awaitable["EStopEvent | None"]]
 
+#: force monitor findings about the contact itself; the others say the wrench is not usable
+CONTACT_KINDS = ("force_limit", "torque_limit")
 NO_WRENCH_MESSAGE = (
     "this backend provides no wrench estimate, so the contact force limit cannot be enforced, and the "
     "policy requires it (force.require_wrench: true); nothing was moved"
@@ -119,7 +124,13 @@ class MotionRunner:
             execution.progress = fraction
 
         async def on_violation(found: ForceViolation) -> None:
-            nonlocal violation
+            nonlocal violation, fault
+            if found.kind not in CONTACT_KINDS:  # no usable wrench: the arm stops now; then, is the backend why?
+                await self._stop_for(f"force monitor: {found.detail}")  # (a stop that fails latches stop_failed)
+                cause = await self.backend.fault_behind_stale_data()
+                if cause is not None:  # report the cause (BACKEND_FAULT below), not the symptom
+                    fault = BackendError(f"{cause} (the force monitor saw: {found.detail})")
+                    return
             violation = found
             await self._emergency_stop(f"force monitor: {found.detail}", source="force_monitor", force=found.to_dict())
 

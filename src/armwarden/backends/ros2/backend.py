@@ -36,7 +36,8 @@ Threads: every callback runs on the bridge's executor thread, which owns the rcl
 (`armwarden.backends.ros2.bridge`): the endpoints are made before it spins, a camera's
 subscription is made and destroyed on it (`armwarden.backends.ros2.camera`). Its death is a fault
 for good: the goal cancelled, the fault reported once (the Guard latches and records it), every
-later call but stop and close refused naming it.
+later call but stop and close refused naming it. When the force monitor finds the wrench stale,
+`fault_behind_stale_data` tells a dead cell (its joint states stop too) from a wrench topic alone.
 
 Declared accuracies: `goal_accuracy_rad` 1e-3 rad, `hold_accuracy_rad` 2e-3 rad, `rest_speed_rad_s`
 1e-3 rad/s. A ros2_control position controller ends within its goal tolerance and a cancelled one
@@ -440,6 +441,29 @@ class Ros2Backend(Backend):
         except Exception:
             logger.exception("ros2 backend: stop after a fault failed")
         self._report_fault(f"ros2 backend fault: {problem}")
+
+    async def _fault_behind_stale_data(self) -> str | None:
+        """Whether the cell is why the data stopped (the Guard asks once the force monitor found no
+        usable wrench and stopped the arm): a fault already found, one found now, or else the joint
+        states are watched until they either move on (the cell lives: None, the wrench alone is
+        stale) or age past `joint_states.max_age_s` (the cell is gone: its fault, reported like the
+        watchdog's). A dead cell stops both streams at once, so this takes at most that age."""
+        deadline = time.monotonic() + self.config.joint_states.max_age_s + WATCH_PERIOD_S
+        seen = self.joint_states.latest_header_s()
+        while True:
+            if (failure := self.worker_failure) is not None:
+                return failure
+            with self._fault_lock:
+                found = self._last_fault if self._fault_active else None
+            if found is not None:
+                return f"ros2 backend fault: {found.problem}"
+            problem = self._health_problem()
+            if problem is not None:
+                self._fault(problem)
+                return f"ros2 backend fault: {problem}"
+            if self.joint_states.latest_header_s() != seen or time.monotonic() > deadline:
+                return None
+            await anyio.sleep(POLL_S)
 
     def _abort_on_fault(self, epoch: int, sent: str) -> None:
         """Event loop, during an execution decided under stop epoch `epoch`: look at the cell's
