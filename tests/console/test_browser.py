@@ -329,7 +329,7 @@ def test_reset_from_the_browser_needs_the_event_number(tmp_path: Path, browser: 
         released = browser.find_element(By.ID, "message").text
 
     assert "refused" in refused
-    assert "released by alice" in released
+    assert "E-stop #1 released" in released
     assert not guard.latch.is_latched
 
 

@@ -3,16 +3,44 @@
 Every value on a page may carry text a model wrote (an e-stop reason, an audit detail), so the
 environment escapes everything by default and the pages run under a Content-Security-Policy
 that allows only the daemon's own script and style files: no inline script, no other origin.
+A page says something after a redirect only by a code in its URL that maps to one of the fixed
+texts of `MESSAGES`: a crafted link cannot put official-looking words (or a CSS class) on the
+daemon's own page.
 """
 
 from __future__ import annotations
 
-from typing import Any
+import re
+from collections.abc import Mapping
+from typing import Any, Literal, get_args
+from urllib.parse import urlencode
 
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from starlette.responses import HTMLResponse
 
-__all__ = ["SECURITY_HEADERS", "page_headers", "render", "render_fragment"]
+__all__ = ["MESSAGES", "SECURITY_HEADERS", "message_from_query", "message_query", "page_headers", "render",
+           "render_fragment"]
+
+MessageKind = Literal["ok", "error"]
+#: what a page may say after a redirect, by the code in its URL (``?msg=CODE``, with ``&event=N``
+#: where the text has ``{event}``): fixed texts and kinds, so nobody can put words on the daemon's
+#: own page with a crafted link (the URL carries a code, never a text or a CSS class)
+MESSAGES: dict[str, tuple[MessageKind, str]] = {
+    "bad_token": ("error", "That token is not valid (unknown or revoked)."),
+    "console_full": ("error", "The console already has as many sessions open as it allows, and no one else is signed "
+                              "out to make room. Ask someone to sign out, or wait until a session ends."),
+    "no_request": ("error", "No such approval request."),
+    "estop_latched": ("ok", "E-STOP latched: event #{event}"),
+    "estop_failed": ("error", "E-STOP FAILED: the stop may NOT have been issued. Use the hardware e-stop."),
+    "released": ("ok", "E-stop #{event} released."),
+    "release_refused": ("error", "Release refused: nothing was released. Type the number of the e-stop event latched "
+                                 "now, shown on this page; any other number is refused."),
+    "release_unrecorded": ("error", "Release refused: the audit log cannot record it, so nothing was released and "
+                                    "the e-stop stays latched. Repair the audit log first."),
+    "approved": ("ok", "Approved: the waiting call proceeds from this answer."),
+    "declined": ("ok", "Declined: nothing moves."),
+}
+_EVENT_NUMBER = re.compile(r"[0-9]{1,9}")
 
 #: headers on every console answer: no caching of live state, no framing, no referrer (an approval
 #: link must not leak to another site), only the daemon's own scripts and styles
@@ -40,6 +68,28 @@ def page_headers(estop_origin: str | None) -> dict[str, str]:
     return {**SECURITY_HEADERS, "Content-Security-Policy": csp, "Referrer-Policy": "strict-origin-when-cross-origin"}
 
 
+def message_query(code: str, event: int | None = None) -> str:
+    """The query string that makes a page say `MESSAGES[code]` (with `event` for ``{event}``)."""
+    if code not in MESSAGES:
+        raise KeyError(f"no console message {code!r}")
+    return urlencode({"msg": code} if event is None else {"msg": code, "event": int(event)})
+
+
+def message_from_query(query: Mapping[str, str]) -> tuple[str, MessageKind] | None:
+    """The text and kind a page shows for its query string: a known code's fixed text (with an
+    event number, digits only, where it needs one); None for anything else."""
+    code = query.get("msg")
+    if code not in MESSAGES:
+        return None
+    kind, text = MESSAGES[code]
+    if "{event}" in text:
+        event = query.get("event", "")
+        if not _EVENT_NUMBER.fullmatch(event):
+            return None
+        text = text.format(event=int(event))
+    return text, kind
+
+
 _ENV = Environment(
     loader=PackageLoader("armwarden.console", "templates"),
     autoescape=select_autoescape(default=True, default_for_string=True),
@@ -55,7 +105,10 @@ _PAGE_DEFAULTS: dict[str, Any] = {"session": None, "message": None, "message_kin
 def render(template: str, *, status_code: int = 200, headers: dict[str, str] | None = None,
            **context: Any) -> HTMLResponse:
     """A whole page (`template` extends base.html); `base` (the console's path) must be given.
-    `estop_url`: where the E-STOP button posts (the stop channel; None: the console's own route)."""
+    `estop_url`: where the E-STOP button posts (the stop channel; None: the console's own route).
+    `message_kind` (a CSS class) must be one of `MessageKind`'s."""
+    if context.get("message_kind", "ok") not in get_args(MessageKind):
+        raise ValueError(f"message kind {context['message_kind']!r} is not one of {get_args(MessageKind)}")
     html = _ENV.get_template(template).render({**_PAGE_DEFAULTS, **context})
     return HTMLResponse(html, status_code=status_code, headers=headers or SECURITY_HEADERS)
 

@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib import resources
-from typing import Any, Literal
+from typing import Any
 
 from starlette.applications import Starlette
 from starlette.requests import Request
@@ -32,9 +32,9 @@ from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Route
 
 from armwarden.console.feed import StateFeed, request_view
-from armwarden.console.pages import SECURITY_HEADERS, page_headers, render, render_fragment
+from armwarden.console.pages import SECURITY_HEADERS, message_from_query, message_query, page_headers, render, render_fragment
 from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, SignInRefused, same_secret
-from armwarden.errors import SafetyRefusal
+from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.safety.audit import AuditWriteError
 from armwarden.safety.pending import AnswerRefusal
@@ -145,24 +145,22 @@ class Console:
         return same_secret(form.get("csrf") or request.headers.get("x-csrf-token"), session.csrf)
 
     def page(self, template: str, request: Request, session: Session, **context: Any) -> Response:
-        message = request.query_params.get("msg")
-        return render(template, base=self.base, session=session, message=message[:300] if message else None,
-                      headers=self.headers, estop_url=self.settings.estop_url,
-                      message_kind=request.query_params.get("kind", "ok"), **context)
+        message, kind = message_from_query(request.query_params) or (None, "ok")
+        return render(template, base=self.base, session=session, message=message, message_kind=kind,
+                      headers=self.headers, estop_url=self.settings.estop_url, **context)
 
-    def back(self, where: str, message: str, kind: Literal["ok", "error"] = "ok") -> RedirectResponse:
-        from urllib.parse import urlencode
-
-        return RedirectResponse(f"{self.base}{where}?{urlencode({'msg': message, 'kind': kind})}", status_code=303)
+    def back(self, where: str, code: str, event: int | None = None) -> RedirectResponse:
+        """Redirect to `where`, whose page then says `MESSAGES[code]` (the URL carries the code only)."""
+        return RedirectResponse(f"{self.base}{where}?{message_query(code, event)}", status_code=303)
 
     # ------------------------------------------------------------------ sign-in
     async def login_page(self, request: Request) -> Response:
         import secrets
 
         token = secrets.token_urlsafe(24)
+        message, kind = message_from_query(request.query_params) or (None, "ok")
         response = render("login.html", base=self.base, login_csrf=token, sign_in_enabled=self.sessions.enabled,
-                          headers=self.headers, estop_url=self.settings.estop_url,
-                          message=request.query_params.get("msg"), message_kind=request.query_params.get("kind", "ok"))
+                          headers=self.headers, estop_url=self.settings.estop_url, message=message, message_kind=kind)
         response.set_cookie(LOGIN_COOKIE, token, httponly=True, samesite="strict", path=self.base, max_age=600)
         return response
 
@@ -180,7 +178,7 @@ class Console:
                 await self.audit("console_sign_in", None, "refused", f"a sign-in refused: {session.message}",
                                  principal=session.name, reason=session.reason,
                                  peer=request.client.host if request.client else None)
-            return self.back("/login", session.message, "error")
+            return self.back("/login", "bad_token" if session.reason == "invalid_token" else "console_full")
         await self.audit("console_sign_in", session, "ok", f"signed in as {session.name} ({session.role})",
                          token=session.token_fingerprint)
         response = RedirectResponse(f"{self.base}/", status_code=303)
@@ -223,7 +221,7 @@ class Console:
     async def approval_page(self, request: Request, session: Session) -> Response:
         pending = self.guard.approvals.get(request.path_params["request_id"])
         if pending is None:
-            return self.back("/approvals", "No such approval request.", "error")
+            return self.back("/approvals", "no_request")
         return self.page("approval.html", request, session, title=f"approve {pending.plan_id}", r=request_view(pending),
                          answerable=self.settings.answer_approvals, own_request=pending.is_requested_by(session.name),
                          self_approval_allowed=self.guard.policy.approval.allow_self_approval)
@@ -313,8 +311,8 @@ class Console:
             body = {"estopped": True, "event": event} if error is None else {"error": error}
             return JSONResponse(body, status_code=200 if error is None else 500, headers=SECURITY_HEADERS)
         if error is not None:
-            return self.back("/safety", f"E-STOP FAILED: {error}. Use the hardware e-stop.", "error")
-        return self.back("/safety", f"E-STOP latched: event #{event}")
+            return self.back("/safety", "estop_failed")
+        return self.back("/safety", "estop_latched", event)
 
     async def reset(self, request: Request) -> Response:
         """Release the e-stop: an operator types the number of the event shown; a newer latch refuses."""
@@ -332,10 +330,11 @@ class Console:
         except SafetyRefusal as exc:
             with _told_even_if_unrecorded():  # a full audit disk may be why it was refused
                 await self.audit("console_reset_estop", session, "refused", str(exc), typed_event=typed[:32])
-            return self.back("/safety", str(exc), "error")
+            return self.back("/safety", "release_unrecorded" if exc.code == RefusalCode.AUDIT_UNAVAILABLE
+                             else "release_refused")
         with _told_even_if_unrecorded():  # the release itself was recorded before it took effect
             await self.audit("console_reset_estop", session, "released", result.detail, released_event=result.released_event)
-        return self.back("/safety", f"E-stop #{result.released_event} released by {session.name}")
+        return self.back("/safety", "released", result.released_event)
 
     async def answer(self, request: Request) -> Response:
         """Approve or decline one request, once; the waiting tool call proceeds from this record."""
@@ -369,7 +368,7 @@ class Console:
             detail += f" by its own requester {session.name} (approval.allow_self_approval is on)"
         await self.audit("console_approval", session, outcome.answer or "?", detail, plan_id=outcome.plan_id,
                          approval_code=outcome.code, requester=requester, self_approval=outcome.self_approved)
-        return self.back(f"/approvals/{request_id}", f"Plan {outcome.plan_id} {outcome.answer}.")
+        return self.back(f"/approvals/{request_id}", "approved" if outcome.answer == "approved" else "declined")
 
     # ------------------------------------------------------------------ the app
     def routes(self) -> list[Route]:
