@@ -3,7 +3,8 @@
 
     python scripts/bench.py                 # envelope, server, share, estop, mujoco, planner (flood, can only when named)
     python scripts/bench.py envelope        # one section
-    python scripts/bench.py flood           # about 80 s of a 2-core machine's full attention
+    python scripts/bench.py flood           # the review's flood, fake then ROS 2: about 8 min of a loaded machine
+    python scripts/bench.py flood-mix       # the heavier mixed flood: about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
     python scripts/bench.py can --can-seconds 10  # the CAN servo loop (default 60 s per rate: opt-in)
     .venv-ros/bin/python scripts/bench.py ros2    # the ROS 2 backend against the fake cell (opt-in: ROS venv)
@@ -24,7 +25,16 @@ Sections
   the request reaching ArmWarden to the backend stop being issued, and to the arm being still
   (the fake holds the arm in the thread that issues the stop; its control thread never commands
   a later position).
-- flood (opt-in: it takes about 80 s and loads the whole machine): e-stops through the stop
+- flood (opt-in: about 8 minutes of a loaded machine): the stop channel under the outside
+  review's flood (issue 24): 16 SDK clients reading and planning in loops, 100 slow sockets on
+  the MCP port and 40 on the channel; `--flood-stops` (200) e-stops idle, then as many under the
+  flood, each `POST /estop` sent while the arm moves and followed by an approved reset: POST ->
+  answer p50/p95/p99/max beside the idle figure, on the fake and (with .venv-ros) on ROS 2
+  against the fake cell in its own process, where also POST -> arm still at the cell; and where
+  each stop's time went, from stamps in the daemon's stop path and its threads' CPU and
+  run-queue times (`scripts/_bench/stop_flood.py`, `stop_trace.py`, `flood_cell.py`).
+  `--switch-interval S` and `--alternate KIND:A,B` are experiments (see --help).
+- flood-mix (opt-in: it takes about 80 s and loads the whole machine): e-stops through the stop
   channel (`POST /estop`, `send_estop`) and through the MCP `estop` tool while a separate process
   (`scripts/_bench/flood.py`) floods the daemon over loopback with 32 SDK clients (plans with and
   without previews, state reads, camera images, small executed moves, a new session per call)
@@ -76,7 +86,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent / "_bench"))  # the sections' helpers
 
-from bench_common import approve_all, median_p95, stop_process, timed_calls
+from bench_common import approve_all, median_p95, stop_process, timed_calls, timed_estop_post
 
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.preflight import load_runtime_model
@@ -464,7 +474,7 @@ def _percentiles(values_ms: list[float]) -> dict[str, float]:
             "max_ms": max(values_ms)}
 
 
-def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool = False) -> dict[str, Any]:
+def bench_flood_mix(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool = False) -> dict[str, Any]:
     """E-stops while `scripts/_bench/flood.py` floods the daemon (its docstring says with what).
 
     Every cycle stops the arm once — through the stop channel (`send_estop` on a worker thread,
@@ -480,7 +490,6 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
     the machine; needs root). `gc_freeze` (an experiment) has the daemon's wrapper collect once and
     `gc.freeze()` everything alive when it is ready, before any cycle.
     """
-    import http.client
     import os
     import signal
     import socket
@@ -563,27 +572,12 @@ def bench_flood(window_s: float = FLOOD_WINDOW_S, nice: int = 0, gc_freeze: bool
         def probe_stop(reason: str) -> tuple[dict[str, float] | None, str | None]:
             """`send_estop`'s request, timed at each step: connect (the kernel answers; only this
             side's scheduling shows), send, then waiting for the answer (the channel's thread)."""
-            body = json.dumps({"reason": reason}).encode()
-            headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json", "Connection": "close"}
-            connection = http.client.HTTPConnection("127.0.0.1", estop_port, timeout=2.0)
-            start = time.perf_counter()
             try:
-                connection.connect()
-                connected = time.perf_counter()
-                connection.request("POST", "/estop", body=body, headers=headers)
-                sent = time.perf_counter()
-                response = connection.getresponse()
-                answered = time.perf_counter()
-                answer = json.loads(response.read(65536))
-                done = time.perf_counter()
-            except (OSError, http.client.HTTPException, ValueError) as exc:
-                return None, f"{type(exc).__name__}: {exc} after {(time.perf_counter() - start) * 1e3:.0f} ms"
-            finally:
-                connection.close()
-            if response.status != 200 or not isinstance(answer, dict) or answer.get("estopped") is not True:
-                return None, f"answered {response.status}: {answer}"
-            return {"event": answer["event"], "probe_rt": done - start, "probe_connect": connected - start,
-                    "probe_send": sent - connected, "probe_wait": answered - sent}, None
+                t = timed_estop_post(estop_port, token, reason)
+            except RuntimeError as exc:
+                return None, str(exc)
+            return {"event": t["event"], "probe_rt": t["done"] - t["start"], "probe_connect": t["connected"] - t["start"],
+                    "probe_send": t["sent"] - t["connected"], "probe_wait": t["answered"] - t["sent"]}, None
 
         fsync_stop = threading.Event()
 
@@ -778,7 +772,7 @@ def _gc_pauses(pauses: list[dict[str, Any]], window: list[float], spans: list[tu
     }
 
 
-def _report_flood(r: dict[str, Any]) -> None:
+def _report_flood_mix(r: dict[str, Any]) -> None:
     load = r["load"]
 
     def cell(f: dict[str, float]) -> str:
@@ -833,6 +827,22 @@ def _report_flood(r: dict[str, Any]) -> None:
               + ", ".join(f"{name} {cores:.2f}" for name, cores in r["cpu_cores_used"].items()))
     print(f"host 1-min load average before / after the cycles: {' / '.join(f'{v:.1f}' for v in r['host_load_average_1min'])} "
           f"(2 cores; other work on the machine shows here)")
+
+
+def bench_flood(stops: int = 200, backends: tuple[str, ...] = ("fake", "ros2"), switch_interval_s: float | None = None,
+                alternate: str | None = None) -> dict[str, Any]:
+    import tempfile
+
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    with tempfile.TemporaryDirectory() as tmp:
+        return importlib.import_module("stop_flood").bench_stop_flood(
+            _bench_policy_file(Path(tmp)), stops=stops, backends=backends, switch_interval_s=switch_interval_s,
+            alternate=alternate)
+
+
+def _report_flood(r: dict[str, Any]) -> None:
+    importlib.import_module("stop_flood").report_stop_flood(r)
+
 
 def bench_share(rounds: int = 6) -> dict[str, Any]:
     import tempfile
@@ -892,13 +902,14 @@ SECTIONS = {
     "share": (bench_share, _report_share),
     "estop": (bench_estop, _report_estop),
     "flood": (bench_flood, _report_flood),
+    "flood-mix": (bench_flood_mix, _report_flood_mix),
     "mujoco": (bench_mujoco, _report_mujoco),
     "can": (bench_can, _report_can),
     "ros2": (bench_ros2, _report_ros2),
     "planner": (bench_planner, _report_planner),
 }
-#: sections run when none is named (flood takes about a minute and a half, can two minutes: ask for them
-#: by name; ros2 needs the ROS venv)
+#: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
+#: minutes: ask for them by name; ros2 needs the ROS venv)
 DEFAULT_SECTIONS = ("envelope", "server", "share", "estop", "mujoco", "planner")
 
 
@@ -912,10 +923,19 @@ def main() -> int:
     parser.add_argument("sections", nargs="*",
                         help=f"any of {', '.join(SECTIONS)} (default: {', '.join(DEFAULT_SECTIONS)})")
     parser.add_argument("--json", default=None, help="write the raw figures to this file")
+    parser.add_argument("--flood-stops", type=int, default=200, help="flood only: e-stops per phase (idle, flood), default 200")
+    parser.add_argument("--flood-backends", default="fake,ros2",
+                        help="flood only: comma-separated, of fake and ros2 (ros2 runs when .venv-ros exists)")
+    parser.add_argument("--switch-interval", type=float, default=None,
+                        help="flood only, an experiment: the daemon's sys.setswitchinterval value [s] instead of its own")
+    parser.add_argument("--alternate", default=None, metavar="KIND:A,B",
+                        help="flood only, an experiment: switch:A,B alternates the daemon's switch interval [s], "
+                             "fifo:A,B the stop channel thread's SCHED_FIFO priority (0 = normal; root), defer:0,1 the "
+                             "event loop's wake-up after the answer (scripts/_bench/stop_trace.py), stop by stop")
     parser.add_argument("--gc-freeze", action="store_true",
-                        help="flood only, an experiment: the daemon collects once and gc.freeze()s when ready")
+                        help="flood-mix only, an experiment: the daemon collects once and gc.freeze()s when ready")
     parser.add_argument("--nice", type=int, default=0,
-                        help="flood only: run the daemon and the e-stop sender at niceness N, the flood not (negative needs root)")
+                        help="flood-mix only: run the daemon and the e-stop sender at niceness N, the flood not (negative needs root)")
     parser.add_argument("--can-seconds", type=float, default=None,
                         help="can only: seconds per control rate (default 60, or $ARMWARDEN_BENCH_CAN_SECONDS)")
     parser.add_argument("--ros2-runs", type=int, default=100, help="ros2 only: execute + e-stop runs (default 100)")
@@ -928,6 +948,9 @@ def main() -> int:
     for name in chosen:
         run, report = SECTIONS[name]
         if name == "flood":
+            results[name] = run(stops=args.flood_stops, backends=tuple(args.flood_backends.split(",")),
+                                switch_interval_s=args.switch_interval, alternate=args.alternate)
+        elif name == "flood-mix":
             results[name] = run(nice=args.nice, gc_freeze=args.gc_freeze)
         elif name == "can":
             results[name] = run(seconds=args.can_seconds or float(os.environ.get("ARMWARDEN_BENCH_CAN_SECONDS", "60")))

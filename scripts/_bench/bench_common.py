@@ -79,3 +79,35 @@ async def approve_all(context: Any, params: Any) -> Any:
     import mcp_types as types
 
     return types.ElicitResult(action="accept", content={"approve": True, "operator": "bench"})
+
+
+def timed_estop_post(port: int, token: str, reason: str, timeout_s: float = 2.0) -> dict[str, Any]:
+    """One ``POST /estop`` to the stop channel on 127.0.0.1:`port` (the request `send_estop`
+    makes), stamped at each step on `time.monotonic` — CLOCK_MONOTONIC, which every process of
+    the host shares, so a daemon's own stamps line up with these: "start", "connected", "sent",
+    "answered" (status line and headers read), "done" [s]; plus the channel's "event" and
+    "stop_issued_ms". Raises RuntimeError saying what happened when the stop was not confirmed."""
+    import http.client
+    import json
+
+    body = json.dumps({"reason": reason}).encode()
+    headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json", "Connection": "close"}
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout_s)
+    start = time.monotonic()
+    try:
+        connection.connect()
+        connected = time.monotonic()
+        connection.request("POST", "/estop", body=body, headers=headers)  # one send: head and body together
+        sent = time.monotonic()
+        response = connection.getresponse()
+        answered = time.monotonic()
+        answer = json.loads(response.read(65536))
+        done = time.monotonic()
+    except (OSError, http.client.HTTPException, ValueError) as exc:
+        raise RuntimeError(f"{type(exc).__name__}: {exc} after {(time.monotonic() - start) * 1e3:.0f} ms") from exc
+    finally:
+        connection.close()
+    if response.status != 200 or not isinstance(answer, dict) or answer.get("estopped") is not True:
+        raise RuntimeError(f"answered {response.status}: {answer}")
+    return {"event": int(answer["event"]), "stop_issued_ms": answer.get("stop_issued_ms"), "start": start,
+            "connected": connected, "sent": sent, "answered": answered, "done": done}

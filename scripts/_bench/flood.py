@@ -15,8 +15,8 @@ by it; on a 2-core machine it still competes with the daemon for CPU, which is p
 
 Everything is on 127.0.0.1 and bounded in time (`--ramp` + `--duration`) and in count. The
 process prints ``ready`` on stdout once every slow connection was opened and every client has
-made its first call; calls are counted from then on, for `--duration` seconds. The figures go
-to `--out` (JSON) at the end.
+made its first call; calls are counted from then on, for `--duration` seconds, or until SIGTERM
+ends the window early. The figures go to `--out` (JSON) at the end.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import signal
 import statistics
 import sys
 import time
@@ -71,11 +72,12 @@ class Flood:
         self.url = f"http://{HOST}:{args.mcp_port}/mcp"
         self.stats = Stats()
         self.end = float("inf")  # monotonic end of the run, set once ramped up
+        self.ended = False  # SIGTERM: end now
         self.started_clients = 0
         self.first_call = asyncio.Event()
 
     def running(self) -> bool:
-        return time.monotonic() < self.end
+        return not self.ended and time.monotonic() < self.end
 
     def sdk_client(self, mode: str = "auto") -> tuple[httpx2.AsyncClient, Client]:
         http = httpx2.AsyncClient(headers={"Authorization": f"Bearer {self.args.token}"}, timeout=CALL_TIMEOUT_S)
@@ -218,6 +220,7 @@ class Flood:
     # ------------------------------------------------------------------------------ the run
     async def run(self) -> dict[str, Any]:
         a = self.args
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, lambda: setattr(self, "ended", True))
         ramp_start = time.monotonic()
         self.end = ramp_start + a.ramp + a.duration  # provisional bound for the ramp-up
         mcp_head = (f"POST /mcp HTTP/1.1\r\nHost: {HOST}:{a.mcp_port}\r\nAuthorization: Bearer x\r\n"
