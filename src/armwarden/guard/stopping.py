@@ -8,7 +8,8 @@ arm still) goes on the call's audit record.
 
 Stops never wait for the audit log (a full disk must not keep the arm moving); a release does:
 it is written and fsynced before the latch lets go, and one that cannot be recorded does not
-happen (`release`).
+happen (`release`). Releases run one at a time, so a second release of the same event (two
+operators at once) is refused before it writes a record of a release that would not happen.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from typing import Any
+
+import anyio
 
 from armwarden import conversions
 from armwarden.backends.base import Backend
@@ -40,6 +43,8 @@ class Stopper:
         self.generation = 0
         self.faults: list[str] = []
         self.force_violation_latched = False
+        #: held from a release's check to its effect: check, record and release are one step
+        self._releasing = anyio.Lock()
 
     async def stop_motion(self) -> StopResult:
         """Stop arm and gripper now. Never rate limited, never needs approval."""
@@ -137,21 +142,23 @@ class Stopper:
         """Release the e-stop a human approved resetting: only the event they were shown (none
         shown: the current one), and only if it is still the one latched. Recorded first: the
         `estop_release` record is on disk before the latch lets go; if it cannot be written,
-        nothing is released and the refusal says why (AUDIT_UNAVAILABLE)."""
-        current = self.latch.current_event
-        try:
-            shown = int(shown_event) if shown_event is not None else (current.number if current else -1)
-        except ValueError:
-            shown = -1
-        allowed = self.latch.check_release(shown)
-        if not allowed.released:
-            raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {allowed.message}")
-        await self._record_release(shown, operator, via)
-        result = self.latch.release(shown)  # checks again: an e-stop latched while the record was written wins
-        if not result.released:
-            raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {result.message}")
-        self.force_violation_latched = False
-        return ResetResult(estopped=self.latch.is_latched, released_event=shown, detail=result.message)
+        nothing is released and the refusal says why (AUDIT_UNAVAILABLE). One release at a time:
+        a second one waits, then finds the event released and is refused without a record."""
+        async with self._releasing:
+            current = self.latch.current_event
+            try:
+                shown = int(shown_event) if shown_event is not None else (current.number if current else -1)
+            except ValueError:
+                shown = -1
+            allowed = self.latch.check_release(shown)
+            if not allowed.released:
+                raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {allowed.message}")
+            await self._record_release(shown, operator, via)
+            result = self.latch.release(shown)  # checks again: an e-stop latched while the record was written wins
+            if not result.released:
+                raise SafetyRefusal(RefusalCode.RESET_REFUSED, f"reset_estop refused: {result.message}")
+            self.force_violation_latched = False
+            return ResetResult(estopped=self.latch.is_latched, released_event=shown, detail=result.message)
 
     async def _record_release(self, number: int, operator: str | None, via: str) -> None:
         """`estop_release` on disk, or SafetyRefusal(AUDIT_UNAVAILABLE) and the latch stays."""

@@ -9,7 +9,8 @@ enforced": releasing an e-stop).
 
 A release is recorded before it takes effect (`guard.stopping.Stopper.release`): the caller asks
 `check_release`, writes the record, then `release` checks again; a release that cannot be
-recorded does not happen.
+recorded does not happen. The caller runs one release at a time, so two releases of one event
+never both write a record.
 
 `generation` counts latches. The Guard records it before validating or asking and compares it
 afterwards: anything that started before a latch must not run after the reset.
