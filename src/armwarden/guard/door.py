@@ -57,7 +57,7 @@ from armwarden.policy import Policy
 from armwarden.preflight import RuntimeModel
 from armwarden.robot.model import RobotModel
 from armwarden.safety import prompts
-from armwarden.safety.approval import Approval, Prompt, ServerDecision, approval_required, client_decision, interpret
+from armwarden.safety.approval import Approval, Prompt, ServerDecision, approval_required, client_decision, hold_to_channel, interpret
 from armwarden.safety.estop import EStopLatch
 from armwarden.safety.pending import PendingApprovals
 from armwarden.safety.plans import PlanRefusal, PlanStore
@@ -229,8 +229,9 @@ class Guard:
         return prompt
 
     def interpret_approval(self, outcome: Any, required: bool) -> Approval:
-        """The resolver's outcome as an Approval, noted on the call's audit record."""
-        approval = interpret(outcome, required)
+        """The resolver's outcome as an Approval, noted on the call's audit record. Under
+        `approval.channel: url` a form answer is the requester's own (`hold_to_channel`)."""
+        approval = hold_to_channel(self.policy, interpret(outcome, required))
         note_approval(approval.granted, approval.via, approval.operator, type(outcome).__name__)
         if approval.self_approved and (call := current_call()) is not None:
             call.extra["approval"]["self_approval"] = True  # the approver was the requester (policy allows it)

@@ -100,8 +100,10 @@ class ApprovalConfig(BaseModel):
     channel: Literal["form", "url", "both"] = Field(
         default="form",
         description="Where the human answers a motion's approval (no unit): form, the MCP client's elicitation "
-        "form; url, the operator console page of that request (MCP URL-mode elicitation points there); both, "
-        "whichever answers first (the other is withdrawn).",
+        "form; url, the operator console page of that request (MCP URL-mode elicitation points there), never the "
+        "requesting client's own form (a client that cannot open the link, reset_estop and the control actions are "
+        "refused there; reset_estop is released in the console); both, whichever answers first (the other is "
+        "withdrawn).",
     )
     require_for: Annotated[tuple[ApprovalAction, ...], AfterValidator(_normalise_require_for)] = Field(
         default=APPROVAL_ACTIONS,
@@ -110,7 +112,8 @@ class ApprovalConfig(BaseModel):
     allow_self_approval: StrictBool = Field(
         default=False,
         description="Whether the token that requested a motion may approve it itself in the operator console "
-        "(boolean). Off: another operator must approve (the requester may still decline). On, for single-user "
-        "desks: the console page and the audit record say the approver is the requester.",
+        "(boolean), and, under channel url, whether the requesting client's own form may stand in. Off: another "
+        "operator must approve in the console (the requester may still decline). On, for single-user desks: the "
+        "console page or the form's question, and the audit record, say the approver is the requester.",
     )
 

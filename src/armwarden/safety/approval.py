@@ -5,6 +5,12 @@ code derived from the plan digest); anything the model wrote is shown on one lin
 truncated and labelled unverified, so an injected "operator note: safe to approve" cannot pass
 for server text. The form's `approve` box is unticked by default: only an explicit tick runs.
 
+Where the human answers (`approval.channel`): under `url` the operator console, never the
+requesting client's own form. The form is answered by the very client that asked, so under `url`
+it is not asked at all (`form_under_channel`: refused, naming the console) and a form answer that
+reaches the Guard anyway is refused (`hold_to_channel`), unless `approval.allow_self_approval`
+lets the requester approve, which the prompt and the audit record then say.
+
 This module is pure: the MCP resolvers that use it must stay side-effect free (under protocol
 2026-07-28 they may run more than once per call). The prompt texts themselves are in
 `armwarden.safety.prompts`.
@@ -13,7 +19,7 @@ This module is pure: the MCP resolvers that use it must stay side-effect free (u
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
@@ -149,19 +155,74 @@ def interpret(outcome: Any, required: bool) -> Approval:
 
 def client_decision(policy, action: str, required: bool, can_elicit: bool) -> ServerDecision | None:
     """No prompt needed (proceed), cannot prompt (the policy decides), or None: ask the human.
-    Releasing the e-stop always needs a human, whatever `on_client_without_elicitation` says."""
+    Releasing the e-stop always needs a human, whatever `on_client_without_elicitation` says;
+    under `approval.channel: url` the actions without a console page of their own are refused
+    here already (`form_under_channel`), since their only question would be the form."""
     if not required:
         return ServerDecision(True, "not_required")
+    console_only = None if action == "execute_plan" else _console_only(policy.approval, action)
     if can_elicit:
-        return None
+        return console_only
     if policy.approval.on_client_without_elicitation == "allow" and action != "reset_estop":
         return ServerDecision(True, "no_elicitation_client")
-    return ServerDecision.refused(
+    return console_only or ServerDecision.refused(
         RefusalCode.APPROVAL_UNAVAILABLE,
         f"{action} needs a human's approval, but this MCP client cannot show approval prompts "
         "(no elicitation support) and the policy denies such requests. Use a client that supports "
         "elicitation.",
     )
+
+
+#: leads the form's question when `approval.channel: url` lets the requester answer it itself
+SELF_APPROVAL_NOTE = ("NOTE: approval.channel is url, but this question is asked in the requesting MCP client's own form, "
+                      "because approval.allow_self_approval is on: whoever answers here approves their own request, "
+                      "and the audit log records it as a self-approval.")
+
+
+def _console_only(approval, action: str) -> ServerDecision | None:
+    """The refusal of the form for `action` under `approval.channel: url` (None: the form may be
+    asked). Why: the form is answered by the client that made the request; under `url` the
+    policy wants a human in the operator console to decide, so the requester must not approve
+    through its own form, unless `allow_self_approval` says it may."""
+    if approval.channel != "url" or approval.allow_self_approval:
+        return None
+    if action == "execute_plan":
+        how = ("this MCP client cannot open the console's link (it declares no URL-mode elicitation); use a client "
+               "that does, so an operator approves the motion on its console page")
+    elif action == "reset_estop":
+        how = ("an operator releases the e-stop in the console: sign in with a human's operator token and type the "
+               "event number on its Safety page")
+    else:
+        how = f"the console has no page to approve {action}, so it cannot be approved while the policy says url"
+    return ServerDecision.refused(
+        RefusalCode.APPROVAL_UNAVAILABLE,
+        f"{action} needs a human's approval in the ArmWarden operator console (approval.channel: url), not in the "
+        f"requesting client's own form, which would let the requester approve itself: {how}. Nothing was done.")
+
+
+def form_under_channel(approval, action: str, prompt: Prompt) -> Prompt | ServerDecision:
+    """The form's question for `action` as `approval.channel` allows it (`approval`: the policy's
+    approval section): as is under `form` and `both`; under `url` refused, naming the console,
+    or, with `allow_self_approval`, led by `SELF_APPROVAL_NOTE`."""
+    if approval.channel != "url":
+        return prompt
+    refusal = _console_only(approval, action)
+    if refusal is not None:
+        return refusal
+    return replace(prompt, message=f"{SELF_APPROVAL_NOTE}\n\n{prompt.message}")
+
+
+def hold_to_channel(policy, approval: Approval) -> Approval:
+    """The Guard's own check of where an answer came from: under `approval.channel: url` a
+    granted form answer came from the requesting client itself, so it is refused, unless
+    `allow_self_approval`, when it is marked self-approved (for the audit record)."""
+    if not (approval.granted and approval.via == "elicitation" and policy.approval.channel == "url"):
+        return approval
+    if policy.approval.allow_self_approval:
+        return replace(approval, self_approved=True)
+    return Approval(False, "elicitation", approval.required, approval.operator, RefusalCode.APPROVAL_UNAVAILABLE,
+                    "approval.channel is url: a human approves in the ArmWarden operator console, not in the "
+                    "requesting client's own form; nothing was done")
 
 
 def approval_required(policy, action: Action, has_soft_violations: bool = False) -> bool:

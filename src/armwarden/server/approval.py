@@ -14,7 +14,7 @@ from mcp.server.mcpserver.resolve import build_resolver_plans, find_resolved_par
 from mcp_types import InputRequiredResult
 from mcp_types.version import is_version_at_least
 
-from armwarden.safety.approval import ApprovalForm, ConsoleChannel, Prompt, ServerDecision
+from armwarden.safety.approval import ApprovalForm, ConsoleChannel, Prompt, ServerDecision, form_under_channel
 from armwarden.server.calls import current_call
 
 #: a tool's hidden `approval` parameter: the server's decision or the human's answer
@@ -59,14 +59,16 @@ def uses_rounds(ctx: Context) -> bool:
     return bool(ctx.protocol_version) and is_version_at_least(str(ctx.protocol_version), "2026-07-28")
 
 
-def approval_parameters(precheck: Callable[..., Any], channel: str = "form") -> ApprovalGate:
+def approval_parameters(precheck: Callable[..., Any], approval: Any, action: str, console: bool = False) -> ApprovalGate:
     """The two hidden parameters of a tool that may need a human, both resolved from `precheck`
     (a read-only `ServerDecision | Prompt`; the SDK runs it once per round and shares it):
     `approval`, the server's decision or the human's answer to the prompt; `shown`, the digest of
     what that prompt showed (None when nobody was asked), which the Guard matches against the
-    request it is about to carry out. `channel` (the policy's `approval.channel`, for plans): with
-    url or both, and a client that can open a link (`console_reachable`), the answer is a
-    `ConsoleChannel`: the tool body asks out of band (`server.outofband`)."""
+    request it is about to carry out. `approval` (the policy's approval section) decides where
+    the human answers: for a tool that can ask in the console (`console`: execute_plan), with
+    channel url or both and a client that can open a link (`console_reachable`), the answer is
+    a `ConsoleChannel`: the tool body asks out of band (`server.outofband`). Otherwise the form,
+    as `form_under_channel` allows it (under url: refused, or led by the self-approval note)."""
     check = Resolve(precheck)
 
     async def ask(ctx: Context, result: Annotated[ServerDecision | Prompt, check]
@@ -74,11 +76,16 @@ def approval_parameters(precheck: Callable[..., Any], channel: str = "form") -> 
         if not isinstance(result, Prompt):
             return result
         record = current_call()
-        if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
-            record.extra["approval_prompt"] = result.message
-        if channel in ("url", "both") and console_reachable(ctx):
-            return ConsoleChannel(result, "url" if channel == "url" else "both")
-        return Elicit(result.message, ApprovalForm)
+        if console and approval.channel in ("url", "both") and console_reachable(ctx):
+            if record is not None:  # the audit record shows the question (protocol 2025-11-25 asks mid-call)
+                record.extra["approval_prompt"] = result.message
+            return ConsoleChannel(result, "url" if approval.channel == "url" else "both")
+        form = form_under_channel(approval, action, result)
+        if isinstance(form, ServerDecision):
+            return form
+        if record is not None:
+            record.extra["approval_prompt"] = form.message
+        return Elicit(form.message, ApprovalForm)
 
     async def shown(result: Annotated[ServerDecision | Prompt, check]) -> str | None:
         return result.digest if isinstance(result, Prompt) else None

@@ -346,7 +346,7 @@ class ToolBuilder:
 
         # execute_plan resolves its approval by hand (no `Resolve` parameters): under 2026-07-28 the
         # console channel asks in an InputRequiredResult of its own (`server.outofband`)
-        resolve_approval = ResolvedByHand(approval_parameters(precheck_execute, channel=policy.approval.channel),
+        resolve_approval = ResolvedByHand(approval_parameters(precheck_execute, policy.approval, "execute_plan", console=True),
                                           {"plan_id"})
         seal = RoundSeal()
 
@@ -428,7 +428,7 @@ class ToolBuilder:
             async def precheck_switch(ctx: Context, activate: list[str], deactivate: list[str]) -> ServerDecision | Prompt:
                 return guard.precheck_action("switch_controllers", can_elicit(ctx), activate=activate, deactivate=deactivate)
 
-            switch_gate = approval_parameters(precheck_switch)
+            switch_gate = approval_parameters(precheck_switch, self.policy.approval, "switch_controllers")
 
             @tool("Activate/deactivate controllers named in the policy's allowlist: "
                   f"{list(self.policy.controllers.allowlist)}.", ACTUATING)
@@ -442,7 +442,7 @@ class ToolBuilder:
             async def precheck_thresholds(ctx: Context, force_n: float, torque_nm: float) -> ServerDecision | Prompt:
                 return guard.precheck_action("set_collision_thresholds", can_elicit(ctx), force_n=force_n, torque_nm=torque_nm)
 
-            thresholds_gate = approval_parameters(precheck_thresholds)
+            thresholds_gate = approval_parameters(precheck_thresholds, self.policy.approval, "set_collision_thresholds")
 
             @tool("Set the robot's collision (reflex) thresholds, at most the policy's contact force/torque limits.",
                   ACTUATING)
@@ -472,7 +472,7 @@ class ToolBuilder:
         def precheck_reset(ctx: Context) -> ServerDecision | Prompt:
             return guard.precheck_reset(can_elicit(ctx))
 
-        reset_gate = approval_parameters(precheck_reset)
+        reset_gate = approval_parameters(precheck_reset, self.policy.approval, "reset_estop")
 
         @tool("Release the software e-stop (and a latched force violation). Always asks a human, who approves the "
               "specific e-stop event they were shown.", RELEASING)
@@ -484,7 +484,7 @@ class ToolBuilder:
             async def precheck_recovery(ctx: Context) -> ServerDecision | Prompt:
                 return guard.precheck_action("error_recovery", can_elicit(ctx))
 
-            recovery_gate = approval_parameters(precheck_recovery)
+            recovery_gate = approval_parameters(precheck_recovery, self.policy.approval, "error_recovery")
 
             @tool("Clear the robot's error/reflex state (e.g. after a collision reflex). Refused while the e-stop is "
                   "latched.", RELEASING)
