@@ -29,20 +29,21 @@ import anyio
 from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
-from armwarden.errors import ArmWardenError, BackendUnavailable, ConfigurationError, PolicyError
+from armwarden.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, hmac_key_from_env
+from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_from_env
+from armwarden.safety.estop import flatten_reason
 from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel import ConsoleDoor, StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
 from armwarden.stopchannel.signals import SignalStop
 
 if TYPE_CHECKING:
-    from armwarden.transport.jsonrpc import RefusedCallback
+    from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, RefusedRequest
 
 logger = logging.getLogger("armwarden")
 
@@ -314,7 +315,8 @@ async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
 
     try:
         await serve_stdio(assembly.server.mcp, on_refused=_refusal_recorder(assembly),
-                          on_stop_request=external.stop_on_receipt, on_input_end=external.latch_as_the_client_leaves)
+                          on_stop_request=external.stop_on_receipt, on_input_end=external.latch_as_the_client_leaves,
+                          on_estop_refused=_refused_estop_latch(assembly, external))
     except OutputClosed:
         logger.warning("the client closed the daemon's stdout: its open calls are cancelled and the daemon stops")
         return "the client closed stdout"
@@ -323,16 +325,55 @@ async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
 
 def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
     """Audits a request a transport refused before the tools saw it (`request_refused`, on disk
-    before its answer where the transport waits for it)."""
+    before its answer where the transport waits for it), with what its stop calls did."""
 
-    async def record(method: str | None, params: Any, request_id: Any, outcome: str, why: str) -> None:
-        tool = params.get("name") if method == "tools/call" and isinstance(params, Mapping) else None
-        arguments = params.get("arguments") if tool is not None else None
+    async def record(refused: RefusedRequest) -> None:
+        params = refused.params if refused.method == "tools/call" and isinstance(refused.params, Mapping) else {}
+        tool, arguments = params.get("name"), params.get("arguments")
+        extra: dict[str, Any] = {}
+        if refused.request_id is not None:
+            extra["request_id"] = str(refused.request_id)[:64]
+        detail = refused.why
+        if refused.stops:
+            extra["stops"] = [stop.tool for stop in refused.stops]
+            events = [stop.estop_event for stop in refused.stops if stop.estop_event is not None]
+            if events:
+                extra["estop_event"] = events[0]
+            detail += "; " + "; ".join(stop.describe() for stop in refused.stops)
         await assembly.audit.append_async("request_refused", tool=None if tool is None else str(tool)[:128],
-                                          arguments=arguments, outcome=outcome, detail=why,
-                                          extra=None if request_id is None else {"request_id": str(request_id)[:64]})
+                                          arguments=None if tool is None else arguments, outcome=refused.outcome,
+                                          detail=detail,
+                                          extra=extra or None)
 
     return record
+
+
+def _refused_estop_latch(assembly: Assembly, external: ExternalStops) -> LatchOnRefusal:
+    """Latches the e-stop for an `estop` request a transport read but that will not run
+    (docs/threat-model.md: a clumsy stop still latches) and audits it without waiting, as the
+    stop channel does. The source is "estop": its reason is the client's, shown as unverified."""
+    latch_and_stop = external.latch_and_stop_for("estop")
+
+    def latch(reason: Any, principal: str | None, why: str) -> int:
+        text = flatten_reason(reason)
+        failure: BackendError | None = None
+        try:
+            number = latch_and_stop(text, principal or "")
+        except BackendError as exc:  # latched all the same, with a stop_failed e-stop on top
+            failure = exc
+            event = assembly.guard.latch.current_event
+            number = event.number if event is not None else 0
+        detail = (f"e-stop #{number} latched: the estop request was read but not run ({flatten_reason(why, 300)})"
+                  + ("" if failure is None else f"; the stop could NOT be issued: {failure}"))
+        try:
+            assembly.audit.submit("estop", tool="estop", principal=principal, arguments={"reason": text},
+                                  outcome="latched" if failure is None else "stop_failed", detail=detail,
+                                  extra={"estop_event": number})
+        except AuditWriteError as exc:  # the latch holds either way
+            logger.critical("estop not audited (%s): %s", exc, detail)
+        return number
+
+    return latch
 
 
 async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event,
@@ -355,6 +396,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
                          on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt, console=console,
                          on_refused=_refusal_recorder(assembly),
+                         on_estop_refused=_refused_estop_latch(assembly, external),
                          allowed_hosts=getattr(args, "allowed_host", []) or [],
                          allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)

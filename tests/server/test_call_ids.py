@@ -2,7 +2,8 @@
 took it for a notification and dropped it (HTTP 202, nothing on stdio: an `estop` sent that way
 did not latch), while the audit log said `tool_call estop` with no outcome. Both transports now
 refuse it visibly (JSON-RPC -32600 Invalid Request, id null) and record what happened:
-`request_refused`, the tool not run.
+`request_refused`, the tool not run (an `estop` sent that way latches all the same: its intent was
+read, and a release needs a human; tests/server/test_refused_stops.py).
 
 Found by an outside review (issue 24, item 9). Real daemons: HTTP on 127.0.0.1 (both protocol
 revisions), and stdio over pipes.
@@ -87,5 +88,5 @@ def test_a_stdio_call_without_a_usable_id_is_refused_visibly_and_recorded_as_not
 
     assert answer["id"] is None and answer["error"]["code"] == -32600, answer
     assert "id" in answer["error"]["message"]
-    assert status["result"]["structuredContent"]["estopped"] is False  # refused, so it did not latch
+    assert status["result"]["structuredContent"]["estopped"] is True  # refused, yet a readable estop still latches
     assert_refused_and_not_run(records_of(audit))

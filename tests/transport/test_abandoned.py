@@ -7,12 +7,20 @@ from __future__ import annotations
 
 import contextlib
 import json
+from types import SimpleNamespace
 from typing import Any
 
 import anyio
 import pytest
 
-from armwarden.transport.abandoned import MAX_BODY_BYTES, AbandonedMotionStop, decode_message, motion_call
+from armwarden.transport.abandoned import (
+    MAX_BODY_BYTES,
+    AbandonedMotionStop,
+    LatchEstopsNotRun,
+    decode_message,
+    motion_call,
+)
+from armwarden.transport.jsonrpc import RefusedRequest, StopTaken
 
 SESSION = (b"mcp-session-id", b"s-123")
 
@@ -231,8 +239,8 @@ async def pass_through(body: bytes) -> tuple[Recorder, list[tuple]]:
     """`body` through the middleware with an on_refused recorder; what the app saw, what was refused."""
     app, refused = Recorder(answer=True), []
 
-    async def on_refused(method: Any, params: Any, request_id: Any, outcome: str, why: str) -> None:
-        refused.append((method, params, request_id, outcome, why))
+    async def on_refused(r: RefusedRequest) -> None:
+        refused.append((r.method, r.params, r.request_id, r.outcome, r.why))
 
     messages = [{"type": "http.request", "body": body, "more_body": False}]
 
@@ -263,3 +271,102 @@ async def test_a_call_with_malformed_params_is_reported_before_it_is_passed_on()
     assert len(app.seen) == 1  # the SDK answers it (-32602)
     assert refused == [("tools/call", {"name": "gripper_move", "arguments": [0.04]}, 7, "invalid_params",
                         "tools/call of gripper_move refused: its arguments are not an object")]
+
+
+# ------------------------------------------------------------------ an estop that will not run still latches
+class Refusing:
+    """An app that answers every request with the SDK's 400 error before its tools see it."""
+
+    def __init__(self) -> None:
+        self.seen = 0
+
+    async def __call__(self, scope, receive, send) -> None:
+        await receive()
+        self.seen += 1
+        body = json.dumps({"jsonrpc": "2.0", "id": 7, "error": {"code": -32020, "message": "mcp-name header does not "
+                                                                 "match"}}).encode()
+        await send({"type": "http.response.start", "status": 400, "headers": []})
+        await send({"type": "http.response.body", "body": body})
+
+
+async def refused_through(app: Any, body: bytes) -> tuple[list[tuple], list[RefusedRequest], list[Any]]:
+    """`body` through the middleware with latch and refusal recorders; (latches, refusals, what was
+    sent), each latch and refusal noting how much of the answer had been sent by then."""
+    latches: list[tuple] = []
+    refusals: list[RefusedRequest] = []
+    sent: list[Any] = []
+
+    def on_estop_refused(reason: Any, principal: Any, why: str) -> int:
+        latches.append((reason, principal, why, len(sent)))
+        return 4
+
+    async def on_refused(r: RefusedRequest) -> None:
+        refusals.append(r)
+        assert sent == []  # on record before the answer
+
+    messages = [{"type": "http.request", "body": body, "more_body": False}]
+
+    async def receive() -> Any:
+        return messages.pop(0) if messages else {"type": "http.disconnect"}
+
+    async def send(message: Any) -> None:
+        sent.append(message)
+
+    middleware = AbandonedMotionStop(app, "/mcp", on_refused=on_refused, on_stop_request=lambda tool, principal: None,
+                                     on_estop_refused=on_estop_refused)
+    await middleware({"type": "http", "method": "POST", "path": "/mcp", "headers": [SESSION]}, receive, send)
+    return latches, refusals, sent
+
+
+@pytest.mark.anyio
+async def test_an_estop_without_a_usable_id_latches_before_it_is_refused():
+    app = Recorder(answer=True)
+    latches, [refusal], sent = await refused_through(app, rpc("estop", {"reason": "person in the cell"}, request_id=1.0))
+    assert [(reason, sent_by_then) for reason, _, _, sent_by_then in latches] == [("person in the cell", 0)]
+    assert refusal.outcome == "invalid_request" and refusal.stops == (StopTaken("estop", 4),)
+    assert sent[0]["status"] == 400 and app.seen == []
+
+
+@pytest.mark.anyio
+async def test_an_estop_the_sdk_refuses_before_its_tools_latches_before_the_answer_leaves():
+    app = Refusing()
+    latches, [refusal], sent = await refused_through(app, rpc("estop", {"reason": "r"}))
+    [(reason, _, why, sent_by_then)] = latches
+    assert reason == "r" and sent_by_then == 0 and "-32020" in why
+    assert refusal.outcome == "header_mismatch" and refusal.stops == (StopTaken("estop", 4),)
+    assert sent[0]["status"] == 400 and app.seen == 1
+
+
+@pytest.mark.anyio
+async def test_a_stop_motion_the_sdk_refuses_is_recorded_as_held_and_latches_nothing():
+    latches, [refusal], _ = await refused_through(Refusing(), rpc("stop_motion", {}))
+    assert latches == [] and refusal.stops == (StopTaken("stop_motion"),)
+
+
+@pytest.mark.anyio
+async def test_an_estop_call_the_sdk_refuses_after_dispatch_latches():
+    latches: list[tuple] = []
+    watch = LatchEstopsNotRun(lambda reason, principal, why: latches.append((reason, why)) or 1)
+    ctx = SimpleNamespace(method="tools/call", params={"name": "estop", "arguments": {"reason": "r"}})
+
+    async def refuse(_ctx: Any) -> Any:
+        raise ValueError("Invalid or expired requestState")
+
+    with pytest.raises(ValueError):
+        await watch(ctx, refuse)  # type: ignore[arg-type]
+    assert latches == [("r", "the estop call ended without its tool's answer (ValueError: Invalid or expired "
+                             "requestState)")]
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("name", ["estop", "stop_motion", "get_safety_status"])
+async def test_a_call_answered_after_dispatch_latches_nothing_more(name: str):
+    latches: list[tuple] = []
+    watch = LatchEstopsNotRun(lambda reason, principal, why: latches.append((reason, why)) or 1)
+    ctx = SimpleNamespace(method="tools/call", params={"name": name, "arguments": {}})
+
+    async def answer(_ctx: Any) -> Any:
+        return {"content": []}
+
+    assert await watch(ctx, answer) == {"content": []}  # type: ignore[arg-type]
+    assert latches == []

@@ -12,7 +12,7 @@ from mcp.shared._context_streams import create_context_streams
 from mcp.shared.message import ServerMessageMetadata, SessionMessage
 from pydantic import ValidationError
 
-from armwarden.transport.jsonrpc import INVALID_REQUEST, PARSE_ERROR
+from armwarden.transport.jsonrpc import INVALID_REQUEST, PARSE_ERROR, RefusedRequest, StopTaken
 from armwarden.transport.stdio import gate_streams
 
 
@@ -43,17 +43,25 @@ class Wire:
         self.refused: list[tuple[str, Any, Any]] = []
         self.stops: list[tuple[str, Any]] = []
         self.outcomes: list[tuple[str, str]] = []
+        self.taken: list[tuple[StopTaken, ...]] = []
+        self.latches: list[tuple[Any, Any, str]] = []
 
-        async def on_refused(method: str | None, params: Any, request_id: Any, outcome: str, why: str) -> None:
-            self.refused.append((method, params, request_id))
-            self.outcomes.append((outcome, why))
+        def on_estop_refused(reason: Any, principal: Any, why: str) -> int:
+            self.latches.append((reason, principal, why))
+            return len(self.latches)
+
+        async def on_refused(refused: RefusedRequest) -> None:
+            self.refused.append((refused.method, refused.params, refused.request_id))
+            self.outcomes.append((refused.outcome, refused.why))
+            self.taken.append(refused.stops)
 
         def spawn(fn, *args) -> None:
             self.spawned.append((fn, args))
 
         self.spawned: list[tuple[Any, tuple]] = []
         self.server_read, self.server_write = gate_streams(stdin_receive, stdout_send, spawn, on_refused,
-                                                           lambda tool, principal: self.stops.append((tool, principal)))
+                                                           lambda tool, principal: self.stops.append((tool, principal)),
+                                                           on_estop_refused=on_estop_refused)
 
     async def client(self, item: SessionMessage | Exception) -> None:
         await self.stdin_send.send(item)
@@ -245,3 +253,76 @@ async def test_an_unreadable_line_is_reported() -> None:
     await wire.report()
     assert wire.refused == [(None, None, None)]
     assert wire.outcomes[0][0] == "unreadable"
+
+
+# ------------------------------------------------------------------ an estop that will not run still latches
+@pytest.mark.anyio
+async def test_an_estop_whose_id_is_refused_latches_before_the_refusal_is_answered() -> None:
+    wire = Wire()
+    await wire.client(request(1, name="execute_plan"))
+    await wire.passed_request()
+    await wire.client(call(1, "estop", {"reason": "person in the cell"}))  # the open motion call's id
+    await wire.client(request(2, name="get_robot_state"))
+    await wire.passed_request()
+    [(reason, principal, why)] = wire.latches
+    assert reason == "person in the cell" and principal is None and "already in use" in why
+    await wire.report()
+    assert wire.taken == [(StopTaken("estop", 1),)]  # the refusal's record says it latched
+
+
+@pytest.mark.anyio
+async def test_a_stop_motion_whose_id_is_refused_holds_and_latches_nothing() -> None:
+    wire = Wire()
+    await wire.client(request(1, name="execute_plan"))
+    await wire.passed_request()
+    await wire.client(call(1, "stop_motion", {}))
+    await wire.client(request(2, name="get_robot_state"))
+    await wire.passed_request()
+    await wire.report()
+    assert wire.stops == [("stop_motion", None)] and wire.latches == []
+    assert wire.taken == [(StopTaken("stop_motion"),)]
+
+
+@pytest.mark.anyio
+async def test_an_estop_answered_with_an_error_latches_before_the_answer_is_written() -> None:
+    wire = Wire()
+    await wire.client(call(5, "estop", {"reason": "smoke"}))
+    await wire.passed_request()
+    error = types.JSONRPCError(jsonrpc="2.0", id=5, error=types.ErrorData(code=-32602, message="Invalid request parameters"))
+    await wire.server_write.send(SessionMessage(error))
+    [(reason, _, why)] = wire.latches
+    assert reason == "smoke" and "-32602" in why
+    assert wire.sent() == [error]
+
+
+@pytest.mark.anyio
+async def test_an_estop_answered_with_a_result_latches_nothing_here() -> None:
+    wire = Wire()
+    await wire.client(call(5, "estop", {"reason": "smoke"}))
+    await wire.passed_request()
+    await wire.server_write.send(answer(5))  # the tool ran: it latched itself
+    assert wire.latches == []
+
+
+@pytest.mark.anyio
+async def test_an_estop_that_settles_unanswered_latches() -> None:
+    wire = Wire()
+    await wire.client(call(5, "estop", {"reason": "smoke"}))
+    passed = await wire.passed()
+    assert isinstance(passed.metadata, ServerMessageMetadata) and passed.metadata.on_request_unanswered is not None
+    await passed.metadata.on_request_unanswered()  # cancelled before its tool answered
+    assert [reason for reason, _, _ in wire.latches] == ["smoke"]
+
+
+@pytest.mark.anyio
+async def test_a_line_that_is_json_but_no_message_and_names_estop_holds_and_latches() -> None:
+    wire = Wire()
+    line = '{"jsonrpc": "1.0", "id": 3, "method": "tools/call", "params": {"name": "estop", "arguments": {"reason": "r"}}}'
+    await wire.client(unreadable(line))
+    await wire.client(request(1))
+    await wire.passed()
+    await wire.report()
+    assert wire.stops == [("estop", None)] and [reason for reason, _, _ in wire.latches] == ["r"]
+    [error] = wire.sent()
+    assert error.error.code == INVALID_REQUEST
+    assert wire.taken == [(StopTaken("estop", 1),)]

@@ -19,7 +19,9 @@ path stops the robot and audits it. Nothing else is touched: another client's mo
 `on_abandoned` is told afterwards, for the audit log.
 
 It also repairs a stopping tool's call whose `arguments` is not an object (`stop_params_repaired`:
-the SDK would refuse it before the e-stop latches), refuses (400, -32600) a `tools/call` without a
+the SDK would refuse it before the e-stop latches), latches the e-stop for an `estop` request that
+is refused anyway (`refused_stops`, before the refusal is answered; after the tools saw it,
+`LatchEstopsNotRun`), refuses (400, -32600) a `tools/call` without a
 usable id (`unanswerable_call`: the SDK would drop it as a notification, unanswered and unrun, as
 stdio refuses it), and reports (`on_refused`, awaited before the
 answer leaves, so the daemon's record is on disk first) every request refused before the server's
@@ -47,16 +49,22 @@ import anyio
 from mcp.server.context import CallNext, ServerRequestContext
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from armwarden.transport.access import current_principal
 from armwarden.transport.jsonrpc import (
     HEADER_MISMATCH,
     INVALID_PARAMS,
     INVALID_REQUEST,
     PARSE_ERROR,
+    LatchOnRefusal,
     RefusedCallback,
+    RefusedRequest,
     StopOnReceipt,
+    StopTaken,
     duplicate_id_message,
+    refused_stops,
     request_id_key,
     screen_call,
+    stop_call,
     unanswerable_call,
     usable_request_id,
 )
@@ -96,6 +104,28 @@ async def mark_dispatched(ctx: ServerRequestContext[Any, Any], call_next: CallNe
     if ctx.method == "tools/call" and (seen := _DISPATCHED.get()) is not None:
         seen.append(ctx.method)
     return await call_next(ctx)
+
+
+class LatchEstopsNotRun:
+    """MCP server middleware, installed by the HTTP app: an `estop` call that reached the server
+    but ended without an answer of its tool — refused by the SDK after the transport passed it on
+    (a forged or expired 2026-07-28 request state, params its validation rejects) or cancelled
+    (its 2026-07-28 client hung up) — latches the e-stop all the same, before the error goes out
+    (a readable estop request shows the intent; `refused_stops`)."""
+
+    def __init__(self, latch: LatchOnRefusal) -> None:
+        self.latch = latch
+
+    async def __call__(self, ctx: ServerRequestContext[Any, Any], call_next: CallNext) -> Any:
+        if stop_call(ctx.method, ctx.params) != "estop":
+            return await call_next(ctx)
+        try:
+            return await call_next(ctx)
+        except BaseException as exc:
+            principal = current_principal()
+            why = f"the estop call ended without its tool's answer ({type(exc).__name__}: {str(exc)[:200]})"
+            refused_stops([("estop", ctx.params)], self.latch, None if principal is None else principal.name, why)
+            raise
 
 
 def body_digest(body: bytes) -> str:
@@ -204,12 +234,14 @@ class AbandonedMotionStop:
     """ASGI middleware: see the module docstring."""
 
     def __init__(self, app: ASGIApp, path: str, on_abandoned: AbandonedCallback | None = None,
-                 on_stop_request: StopOnReceipt | None = None, on_refused: RefusedCallback | None = None) -> None:
+                 on_stop_request: StopOnReceipt | None = None, on_refused: RefusedCallback | None = None,
+                 on_estop_refused: LatchOnRefusal | None = None) -> None:
         self.app = app
         self.path = path.rstrip("/")
         self.on_abandoned = on_abandoned
         self.on_stop_request = on_stop_request
         self.on_refused = on_refused
+        self.on_estop_refused = on_estop_refused
         self._open_requests: set[tuple[str, bytes, str]] = set()  # (principal, session, id) of POSTs not ended
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -232,10 +264,14 @@ class AbandonedMotionStop:
             await _refuse(send, 413, too_large)
             return
         message = decode_message(body)
+        principal = _principal(scope) or None
         reported = False
+        stops: list[tuple[str, Any]] = []  # (tool, params) of the stop calls it makes
         if message is not None:
             params, malformed = screen_call(message.get("method"), message.get("params"), self.on_stop_request,
-                                            _principal(scope) or None)
+                                            principal)
+            if (tool := stop_call(message.get("method"), params)) is not None:
+                stops.append((tool, params))
             if params is not message.get("params"):  # a stopping call, repaired: replay the new body
                 message = {**message, "params": params}
                 body = json.dumps(message).encode()
@@ -243,7 +279,8 @@ class AbandonedMotionStop:
                                               for key, value in scope.get("headers", [])]}
             if not usable_request_id(message.get("id")) and (
                     idless := unanswerable_call(message.get("method"), params)) is not None:
-                await self._report(message, "invalid_request", idless, len(body))
+                taken = refused_stops(stops, self.on_estop_refused, principal, idless)
+                await self._report(message, "invalid_request", idless, len(body), taken)
                 await _refuse(send, 400, idless)
                 return
             if malformed is not None:
@@ -253,20 +290,21 @@ class AbandonedMotionStop:
         if key is not None and key in self._open_requests:
             # the SDK would replace the open call's entry: that call could then no longer be cancelled
             request_id = message.get("id") if message else None
-            await self._report(message, "duplicate_request_id",
-                               f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}",
-                               len(body))
+            why = f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}"
+            taken = refused_stops(stops, self.on_estop_refused, principal, why)
+            await self._report(message, "duplicate_request_id", why, len(body), taken)
             await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
         if key is not None:
             self._open_requests.add(key)
         try:
-            await self._pass_on(scope, receive, send, body, message, reported)
+            await self._pass_on(scope, receive, send, body, message, reported, stops)
         finally:
             if key is not None:
                 self._open_requests.discard(key)
 
-    async def _report(self, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int) -> None:
+    async def _report(self, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int,
+                      stops: tuple[StopTaken, ...] = ()) -> None:
         """Hand a refusal to `on_refused`: the message's method, params and id (its params without
         the arguments when the body was over `RECORDED_BODY_BYTES`), or Nones for a body that
         was not read or not understood."""
@@ -280,12 +318,13 @@ class AbandonedMotionStop:
             elif body_bytes > RECORDED_BODY_BYTES:
                 params = {"name": params["name"]} if isinstance(params.get("name"), str) else None
         try:
-            await self.on_refused(method, params, request_id, outcome, why)
+            await self.on_refused(RefusedRequest(method, params, request_id, outcome, why, stops))
         except Exception:
             logger.exception("reporting the refused request %r failed", request_id)
 
-    async def _report_sdk_refusal(self, message: dict[str, Any] | None, body: bytes, answer: list[Message]) -> None:
-        """Record an error answer the SDK gave a request before its dispatch reached the tools."""
+    @staticmethod
+    def _sdk_refusal(message: dict[str, Any] | None, body: bytes, answer: list[Message]) -> tuple[str, str]:
+        """(outcome, why) of an error answer the SDK gave a request before its dispatch reached the tools."""
         status = int(answer[0]["status"])
         text = b"".join(part.get("body", b"") for part in answer[1:])[:_ERROR_ANSWER_BYTES]
         code: Any = None
@@ -301,10 +340,10 @@ class AbandonedMotionStop:
         rpc = f", JSON-RPC {code}" if isinstance(code, int) else ""
         why = f"{what} refused by the MCP SDK before any tool saw it (HTTP {status}{rpc}: {said}); body {body_digest(body)}"
         outcome = _REFUSAL_OUTCOMES.get(code, "refused") if isinstance(code, int) else "refused"
-        await self._report(message, outcome, why, len(body))
+        return outcome, why
 
     async def _pass_on(self, scope: Scope, receive: Receive, send: Send, body: bytes,
-                       message: dict[str, Any] | None, reported: bool) -> None:
+                       message: dict[str, Any] | None, reported: bool, stops: list[tuple[str, Any]]) -> None:
         answered = False
         # an error answer to a `tools/call` (or to a body nobody could read) that the tools never
         # saw is held until its refusal is recorded; a refusal already reported is not watched
@@ -321,8 +360,10 @@ class AbandonedMotionStop:
                 held.append(out)
                 if out["type"] != "http.response.body" or out.get("more_body", False):
                     return
-                with anyio.CancelScope(shield=True):  # the record, then the answer
-                    await self._report_sdk_refusal(message, body, held)
+                with anyio.CancelScope(shield=True):  # the latch and the record, then the answer
+                    outcome, why = self._sdk_refusal(message, body, held)
+                    taken = refused_stops(stops, self.on_estop_refused, _principal(scope) or None, why)
+                    await self._report(message, outcome, why, len(body), taken)
                 for part in held:
                     await send(part)
                 held.clear()

@@ -58,9 +58,9 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
-from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, mark_dispatched
+from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, LatchEstopsNotRun, mark_dispatched
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
-from armwarden.transport.jsonrpc import RefusedCallback, StopOnReceipt
+from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
@@ -231,6 +231,7 @@ def build_http_app(
     on_stop_request: StopOnReceipt | None = None,
     console: ASGIApp | None = None,
     on_refused: RefusedCallback | None = None,
+    on_estop_refused: LatchOnRefusal | None = None,
 ) -> Starlette:
     """The ASGI app: ``/mcp`` (stateful streamable HTTP), ``/healthz`` and, when given, the
     operator `console` at ``/console`` (its own sign-in instead of bearer tokens; Host/Origin
@@ -243,9 +244,12 @@ def build_http_app(
     call's request ended without its response and the call was cancelled (see `abandoned.py`).
     `on_stop_request(tool, principal)` is called the moment an `estop`/`stop_motion` request is read,
     before the SDK queues it: it must be quick and thread-safe (it holds the robot).
-    `on_refused(method, params, request_id, outcome, why)` is awaited for a request refused before
-    the tools saw it (a body over 1 MiB, a duplicate id, malformed `tools/call` params, any error
-    answer the SDK gives a `tools/call` before its dispatch), before it is answered.
+    `on_refused(refused)` is awaited for a request refused before the tools saw it (a body over
+    1 MiB, a duplicate id, malformed `tools/call` params, any error answer the SDK gives a
+    `tools/call` before its dispatch), before it is answered.
+    `on_estop_refused(reason, principal, why)` latches the e-stop for an `estop` request that was
+    read but will not run (refused before or by the SDK, or cancelled), before its answer: quick,
+    thread-safe, never waits for the disk.
     """
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
     mcp_app = server.streamable_http_app(
@@ -258,6 +262,9 @@ def build_http_app(
     session_manager = server.session_manager  # created by streamable_http_app(); run() works once
     if mark_dispatched not in server.middleware:  # outermost: tells AbandonedMotionStop what the tools saw
         server.middleware.insert(0, mark_dispatched)
+    server.middleware[:] = [layer for layer in server.middleware if not isinstance(layer, LatchEstopsNotRun)]
+    if on_estop_refused is not None:  # right inside it: an estop the SDK refuses after dispatch still latches
+        server.middleware.insert(server.middleware.index(mark_dispatched) + 1, LatchEstopsNotRun(on_estop_refused))
 
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette) -> AsyncIterator[None]:
@@ -280,7 +287,8 @@ def build_http_app(
                                      own_auth_prefixes=(CONSOLE_PATH,) if console is not None else ()))
     # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
     middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned,
-                                 on_stop_request=on_stop_request, on_refused=on_refused))
+                                 on_stop_request=on_stop_request, on_refused=on_refused,
+                                 on_estop_refused=on_estop_refused))
     routes: list[Route | Mount] = [Route(HEALTH_PATH, healthz, methods=["GET"])]
     if console is not None:
         routes.append(Mount(CONSOLE_PATH, app=console))

@@ -5,10 +5,14 @@ Lean on purpose (no Starlette, no uvicorn): the stdio transport imports it.
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable, Mapping
+import logging
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from mcp.shared.dispatcher import coerce_request_id
+
+logger = logging.getLogger(__name__)
 
 #: the line is not JSON
 PARSE_ERROR = -32700
@@ -32,10 +36,48 @@ def request_id_key(request_id: Any) -> str:
 STOP_TOOLS = frozenset({"estop", "stop_motion"})
 #: (tool, principal or None): hold the robot now; the tool itself runs later and does the rest
 StopOnReceipt = Callable[[str, "str | None"], None]
-#: (method, params, request id, outcome, why) of a request a transport refused, or knows the SDK
-#: will refuse, before the server's tools saw it — its id was open, it was unreadable (method,
-#: params and id then None), its `tools/call` params were malformed — for the audit log
-RefusedCallback = Callable[[Any, "Mapping[str, Any] | None", Any, str, str], Awaitable[None]]
+#: (reason, principal or None, why) -> the e-stop event number: latch the e-stop for an `estop`
+#: request that was read but will not run — refused before its tool saw it, or ended without it
+#: (docs/threat-model.md: a clumsy stop still latches; a release needs a human, so latching is
+#: always safe). `reason` is what the request gave, any value. Quick, never waits for the disk,
+#: records itself; must not raise (a stop that could not be issued latches on top and is recorded).
+LatchOnRefusal = Callable[[Any, "str | None", str], int]
+
+
+@dataclass(frozen=True)
+class StopTaken:
+    """What a refused request's call of a stopping tool did to the robot as it was read: `estop`
+    latched `estop_event` (None: nobody to latch it, tests only); `stop_motion` held the arm, which
+    is all that tool does. Such a refusal's record is never left out of the log."""
+
+    tool: str
+    estop_event: int | None = None
+
+    def describe(self) -> str:
+        if self.tool != "estop":
+            return f"the {self.tool} request held the robot as it was read"
+        if self.estop_event is None:
+            return "the estop request held the robot as it was read (no latch here)"
+        return f"e-stop #{self.estop_event} latched: a refused estop request still latches"
+
+
+@dataclass(frozen=True)
+class RefusedRequest:
+    """A request a transport refused, or knows the SDK will refuse, before the server's tools saw
+    it — its id was open or unusable, it was unreadable (method, params and id then None), its
+    `tools/call` params were malformed, the SDK answered it with an error — for the audit log."""
+
+    method: Any
+    params: Mapping[str, Any] | None
+    request_id: Any
+    outcome: str
+    why: str
+    #: what its stop calls did (`StopTaken`)
+    stops: tuple[StopTaken, ...] = ()
+
+
+#: awaited (HTTP, before the answer) or run soon after (stdio) for each `RefusedRequest`
+RefusedCallback = Callable[[RefusedRequest], Awaitable[None]]
 
 
 def stop_call(method: Any, params: Any) -> str | None:
@@ -44,6 +86,32 @@ def stop_call(method: Any, params: Any) -> str | None:
         return None
     name = params.get("name")
     return name if isinstance(name, str) and name in STOP_TOOLS else None
+
+
+def estop_reason(params: Any) -> Any:
+    """The reason an `estop` call's params give (any value; None when they give none): its
+    `arguments.reason`, or `arguments` itself when that is not an object (`stop_params_repaired`)."""
+    arguments = params.get("arguments") if isinstance(params, Mapping) else None
+    return arguments.get("reason") if isinstance(arguments, Mapping) else arguments
+
+
+def refused_stops(stop_calls: Iterable[tuple[str, Any]], latch: LatchOnRefusal | None, principal: str | None,
+                  why: str) -> tuple[StopTaken, ...]:
+    """What the stop calls (tool, params) of a request that will not reach its tools did: each was
+    held as it was read (`screen_call`); an `estop` among them now latches too — once per request,
+    with the first one's reason. Call it before the refusal is answered."""
+    taken: dict[str, StopTaken] = {}
+    for tool, params in stop_calls:
+        if tool in taken:
+            continue
+        event = None
+        if tool == "estop" and latch is not None:
+            try:
+                event = latch(estop_reason(params), principal, why)
+            except Exception:  # the hook records its own failures; a bug there must not eat the refusal
+                logger.exception("latching the e-stop for a refused estop request failed")
+        taken[tool] = StopTaken(tool, event)
+    return tuple(taken.values())
 
 
 def stop_params_repaired(tool: str, params: dict[str, Any]) -> dict[str, Any]:
@@ -103,7 +171,8 @@ def unanswerable_call(method: Any, params: Any) -> str | None:
     `tools/call`; None for any other method. The SDK would take such a call for a notification
     and drop it: the tool would not run and the client would never know (an `estop` sent that
     way did not latch). Both transports refuse it with -32600 Invalid Request, id null, and
-    audit it; a stopping tool's call has already held the robot as it was read (`screen_call`)."""
+    audit it; a stopping tool's call has already held the robot as it was read (`screen_call`),
+    and an `estop` latches as it is refused (`refused_stops`)."""
     if method != "tools/call":
         return None
     name = params.get("name") if isinstance(params, dict) else None

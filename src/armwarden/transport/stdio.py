@@ -15,9 +15,12 @@ server. Three gaps, closed here by a thin layer around its streams:
   cancellable. Here the second request is answered with a -32600 error under its id and never
   reaches the SDK, as the HTTP transport refuses it with 409 (`abandoned.py`).
 
-Two more, shared with the HTTP transport (`jsonrpc.py`): a stopping tool's call whose `arguments`
+Three more, shared with the HTTP transport (`jsonrpc.py`): a stopping tool's call whose `arguments`
 is not an object is passed on with that value as its argument (`stop_params_repaired`: the SDK would
-refuse it before the tool latches), and every request refused before the server's tools see it —
+refuse it before the tool latches); an `estop` request that is read but will not run — refused
+here (a reused id, no usable id, a line that is JSON but not one JSON-RPC message), answered by
+the SDK with an error, or settled without an answer — latches the e-stop before that answer
+(`on_estop_refused`, `refused_stops`); and every request refused before the server's tools see it —
 an unreadable line, a reused id, a call without a usable id, a `tools/call` with malformed params
 (the SDK answers that one) —
 is reported through `on_refused`, so the daemon audits it.
@@ -60,11 +63,16 @@ from pydantic import ValidationError
 from armwarden.transport.jsonrpc import (
     INVALID_REQUEST,
     PARSE_ERROR,
+    LatchOnRefusal,
     RefusedCallback,
+    RefusedRequest,
     StopOnReceipt,
+    StopTaken,
     duplicate_id_message,
+    refused_stops,
     request_id_key,
     screen_call,
+    stop_call,
     unanswerable_call,
 )
 from armwarden.transport.pipes import PipeLineReader, PipeWriter, claimed_pipes
@@ -100,11 +108,27 @@ def unreadable_line_error(exc: Exception) -> ErrorData:
     return ErrorData(code=PARSE_ERROR, message="Parse error: the line is not valid JSON")
 
 
+def parsed_line(exc: Exception) -> Any:
+    """What the SDK parsed of a line it could not read as one JSON-RPC message (a batch, an object
+    that is not a valid message), or None (not JSON). Pydantic keeps every error's input: a list
+    fails each message model as a whole; an object misses a field of some model (a request has no
+    `result`, so it never passes as a response), and that error's input is the whole object."""
+    if not isinstance(exc, ValidationError):
+        return None
+    for error in exc.errors(include_url=False):
+        loc, value = error.get("loc", ()), error.get("input")
+        if (len(loc) <= 1 and isinstance(value, list)) or (
+                error.get("type") == "missing" and len(loc) == 2 and isinstance(value, dict)):
+            return value
+    return None
+
+
 class OpenIds:
-    """The keys (`request_id_key`) of the requests read and not yet settled."""
+    """The keys (`request_id_key`) of the requests read and not yet settled, each with its params
+    when it is an `estop` call (a refusal or an unanswered end then latches the e-stop)."""
 
     def __init__(self) -> None:
-        self._keys: set[str] = set()
+        self._keys: dict[str, Mapping[str, Any] | None] = {}
         self._none_left: anyio.Event | None = None
 
     def __contains__(self, key: str) -> bool:
@@ -113,13 +137,15 @@ class OpenIds:
     def __bool__(self) -> bool:
         return bool(self._keys)
 
-    def add(self, key: str) -> None:
-        self._keys.add(key)
+    def add(self, key: str, estop_params: Mapping[str, Any] | None = None) -> None:
+        self._keys[key] = estop_params
 
-    def discard(self, key: str) -> None:
-        self._keys.discard(key)
+    def discard(self, key: str) -> Mapping[str, Any] | None:
+        """Settle `key`; returns its params if it was an open `estop` call."""
+        estop_params = self._keys.pop(key, None)
         if not self._keys and self._none_left is not None:
             self._none_left.set()
+        return estop_params
 
     async def all_settled(self) -> None:
         """Return once no request is open."""
@@ -129,18 +155,25 @@ class OpenIds:
 
 
 class GatedWriteStream:
-    """Write side: passes every message on; an answer closes its request's id first."""
+    """Write side: passes every message on; an answer closes its request's id first, and an error
+    answer to an `estop` call latches the e-stop before it is written (the tool did not run)."""
 
-    def __init__(self, inner: WriteStream[SessionMessage], open_ids: OpenIds) -> None:
+    def __init__(self, inner: WriteStream[SessionMessage], open_ids: OpenIds,
+                 on_estop_refused: LatchOnRefusal | None = None) -> None:
         self._inner = inner
         self._open_ids = open_ids
+        self._on_estop_refused = on_estop_refused
 
     async def send(self, item: SessionMessage, /) -> None:
         message = item.message
         if isinstance(message, (JSONRPCResponse, JSONRPCError)) and message.id is not None:
             # before the write: the SDK has already dropped the call, and the client may reuse the id
             # as soon as it reads the answer
-            self._open_ids.discard(request_id_key(message.id))
+            estop_params = self._open_ids.discard(request_id_key(message.id))
+            if estop_params is not None and isinstance(message, JSONRPCError):
+                refused_stops([("estop", estop_params)], self._on_estop_refused, None,
+                              f"the estop call was answered with JSON-RPC error {message.error.code}: "
+                              f"{message.error.message[:200]}")
         await self._inner.send(item)
 
     async def reply(self, message: JSONRPCError) -> None:
@@ -167,7 +200,8 @@ class GatedReadStream:
 
     def __init__(self, inner: ReadStream[SessionMessage | Exception], writer: GatedWriteStream, open_ids: OpenIds,
                  spawn: Callable[..., None], on_refused: RefusedCallback | None = None,
-                 on_stop_request: StopOnReceipt | None = None, on_input_end: Callable[[], None] | None = None) -> None:
+                 on_stop_request: StopOnReceipt | None = None, on_input_end: Callable[[], None] | None = None,
+                 on_estop_refused: LatchOnRefusal | None = None) -> None:
         self._inner = inner
         self._writer = writer
         self._open_ids = open_ids
@@ -175,6 +209,7 @@ class GatedReadStream:
         self._on_refused = on_refused
         self._on_stop_request = on_stop_request
         self._on_input_end = on_input_end
+        self._on_estop_refused = on_estop_refused
 
     @property
     def last_context(self) -> Any:
@@ -190,9 +225,10 @@ class GatedReadStream:
                 raise
             if isinstance(item, Exception):
                 error = unreadable_line_error(item)
+                taken = self._refuse_stops(self._screen(parsed_line(item)), error.message)
                 logger.warning("stdio: answered an unreadable line with error %d", error.code)
                 await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=error))
-                self._report(None, None, None, "unreadable", error.message)
+                self._report(None, None, None, "unreadable", error.message, taken)
                 continue
             if isinstance(item.message, JSONRPCNotification) and (
                     idless := unanswerable_call(item.message.method, item.message.params)) is not None:
@@ -203,29 +239,45 @@ class GatedReadStream:
                 return item
             request = item.message
             params, malformed = screen_call(request.method, request.params, self._on_stop_request, None)
+            tool = stop_call(request.method, params)
             if params is not request.params:
                 request = request.model_copy(update={"params": params})
             elif malformed is not None:
                 self._report(request.method, request.params, request.id, "invalid_params", malformed)  # the SDK answers it
             key = request_id_key(request.id)
             if key in self._open_ids:
+                why = f"{request.method} refused: {duplicate_id_message(request.id)}"
+                taken = self._refuse_stops([] if tool is None else [(tool, params)], why)
                 logger.warning("stdio: refused %s: request id %r is still open", request.method, request.id)
                 await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=request.id, error=ErrorData(
                     code=INVALID_REQUEST, message=duplicate_id_message(request.id))))
-                self._report(request.method, request.params, request.id, "duplicate_request_id",
-                             f"{request.method} refused: {duplicate_id_message(request.id)}")
+                self._report(request.method, request.params, request.id, "duplicate_request_id", why, taken)
                 continue
-            self._open_ids.add(key)
+            self._open_ids.add(key, params if tool == "estop" else None)
             return SessionMessage(request, self._closing_on_settle(item.metadata, key))
+
+    def _screen(self, decoded: Any) -> list[tuple[str, Any]]:
+        """Hold the robot for a stop call in what the SDK parsed of a line it could not read
+        (`parsed_line`), as for any stop request read; returns its (tool, params)."""
+        if not isinstance(decoded, dict):
+            return []
+        params, _ = screen_call(decoded.get("method"), decoded.get("params"), self._on_stop_request, None)
+        tool = stop_call(decoded.get("method"), params)
+        return [] if tool is None else [(tool, params)]
+
+    def _refuse_stops(self, stops: list[tuple[str, Any]], why: str) -> tuple[StopTaken, ...]:
+        """A refused request's stop calls: an `estop` latches now, before the refusal is answered."""
+        return refused_stops(stops, self._on_estop_refused, None, why) if stops else ()
 
     async def _refuse_idless_call(self, call: JSONRPCNotification, why: str) -> None:
         """Refuse a `tools/call` without a usable id visibly (-32600, id null) and report it, as the
-        HTTP transport does; a stopping tool's call holds the robot first, as any stop call read."""
-        screen_call(call.method, call.params, self._on_stop_request, None)
+        HTTP transport does; a stopping tool's call holds the robot first, as any stop call read,
+        and an `estop` latches before the refusal is answered."""
+        taken = self._refuse_stops(self._screen({"method": call.method, "params": call.params}), why)
         logger.warning("stdio: refused a tools/call without a usable id")
         await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=ErrorData(code=INVALID_REQUEST,
                                                                                       message=why)))
-        self._report(call.method, call.params, None, "invalid_request", why)
+        self._report(call.method, call.params, None, "invalid_request", why, taken)
 
     async def _answer_open_calls(self) -> None:
         """The input has ended: let the calls already read finish and be answered (for a client
@@ -246,7 +298,10 @@ class GatedReadStream:
         earlier = metadata.on_request_unanswered if metadata is not None else None
 
         async def settled_unanswered() -> None:
-            self._open_ids.discard(key)
+            estop_params = self._open_ids.discard(key)
+            if estop_params is not None:  # cancelled before its tool answered: it still latches
+                refused_stops([("estop", estop_params)], self._on_estop_refused, None,
+                              "the estop call ended without an answer (cancelled)")
             if earlier is not None:
                 await earlier()
 
@@ -256,17 +311,16 @@ class GatedReadStream:
         return metadata
 
     def _report(self, method: str | None, params: Mapping[str, Any] | None, request_id: RequestId | None,
-                outcome: str, why: str) -> None:
+                outcome: str, why: str, stops: tuple[StopTaken, ...] = ()) -> None:
         if self._on_refused is not None:
-            self._spawn(self._report_refusal, method, params, request_id, outcome, why)
+            self._spawn(self._report_refusal, RefusedRequest(method, params, request_id, outcome, why, stops))
 
-    async def _report_refusal(self, method: str | None, params: Mapping[str, Any] | None, request_id: RequestId | None,
-                              outcome: str, why: str) -> None:
+    async def _report_refusal(self, refused: RefusedRequest) -> None:
         assert self._on_refused is not None
         try:
-            await self._on_refused(method, params, request_id, outcome, why)
+            await self._on_refused(refused)
         except Exception:
-            logger.exception("reporting the refused request %r failed", request_id)
+            logger.exception("reporting the refused request %r failed", refused.request_id)
 
     async def aclose(self) -> None:
         await self._inner.aclose()
@@ -292,16 +346,19 @@ class GatedReadStream:
 def gate_streams(read_stream: ReadStream[SessionMessage | Exception], write_stream: WriteStream[SessionMessage],
                  spawn: Callable[..., None], on_refused: RefusedCallback | None = None,
                  on_stop_request: StopOnReceipt | None = None,
-                 on_input_end: Callable[[], None] | None = None) -> tuple[GatedReadStream, GatedWriteStream]:
+                 on_input_end: Callable[[], None] | None = None,
+                 on_estop_refused: LatchOnRefusal | None = None) -> tuple[GatedReadStream, GatedWriteStream]:
     """Wrap a server's stream pair (see the module docstring). `spawn(fn, *args)` runs a task."""
     open_ids = OpenIds()
-    writer = GatedWriteStream(write_stream, open_ids)
-    return GatedReadStream(read_stream, writer, open_ids, spawn, on_refused, on_stop_request, on_input_end), writer
+    writer = GatedWriteStream(write_stream, open_ids, on_estop_refused)
+    return GatedReadStream(read_stream, writer, open_ids, spawn, on_refused, on_stop_request, on_input_end,
+                           on_estop_refused), writer
 
 
 async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None = None,
                       on_stop_request: StopOnReceipt | None = None,
-                      on_input_end: Callable[[], None] | None = None) -> None:
+                      on_input_end: Callable[[], None] | None = None,
+                      on_estop_refused: LatchOnRefusal | None = None) -> None:
     """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
     with the gate in between). Pending duplicate reports finish before this returns. Raises
     `OutputClosed` when the client closed the daemon's stdout (the SDK's transport would end the
@@ -319,7 +376,7 @@ async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None =
                     reports.start_soon(fn, *args)
 
                 gated_read, gated_write = gate_streams(read_stream, write_stream, spawn, on_refused, on_stop_request,
-                                                       on_input_end)
+                                                       on_input_end, on_estop_refused)
                 await lowlevel.run(gated_read, gated_write, lowlevel.create_initialization_options())
         except BaseException as exc:
             if _only_a_closed_output(exc):
