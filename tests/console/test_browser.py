@@ -216,7 +216,7 @@ def test_an_observer_sees_the_request_but_cannot_approve(tmp_path: Path, browser
         buttons = browser.find_elements(By.ID, "approve")
         note = browser.find_element(By.ID, "observer-note").text
         session.served.harness.guard.approvals.withdraw(session.served.harness.guard.approvals.live(
-            session.served.harness.guard.latch.generation)[0].digest, "test over")
+            session.served.harness.guard.latch.generation)[0].plan_id, "test over")
         result = call.result(timeout=WAIT_S)
 
     assert buttons == []

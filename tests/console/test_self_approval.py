@@ -133,3 +133,42 @@ async def test_an_approval_through_elicitation_is_audited_as_via_elicitation(tmp
     assert executed[-1]["principal"] == "alice"
     assert executed[-1]["extra"]["approval"]["via"] == "elicitation"
     assert executed[-1]["extra"]["approval"]["operator"] == "erin"
+
+
+async def test_a_caller_of_a_motion_another_caller_waits_for_cannot_approve_it_through_the_others_request(
+        tmp_path: Path) -> None:
+    """dana asks for motion M and waits; alice plans the very same M (one digest) and asks too:
+    alice gets a request of her own, so she cannot approve her M through dana's (outside review
+    2, item 3)."""
+    pages: list[str] = []
+    answers: list[httpx2.Response] = []
+    dana_asked, alice_done = anyio.Event(), anyio.Event()
+
+    async def danas_human_is_away(context: Any, params: Any) -> types.ElicitResult:
+        dana_asked.set()
+        await alice_done.wait()
+        return types.ElicitResult(action="decline")
+
+    results: dict[str, Any] = {}
+    async with served_console(tmp_path, policy_with(**URL_POLICY)) as served:
+        alices_client = console_human(served, served.operator_token, ["approve"], pages, answers)
+        async with served.mcp_client(elicitation=danas_human_is_away, token=served.approver_token) as dana, \
+                served.mcp_client(elicitation=alices_client) as alice:
+            danas, alices = await plan_down(dana, 0.40), await plan_down(alice, 0.40)
+
+            async def dana_executes() -> None:
+                results["dana"] = await dana.call_tool("execute_plan", {"plan_id": danas["plan_id"]})
+
+            with anyio.fail_after(60):
+                async with anyio.create_task_group() as group:
+                    group.start_soon(dana_executes)
+                    await dana_asked.wait()
+                    results["alice"] = await alice.call_tool("execute_plan", {"plan_id": alices["plan_id"]})
+                    alice_done.set()
+
+    assert answers[0].status_code == 403 and "another operator" in answers[0].text
+    assert results["alice"].is_error and results["dana"].is_error
+    assert "execute" not in served.harness.actuations
+    refused = [r for r in records_of(served.harness.audit_path) if r["event"] == "console_approval"]
+    assert [(r["principal"], r["outcome"], r["extra"]["requester"]) for r in refused] == [
+        ("alice", "refused_self_approval", "alice")]

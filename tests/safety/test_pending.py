@@ -33,6 +33,17 @@ def board(clock: FakeClock) -> PendingApprovals:
     return PendingApprovals(clock=clock)
 
 
+@pytest.fixture
+def same_motion(clock: FakeClock) -> tuple[StoredPlan, StoredPlan]:
+    """Two plans of the very same motion (one digest), made by two callers."""
+    store = PlanStore(TTL_S, 0.01, clock=clock)
+    trajectory = JointTrajectory(NAMES, np.array([0.0, 1.0]), np.vstack([READY, READY + 0.1]))
+    first = store.add(trajectory, EnvelopeReport(violations=()), owner="token:carol")
+    second = store.add(trajectory, EnvelopeReport(violations=()), owner="token:alice")
+    assert first.digest == second.digest
+    return first, second
+
+
 def test_offering_the_same_plan_twice_gives_one_request(board: PendingApprovals, plan: StoredPlan) -> None:
     first = board.offer(plan, "prompt", estop_generation=0)
     again = board.offer(plan, "prompt", estop_generation=0)
@@ -90,7 +101,7 @@ def test_withdrawing_closes_the_request_and_wakes_its_listener(board: PendingApp
     woken: list[str | None] = []
     request.listeners.append(lambda r: woken.append(r.answer))
 
-    board.withdraw(plan.digest, "the plan was used")
+    board.withdraw(plan.plan_id, "the plan was used")
 
     assert woken == ["withdrawn"]
     assert isinstance(board.answer(request.request_id, True, "alice", 0), AnswerRefusal)
@@ -160,3 +171,37 @@ def test_a_request_without_a_token_may_be_approved_by_any_operator(board: Pendin
     answered = board.answer(request.request_id, True, "alice", estop_generation=0)
 
     assert isinstance(answered, PendingRequest) and not answered.self_approved
+
+
+def test_two_callers_of_the_same_motion_get_a_request_each(board: PendingApprovals,
+                                                           same_motion: tuple[StoredPlan, StoredPlan]) -> None:
+    carols, alices = same_motion
+    carol = board.offer(carols, "prompt", estop_generation=0, requester="carol")
+    alice = board.offer(alices, "prompt", estop_generation=0, requester="alice")
+
+    assert alice is not carol
+    assert (carol.plan_id, carol.requester) == (carols.plan_id, "carol")
+    assert (alice.plan_id, alice.requester) == (alices.plan_id, "alice")
+
+
+def test_a_caller_cannot_approve_its_own_request_for_a_motion_another_caller_asked_for_too(
+        board: PendingApprovals, same_motion: tuple[StoredPlan, StoredPlan]) -> None:
+    carols, alices = same_motion
+    board.offer(carols, "prompt", estop_generation=0, requester="carol")
+    alice = board.offer(alices, "prompt", estop_generation=0, requester="alice")
+
+    own = board.answer(alice.request_id, True, "alice", estop_generation=0)
+
+    assert isinstance(own, AnswerRefusal) and own.reason == "self_approval"
+
+
+def test_using_one_plan_leaves_the_request_of_another_plan_of_the_same_motion_open(
+        board: PendingApprovals, same_motion: tuple[StoredPlan, StoredPlan]) -> None:
+    carols, alices = same_motion
+    carol = board.offer(carols, "prompt", estop_generation=0, requester="carol")
+    board.offer(alices, "prompt", estop_generation=0, requester="alice")
+
+    board.withdraw(alices.plan_id, "the plan was used")
+
+    assert carol.answer is None and board.open_for(carols.plan_id, 0) is carol
+    assert board.open_for(alices.plan_id, 0) is None

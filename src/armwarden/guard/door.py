@@ -253,8 +253,8 @@ class Guard:
             plan = self.plans.consume(plan_id, self.latch.generation, current_caller())
             if isinstance(plan, PlanRefusal):
                 raise refuse(plan.code, plan.message)
-            asked_at = self.approvals.asked_at(plan.digest, self.latch.generation)
-            self.approvals.withdraw(plan.digest, "the plan was used")
+            asked_at = self.approvals.asked_at(plan.plan_id, self.latch.generation)
+            self.approvals.withdraw(plan.plan_id, "the plan was used")
             approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
             if not approval.granted:
                 raise approval.refusal(f"execute_plan {plan.plan_id}")

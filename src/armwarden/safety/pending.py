@@ -3,12 +3,17 @@ where the policy lets it (`approval.channel: url | both`), answer them.
 
 Why a board: the elicitation prompt lives in the MCP client; the operator console needs the same
 request with the server's facts and the plan's picture. Each request gets an unguessable id (the
-console link), is bound to the plan digest and to the e-stop generation it was asked under, and
-expires with the plan. An answer is accepted once: a replayed link, an expired plan or an e-stop
-since the request refuse it. The tool body proceeds only from this server-side record.
+console link), is bound to one plan (its id, hence its caller, and its digest) and to the e-stop
+generation it was asked under, and expires with the plan. An answer is accepted once: a replayed
+link, an expired plan or an e-stop since the request refuse it. The tool body proceeds only from
+this server-side record.
 
-Lives on the event loop like the plan store: `offer` is idempotent per plan digest (approval
-resolvers may run more than once under protocol 2026-07-28), and nothing here awaits.
+One request per plan, never per motion: two callers who plan the very same motion (one digest)
+each get their own request with their own requester, so nobody approves their own motion through
+another caller's request, and using one plan never closes another's.
+
+Lives on the event loop like the plan store: `offer` is idempotent per plan (approval resolvers
+may run more than once under protocol 2026-07-28), and nothing here awaits.
 """
 
 from __future__ import annotations
@@ -96,7 +101,7 @@ class AnswerRefusal:
 
 
 class PendingApprovals:
-    """The board of approval requests, keyed by an unguessable id and by plan digest."""
+    """The board of approval requests, keyed by an unguessable id and by plan id."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._clock = clock
@@ -114,10 +119,11 @@ class PendingApprovals:
 
     def offer(self, plan: StoredPlan, prompt: str, estop_generation: int, stop_generation: int = 0,
               requester: str | None = None) -> PendingRequest:
-        """The open request for this plan under this e-stop generation, created on first offer (and
-        stamped with the stop generation and the requesting token's name then)."""
+        """The open request for this plan (by its id: another caller's plan of the same motion has
+        its own) under this e-stop generation, created on first offer (and stamped with the stop
+        generation and the requesting token's name then)."""
         for request in self._requests.values():
-            if request.digest == plan.digest and request.estop_generation == estop_generation and request.answer is None:
+            if request.plan_id == plan.plan_id and request.estop_generation == estop_generation and request.answer is None:
                 return request
         request = PendingRequest(secrets.token_urlsafe(24), plan, prompt, estop_generation, stop_generation=stop_generation,
                                  requester=requester)
@@ -126,22 +132,22 @@ class PendingApprovals:
             self._requests.popitem(last=False)
         return request
 
-    def asked_at(self, digest: str, estop_generation: int) -> int | None:
+    def asked_at(self, plan_id: str, estop_generation: int) -> int | None:
         """The stop generation when the newest question about this plan (under this e-stop
         generation) was posted, answered or not; None if none was."""
         for request in reversed(self._requests.values()):
-            if request.digest == digest and request.estop_generation == estop_generation:
+            if request.plan_id == plan_id and request.estop_generation == estop_generation:
                 return request.stop_generation
         return None
 
     def get(self, request_id: str) -> PendingRequest | None:
         return self._requests.get(request_id) if isinstance(request_id, str) else None
 
-    def open_for(self, digest: str, estop_generation: int) -> PendingRequest | None:
-        """The unanswered, unexpired request for this digest under this generation, if any."""
+    def open_for(self, plan_id: str, estop_generation: int) -> PendingRequest | None:
+        """The unanswered, unexpired request for this plan under this generation, if any."""
         now = self._clock()
         for request in self._requests.values():
-            if (request.digest == digest and request.estop_generation == estop_generation
+            if (request.plan_id == plan_id and request.estop_generation == estop_generation
                     and request.answer is None and now < request.expires_mono):
                 return request
         return None
@@ -189,8 +195,9 @@ class PendingApprovals:
         current, request.round_nonce = request.round_nonce, None
         return current is not None and secrets.compare_digest(current, nonce)
 
-    def withdraw(self, digest: str, why: str = "withdrawn") -> None:
-        """Close every open request for this digest (the plan was used, or answered elsewhere)."""
+    def withdraw(self, plan_id: str, why: str = "withdrawn") -> None:
+        """Close every open request for this plan (it was used, or answered elsewhere); other
+        plans of the same motion keep theirs."""
         for request in self._requests.values():
-            if request.digest == digest and request.answer is None:
+            if request.plan_id == plan_id and request.answer is None:
                 request._settle("withdrawn", None, why)

@@ -5,8 +5,8 @@ exchange (send the link, wait for the console, withdraw the other question), and
 stay side-effect free. The body runs once per call, so this is where it happens:
 
 - `url`: a URL-mode elicitation carries the link of the request's console page (one-time,
-  unguessable, bound to the plan digest and the e-stop generation, expiring with the plan; see
-  `safety.pending`). The client's "accept" only means the human opened it; the decision is what
+  unguessable, bound to the plan (its id and digest) and the e-stop generation, expiring with
+  the plan; see `safety.pending`). The client's "accept" only means the human opened it; the decision is what
   the console records. Declined or cancelled link: refused.
 - `both`: the form question and the console wait run side by side; the first answer wins and
   the other is withdrawn (the form's request is cancelled; the console request is closed).
@@ -56,12 +56,13 @@ FORM_KEY = "armwarden_approval_form"
 ESTOP_POLL_S = 0.1
 
 
-def _open_request(guard: Guard, asked: ConsoleChannel) -> tuple[PendingRequest, str] | ConsoleAnswer:
-    """The board's open request for the asked plan and its console link, or the refusal that
-    says why there is nothing to ask about (the request closed, or no console served)."""
+def _open_request(guard: Guard, asked: ConsoleChannel, plan_id: str) -> tuple[PendingRequest, str] | ConsoleAnswer:
+    """The board's open request for the asked plan (`plan_id`: this caller's, never another
+    caller's plan of the same motion) and its console link, or the refusal that says why there
+    is nothing to ask about (the request closed, or no console served)."""
     digest = asked.prompt.digest
-    request = guard.approvals.open_for(digest, guard.latch.generation)
-    if request is None:
+    request = guard.approvals.open_for(plan_id, guard.latch.generation)
+    if request is None or request.digest != digest:
         return ConsoleAnswer(False, None, digest, "the approval request is no longer open (plan expired or e-stop)")
     link = guard.approvals.link(request)
     if link is None:
@@ -69,10 +70,11 @@ def _open_request(guard: Guard, asked: ConsoleChannel) -> tuple[PendingRequest, 
     return request, link
 
 
-async def answer_out_of_band(ctx: Context, guard: Guard, asked: ConsoleChannel) -> Any:
-    """Ask as `asked.channel` says and return the outcome for `Guard.execute`: a `ConsoleAnswer`
-    from the board, or the form's elicitation result when the form answered first."""
-    opened = _open_request(guard, asked)
+async def answer_out_of_band(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_id: str) -> Any:
+    """Ask as `asked.channel` says about plan `plan_id` and return the outcome for
+    `Guard.execute`: a `ConsoleAnswer` from the board, or the form's elicitation result when the
+    form answered first."""
+    opened = _open_request(guard, asked, plan_id)
     if isinstance(opened, ConsoleAnswer):
         return opened
     request, link = opened
@@ -129,9 +131,9 @@ async def _outcome(ctx: Context, guard: Guard, request: PendingRequest, outcome:
         return ConsoleAnswer(request.answer == "approved", request.operator, request.digest,
                              self_approved=request.self_approved)
     if "form" in outcome:
-        guard.approvals.withdraw(request.digest, "answered in the MCP client")
+        guard.approvals.withdraw(request.plan_id, "answered in the MCP client")
         return outcome["form"]
-    guard.approvals.withdraw(request.digest, "no answer")
+    guard.approvals.withdraw(request.plan_id, "no answer")
     return ConsoleAnswer(False, None, request.digest,
                          outcome.get("missing", f"no answer in the console before plan {request.plan_id} expired"))
 
@@ -148,7 +150,7 @@ def ask_round(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_id: str, s
     """Round one: the console link as URL-mode elicitation (for `both`, with the form question
     when the client takes forms), and the sealed round state. A `ConsoleAnswer` (refusal) when
     there is nothing to ask about (the request closed, or no console served)."""
-    opened = _open_request(guard, asked)
+    opened = _open_request(guard, asked, plan_id)
     if isinstance(opened, ConsoleAnswer):
         return opened
     request, link = opened
@@ -175,7 +177,8 @@ async def answer_round(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_i
     if claims is None:
         return refusal("the approval round's state was not issued by this daemon (forged, altered, or from before a restart)")
     request = board.get(claims.request_id)
-    if request is None or claims.plan_id != plan_id or claims.digest != digest or request.digest != digest:
+    if (request is None or claims.plan_id != plan_id or request.plan_id != plan_id or claims.digest != digest
+            or request.digest != digest):
         return refusal(f"the approval round's state is not about plan {plan_id}")
     if not board.spend_round(request, claims.nonce):
         return refusal("this approval round was already answered once (a replayed request state)")
@@ -187,12 +190,12 @@ async def answer_round(ctx: Context, guard: Guard, asked: ConsoleChannel, plan_i
     if request.answer is None and claims.channel == "both":
         form = _form_answer(responses.get(FORM_KEY))
         if form is not None:
-            board.withdraw(digest, "answered in the MCP client")
+            board.withdraw(request.plan_id, "answered in the MCP client")
             return form
     if request.answer is None:
         link = responses.get(request.request_id)
         if not (isinstance(link, ElicitResult) and link.action == "accept"):
-            board.withdraw(digest, "no answer")
+            board.withdraw(request.plan_id, "no answer")
             return refusal("the human did not open the approval link")
         answered = anyio.Event()
         request.listeners.append(lambda _request: answered.set())

@@ -358,7 +358,7 @@ class ToolBuilder:
             asked: object = approval.data if isinstance(approval, AcceptedElicitation) else None
             if isinstance(asked, ConsoleChannel) and outcome is None:  # url | both: the console's record decides
                 outcome = (await answer_round(ctx, guard, asked, plan_id, seal) if uses_rounds(ctx)
-                           else await answer_out_of_band(ctx, guard, asked))
+                           else await answer_out_of_band(ctx, guard, asked, plan_id))
             report = await guard.execute(plan_id, approval if outcome is None else outcome, shown, progress)
             return ok(report, summary=f"{report.status}: {report.detail}")
 
