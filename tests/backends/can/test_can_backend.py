@@ -490,7 +490,7 @@ async def test_once_the_servo_loop_dies_the_reader_thread_reads_the_bus_again(ar
     assert emulator is not None and bus is not None and arm.servo is not None
     original = arm._publish
 
-    def broken(stamp: float) -> None:
+    def broken() -> None:
         raise RuntimeError("injected servo-thread bug")
 
     arm._publish = broken  # type: ignore[method-assign]  # the next tick raises: the servo thread dies

@@ -15,7 +15,8 @@ or not — the stream of frames is what feeds the actuators' watchdogs. Each tic
 impedance command per joint: the trajectory sample while following, the measured position (with
 the tracking gains) while holding, or kp = 0, kd > 0 while damping. It never sends a position
 outside the policy's joint limits: such a setpoint is not sent but turned into a fault. Replies
-are parsed on the bus's reader thread; what is published is what the actuators measured.
+are parsed on the bus's reader thread; what is published is what the actuators measured, stamped
+with the time of the oldest reply it contains (silent actuators make it age; the Guard refuses it).
 
 Health, every tick: an actuator that has left a command unanswered for `rx_timeout_s` (RX
 timeout), fault bits in its feedback or a RobStride fault frame, a temperature above
@@ -270,7 +271,7 @@ class CanBackend(Backend, ServoHooks):
         if outside:
             raise BackendError(f"can backend: refusing to enable: joints outside the policy limits: {', '.join(outside)}")
         # 5. the servo loop holds the measured positions from its first tick; enable last
-        self._publish(time.monotonic())
+        self._publish()
         if self._gripper is not None:
             self._gripper_hold_rad = self._gripper_position()
         self.servo = ServoLoop(self, q, period_s=self.period_s, idle_period_s=self.period_s, speedup=self._speedup,
@@ -379,10 +380,17 @@ class CanBackend(Backend, ServoHooks):
             raw = np.array([a.raw_position if a.raw_position is not None else np.nan for a in self._actuators])
         return self._direction * (raw - self._offset)
 
-    def _publish(self, stamp: float) -> None:
+    def _publish(self) -> None:
+        """Publish what the arm's actuators last reported, stamped with the oldest of those
+        replies (monotonic [s]; 0 while one never replied): a state is as old as its oldest
+        part, so silent actuators make it age — and the Guard refuse it — instead of every servo
+        tick passing their last positions off as new (found by review: 10 s of silence, fresh
+        stamps). Never goes backwards: each actuator's reply time only grows."""
         with self._state_lock:
             raw = np.array([a.raw_position if a.raw_position is not None else np.nan for a in self._actuators])
             raw_velocity = np.array([a.raw_velocity for a in self._actuators])
+            replies = [a.reported_at for a in self._actuators]
+        stamp = 0.0 if None in replies else min(r for r in replies if r is not None)
         self._published = JointState(self.joint_names, frozen(self._direction * (raw - self._offset)),
                                      frozen(self._direction * raw_velocity), stamp)
 
@@ -629,7 +637,7 @@ class CanBackend(Backend, ServoHooks):
         if self.bus is not None:  # the frames that arrived before this tick, a fault among them, count now
             self.bus.drain(budget_s=DRAIN_BUDGET * self.period_s)
         now = time.monotonic()
-        self._publish(now)
+        self._publish()
         measured = self._published.positions if self._published is not None else None
         if self._following is not None and measured is not None:
             self._tracking_peak_rad = max(self._tracking_peak_rad, float(np.max(np.abs(measured - self._following))))
