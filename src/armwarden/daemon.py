@@ -334,6 +334,10 @@ def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
         if refused.request_id is not None:
             extra["request_id"] = str(refused.request_id)[:64]
         detail = refused.why
+        if refused.batch is not None:  # named by what acted (an estop first), its elements in extra
+            acted = sorted(refused.stops, key=lambda stop: stop.tool != "estop")
+            tool = acted[0].tool if acted else None
+            extra["batch"] = list(refused.batch)
         if refused.stops:
             extra["stops"] = [stop.tool for stop in refused.stops]
             events = [stop.estop_event for stop in refused.stops if stop.estop_event is not None]

@@ -12,6 +12,7 @@ latch, so the next plan ran without a human. Real daemons: HTTP on 127.0.0.1, st
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -160,3 +161,82 @@ def test_a_stdio_estop_request_refused_as_unanswerable_or_unreadable_latches(tmp
     assert status["estopped"] is True and status["estop_event"]["reason"] == REASON
     [latch] = [r for r in records_of(audit) if r["event"] == "estop" and r["tool"] == "estop"]
     assert latch["outcome"] == "latched" and latch["extra"]["estop_event"] == status["estop_event"]["number"]
+
+
+# ------------------------------------------------------------------ batches: every element is screened
+def post_batch(daemon: Daemon, protocol: str, elements: list[dict[str, Any]]) -> httpx2.Response:
+    body = json.dumps(elements).encode()
+    if protocol == MODERN:
+        return httpx2.post(daemon.url, content=body, headers=modern_headers(daemon), timeout=30)
+    raw = RawSession(daemon, daemon.operator_token)
+    return raw.http.post(daemon.url, content=body, headers=raw.headers())
+
+
+@pytest.mark.parametrize("protocol", ["2025-11-25", MODERN])
+def test_a_batch_is_refused_and_each_stop_request_in_it_acts(daemon: Daemon, protocol: str) -> None:
+    make = modern_call if protocol == MODERN else legacy_call
+    batch = [make("get_robot_state", 51), make("stop_motion", 52), make("estop", 53), make("estop", 54)]
+    before_event, before = newest_event(daemon), len(records_of(daemon.audit))
+
+    response = post_batch(daemon, protocol, batch)
+
+    assert response.status_code == 400 and response.json()["error"]["code"] == -32600
+    event = safety_status(daemon)["estop_event"]
+    assert event["number"] == before_event + 1 and event["reason"] == REASON  # one latch per batch
+    records = records_of(daemon.audit)[before:]
+    assert sorted(r["tool"] for r in records if r["event"] == "stop_on_receipt") == ["estop", "stop_motion"]
+    [refusal] = [r for r in records if r["event"] == "request_refused"]
+    assert refusal["tool"] == "estop" and refusal["extra"]["estop_event"] == event["number"]
+    assert refusal["extra"]["batch"] == ["get_robot_state", "stop_motion", "estop", "estop"]
+    assert [r for r in records if r["event"] == "tool_call" and r["principal"] == "alice"] == []  # none of them ran
+
+
+@pytest.mark.parametrize("protocol", ["2025-11-25", MODERN])
+def test_a_stop_motion_in_a_batch_holds_and_latches_nothing(daemon: Daemon, protocol: str) -> None:
+    make = modern_call if protocol == MODERN else legacy_call
+    before_event, before = newest_event(daemon), len(records_of(daemon.audit))
+
+    response = post_batch(daemon, protocol, [make("stop_motion", 61)])
+
+    assert response.status_code == 400
+    assert newest_event(daemon) == before_event
+    records = records_of(daemon.audit)[before:]
+    assert [(r["tool"], r["outcome"]) for r in records if r["event"] == "stop_on_receipt"] == [("stop_motion", "stopped")]
+    [refusal] = [r for r in records if r["event"] == "request_refused"]
+    assert refusal["tool"] == "stop_motion" and "held the robot" in refusal["detail"]
+
+
+def test_an_estop_in_a_batch_stops_a_running_motion(tmp_path) -> None:
+    with http_daemon(tmp_path, speedup=0.25) as slow:
+        raw = RawSession(slow, slow.operator_token)
+        plan = raw.call("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": 0.35}})["result"]["structuredContent"]
+        assert plan["status"] == "ok", plan
+        motion = raw.open_call("execute_plan", {"plan_id": plan["plan_id"]})
+        deadline = time.monotonic() + 30
+        while not raw.call("get_motion_status", {})["result"]["structuredContent"]["executing"]:
+            assert time.monotonic() < deadline, "the motion did not start"
+
+        response = post_batch(slow, "2025-11-25", [legacy_call("estop", 900)])
+
+        assert response.status_code == 400
+        ended = motion.wait_for(lambda event: event.get("id") is not None and ("result" in event or "error" in event))
+        status = safety_status(slow)
+    assert ended["result"]["structuredContent"]["status"] != "succeeded", ended
+    assert status["estopped"] is True and status["estop_event"]["reason"] == REASON
+    [refusal] = [r for r in records_of(slow.audit) if r["event"] == "request_refused"]
+    assert refusal["tool"] == "estop" and refusal["extra"]["estop_event"] == status["estop_event"]["number"]
+
+
+def test_a_stdio_batch_with_an_estop_latches(tmp_path) -> None:
+    process, rpc, audit = start_raw_daemon(tmp_path, speedup=20)
+    try:
+        rpc.send_line(json.dumps([legacy_call("estop", 5)]).encode())
+        refusal = rpc.receive()
+        status = rpc.request("tools/call", {"name": "get_safety_status", "arguments": {}})["result"]["structuredContent"]
+    finally:
+        stop_raw_daemon(process)
+
+    assert refusal["id"] is None and refusal["error"]["code"] == -32600, refusal
+    assert status["estopped"] is True and status["estop_event"]["reason"] == REASON
+    [record] = [r for r in records_of(audit) if r["event"] == "request_refused"]
+    assert record["tool"] == "estop" and record["extra"]["batch"] == ["estop"]

@@ -370,3 +370,40 @@ async def test_a_call_answered_after_dispatch_latches_nothing_more(name: str):
 
     assert await watch(ctx, answer) == {"content": []}  # type: ignore[arg-type]
     assert latches == []
+
+
+@pytest.mark.anyio
+async def test_a_batch_is_refused_without_the_app_and_each_stop_tool_in_it_acts_once():
+    app = Recorder(answer=True)
+    elements = [json.loads(rpc("estop", {"reason": "first"}, request_id=i)) for i in range(3)]
+    elements += [json.loads(rpc("stop_motion", request_id=i)) for i in range(3, 1000)]
+    elements.append(json.loads(rpc("get_robot_state", request_id=1000)))
+    latches, [refusal], sent = await refused_through(app, json.dumps(elements).encode())
+    assert [reason for reason, *_ in latches] == ["first"]  # one latch, with the first estop's reason
+    assert refusal.stops == (StopTaken("estop", 4), StopTaken("stop_motion"))
+    assert refusal.batch is not None and refusal.batch[:4] == ("estop", "estop", "estop", "stop_motion")
+    assert len(refusal.batch) == 16 and refusal.outcome == "invalid_request"
+    assert sent[0]["status"] == 400 and json.loads(sent[1]["body"])["error"]["code"] == -32600
+    assert app.seen == []
+
+
+@pytest.mark.anyio
+async def test_each_stop_tool_in_a_batch_holds_the_robot_once():
+    held: list[tuple] = []
+
+    async def ignore(_r: RefusedRequest) -> None:
+        pass
+
+    messages = [{"type": "http.request", "body": json.dumps([json.loads(rpc("stop_motion", request_id=i))
+                                                              for i in range(500)]).encode(), "more_body": False}]
+
+    async def receive() -> Any:
+        return messages.pop(0) if messages else {"type": "http.disconnect"}
+
+    async def send(_message: Any) -> None:
+        pass
+
+    middleware = AbandonedMotionStop(Recorder(answer=True), "/mcp", on_refused=ignore,
+                                     on_stop_request=lambda tool, principal: held.append((tool, principal)))
+    await middleware({"type": "http", "method": "POST", "path": "/mcp", "headers": [SESSION]}, receive, send)
+    assert held == [("stop_motion", None)]

@@ -3,6 +3,7 @@ lines and requests whose id is still open are answered by the gate; everything e
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import anyio
@@ -326,3 +327,20 @@ async def test_a_line_that_is_json_but_no_message_and_names_estop_holds_and_latc
     [error] = wire.sent()
     assert error.error.code == INVALID_REQUEST
     assert wire.taken == [(StopTaken("estop", 1),)]
+
+
+@pytest.mark.anyio
+async def test_a_batch_line_is_refused_and_each_stop_tool_in_it_holds_and_latches_once() -> None:
+    wire = Wire()
+    elements = [{"jsonrpc": "2.0", "id": i, "method": "tools/call", "params": {"name": name, "arguments": {"reason": name}}}
+                for i, name in enumerate(["get_robot_state", "estop", "stop_motion", "estop", "stop_motion"])]
+    await wire.client(unreadable(json.dumps(elements)))
+    await wire.client(request(1))
+    await wire.passed()
+    await wire.report()
+    assert wire.stops == [("estop", None), ("stop_motion", None)]
+    assert [reason for reason, _, _ in wire.latches] == ["estop"]
+    [error] = wire.sent()
+    assert error.id is None and error.error.code == INVALID_REQUEST and "batch" in error.error.message
+    assert wire.taken == [(StopTaken("estop", 1), StopTaken("stop_motion"))]
+    assert wire.outcomes[0][0] == "invalid_request"

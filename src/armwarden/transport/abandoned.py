@@ -21,7 +21,9 @@ path stops the robot and audits it. Nothing else is touched: another client's mo
 It also repairs a stopping tool's call whose `arguments` is not an object (`stop_params_repaired`:
 the SDK would refuse it before the e-stop latches), latches the e-stop for an `estop` request that
 is refused anyway (`refused_stops`, before the refusal is answered; after the tools saw it,
-`LatchEstopsNotRun`), refuses (400, -32600) a `tools/call` without a
+`LatchEstopsNotRun`), refuses (400, -32600) a JSON-RPC batch itself after screening every element
+(`screen_batch`: a stop in it holds, an `estop` latches, as the SDK refuses batches under both
+revisions), refuses (400, -32600) a `tools/call` without a
 usable id (`unanswerable_call`: the SDK would drop it as a notification, unanswered and unrun, as
 stdio refuses it), and reports (`on_refused`, awaited before the
 answer leaves, so the daemon's record is on disk first) every request refused before the server's
@@ -60,9 +62,11 @@ from armwarden.transport.jsonrpc import (
     RefusedRequest,
     StopOnReceipt,
     StopTaken,
+    batch_refusal,
     duplicate_id_message,
     refused_stops,
     request_id_key,
+    screen_batch,
     screen_call,
     stop_call,
     unanswerable_call,
@@ -133,13 +137,18 @@ def body_digest(body: bytes) -> str:
     return f"{len(body)} bytes, sha256 {hashlib.sha256(body).hexdigest()}"
 
 
-def decode_message(body: bytes) -> dict[str, Any] | None:
-    """The JSON-RPC message object in a request body, or None (not JSON, or not one object).
+def decode_body(body: bytes) -> Any:
+    """A request body's JSON (an object, a batch's list, ...), or None when it is not JSON.
     Decoded once per request; the SDK parses the body again on its own."""
     try:
-        message = json.loads(body)
+        return json.loads(body)
     except (ValueError, UnicodeDecodeError, RecursionError):
         return None
+
+
+def decode_message(body: bytes) -> dict[str, Any] | None:
+    """The JSON-RPC message object in a request body, or None (not JSON, or not one object)."""
+    message = decode_body(body)
     return message if isinstance(message, dict) else None
 
 
@@ -263,8 +272,12 @@ class AbandonedMotionStop:
                                f"after {body_digest(body)}", len(body))
             await _refuse(send, 413, too_large)
             return
-        message = decode_message(body)
+        decoded = decode_body(body)
         principal = _principal(scope) or None
+        if isinstance(decoded, list):
+            await self._refuse_batch(decoded, principal, send, len(body))
+            return
+        message = decoded if isinstance(decoded, dict) else None
         reported = False
         stops: list[tuple[str, Any]] = []  # (tool, params) of the stop calls it makes
         if message is not None:
@@ -303,8 +316,17 @@ class AbandonedMotionStop:
             if key is not None:
                 self._open_requests.discard(key)
 
+    async def _refuse_batch(self, elements: list[Any], principal: str | None, send: Send, body_bytes: int) -> None:
+        """Refuse a batch (400, -32600), as the SDK would under either revision, once every
+        element is screened: a stop call in it holds the robot, an `estop` latches the e-stop."""
+        stops, names = screen_batch(elements, self.on_stop_request, principal)
+        why = batch_refusal(len(elements))
+        taken = refused_stops(stops, self.on_estop_refused, principal, why)
+        await self._report(None, "invalid_request", why, body_bytes, taken, names)
+        await _refuse(send, 400, why)
+
     async def _report(self, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int,
-                      stops: tuple[StopTaken, ...] = ()) -> None:
+                      stops: tuple[StopTaken, ...] = (), batch: tuple[str, ...] | None = None) -> None:
         """Hand a refusal to `on_refused`: the message's method, params and id (its params without
         the arguments when the body was over `RECORDED_BODY_BYTES`), or Nones for a body that
         was not read or not understood."""
@@ -318,7 +340,7 @@ class AbandonedMotionStop:
             elif body_bytes > RECORDED_BODY_BYTES:
                 params = {"name": params["name"]} if isinstance(params.get("name"), str) else None
         try:
-            await self.on_refused(RefusedRequest(method, params, request_id, outcome, why, stops))
+            await self.on_refused(RefusedRequest(method, params, request_id, outcome, why, stops, batch))
         except Exception:
             logger.exception("reporting the refused request %r failed", request_id)
 

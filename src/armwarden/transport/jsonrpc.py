@@ -74,6 +74,9 @@ class RefusedRequest:
     why: str
     #: what its stop calls did (`StopTaken`)
     stops: tuple[StopTaken, ...] = ()
+    #: a batch (a JSON array, which no MCP revision takes): what its elements ask for, the tool of
+    #: a `tools/call`, else the method (at most `BATCH_NAMES_KEPT`); None: not a batch
+    batch: tuple[str, ...] | None = None
 
 
 #: awaited (HTTP, before the answer) or run soon after (stdio) for each `RefusedRequest`
@@ -143,6 +146,37 @@ def malformed_call(method: Any, params: Any) -> str | None:
     if arguments is not None and not isinstance(arguments, dict):
         return f"tools/call of {str(params['name'])[:64]} refused: its arguments are not an object"
     return None
+
+
+#: how many of a batch's elements a refusal names
+BATCH_NAMES_KEPT = 16
+
+
+def batch_refusal(size: int) -> str:
+    """Why a batch is refused, on both transports (JSON-RPC -32600, id null)."""
+    return (f"Invalid Request: a JSON-RPC batch ({size} elements) is not accepted: no MCP revision this server "
+            "speaks has batches; none of its calls ran (a stop or e-stop among them has taken effect). "
+            "Send each request on its own.")
+
+
+def screen_batch(elements: list[Any], on_stop_request: StopOnReceipt | None,
+                 principal: str | None) -> tuple[list[tuple[str, Any]], tuple[str, ...]]:
+    """`screen_call` for every element of a batch, which will be refused as a whole: each stopping
+    tool named holds the robot once (the first of its calls; a batch of thousands of stops is one
+    hold, not thousands). Returns the (tool, params) of those first stop calls, for
+    `refused_stops`, and what the elements ask for (`RefusedRequest.batch`)."""
+    stops: dict[str, Any] = {}
+    names: list[str] = []
+    for element in elements:
+        method = element.get("method") if isinstance(element, dict) else None
+        params = element.get("params") if isinstance(element, dict) else None
+        if len(names) < BATCH_NAMES_KEPT:
+            name = params.get("name") if method == "tools/call" and isinstance(params, dict) else method
+            names.append(str(name)[:64] if name is not None else "?")
+        tool = stop_call(method, params)
+        if tool is not None and tool not in stops:
+            stops[tool] = screen_call(method, params, on_stop_request, principal)[0]
+    return list(stops.items()), tuple(names)
 
 
 def screen_call(method: Any, params: Any, on_stop_request: StopOnReceipt | None,

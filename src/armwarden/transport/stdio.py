@@ -18,7 +18,8 @@ server. Three gaps, closed here by a thin layer around its streams:
 Three more, shared with the HTTP transport (`jsonrpc.py`): a stopping tool's call whose `arguments`
 is not an object is passed on with that value as its argument (`stop_params_repaired`: the SDK would
 refuse it before the tool latches); an `estop` request that is read but will not run — refused
-here (a reused id, no usable id, a line that is JSON but not one JSON-RPC message), answered by
+here (a reused id, no usable id, a line that is JSON but not one JSON-RPC message, every element
+of a batch, which the SDK cannot read), answered by
 the SDK with an error, or settled without an answer — latches the e-stop before that answer
 (`on_estop_refused`, `refused_stops`); and every request refused before the server's tools see it —
 an unreadable line, a reused id, a call without a usable id, a `tools/call` with malformed params
@@ -68,9 +69,11 @@ from armwarden.transport.jsonrpc import (
     RefusedRequest,
     StopOnReceipt,
     StopTaken,
+    batch_refusal,
     duplicate_id_message,
     refused_stops,
     request_id_key,
+    screen_batch,
     screen_call,
     stop_call,
     unanswerable_call,
@@ -224,8 +227,12 @@ class GatedReadStream:
                 await self._answer_open_calls()
                 raise
             if isinstance(item, Exception):
+                decoded = parsed_line(item)
+                if isinstance(decoded, list):
+                    await self._refuse_batch(decoded)
+                    continue
                 error = unreadable_line_error(item)
-                taken = self._refuse_stops(self._screen(parsed_line(item)), error.message)
+                taken = self._refuse_stops(self._screen(decoded), error.message)
                 logger.warning("stdio: answered an unreadable line with error %d", error.code)
                 await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=error))
                 self._report(None, None, None, "unreadable", error.message, taken)
@@ -264,6 +271,16 @@ class GatedReadStream:
         params, _ = screen_call(decoded.get("method"), decoded.get("params"), self._on_stop_request, None)
         tool = stop_call(decoded.get("method"), params)
         return [] if tool is None else [(tool, params)]
+
+    async def _refuse_batch(self, elements: list[Any]) -> None:
+        """Refuse a batch (-32600, id null), as over HTTP, once every element is screened: a stop
+        call in it holds the robot, an `estop` latches the e-stop before the answer."""
+        stops, names = screen_batch(elements, self._on_stop_request, None)
+        why = batch_refusal(len(elements))
+        taken = self._refuse_stops(stops, why)
+        logger.warning("stdio: refused a batch of %d", len(elements))
+        await self._writer.reply(JSONRPCError(jsonrpc="2.0", id=None, error=ErrorData(code=INVALID_REQUEST, message=why)))
+        self._report(None, None, None, "invalid_request", why, taken, names)
 
     def _refuse_stops(self, stops: list[tuple[str, Any]], why: str) -> tuple[StopTaken, ...]:
         """A refused request's stop calls: an `estop` latches now, before the refusal is answered."""
@@ -311,9 +328,9 @@ class GatedReadStream:
         return metadata
 
     def _report(self, method: str | None, params: Mapping[str, Any] | None, request_id: RequestId | None,
-                outcome: str, why: str, stops: tuple[StopTaken, ...] = ()) -> None:
+                outcome: str, why: str, stops: tuple[StopTaken, ...] = (), batch: tuple[str, ...] | None = None) -> None:
         if self._on_refused is not None:
-            self._spawn(self._report_refusal, RefusedRequest(method, params, request_id, outcome, why, stops))
+            self._spawn(self._report_refusal, RefusedRequest(method, params, request_id, outcome, why, stops, batch))
 
     async def _report_refusal(self, refused: RefusedRequest) -> None:
         assert self._on_refused is not None
