@@ -333,6 +333,8 @@ def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
         extra: dict[str, Any] = {}
         if refused.request_id is not None:
             extra["request_id"] = str(refused.request_id)[:64]
+        if refused.session is not None:  # the client's claim, never a session the SDK bound
+            extra["session_header"] = flatten_reason(refused.session, 128)
         detail = refused.why
         if refused.batch is not None:  # named by what acted (an estop first), its elements in extra
             acted = sorted(refused.stops, key=lambda stop: stop.tool != "estop")
@@ -346,8 +348,7 @@ def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
             detail += "; " + "; ".join(stop.describe() for stop in refused.stops)
         await assembly.audit.append_async("request_refused", tool=None if tool is None else str(tool)[:128],
                                           arguments=None if tool is None else arguments, outcome=refused.outcome,
-                                          detail=detail,
-                                          extra=extra or None)
+                                          detail=detail, principal=refused.principal, extra=extra or None)
 
     return record
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import socket
 from collections.abc import Iterator
 from typing import Any
 
@@ -178,3 +179,36 @@ def test_a_call_with_malformed_params_is_recorded_once(daemon: Daemon, protocol:
     records = new_records(daemon, before)
     assert [r["outcome"] for r in refused(records)] == ["invalid_params"]
     assert not [r for r in records if r["event"] == "tool_call"]
+
+
+# ------------------------------------------------------------------ who was refused
+def declare_too_large_a_body(daemon: Daemon, token: str) -> bytes:
+    """POST with a Content-Length over the limit and no body (refused before it is read); the
+    answer's status line."""
+    with socket.create_connection(("127.0.0.1", daemon.port), timeout=30) as sock:
+        sock.sendall(f"POST /mcp HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\nAuthorization: Bearer {token}\r\n"
+                     f"Content-Type: application/json\r\nContent-Length: {2 * MAX_BODY_BYTES}\r\n\r\n".encode())
+        return sock.recv(4096).split(b"\r\n")[0]
+
+
+def test_a_refused_request_is_recorded_with_its_authenticated_principal(daemon: Daemon) -> None:
+    """Found by an outside review (issue 24, review 1, item 3): refusals carried no principal,
+    while the bearer token had been checked before."""
+    before = len(records_of(daemon.audit))
+
+    status_line = declare_too_large_a_body(daemon, daemon.observer_token)
+
+    assert b" 413 " in status_line
+    [record] = refused(new_records(daemon, before))
+    assert record["principal"] == "bob"
+
+
+def test_a_refused_request_is_recorded_with_the_session_it_claimed(daemon: Daemon) -> None:
+    raw = RawSession(daemon, daemon.observer_token)
+    message = {"jsonrpc": "2.0", "id": 9, "method": "tools/call", "params": {"name": "get_robot_state", "arguments": [1]}}
+    before = len(records_of(daemon.audit))
+
+    raw.http.post(daemon.url, content=json.dumps(message).encode(), headers=raw.headers())
+
+    [record] = refused(new_records(daemon, before))
+    assert record["principal"] == "bob" and record["extra"]["session_header"] == raw.session_id

@@ -260,7 +260,7 @@ class AbandonedMotionStop:
         declared = _declared_length(scope)
         too_large = f"request body over {MAX_BODY_BYTES} bytes refused"
         if declared is not None and declared > MAX_BODY_BYTES:  # refused before reading: no "100 Continue" for it
-            await self._report(None, "too_large", f"{too_large} (HTTP 413): declared {declared} bytes, not read", 0)
+            await self._report(scope, None, "too_large", f"{too_large} (HTTP 413): declared {declared} bytes, not read", 0)
             await _refuse(send, 413, too_large)
             return
         try:
@@ -268,14 +268,14 @@ class AbandonedMotionStop:
         except _ClientGone:
             return  # nothing was asked, nothing runs
         if not whole:
-            await self._report(None, "too_large", f"{too_large} (HTTP 413): sent without a declared length, cut off "
+            await self._report(scope, None, "too_large", f"{too_large} (HTTP 413): sent without a declared length, cut off "
                                f"after {body_digest(body)}", len(body))
             await _refuse(send, 413, too_large)
             return
         decoded = decode_body(body)
         principal = _principal(scope) or None
         if isinstance(decoded, list):
-            await self._refuse_batch(decoded, principal, send, len(body))
+            await self._refuse_batch(scope, decoded, send, len(body))
             return
         message = decoded if isinstance(decoded, dict) else None
         reported = False
@@ -293,11 +293,11 @@ class AbandonedMotionStop:
             if not usable_request_id(message.get("id")) and (
                     idless := unanswerable_call(message.get("method"), params)) is not None:
                 taken = refused_stops(stops, self.on_estop_refused, principal, idless)
-                await self._report(message, "invalid_request", idless, len(body), taken)
+                await self._report(scope, message, "invalid_request", idless, len(body), taken)
                 await _refuse(send, 400, idless)
                 return
             if malformed is not None:
-                await self._report(message, "invalid_params", malformed, len(body))  # the SDK answers it
+                await self._report(scope, message, "invalid_params", malformed, len(body))  # the SDK answers it
                 reported = True
         key = _request_key(scope, message)
         if key is not None and key in self._open_requests:
@@ -305,7 +305,7 @@ class AbandonedMotionStop:
             request_id = message.get("id") if message else None
             why = f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}"
             taken = refused_stops(stops, self.on_estop_refused, principal, why)
-            await self._report(message, "duplicate_request_id", why, len(body), taken)
+            await self._report(scope, message, "duplicate_request_id", why, len(body), taken)
             await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
         if key is not None:
@@ -316,20 +316,22 @@ class AbandonedMotionStop:
             if key is not None:
                 self._open_requests.discard(key)
 
-    async def _refuse_batch(self, elements: list[Any], principal: str | None, send: Send, body_bytes: int) -> None:
+    async def _refuse_batch(self, scope: Scope, elements: list[Any], send: Send, body_bytes: int) -> None:
         """Refuse a batch (400, -32600), as the SDK would under either revision, once every
         element is screened: a stop call in it holds the robot, an `estop` latches the e-stop."""
+        principal = _principal(scope) or None
         stops, names = screen_batch(elements, self.on_stop_request, principal)
         why = batch_refusal(len(elements))
         taken = refused_stops(stops, self.on_estop_refused, principal, why)
-        await self._report(None, "invalid_request", why, body_bytes, taken, names)
+        await self._report(scope, None, "invalid_request", why, body_bytes, taken, names)
         await _refuse(send, 400, why)
 
-    async def _report(self, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int,
+    async def _report(self, scope: Scope, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int,
                       stops: tuple[StopTaken, ...] = (), batch: tuple[str, ...] | None = None) -> None:
         """Hand a refusal to `on_refused`: the message's method, params and id (its params without
         the arguments when the body was over `RECORDED_BODY_BYTES`), or Nones for a body that
-        was not read or not understood."""
+        was not read or not understood; who sent it (the principal `BearerAuth` authenticated,
+        the session header as the client claimed it)."""
         if self.on_refused is None:
             return
         method = request_id = params = None
@@ -340,7 +342,10 @@ class AbandonedMotionStop:
             elif body_bytes > RECORDED_BODY_BYTES:
                 params = {"name": params["name"]} if isinstance(params.get("name"), str) else None
         try:
-            await self.on_refused(RefusedRequest(method, params, request_id, outcome, why, stops, batch))
+            session = _header(scope, SESSION_HEADER)
+            await self.on_refused(RefusedRequest(
+                method, params, request_id, outcome, why, stops, batch, principal=_principal(scope) or None,
+                session=None if session is None else session.decode("latin-1")))
         except Exception:
             logger.exception("reporting the refused request %r failed", request_id)
 
@@ -385,7 +390,7 @@ class AbandonedMotionStop:
                 with anyio.CancelScope(shield=True):  # the latch and the record, then the answer
                     outcome, why = self._sdk_refusal(message, body, held)
                     taken = refused_stops(stops, self.on_estop_refused, _principal(scope) or None, why)
-                    await self._report(message, outcome, why, len(body), taken)
+                    await self._report(scope, message, outcome, why, len(body), taken)
                 for part in held:
                     await send(part)
                 held.clear()
