@@ -6,6 +6,7 @@ so no hardware is needed); with --http it connects to a running daemon instead:
 
     python examples/python_client.py                         # stdio, asks you before moving
     python examples/python_client.py --yes                   # stdio, approves automatically
+    armwarden tokens add tokens.json --role agent --name claude   # this client's token (printed once)
     armwarden serve --transport http --auth-tokens tokens.json &
     python examples/python_client.py --http http://127.0.0.1:8765/mcp --token aw_...
 

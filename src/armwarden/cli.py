@@ -94,7 +94,8 @@ def _build_parser() -> argparse.ArgumentParser:
     tokens = commands.add_parser("tokens", help="manage HTTP bearer tokens").add_subparsers(dest="tokens_command", required=True)
     add = tokens.add_parser("add", help="create a token (printed once; only its hash is stored)")
     add.add_argument("file")
-    add.add_argument("--role", required=True, choices=["observer", "operator"])
+    add.add_argument("--role", required=True, choices=["observer", "operator", "agent"],
+                     help="operator: a human; agent: an MCP client (the tools of an operator, no console sign-in)")
     add.add_argument("--name", default=None)
     listing = tokens.add_parser("list", help="list token names and roles")
     listing.add_argument("file")

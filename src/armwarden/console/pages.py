@@ -27,6 +27,8 @@ MessageKind = Literal["ok", "error"]
 #: own page with a crafted link (the URL carries a code, never a text or a CSS class)
 MESSAGES: dict[str, tuple[MessageKind, str]] = {
     "bad_token": ("error", "That token is not valid (unknown or revoked)."),
+    "agent_token": ("error", "That is an agent's token (role agent, for MCP clients): the console is for humans. Sign "
+                             "in with an operator or observer token."),
     "console_full": ("error", "The console already has as many sessions open as it allows, and no one else is signed "
                               "out to make room. Ask someone to sign out, or wait until a session ends."),
     "no_request": ("error", "No such approval request."),

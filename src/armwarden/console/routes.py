@@ -6,7 +6,9 @@ Rules every handler keeps:
   read answers 401.
 - Every POST but the E-STOP from loopback needs the session's CSRF token (sign-in: the login
   form's own token); a POST without it is refused (403) and audited.
-- Releasing the e-stop and answering approvals need the operator role; observers see, and stop.
+- Releasing the e-stop and answering approvals need the operator role; observers see, and stop;
+  agent tokens (MCP clients') cannot sign in. Nobody releases or approves here what their own
+  MCP calls asked for (latched, asked to release, requested), unless `approval.allow_self_approval`.
 - Everything a human does here is audited with the session's token name (`console_*` events).
 - The E-STOP button posts to the independent stop channel (`ConsoleSettings.estop_url`, its
   ``/console-estop``), which runs on its own thread, so a busy or blocked event loop cannot
@@ -178,7 +180,8 @@ class Console:
                 await self.audit("console_sign_in", None, "refused", f"a sign-in refused: {session.message}",
                                  principal=session.name, reason=session.reason,
                                  peer=request.client.host if request.client else None)
-            return self.back("/login", "bad_token" if session.reason == "invalid_token" else "console_full")
+            return self.back("/login", {"invalid_token": "bad_token", "agent_token": "agent_token"}.get(session.reason,
+                                                                                                    "console_full"))
         await self.audit("console_sign_in", session, "ok", f"signed in as {session.name} ({session.role})",
                          token=session.token_fingerprint)
         response = RedirectResponse(f"{self.base}/", status_code=303)
@@ -315,7 +318,9 @@ class Console:
         return self.back("/safety", "estop_latched", event)
 
     async def reset(self, request: Request) -> Response:
-        """Release the e-stop: an operator types the number of the event shown; a newer latch refuses."""
+        """Release the e-stop: an operator types the number of the event shown; a newer latch refuses.
+        So does a release by the token whose MCP call latched a held e-stop or asked to release it
+        (`PendingApprovals.self_release`), unless `approval.allow_self_approval`."""
         session = self.session_of(request)
         if session is None:
             return await self.refuse(request, None, 401, "sign in to release the e-stop")
@@ -325,6 +330,12 @@ class Console:
         if not session.can_approve:
             return await self.refuse(request, session, 403, "release refused: observers cannot release the e-stop")
         typed = form.get("event", "").strip().lstrip("#")
+        own = self.guard.approvals.self_release(session.name, (e.number for e in self.guard.latch.held_events))
+        if own is not None and not self.guard.policy.approval.allow_self_approval:
+            why = (f"release refused: {session.name} {own}, so another operator must release it "
+                   "(approval.allow_self_approval is off)")
+            await self.audit("console_reset_estop", session, "refused_self_release", why, typed_event=typed[:32])
+            return await self.refuse(request, session, 403, why)
         try:
             result = await self.guard.reset_estop_typed(typed, operator=session.name)  # recorded before it takes effect
         except SafetyRefusal as exc:
@@ -333,7 +344,10 @@ class Console:
             return self.back("/safety", "release_unrecorded" if exc.code == RefusalCode.AUDIT_UNAVAILABLE
                              else "release_refused")
         with _told_even_if_unrecorded():  # the release itself was recorded before it took effect
-            await self.audit("console_reset_estop", session, "released", result.detail, released_event=result.released_event)
+            await self.audit("console_reset_estop", session, "released",
+                             result.detail + (f"; by {session.name}, who {own} (approval.allow_self_approval is on)"
+                                              if own is not None else ""),
+                             released_event=result.released_event, self_release=own is not None)
         return self.back("/safety", "released", result.released_event)
 
     async def answer(self, request: Request) -> Response:
@@ -417,6 +431,7 @@ def timed_estop(latch_and_stop: Callable[[str, str], int], record: Callable[[Any
         return event
 
     return hook
+
 
 @contextlib.contextmanager
 def _told_even_if_unrecorded() -> Iterator[None]:

@@ -7,6 +7,10 @@ session has its own CSRF token, which every POST must echo (form field or header
 in memory only: a daemon restart signs everyone out. The token is re-checked against the token
 file on each request, so revoking it ends its sessions at once.
 
+The console is for humans: an `agent` token (an MCP client's) cannot sign in at all. Were the
+agent's own token good for a session, the agent could sign in like a script and approve or
+release there what it asked for.
+
 Room is shared fairly: at most `MAX_SESSIONS_PER_PRINCIPAL` sessions per token name (a new
 sign-in ends that token's own oldest one) and `MAX_SESSIONS` in all. A sign-in never ends a
 session of another token to make room: when the table is full of other tokens' sessions, the
@@ -82,11 +86,12 @@ class Session:
 @dataclass(frozen=True)
 class SignInRefused:
     """Why a sign-in got no session: `invalid_token` (unknown, revoked, none given, or sign-in is
-    off) or `full` (the console holds `MAX_SESSIONS` sessions of other tokens)."""
+    off), `agent_token` (an MCP client's token: the console is for humans) or `full` (the console
+    holds `MAX_SESSIONS` sessions of other tokens)."""
 
-    reason: Literal["invalid_token", "full"]
+    reason: Literal["invalid_token", "agent_token", "full"]
     message: str
-    #: the token's name when the token was valid (`full`); None for an invalid one
+    #: the token's name when the token was valid (`agent_token`, `full`); None for an invalid one
     name: str | None = None
 
 
@@ -132,6 +137,9 @@ class SessionStore:
         principal = self._tokens.authenticate(presented)
         if principal is None:
             return SignInRefused("invalid_token", "That token is not valid (unknown or revoked).")
+        if principal.role == "agent":
+            return SignInRefused("agent_token", "That is an agent's token (for MCP clients): the console is for humans. "
+                                 "Sign in with an operator or observer token.", principal.name)
         self._end_dead_sessions()
         session_id = secrets.token_urlsafe(32)
         session = Session(session_id, principal.name, principal.role, secrets.token_urlsafe(32),

@@ -92,7 +92,7 @@ class Guard:
         self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
         backend.set_fault_listener(self._backend_fault)  # faults a backend finds on its own thread
         self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
-                                   emergency_stop=self.stopper.emergency_stop, stop_for=self.stopper.stop_for,
+                                   emergency_stop=self.emergency_stop, stop_for=self.stopper.stop_for,
                                    record=self._record)
         self.planning_flow = PlanningFlow(self, previewer)
         self._execution: Execution | None = None
@@ -325,8 +325,13 @@ class Guard:
         return await self.stopper.stop_motion()
 
     async def emergency_stop(self, reason: object, source: str = "estop", force: dict | None = None) -> results.EStopResult:
-        """Latch, invalidate every plan and stop arm and gripper. Accepts any reason."""
-        return await self.stopper.emergency_stop(reason, source, force)
+        """Latch, invalidate every plan and stop arm and gripper. Accepts any reason. The token of
+        the call that latched (also a force violation during its motion) is remembered: it may
+        not release that e-stop in the console (`PendingApprovals.self_release`)."""
+        result = await self.stopper.emergency_stop(reason, source, force)
+        if (call := current_call()) is not None:
+            self.approvals.note_release_party(result.estop_event.number, call.principal, "latched it over MCP")
+        return result
 
     @property
     def force_violation_latched(self) -> bool:
@@ -336,6 +341,8 @@ class Guard:
         event = self.latch.current_event
         if event is None:
             return ServerDecision.refused(RefusalCode.NOT_ESTOPPED, "the e-stop is not latched; nothing to reset")
+        if (call := current_call()) is not None:  # who asked may not release it in the console (idempotent)
+            self.approvals.note_release_party(event.number, call.principal, "asked over MCP to release it")
         if (why := self.audit_unusable()) is not None:  # a release could not be recorded: do not ask anyone
             return ServerDecision.refused(RefusalCode.AUDIT_UNAVAILABLE, f"reset_estop refused: the audit log cannot be "
                                           f"written ({why}), so no release can be recorded and none is made: e-stop "

@@ -12,6 +12,10 @@ One request per plan, never per motion: two callers who plan the very same motio
 each get their own request with their own requester, so nobody approves their own motion through
 another caller's request, and using one plan never closes another's.
 
+The board also remembers who had a hand in each e-stop over MCP (whose call latched it, who
+asked to release it): the console does not take a release from them (`self_release`), for the
+same reason a requester does not approve its own motion.
+
 Lives on the event loop like the plan store: `offer` is idempotent per plan (approval resolvers
 may run more than once under protocol 2026-07-28), and nothing here awaits.
 """
@@ -21,7 +25,7 @@ from __future__ import annotations
 import secrets
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -33,6 +37,8 @@ __all__ = ["AnswerRefusal", "PendingApprovals", "PendingRequest"]
 Answer = Literal["approved", "declined", "withdrawn"]
 #: most requests kept (answered ones included, so a replayed link is explained, not unknown)
 MAX_REQUESTS = 256
+#: e-stop events whose MCP principals are remembered (`note_release_party`), newest kept
+MAX_RELEASE_EVENTS = 256
 
 
 @dataclass
@@ -106,6 +112,8 @@ class PendingApprovals:
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._clock = clock
         self._requests: OrderedDict[str, PendingRequest] = OrderedDict()
+        #: e-stop event number -> {token name: what it did about that e-stop over MCP}
+        self._release_parties: OrderedDict[int, dict[str, str]] = OrderedDict()
         #: where the operator console is served (e.g. ``http://127.0.0.1:8765/console``); None: not served
         self.console_url: str | None = None
 
@@ -181,6 +189,28 @@ class PendingApprovals:
                                  "operator must approve it (approval.allow_self_approval is off); you may decline it")
         request._settle("approved" if approve else "declined", operator, via, self_approved=own)
         return request
+
+    def note_release_party(self, event_number: int, principal: str | None, what: str) -> None:
+        """Remember that `principal` (a token name; None: no token, nothing to remember) had a hand
+        in e-stop `event_number` over MCP (`what`: "latched it over MCP", ...); the first
+        thing it did is kept."""
+        if principal is None:
+            return
+        self._release_parties.setdefault(event_number, {}).setdefault(principal, what)
+        self._release_parties.move_to_end(event_number)
+        while len(self._release_parties) > MAX_RELEASE_EVENTS:
+            self._release_parties.popitem(last=False)
+
+    def self_release(self, principal: str, event_numbers: Iterable[int]) -> str | None:
+        """Why a release of these held e-stops by `principal` would be its own (e.g. "latched it over
+        MCP (e-stop #3)"), or None. Why: a release lets go of every held event, so one the principal's MCP
+        call latched, or asked over MCP to release, makes the whole release its own request;
+        the agent's client could otherwise sign in to the console with its token and release it."""
+        for number in event_numbers:
+            what = self._release_parties.get(number, {}).get(principal)
+            if what is not None:
+                return f"{what} (e-stop #{number})"
+        return None
 
     def start_round(self, request: PendingRequest) -> str:
         """A fresh one-time nonce for a new approval round about `request` (2026-07-28: the

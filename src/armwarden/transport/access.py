@@ -23,11 +23,11 @@ OBSERVER_TOOLS = frozenset({"get_safety_status", "stop_motion", "estop"})
 def role_allows(role: str, tool: str, group_of: Mapping[str, str]) -> bool:
     """May `role` call `tool`? `group_of` maps tool name -> policy group (e.g. 'introspect').
 
-    operator: every tool (the policy decides which exist). observer: the introspect and
-    perception groups plus `OBSERVER_TOOLS`. Unknown roles and, for observers, tools of unknown
-    group are refused.
+    operator and agent: every tool (the policy decides which exist; an agent's token only cannot
+    sign in to the operator console). observer: the introspect and perception groups plus
+    `OBSERVER_TOOLS`. Unknown roles and, for observers, tools of unknown group are refused.
     """
-    if role == "operator":
+    if role in ("operator", "agent"):
         return True
     if role == "observer":
         return tool in OBSERVER_TOOLS or group_of.get(tool) in OBSERVER_GROUPS

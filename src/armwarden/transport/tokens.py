@@ -69,7 +69,10 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-Role = Literal["observer", "operator"]
+#: observer: read and stop; operator: a human, every tool and the console's approving and releasing;
+#: agent: an MCP client's token, every tool an operator may call but no console sign-in (so it can
+#: never approve or release there what it asked for)
+Role = Literal["observer", "operator", "agent"]
 ROLES: tuple[str, ...] = get_args(Role)
 TOKEN_PREFIX = "aw_"
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$"
@@ -102,7 +105,8 @@ class TokenEntry(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field(pattern=NAME_PATTERN, description="Unique label, e.g. 'alice-laptop'.")
-    role: Role = Field(description="'observer' (introspect + perception) or 'operator' (everything).")
+    role: Role = Field(description="'observer' (introspect + perception), 'operator' (everything, a human) or "
+                       "'agent' (the MCP tools of an operator, no console sign-in).")
     token_sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="Lower-case hex SHA-256 of the token.")
     created: AwareDatetime = Field(description="When the token was added (ISO 8601 with offset).")
 
