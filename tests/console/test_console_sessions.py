@@ -13,7 +13,7 @@ import httpx2
 import pytest
 
 from armwarden.console import ConsoleSettings
-from armwarden.console.sessions import MAX_SESSIONS, MAX_SESSIONS_PER_PRINCIPAL, SESSION_TTL_S, Session
+from armwarden.console.sessions import MAX_SESSIONS, MAX_SESSIONS_PER_PRINCIPAL, SESSION_TTL_S, Session, SignInRefused
 from armwarden.transport.tokens import TokenStore
 from tests.console.served import ServedConsole, csrf_of, served_console, sign_in
 from tests.console.test_console_estop_channel import press_estop, ticket_of
@@ -55,7 +55,7 @@ async def test_a_full_console_refuses_a_new_sign_in_with_a_clear_message(tmp_pat
     tokens = tmp_path / "tokens.json"
     async with served_console(tmp_path) as served, served.browser_client() as http:
         assert served.sessions is not None
-        extra = [TokenStore.add(tokens, "observer", name=f"watcher{i}") for i in range(MAX_SESSIONS // MAX_SESSIONS_PER_PRINCIPAL)]
+        extra = [TokenStore.add(tokens, "operator", name=f"watcher{i}") for i in range(MAX_SESSIONS // MAX_SESSIONS_PER_PRINCIPAL)]
         for token in extra:
             for _ in range(MAX_SESSIONS_PER_PRINCIPAL):
                 assert isinstance(served.sessions.sign_in(token), Session)
@@ -66,6 +66,22 @@ async def test_a_full_console_refuses_a_new_sign_in_with_a_clear_message(tmp_pat
     assert "sessions" in shown.text and "sign out" in shown.text
     records = [r for r in records_of(served.harness.audit_path) if r["event"] == "console_sign_in"]
     assert records[-1]["outcome"] == "refused" and records[-1]["extra"]["reason"] == "full"
+
+
+async def test_observers_cannot_take_the_room_kept_for_operators(tmp_path: Path) -> None:
+    """Outside review 2, item 6: observer tokens signing in over and over filled the whole console
+    and locked the operators out; observers now hold only part of it."""
+    tokens = tmp_path / "tokens.json"
+    async with served_console(tmp_path) as served, served.browser_client() as http:
+        assert served.sessions is not None
+        watchers = [TokenStore.add(tokens, "observer", name=f"watcher{i}") for i in range(MAX_SESSIONS // MAX_SESSIONS_PER_PRINCIPAL)]
+        observers = [served.sessions.sign_in(token) for token in watchers for _ in range(MAX_SESSIONS_PER_PRINCIPAL)]
+        signed = await sign_in(http, served.approver_token)
+        page = await http.get("/console/")
+
+    assert signed.headers["location"].endswith("/console/")
+    assert page.status_code == 200 and "dana (operator)" in page.text
+    assert any(isinstance(answer, SignInRefused) and answer.reason == "full" for answer in observers)
 
 
 async def _expired_page(served: ServedConsole, http: httpx2.AsyncClient, clock: FakeClock) -> str:

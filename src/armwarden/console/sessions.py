@@ -12,10 +12,12 @@ agent's own token good for a session, the agent could sign in like a script and 
 release there what it asked for.
 
 Room is shared fairly: at most `MAX_SESSIONS_PER_PRINCIPAL` sessions per token name (a new
-sign-in ends that token's own oldest one) and `MAX_SESSIONS` in all. A sign-in never ends a
-session of another token to make room: when the table is full of other tokens' sessions, the
-new sign-in is refused with a message that says so. (Before, any token holder could sign in 64
-times and sign everyone else out.)
+sign-in ends that token's own oldest one) and `MAX_SESSIONS` in all, of which observers hold at
+most `MAX_OBSERVER_SESSIONS`: the rest is kept for operators, the people who release the e-stop
+and approve, so observer tokens cannot lock them out. A sign-in never ends a session of another
+token to make room: when the table (or the observers' part of it) is full of other tokens'
+sessions, the new sign-in is refused with a message that says so. (Before, any token holder
+could sign in 64 times and sign everyone else out.)
 
 The E-STOP button posts to the independent stop channel, another origin that cannot see the
 cookie. So each session also has an E-STOP ticket the page embeds: an HMAC of the session id
@@ -55,6 +57,8 @@ SESSION_TTL_S = 8 * 3600.0
 MAX_SESSIONS = 64
 #: sessions of one token name; its new sign-in ends its own oldest session
 MAX_SESSIONS_PER_PRINCIPAL = 8
+#: sessions observers hold in all; the other `MAX_SESSIONS - MAX_OBSERVER_SESSIONS` are kept for operators
+MAX_OBSERVER_SESSIONS = 32
 #: tickets of ended sessions kept per token name, so their pages' E-STOP still stops
 MAX_ENDED_TICKETS_PER_PRINCIPAL = 32
 #: how the principal of a stop from the page of an ended session is audited
@@ -109,14 +113,19 @@ class SessionStore:
 
     def __init__(self, tokens: TokenStore | None, clock: Callable[[], float] = time.monotonic,
                  ttl_s: float = SESSION_TTL_S, max_sessions: int = MAX_SESSIONS,
-                 max_per_principal: int = MAX_SESSIONS_PER_PRINCIPAL) -> None:
+                 max_per_principal: int = MAX_SESSIONS_PER_PRINCIPAL,
+                 max_observer_sessions: int = MAX_OBSERVER_SESSIONS) -> None:
         if max_sessions < 1 or not 1 <= max_per_principal <= max_sessions:
             raise ValueError(f"session limits must satisfy 1 <= per token ({max_per_principal}) <= all ({max_sessions})")
+        if max_observer_sessions < 1:
+            raise ValueError(f"observers' sessions ({max_observer_sessions}) must be at least 1")
         self._tokens = tokens
         self._clock = clock
         self._ttl_s = ttl_s
         self._max_sessions = max_sessions
         self._max_per_principal = max_per_principal
+        #: observers' part of the table (all of a table no larger than it: nothing kept for operators)
+        self._max_observer_sessions = min(max_observer_sessions, max_sessions)
         self._sessions: OrderedDict[str, tuple[Session, str]] = OrderedDict()  # oldest sign-in first
         self._tickets: dict[str, _Ticket] = {}  # E-STOP ticket -> what it stands for (live and ended sessions)
         self._ended: dict[str, OrderedDict[str, None]] = {}  # token name -> tickets of its ended sessions, oldest first
@@ -153,9 +162,18 @@ class SessionStore:
                     f"The console already has {len(self._sessions)} sessions open (at most {self._max_per_principal} "
                     "per token); no one else is signed out to make room. Ask someone to sign out, or wait until a "
                     "session ends."), principal.name)
+            elif principal.role != "operator" and self._observers_locked() >= self._max_observer_sessions:
+                return SignInRefused("full", (
+                    f"Observers already hold {self._max_observer_sessions} console sessions, all they may (the rest "
+                    "is kept for operators); no one else is signed out to make room. Ask an observer to sign out, or "
+                    "wait until a session ends."), principal.name)
             self._sessions[session.session_id] = (session, presented)
             self._tickets[session.estop_ticket] = _Ticket(session.session_id, principal.name, presented)
         return session
+
+    def _observers_locked(self) -> int:
+        """Sessions of tokens that are not operators (call with the lock held)."""
+        return sum(1 for session, _ in self._sessions.values() if not session.can_approve)
 
     def lookup(self, session_id: object) -> Session | None:
         """The live session for a cookie value: unexpired, and its token still valid with the same role."""
