@@ -37,6 +37,7 @@ from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_from_env
 from armwarden.safety.estop import flatten_reason
+from armwarden.safety.refusals import RefusalReports
 from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel import ConsoleDoor, StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
@@ -56,6 +57,9 @@ SWITCH_INTERVAL_S = 0.0005
 GC_YOUNG_THRESHOLD = 10_000
 #: after SIGTERM/SIGINT on stdio: time for cancelled calls to stop the arm and audit themselves [s]
 SIGNAL_GRACE_S = 0.3
+#: records of requests a transport refused, per principal (or host): this many in a row, then one
+#: per second (`RefusalReports`); a client's occasional mistakes are each recorded, a flood is not
+REFUSAL_RECORDS_BURST = 20
 
 
 @dataclass
@@ -325,9 +329,19 @@ async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
 
 def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
     """Audits a request a transport refused before the tools saw it (`request_refused`, on disk
-    before its answer where the transport waits for it), with what its stop calls did."""
+    before its answer where the transport waits for it), with what its stop calls did. Pure
+    refusals are thinned per principal (or host; stdio has one client) to `REFUSAL_RECORDS_BURST`,
+    then one a second, each record counting those left out before it; a refusal whose stop calls
+    acted (held the robot, latched the e-stop) is always recorded."""
+    thinning = RefusalReports(burst=REFUSAL_RECORDS_BURST)
 
     async def record(refused: RefusedRequest) -> None:
+        left_out = 0
+        if not refused.stops:
+            admitted = thinning.admit(refused.principal or refused.peer or "the stdio client")
+            if admitted is None:
+                return
+            left_out = admitted
         params = refused.params if refused.method == "tools/call" and isinstance(refused.params, Mapping) else {}
         tool, arguments = params.get("name"), params.get("arguments")
         extra: dict[str, Any] = {}
@@ -335,6 +349,10 @@ def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
             extra["request_id"] = str(refused.request_id)[:64]
         if refused.session is not None:  # the client's claim, never a session the SDK bound
             extra["session_header"] = flatten_reason(refused.session, 128)
+        if refused.peer is not None:
+            extra["peer"] = refused.peer
+        if left_out:
+            extra["not_reported_since_last"] = left_out
         detail = refused.why
         if refused.batch is not None:  # named by what acted (an estop first), its elements in extra
             acted = sorted(refused.stops, key=lambda stop: stop.tool != "estop")

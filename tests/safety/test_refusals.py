@@ -45,3 +45,25 @@ def test_the_table_of_hosts_is_bounded_and_forgets_the_longest_quiet_host() -> N
     assert reports.admit("10.0.0.3") == 0
     assert len(reports) == 2
     assert reports.admit("10.0.0.1") == 0  # forgotten: reported afresh
+
+
+def test_a_burst_is_reported_in_full_then_one_per_interval() -> None:
+    clock = FakeClock(0.0)
+    reports = RefusalReports(interval_s=1.0, burst=3, clock=clock)
+
+    first = [reports.admit("alice") for _ in range(5)]
+    clock.advance(1.0)
+    after_one_interval = [reports.admit("alice") for _ in range(2)]
+
+    assert first == [0, 0, 0, None, None]
+    assert after_one_interval == [2, None]
+
+
+def test_a_quiet_key_gets_its_whole_burst_back() -> None:
+    clock = FakeClock(0.0)
+    reports = RefusalReports(interval_s=1.0, burst=3, clock=clock)
+    for _ in range(4):
+        reports.admit("alice")
+    clock.advance(10.0)
+
+    assert [reports.admit("alice") for _ in range(4)] == [1, 0, 0, None]

@@ -345,7 +345,7 @@ class AbandonedMotionStop:
             session = _header(scope, SESSION_HEADER)
             await self.on_refused(RefusedRequest(
                 method, params, request_id, outcome, why, stops, batch, principal=_principal(scope) or None,
-                session=None if session is None else session.decode("latin-1")))
+                session=None if session is None else session.decode("latin-1"), peer=(scope.get("client") or (None,))[0]))
         except Exception:
             logger.exception("reporting the refused request %r failed", request_id)
 

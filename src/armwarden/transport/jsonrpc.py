@@ -77,10 +77,11 @@ class RefusedRequest:
     #: a batch (a JSON array, which no MCP revision takes): what its elements ask for, the tool of
     #: a `tools/call`, else the method (at most `BATCH_NAMES_KEPT`); None: not a batch
     batch: tuple[str, ...] | None = None
-    #: who sent it: the principal the transport authenticated (HTTP with tokens), and the session
-    #: it claimed (the session header, unchecked: the SDK checks it later, if at all)
+    #: who sent it: the principal the transport authenticated (HTTP with tokens), the session it
+    #: claimed (the session header, unchecked: the SDK checks it later, if at all), its host (HTTP)
     principal: str | None = None
     session: str | None = None
+    peer: str | None = None
 
 
 #: awaited (HTTP, before the answer) or run soon after (stdio) for each `RefusedRequest`
