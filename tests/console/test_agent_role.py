@@ -92,7 +92,7 @@ async def test_the_operator_whose_call_latched_the_estop_cannot_release_it_in_th
 
     assert own.status_code == 403 and "another operator" in own.text  # type: ignore[attr-defined]
     assert still_latched
-    assert other.headers["location"].endswith("/console/safety?msg=released&event=1")  # type: ignore[attr-defined]
+    assert other.status_code == 303  # type: ignore[attr-defined]
     assert not served.harness.guard.latch.is_latched
     resets = console_records(served, "console_reset_estop")
     assert [(r["principal"], r["outcome"]) for r in resets] == [("alice", "refused_self_release"), ("dana", "released")]

@@ -171,13 +171,15 @@ async def test_reset_needs_the_number_of_the_latched_event(tmp_path: Path) -> No
         page = await http.get("/console/safety")
         csrf = csrf_of(page.text)
         wrong = await http.post("/console/reset", data={"event": "1", "csrf": csrf})
+        wrong_shown = await http.get(wrong.headers["location"].removeprefix(served.base))
         still_latched = served.harness.guard.latch.is_latched
         right = await http.post("/console/reset", data={"event": "2", "csrf": csrf})
+        right_shown = await http.get(right.headers["location"].removeprefix(served.base))
 
     assert "event #2" in page.text
-    assert wrong.status_code == 303 and wrong.headers["location"].endswith("?msg=release_refused")
+    assert wrong.status_code == 303 and '<p class="message error" id="message">Release refused: nothing' in wrong_shown.text
     assert still_latched
-    assert right.status_code == 303 and right.headers["location"].endswith("?msg=released&event=2")
+    assert right.status_code == 303 and '<p class="message ok" id="message">E-stop #2 released.</p>' in right_shown.text
     assert not served.harness.guard.latch.is_latched
     resets = [r for r in records_of(served.harness.audit_path) if r["event"] == "console_reset_estop"]
     assert [r["outcome"] for r in resets] == ["refused", "released"]

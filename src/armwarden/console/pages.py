@@ -3,14 +3,16 @@
 Every value on a page may carry text a model wrote (an e-stop reason, an audit detail), so the
 environment escapes everything by default and the pages run under a Content-Security-Policy
 that allows only the daemon's own script and style files: no inline script, no other origin.
-A page says something after a redirect only by a code in its URL that maps to one of the fixed
-texts of `MESSAGES`: a crafted link cannot put official-looking words (or a CSS class) on the
-daemon's own page.
+A page says only the fixed texts of `MESSAGES`, and no link can choose which: what an action did
+(an e-stop latched, released, an approval) is a one-time flash kept server-side for the session
+that acted (`SessionStore.put_flash`; the URL carries its opaque id only), and the sign-in page
+takes from its URL only the harmless codes of `LOGIN_CODES` (a wrong token, a full console, signed
+out), never a status claim. A crafted link cannot put official-looking words (or a CSS class) on
+the daemon's own page, nor make it say the e-stop was released while it is latched.
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from typing import Any, Literal, get_args
 from urllib.parse import urlencode
@@ -18,13 +20,13 @@ from urllib.parse import urlencode
 from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from starlette.responses import HTMLResponse
 
-__all__ = ["MESSAGES", "SECURITY_HEADERS", "message_from_query", "message_query", "page_headers", "render",
-           "render_fragment"]
+__all__ = ["LOGIN_CODES", "MESSAGES", "SECURITY_HEADERS", "MessageKind", "login_message", "login_query", "message_text",
+           "page_headers", "render", "render_fragment"]
 
 MessageKind = Literal["ok", "error"]
-#: what a page may say after a redirect, by the code in its URL (``?msg=CODE``, with ``&event=N``
-#: where the text has ``{event}``): fixed texts and kinds, so nobody can put words on the daemon's
-#: own page with a crafted link (the URL carries a code, never a text or a CSS class)
+#: what a page may say after an action, by code (with an e-stop event number where the text has
+#: ``{event}``): fixed texts and kinds, so nobody can put words on the daemon's own page; which one
+#: a signed-in page shows is the session's flash, never the URL's choice
 MESSAGES: dict[str, tuple[MessageKind, str]] = {
     "bad_token": ("error", "That token is not valid (unknown or revoked)."),
     "agent_token": ("error", "That is an agent's token (role agent, for MCP clients): the console is for humans. Sign "
@@ -41,8 +43,11 @@ MESSAGES: dict[str, tuple[MessageKind, str]] = {
                                     "the e-stop stays latched. Repair the audit log first."),
     "approved": ("ok", "Approved: the waiting call proceeds from this answer."),
     "declined": ("ok", "Declined: nothing moves."),
+    "signed_out": ("ok", "Signed out."),
 }
-_EVENT_NUMBER = re.compile(r"[0-9]{1,9}")
+#: the codes the sign-in page shows from its URL (``?msg=CODE``): what went wrong with a sign-in,
+#: or that one signed out; harmless in a forged link, since none of them claims a status
+LOGIN_CODES = frozenset({"bad_token", "agent_token", "console_full", "signed_out"})
 
 #: headers on every console answer: no caching of live state, no framing, no referrer (an approval
 #: link must not leak to another site), only the daemon's own scripts and styles
@@ -70,26 +75,31 @@ def page_headers(estop_origin: str | None) -> dict[str, str]:
     return {**SECURITY_HEADERS, "Content-Security-Policy": csp, "Referrer-Policy": "strict-origin-when-cross-origin"}
 
 
-def message_query(code: str, event: int | None = None) -> str:
-    """The query string that makes a page say `MESSAGES[code]` (with `event` for ``{event}``)."""
-    if code not in MESSAGES:
-        raise KeyError(f"no console message {code!r}")
-    return urlencode({"msg": code} if event is None else {"msg": code, "event": int(event)})
-
-
-def message_from_query(query: Mapping[str, str]) -> tuple[str, MessageKind] | None:
-    """The text and kind a page shows for its query string: a known code's fixed text (with an
-    event number, digits only, where it needs one); None for anything else."""
-    code = query.get("msg")
+def message_text(code: str, event: int | None = None) -> tuple[str, MessageKind] | None:
+    """`MESSAGES[code]`'s text (with `event` for ``{event}``) and kind; None for an unknown code
+    or a text that needs an event number without one."""
     if code not in MESSAGES:
         return None
     kind, text = MESSAGES[code]
     if "{event}" in text:
-        event = query.get("event", "")
-        if not _EVENT_NUMBER.fullmatch(event):
+        if not isinstance(event, int) or isinstance(event, bool):
             return None
-        text = text.format(event=int(event))
+        text = text.format(event=event)
     return text, kind
+
+
+def login_query(code: str) -> str:
+    """The query string that makes the sign-in page say `MESSAGES[code]` (one of `LOGIN_CODES`)."""
+    if code not in LOGIN_CODES:
+        raise KeyError(f"the sign-in page does not show {code!r} from its URL")
+    return urlencode({"msg": code})
+
+
+def login_message(query: Mapping[str, str]) -> tuple[str, MessageKind] | None:
+    """The text and kind the sign-in page shows for its query string: one of `LOGIN_CODES`'s
+    fixed texts; None for anything else (status codes included)."""
+    code = query.get("msg")
+    return message_text(code) if code in LOGIN_CODES else None
 
 
 _ENV = Environment(

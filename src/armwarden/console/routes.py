@@ -10,6 +10,9 @@ Rules every handler keeps:
   agent tokens (MCP clients') cannot sign in. Nobody releases or approves here what their own
   MCP calls asked for (latched, asked to release, requested), unless `approval.allow_self_approval`.
 - Everything a human does here is audited with the session's token name (`console_*` events).
+- What an action did is said on the next page through a one-time flash of the session that acted
+  (`SessionStore.put_flash`), never through words or codes a link could carry; without a session
+  the answer is the POST's own page.
 - The E-STOP button posts to the independent stop channel (`ConsoleSettings.estop_url`, its
   ``/console-estop``), which runs on its own thread, so a busy or blocked event loop cannot
   delay it; the page carries the session's E-STOP ticket for it. The console's own
@@ -34,7 +37,16 @@ from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Route
 
 from armwarden.console.feed import StateFeed, request_view
-from armwarden.console.pages import SECURITY_HEADERS, message_from_query, message_query, page_headers, render, render_fragment
+from armwarden.console.pages import (
+    SECURITY_HEADERS,
+    MessageKind,
+    login_message,
+    login_query,
+    message_text,
+    page_headers,
+    render,
+    render_fragment,
+)
 from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, SignInRefused, same_secret
 from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard
@@ -147,22 +159,31 @@ class Console:
         return same_secret(form.get("csrf") or request.headers.get("x-csrf-token"), session.csrf)
 
     def page(self, template: str, request: Request, session: Session, **context: Any) -> Response:
-        message, kind = message_from_query(request.query_params) or (None, "ok")
+        """A signed-in page, saying what the session's flash named in its URL says (once)."""
+        flash = self.sessions.take_flash(session, request.query_params.get("flash"))
+        message, kind = (message_text(*flash) if flash is not None else None) or (None, "ok")
         return render(template, base=self.base, session=session, message=message, message_kind=kind,
                       headers=self.headers, estop_url=self.settings.estop_url, **context)
 
-    def back(self, where: str, code: str, event: int | None = None) -> RedirectResponse:
-        """Redirect to `where`, whose page then says `MESSAGES[code]` (the URL carries the code only)."""
-        return RedirectResponse(f"{self.base}{where}?{message_query(code, event)}", status_code=303)
+    def back(self, session: Session, where: str, code: str, event: int | None = None) -> RedirectResponse:
+        """Redirect to `where`, whose page then says `MESSAGES[code]` to `session` only, once (the
+        URL carries the flash's opaque id only)."""
+        return RedirectResponse(f"{self.base}{where}?flash={self.sessions.put_flash(session, code, event)}",
+                                status_code=303)
 
     # ------------------------------------------------------------------ sign-in
     async def login_page(self, request: Request) -> Response:
+        message, kind = login_message(request.query_params) or (None, "ok")
+        return self._login_form(message, kind)
+
+    def _login_form(self, message: str | None, kind: MessageKind, status_code: int = 200) -> Response:
+        """The sign-in page with its own CSRF cookie, saying `message` (None: nothing)."""
         import secrets
 
         token = secrets.token_urlsafe(24)
-        message, kind = message_from_query(request.query_params) or (None, "ok")
-        response = render("login.html", base=self.base, login_csrf=token, sign_in_enabled=self.sessions.enabled,
-                          headers=self.headers, estop_url=self.settings.estop_url, message=message, message_kind=kind)
+        response = render("login.html", status_code=status_code, base=self.base, login_csrf=token,
+                          sign_in_enabled=self.sessions.enabled, headers=self.headers,
+                          estop_url=self.settings.estop_url, message=message, message_kind=kind)
         response.set_cookie(LOGIN_COOKIE, token, httponly=True, samesite="strict", path=self.base, max_age=600)
         return response
 
@@ -180,8 +201,8 @@ class Console:
                 await self.audit("console_sign_in", None, "refused", f"a sign-in refused: {session.message}",
                                  principal=session.name, reason=session.reason,
                                  peer=request.client.host if request.client else None)
-            return self.back("/login", {"invalid_token": "bad_token", "agent_token": "agent_token"}.get(session.reason,
-                                                                                                    "console_full"))
+            code = {"invalid_token": "bad_token", "agent_token": "agent_token"}.get(session.reason, "console_full")
+            return RedirectResponse(f"{self.base}/login?{login_query(code)}", status_code=303)
         await self.audit("console_sign_in", session, "ok", f"signed in as {session.name} ({session.role})",
                          token=session.token_fingerprint)
         response = RedirectResponse(f"{self.base}/", status_code=303)
@@ -197,7 +218,7 @@ class Console:
             return await self.refuse(request, session, 403, "sign-out refused: CSRF token missing or wrong")
         self.sessions.sign_out(session.session_id)
         await self.audit("console_sign_out", session, "ok", f"{session.name} signed out")
-        response = RedirectResponse(f"{self.base}/login", status_code=303)
+        response = RedirectResponse(f"{self.base}/login?{login_query('signed_out')}", status_code=303)
         response.delete_cookie(COOKIE, path=self.base)
         return response
 
@@ -224,7 +245,7 @@ class Console:
     async def approval_page(self, request: Request, session: Session) -> Response:
         pending = self.guard.approvals.get(request.path_params["request_id"])
         if pending is None:
-            return self.back("/approvals", "no_request")
+            return self.back(session, "/approvals", "no_request")
         return self.page("approval.html", request, session, title=f"approve {pending.plan_id}", r=request_view(pending),
                          answerable=self.settings.answer_approvals, own_request=pending.is_requested_by(session.name),
                          self_approval_allowed=self.guard.policy.approval.allow_self_approval)
@@ -306,16 +327,20 @@ class Console:
             event = self.estop_hook("operator console E-STOP", principal, peer)
         except Exception as exc:  # the stop may not have been issued: say so loudly
             logger.critical("console E-STOP failed: %s", exc)
-            return self._answer_estop(request, None, f"the stop may NOT have been issued: {exc}")
-        return self._answer_estop(request, event, None)
+            return self._answer_estop(request, session, None, f"the stop may NOT have been issued: {exc}")
+        return self._answer_estop(request, session, event, None)
 
-    def _answer_estop(self, request: Request, event: int | None, error: str | None) -> Response:
+    def _answer_estop(self, request: Request, session: Session | None, event: int | None, error: str | None) -> Response:
+        """JSON for the page's script; a browser without script: signed in, the Safety page with
+        the session's flash; otherwise this answer's own page (nothing a link could repeat)."""
         if "application/json" in request.headers.get("accept", ""):
             body = {"estopped": True, "event": event} if error is None else {"error": error}
             return JSONResponse(body, status_code=200 if error is None else 500, headers=SECURITY_HEADERS)
-        if error is not None:
-            return self.back("/safety", "estop_failed")
-        return self.back("/safety", "estop_latched", event)
+        code = "estop_failed" if error is not None else "estop_latched"
+        if session is not None:
+            return self.back(session, "/safety", code, event)
+        message, kind = message_text(code, event) or ("E-STOP: see the Safety page", "error")
+        return self._login_form(message, kind, status_code=200 if error is None else 500)
 
     async def reset(self, request: Request) -> Response:
         """Release the e-stop: an operator types the number of the event shown; a newer latch refuses.
@@ -341,14 +366,14 @@ class Console:
         except SafetyRefusal as exc:
             with _told_even_if_unrecorded():  # a full audit disk may be why it was refused
                 await self.audit("console_reset_estop", session, "refused", str(exc), typed_event=typed[:32])
-            return self.back("/safety", "release_unrecorded" if exc.code == RefusalCode.AUDIT_UNAVAILABLE
+            return self.back(session, "/safety", "release_unrecorded" if exc.code == RefusalCode.AUDIT_UNAVAILABLE
                              else "release_refused")
         with _told_even_if_unrecorded():  # the release itself was recorded before it took effect
             await self.audit("console_reset_estop", session, "released",
                              result.detail + (f"; by {session.name}, who {own} (approval.allow_self_approval is on)"
                                               if own is not None else ""),
                              released_event=result.released_event, self_release=own is not None)
-        return self.back("/safety", "released", result.released_event)
+        return self.back(session, "/safety", "released", result.released_event)
 
     async def answer(self, request: Request) -> Response:
         """Approve or decline one request, once; the waiting tool call proceeds from this record."""
@@ -382,7 +407,7 @@ class Console:
             detail += f" by its own requester {session.name} (approval.allow_self_approval is on)"
         await self.audit("console_approval", session, outcome.answer or "?", detail, plan_id=outcome.plan_id,
                          approval_code=outcome.code, requester=requester, self_approval=outcome.self_approved)
-        return self.back(f"/approvals/{request_id}", "approved" if outcome.answer == "approved" else "declined")
+        return self.back(session, f"/approvals/{request_id}", "approved" if outcome.answer == "approved" else "declined")
 
     # ------------------------------------------------------------------ the app
     def routes(self) -> list[Route]:

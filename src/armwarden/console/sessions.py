@@ -7,6 +7,10 @@ session has its own CSRF token, which every POST must echo (form field or header
 in memory only: a daemon restart signs everyone out. The token is re-checked against the token
 file on each request, so revoking it ends its sessions at once.
 
+What a page says after an action (released, refused, approved) is a flash kept here for the
+session that acted (`put_flash`, `take_flash`): one-time, and named in the redirect's URL only by
+an opaque id that means nothing to another session, so no link can make a page claim a status.
+
 The console is for humans: an `agent` token (an MCP client's) cannot sign in at all. Were the
 agent's own token good for a session, the agent could sign in like a script and approve or
 release there what it asked for.
@@ -63,6 +67,10 @@ MAX_OBSERVER_SESSIONS = 32
 MAX_ENDED_TICKETS_PER_PRINCIPAL = 32
 #: how the principal of a stop from the page of an ended session is audited
 SESSION_ENDED = "session ended"
+#: flashes waiting to be shown per session (a redirect not followed leaves one; the oldest goes)
+MAX_FLASHES_PER_SESSION = 8
+#: a flash: a message code of `pages.MESSAGES` and its e-stop event number, if it has one
+Flash = tuple[str, int | None]
 
 
 def same_secret(presented: object, expected: str) -> bool:
@@ -129,6 +137,7 @@ class SessionStore:
         self._sessions: OrderedDict[str, tuple[Session, str]] = OrderedDict()  # oldest sign-in first
         self._tickets: dict[str, _Ticket] = {}  # E-STOP ticket -> what it stands for (live and ended sessions)
         self._ended: dict[str, OrderedDict[str, None]] = {}  # token name -> tickets of its ended sessions, oldest first
+        self._flashes: dict[str, OrderedDict[str, Flash]] = {}  # session id -> its flashes by id, oldest first
         self._secret = secrets.token_bytes(32)
         self._lock = threading.Lock()  # the stop channel's thread reads the table too
 
@@ -211,6 +220,27 @@ class SessionStore:
             return entry.name
         return f"{entry.name} ({SESSION_ENDED})"
 
+    def put_flash(self, session: Session, code: str, event: int | None = None) -> str:
+        """Keep what the next page of `session` says (`code`, with `event` where its text has one);
+        the opaque id its redirect carries."""
+        flash_id = secrets.token_urlsafe(16)
+        with self._lock:
+            if session.session_id not in self._sessions:
+                return flash_id  # ended meanwhile: nothing to show it to
+            flashes = self._flashes.setdefault(session.session_id, OrderedDict())
+            flashes[flash_id] = (code, event)
+            while len(flashes) > MAX_FLASHES_PER_SESSION:
+                flashes.popitem(last=False)
+        return flash_id
+
+    def take_flash(self, session: Session, flash_id: object) -> Flash | None:
+        """The flash `flash_id` of `session`, once; None for anything else (another session's,
+        shown already, unknown)."""
+        if not isinstance(flash_id, str):
+            return None
+        with self._lock:
+            return self._flashes.get(session.session_id, OrderedDict()).pop(flash_id, None)
+
     def sign_out(self, session_id: object) -> Session | None:
         if not isinstance(session_id, str):
             return None
@@ -236,6 +266,7 @@ class SessionStore:
     def _end_locked(self, session_id: str) -> Session | None:
         """End a session; its ticket is kept (bounded, per token name) for its page's E-STOP."""
         entry = self._sessions.pop(session_id, None)
+        self._flashes.pop(session_id, None)
         if entry is None:
             return None
         session = entry[0]
