@@ -282,9 +282,7 @@ class Ros2Backend(Backend):
             self.gripper_travel_m = gripper.max_width_m
         if config.cameras:
             self.camera_timeout_s = max(c.timeout_s for c in config.cameras.values()) + 0.5
-        image_qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
-        self._cameras = {name: CameraFeed(self.bridge, spec.topic, CompressedImage if spec.kind == "compressed" else Image,
-                                          image_qos) for name, spec in config.cameras.items()}
+        self._cameras: dict[str, CameraFeed] = {}  # made at open, on the bridge that opens
         self._capabilities = Capabilities(
             wrench=config.wrench is not None,
             gripper=gripper is not None,
@@ -307,6 +305,9 @@ class Ros2Backend(Backend):
 
     # ================================================================ lifecycle
     async def _open(self) -> None:
+        image_qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
+        self._cameras = {name: CameraFeed(self.bridge, spec.topic, CompressedImage if spec.kind == "compressed" else Image,
+                                          image_qos) for name, spec in self.config.cameras.items()}
         self.bridge.on_death = lambda error: self._worker_died("executor", error)
         await anyio.to_thread.run_sync(self.bridge.start, self._create_endpoints)  # made before it spins
         try:
