@@ -13,7 +13,7 @@ import httpx2
 import pytest
 
 from armwarden.safety.refusals import REPORT_INTERVAL_S
-from tests.console.served import ServedConsole, served_console, sign_in
+from tests.console.served import ServedConsole, csrf_of, served_console, sign_in
 from tests.helpers import records_of
 
 pytestmark = pytest.mark.anyio
@@ -66,3 +66,20 @@ async def test_refusals_of_a_signed_in_session_are_each_recorded(tmp_path: Path)
 
     records = [r for r in records_of(served.harness.audit_path) if r["event"] == "console_refused"]
     assert [r["principal"] for r in records] == ["alice"] * 5
+
+
+async def test_a_forwarded_for_header_neither_makes_a_new_host_of_each_refusal_nor_names_the_peer(tmp_path: Path) -> None:
+    """Found by an outside review (issue 24, review 2, item 4): uvicorn believed X-Forwarded-For
+    from loopback, so one client wrote a record per forged address, each naming that address."""
+    async with served_console(tmp_path) as served, served.browser_client() as http:
+        csrf = csrf_of((await http.get("/console/login")).text)
+        started = time.monotonic()
+        for i in range(FLOOD):
+            answer = await http.post("/console/login", data={"token": "aw_not-a-real-token", "csrf": csrf},
+                                     headers={"X-Forwarded-For": f"10.0.{i // 256}.{i % 256}"})
+            assert answer.status_code == 303
+        took_s = time.monotonic() - started
+        records = unauthenticated(served)
+
+    assert {r["extra"]["peer"] for r in records} == {"127.0.0.1"}
+    assert len(records) <= took_s / REPORT_INTERVAL_S + 2

@@ -182,12 +182,13 @@ def test_a_call_with_malformed_params_is_recorded_once(daemon: Daemon, protocol:
 
 
 # ------------------------------------------------------------------ who was refused
-def declare_too_large_a_body(daemon: Daemon, token: str) -> bytes:
-    """POST with a Content-Length over the limit and no body (refused before it is read); the
-    answer's status line."""
+def declare_too_large_a_body(daemon: Daemon, token: str, forwarded_for: str | None = None) -> bytes:
+    """POST with a Content-Length over the limit and no body (refused before it is read), with an
+    X-Forwarded-For header if given; the answer's status line."""
+    forwarded = "" if forwarded_for is None else f"X-Forwarded-For: {forwarded_for}\r\n"
     with socket.create_connection(("127.0.0.1", daemon.port), timeout=30) as sock:
         sock.sendall(f"POST /mcp HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\nAuthorization: Bearer {token}\r\n"
-                     f"Content-Type: application/json\r\nContent-Length: {2 * MAX_BODY_BYTES}\r\n\r\n".encode())
+                     f"{forwarded}Content-Type: application/json\r\nContent-Length: {2 * MAX_BODY_BYTES}\r\n\r\n".encode())
         return sock.recv(4096).split(b"\r\n")[0]
 
 
@@ -201,6 +202,18 @@ def test_a_refused_request_is_recorded_with_its_authenticated_principal(daemon: 
     assert b" 413 " in status_line
     [record] = refused(new_records(daemon, before))
     assert record["principal"] == "bob"
+
+
+def test_a_refused_request_is_recorded_with_its_socket_peer_not_a_forwarded_for_header(daemon: Daemon) -> None:
+    """Found by an outside review (issue 24, review 2, item 4): uvicorn believed X-Forwarded-For
+    from loopback, so the record named whatever address the client wrote there."""
+    before = len(records_of(daemon.audit))
+
+    status_line = declare_too_large_a_body(daemon, daemon.observer_token, forwarded_for="203.0.113.9")
+
+    assert b" 413 " in status_line
+    [record] = refused(new_records(daemon, before))
+    assert record["extra"]["peer"] == "127.0.0.1"
 
 
 def test_a_refused_request_is_recorded_with_the_session_it_claimed(daemon: Daemon) -> None:

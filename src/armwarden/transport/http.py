@@ -29,7 +29,9 @@ Request path (outermost first)::
   `check_bind_safety` only allows loopback binds.
 - `serve_http` runs uvicorn without installing signal handlers (the daemon owns SIGINT/SIGTERM and
   sets the `shutdown` event), without access logs, and with a bounded graceful shutdown so that
-  open SSE streams cannot hold the process.
+  open SSE streams cannot hold the process. It believes no proxy header (X-Forwarded-For,
+  -Proto): the peer every record names and every per-host limit counts is the socket's, so a
+  client cannot forge it (uvicorn would trust them from loopback by default).
 """
 
 from __future__ import annotations
@@ -376,6 +378,8 @@ async def serve_http(
         lifespan="on",
         timeout_graceful_shutdown=graceful_shutdown_s,
         server_header=False,
+        proxy_headers=False,  # the socket's peer, never a header's claim (no proxy is in front of us)
+        forwarded_allow_ips=[],  # and no address trusted to make that claim, whatever FORWARDED_ALLOW_IPS says
     )
     server = _Server(config, ready)
 
