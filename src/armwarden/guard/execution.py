@@ -7,9 +7,14 @@ arm moves (a crash mid-motion still leaves a trace), then executes while the mon
 progress streams, and ends every path with the arm stopped or the e-stop latched:
 
 - force limit crossed (while moving or in one last sample after) → e-stop, FORCE_LIMIT;
-- no usable wrench (missing, slow, frozen, stale) → stop, then the backend is asked whether it is
-  the cause (a dead thread, a dead cell: `Backend.fault_behind_stale_data`) → e-stop,
-  BACKEND_FAULT naming it; otherwise FORCE_LIMIT;
+- no usable wrench (missing, slow, frozen, stale) → e-stop at once with a neutral cause ("the
+  wrench stream was lost; checking whether the backend failed", source `wrench_lost`: no force was
+  measured, so no force violation is latched), then the backend is asked whether it is the cause
+  (a dead thread, a dead cell: `Backend.fault_behind_stale_data`, which may take the backend's
+  fault-detection time) and the finding is audited (`wrench_loss_diagnosis`) → BACKEND_FAULT
+  naming it (e-stop again, for the fault), otherwise FORCE_LIMIT saying the wrench stream was
+  lost. The latch comes first: while the question is open nothing else actuates (a gripper
+  action or a control action from another client meets the e-stop, not a stopped arm);
 - backend fault mid-motion → e-stop, BACKEND_FAULT;
 - the call cancelled (client cancel, disconnect, timeout) → stop (e-stop if the stop fails),
   recorded as aborted with the time the arm actually moved.
@@ -44,6 +49,8 @@ StopFor = Callable[[str], Awaitable["EStopEvent | None"]]
 
 #: force monitor findings about the contact itself; the others say the wrench is not usable
 CONTACT_KINDS = ("force_limit", "torque_limit")
+#: the e-stop source of a wrench that could not be used (no force was measured: not "force_monitor")
+WRENCH_LOST_SOURCE = "wrench_lost"
 NO_WRENCH_MESSAGE = (
     "this backend provides no wrench estimate, so the contact force limit cannot be enforced, and the "
     "policy requires it (force.require_wrench: true); nothing was moved"
@@ -125,14 +132,16 @@ class MotionRunner:
 
         async def on_violation(found: ForceViolation) -> None:
             nonlocal violation, fault
-            if found.kind not in CONTACT_KINDS:  # no usable wrench: the arm stops now; then, is the backend why?
-                await self._stop_for(f"force monitor: {found.detail}")  # (a stop that fails latches stop_failed)
-                cause = await self.backend.fault_behind_stale_data()
-                if cause is not None:  # report the cause (BACKEND_FAULT below), not the symptom
-                    fault = BackendError(f"{cause} (the force monitor saw: {found.detail})")
-                    return
             violation = found
-            await self._emergency_stop(f"force monitor: {found.detail}", source="force_monitor", force=found.to_dict())
+            if found.kind in CONTACT_KINDS:
+                await self._emergency_stop(f"force monitor: {found.detail}", source="force_monitor", force=found.to_dict())
+                return
+            # no usable wrench: latch now, so nothing else actuates while the backend is asked why
+            await self._emergency_stop(f"the wrench stream was lost ({found.detail}); checking whether the backend "
+                                       "failed", source=WRENCH_LOST_SOURCE)
+            cause = await self._diagnose_wrench_loss(plan.plan_id, found, self.latch.current_event)
+            if cause is not None:  # report the cause (BACKEND_FAULT below), not the symptom
+                fault = BackendError(f"{cause} (the force monitor saw: {found.detail})")
 
         async def forward_progress() -> None:
             sent = -1.0
@@ -178,9 +187,12 @@ class MotionRunner:
                 max_observed_force_n=max_force, detail=f"force monitor: {violation.detail}",
             ))
             event = self.latch.current_event
+            what = violation.detail if violation.kind in CONTACT_KINDS else (
+                f"the wrench stream was lost ({violation.detail}), so the contact force limit could not be "
+                "enforced; the backend found no fault of its own")
             raise SafetyRefusal(
                 RefusalCode.FORCE_LIMIT,
-                f"motion aborted: {violation.detail}. The arm was stopped and the software e-stop "
+                f"motion aborted: {what}. The arm was stopped and the software e-stop "
                 f"#{event.number if event else '?'} is latched; a human must check the robot and approve "
                 "reset_estop before anything can move again.",
             )
@@ -198,6 +210,31 @@ class MotionRunner:
         )
         execution.progress = 1.0 if completed else execution.progress
         return self._record(report)
+
+    async def _diagnose_wrench_loss(self, plan_id: str, found: ForceViolation, event: EStopEvent | None) -> str | None:
+        """With the e-stop (`event`) latched for a lost wrench: ask the backend whether it is the
+        cause, and audit the finding. Returns the backend's fault, or None when the wrench stream
+        alone was lost. A backend that cannot answer is taken for a failed one (fail closed)."""
+        try:
+            cause = await self.backend.fault_behind_stale_data()
+        except Exception as exc:
+            cause = f"backend {self.backend.name} could not tell whether it failed ({type(exc).__name__}: {exc})"
+        latched = f"e-stop #{event.number}" if event is not None else "the e-stop"
+        if cause is not None:
+            outcome, detail = "backend_fault", f"the backend failed: {cause}"
+        else:
+            outcome, detail = "wrench_only", "the backend found no fault of its own: the wrench stream alone was lost"
+        if self.audit is not None:
+            try:
+                await self.audit.append_async(
+                    "wrench_loss_diagnosis", tool="execute_plan", arguments={"plan_id": plan_id}, outcome=outcome,
+                    detail=f"plan {plan_id}: the force monitor found no usable wrench ({found.detail}); {latched} "
+                           f"latched at once; diagnosis: {detail}",
+                    extra={"force_monitor": found.kind, "estop_event": None if event is None else event.number},
+                )
+            except Exception as exc:  # the e-stop holds, and the answer says the cause, recorded or not
+                logger.critical("wrench loss diagnosis not audited (%s): plan %s: %s", exc, plan_id, detail)
+        return cause
 
     async def _stop_after_interruption(self, plan_id: str, execution: Execution, approval: Approval) -> None:
         """The execute call was cancelled (client cancel, disconnect, timeout): stop, then record."""
