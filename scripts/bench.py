@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """ArmWarden benchmarks: every figure is a ratio or a percentile measured in this one run.
 
-    python scripts/bench.py                 # envelope, server, share, estop, mujoco, planner (flood, can only when named)
+    python scripts/bench.py                 # envelope, fk, server, share, estop, mujoco, planner (flood, can only when named)
     python scripts/bench.py envelope        # one section
     python scripts/bench.py flood           # the review's flood, fake then ROS 2: about 8 min of a loaded machine
     python scripts/bench.py flood-mix       # the heavier mixed flood: about 80 s of a 2-core machine's full attention
@@ -13,6 +13,10 @@
 Sections
 - envelope: cost of the full envelope check (every link, self-collision, keep-out, workspace)
   on a typical 0.5 rad, ~1.5 s FR3 plan, against bare Pinocchio FK over the same samples.
+- fk: the compiled batched forward kinematics (`robot/batch_fk.py`) on the FR3's collision links
+  and TCP: one configuration and a batch of 64, beside plain numpy vectorised over the batch and
+  Pinocchio per configuration, and the compile cost cold and from numba's on-disk cache
+  (`scripts/_bench/fk_batch.py`). About 15 s.
 - server: round trips through the official MCP SDK client — plan_to_pose (all links checked, with
   and without the preview picture) and get_robot_state in memory, get_robot_state over real
   stdio, and the audit log's cost per call.
@@ -844,6 +848,14 @@ def _report_flood(r: dict[str, Any]) -> None:
     importlib.import_module("stop_flood").report_stop_flood(r)
 
 
+def bench_fk() -> dict[str, Any]:
+    return importlib.import_module("fk_batch").bench_fk()
+
+
+def _report_fk(r: dict[str, Any]) -> None:
+    importlib.import_module("fk_batch").report_fk(r)
+
+
 def bench_share(rounds: int = 6) -> dict[str, Any]:
     import tempfile
 
@@ -898,6 +910,7 @@ def _report_ros2(r: dict[str, Any]) -> None:
 
 SECTIONS = {
     "envelope": (bench_envelope, _report_envelope),
+    "fk": (bench_fk, _report_fk),
     "server": (bench_server, _report_server),
     "share": (bench_share, _report_share),
     "estop": (bench_estop, _report_estop),
@@ -910,7 +923,7 @@ SECTIONS = {
 }
 #: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
 #: minutes: ask for them by name; ros2 needs the ROS venv)
-DEFAULT_SECTIONS = ("envelope", "server", "share", "estop", "mujoco", "planner")
+DEFAULT_SECTIONS = ("envelope", "fk", "server", "share", "estop", "mujoco", "planner")
 
 
 def main() -> int:
