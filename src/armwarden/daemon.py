@@ -20,7 +20,7 @@ import os
 import signal
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +37,7 @@ from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_from_env
 from armwarden.safety.estop import flatten_reason
-from armwarden.safety.refusals import RefusalReports
+from armwarden.safety.refusals import RefusalReports, left_out_recorder
 from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel import ConsoleDoor, StopChannel, token_store_authenticator
 from armwarden.stopchannel.external import ExternalStops
@@ -69,6 +69,16 @@ class Assembly:
     audit: AuditLog
     guard: Guard
     server: ArmWardenServer
+    #: the limits on records of refused requests of every door: closed (their counts of refusals
+    #: left out recorded) before the final record
+    refusal_reports: list[RefusalReports] = field(default_factory=list)
+
+    def refusal_reports_for(self, door: str, **options: Any) -> RefusalReports:
+        """A limit on records of `door`'s refusals whose counts left out reach this log; closed by
+        `close_assembly`."""
+        reports = RefusalReports(on_left_out=left_out_recorder(self.audit, door), **options)
+        self.refusal_reports.append(reports)
+        return reports
 
 
 def assemble(policy: Policy, backend_name: str, backend_config: str | None, audit_path: str,
@@ -96,7 +106,8 @@ async def open_assembly(policy: Policy, backend: Backend, audit: AuditLog, runti
 
 
 async def close_assembly(assembly: Assembly, why: str) -> None:
-    """Stop the arm and gripper, close the backend, write the final record. Safe to call twice."""
+    """Stop the arm and gripper, close the backend, record the counts of refusals left out, write
+    the final record. Safe to call twice."""
     with anyio.CancelScope(shield=True):
         detail = why
         try:
@@ -105,6 +116,8 @@ async def close_assembly(assembly: Assembly, why: str) -> None:
             detail = f"{why}; stop failed: {exc}"
             logger.error("stop at shutdown failed: %s", exc)
         await assembly.backend.close()
+        for reports in assembly.refusal_reports:  # handed to the writer before the final record
+            reports.close()
         if not assembly.audit.closed:
             await assembly.audit.append_async("shutdown", outcome="ok", detail=detail)
             assembly.audit.close()
@@ -149,11 +162,12 @@ def _console_door(args: argparse.Namespace, external: ExternalStops) -> tuple[Co
     return door, sessions
 
 
-def _start_external_stops(args: argparse.Namespace, external: ExternalStops,
-                          console: ConsoleDoor | None = None) -> tuple[SignalStop, StopChannel | None]:
+def _start_external_stops(args: argparse.Namespace, external: ExternalStops, console: ConsoleDoor | None = None,
+                          refusals: RefusalReports | None = None) -> tuple[SignalStop, StopChannel | None]:
     """SIGUSR1 and (with --estop-port, or when the console is served) the stop channel, each on
     its own thread. Without --estop-port the console gets a channel of its own on an ephemeral
-    loopback port, which takes no bearer tokens."""
+    loopback port, which takes no bearer tokens. `refusals`: the channel's limit on records of
+    its refusals."""
     signals = SignalStop(external.latch_and_stop_for("signal"), on_event=external.record).start()
     if getattr(args, "estop_port", None) is None and console is None:
         return signals, None
@@ -163,13 +177,14 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops,
         if getattr(args, "estop_port", None) is None:
             channel = StopChannel(authenticate=lambda _token: None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
                                   on_event=external.record, on_refused=external.record_refusal, console=console,
-                                  host="127.0.0.1", port=0).start()
+                                  host="127.0.0.1", port=0, refusals=refusals).start()
         else:
             channel = StopChannel(
                 authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
                 latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
                 on_refused=external.record_refusal, console=console,
                 host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
+                refusals=refusals,
             ).start()
     except BaseException:
         signals.close()
@@ -213,7 +228,8 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
         door = _console_door(args, external)
-        signal_stop, channel = _start_external_stops(args, external, None if door is None else door[0])
+        signal_stop, channel = _start_external_stops(args, external, None if door is None else door[0],
+                                                     assembly.refusal_reports_for("stop_channel"))
         console_stop = _console_stop(args, channel, None if door is None else door[1])
         freeze_long_lived_objects()
         await assembly.audit.append_async(
@@ -288,7 +304,7 @@ def _console_app(args: argparse.Namespace, assembly: Assembly, external: Externa
         estop_url=None if console_stop is None else console_stop.estop_url)
     hook = timed_estop(external.latch_and_stop_for("console"), external.record)
     sessions = SessionStore(tokens) if console_stop is None else console_stop.sessions
-    return build_console_app(assembly.guard, sessions, hook, settings)
+    return build_console_app(assembly.guard, sessions, hook, settings, assembly.refusal_reports_for("console"))
 
 
 def _link_host(host: str) -> str:
@@ -332,8 +348,9 @@ def _refusal_recorder(assembly: Assembly) -> RefusedCallback:
     before its answer where the transport waits for it), with what its stop calls did. Pure
     refusals are thinned per principal (or host; stdio has one client) to `REFUSAL_RECORDS_BURST`,
     then one a second, each record counting those left out before it; a refusal whose stop calls
-    acted (held the robot, latched the e-stop) is always recorded."""
-    thinning = RefusalReports(burst=REFUSAL_RECORDS_BURST)
+    acted (held the robot, latched the e-stop) is always recorded. Counts left out are recorded on
+    their own (`refusals_left_out`) when the principal goes quiet, and at shutdown."""
+    thinning = assembly.refusal_reports_for("transport", burst=REFUSAL_RECORDS_BURST)
 
     async def record(refused: RefusedRequest) -> None:
         left_out = 0

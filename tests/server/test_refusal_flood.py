@@ -19,7 +19,7 @@ import pytest
 
 from armwarden.daemon import REFUSAL_RECORDS_BURST
 from armwarden.safety.refusals import REPORT_INTERVAL_S
-from tests.helpers import records_of
+from tests.helpers import records_of, stop_process
 from tests.server.http_daemon import Daemon, RawSession, http_daemon
 from tests.server.test_http_refusals_audited import declare_too_large_a_body
 
@@ -45,13 +45,12 @@ def test_a_flood_of_refused_requests_is_recorded_as_a_burst_then_once_per_second
     recorded = refusals_of(daemon, "bob")
     assert REFUSAL_RECORDS_BURST <= len(recorded) <= REFUSAL_RECORDS_BURST + math.ceil(elapsed / REPORT_INTERVAL_S) + 1
     assert len(recorded) < FLOOD
-    # the ones left out are counted into bob's next record
+    # the ones left out are counted: into bob's next record, or on their own once bob is quiet
     deadline = time.monotonic() + 30
-    while not (counted := [r for r in refusals_of(daemon, "bob") if r["extra"] and
-                           r["extra"].get("not_reported_since_last", 0) > 0]):
-        assert time.monotonic() < deadline, "no record counted the refusals left out"
-        declare_too_large_a_body(daemon, daemon.observer_token)
-    assert sum(r["extra"]["not_reported_since_last"] for r in counted) >= FLOOD - len(recorded) - 1
+    while accounted(daemon, "bob") < FLOOD:
+        assert time.monotonic() < deadline, "the refusals left out were never counted"
+        time.sleep(0.05)
+    assert accounted(daemon, "bob") == FLOOD
 
 
 def test_refusals_whose_stop_requests_acted_are_all_recorded_during_a_flood(daemon: Daemon) -> None:
@@ -68,3 +67,26 @@ def test_refusals_whose_stop_requests_acted_are_all_recorded_during_a_flood(daem
     assert [r["tool"] for r in recorded] == ["stop_motion", "estop", "stop_motion", "estop", "stop_motion"]
     assert [r["extra"]["stops"] for r in recorded] == [["stop_motion"], ["estop"], ["stop_motion"], ["estop"],
                                                        ["stop_motion"]]
+
+
+def accounted(daemon: Daemon, principal: str) -> int:
+    """`principal`'s refused requests the log accounts for: each record, the ones it says were left
+    out before it, and the counts reported on their own."""
+    records = refusals_of(daemon, principal)
+    counted = [r for r in records_of(daemon.audit) if r["event"] == "refusals_left_out"
+               and r["extra"]["door"] == "transport" and r["extra"]["source"] == principal]
+    return len(records) + sum((r["extra"] or {}).get("not_reported_since_last", 0) for r in records) + \
+        sum(r["extra"]["count"] for r in counted)
+
+
+def test_a_flood_that_stops_is_counted_in_full_by_the_time_the_daemon_has_shut_down(daemon: Daemon) -> None:
+    """Found by an outside review (issue 24, review 2, item 5a): the count of the refusals left out
+    at the end of a flood was written only with the principal's next refusal, never at shutdown."""
+    for _ in range(FLOOD):
+        assert b" 413 " in declare_too_large_a_body(daemon, daemon.observer_token)
+
+    stop_process(daemon.process, 30)  # at once: a timer may or may not have reported the count yet
+
+    assert daemon.process.returncode == 0
+    assert accounted(daemon, "bob") == FLOOD
+    assert records_of(daemon.audit)[-1]["event"] == "shutdown"

@@ -3,6 +3,7 @@ the stop channel (`--estop-port`), SIGUSR1, and the `armwarden estop` command.""
 
 from __future__ import annotations
 
+import http.client
 import json
 import signal
 import subprocess
@@ -14,11 +15,14 @@ from typing import Any
 import anyio
 import pytest
 
+from armwarden.safety.refusals import OVERALL_BURST, OVERALL_RECORDS_PER_S
 from armwarden.stopchannel import EStopUnauthorized, send_estop
 from tests.server.harness import MotionStarted
 from tests.server.http_daemon import CLI, HOST, REPO, Daemon, child_env, free_port, http_daemon, session
 
 pytestmark = pytest.mark.anyio
+
+ROTATING_SOURCES = 300
 
 
 def records_of(path: Path) -> list[dict[str, Any]]:
@@ -162,3 +166,39 @@ async def test_an_mcp_estop_holds_the_arm_as_its_request_is_read(channel_daemon:
     assert len(held) == 1 and held[0]["principal"] == "bob" and held[0]["outcome"] == "stopped"
     assert len(call) == 1 and held[0]["seq"] < call[0]["seq"]
     await reset(daemon)
+
+
+def refuse_from(port: int, source: str) -> int:
+    """POST /estop with a wrong token from the loopback address `source`; the answer's status."""
+    connection = http.client.HTTPConnection(HOST, port, timeout=30, source_address=(source, 0))
+    try:
+        connection.request("POST", "/estop", body=b"", headers={"Authorization": "Bearer aw_wrong"})
+        return connection.getresponse().status
+    finally:
+        connection.close()
+
+
+def refused_stops_accounted(daemon: Daemon) -> int:
+    """Refused stop-channel requests the log accounts for: each record, the ones it says were left
+    out before it, and the counts reported on their own."""
+    records = records_of(daemon.audit)
+    one_by_one = [r for r in records if r["event"] == "stop_channel_refused"]
+    counted = [r for r in records if r["event"] == "refusals_left_out" and r["extra"]["door"] == "stop_channel"]
+    return len(one_by_one) + sum(r["extra"]["not_reported_since_last"] for r in one_by_one) + \
+        sum(r["extra"]["count"] for r in counted)
+
+
+def test_refused_stops_from_rotating_sources_are_all_counted_in_few_records(channel_daemon: ChannelDaemon) -> None:
+    """Found by an outside review (issue 24, review 2, item 5c): 300 refused stops from 300
+    loopback addresses wrote 296 records (the per-host limit alone does not hold against
+    rotation) and the counts of the hosts pushed out of the table went to stderr only."""
+    daemon, port = channel_daemon.daemon, int(channel_daemon.estop_url.rsplit(":", 1)[1].split("/")[0])
+    started = time.monotonic()
+    for i in range(ROTATING_SOURCES):
+        assert refuse_from(port, f"127.77.{i // 250}.{i % 250 + 1}") == 401
+    elapsed = time.monotonic() - started
+
+    wait_for(lambda: refused_stops_accounted(daemon) == ROTATING_SOURCES, timeout_s=30.0)
+    records = [r for r in records_of(daemon.audit) if r["event"] in ("stop_channel_refused", "refusals_left_out")]
+    per_source = [r for r in records if r["event"] == "stop_channel_refused" or r["extra"]["source"] is not None]
+    assert len(per_source) <= OVERALL_BURST + OVERALL_RECORDS_PER_S * elapsed + 1

@@ -52,7 +52,7 @@ from armwarden.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.safety.audit import AuditWriteError
 from armwarden.safety.pending import AnswerRefusal
-from armwarden.safety.refusals import RefusalReports
+from armwarden.safety.refusals import RefusalReports, left_out_recorder
 from armwarden.transport.http import CONSOLE_PATH, is_loopback_host
 
 __all__ = ["CONSOLE_PATH", "ConsoleSettings", "EStopHook", "build_console_app", "timed_estop"]
@@ -98,15 +98,18 @@ def _is_loopback_peer(request: Request) -> bool:
 class Console:
     """The handlers of one console, bound to one Guard."""
 
-    def __init__(self, guard: Guard, sessions: SessionStore, estop: EStopHook, settings: ConsoleSettings) -> None:
+    def __init__(self, guard: Guard, sessions: SessionStore, estop: EStopHook, settings: ConsoleSettings,
+                 refusals: RefusalReports | None = None) -> None:
         self.guard = guard
         self.sessions = sessions
         self.estop_hook = estop
         self.settings = settings
         self.feed = StateFeed(guard)
         self.headers = page_headers(_origin_of(settings.estop_url))
-        #: records of refusals of nobody in particular, per host (one per second, the rest counted)
-        self.anonymous_refusals = RefusalReports()
+        #: records of refusals of nobody in particular, per host (one per second, the rest counted
+        #: and reported as `refusals_left_out`); the daemon passes its own to close at shutdown
+        self.anonymous_refusals = refusals if refusals is not None else RefusalReports(
+            on_left_out=left_out_recorder(guard.audit, "console"))
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -433,10 +436,11 @@ class Console:
 
 
 def build_console_app(guard: Guard, sessions: SessionStore, estop: EStopHook,
-                      settings: ConsoleSettings | None = None) -> Starlette:
+                      settings: ConsoleSettings | None = None, refusals: RefusalReports | None = None) -> Starlette:
     """The console as an ASGI app, to be mounted at `settings.path` (beside /mcp, or alone on
-    --console-port). Host/Origin checks are the mounting app's job (`transport/http.py`)."""
-    console = Console(guard, sessions, estop, settings or ConsoleSettings())
+    --console-port). Host/Origin checks are the mounting app's job (`transport/http.py`).
+    `refusals`: the limit on records of anonymous refusals (its owner closes it)."""
+    console = Console(guard, sessions, estop, settings or ConsoleSettings(), refusals)
     return Starlette(routes=console.routes())
 
 

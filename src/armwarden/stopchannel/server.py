@@ -110,7 +110,8 @@ def token_store_authenticator(store: Any) -> Callable[[str], str | None]:
 @dataclass(frozen=True)
 class ChannelRefusal:
     """A request the channel refused (4xx/5xx), for the audit log; `suppressed` counts the refusals
-    of the same host not reported since the last one (at most one report per host and second)."""
+    of the same host not reported since the last one (at most one report per host and second;
+    counts left out otherwise are reported by the channel's `RefusalReports`)."""
 
     peer: str
     status: int
@@ -190,7 +191,10 @@ class StopChannel:
         allow_non_loopback: bool = False,
         max_connections: int = 64,
         request_timeout_s: float = 1.0,
+        refusals: RefusalReports | None = None,
     ) -> None:
+        """`refusals`: which refusals `on_refused` hears of (`safety.refusals`; the daemon's reports
+        the counts it leaves out to the audit log); closed with the channel."""
         if not 0 <= port <= 65535:
             raise ConfigurationError(f"stop channel port {port} is outside 0-65535")
         if max_connections < 1:
@@ -202,7 +206,8 @@ class StopChannel:
         self._on_event = on_event
         self._on_refused = on_refused
         self._console = console
-        self._refusals = RefusalReports()  # at most one refusal report per host and second
+        # at most one report per host and second, and a budget overall
+        self._refusals = refusals if refusals is not None else RefusalReports()
         self._host, self._port = host, port
         self._allow_non_loopback = allow_non_loopback
         self._max_connections = max_connections
@@ -240,6 +245,7 @@ class StopChannel:
             thread = self._thread
         if thread is None:
             self._release()
+            self._refusals.close()
             return
         with contextlib.suppress(OSError):
             self._wake_w.send(b"x")
@@ -247,6 +253,7 @@ class StopChannel:
             thread.join(timeout=5.0)
             if thread.is_alive():
                 logger.error("stop channel thread did not finish within 5 s (a callback is blocking it)")
+        self._refusals.close()  # the counts of refusals left out are reported, none is dropped
 
     def __enter__(self) -> StopChannel:
         if self._thread is None:
@@ -489,7 +496,8 @@ class StopChannel:
         self._send(conn)
 
     def _report_refusal(self, peer: str, status: int, message: str) -> None:
-        """Hand a refusal to `on_refused`, at most once per host and second (`safety.refusals`)."""
+        """Hand a refusal to `on_refused`, at most once per host and second and within an overall
+        budget (`safety.refusals`, which reports the counts of those left out)."""
         if self._on_refused is None:
             return
         left_out = self._refusals.admit(peer.rsplit(":", 1)[0])
