@@ -10,8 +10,10 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+from mcp import MCPError
 
 from tests.helpers import REPO, records_of
 from tests.server.harness import MODES, answer, approve, arm_harness, policy_with
@@ -153,3 +155,27 @@ async def test_each_connection_has_its_own_session_name_and_sessionless_calls_ar
     assert first[0] != second[0] and second[0].startswith(client + "#")  # ... of the same client software
     # a 2026-07-28 call has no connection beyond itself: its client's name, not a new random one per call
     assert sessionless == [f"{client} (sessionless)"] * 2
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("mode", MODES)
+async def test_a_call_ended_by_an_unexpected_exception_is_recorded_as_an_error(tmp_path, mode) -> None:
+    """Fail closed: whatever exception reaches the audit layer, the call is on record (found by
+    another engineer: only protocol errors were, so a ValidationError left no trace)."""
+
+    async def broken(ctx: Any, call_next: Any) -> Any:  # a layer below the audit that fails
+        if ctx.method == "tools/call":
+            raise RuntimeError("a layer below the audit broke")
+        return await call_next(ctx)
+
+    async with arm_harness(tmp_path) as arm:
+        arm.server.mcp.middleware.append(broken)
+        async with arm.client(mode) as client:
+            with pytest.raises(MCPError):
+                await client.call_tool("set_collision_thresholds", {"force_n": 20.0, "torque_nm": 10.0})
+        arm.audit.flush()
+        [record] = [r for r in records_of(arm.audit_path) if r["event"] == "tool_call"]
+
+    assert (record["tool"], record["outcome"]) == ("set_collision_thresholds", "error")
+    assert "RuntimeError: a layer below the audit broke" in record["detail"]
+    assert arm.actuations == []

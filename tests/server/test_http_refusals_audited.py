@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import socket
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -158,6 +159,29 @@ def test_a_call_refused_after_the_tools_saw_it_is_recorded_once_as_its_tool_call
     assert response.json()["error"]["code"] == -32602
     records = new_records(daemon, before)
     assert [(r["tool"], r["outcome"]) for r in records if r["event"] == "tool_call"] == [("execute_plan", "error")]
+    assert refused(records) == []
+
+
+@pytest.mark.parametrize("tool", ["set_collision_thresholds", "get_robot_state"])
+def test_a_call_with_malformed_input_responses_is_recorded_once_as_its_tool_call(daemon: Daemon, tool: str) -> None:
+    """Found by another engineer: the SDK's pydantic ValidationError of `inputResponses` passed the
+    tool layer's audit (which caught only protocol errors): answered -32602, recorded nowhere."""
+    arguments = {"force_n": 20.0, "torque_nm": 10.0} if tool == "set_collision_thresholds" else {}
+    message = modern_call(tool, arguments)
+    message["params"]["inputResponses"] = {"approval": {"action": "maybe"}}
+    before = len(records_of(daemon.audit))
+
+    response = post_modern(daemon, json.dumps(message).encode(), name=tool)
+
+    assert response.json()["error"]["code"] == -32602
+    deadline = time.monotonic() + 30  # a read-only call's record is on disk within the commit window
+    while not [r for r in new_records(daemon, before) if r["event"] == "tool_call"]:
+        assert time.monotonic() < deadline, "the call left no record"
+        time.sleep(0.02)
+    records = new_records(daemon, before)
+    [record] = [r for r in records if r["event"] == "tool_call"]
+    assert (record["tool"], record["outcome"]) == (tool, "invalid")
+    assert record["extra"]["code"] == "INVALID_ARGUMENTS" and "inputResponses" in record["detail"]
     assert refused(records) == []
 
 

@@ -4,8 +4,10 @@ The middleware (outermost) does two jobs for each `tools/call`:
 1. access: with HTTP tokens, an `observer` may only use introspection, perception,
    `get_safety_status`, `stop_motion` and `estop`; `tools/list` shows each role its own tools;
 2. audit: one hash-chained record per call, for calls refused before any tool body ran too (bad
-   arguments, unknown tool, wrong role), and for the approval questions sent under protocol
-   2026-07-28. A call of a tool that may change anything (actuating, stopping, releasing — also
+   arguments, unknown tool, wrong role, request parameters the SDK's models refuse — but for
+   those the transports screen and record as `request_refused` (`malformed_call`) —, any other
+   exception that ends the call: fail closed, on record as an error), and for the approval
+   questions sent under protocol 2026-07-28. A call of a tool that may change anything (actuating, stopping, releasing — also
    when refused) or of an unknown tool is on disk (fsynced, on the writer thread) before its
    reply leaves; a read-only call's record (`read_only_hint`: introspection, perception,
    planning, status) is handed to the writer without waiting and fsynced within the log's
@@ -28,6 +30,7 @@ from mcp.server.mcpserver import MCPServer
 from mcp.server.request_state import RequestStateBoundary
 from mcp_types import CallToolResult, InputRequiredResult, ListToolsResult, TextContent
 from mcp_types.version import is_version_at_least
+from pydantic import ValidationError
 
 from armwarden import __version__
 from armwarden.errors import RefusalCode
@@ -38,6 +41,7 @@ from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
 from armwarden.server.unrecorded import answer_unrecorded
 from armwarden.transport.access import current_principal, role_allows
+from armwarden.transport.jsonrpc import malformed_call
 
 if TYPE_CHECKING:
     from armwarden.transport.tokens import Principal
@@ -120,6 +124,19 @@ class ArmWardenServer:
             raise
         except MCPError as exc:
             record.outcome, record.detail = "error", f"protocol error {exc.code}: {exc}"
+            with anyio.CancelScope(shield=True):
+                await self._audit(record)
+            raise
+        except ValidationError as exc:  # the SDK's models refused the request (e.g. its inputResponses): -32602
+            if malformed_call(ctx.method, params) is None:  # those the transports screen, they record themselves
+                record.outcome, record.code = "invalid", RefusalCode.INVALID_ARGUMENTS.value
+                record.detail = f"invalid request parameters: {_validation_summary(exc)}"
+                with anyio.CancelScope(shield=True):
+                    await self._audit(record)
+            raise
+        except Exception as exc:  # fail closed: whatever else ends a call is on record, as an error
+            record.outcome, record.code = "error", RefusalCode.INTERNAL_ERROR.value
+            record.detail = f"the call failed with {type(exc).__name__}: {exc}"
             with anyio.CancelScope(shield=True):
                 await self._audit(record)
             raise
@@ -297,6 +314,14 @@ def _as_model(result: Any) -> Any:
     except ValueError:  # pydantic ValidationError: leave it to the dict fallback
         pass
     return result
+
+
+def _validation_summary(exc: ValidationError, most: int = 3) -> str:
+    """Where and why pydantic refused a request, for its record: the first `most` errors."""
+    errors = exc.errors(include_url=False, include_input=False)
+    said = "; ".join(f"{'.'.join(str(part) for part in error['loc']) or 'params'}: {error['msg']}"
+                     for error in errors[:most])
+    return said + (f" (and {len(errors) - most} more)" if len(errors) > most else "")
 
 
 def _question_text(request: Any) -> str:
