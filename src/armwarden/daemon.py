@@ -2,7 +2,9 @@
 
 Start-up refuses (exit 2, before serving) on an invalid policy, an unavailable backend, an audit
 log that cannot be opened, or an unsafe bind. On SIGTERM, SIGINT or end of stdin the daemon
-stops the arm and the gripper, closes the backend and writes a final audit record.
+stops the arm and the gripper, closes the backend, writes a final audit record and closes the
+log; if that record cannot be written (a full audit disk) it says so and exits with
+`EXIT_AUDIT_INCOMPLETE` (3).
 
 Two stops bypass MCP and the event loop (docs/architecture.md, "Independent stop channel"):
 SIGUSR1 always, and with `--estop-port` the stop channel (`POST /estop`, any token's role).
@@ -49,6 +51,9 @@ if TYPE_CHECKING:
 logger = logging.getLogger("armwarden")
 
 EXIT_REFUSED = 2
+#: the daemon served, then stopped the arm and closed everything, but its final audit record
+#: (`shutdown`) could not be written (e.g. the audit disk is full): the log ends without it
+EXIT_AUDIT_INCOMPLETE = 3
 #: GIL hand-off interval while planning runs on its worker thread: bounds how long a stop request
 #: on the event loop can wait for the interpreter [s] (CPython's default is 5 ms)
 SWITCH_INTERVAL_S = 0.0005
@@ -60,6 +65,16 @@ SIGNAL_GRACE_S = 0.3
 #: records of requests a transport refused, per principal (or host): this many in a row, then one
 #: per second (`RefusalReports`); a client's occasional mistakes are each recorded, a flood is not
 REFUSAL_RECORDS_BURST = 20
+
+
+class FinalRecordLost(ArmWardenError):
+    """The daemon shut down (arm stopped, backend and log closed) without its final audit record."""
+
+
+def final_record_lost_message(why: str) -> str:
+    """What `serve` says on stderr as it exits with `EXIT_AUDIT_INCOMPLETE`."""
+    return (f"armwarden: final audit record could not be written: {why}; the backend and the audit log are "
+            f"closed (exit status {EXIT_AUDIT_INCOMPLETE})")
 
 
 @dataclass
@@ -105,22 +120,29 @@ async def open_assembly(policy: Policy, backend: Backend, audit: AuditLog, runti
     return Assembly(policy, backend, audit, guard, server)
 
 
-async def close_assembly(assembly: Assembly, why: str) -> None:
+async def close_assembly(assembly: Assembly, why: str) -> str | None:
     """Stop the arm and gripper, close the backend, record the counts of refusals left out, write
-    the final record. Safe to call twice."""
+    the final record and close the log. Returns None, or why the final record could not be
+    written and whether the arm was stopped (the log is closed all the same). Safe to call twice."""
     with anyio.CancelScope(shield=True):
-        detail = why
+        detail, stopped = why, "the arm was stopped"
         try:
             await assembly.backend.stop()
         except Exception as exc:  # the shutdown must go on; the record says the stop failed
-            detail = f"{why}; stop failed: {exc}"
+            detail, stopped = f"{why}; stop failed: {exc}", f"the stop at shutdown FAILED: {exc}"
             logger.error("stop at shutdown failed: %s", exc)
         await assembly.backend.close()
         for reports in assembly.refusal_reports:  # handed to the writer before the final record
             reports.close()
-        if not assembly.audit.closed:
+        if assembly.audit.closed:
+            return None
+        try:
             await assembly.audit.append_async("shutdown", outcome="ok", detail=detail)
+        except AuditWriteError as exc:  # the arm is stopped either way; the log must still be closed
+            return f"{exc}; {stopped}"
+        finally:
             assembly.audit.close()
+        return None
 
 
 @dataclass(frozen=True)
@@ -223,6 +245,7 @@ def freeze_long_lived_objects() -> None:
 async def _run(args: argparse.Namespace, parts: tuple) -> None:
     assembly = await open_assembly(*parts)
     why = "shutdown"
+    lost: str | None = None  # why the final record could not be written
     shutdown = anyio.Event()
     signal_stop, channel = None, None
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
@@ -264,12 +287,15 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                             # The SDK reads stdin in a worker thread that cancellation cannot interrupt,
                             # so the group would not unwind until the client closes stdin. Let the
                             # cancelled calls stop and record, then stop, close and record here and exit.
+                            final_record_lost: str | None = None
                             with anyio.CancelScope(shield=True):
                                 await anyio.sleep(SIGNAL_GRACE_S)
-                                await close_assembly(assembly, why)
+                                final_record_lost = await close_assembly(assembly, why)
+                            if final_record_lost is not None:
+                                print(final_record_lost_message(final_record_lost), file=sys.stderr)
                             logging.shutdown()
                             sys.stderr.flush()
-                            os._exit(0)
+                            os._exit(0 if final_record_lost is None else EXIT_AUDIT_INCOMPLETE)
                         return
 
             group.start_soon(on_signals)
@@ -284,10 +310,12 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
         if channel is not None:
             channel.close()
         try:
-            await close_assembly(assembly, why)
+            lost = await close_assembly(assembly, why)
         finally:  # last: a SIGUSR1 during the shutdown still stops the arm instead of killing the process
             if signal_stop is not None:
                 signal_stop.close()
+    if lost is not None:
+        raise FinalRecordLost(lost)
 
 
 def _console_app(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, tokens: Any,
@@ -472,6 +500,9 @@ def serve_command(args: argparse.Namespace) -> int:
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
         anyio.run(_run, args, parts)
+    except FinalRecordLost as exc:
+        print(final_record_lost_message(str(exc)), file=sys.stderr)
+        return EXIT_AUDIT_INCOMPLETE
     except ArmWardenError as exc:
         print(f"armwarden: refusing to start: {exc}", file=sys.stderr)
         return EXIT_REFUSED

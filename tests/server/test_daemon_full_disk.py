@@ -5,11 +5,16 @@ runner has it): the kernel takes the audit log's last write up to the limit and 
 every byte more (EFBIG), as a full 192 KiB tmpfs would with ENOSPC — a torn line included. The
 log starts a few KiB short of the limit, so the first calls fill it. Then an e-stop still latches
 and answers success with the warning, a reset is refused and leaves the e-stop latched, the
-safety status says the log is unusable, and a restart with room recovers the torn tail.
+safety status says the log is unusable, and a restart with room recovers the torn tail. At
+shutdown the final record cannot be written either: the daemon stops the arm, closes the log,
+says so and exits with `EXIT_AUDIT_INCOMPLETE` (not "refusing to start", status 2).
 """
 
 from __future__ import annotations
 
+import json
+import signal
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any, cast
@@ -19,9 +24,11 @@ import pytest
 from mcp import Client, StdioServerParameters
 
 import armwarden
+from armwarden.daemon import EXIT_AUDIT_INCOMPLETE, Assembly, close_assembly
 from armwarden.safety.audit import AuditLog, verify_file
-from tests.helpers import REPO, text_of
-from tests.server.harness import MODES, approve
+from tests.fulldisk import SmallDisk
+from tests.helpers import REPO, stop_process, text_of
+from tests.server.harness import MODES, approve, arm_harness
 
 pytestmark = pytest.mark.anyio
 
@@ -89,3 +96,81 @@ async def test_a_daemon_whose_audit_log_hits_the_kernels_limit_keeps_the_estop_l
         assert log.recovery_record is not None
     assert verify_file(audit).ok
     assert b"estop_release" not in audit.read_bytes()
+
+
+class RawStdioClient:
+    """The limited daemon on stdio, spoken to line by line (its exit status is the point)."""
+
+    def __init__(self, audit: Path, tmp_path: Path) -> None:
+        params = limited_daemon(audit, tmp_path)
+        self.stderr_path = tmp_path / "stderr.log"  # a file: a pipe nobody reads while the log fills would block
+        with open(self.stderr_path, "wb") as stderr:
+            self.process = subprocess.Popen([params.command, *params.args], cwd=params.cwd, env=params.env,
+                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=stderr)
+        self.next_id = 0
+        self.call("initialize", {"protocolVersion": "2025-11-25", "capabilities": {},
+                                 "clientInfo": {"name": "raw-full-disk-test", "version": "1"}})
+        self.send({"jsonrpc": "2.0", "method": "notifications/initialized"})
+
+    def send(self, message: dict[str, Any]) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write(json.dumps(message).encode() + b"\n")
+        self.process.stdin.flush()
+
+    def call(self, method: str, params: dict[str, Any]) -> dict[str, Any]:
+        """Send a request; its answer (notifications before it are skipped)."""
+        assert self.process.stdout is not None
+        self.next_id += 1
+        self.send({"jsonrpc": "2.0", "id": self.next_id, "method": method, "params": params})
+        while True:
+            line = self.process.stdout.readline()
+            assert line, "the daemon closed its stdout"
+            message = json.loads(line)
+            if message.get("id") == self.next_id:
+                return message
+
+    def fill_the_log(self) -> None:
+        for _ in range(500):  # small records until the log is full (each ~0.4 KiB; 6 KiB of room)
+            answer = self.call("tools/call", {"name": "get_safety_status", "arguments": {}})
+            if not answer["result"]["structuredContent"]["audit_ok"]:
+                return
+        pytest.fail("the audit log never filled up")
+
+
+@pytest.mark.parametrize("ending", ["end of stdin", "SIGTERM"])
+def test_a_daemon_whose_final_record_cannot_be_written_stops_closes_the_log_and_says_so(tmp_path, ending) -> None:
+    """Found by another engineer: the final record's failure escaped as "refusing to start: ...",
+    exit status 2, and the log was left open."""
+    audit = tmp_path / "audit.jsonl"
+    nearly_full_log(audit)
+    client = RawStdioClient(audit, tmp_path)
+    try:
+        client.fill_the_log()
+        if ending == "SIGTERM":
+            client.process.send_signal(signal.SIGTERM)
+        client.process.communicate(timeout=60)  # closes its stdin: the end of the session either way
+    finally:
+        stop_process(client.process, 10)
+    stderr = client.stderr_path.read_text(errors="replace")
+
+    assert client.process.returncode == EXIT_AUDIT_INCOMPLETE, stderr[-2000:]
+    assert "final audit record could not be written: " in stderr and "File too large" in stderr
+    assert "the arm was stopped" in stderr
+    assert "refusing to start" not in stderr
+    with AuditLog(audit) as log:  # closed: a restart takes the log at once and recovers its torn tail
+        assert log.recovery_record is not None
+
+
+@pytest.mark.anyio
+async def test_closing_the_assembly_on_a_full_disk_stops_the_arm_closes_the_log_and_says_why(tmp_path) -> None:
+    disk = SmallDisk()
+    async with arm_harness(tmp_path, audit_disk=disk) as arm:
+        assembly = Assembly(arm.guard.policy, arm.backend, arm.audit, arm.guard, arm.server)
+        disk.fill()
+
+        lost = await close_assembly(assembly, "signal SIGTERM")
+
+        assert lost is not None and "No space left on device" in lost
+        assert arm.audit.closed
+        assert arm.backend.stops == 1
+        assert await close_assembly(assembly, "again") is None  # twice is safe: nothing more to say
