@@ -11,7 +11,8 @@ another thread while the event loop is blocked), exact execution, progress, canc
 refused trajectories move nothing, stamps, capabilities against the optional calls, and the death
 of each of the backend's own threads (killed through `Backend.inject_worker_failure`) behind the
 real Guard: the e-stop latched for the backend fault, audited, named by `get_safety_status`,
-motion refused by the Guard and by the backend.
+motion refused by the Guard and by the backend; the same for each thread that hangs (alive, no
+progress: `Backend.inject_worker_hang`, released before the backend closes).
 Assertions are about order and outcome, never about how fast something happened.
 """
 
@@ -391,6 +392,49 @@ class BackendContract:
             return
         for worker in workers:  # each on a fresh backend: one death at a time
             await self.assert_thread_death_is_a_fault(worker, tmp_path / f"audit-{worker}.jsonl")
+
+    async def test_a_hung_backend_thread_is_a_latched_audited_fault_and_motion_is_refused(self, tmp_path: Path) -> None:
+        workers = self.build().worker_threads
+        if not workers:  # nothing of its own to hang; the seam says so
+            async with self.opened_backend() as backend:
+                with pytest.raises(BackendError, match="has no thread 'worker'"):
+                    backend.inject_worker_hang("worker", threading.Event())
+            return
+        for worker in workers:  # each on a fresh backend: one hang at a time
+            await self.assert_thread_hang_is_a_fault(worker, tmp_path / f"audit-hang-{worker}.jsonl")
+
+    async def assert_thread_hang_is_a_fault(self, worker: str, audit_path: Path) -> None:
+        """Hang `worker` (alive, no progress) behind the real Guard until the fault is checked:
+        latched, audited, reported by the safety status, every motion refused; then let it go, so
+        the backend closes as usual."""
+        release = threading.Event()
+        async with self.opened_backend() as backend:
+            try:
+                with AuditLog(audit_path) as audit:
+                    guard = build_guard(load_policy(bundled_policy("fr3")), backend, audit)
+                    q_start = await self.positions(backend)
+                    backend.inject_worker_hang(worker, release)
+                    await wait_until(lambda: _true_when(guard.latch.is_latched))
+                    hung = f"the {worker} thread made no progress for"
+                    event = guard.latch.current_event
+                    assert event is not None and event.source == "backend_fault" and hung in event.reason, event
+                    status = guard.safety_status()
+                    assert status.estopped and any(hung in fault for fault in status.faults), status
+                    audit.flush()
+                    records = records_of(audit_path)
+                    assert any(r["event"] == "backend_fault" and hung in r["detail"] for r in records), records
+                    with pytest.raises(SafetyRefusal) as refused:  # the Guard refuses: the e-stop is latched
+                        await guard.plan("joints", {"joint_positions": q_start.tolist()})
+                    assert refused.value.code is RefusalCode.ESTOPPED
+                    with pytest.raises(BackendError, match=hung):  # and so does the backend
+                        await backend.execute(straight_line(backend.joint_names, q_start, q_start + self.reach_rad,
+                                                            self.short_motion_s))
+                    with pytest.raises(BackendError, match=hung):  # reads name the cause, not stale data
+                        await backend.read_joint_state()
+                    assert await backend.fault_behind_stale_data() == backend.worker_failure
+            finally:
+                release.set()
+        self.assert_nothing_reached_the_arm(backend)
 
     @contextlib.asynccontextmanager
     async def opened_backend(self) -> AsyncIterator[Backend]:

@@ -90,6 +90,9 @@ class CountingBackend(Backend):
     def inject_worker_failure(self, worker: str, error: BaseException) -> None:
         self.inner.inject_worker_failure(worker, error)
 
+    def inject_worker_hang(self, worker: str, release: threading.Event) -> None:
+        self.inner.inject_worker_hang(worker, release)
+
     async def fault_behind_stale_data(self) -> str | None:
         return await self.inner.fault_behind_stale_data()
 

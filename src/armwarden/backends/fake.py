@@ -22,7 +22,8 @@ wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench r
 long), `fault` (the robot is in an error state until `error_recovery`), `object_width_m` (the
 object between the fingers). All of them are plain attributes that can be changed at run time.
 The control thread dies like any backend thread (`inject_worker_failure("control", ...)`): a
-latched fault, every later call refused.
+latched fault, every later call refused; so does a control thread that hangs (no tick within its
+deadline, `inject_worker_hang`): the watchdog holds the arm from its own thread.
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ from armwarden.backends.fake_camera import (
 )
 from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, GripperMotion
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.backends.watchdog import Heartbeat
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
@@ -245,6 +247,9 @@ class FakeBackend(Backend, ServoHooks):
 
     async def _close(self) -> None:
         await self.servo.shutdown()
+
+    def _worker_heartbeats(self) -> tuple[Heartbeat, ...]:
+        return (self.servo.heartbeat("control"),)
 
     def _require_running(self) -> None:
         self.servo.require_running()

@@ -15,7 +15,10 @@ So no tick computed before a stop can be commanded after it, and nothing waits f
 thread to be scheduled (under load, it may wait milliseconds for the interpreter lock).
 
 Results cross into asyncio only through `armwarden.handoff.settle_threadsafe`. If the servo
-thread dies, every submitted execution fails and later ones are refused with the reason.
+thread dies, every submitted execution fails and later ones are refused with the reason. If it
+hangs (alive, no tick), the backend's watchdog finds it by its tick count (`heartbeat`) and the
+stop comes from another thread: `hold` needs only the lock, which a tick holds just to take its
+execution and to command, never while it prepares.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ import numpy as np
 from armwarden.backends.base import PREEMPTED, ExecutionResult, ProgressCallback
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
+from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.errors import BackendError
 from armwarden.handoff import settle_threadsafe
 from armwarden.planning.trajectory import JointTrajectory
@@ -146,7 +150,7 @@ class ServoLoop:
         self.idle_period_s = max(self.period_s, float(idle_period_s))
         self.name = name
         self.realtime_priority = realtime_priority
-        #: ticks run so far (the thread's heartbeat)
+        #: ticks run so far (the thread's heartbeat: the backend's watchdog reads it, see `heartbeat`)
         self.tick_count = 0
         #: monotonic time [s] at which the latest hold was commanded
         self.last_hold_stamp: float | None = None
@@ -172,6 +176,11 @@ class ServoLoop:
     def latest(self) -> Setpoint:
         """The last commanded setpoint (replaced whole by each tick or hold; no lock needed)."""
         return self._latest
+
+    def heartbeat(self, worker: str) -> Heartbeat:
+        """The watchdog's view of this loop, the backend's thread `worker`: its tick count, which
+        must move within `stall_deadline_s` of its longest period (the idle one)."""
+        return Heartbeat(worker, lambda: self.tick_count, stall_deadline_s(self.idle_period_s))
 
     @property
     def busy(self) -> bool:

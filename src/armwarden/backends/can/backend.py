@@ -26,7 +26,10 @@ every joint from that tick on, the stop epoch bumped, the running execution ende
 raises `BackendError` naming the joint and the fault, which makes the Guard latch its e-stop), and
 the fault reported through the backend's fault listener (the Guard latches the e-stop when idle
 too). Damping lasts until an execution is admitted again (only after a human reset the e-stop)
-*and* no fault condition is present any more; otherwise that execution is refused.
+*and* no fault condition is present any more; otherwise that execution is refused. A servo loop
+that dies, or hangs (no tick within its deadline: the backend's watchdog, `_worker_heartbeats`),
+is a fault for good: damping frames once from another thread, then silence, and the actuators'
+CAN timeout disables them.
 
 `stop` holds position (the tracking gains at the measured position); the e-stop
 (`emergency_stop` / `emergency_stop_now`: the `estop` tool, the stop channel, SIGUSR1) damps every
@@ -74,6 +77,7 @@ from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.gripper import GripperMotion, capped_setpoint
 from armwarden.backends.can.ranges import ModelRanges, Protocol
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.backends.watchdog import Heartbeat
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
@@ -294,6 +298,13 @@ class CanBackend(Backend, ServoHooks):
 
     async def _close(self) -> None:
         await self._release()
+
+    def _worker_heartbeats(self) -> tuple[Heartbeat, ...]:
+        """The servo loop's ticks. A hung loop sends nothing: the watchdog's e-stop sends the damping
+        frames from its own side (`_emergency_stop_now` needs the servo lock, the state lock and the
+        bus's send lock, none of which a tick holds while it prepares or reads the bus), after which
+        the actuators' CAN timeout disables them."""
+        return (self._require_servo().heartbeat("servo"),)
 
     async def _release(self) -> None:
         self._enabled = False

@@ -77,6 +77,7 @@ from armwarden.backends.mujoco.model import (
     scene_for_policy,
 )
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.backends.watchdog import Heartbeat
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel, resolve_description
@@ -323,6 +324,10 @@ class MujocoBackend(Backend, ServoHooks):
     async def _open(self) -> None:
         self._last_wall = time.perf_counter()
         await self.servo.start("armwarden-mujoco-physics")
+
+    def _worker_heartbeats(self) -> tuple[Heartbeat, ...]:
+        """The physics runs on the servo loop: a tick that does not come is a step that does not."""
+        return (self.servo.heartbeat("physics"),)
 
     async def _close(self) -> None:
         await self.servo.shutdown()

@@ -36,7 +36,11 @@ Threads: every callback runs on the bridge's executor thread, which owns the rcl
 (`armwarden.backends.ros2.bridge`): the endpoints are made before it spins, a camera's
 subscription is made and destroyed on it (`armwarden.backends.ros2.camera`). Its death is a fault
 for good: the goal cancelled, the fault reported once (the Guard latches and records it), every
-later call but stop and close refused naming it. When the force monitor finds the wrench stale,
+later call but stop and close refused naming it. So is its hang (a callback that never returns):
+the backend's watchdog, on a thread of its own, finds the bridge's heartbeat stopped, and the goal
+is cancelled from there (a cancel request needs no executor). While the executor is quiet, joint
+states that stop arriving say nothing about the cell (nobody takes them in), so no cell fault is
+found then: the watchdog names the cause. When the force monitor finds the wrench stale,
 `fault_behind_stale_data` tells a dead cell (its joint states stop too) from a wrench topic alone.
 
 Declared accuracies: `goal_accuracy_rad` 1e-3 rad, `hold_accuracy_rad` 2e-3 rad, `rest_speed_rad_s`
@@ -100,12 +104,13 @@ from armwarden.backends.base import (
     grasp_outcome,
 )
 from armwarden.backends.ros2.action_client import ActionClient
-from armwarden.backends.ros2.bridge import RosBridge
+from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.camera import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache
 from armwarden.backends.ros2.tf import TransformBuffer
+from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.errors import BackendError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
@@ -121,6 +126,8 @@ POLL_S = 0.01
 WATCH_PERIOD_S = 0.05
 #: how long a stopped execution waits for the arm to come to rest [s]
 REST_TIMEOUT_S = 2.0
+#: an executor quiet this long [s] may hang: silence on its topics is not then blamed on the cell
+EXECUTOR_QUIET_S = 5 * HEARTBEAT_PERIOD_S
 #: what stopped the arm when a fault aborts an execution, for messages
 CANCELLED, ENDED, HELD = "the goal was cancelled", "the goal had ended", "a hold was sent"
 #: FollowJointTrajectory.Result error codes by value, for messages
@@ -375,6 +382,9 @@ class Ros2Backend(Backend):
     async def _close(self) -> None:
         await anyio.to_thread.run_sync(self.bridge.close)
 
+    def _worker_heartbeats(self) -> tuple[Heartbeat, ...]:
+        return (Heartbeat("executor", lambda: self.bridge.heartbeats, stall_deadline_s(HEARTBEAT_PERIOD_S)),)
+
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
         return self.joint_states.fresh()
@@ -390,7 +400,10 @@ class Ros2Backend(Backend):
 
     # ================================================================ watchdog (executor thread)
     def _health_problem(self) -> str | None:
-        """What is wrong with the cell right now (joint states stopped, action server gone), or None."""
+        """What is wrong with the cell right now (joint states stopped, action server gone), or None
+        (also while the executor is quiet: then it may be the cause, see the module docstring)."""
+        if self._worker_quiet_s("executor") > EXECUTOR_QUIET_S:
+            return None
         age = self.joint_states.age_s()
         limit = self.config.joint_states.max_age_s
         if age is None or age > limit:

@@ -22,7 +22,9 @@ with the node after it has been joined; anything made or destroyed in between go
 
 The executor thread's death is never silent: an exception out of `spin`, or `spin` returning
 before `close` (the context shut down under it), is logged and handed to `on_death` (the backend
-reports a latched fault).
+reports a latched fault). Nor is its hang: a timer on the executor bumps `heartbeats` every
+`HEARTBEAT_PERIOD_S`, and the backend's watchdog, on a thread of its own, finds a count that
+stops (a callback that blocks holds up every other, the heartbeat's too).
 
 rclpy futures are not awaitable by asyncio; `result` bridges one with `add_done_callback` (called
 on an executor thread) and `loop.call_soon_threadsafe` (see `armwarden.handoff`), guarded against
@@ -54,6 +56,8 @@ logger = logging.getLogger(__name__)
 
 #: how long `close` waits for the executor to stop and its thread to end [s]
 SHUTDOWN_TIMEOUT_S = 5.0
+#: period of the executor's heartbeat timer [s] (its hang deadline: `stall_deadline_s` of it)
+HEARTBEAT_PERIOD_S = 0.02
 
 
 #: builds the executor from the bridge's context
@@ -94,6 +98,8 @@ class RosBridge:
         self.group = rclpy.callback_groups.ReentrantCallbackGroup()
         #: told when the executor thread ends before `close` (see the module docstring)
         self.on_death: DeathListener | None = None
+        #: turns of the heartbeat timer so far (the executor's progress; see the module docstring)
+        self.heartbeats = 0
 
     @property
     def node(self) -> rclpy.node.Node:
@@ -112,6 +118,7 @@ class RosBridge:
             self._node = rclpy.create_node(self.node_name, context=context)
             self._executor = self._executor_factory(context=context)
             self._executor.add_node(self._node)
+            self._node.create_timer(HEARTBEAT_PERIOD_S, self._beat, callback_group=self.group)
             if setup is not None:
                 setup()
         except BaseException:
@@ -120,6 +127,10 @@ class RosBridge:
         self._thread = threading.Thread(target=self._spin, name="armwarden-ros2-executor", daemon=True)
         self._thread.start()
         logger.info("ros2: node %s started in domain %d", self.node_name, domain)
+
+    def _beat(self) -> None:
+        """Executor thread: one more turn (read by the backend's watchdog)."""
+        self.heartbeats += 1
 
     def _spin(self) -> None:
         executor = self._executor
@@ -200,4 +211,4 @@ class RosBridge:
         return await asyncio.wait_for(waiter, timeout_s)
 
 
-__all__ = ["DeathListener", "ExecutorFactory", "RosBridge", "domain_from_environment"]
+__all__ = ["HEARTBEAT_PERIOD_S", "DeathListener", "ExecutorFactory", "RosBridge", "domain_from_environment"]
