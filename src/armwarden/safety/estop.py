@@ -199,12 +199,7 @@ class EStopLatch:
         records the release before it takes effect, then calls `release`, which checks again (a
         latch in between changes the newest event, so the release is then refused)."""
         with self._lock:
-            refusal = self._refusal_locked(event_number)
-            if refusal is not None:
-                return refusal
-            current = self.current_event
-            assert current is not None
-            return ReleaseResult(True, f"e-stop #{current.number} may be released", current)
+            return self._refusal_locked(event_number) or self._newest_releasable_locked("may be released")
 
     def release(self, event_number: object) -> ReleaseResult:
         """Release the latch if `event_number` is the newest latched event; otherwise refuse and say why."""
@@ -212,10 +207,15 @@ class EStopLatch:
             refusal = self._refusal_locked(event_number)
             if refusal is not None:
                 return refusal
-            current = self.current_event
-            assert current is not None
+            released = self._newest_releasable_locked("released")
             self._held = ()
-            return ReleaseResult(True, f"e-stop #{current.number} released", current)
+            return released
+
+    def _newest_releasable_locked(self, verb: str) -> ReleaseResult:
+        """The positive answer about the newest latched event, once `_refusal_locked` found none."""
+        current = self.current_event
+        assert current is not None
+        return ReleaseResult(True, f"e-stop #{current.number} {verb}", current)
 
     def _refusal_locked(self, event_number: object) -> ReleaseResult | None:
         """Why `event_number` may not be released now, or None when it may."""
