@@ -1,17 +1,20 @@
-"""Capsules fitted to collision meshes (armwarden.robot.fitting).
+"""Capsules fitted to collision meshes (armwarden.robot.fitting) and the bundled FR3 data file.
 
 The fitter is exercised on meshes built here (a box, an L, two separate boxes): containment of the
 whole surface and the inside with the margin, a tighter fit with several capsules where one is fat,
-same input same bytes.
+same input same bytes. The bundled file is checked against Franka's collision-mesh vertices, per link, when the
+vertex cloud is present (tests/robot/data/README.md says why it is not committed and how to make it).
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import struct
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +26,7 @@ from armwarden.robot.fitting import (
     box_mesh,
     capsule_surface_points,
     fit_link,
+    load_fitted,
     load_mesh,
     merge_meshes,
     point_segment_distances,
@@ -31,8 +35,13 @@ from armwarden.robot.fitting import (
     subdivide,
     winding_numbers,
 )
+from armwarden.robot.model import resolve_description
 from tests.helpers import SRC
 
+URDF_PATH = resolve_description("builtin:fr3")
+FITTED_PATH = URDF_PATH.parent / "fr3_fitted.yaml"
+DATA = Path(__file__).resolve().parent / "data"
+CLOUD_PATH = Path(os.environ.get("ARMWARDEN_FR3_VERTICES", DATA / "fr3_collision_vertices.npz"))
 FAST = FitOptions(max_bodies=2, simplex_evaluations=300, lloyd_iterations=6, surface_spacing_m=0.004)
 
 
@@ -163,3 +172,61 @@ def test_the_runtime_imports_do_not_load_trimesh() -> None:
             "sys.exit(1 if 'trimesh' in sys.modules else 0)")
     env = {**os.environ, "PYTHONPATH": str(SRC)}
     assert subprocess.run([sys.executable, "-c", code], env=env, check=False).returncode == 0
+
+
+# --------------------------------------------------------------------------- the bundled FR3 file
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    return load_fitted(FITTED_PATH)
+
+
+def test_the_bundled_file_fits_every_link_with_collision_geometry(fitted) -> None:
+    arm = {f"fr3_link{i}" for i in range(8)}
+    assert set(fitted.links) == arm | {"fr3_hand", "fr3_leftfinger", "fr3_rightfinger"}
+    assert fitted.margin_m > 0
+    for fit in fitted.links.values():
+        assert fit.bodies and all(b.radius_m > fitted.margin_m for b in fit.bodies)
+        assert len(fit.vertices_sha256) == 64
+
+
+def test_the_bundled_file_names_its_source_and_licence() -> None:
+    text = FITTED_PATH.read_text(encoding="utf-8")
+    assert "github.com/frankaemika/franka_description" in text
+    assert "Apache-2.0" in text
+    assert "meshes/robot_arms/fr3/collision/link0.stl" in text
+
+
+def test_the_bundled_file_is_exactly_what_the_renderer_writes(fitted) -> None:
+    text = FITTED_PATH.read_text(encoding="utf-8")
+    header = [line[2:] if line.startswith("# ") else line[1:] for line in text.splitlines() if line.startswith("#")]
+    assert render_fitted(fitted, header) == text
+
+
+def test_the_right_finger_is_the_left_finger_turned_half_a_turn(fitted) -> None:
+    left, right = fitted.links["fr3_leftfinger"].bodies, fitted.links["fr3_rightfinger"].bodies
+    assert len(left) == len(right)
+    for a, b in zip(left, right, strict=True):
+        assert b.p0_m == (-a.p0_m[0], -a.p0_m[1], a.p0_m[2])
+        assert b.p1_m == (-a.p1_m[0], -a.p1_m[1], a.p1_m[2])
+        assert b.radius_m == a.radius_m
+
+
+def _cloud() -> dict[str, np.ndarray]:
+    if not CLOUD_PATH.is_file():
+        pytest.skip(f"no vertex cloud at {CLOUD_PATH}: make it with scripts/fit_geometry.py --vertices "
+                    "(tests/robot/data/README.md)")
+    with np.load(CLOUD_PATH) as data:
+        return {name: data[name] for name in data.files}
+
+
+@pytest.mark.parametrize("link", [f"fr3_link{i}" for i in range(8)] + ["fr3_hand", "fr3_leftfinger", "fr3_rightfinger"])
+def test_every_collision_mesh_vertex_lies_inside_its_links_fitted_capsules(fitted, link: str) -> None:
+    vertices = _cloud()[link]
+    fit = fitted.links[link]
+    assert hashlib.sha256(np.ascontiguousarray(vertices, dtype="<f4").tobytes()).hexdigest() == fit.vertices_sha256
+    assert len(vertices) == fit.n_vertices
+    depth = inside_depth(vertices.astype(float), fit.bodies)
+    # the margin, less float32's rounding of the vertices (< 1e-7 m at these sizes)
+    assert np.min(depth) >= fitted.margin_m - 1e-6, f"{link}: a vertex {-np.min(depth) + fitted.margin_m:.6f} m short"

@@ -1,17 +1,22 @@
 """Self-collision pairs by analysis (armwarden.robot.pairs).
 
 A toy arm checks each kind of verdict and that a pair touching only in a sliver of its joint
-range is kept although no random sample sees it.
+range is kept although no random sample sees it; the bundled FR3's analysis is held against a
+dense sampled check — which can only confirm the proofs, never replace them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+import pytest
 
-from armwarden.robot.fitting import FittedBody, FittedGeometry, LinkFit
+from armwarden.robot.fitting import FittedBody, FittedGeometry, LinkFit, load_fitted
+from armwarden.robot.model import resolve_description
 from armwarden.robot.pairs import PairOptions, PlacedBody, analyse_pairs, place_bodies
 from armwarden.safety.geometry import segment_segment_distance
+
+FITTED_PATH = resolve_description("builtin:fr3").parent / "fr3_fitted.yaml"
 
 TOY_URDF = """<?xml version="1.0"?>
 <robot name="toy">
@@ -109,3 +114,93 @@ def test_no_random_sample_sees_the_sliver() -> None:
 def test_clearance_keeps_a_close_pair_in() -> None:
     model, bodies = toy(1.0, {"base": [((-0.6, 0.0, 0.0), (-0.6, 0.0, 0.2), 0.05)], "arm2": ARM2})
     assert decisions(model, bodies, clearance_m=1.0) == {("base/0", "arm2/0"): "included"}
+
+
+# --------------------------------------------------------------------------- the bundled FR3
+
+
+@pytest.fixture(scope="module")
+def fr3() -> tuple[pin.Model, dict[str, PlacedBody], FittedGeometry]:
+    model = pin.buildModelFromUrdf(str(resolve_description("builtin:fr3")))
+    geometry = load_fitted(FITTED_PATH)
+    return model, {b.name: b for b in place_bodies(model, geometry)}, geometry
+
+
+def _chain(model: pin.Model, joint: int) -> list[int]:
+    chain = [joint]
+    while chain[-1] != 0:
+        chain.append(int(model.parents[chain[-1]]))
+    return chain
+
+
+def _sampled_distances(model: pin.Model, a: PlacedBody, b: PlacedBody, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Segment distances over n configurations: every corner of the joints' box, then uniform."""
+    joints = sorted(set(_chain(model, a.joint)) ^ set(_chain(model, b.joint)))
+    idx = [model.joints[j].idx_q for j in joints]
+    lower, upper = model.lowerPositionLimit[idx], model.upperPositionLimit[idx]
+    if idx:
+        corners = np.array(np.meshgrid(*[[lo, hi] for lo, hi in zip(lower, upper, strict=True)], indexing="ij")).reshape(len(idx), -1).T
+        values = np.vstack([corners, lower + rng.random((n, len(idx))) * (upper - lower)])
+    else:  # fixed to each other: one configuration says it all
+        values = np.zeros((1, 0))
+    data = model.createData()
+    ends = np.empty((len(values), 4, 3))
+    q = pin.neutral(model)
+    for k, v in enumerate(values):
+        q[idx] = v
+        pin.forwardKinematics(model, data, q)
+        ma, mb = data.oMi[a.joint], data.oMi[b.joint]
+        ends[k] = (ma.act(a.p0), ma.act(a.p1), mb.act(b.p0), mb.act(b.p1))
+    return segment_segment_distance(ends[:, 0], ends[:, 1], ends[:, 2], ends[:, 3])
+
+
+def test_the_bundled_analysis_covers_every_pair_of_bodies_on_different_links(fr3) -> None:
+    _, bodies, geometry = fr3
+    listed = {frozenset(p) for p in geometry.included_pairs} | {frozenset(p.bodies) for p in geometry.excluded_pairs}
+    expected = {frozenset((a.name, b.name)) for a in bodies.values() for b in bodies.values() if a.link < b.link}
+    assert listed == expected
+    assert len(geometry.included_pairs) + len(geometry.excluded_pairs) == len(expected)
+
+
+def test_the_bundled_analysis_used_the_urdf_joint_limits(fr3) -> None:
+    model, _, geometry = fr3
+    for joint, (lo, hi) in geometry.joint_limits.items():
+        idx = model.joints[model.getJointId(joint)].idx_q
+        assert (lo, hi) == (model.lowerPositionLimit[idx], model.upperPositionLimit[idx])
+
+
+def test_pairs_proved_apart_never_touch_on_a_dense_sampled_sweep(fr3) -> None:
+    model, bodies, geometry = fr3
+    rng = np.random.default_rng(11)
+    apart = [p for p in geometry.excluded_pairs if p.reason == "apart"]
+    assert apart
+    for pair in apart:
+        a, b = bodies[pair.bodies[0]], bodies[pair.bodies[1]]
+        distance = _sampled_distances(model, a, b, 500, rng)
+        assert np.min(distance) > a.radius_m + b.radius_m + geometry.pair_clearance_m, pair.bodies
+
+
+def test_pairs_proved_overlapping_overlap_on_a_dense_sampled_sweep(fr3) -> None:
+    model, bodies, geometry = fr3
+    rng = np.random.default_rng(12)
+    overlapping = [p for p in geometry.excluded_pairs if p.reason == "overlapping"]
+    assert overlapping
+    for pair in overlapping:
+        a, b = bodies[pair.bodies[0]], bodies[pair.bodies[1]]
+        assert np.max(_sampled_distances(model, a, b, 500, rng)) < a.radius_m + b.radius_m, pair.bodies
+
+
+def test_pairs_left_out_as_adjacent_are_on_links_one_joint_apart_with_an_overlapping_witness(fr3) -> None:
+    model, bodies, geometry = fr3
+    overlapping = {frozenset(bodies[n].link for n in p.bodies) for p in geometry.excluded_pairs if p.reason == "overlapping"}
+    for pair in (p for p in geometry.excluded_pairs if p.reason == "adjacent"):
+        a, b = bodies[pair.bodies[0]], bodies[pair.bodies[1]]
+        assert frozenset((a.link, b.link)) in overlapping
+        assert len(set(_chain(model, a.joint)) ^ set(_chain(model, b.joint))) <= 1
+
+
+def test_the_wrist_and_the_flange_stay_checked_against_each_other(fr3) -> None:
+    """link5 and link7 are two joints apart: some of their bodies meet within the limits."""
+    _, bodies, geometry = fr3
+    wrist_flange = [p for p in geometry.included_pairs if {bodies[n].link for n in p} == {"fr3_link5", "fr3_link7"}]
+    assert wrist_flange
