@@ -414,23 +414,8 @@ class BackendContract:
                     guard = build_guard(load_policy(bundled_policy("fr3")), backend, audit)
                     q_start = await self.positions(backend)
                     backend.inject_worker_hang(worker, release)
-                    await wait_until(lambda: _true_when(guard.latch.is_latched))
                     hung = f"the {worker} thread made no progress for"
-                    event = guard.latch.current_event
-                    assert event is not None and event.source == "backend_fault" and hung in event.reason, event
-                    status = guard.safety_status()
-                    assert status.estopped and any(hung in fault for fault in status.faults), status
-                    audit.flush()
-                    records = records_of(audit_path)
-                    assert any(r["event"] == "backend_fault" and hung in r["detail"] for r in records), records
-                    with pytest.raises(SafetyRefusal) as refused:  # the Guard refuses: the e-stop is latched
-                        await guard.plan("joints", {"joint_positions": q_start.tolist()})
-                    assert refused.value.code is RefusalCode.ESTOPPED
-                    with pytest.raises(BackendError, match=hung):  # and so does the backend
-                        await backend.execute(straight_line(backend.joint_names, q_start, q_start + self.reach_rad,
-                                                            self.short_motion_s))
-                    with pytest.raises(BackendError, match=hung):  # reads name the cause, not stale data
-                        await backend.read_joint_state()
+                    await self.assert_worker_fault_is_latched_and_refused(backend, guard, audit, q_start, hung, hung)
                     assert await backend.fault_behind_stale_data() == backend.worker_failure
             finally:
                 release.set()
@@ -453,21 +438,29 @@ class BackendContract:
                 guard = build_guard(load_policy(bundled_policy("fr3")), backend, audit)
                 q_start = await self.positions(backend)
                 backend.inject_worker_failure(worker, RuntimeError(f"injected: the {worker} thread dies"))
-                await wait_until(lambda: _true_when(guard.latch.is_latched))
                 died = f"the {worker} thread stopped (RuntimeError: injected: the {worker} thread dies)"
-                event = guard.latch.current_event
-                assert event is not None and event.source == "backend_fault" and died in event.reason, event
-                status = guard.safety_status()
-                assert status.estopped and any(died in fault for fault in status.faults), status
-                audit.flush()
-                records = records_of(audit_path)
-                assert any(r["event"] == "backend_fault" and died in r["detail"] for r in records), records
-                with pytest.raises(SafetyRefusal) as refused:  # the Guard refuses: the e-stop is latched
-                    await guard.plan("joints", {"joint_positions": q_start.tolist()})
-                assert refused.value.code is RefusalCode.ESTOPPED
-                with pytest.raises(BackendError, match=f"the {worker} thread stopped"):  # and so does the backend
-                    await backend.execute(straight_line(backend.joint_names, q_start, q_start + self.reach_rad,
-                                                        self.short_motion_s))
-                with pytest.raises(BackendError, match=f"the {worker} thread stopped"):  # reads name the cause
-                    await backend.read_joint_state()
+                await self.assert_worker_fault_is_latched_and_refused(backend, guard, audit, q_start, died,
+                                                                      f"the {worker} thread stopped")
         self.assert_nothing_reached_the_arm(backend)
+
+    async def assert_worker_fault_is_latched_and_refused(self, backend: Backend, guard: Any, audit: AuditLog,
+                                                         q_start: np.ndarray, cause: str, refusal: str) -> None:
+        """Once a worker died or hung: the e-stop latches as a backend fault naming `cause`, the
+        safety status and the audit log say so, the Guard refuses to plan, and the backend refuses
+        to move or read with a message matching `refusal`."""
+        await wait_until(lambda: _true_when(guard.latch.is_latched))
+        event = guard.latch.current_event
+        assert event is not None and event.source == "backend_fault" and cause in event.reason, event
+        status = guard.safety_status()
+        assert status.estopped and any(cause in fault for fault in status.faults), status
+        audit.flush()
+        records = records_of(audit.path)
+        assert any(r["event"] == "backend_fault" and cause in r["detail"] for r in records), records
+        with pytest.raises(SafetyRefusal) as refused:  # the Guard refuses: the e-stop is latched
+            await guard.plan("joints", {"joint_positions": q_start.tolist()})
+        assert refused.value.code is RefusalCode.ESTOPPED
+        with pytest.raises(BackendError, match=refusal):  # and so does the backend
+            await backend.execute(straight_line(backend.joint_names, q_start, q_start + self.reach_rad,
+                                                self.short_motion_s))
+        with pytest.raises(BackendError, match=refusal):  # reads name the cause, not stale data
+            await backend.read_joint_state()
