@@ -167,7 +167,10 @@ def decode_request(kind: PlanKind, encoded: dict[str, Any]) -> dict[str, Any]:
 
 def _encode_target(target: PoseTarget) -> dict[str, Any]:
     rotation = None if target.rotation is None else np.asarray(target.rotation, dtype=float).reshape(9).tolist()
-    return {"position": np.asarray(target.position, dtype=float).tolist(), "rotation": rotation}
+    encoded: dict[str, Any] = {"position": np.asarray(target.position, dtype=float).tolist(), "rotation": rotation}
+    if target.free_yaw:  # only when asked: records of exact-rotation requests keep their form
+        encoded["free_yaw"] = True
+    return encoded
 
 
 def _decode_target(encoded: dict[str, Any]) -> PoseTarget:
@@ -175,7 +178,10 @@ def _decode_target(encoded: dict[str, Any]) -> PoseTarget:
     if position.shape != (3,):
         raise ValueError(f"a target position has 3 numbers, got {position.size}")
     rotation = encoded.get("rotation")
-    return PoseTarget(position, None if rotation is None else _floats(rotation).reshape(3, 3))
+    free_yaw = encoded.get("free_yaw", False)
+    if type(free_yaw) is not bool:
+        raise ValueError(f"free_yaw is true or false, got {str(free_yaw)[:80]}")
+    return PoseTarget(position, None if rotation is None else _floats(rotation).reshape(3, 3), free_yaw)
 
 
 def _floats(values: Any) -> np.ndarray:

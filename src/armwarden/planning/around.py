@@ -95,7 +95,7 @@ class DetourPlanner:
 
         if kind == "pose" and target is not None:
             selection = self.goals.select(start, target.position, target.rotation, seed,
-                                          began + self.budget_s * _GOAL_SHARE, first=first_goal)
+                                          began + self.budget_s * _GOAL_SHARE, first=first_goal, free_yaw=target.free_yaw)
             if not selection.goals:
                 return self._refuse(straight, report, _no_goal_reason(selection))
             goals: Sequence[np.ndarray] = selection.goals
@@ -207,6 +207,8 @@ def request_seed(kind: str, start: np.ndarray, goal: np.ndarray | PoseTarget | N
         hasher.update(np.ascontiguousarray(goal.position, dtype=float).tobytes())
         if goal.rotation is not None:
             hasher.update(np.ascontiguousarray(goal.rotation, dtype=float).tobytes())
+            if goal.free_yaw:  # only then: the seeds of exact-rotation requests stay what they were
+                hasher.update(b"free_yaw")
     elif goal is not None:
         hasher.update(np.ascontiguousarray(goal, dtype=float).tobytes())
     return int.from_bytes(hasher.digest()[:8], "big") >> 1

@@ -6,8 +6,11 @@ while another is free. So: solve IK from the current state, from home and from s
 configurations; drop every solution whose configuration fails the envelope's own static checks
 (`Envelope.check_path` on that one configuration: joint limits, workspace, keep-out,
 self-collision) or that lies beyond the joint travel cap from the start (for a position-only
-target a blocked solution first gets its last joint turned, if the TCP lies on that joint's axis:
-the hand turns out of the way without moving the TCP); rank solutions clear even with the largest
+target, or one whose yaw about the tool axis is free, a blocked solution first gets its last
+joint turned, if the TCP lies on that joint's axis: the hand turns out of the way without moving
+the TCP or tilting the tool axis); a free-yaw target is solved, from each seed, at the turn about
+the tool axis nearest the seed's own (`PoseTarget.rotation_near`), so the seeds' spread covers
+the yaws as it covers the arm's branches; rank solutions clear even with the largest
 sweep allowance the final check can give a plan's last sample before those only clear with less
 (`GoalSelector.arrival`: a goal a few millimetres from a zone makes many plans into it fail the
 final check, however they get there); find each one's
@@ -31,12 +34,15 @@ from itertools import chain
 
 import numpy as np
 
+from armwarden.planning.planners import yaw_towards
 from armwarden.robot.ik import IkSolver
 from armwarden.safety.envelope import Envelope
 from armwarden.safety.violations import Violation
 
 #: two TCP positions closer than this are the same (far inside any IK tolerance) [m]
 _SAME_POSITION_M = 1e-9
+#: two tool axes (unit vectors) closer than this are the same [1]
+_SAME_AXIS = 1e-9
 #: body growths, as shares of `motion.sweep_resolution_m`, a goal is tried with (`Envelope.check_arrival`):
 #: the largest sweep allowance the final check can give a plan's last sample, then half of it
 ARRIVAL_SHARES = (0.5, 0.25)
@@ -119,20 +125,23 @@ class GoalSelector:
         return CLOSE_TO_A_ZONE
 
     def _turned_clear(self, q: np.ndarray, start: np.ndarray, travel_cap: float, below: int = CLOSE_TO_A_ZONE + 1,
-                      ) -> tuple[np.ndarray, tuple[Violation, ...], int] | None:
-        """For a position-only target whose solution `q` is blocked, or ranks `below` (see
-        `arrival`) or worse: `q` with the last joint turned to another angle (where the start has
-        it first, then in quarter and eighth turns) that passes the envelope's static checks and
-        ranks better than `below`, with its findings and rank; None if none does, or if turning
-        the last joint moves the TCP (it then does not lie on that joint's axis)."""
+                      keep_axis: bool = False) -> tuple[np.ndarray, tuple[Violation, ...], int] | None:
+        """For a position-only or free-yaw target whose solution `q` is blocked, or ranks `below`
+        (see `arrival`) or worse: `q` with the last joint turned to another angle (where the start
+        has it first, then in quarter and eighth turns) that passes the envelope's static checks
+        and ranks better than `below`, with its findings and rank; None if none does, or if turning
+        the last joint moves the TCP (it then does not lie on that joint's axis) or, with
+        `keep_axis` (a free yaw), tilts the tool axis (it is then not that joint's axis)."""
         robot = self.envelope.robot
-        position = robot.tcp_pose(q).position
+        pose = robot.tcp_pose(q)
         for angle in (start[-1], q[-1] + np.pi / 2, q[-1] - np.pi / 2, q[-1] + np.pi / 4, q[-1] - np.pi / 4):
             if not robot.lower[-1] <= angle <= robot.upper[-1] or abs(angle - start[-1]) > travel_cap:
                 continue
             turned = q.copy()
             turned[-1] = angle
-            if np.linalg.norm(robot.tcp_pose(turned).position - position) > _SAME_POSITION_M:
+            turned_pose = robot.tcp_pose(turned)
+            if np.linalg.norm(turned_pose.position - pose.position) > _SAME_POSITION_M or (
+                    keep_axis and np.linalg.norm(turned_pose.rotation[:, 2] - pose.rotation[:, 2]) > _SAME_AXIS):
                 return None
             findings = self.envelope.check_path(turned, first_only=True)
             if not any(v.is_hard for v in findings) and (rank := self.arrival(turned)) < below:
@@ -141,9 +150,10 @@ class GoalSelector:
 
     def select(
         self, start: np.ndarray, position: np.ndarray, rotation: np.ndarray | None, seed: int, deadline: float,
-        first: np.ndarray | None = None,
+        first: np.ndarray | None = None, free_yaw: bool = False,
     ) -> GoalSelection:
-        """Goal configurations for the TCP at `position` (and `rotation`, None: free), best first:
+        """Goal configurations for the TCP at `position` (and `rotation`, None: free; with
+        `free_yaw`, any turn of it about the tool axis), best first:
         those with a clear approach before those without, then by `arrival` rank, those inside
         the soft joint-limit margin last, then by weighted joint travel from `start`. Goal
         seeking continues until `max_goals` goals with an approach and an arrival rank better
@@ -160,6 +170,7 @@ class GoalSelector:
         seeds += [np.clip(start + rng.uniform(-spread, spread, len(start)), lower, upper) for _ in range(opts.local_seeds)]
         seeds += [rng.uniform(lower, upper) for _ in range(opts.random_seeds)]
         travel_cap = self.envelope.limits.max_joint_step_rad
+        turnable = rotation is None or free_yaw
         found: list[np.ndarray] = []
         ranked: list[tuple[tuple[bool, int, bool, float], np.ndarray, np.ndarray | None]] = []
         blocked: Counter[str] = Counter()
@@ -181,7 +192,10 @@ class GoalSelector:
             if first is not None and index == 0:
                 q = np.asarray(first, dtype=float)
             else:
-                result = self.ik.solve_from(position, rotation, np.asarray(seed_q, dtype=float))
+                seed_q = np.asarray(seed_q, dtype=float)
+                wanted = rotation if rotation is None or not free_yaw else yaw_towards(
+                    rotation, self.envelope.robot.tcp_pose(seed_q).rotation)
+                result = self.ik.solve_from(position, wanted, seed_q)
                 if not result.success:
                     continue
                 q = result.q
@@ -193,8 +207,8 @@ class GoalSelector:
                 continue
             findings = self.envelope.check_path(q, first_only=True)
             hard = [v for v in findings if v.is_hard]
-            if hard:  # a position target's hand may turn about its own axis out of the way
-                turned = self._turned_clear(q, start, travel_cap) if rotation is None else None
+            if hard:  # a position or free-yaw target's hand may turn about its own axis out of the way
+                turned = self._turned_clear(q, start, travel_cap, keep_axis=free_yaw) if turnable else None
                 if turned is None:
                     blocked[f"{hard[0].code.value} {hard[0].body}"] += 1
                     continue
@@ -203,7 +217,7 @@ class GoalSelector:
                 approach = self.approach(q)
             else:
                 rank, approach = self.arrival(q), self.approach(q)
-                better = self._turned_clear(q, start, travel_cap, below=rank) if rotation is None and rank else None
+                better = self._turned_clear(q, start, travel_cap, below=rank, keep_axis=free_yaw) if turnable and rank else None
                 # the hand turned away from a zone it came close to, unless that loses the way in
                 if better is not None and ((turned_approach := self.approach(better[0])) is not None or approach is None):
                     q, findings, rank = better

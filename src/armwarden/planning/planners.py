@@ -69,10 +69,37 @@ class PlanOutcome:
 
 @dataclass(frozen=True)
 class PoseTarget:
-    """A TCP target in the base frame; `rotation` None keeps the orientation free (position only)."""
+    """A TCP target in the base frame; `rotation` None keeps the orientation free (position only).
+
+    `free_yaw` (with a `rotation`): any turn of that rotation about the TCP's own z axis (the tool
+    axis) will do, so a hand-down grasp keeps its tool pointing down but may choose how the
+    fingers lie — the planner picks the turn (`yaw_towards`); without it the rotation is exact."""
 
     position: np.ndarray
     rotation: np.ndarray | None = None
+    free_yaw: bool = False
+
+    def rotation_near(self, current: np.ndarray) -> np.ndarray | None:
+        """The rotation to solve IK for from a configuration whose TCP has rotation `current`: the
+        given one, or with `free_yaw` its turn about the tool axis closest to `current`."""
+        if self.rotation is None or not self.free_yaw:
+            return self.rotation
+        return yaw_towards(self.rotation, current)
+
+
+def yaw_about_z(angle: float) -> np.ndarray:
+    """The rotation by `angle` [rad] about the z axis."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def yaw_towards(rotation: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """`rotation` turned about its own z axis to the turn closest to `current` (largest trace of
+    the relative rotation, the smallest rotation angle between them): with the tool axis fixed,
+    the fingers then lie as close to where they are as the target allows."""
+    relative = np.asarray(rotation, dtype=float).T @ np.asarray(current, dtype=float)
+    return np.asarray(rotation, dtype=float) @ yaw_about_z(float(np.arctan2(relative[1, 0] - relative[0, 1],
+                                                                           relative[0, 0] + relative[1, 1])))
 
 
 class Planner:
@@ -138,7 +165,17 @@ class Planner:
         vel, acc, notes, problems = self._scaling(velocity_scaling, acceleration_scaling)
         if problems:
             return PlanOutcome(None, tuple(problems), tuple(notes), vel, acc)
-        result = self.ik.solve(target.position, target.rotation, [start, self.settings.home_rad])
+        # a free yaw is solved at the turn nearest the start's first; should IK miss it (a joint
+        # limit in the way), at a quarter and half turn from there
+        nearest = target.rotation_near(self.robot.tcp_pose(start).rotation)
+        seeds = [start, self.settings.home_rad]
+        result = self.ik.solve(target.position, nearest, seeds)
+        if not result.success and target.free_yaw and nearest is not None:
+            for turn in (np.pi / 2, -np.pi / 2, np.pi):
+                turned = self.ik.solve(target.position, nearest @ yaw_about_z(turn), seeds)
+                if turned.success:
+                    result = turned
+                    break
         if not result.success:
             return PlanOutcome(None, (Violation(Code.IK_FAILED, result.message, None, self.robot.tcp_frame),), tuple(notes), vel, acc)
         return self._timed(np.vstack([start, result.q]), vel, acc, notes)

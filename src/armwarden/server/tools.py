@@ -312,16 +312,20 @@ class ToolBuilder:
                                             "acceleration_scaling": acceleration_scaling, "preview": preview})
 
         @tool(f"Plan (does NOT move) a motion that brings the TCP ({robot.tcp_frame}) to a pose in {robot.base_frame}: "
-              "position [m] and optional orientation (unit quaternion xyzw; omitted = any). Uses IK, then a joint-space "
-              "motion.", PLANNING)
+              "position [m] and optional orientation (unit quaternion xyzw; omitted = any). With free_yaw true the "
+              "orientation may turn about the TCP's z axis (the tool axis keeps its direction, e.g. pointing down for a "
+              "top-down grasp, and the planner picks how the fingers lie); default false: exactly that orientation. "
+              "Uses IK, then a joint-space motion.", PLANNING)
         async def plan_to_pose(
             position: Point, orientation: Orientation | None = None, frame_id: Annotated[str | None, frame] = None,
             velocity_scaling: Annotated[Finite | None, scaling] = None,
             acceleration_scaling: Annotated[Finite | None, scaling] = None,
             preview: Annotated[StrictBool, preview_png] = True,
+            free_yaw: Annotated[StrictBool, Field(description="With orientation: any rotation about the TCP's z axis "
+                                                  "is acceptable (default false)")] = False,
         ) -> Annotated[CallToolResult, PlanSummary]:
             check_frame(frame_id)
-            target = PoseTarget(np.array([position.x, position.y, position.z]), _unit_rotation(orientation))
+            target = PoseTarget(np.array([position.x, position.y, position.z]), _unit_rotation(orientation), free_yaw)
             return await planned("pose", {"target": target, "velocity_scaling": velocity_scaling,
                                           "acceleration_scaling": acceleration_scaling, "preview": preview})
 
