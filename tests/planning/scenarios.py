@@ -50,11 +50,12 @@ def hemmed_block(runtime: RuntimeModel, gap_m: float = 0.001) -> Box:
     itself is clear, but motions that move the hand into or out of it sweep it into the block (the
     sweep allowance of a plan's first and last sample is more than 1 mm for them): a search for a
     way out runs out of budget."""
-    robot = runtime.robot
+    robot, limits = runtime.robot, runtime.envelope.limits
     p0, p1 = robot.body_points(robot.joint_frames(READY[None]))
-    padding = runtime.envelope.limits.link_padding_m
-    hand = [i for i, capsule in enumerate(robot.capsules) if "hand" in capsule.link]
-    lowest = min(min(p0[0, i, 2], p1[0, i, 2]) - robot.capsule_radii[i] - padding for i in hand)
+    by_link = getattr(limits, "padding_by_link_m", {})  # fingers may carry less padding than the arm
+    hand = [i for i, capsule in enumerate(robot.capsules) if "hand" in capsule.link or "finger" in capsule.link]
+    lowest = min(min(p0[0, i, 2], p1[0, i, 2]) - robot.capsule_radii[i]
+                 - by_link.get(robot.capsules[i].link, limits.link_padding_m) for i in hand)
     return Box.of("block", [0.15, -0.12, 0.0], [0.45, 0.12, lowest - gap_m])
 
 
