@@ -887,6 +887,15 @@ def _report_planner(r: dict[str, Any]) -> None:
     importlib.import_module("planner_scenes").report_planner(r)
 
 
+def bench_table() -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("table_picks").bench_table()
+
+
+def _report_table(r: dict[str, Any]) -> None:
+    importlib.import_module("table_picks").report_table(r)
+
+
 def bench_can(seconds: float = 60.0) -> dict[str, Any]:
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))
     return importlib.import_module("can_loop").bench_can(seconds)
@@ -920,6 +929,7 @@ SECTIONS = {
     "can": (bench_can, _report_can),
     "ros2": (bench_ros2, _report_ros2),
     "planner": (bench_planner, _report_planner),
+    "table": (bench_table, _report_table),
 }
 #: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
 #: minutes: ask for them by name; ros2 needs the ROS venv)
