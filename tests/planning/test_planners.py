@@ -8,7 +8,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from armwarden.guard.planning import plan_and_check
 from armwarden.planning.planners import Planner, PoseTarget
+from armwarden.preflight import RuntimeModel
 from armwarden.robot import RobotModel
 from armwarden.safety.violations import Code
 from tests.helpers import DOWN, READY
@@ -130,3 +132,24 @@ def test_a_cartesian_step_the_ik_misses_from_the_previous_solution_is_retried_fr
     steps = np.max(np.abs(np.diff(outcome.trajectory.positions, axis=0)), axis=1)
     assert np.all(steps <= planner.settings.max_ik_jump_rad)
     assert np.linalg.norm(robot.tcp_pose(outcome.trajectory.goal).position - [0.0047, -0.0385, 0.4925]) < 1e-3
+
+
+#: a line the arm can follow with joint 6 on its lower limit the whole way (the hand held close
+#: to the forearm), which IK stepping used to refuse ("did not converge": clipping a step that
+#: leans on a limit leaves most of the error in place)
+ALONG_A_LIMIT = (np.array([-0.098, -0.591, -0.083, -2.377, -0.146, 0.63, 0.965]), np.array([0.16, -0.056, 0.537]))
+
+
+def test_a_clear_cartesian_line_along_a_joint_limit_is_followed(runtime: RuntimeModel) -> None:
+    start, goal = ALONG_A_LIMIT
+    outcome, report = plan_and_check(runtime, "cartesian", start, {"waypoints": [PoseTarget(goal)]})
+    assert outcome.trajectory is not None, outcome.violations
+    assert report is not None and not report.hard, report.hard
+    robot = runtime.robot
+    assert np.min(outcome.trajectory.positions[:, 5]) <= robot.lower[5] + 1e-3  # it does lean on joint 6's limit
+    begin = robot.tcp_pose(start).position
+    direction = (goal - begin) / np.linalg.norm(goal - begin)
+    for q in outcome.trajectory.positions:
+        p = robot.tcp_pose(q).position - begin
+        assert np.linalg.norm(p - np.dot(p, direction) * direction) < 1e-3
+    np.testing.assert_allclose(robot.tcp_pose(outcome.trajectory.goal).position, goal, atol=1e-4)

@@ -182,9 +182,10 @@ class Planner:
 
     def _cartesian_step(self, position: np.ndarray, rotation: np.ndarray, q: np.ndarray, q_before: np.ndarray) -> IkResult:
         """IK for the next Cartesian step from the previous step's solution; when that lands on
-        another branch (a joint jump), retry from other seeds on the same branch before the caller
-        reports the flip: the previous solution extrapolated one step, and a step half as long
-        first. The first solution within `max_ik_jump_rad` of `q` wins (else the first try's)."""
+        another branch (a joint jump) or does not converge, retry before the caller reports it:
+        from the previous solution extrapolated one step, through a step half as long first,
+        then with the joints that rest on a limit taken out of the step (`_solve_at_limits`).
+        The first solution within `max_ik_jump_rad` of `q` wins (else the first try's)."""
         limit = self.settings.max_ik_jump_rad
         first = self.ik.solve_from(position, rotation, q)
         if first.success and float(np.max(np.abs(first.q - q))) <= limit:
@@ -199,7 +200,43 @@ class Planner:
             retried = self.ik.solve_from(position, rotation, halfway.q)
             if retried.success and float(np.max(np.abs(retried.q - q))) <= limit:
                 return retried
+        at_limits = self._solve_at_limits(position, rotation, q)
+        if at_limits.success and float(np.max(np.abs(at_limits.q - q))) <= limit:
+            return at_limits
         return first
+
+    def _solve_at_limits(self, position: np.ndarray, rotation: np.ndarray, q: np.ndarray) -> IkResult:
+        """IK from `q` by damped least squares with every joint that rests on a limit and would be
+        pushed past it taken out of the step (its Jacobian column zeroed, the step solved again)
+        instead of the step being clipped there. Clipping a step that leans on a limit leaves most
+        of its error in place, so the solver `IkSolver` uses crawls (a hand held low often has
+        joint 6 at its lower limit, and a 5 mm Cartesian step then does not converge in 200
+        iterations although the arm can follow the line with its other joints); with the joint
+        out of the step the others take the motion at once. The same tolerances and limits."""
+        robot, opts = self.robot, self.ik.options
+        lower, upper = robot.lower + opts.limit_margin_rad, robot.upper - opts.limit_margin_rad
+        damping = opts.damping * np.eye(6)
+        q = np.minimum(np.maximum(np.asarray(q, dtype=float), lower), upper)
+        pos_err = ori_err = float("inf")
+        for iteration in range(1, opts.max_iterations + 1):
+            current_position, current_rotation, jac = robot.tcp_pose_and_jacobian(q)
+            err = np.concatenate([position - current_position, pin.log3(rotation @ current_rotation.T)])
+            pos_err, ori_err = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+            if pos_err < opts.position_tolerance_m and ori_err < opts.orientation_tolerance_rad:
+                return IkResult(True, q, pos_err, ori_err, iteration, "converged")
+            free = np.ones(len(q), dtype=bool)
+            while True:
+                masked = jac * free
+                dq = masked.T @ np.linalg.solve(masked @ masked.T + damping, err)
+                pushed = free & (((q <= lower) & (dq < 0.0)) | ((q >= upper) & (dq > 0.0)))
+                if not pushed.any():
+                    break
+                free &= ~pushed
+            largest = float(np.abs(dq).max())
+            if largest > opts.max_step_rad:
+                dq *= opts.max_step_rad / largest
+            q = np.minimum(np.maximum(q + dq, lower), upper)
+        return IkResult(False, q, pos_err, ori_err, opts.max_iterations, "did not converge")
 
     def plan_cartesian_path(
         self,
