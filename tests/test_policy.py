@@ -188,6 +188,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_sections("robot"),
     *_names("robot.name"),
     *[("robot.description", v, "robot.description") for v in ("", 5, None, "builtin:", "builtin:two words", " a.urdf")],
+    *[("robot.collision_geometry", v, "robot.collision_geometry") for v in ("", 5, None, "builtin:", " a.yaml")],
     *_names("robot.base_frame"),
     *_names("robot.tcp_frame"),
     *_name_lists("robot.joint_names"),
@@ -220,6 +221,10 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_vectors(f"{KEEP_OUT}.max"),
     (f"{KEEP_OUT}.max", [0.7, 0.65, 45.0], f"{KEEP_OUT}.max[2]"),
     *_floats("workspace.link_padding_m", -0.01),
+    ("workspace.padding_by_link_m", {"fr3_hand": -0.01}, "workspace.padding_by_link_m.fr3_hand"),
+    ("workspace.padding_by_link_m", {"fr3_hand": 0.6}, "workspace.padding_by_link_m.fr3_hand"),
+    ("workspace.padding_by_link_m", {"fr3_hand": "1"}, "workspace.padding_by_link_m.fr3_hand"),
+    ("workspace.padding_by_link_m", [0.01], "workspace.padding_by_link_m"),
     *_name_lists("workspace.check_links", nullable=True),
     ("workspace.check_links", [], "workspace.check_links"),  # would silently check no link
     *_bools("workspace.self_collision"),

@@ -20,7 +20,8 @@ from armwarden.policy import apply_overrides, bundled_policy
 from tests.helpers import CLI, REPO, child_env
 
 ARM_LINKS = [f"fr3_link{i}" for i in range(1, 8)]
-MOVING_WITH_GEOMETRY = [*ARM_LINKS, "fr3_hand"]  # fingers: no collision geometry of their own in the bundled URDF
+FINGERS = ["fr3_leftfinger", "fr3_rightfinger"]
+MOVING_WITH_GEOMETRY = [*ARM_LINKS, "fr3_hand", *FINGERS]  # the fitted capsules (robot.collision_geometry)
 
 
 def _policy_file(tmp_path: Path, overrides: dict[str, Any]) -> Path:
@@ -45,8 +46,8 @@ def _errors_at(output: str, yaml_path: str) -> list[str]:
     ("check_links", "unchecked"),
     [
         (["fr3_link0"], MOVING_WITH_GEOMETRY),  # fixed to the base: no moving body checked
-        (["fr3_leftfinger"], MOVING_WITH_GEOMETRY),  # moves, but carries no collision geometry
-        (ARM_LINKS, ["fr3_hand"]),  # the hand left out
+        (["fr3_leftfinger"], [*ARM_LINKS, "fr3_hand", "fr3_rightfinger"]),  # one finger only
+        ([*ARM_LINKS, *FINGERS], ["fr3_hand"]),  # the hand left out
         (["fr3_link0", *MOVING_WITH_GEOMETRY[1:]], ["fr3_link1"]),
     ],
 )
@@ -67,7 +68,7 @@ def test_check_links_naming_every_moving_body_is_accepted(
     code, output = _check_policy(tmp_path, {"workspace.check_links": ["fr3_link0", *MOVING_WITH_GEOMETRY]}, capsys)
 
     assert code == 0, output
-    assert "Robot model: 11 collision capsules on 8 links" in output
+    assert "Robot model: 59 collision capsules on 11 links" in output
 
 
 # ------------------------------------------------------------------ robot.tcp_frame

@@ -152,6 +152,8 @@ def envelope_model(policy: Policy, robot: RobotModel, registered_tools: list[str
         workspace_box={"min": list(ws.box.min), "max": list(ws.box.max)},
         keep_out=[{"name": z.name, "min": list(z.min), "max": list(z.max)} for z in ws.keep_out],
         link_padding_m=ws.link_padding_m,
+        padding_by_link_m=dict(ws.padding_by_link_m),
+        collision_geometry="urdf" if robot.fitted is None else f"fitted ({robot.fitted.robot}, {len(robot.capsules)} capsules)",
         checked_links=sorted({c.link for c in robot.capsules}),
         self_collision=ws.self_collision,
         motion=p.motion.model_dump(),

@@ -37,7 +37,10 @@ def load_runtime_model(policy: Policy, source: str = "<policy>") -> RuntimeModel
         robot = build_robot(policy)
     except RobotModelError as exc:
         raise PolicyError(source, [(_path_for(str(exc)), str(exc))]) from exc
-    envelope = Envelope(robot, EnvelopeLimits.from_policy(policy))
+    try:
+        envelope = Envelope(robot, EnvelopeLimits.from_policy(policy))
+    except RobotModelError as exc:
+        raise PolicyError(source, [(_path_for(str(exc)), str(exc))]) from exc
     home = np.array(policy.robot.home_joint_positions, dtype=float)
     report = envelope.check(JointTrajectory(robot.joint_names, np.array([0.0, 1.0]), np.vstack([home, home])))
     problems = [
@@ -54,6 +57,10 @@ def _path_for(message: str) -> str:
     """Best YAML path for a robot-model error message."""
     if "check_links" in message:
         return "workspace.check_links"
+    if "padding_by_link_m" in message:
+        return "workspace.padding_by_link_m"
+    if "collision geometry" in message or "pair analysis" in message:
+        return "robot.collision_geometry"
     if message.startswith("base frame"):  # before "joint": these messages list or name joints too
         return "robot.base_frame"
     if message.startswith("TCP frame"):

@@ -211,6 +211,8 @@ class EnvelopeModel(_Result):
     workspace_box: dict[str, list[float]]
     keep_out: list[dict]
     link_padding_m: float
+    padding_by_link_m: dict[str, float] = {}
+    collision_geometry: str = "urdf"
     checked_links: list[str]
     self_collision: bool
     motion: dict[str, float | None]

@@ -13,6 +13,12 @@ from tests.helpers import READY
 JOINTS = [f"fr3_joint{i}" for i in range(1, 8)]
 
 
+@pytest.fixture(scope="module")
+def urdf_robot() -> RobotModel:
+    """The bundled FR3 with the URDF's own collision primitives (`collision_geometry: urdf`)."""
+    return RobotModel.from_description("builtin:fr3", JOINTS, "fr3_link0", "fr3_hand_tcp", collision_geometry="urdf")
+
+
 def test_ready_pose_flange_and_tcp_match_the_published_golden_vectors(robot: RobotModel) -> None:
     flange = robot.frame_pose(READY, "fr3_link8").position
     tcp = robot.tcp_pose(READY)
@@ -32,13 +38,14 @@ def test_zero_configuration_is_outside_the_fr3_limits_on_joints_4_and_6(robot: R
     assert outside == ["fr3_joint4", "fr3_joint6"]
 
 
-def test_every_moving_link_carries_at_least_one_capsule(robot: RobotModel) -> None:
+def test_every_link_with_collision_geometry_carries_capsules(robot: RobotModel) -> None:
     links = {c.link for c in robot.capsules}
-    assert links == {f"fr3_link{i}" for i in range(1, 8)} | {"fr3_hand"}
+    assert links == {f"fr3_link{i}" for i in range(8)} | {"fr3_hand", "fr3_leftfinger", "fr3_rightfinger"}
     assert all(c.radius_m > 0.0 for c in robot.capsules)
 
 
-def test_batched_body_points_agree_with_pinocchio_geometry_placements(robot: RobotModel) -> None:
+def test_batched_body_points_agree_with_pinocchio_geometry_placements(urdf_robot: RobotModel) -> None:
+    robot = urdf_robot
     rng = np.random.default_rng(3)
     qs = rng.uniform(robot.lower, robot.upper, size=(20, 7))
     p0, p1 = robot.body_points(robot.joint_frames(qs))

@@ -157,7 +157,7 @@ def test_hand_clipping_the_table_plane_is_a_workspace_violation(envelope: Envelo
     outcome = planner.plan_to_pose(READY, PoseTarget(np.array([0.4, 0.0, 0.005]), DOWN))
     report = envelope.check(outcome.trajectory)
     workspace_bodies = {v.body for v in report.violations if v.code is Code.WORKSPACE}
-    assert any(b.startswith("fr3_hand") for b in workspace_bodies)
+    assert workspace_bodies & {"fr3_hand", "fr3_leftfinger", "fr3_rightfinger"}
 
 
 def test_tcp_target_inside_a_keep_out_zone_is_refused(envelope: Envelope, planner: Planner) -> None:
@@ -335,7 +335,9 @@ def test_check_path_first_only_gives_the_full_checks_verdict(seed: int, envelope
     first = [v for v in checked.check_path(path, first_only=True) if v.is_hard]
     full = [v for v in checked.check_path(path) if v.is_hard]
     assert bool(first) == bool(full)
-    assert not first or first[0] in full  # what it reports is one of the full check's findings
+    # what it reports is one of the full check's findings (the full check may date it earlier: it
+    # samples more densely around a configuration that violates by itself, a search need not)
+    assert not first or (first[0].code, first[0].body) in {(v.code, v.body) for v in full}
 
 
 @settings(max_examples=60, **FUZZ)

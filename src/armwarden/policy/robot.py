@@ -62,6 +62,22 @@ class JointLimits(BaseModel):
             yield ("min",), f"min ({self.min:g}) must be less than max ({self.max:g})"
 
 
+def _builtin_or_path(what: str, value: str, info: ValidationInfo) -> str:
+    """`builtin:<name>` as given, or the path resolved against the policy file's folder."""
+    if value.startswith(BUILTIN_PREFIX):
+        key = value[len(BUILTIN_PREFIX):]
+        if not key or not all(c.isalnum() or c in "_-" for c in key):
+            raise ValueError(f"built-in {what} must look like `builtin:<name>` (got {value!r})")
+        return value
+    if value != value.strip():
+        raise ValueError(f"{what} path has leading/trailing whitespace: {value!r}")
+    path = Path(value).expanduser()
+    base_dir = (info.context or {}).get("base_dir")
+    if not path.is_absolute() and base_dir is not None:
+        path = (Path(base_dir) / path).resolve()
+    return str(path)
+
+
 class RobotConfig(BaseModel):
     """The arm: which description to load, its frames, the joints ArmWarden drives and their limits."""
 
@@ -74,6 +90,18 @@ class RobotConfig(BaseModel):
         description=(
             "Robot description (no unit): `builtin:<name>` (e.g. `builtin:fr3`) or a path to a URDF file; "
             "a relative path is resolved against the folder of the policy file."
+        ),
+    )
+    collision_geometry: str = Field(
+        default="auto",
+        strict=True,
+        min_length=1,
+        description=(
+            "Collision bodies the envelope checks (no unit): `auto` (the default: the capsules fitted to the "
+            "manufacturer's collision meshes that ship with a built-in description, else the URDF's own collision "
+            "primitives), `urdf` (one capsule around each URDF collision primitive), `builtin:<name>` (a bundled "
+            "fitted file, e.g. `builtin:fr3`) or a path to a fitted-geometry file written by "
+            "scripts/fit_geometry.py (relative paths resolve against the policy file's folder)."
         ),
     )
     base_frame: Name = Field(description="Frame (no unit) every position in the policy and the tools is expressed in.")
@@ -102,18 +130,15 @@ class RobotConfig(BaseModel):
         Resolving here (rather than against the daemon's working directory at start-up) means the
         same policy file loads the same robot wherever the daemon is started from.
         """
-        if value.startswith(BUILTIN_PREFIX):
-            key = value[len(BUILTIN_PREFIX):]
-            if not key or not all(c.isalnum() or c in "_-" for c in key):
-                raise ValueError(f"built-in description must look like `builtin:<name>` (got {value!r})")
+        return _builtin_or_path("description", value, info)
+
+    @field_validator("collision_geometry")
+    @classmethod
+    def _resolve_collision_geometry(cls, value: str, info: ValidationInfo) -> str:
+        """Keywords and built-ins pass through; a relative path resolves against the policy's folder."""
+        if value in ("auto", "urdf"):
             return value
-        if value != value.strip():
-            raise ValueError(f"description path has leading/trailing whitespace: {value!r}")
-        path = Path(value).expanduser()
-        base_dir = (info.context or {}).get("base_dir")
-        if not path.is_absolute() and base_dir is not None:
-            path = (Path(base_dir) / path).resolve()
-        return str(path)
+        return _builtin_or_path("collision geometry", value, info)
 
     @model_validator(mode="after")
     def _rules(self) -> RobotConfig:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Annotated
 
-from pydantic import AfterValidator, BaseModel, Field, model_validator
+from pydantic import AfterValidator, BaseModel, Field, WrapSerializer, model_validator
 
 from armwarden.policy.fields import (
     MODEL_CONFIG,
+    FrozenMap,
     Name,
     StrictBool,
     UniqueNames,
@@ -18,8 +19,14 @@ from armwarden.policy.fields import (
     check_min_below_max,
     enforce,
     finite,
+    freeze_map,
     not_empty,
+    serialize_map,
 )
+
+#: the largest padding a link may be given [m]: more is a unit mistake (millimetres typed as metres)
+MAX_PADDING_M = 0.5
+Padding = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0, le=MAX_PADDING_M)]
 
 
 class Box(BaseModel):
@@ -52,7 +59,14 @@ class KeepOutZone(BaseModel):
 
 
 class WorkspaceConfig(BaseModel):
-    """Where the arm may be: inside `box`, outside every `keep_out` zone, links padded."""
+    """Where the arm may be: inside `box`, outside every `keep_out` zone, links padded.
+
+    Padding: every collision body of a link is grown by `link_padding_m`, or by that link's entry
+    in `padding_by_link_m`, for the workspace and keep-out checks (self-collision compares the
+    bodies unpadded: they already hold the manufacturer's meshes with a margin). The bundled FR3
+    policy pads the arm links and the hand by 1 cm and the fingers by 2 mm: a top-down grasp puts
+    the fingertips about 4 mm above the table with the TCP 2 cm above it, and the fingers' capsules
+    hold Franka's finger collision boxes at every opening width with at least 1 mm to spare."""
 
     model_config = MODEL_CONFIG
 
@@ -62,6 +76,14 @@ class WorkspaceConfig(BaseModel):
     )
     link_padding_m: float = finite(
         ge=0, default=0.01, description="Padding [m] added to every link's collision geometry."
+    )
+    padding_by_link_m: Annotated[
+        Mapping[Name, Padding], AfterValidator(freeze_map), WrapSerializer(serialize_map)
+    ] = Field(
+        default_factory=FrozenMap,
+        description="Padding [m] per link that replaces `link_padding_m` for that link's collision bodies (e.g. "
+        "less on the fingers, which must come close to the table for a grasp); each in [0, 0.5]. A name that is "
+        "not a link of the robot is refused at start-up.",
     )
     check_links: Annotated[UniqueNames, AfterValidator(not_empty)] | None = Field(
         default=None,

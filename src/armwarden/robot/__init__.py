@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from armwarden.errors import RobotModelError
+from armwarden.robot.fitted_bodies import require_limits_within
 from armwarden.robot.model import Pose, RobotModel, resolve_description
 
 __all__ = ["Pose", "RobotModel", "build_robot", "resolve_description"]
@@ -23,6 +24,7 @@ def build_robot(policy) -> RobotModel:
         robot_cfg.base_frame,
         robot_cfg.tcp_frame,
         check_links=policy.workspace.check_links,
+        collision_geometry=robot_cfg.collision_geometry,
     )
     robot.require_tcp_beyond_last_joint()
     lower = np.array(robot_cfg.lower_limits)
@@ -34,4 +36,6 @@ def build_robot(policy) -> RobotModel:
                 f"policy limits of {name} [{lo}, {hi}] exceed the description's [{urdf_lo}, {urdf_hi}]"
             )
     robot.set_position_limits(lower, upper)
+    if robot.fitted is not None:  # its pair proofs hold over the limits it was analysed for only
+        require_limits_within(robot.fitted, dict(zip(robot_cfg.joint_names, zip(lower, upper, strict=True), strict=True)))
     return robot

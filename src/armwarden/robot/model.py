@@ -20,9 +20,16 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 
 from armwarden.errors import RobotModelError
 from armwarden.robot.capsules import Capsule, capsule_from_geometry
+from armwarden.robot.fitted_bodies import fitted_capsules, fitted_pairs
+from armwarden.robot.fitting import FittedGeometry, FittingError, load_fitted
 
 BUILTIN_PREFIX = "builtin:"
 BUILTIN_DESCRIPTIONS = {"fr3": "fr3.urdf"}
+#: collision capsules fitted to the manufacturer's meshes, per built-in description
+BUILTIN_FITTED = {"fr3": "fr3_fitted.yaml"}
+#: `robot.collision_geometry` values that are not a file
+COLLISION_AUTO = "auto"
+COLLISION_URDF = "urdf"
 
 
 def resolve_description(description: str) -> Path:
@@ -39,6 +46,37 @@ def resolve_description(description: str) -> Path:
     if not path.is_file():
         raise RobotModelError(f"robot description {description!r} is not a readable file")
     return path
+
+
+def resolve_collision_geometry(collision_geometry: str, description: str) -> FittedGeometry | None:
+    """The fitted collision geometry `robot.collision_geometry` names, or None for the URDF's own
+    collision primitives (each turned into one capsule).
+
+    `auto`: the fitted file bundled with a built-in description, else the URDF's primitives;
+    `urdf`: the URDF's primitives; `builtin:<name>`: a bundled fitted file; else a file path."""
+    if collision_geometry == COLLISION_URDF:
+        return None
+    if collision_geometry == COLLISION_AUTO:
+        key = description[len(BUILTIN_PREFIX):] if description.startswith(BUILTIN_PREFIX) else None
+        if key not in BUILTIN_FITTED:
+            return None
+        collision_geometry = BUILTIN_PREFIX + key
+    if collision_geometry.startswith(BUILTIN_PREFIX):
+        key = collision_geometry[len(BUILTIN_PREFIX):]
+        if key not in BUILTIN_FITTED:
+            raise RobotModelError(
+                f"unknown built-in collision geometry {collision_geometry!r}; available: "
+                f"{', '.join(BUILTIN_PREFIX + k for k in sorted(BUILTIN_FITTED))}, {COLLISION_AUTO}, {COLLISION_URDF}"
+            )
+        path = Path(str(resources.files("armwarden.robot") / "description" / BUILTIN_FITTED[key]))
+    else:
+        path = Path(collision_geometry).expanduser()
+        if not path.is_file():
+            raise RobotModelError(f"collision geometry {collision_geometry!r} is not a readable file")
+    try:
+        return load_fitted(path)
+    except FittingError as exc:
+        raise RobotModelError(str(exc)) from exc
 
 
 @dataclass(frozen=True)
@@ -67,6 +105,7 @@ class RobotModel:
         tcp_frame: str,
         locked_positions: dict[str, float] | None = None,
         check_links: Sequence[str] | None = None,
+        fitted: FittedGeometry | None = None,
     ) -> None:
         try:
             full_model = pin.buildModelFromUrdf(str(urdf_path))
@@ -117,7 +156,15 @@ class RobotModel:
         self._tcp_joint = int(tcp.parentJoint)
         self._tcp_in_joint = tcp.placement.translation.copy()
 
-        self.capsules = self._extract_capsules(check_links)
+        self.fitted = fitted
+        if fitted is None:
+            candidates = self._urdf_capsules()
+        else:
+            candidates = fitted_capsules(full_model, self.model, fitted, reference)
+        self.capsules = self._checked_capsules(candidates, check_links)
+        self.self_collision_pairs = (
+            fitted_pairs(self.capsules, fitted) if fitted is not None else self._neighbour_rule_pairs()
+        )
         self._build_batch_tables()
 
     def set_position_limits(self, lower: np.ndarray, upper: np.ndarray) -> None:
@@ -136,8 +183,11 @@ class RobotModel:
         base_frame: str,
         tcp_frame: str,
         check_links: Sequence[str] | None = None,
+        collision_geometry: str = COLLISION_AUTO,
     ) -> RobotModel:
-        return cls(resolve_description(description), joint_names, base_frame, tcp_frame, check_links=check_links)
+        fitted = resolve_collision_geometry(collision_geometry, description)
+        return cls(resolve_description(description), joint_names, base_frame, tcp_frame, check_links=check_links,
+                   fitted=fitted)
 
     def frame_id(self, frame: str) -> int:
         if not self.model.existFrame(frame):
@@ -196,26 +246,15 @@ class RobotModel:
             return None
         return world_from_base.inverse()
 
-    def _extract_capsules(self, check_links: Sequence[str] | None) -> tuple[Capsule, ...]:
-        link_names = set(self.link_names())
-        if check_links is not None:
-            unknown = [name for name in check_links if name not in link_names]
-            if unknown:
-                raise RobotModelError(f"unknown link(s) in check_links {unknown}; valid links: {sorted(link_names)}")
-            self._refuse_unchecked_moving_links(set(check_links))
-        wanted = None if check_links is None else set(check_links)
+    def _urdf_capsules(self) -> tuple[Capsule, ...]:
+        """One capsule around each collision primitive of the description (`capsule_from_geometry`)."""
         capsules = []
         for obj in self.geometry.geometryObjects:
-            link = self.model.frames[obj.parentFrame].name
-            if wanted is not None and link not in wanted:
-                continue
-            if obj.parentJoint == 0:
-                continue  # fixed to the world: it cannot move, so no motion can violate with it
             p0, p1, radius = capsule_from_geometry(obj)
             capsules.append(
                 Capsule(
                     name=obj.name,
-                    link=link,
+                    link=self.model.frames[obj.parentFrame].name,
                     joint_index=int(obj.parentJoint),
                     p0_m=(float(p0[0]), float(p0[1]), float(p0[2])),
                     p1_m=(float(p1[0]), float(p1[1]), float(p1[2])),
@@ -224,22 +263,17 @@ class RobotModel:
             )
         return tuple(capsules)
 
-    def moving_links_with_geometry(self) -> list[str]:
-        """Links that move with a driven joint and carry collision geometry, in description order:
-        the bodies the envelope must check (a link fixed to the world, or one without geometry,
-        adds nothing to check)."""
-        links: list[str] = []
-        for obj in self.geometry.geometryObjects:
-            link = self.model.frames[obj.parentFrame].name
-            if obj.parentJoint != 0 and link not in links:
-                links.append(link)
-        return links
-
-    def _refuse_unchecked_moving_links(self, check_links: set[str]) -> None:
-        """A `check_links` that leaves out a moving body switches the workspace, keep-out and
-        self-collision checks off for it without a word (`[fr3_link0]` checked nothing at all).
-        There is no opt-out: every moving body with collision geometry is checked."""
-        moving = self.moving_links_with_geometry()
+    def _checked_capsules(self, candidates: Sequence[Capsule], check_links: Sequence[str] | None) -> tuple[Capsule, ...]:
+        """The capsules of `check_links` (every one when None), after refusing a list that leaves a
+        moving body out. Bodies fixed to the world (joint 0) stay: nothing moves them into a zone,
+        so only the self-collision check looks at them — the arm must not fold into its own base."""
+        link_names = set(self.link_names())
+        if check_links is None:
+            return tuple(candidates)
+        unknown = [name for name in check_links if name not in link_names]
+        if unknown:
+            raise RobotModelError(f"unknown link(s) in check_links {unknown}; valid links: {sorted(link_names)}")
+        moving = _moving_links(candidates)
         unchecked = [link for link in moving if link not in check_links]
         if unchecked:
             raise RobotModelError(
@@ -247,6 +281,25 @@ class RobotModel:
                 f"the workspace, keep-out and self-collision checks would not see them. Name every one of {moving} "
                 "(links fixed to the base may be added), or use null for every moving link"
             )
+        wanted = set(check_links)
+        return tuple(c for c in candidates if c.link in wanted)
+
+    def moving_links_with_geometry(self) -> list[str]:
+        """Links that move with a driven joint and carry collision capsules, in description order:
+        the bodies the workspace and keep-out checks look at."""
+        return _moving_links(self.capsules)
+
+    def _neighbour_rule_pairs(self) -> np.ndarray:
+        """Self-collision pairs for capsules taken from the URDF (no pair analysis): every pair
+        whose joints are at least two apart (neighbours touch at their joint by design)."""
+        capsules = self.capsules
+        pairs = [
+            (a, b)
+            for a in range(len(capsules))
+            for b in range(a + 1, len(capsules))
+            if abs(capsules[a].joint_index - capsules[b].joint_index) >= 2
+        ]
+        return np.array(pairs, dtype=np.intp).reshape(-1, 2)
 
     def _build_batch_tables(self) -> None:
         """Index tables so a batch of configurations maps to capsule end points in a few numpy ops."""
@@ -380,3 +433,12 @@ class RobotModel:
         world = through_all[:, self._point_slot, :, self._point_index].transpose(1, 0, 2)  # (N, P, 3)
         n_bodies = len(self.capsules) + 1
         return world[:, :n_bodies], world[:, n_bodies:]
+
+
+def _moving_links(capsules: Sequence[Capsule]) -> list[str]:
+    """Links of `capsules` that a driven joint moves (not fixed to the world), first-seen order."""
+    links: list[str] = []
+    for capsule in capsules:
+        if capsule.joint_index != 0 and capsule.link not in links:
+            links.append(capsule.link)
+    return links

@@ -22,18 +22,21 @@ nothing can slip through a zone between samples, however thin the zone or fast t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from armwarden.errors import RobotModelError
 from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.model import Pose, RobotModel
 from armwarden.safety import geometry, waypoints
 from armwarden.safety.violations import Code, Violation
 from armwarden.safety.waypoints import ACCELERATION_TOLERANCE, estimate_accelerations, estimate_velocities
 
-#: the first geometry pass samples this many times more sparsely (bodies inflated to match)
-COARSE_FACTOR = 4.0
+#: sample spacings of the geometry passes, in units of one sweep resolution: the first pass, then
+#: each denser pass around what the one before flagged (bodies inflated to match each spacing)
+REFINEMENT = (4.0, 1.0, 0.25, 0.0625)
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,8 @@ class EnvelopeLimits:
     workspace: Box
     keep_out: tuple[Box, ...] = ()
     link_padding_m: float = 0.0
+    #: per link, replaces `link_padding_m` for that link's bodies [m]
+    padding_by_link_m: Mapping[str, float] = field(default_factory=dict)
     self_collision: bool = True
 
     @classmethod
@@ -91,6 +96,7 @@ class EnvelopeLimits:
             workspace=Box.of("workspace", ws.box.min, ws.box.max),
             keep_out=tuple(Box.of(z.name, z.min, z.max) for z in ws.keep_out),
             link_padding_m=ws.link_padding_m,
+            padding_by_link_m=dict(ws.padding_by_link_m),
             self_collision=ws.self_collision,
         )
 
@@ -120,10 +126,17 @@ class Envelope:
     def __init__(self, robot: RobotModel, limits: EnvelopeLimits) -> None:
         self.robot = robot
         self.limits = limits
-        self._body_names = [f"{c.link}" + (f"#{c.name}" if _link_has_many(robot, c.link) else "") for c in robot.capsules]
+        self._body_names = [_body_name(robot, c) for c in robot.capsules]
         self._body_names.append(robot.tcp_frame)  # the TCP point is the last body (zero radius, no padding)
-        self._padded_radii = np.concatenate([robot.capsule_radii + limits.link_padding_m, [0.0]])
-        self._pairs = self._self_collision_pairs() if limits.self_collision else np.zeros((0, 2), dtype=np.intp)
+        unknown = sorted(set(limits.padding_by_link_m) - set(robot.link_names()))
+        if unknown:
+            raise RobotModelError(f"padding_by_link_m names unknown link(s) {unknown}; valid links: {sorted(robot.link_names())}")
+        padding = [limits.padding_by_link_m.get(c.link, limits.link_padding_m) for c in robot.capsules]
+        self._padded_radii = np.concatenate([robot.capsule_radii + np.array(padding, dtype=float), [0.0]])
+        # bodies fixed to the world (the base) cannot move into a zone or out of the box: only
+        # self-collision looks at them (the TCP point, last, always moves with the arm)
+        self._moving = np.array([c.joint_index != 0 for c in robot.capsules] + [True])
+        self._pairs = robot.self_collision_pairs if limits.self_collision else np.zeros((0, 2), dtype=np.intp)
         self._pair_radii = robot.capsule_radii[self._pairs[:, 0]] + robot.capsule_radii[self._pairs[:, 1]]
         self._pair_reach = self._relative_reach()
         half_lengths = np.array([np.linalg.norm(np.subtract(c.p1_m, c.p0_m)) / 2.0 for c in robot.capsules])
@@ -137,17 +150,6 @@ class Envelope:
             self._ko_lo = self._ko_hi = np.zeros((0, 3))
 
     # ------------------------------------------------------------------ set-up
-    def _self_collision_pairs(self) -> np.ndarray:
-        """Capsule pairs that can meet: not on the same or neighbouring joints (those touch by design)."""
-        capsules = self.robot.capsules
-        pairs = [
-            (a, b)
-            for a in range(len(capsules))
-            for b in range(a + 1, len(capsules))
-            if abs(capsules[a].joint_index - capsules[b].joint_index) >= 2
-        ]
-        return np.array(pairs, dtype=np.intp).reshape(-1, 2)
-
     def _relative_reach(self) -> np.ndarray:
         """`(n, P)`: bound on how far the distal capsule of each pair moves *relative to the other*
         per unit motion of each joint. Only the joints between the two capsules move one relative
@@ -314,28 +316,55 @@ class Envelope:
 
     def _check_geometry(self, times: np.ndarray, positions: np.ndarray,
                         first_only: bool = False) -> tuple[list[Violation], float, Pose, int]:
-        """Coarse to fine: a pass at `COARSE_FACTOR` times the sweep resolution (bodies inflated
-        accordingly, so a clean pass is as much a proof as a fine one); where it finds anything,
-        the path around those samples is checked again at full resolution, and only fine
-        findings are reported. Plans far from every zone cost a fraction of a fine pass."""
+        """Coarse to fine: a pass with samples `REFINEMENT[0]` units apart (bodies inflated by
+        half the motion bound of their intervals, so a clean pass is as much a proof as a denser
+        one); where a pass finds anything, the path around those samples is checked again with
+        samples the next spacing apart, and so on; only the densest level's findings are reported.
+        Plans far from every zone cost a fraction of one fine pass, and a body that passes a few
+        millimetres from a surface (fingers over the table) is not refused for the sweep
+        allowance of a sparse sampling: the allowance shrinks with the spacing where it matters."""
         path = self._path_parameter(times, positions)
-        coarse = _unit_targets(0.0, path.total, COARSE_FACTOR)
-        samples = self._samples_at(path, coarse)
+        targets = _unit_targets(0.0, path.total, REFINEMENT[0])
+        samples = self._samples_at(path, targets)
         found, flagged, tcp = self._geometry_pass(samples)
         checked = len(samples.times)
         if np.any(flagged):
-            found = {}
-            for start, end in _merged_ranges(coarse, np.flatnonzero(flagged)):
-                fine_samples = self._samples_at(path, _unit_targets(start, end))
-                fine, _, _ = self._geometry_pass(fine_samples)
-                checked += len(fine_samples.times)
-                for key, violation in fine.items():
-                    if key not in found or violation.time_s < found[key].time_s:
-                        found[key] = violation
-                if first_only and found:
-                    break
+            found, checked_densely = self._refine(path, targets, samples, flagged, 1, first_only)
+            checked += checked_densely
         tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
         return _in_time_order(found), tcp_length, self.robot.tcp_pose(positions[-1]), checked
+
+    def _refine(self, path: _PathParameter, targets: np.ndarray, samples: _Samples, flagged: np.ndarray, level: int,
+                first_only: bool) -> tuple[dict[tuple[str, str, str], Violation], int]:
+        """Findings around the flagged samples of a pass at `REFINEMENT[level - 1]`.
+
+        A flagged sample whose configuration violates by itself (without any sweep allowance) is
+        a finding as it stands: no sampling could clear it. Around the others — flagged only
+        because of their allowance — the path is checked again at `REFINEMENT[level]` and, where
+        that flags again, denser still (depth first, so a search's `first_only` stops at the
+        first finding). Only what the densest check of a stretch finds is reported."""
+        checked = 0
+        k = np.flatnonzero(flagged)
+        still = _Samples(samples.times[k], samples.positions[k], np.zeros_like(samples.inflation[k]),
+                         np.zeros_like(samples.pair_inflation[k]))
+        found, certain, _ = self._geometry_pass(still)
+        checked += len(k)
+        if first_only and found:
+            return found, checked
+        for start, end in _merged_ranges(targets, k[~certain]):
+            dense_targets = _unit_targets(start, end, REFINEMENT[level])
+            dense = self._samples_at(path, dense_targets)
+            dense_found, dense_flagged, _ = self._geometry_pass(dense)
+            checked += len(dense.times)
+            if level + 1 < len(REFINEMENT) and np.any(dense_flagged):
+                dense_found, deeper = self._refine(path, dense_targets, dense, dense_flagged, level + 1, first_only)
+                checked += deeper
+            for key, violation in dense_found.items():
+                if key not in found or _earlier(violation, found[key]):
+                    found[key] = violation
+            if first_only and found:
+                break
+        return found, checked
 
     def _geometry_pass(self, samples: _Samples) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
         """One check of consecutive samples. Returns the first violation per (code, body, what),
@@ -353,13 +382,14 @@ class Envelope:
         lo, hi = geometry.capsule_bounds(p0, p1, radius)
 
         # workspace: every capsule and the TCP entirely inside the box (exact for capsules)
-        outside = ~geometry.bounds_inside(lo, hi, self._ws_lo, self._ws_hi)
+        outside = ~geometry.bounds_inside(lo, hi, self._ws_lo, self._ws_hi) & self._moving
         flagged |= np.any(outside, axis=1)
         self._first_per_body(found, outside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
 
         # keep-out: bounds that overlap a zone are confirmed exactly (capsule–box distance)
         if len(lim.keep_out):
             overlap = np.all(lo[:, :, None] <= self._ko_hi, axis=-1) & np.all(hi[:, :, None] >= self._ko_lo, axis=-1)
+            overlap &= self._moving[None, :, None]
             if len(tcp) > 1:  # the TCP's straight segments between samples, too
                 r_tcp = radius[1:, -1, None]
                 seg_lo = np.minimum(tcp[:-1], tcp[1:]) - r_tcp
@@ -480,6 +510,10 @@ def _unit_targets(start: float, end: float, spacing: float = 1.0) -> np.ndarray:
     return np.linspace(start, end, n_intervals + 1)
 
 
+def _earlier(a: Violation, b: Violation) -> bool:
+    return (a.time_s if a.time_s is not None else 0.0) < (b.time_s if b.time_s is not None else 0.0)
+
+
 def _merged_ranges(targets: np.ndarray, flagged: np.ndarray) -> list[tuple[float, float]]:
     """Path ranges [target[k-1], target[k+1]] around every flagged sample k, overlaps merged."""
     ranges: list[tuple[float, float]] = []
@@ -492,8 +526,15 @@ def _merged_ranges(targets: np.ndarray, flagged: np.ndarray) -> list[tuple[float
     return ranges
 
 
-def _link_has_many(robot: RobotModel, link: str) -> bool:
-    return sum(1 for c in robot.capsules if c.link == link) > 1
+def _body_name(robot: RobotModel, capsule) -> str:
+    """How findings name a body: its link, or `link#capsule` when the link has several primitives
+    from the URDF. Fitted bodies (`link/k`) are named by their link: they are pieces of one
+    surface, and a finding per link (its first) is what a person reads."""
+    if capsule.name.startswith(f"{capsule.link}/"):
+        return capsule.link
+    if sum(1 for c in robot.capsules if c.link == capsule.link) > 1:
+        return f"{capsule.link}#{capsule.name}"
+    return capsule.link
 
 
 def _fmt(p: np.ndarray) -> str:
@@ -502,7 +543,7 @@ def _fmt(p: np.ndarray) -> str:
 
 __all__ = [  # with the per-waypoint estimates, which the planner's timing verifies against too
     "ACCELERATION_TOLERANCE",
-    "COARSE_FACTOR",
+    "REFINEMENT",
     "Box",
     "Envelope",
     "EnvelopeLimits",
