@@ -21,10 +21,13 @@ from pydantic import ValidationError
 
 from armwarden.backends.base import Backend
 from armwarden.backends.mujoco.backend import HOLD_ACCURACY_RAD, Config, MujocoBackend, ObjectConfig, create_backend
+from armwarden.backends.mujoco.model import build_model, scene_for_policy
 from armwarden.errors import BackendError
 from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy
 from armwarden.robot import build_robot
+from armwarden.robot.ik import IkSolver
+from armwarden.robot.model import resolve_description
 from tests.backends.contract import BackendContract, straight_line
 from tests.helpers import run_opened
 
@@ -204,15 +207,23 @@ def test_widths_forces_and_speeds_out_of_range_are_refused():
     assert state is not None and state.width_m == pytest.approx(0.08, abs=1e-6)
 
 
+def hand_down_at(position, seed: np.ndarray) -> np.ndarray:
+    """The arm with its TCP at `position` [m], the hand pointing down."""
+    solution = IkSolver(ROBOT).solve(np.asarray(position, dtype=float), np.diag([1.0, -1.0, -1.0]), [seed])
+    assert solution.success, solution.message
+    return solution.q
+
+
 @pytest.mark.parametrize("stop_after_grasp", [False, True], ids=["grasped", "grasped then stopped"])
 def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts(stop_after_grasp):
     home = np.asarray(POLICY.robot.home_joint_positions, dtype=float)
-    tcp = ROBOT.tcp_pose(home).position
-    table_z = float(tcp[2]) - 0.04  # the fingertips 4 cm above the table, the box between the fingers
-    box = ObjectConfig(name="box", shape="box", position_m=(float(tcp[0]), float(tcp[1]), table_z + 0.035),
-                       size_m=(0.03, 0.03, 0.07), mass_kg=0.2)
-    q_up = home + np.array([0.0, 0.0, 0.0, 0.15, 0.0, -0.15, 0.0])  # the TCP rises 5.6 cm
-    rise_m = float(ROBOT.tcp_pose(q_up).position[2] - tcp[2])
+    table_z = float(POLICY.workspace.box.min[2])  # the cell's table; a table at home height would cut the shoulder
+    # the arm starts hand down, its TCP 4 cm above the table, the box between the open fingers
+    q_grasp = hand_down_at((0.45, 0.0, table_z + 0.04), home)
+    box = ObjectConfig(name="box", shape="box", position_m=(0.45, 0.0, table_z + 0.035), size_m=(0.03, 0.03, 0.07),
+                       mass_kg=0.2)
+    q_up = hand_down_at((0.45, 0.0, table_z + 0.04 + 0.056), q_grasp)  # the TCP rises 5.6 cm
+    rise_m = float(ROBOT.tcp_pose(q_up).position[2] - ROBOT.tcp_pose(q_grasp).position[2])
 
     async def scenario(backend: MujocoBackend):
         box_id = backend.cell.model.body("box").id
@@ -227,7 +238,12 @@ def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts(st
         squeeze_n = -float(backend._data.actuator_force[backend.cell.gripper_actuator])
         return grasp, lifted, float(backend._data.xpos[box_id][2]) - z_before, squeeze_n
 
-    grasp, lifted, box_rise_m, squeeze_n = run_with_backend(scenario, speedup=2.0, table_top_z_m=table_z, objects=[box.model_dump()])
+    def build_at_grasp() -> MujocoBackend:
+        scene = scene_for_policy(POLICY, objects=(box.spec(),))
+        cell = build_model(resolve_description(POLICY.robot.description), ROBOT, scene)
+        return MujocoBackend(ROBOT, cell, q_grasp, speedup=2.0, start_tolerance_rad=POLICY.motion.start_tolerance_rad)
+
+    grasp, lifted, box_rise_m, squeeze_n = run_opened(build_at_grasp, scenario)
     assert grasp.success and grasp.is_grasped and grasp.width_m == pytest.approx(0.03, abs=5e-3)
     assert lifted.completed
     assert box_rise_m > 0.8 * rise_m  # it came along (no weld: contact and friction only)

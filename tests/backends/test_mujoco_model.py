@@ -1,6 +1,7 @@
 """The MuJoCo model of the cell: built from the same URDF as the Pinocchio model, and it must not
-drift from it — the same kinematics, the envelope's capsules as collision geometry, and the parts
-the backend will drive (actuators, gripper, flange sensor, cameras, table)."""
+drift from it — the same kinematics, the envelope's bodies as collision geometry (the fitted
+capsules of the bundled FR3, or the URDF's primitives without them), and the parts the backend
+will drive (actuators, gripper, flange sensor, cameras, table)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,9 @@ from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importor
 from armwarden.policy import load_policy  # noqa: E402
 from armwarden.policy.loading import bundled_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402
+from armwarden.robot.ik import IkSolver  # noqa: E402
 from armwarden.robot.model import RobotModel, resolve_description  # noqa: E402
+from armwarden.safety.envelope import Envelope, EnvelopeLimits  # noqa: E402
 
 ARM = tuple(f"fr3_joint{i}" for i in range(1, 8))
 FINGERS = ("fr3_finger_joint1", "fr3_finger_joint2")
@@ -47,6 +50,20 @@ def robot(policy) -> RobotModel:
 @pytest.fixture(scope="module")
 def cell(policy, robot) -> MujocoModel:
     return build_model(resolve_description(policy.robot.description), robot, scene_for_policy(policy))
+
+
+@pytest.fixture(scope="module")
+def urdf_robot(policy) -> RobotModel:
+    """The bundled FR3 with the URDF's own collision primitives instead of the fitted capsules."""
+    robot = RobotModel.from_description(policy.robot.description, policy.robot.joint_names, policy.robot.base_frame,
+                                        policy.robot.tcp_frame, collision_geometry="urdf")
+    robot.set_position_limits(np.array(policy.robot.lower_limits), np.array(policy.robot.upper_limits))
+    return robot
+
+
+@pytest.fixture(scope="module")
+def urdf_cell(policy, urdf_robot) -> MujocoModel:
+    return build_model(resolve_description(policy.robot.description), urdf_robot, scene_for_policy(policy))
 
 
 @pytest.fixture(scope="module")
@@ -106,8 +123,8 @@ def capsule_ends_in_body_frame(model, geom_id: int) -> tuple[np.ndarray, np.ndar
     return center - axis, center + axis
 
 
-def test_every_envelope_capsule_is_a_geom_with_its_radius_and_end_points(cell, robot):
-    model = cell.model
+def test_without_fitted_geometry_every_envelope_capsule_is_a_geom_with_its_radius_and_end_points(urdf_cell, urdf_robot):
+    model, robot = urdf_cell.model, urdf_robot
     for capsule in robot.capsules:
         geom = model.geom(ENVELOPE_PREFIX + capsule.name)
         assert model.body(int(geom.bodyid[0])).name == capsule.link
@@ -121,8 +138,9 @@ def test_every_envelope_capsule_is_a_geom_with_its_radius_and_end_points(cell, r
         assert np.abs(np.array(ends) - np.array(expected)).max() < 1e-9, capsule.name
 
 
-def test_the_robot_collides_only_through_envelope_capsules_and_finger_pads(cell):
-    model = cell.model
+@pytest.mark.parametrize("which", ["fitted", "urdf"])
+def test_the_robot_collides_only_through_envelope_capsules_and_finger_pads(which, cell, urdf_cell):
+    model = (cell if which == "fitted" else urdf_cell).model
     robot_body_ids = set(range(2, model.nbody))  # 0 is the world, 1 the base welded to it
     colliding = [model.geom(i).name for i in range(model.ngeom)
                  if model.geom_bodyid[i] in robot_body_ids and (model.geom_contype[i] or model.geom_conaffinity[i])]
@@ -130,14 +148,15 @@ def test_the_robot_collides_only_through_envelope_capsules_and_finger_pads(cell)
     assert all(name.startswith((ENVELOPE_PREFIX, "pad/")) for name in colliding)
 
 
-def test_only_the_finger_sweep_capsule_is_left_out_of_contacts(cell):
-    model = cell.model
+def test_without_fitted_geometry_only_the_finger_sweep_capsule_is_left_out_of_contacts(urdf_cell):
+    model = urdf_cell.model
     silent = [model.geom(i).name for i in range(model.ngeom)
               if model.geom(i).name.startswith(ENVELOPE_PREFIX) and not model.geom_contype[i]]
     assert silent == [ENVELOPE_PREFIX + "fr3_hand_1"]  # the fingers capsule of the bundled URDF
 
 
-def test_the_finger_pads_stay_inside_the_finger_sweep_capsule_at_every_opening(cell):
+def test_without_fitted_geometry_the_finger_pads_stay_inside_the_finger_sweep_capsule_at_every_opening(urdf_cell):
+    cell = urdf_cell
     model = cell.model
     sweep = model.geom(ENVELOPE_PREFIX + "fr3_hand_1")
     for width in np.linspace(0.0, 0.08, 9):
@@ -153,6 +172,111 @@ def test_the_finger_pads_stay_inside_the_finger_sweep_capsule_at_every_opening(c
             for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3):
                 corner = pad.xpos + pad_rotation @ (signs * half)
                 assert capsule_contains(a, b, float(sweep.size[0]), corner), (width, finger, signs)
+
+
+def test_every_fitted_body_is_a_capsule_geom_on_its_link_in_the_link_frame(cell, robot):
+    model = cell.model
+    assert robot.fitted is not None
+    for link, fit in robot.fitted.links.items():
+        for body in fit.bodies:
+            geom = model.geom(ENVELOPE_PREFIX + body.name)
+            assert model.body(int(geom.bodyid[0])).name == link
+            assert geom.type[0] == mujoco.mjtGeom.mjGEOM_CAPSULE
+            assert abs(geom.size[0] - body.radius_m) < 1e-9
+            ends = sorted(capsule_ends_in_body_frame(model, geom.id), key=tuple)
+            expected = sorted([np.array(body.p0_m), np.array(body.p1_m)], key=tuple)
+            assert np.abs(np.array(ends) - np.array(expected)).max() < 1e-9, body.name
+
+
+def is_collidable(model, geom_id: int) -> bool:
+    return bool(model.geom_contype[geom_id] or model.geom_conaffinity[geom_id])
+
+
+def robot_contact_geoms(model) -> list[int]:
+    """Geoms on the robot's bodies (the base welded to the world included) that take part in contacts."""
+    return [i for i in range(model.ngeom) if model.geom_bodyid[i] != 0 and is_collidable(model, i)]
+
+
+def geom_points(model, data, geom_id: int) -> tuple[list[np.ndarray], float]:
+    """Points and a radius whose swept ball is the geom (capsule: ends; sphere: centre; box: corners)."""
+    centre, rotation, size = data.geom_xpos[geom_id], data.geom_xmat[geom_id].reshape(3, 3), model.geom_size[geom_id]
+    kind = model.geom_type[geom_id]
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return [centre - rotation[:, 2] * size[1], centre + rotation[:, 2] * size[1]], float(size[0])
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return [centre], float(size[0])
+    assert kind == mujoco.mjtGeom.mjGEOM_BOX, model.geom(geom_id).name
+    corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3) * size
+    return [centre + rotation @ corner for corner in corners], 0.0
+
+
+def segment_distance(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    segment = b - a
+    t = float(np.clip((point - a) @ segment / (segment @ segment), 0.0, 1.0)) if segment @ segment > 0 else 0.0
+    return float(np.linalg.norm(point - (a + t * segment)))
+
+
+def test_every_contact_geom_of_the_robot_lies_inside_an_envelope_body_of_its_link(cell, robot, random_configurations):
+    """Capsules, spheres and boxes are convex: ends (corners) inside one envelope capsule, grown
+    by nothing but shrunk by the geom's own radius, put all of the geom inside it."""
+    model = cell.model
+    links = np.array([capsule.link for capsule in robot.capsules])
+    geoms = robot_contact_geoms(model)
+    for q in random_configurations:  # the fingers anywhere in their travel: the envelope sweeps them
+        data = mujoco_poses(cell, q)
+        p0, p1 = robot.body_points(robot.joint_frames(q[None, :len(ARM)]))
+        for geom in geoms:
+            points, radius = geom_points(model, data, geom)
+            own = np.flatnonzero(links == model.body(int(model.geom_bodyid[geom])).name)
+            inside = [all(segment_distance(point, p0[0, k], p1[0, k]) <= robot.capsule_radii[k] - radius + 1e-9
+                          for point in points) for k in own]
+            assert any(inside), (model.geom(geom).name, q)
+
+
+def test_a_top_down_grasp_with_joint_6_near_3_rad_makes_no_self_contact(cell, robot, policy):
+    """The wrist folds (joint 6 above 2.8 rad) for every top-down grasp in front of the FR3; the
+    envelope allows it, so MuJoCo must not make link5 touch link7 there."""
+    home = np.array(policy.robot.home_joint_positions)
+    hand_down = np.diag([1.0, -1.0, -1.0])
+    solution = IkSolver(robot).solve(np.array([0.45, 0.0, 0.05]), hand_down, [home])
+    assert solution.success and solution.q[5] > 2.8
+    assert Envelope(robot, EnvelopeLimits.from_policy(policy)).check_path(solution.q) == ()
+    model = cell.model
+    robot_geoms = set(robot_contact_geoms(model))
+    for width in (0.0, 0.04, 0.08):
+        data = mujoco.MjData(model)
+        cell.set_arm_positions(data, solution.q)
+        data.qpos[cell.finger_qpos] = width / 2.0
+        mujoco.mj_forward(model, data)
+        self_contacts = [(model.geom(c.geom1).name, model.geom(c.geom2).name) for c in data.contact[:data.ncon]
+                         if c.geom1 in robot_geoms and c.geom2 in robot_geoms]
+        assert self_contacts == [], width
+
+
+def test_fitted_finger_capsules_that_reach_past_the_closing_plane_leave_contacts_to_pads_on_it(cell, robot):
+    """The fingers meet at the closing plane (the finger frames' origin, normal to their travel)
+    when closed; a capsule's rounding past it would grasp an object before the finger's real
+    face does. Such a capsule stays in the model without contacts, and a box inside it with one
+    face on the plane takes its contacts."""
+    model = cell.model
+    silent = sorted(model.geom(i).name for i in range(model.ngeom)
+                    if model.geom(i).name.startswith(ENVELOPE_PREFIX) and not is_collidable(model, i))
+    assert silent == [ENVELOPE_PREFIX + f"{finger}/{k}" for finger in ("fr3_leftfinger", "fr3_rightfinger")
+                      for k in (5, 6)]
+    for name in silent:
+        body = name[len(ENVELOPE_PREFIX):]
+        finger = body.split("/")[0]
+        axis = model.jnt_axis[model.body(finger).jntadr[0]]
+        pad = model.geom("pad/" + body)
+        capsule = model.geom(name)
+        assert model.body(int(pad.bodyid[0])).name == finger and is_collidable(model, pad.id)
+        rotation = np.zeros(9)
+        mujoco.mju_quat2Mat(rotation, pad.quat)
+        corners = [pad.pos + rotation.reshape(3, 3) @ (signs * pad.size)
+                   for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3)]
+        assert min(float(axis @ corner) for corner in corners) == pytest.approx(0.0, abs=1e-9)
+        a, b = capsule_ends_in_body_frame(model, capsule.id)
+        assert all(capsule_contains(a, b, float(capsule.size[0]), corner) for corner in corners)
 
 
 def test_the_arm_has_one_position_actuator_per_joint_limited_by_the_urdf_effort(cell):
@@ -263,4 +387,9 @@ def test_a_box_squeezed_between_the_finger_pads_is_held_by_friction_alone(policy
     for _ in range(1000):
         mujoco.mj_step(model, data)
     assert abs(data.body("box").xpos[2] - gripped_z) < 1e-4  # [m] it does not slip out
-    assert data.qpos[cell.finger_qpos].sum() > 0.035  # the pads press on the box, not through it
+    # the fingers press on the box's sides with their real inner faces (the plane they meet in when
+    # closed): the width is the box's less how far the soft contacts sink in on each side
+    box_geom = model.geom("box").id
+    depth = max(-c.dist for c in data.contact[:data.ncon] if box_geom in (c.geom1, c.geom2))
+    assert 0.0 < depth < 0.003
+    assert data.qpos[cell.finger_qpos].sum() + 2.0 * depth == pytest.approx(0.04, abs=5e-4)

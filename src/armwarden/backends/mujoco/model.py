@@ -3,13 +3,22 @@
 One description, two engines: MuJoCo imports the URDF for the kinematic tree and the inertias, and
 `mujoco.MjSpec` adds what a URDF lacks — actuators, the gripper coupling, the table, lights,
 cameras and the flange force/torque sensor. The URDF's own collision shapes are replaced by the
-capsules the safety envelope checks (`armwarden.robot.capsules`), so physical contacts happen
-where the envelope thinks the arm is. One exception, because a grasp needs it: the envelope
-covers the fingers with one capsule that spans every opening width; as a contact shape it would
-collide with any object between the fingers. That capsule stays in the model without contacts,
-and each finger gets a pad that lies inside it at every opening (tested), so every contact still
-happens inside the envelope. Nothing here reaches the network; meshes are not needed because the
-collision and visual geometry are all primitives.
+bodies the safety envelope checks, so physical contacts happen where the envelope thinks the arm
+is; every contact geom lies inside an envelope body of its link (tested):
+
+- With fitted geometry (`RobotModel.fitted`, the bundled FR3): the fitted capsules, each on its
+  own link's body in the link frame. The envelope sweeps a finger's capsules over the whole
+  opening; here they sit un-swept on the finger bodies, which move. A finger capsule that reaches
+  past the plane the fingers meet in when closed is fitting slack there (no real finger lies
+  beyond it), and an object between the fingers would meet that slack first and read too wide: it
+  stays without contacts, and a pad inside it with one face on that plane takes its contacts.
+- Without (the URDF's primitives, `robot.collision_geometry: urdf`): one capsule per primitive.
+  The envelope covers the fingers with one capsule that spans every opening width; as a contact
+  shape it would collide with any object between the fingers, so it stays without contacts and
+  each finger gets a pad that lies inside it at every opening (tested).
+
+Nothing here reaches the network; meshes are not needed because the collision and visual geometry
+are all primitives.
 
 Arm control: one position actuator per arm joint (force = kp·(ctrl − q) − kv·q̇), with joint torque
 limits from the URDF `effort`, gravity compensation counted against those limits, and gains sized
@@ -221,6 +230,8 @@ class _Builder:
         compiler.balanceinertia = True
         self.robot_bodies = [body.name for body in self.spec.bodies if body.name != "world"]
         self.world_from_base = self._world_from_base()
+        #: envelope body name -> the geom that makes its contacts (its own, or a finger pad inside it)
+        self.contact_geoms: dict[str, str] = {}
 
     def _world_from_base(self) -> pin.SE3:
         """Where the policy's base frame sits in the URDF root frame (MuJoCo's world)."""
@@ -234,25 +245,42 @@ class _Builder:
 
     # ------------------------------------------------------------------ robot
     def replace_collision_geometry(self) -> None:
-        """Drop the URDF's shapes; add one capsule geom per envelope capsule on its link's body."""
+        """Drop the URDF's shapes; add the envelope's bodies as geoms on their links' bodies: the
+        fitted capsules (`robot.fitted`, link frame) when the robot has them, else one capsule per
+        URDF collision primitive."""
         for geom in list(self.spec.geoms):
             self.spec.delete(geom)
+        fitted = self.robot.fitted
+        if fitted is not None:
+            for link, fit in fitted.links.items():
+                body = self._link_body(link)
+                for item in fit.bodies:
+                    self._add_capsule(body, item.name, np.asarray(item.p0_m, dtype=float),
+                                      np.asarray(item.p1_m, dtype=float), item.radius_m)
+            return
         model = self.robot.model
         for obj in self.robot.geometry.geometryObjects:
             p0, p1, radius = capsule_from_geometry(obj)
             link_frame = model.frames[obj.parentFrame]
             # the capsule's points are in its joint's frame; the MuJoCo body is the link's frame
             link_from_joint = link_frame.placement.inverse()
-            a, b = link_from_joint.act(p0), link_from_joint.act(p1)
-            body = self.spec.body(link_frame.name)
-            if body is None:
-                raise RobotModelError(f"MuJoCo has no body for link {link_frame.name!r}")
-            name = ENVELOPE_PREFIX + obj.name
-            if np.linalg.norm(b - a) < 1e-12:
-                body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=a, size=[radius, 0, 0])
-            else:
-                body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-                              fromto=[*a, *b], size=[radius, 0, 0])
+            self._add_capsule(self._link_body(link_frame.name), obj.name, link_from_joint.act(p0),
+                              link_from_joint.act(p1), radius)
+
+    def _link_body(self, link: str) -> mujoco.MjsBody:
+        body = self.spec.body(link)
+        if body is None:
+            raise RobotModelError(f"MuJoCo has no body for link {link!r}")
+        return body
+
+    def _add_capsule(self, body: mujoco.MjsBody, name: str, a: np.ndarray, b: np.ndarray, radius: float) -> None:
+        """The envelope body `name` as a contact geom (`ENVELOPE_PREFIX` + name) on `body`."""
+        self.contact_geoms[name] = ENVELOPE_PREFIX + name
+        if np.linalg.norm(b - a) < 1e-12:
+            body.add_geom(name=ENVELOPE_PREFIX + name, type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=a, size=[radius, 0, 0])
+        else:
+            body.add_geom(name=ENVELOPE_PREFIX + name, type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                          fromto=[*a, *b], size=[radius, 0, 0])
 
     def configure_arm(self) -> None:
         for name in self.robot.joint_names:
@@ -317,19 +345,92 @@ class _Builder:
         limit = self.scene.gripper_force_limit_n
         actuator.forcerange = [-limit, limit]
         actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        bodies = []
-        for name in fingers:
-            joint = self.spec.joint(name)
-            body = joint.parent
-            bodies.append(body.name)
-            axis = np.asarray(joint.axis, dtype=float)
-            # inner face on the finger's closing side, 8 mm thick outward, 24 mm tall around the TCP height
-            body.add_geom(name=f"pad/{body.name}", type=mujoco.mjtGeom.mjGEOM_BOX,
-                          pos=axis * PAD_HALF_SIZE_M[1] + np.array([0.0, 0.0, PAD_CENTER_Z_M]),
-                          size=list(PAD_HALF_SIZE_M), friction=[1.0, 0.02, 0.001], condim=4, **PAD_CONTACT,
-                          rgba=[0.2, 0.2, 0.2, 1.0])
+        bodies = [self.spec.joint(name).parent.name for name in fingers]
         self.spec.add_exclude(bodyname1=bodies[0], bodyname2=bodies[1])  # fingers meet when closed
-        self._disable_finger_envelope(bodies)
+        if self.robot.fitted is None:
+            for name in fingers:
+                joint = self.spec.joint(name)
+                axis = np.asarray(joint.axis, dtype=float)
+                # inner face on the finger's closing side, 8 mm thick outward, 24 mm tall around the TCP height
+                joint.parent.add_geom(name=f"pad/{joint.parent.name}", type=mujoco.mjtGeom.mjGEOM_BOX,
+                                      pos=axis * PAD_HALF_SIZE_M[1] + np.array([0.0, 0.0, PAD_CENTER_Z_M]),
+                                      size=list(PAD_HALF_SIZE_M), **PAD_GEOM)
+            self._disable_finger_envelope(bodies)
+        else:
+            for name in fingers:
+                self._pad_past_closing_plane(name, self._closing_plane_offset(fingers, name))
+
+    def _closing_plane_offset(self, fingers: list[str], finger: str) -> float:
+        """Where the fingers meet when closed, in `finger`'s frame: the plane axis·x = offset (axis:
+        its joint's, pointing away from the other finger), midway between both fingers' frames at
+        their lower limits. Refuses fingers that do not travel toward each other along one line."""
+        joints = [self.spec.joint(name) for name in fingers]
+        origins, directions = [], []
+        for joint in joints:
+            body = joint.parent
+            rotation = np.zeros(9)
+            mujoco.mju_quat2Mat(rotation, np.asarray(body.quat, dtype=float))
+            direction = rotation.reshape(3, 3) @ np.asarray(joint.axis, dtype=float)
+            direction /= np.linalg.norm(direction)
+            directions.append(direction)
+            origins.append(np.asarray(body.pos, dtype=float) + direction * float(joint.range[0]))
+        if float(directions[0] @ directions[1]) > -1.0 + 1e-9:
+            raise RobotModelError(f"the fingers {fingers} do not travel along one line in opposite directions; "
+                                  "the MuJoCo backend cannot place their grasp surfaces")
+        mid = (origins[0] + origins[1]) / 2.0
+        index = fingers.index(finger)
+        joint = joints[index]
+        return float(directions[index] @ (mid - np.asarray(joint.parent.pos, dtype=float))) - float(joint.range[0])
+
+    def _pad_past_closing_plane(self, finger: str, offset: float) -> None:
+        """The fitted capsules of `finger` that reach past the closing plane leave their contacts
+        to a pad: nothing of a real finger lies past that plane (the fingers meet there when
+        closed), so a capsule's rounding beyond it is fitting slack, and an object between the
+        fingers would meet that slack before the finger's real face — the width would read too
+        wide by the slack on each side. Such a capsule stays (hidden, contact-free) and its pad is
+        the box inside it with one face on the plane: centred on its segment, as thick as twice the
+        segment's distance c from the plane, and as wide and as far past each end of the segment
+        as the rest of the radius allows, equally (sqrt((r² − c²)/2), less 10 µm). The box's
+        corners lie inside the capsule, so the pad lies inside the envelope's finger body."""
+        joint = self.spec.joint(finger)
+        body = joint.parent
+        axis = np.asarray(joint.axis, dtype=float)
+        axis /= np.linalg.norm(axis)
+        for geom in list(body.geoms):
+            if not geom.name.startswith(ENVELOPE_PREFIX):
+                continue
+            radius = float(geom.size[0])
+            if geom.type == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                a, b = np.asarray(geom.fromto[:3], dtype=float), np.asarray(geom.fromto[3:], dtype=float)
+            else:
+                a = b = np.asarray(geom.pos, dtype=float)
+            distances = (float(axis @ a) - offset, float(axis @ b) - offset)
+            if min(distances) >= radius:
+                continue  # wholly on the finger's own side of the plane
+            if abs(distances[0] - distances[1]) > 1e-9 or distances[0] <= 0.0:
+                raise RobotModelError(
+                    f"fitted finger body {geom.name[len(ENVELOPE_PREFIX):]!r} reaches past the plane the fingers "
+                    "meet in, and its segment is not parallel to that plane on the finger's own side; the MuJoCo "
+                    "backend cannot put a grasp surface on the plane inside it"
+                )
+            depth = distances[0]
+            side = float(np.sqrt((radius**2 - depth**2) / 2.0)) - PAD_INSET_M
+            segment = b - a
+            half_length = float(np.linalg.norm(segment)) / 2.0
+            along = segment / (2.0 * half_length) if half_length > 0.0 else _perpendicular(axis)
+            across = np.cross(axis, along)
+            centre = (a + b) / 2.0
+            # the box's frame: x along the segment, y across it, z along the finger's travel
+            rotation = np.column_stack([along, across, axis])
+            quat = np.zeros(4)
+            mujoco.mju_mat2Quat(quat, rotation.reshape(-1))
+            name = geom.name[len(ENVELOPE_PREFIX):]
+            body.add_geom(name=f"pad/{name}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=centre, quat=quat,
+                          size=[half_length + side, side, depth], **PAD_GEOM)
+            self.contact_geoms[name] = f"pad/{name}"
+            geom.contype = 0
+            geom.conaffinity = 0
+            geom.group = HIDDEN_GROUP
 
     def _disable_finger_envelope(self, finger_bodies: list[str]) -> None:
         """Envelope capsules on the fingers' parent that contain both pads at every opening cover the
@@ -450,6 +551,17 @@ PAD_CENTER_Z_M = 0.0416
 #: stiff pad contacts (time constant 4 ms = 4 physics steps, critically damped; hard impedance):
 #: MuJoCo's default, 20 ms, lets a 70 N grasp sink the pads millimetres into the object
 PAD_CONTACT: dict[str, Any] = {"solref": [0.004, 1.0], "solimp": [0.95, 0.99, 0.001, 0.5, 2.0]}
+#: everything a finger pad geom gets besides its placement: grip friction, torsional friction, stiff contacts
+PAD_GEOM: dict[str, Any] = {"friction": [1.0, 0.02, 0.001], "condim": 4, **PAD_CONTACT, "rgba": [0.2, 0.2, 0.2, 1.0]}
+#: a pad inscribed in a fitted finger capsule stays this far inside its surface [m]
+PAD_INSET_M = 1e-5
+
+
+def _perpendicular(vector: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to `vector` (unit)."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(vector[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    side = np.cross(vector, helper)
+    return side / np.linalg.norm(side)
 
 
 def finger_pad_corners(spec: mujoco.MjSpec, finger_bodies: list[str]) -> list[np.ndarray]:
