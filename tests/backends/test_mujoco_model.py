@@ -1,9 +1,13 @@
 """The MuJoCo model of the cell: built from the same URDF as the Pinocchio model, and it must not
 drift from it — the same kinematics, the envelope's bodies as collision geometry (the fitted
-capsules of the bundled FR3, or the URDF's primitives without them), and the parts the backend
-will drive (actuators, gripper, flange sensor, cameras, table)."""
+capsules of the bundled FR3, or the URDF's primitives without them), self-contacts only where the
+envelope looks, and the parts the backend will drive (actuators, gripper, flange sensor, cameras,
+table)."""
 
 from __future__ import annotations
+
+import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -28,6 +32,7 @@ from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importor
 from armwarden.policy import load_policy  # noqa: E402
 from armwarden.policy.loading import bundled_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402
+from armwarden.robot.fitting import ExcludedPair  # noqa: E402
 from armwarden.robot.ik import IkSolver  # noqa: E402
 from armwarden.robot.model import RobotModel, resolve_description  # noqa: E402
 from armwarden.safety.envelope import Envelope, EnvelopeLimits  # noqa: E402
@@ -231,6 +236,61 @@ def test_every_contact_geom_of_the_robot_lies_inside_an_envelope_body_of_its_lin
             inside = [all(segment_distance(point, p0[0, k], p1[0, k]) <= robot.capsule_radii[k] - radius + 1e-9
                           for point in points) for k in own]
             assert any(inside), (model.geom(geom).name, q)
+
+
+def robot_self_contact_pairs(model) -> set[frozenset[str]]:
+    """Envelope body pairs (by name) whose contact geoms MuJoCo brings into contact, asked of MuJoCo
+    itself: with every contact margin overridden to 10 m, each geom pair that passes its filters
+    (contype/conaffinity, same or parent body, excludes; explicit pairs) is in contact anywhere."""
+    probe = copy.deepcopy(model)
+    probe.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_OVERRIDE
+    probe.opt.o_margin = 10.0
+    data = mujoco.MjData(probe)
+    mujoco.mj_forward(probe, data)
+    assert data.warning[mujoco.mjtWarning.mjWARN_CONTACTFULL].number == 0
+    robot_geoms = set(robot_contact_geoms(probe))
+    # geoms are named envelope/<body> or pad/<body>: a pad stands in for the body it lies in
+    return {frozenset(probe.geom(g).name.split("/", 1)[1] for g in (contact.geom1, contact.geom2))
+            for contact in data.contact[:data.ncon]
+            if contact.geom1 in robot_geoms and contact.geom2 in robot_geoms}
+
+
+def envelope_pairs(robot: RobotModel) -> set[frozenset[str]]:
+    return {frozenset((robot.capsules[a].name, robot.capsules[b].name)) for a, b in robot.self_collision_pairs}
+
+
+def test_mujoco_makes_contacts_between_every_body_pair_the_envelope_checks(cell, robot):
+    assert envelope_pairs(robot) <= robot_self_contact_pairs(cell.model)
+
+
+def test_every_self_contact_mujoco_can_make_is_one_the_envelope_checks_or_one_proved_never_to_happen(cell, robot):
+    apart = {frozenset(pair.bodies) for pair in robot.fitted.excluded_pairs if pair.reason == "apart"}
+    unchecked = robot_self_contact_pairs(cell.model) - envelope_pairs(robot)
+    assert unchecked <= apart, sorted(sorted(pair) for pair in unchecked - apart)[:10]
+
+
+def test_a_link_pair_with_bodies_in_contact_by_construction_is_excluded_and_keeps_the_pairs_the_envelope_checks(policy):
+    """MuJoCo excludes whole body pairs: where one link pair holds both a pair in contact by
+    construction and pairs the envelope checks, the checked ones stay in contact as explicit pairs."""
+    fitted = build_robot(policy).fitted
+    assert fitted is not None
+    bodies = ("fr3_link5/0", "fr3_link7/0")  # pretend these always overlap
+    touching = frozenset(bodies)
+    fitted = dataclasses.replace(
+        fitted,
+        included_pairs=tuple(pair for pair in fitted.included_pairs if frozenset(pair) != touching),
+        excluded_pairs=(*fitted.excluded_pairs, ExcludedPair(bodies, "overlapping", "a test")),
+    )
+    robot_cfg = policy.robot
+    robot = RobotModel(resolve_description(robot_cfg.description), robot_cfg.joint_names, robot_cfg.base_frame,
+                       robot_cfg.tcp_frame, fitted=fitted)
+    checked = envelope_pairs(robot)
+    assert touching not in checked
+    assert any({name.split("/")[0] for name in pair} == {"fr3_link5", "fr3_link7"} for pair in checked)
+    contacts = robot_self_contact_pairs(build_model(resolve_description(robot_cfg.description), robot,
+                                                    scene_for_policy(policy)).model)
+    assert touching not in contacts
+    assert checked <= contacts
 
 
 def test_a_top_down_grasp_with_joint_6_near_3_rad_makes_no_self_contact(cell, robot, policy):

@@ -12,6 +12,9 @@ is; every contact geom lies inside an envelope body of its link (tested):
   past the plane the fingers meet in when closed is fitting slack there (no real finger lies
   beyond it), and an object between the fingers would meet that slack first and read too wide: it
   stays without contacts, and a pad inside it with one face on that plane takes its contacts.
+  Self-contacts: parent and child are excluded, and so are link pairs the pair analysis shows in
+  contact by construction; every pair the envelope checks on an excluded link pair is restored as
+  an explicit pair (`_Builder.exclude_links_in_contact`).
 - Without (the URDF's primitives, `robot.collision_geometry: urdf`): one capsule per primitive.
   The envelope covers the fingers with one capsule that spans every opening width; as a contact
   shape it would collide with any object between the fingers, so it stays without contacts and
@@ -295,6 +298,52 @@ class _Builder:
             # base): adjacent links' capsules overlap at the joint by design, so exclude them all
             if body.parent is not None and body.parent.name in self.robot_bodies:
                 self.spec.add_exclude(bodyname1=body.parent.name, bodyname2=name)
+
+    def exclude_links_in_contact(self) -> None:
+        """With fitted geometry: no contacts between links that the pair analysis shows in contact
+        by construction, and contacts for every body pair the envelope checks.
+
+        MuJoCo excludes whole body pairs, the analysis judges capsule pairs. A link pair gets an
+        exclude (besides parent and child, excluded in `configure_arm`) when one of its capsule
+        pairs is `overlapping` (always touching within the analysed limits) or `adjacent` (touching
+        at the joint between them): MuJoCo would otherwise report a contact in every
+        configuration, which the envelope rightly ignores. The other capsule pairs of an excluded
+        link pair lose their contacts too; that is sound only for pairs the envelope does not
+        check either (proved `apart`, or on one driven joint). Every pair the envelope does check
+        on a link pair MuJoCo filters (by an exclude, or by its own parent-child rule between weld
+        bodies) is restored as an explicit contact pair, which no exclude filters (and MuJoCo
+        never counts twice). So the sim's self-contacts are the envelope's checked pairs plus
+        pairs proved never to touch."""
+        fitted = self.robot.fitted
+        if fitted is None:
+            return
+        link_of = {item.name: link for link, fit in fitted.links.items() for item in fit.bodies}
+        excluded = {frozenset((exclude.bodyname1, exclude.bodyname2)) for exclude in self.spec.excludes}
+        for pair in fitted.excluded_pairs:
+            links = frozenset(link_of[name] for name in pair.bodies)
+            if pair.reason in ("overlapping", "adjacent") and len(links) == 2 and links not in excluded:
+                first, second = sorted(links)
+                self.spec.add_exclude(bodyname1=first, bodyname2=second)
+                excluded.add(links)
+        capsules = self.robot.capsules
+        for a, b in self.robot.self_collision_pairs:
+            first, second = capsules[a], capsules[b]
+            if frozenset((first.link, second.link)) in excluded or self._welds_are_parent_and_child(first.link, second.link):
+                self.spec.add_pair(geomname1=self.contact_geoms[first.name], geomname2=self.contact_geoms[second.name])
+
+    def _weld(self, body: mujoco.MjsBody) -> mujoco.MjsBody:
+        """The body MuJoCo welds `body` to: itself if it has a joint, else its parent's weld."""
+        while not body.joints and body.parent is not None and body.name != "world":
+            body = body.parent
+        return body
+
+    def _welds_are_parent_and_child(self, link_a: str, link_b: str) -> bool:
+        """Whether MuJoCo's own parent-child filter (on weld bodies) may drop contacts between the links."""
+        weld_a, weld_b = self._weld(self._link_body(link_a)), self._weld(self._link_body(link_b))
+        parent_a = self._weld(weld_a.parent) if weld_a.parent is not None else None
+        parent_b = self._weld(weld_b.parent) if weld_b.parent is not None else None
+        return (parent_b is not None and parent_b.name == weld_a.name) or \
+            (parent_a is not None and parent_a.name == weld_b.name)
 
     def arm_efforts(self) -> list[float]:
         efforts = []
@@ -615,6 +664,7 @@ def build_model(urdf_path: Path, robot: RobotModel, scene: SceneSpec, *, gains: 
     fingers = builder.finger_joints()
     if fingers:
         builder.add_gripper(fingers)
+    builder.exclude_links_in_contact()
     flange_body = builder.add_flange_sensor()
     builder.add_cell()
     builder.set_options()
