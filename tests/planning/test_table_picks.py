@@ -194,10 +194,6 @@ def test_every_path_sent_to_the_fake_is_clear_of_table_and_zones_in_franka_meshe
 # ------------------------------------------------------------------ a subset on MuJoCo
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "MuJoCo's contact shapes are still the URDF's capsules (backends/mujoco/model.py replace_collision_geometry "
-    "reads robot.geometry), not the fitted ones the envelope checks: fr3_link5's and fr3_link7's interpenetrate "
-    "11-19 mm at the grasp configurations, and the descents end in FORCE_LIMIT or short of the goal"))
 def test_mujoco_picks_at_least_95_percent_of_the_reachable_cells_of_the_subset(mujoco_grid, reachable) -> None:
     fraction, missed = picked_fraction(mujoco_grid, reachable)
     assert fraction >= GOAL, f"picked {fraction:.1%} of the reachable cells; missed:\n" + "\n".join(missed)
