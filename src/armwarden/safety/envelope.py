@@ -6,9 +6,11 @@ human needs to judge the motion. The checks (docs/architecture.md, "Where each l
 - per waypoint, without kinematics (`safety.waypoints`): malformed input, joint limits (exact
   between waypoints, since the path is linear in joint space), near-limit margin, joint travel,
   peak velocity and acceleration from the waypoint timing;
-- geometry, with Pinocchio FK at conservatively chosen samples: every checked link's capsule
-  (padded) inside the workspace box and out of every keep-out box, the TCP likewise (its
-  segments between samples too), and capsule pairs apart (self-collision).
+- geometry, with forward kinematics at conservatively chosen samples: every checked link's
+  capsule (padded) inside the workspace box and out of every keep-out box, the TCP likewise (its
+  segments between samples too), and capsule pairs apart (self-collision). By default the
+  geometry runs compiled (`safety.geometry_kernel`: the same samples and findings); the numpy
+  passes below (`compiled=False`) are its test oracle.
 
 **Why the sampling is a guarantee.** Moving joint i by Δq_i moves any point of body b by at most
 |Δq_i| · reach[i, b] (`RobotModel.reach`), so along the path every point of b moves at most
@@ -29,8 +31,9 @@ import numpy as np
 
 from armwarden.errors import RobotModelError
 from armwarden.planning.trajectory import JointTrajectory
+from armwarden.robot.batch_fk import KinematicChain
 from armwarden.robot.model import Pose, RobotModel
-from armwarden.safety import geometry, waypoints
+from armwarden.safety import geometry, geometry_kernel, waypoints
 from armwarden.safety.violations import Code, Violation
 from armwarden.safety.waypoints import ACCELERATION_TOLERANCE, estimate_accelerations, estimate_velocities
 
@@ -121,9 +124,13 @@ class EnvelopeReport:
 
 
 class Envelope:
-    """Checks trajectories against the limits for one robot model. Not thread safe (shares Pinocchio data)."""
+    """Checks trajectories against the limits for one robot model. Not thread safe (shares Pinocchio data).
 
-    def __init__(self, robot: RobotModel, limits: EnvelopeLimits) -> None:
+    `compiled` (the default): the geometry runs in the numba kernels of `safety.geometry_kernel`
+    — the same samples, predicates and findings as the numpy passes here, ~100× faster. False:
+    the numpy passes, the kernels' test oracle (tests/safety/test_geometry_kernel.py)."""
+
+    def __init__(self, robot: RobotModel, limits: EnvelopeLimits, *, compiled: bool = True) -> None:
         self.robot = robot
         self.limits = limits
         self._body_names = [_body_name(robot, c) for c in robot.capsules]
@@ -148,8 +155,50 @@ class Envelope:
             self._ko_hi = np.stack([z.hi for z in limits.keep_out])
         else:
             self._ko_lo = self._ko_hi = np.zeros((0, 3))
+        self._kernel = self._kernel_tables() if compiled else None
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the geometry runs in the compiled kernels (else in the numpy passes)."""
+        return self._kernel is not None
 
     # ------------------------------------------------------------------ set-up
+    def _kernel_tables(self) -> geometry_kernel.Tables:
+        """What the kernels need of this envelope: the chain of joints (the robot's own Pinocchio
+        model, in the base frame), every body on its joint, the radii, pairs, reaches and boxes."""
+        robot, lim = self.robot, self.limits
+        model = robot.model
+        base = model.frames[robot.frame_id(robot.base_frame)]
+        chain = KinematicChain.from_model(model, [], None if base.placement.isIdentity() else base.placement.inverse())
+        tcp = model.frames[robot.frame_id(robot.tcp_frame)]
+        tcp_point = np.asarray(tcp.placement.translation, dtype=float)[None]
+        capsules = robot.capsules
+        return geometry_kernel.Tables.build(
+            chain=chain,
+            body_joint=[c.joint_index for c in capsules] + [int(tcp.parentJoint)],
+            body_p0=np.vstack([np.array([c.p0_m for c in capsules], dtype=float).reshape(-1, 3), tcp_point]),
+            body_p1=np.vstack([np.array([c.p1_m for c in capsules], dtype=float).reshape(-1, 3), tcp_point]),
+            body_group=[c.link for c in capsules] + [robot.tcp_frame],
+            body_name=self._body_names,
+            padded_radii=self._padded_radii,
+            moving=self._moving,
+            pairs=self._pairs,
+            pair_radii=self._pair_radii,
+            pair_sphere_reach=self._pair_sphere_reach,
+            reach=robot.reach,
+            pair_reach=self._pair_reach,
+            workspace_lo=self._ws_lo,
+            workspace_hi=self._ws_hi,
+            keep_out_lo=self._ko_lo,
+            keep_out_hi=self._ko_hi,
+            lower=lim.lower_rad,
+            upper=lim.upper_rad,
+            sweep_resolution_m=lim.sweep_resolution_m,
+            check_resolution_rad=lim.check_resolution_rad,
+            joint_limit_margin_rad=lim.joint_limit_margin_rad,
+            refinement=REFINEMENT,
+        )
+
     def _relative_reach(self) -> np.ndarray:
         """`(n, P)`: bound on how far the distal capsule of each pair moves *relative to the other*
         per unit motion of each joint. Only the joints between the two capsules move one relative
@@ -223,6 +272,10 @@ class Envelope:
         findings are then incomplete, never fewer than one when there is any).
         """
         positions = np.atleast_2d(np.asarray(positions, dtype=float))
+        if self._kernel is not None and positions.ndim == 2 and positions.shape[1] == self.robot.nq and len(positions):
+            found = self._check_path_compiled(geometry_kernel.kernel_array(positions), first_only)
+            if found is not None:
+                return found
         single = len(positions) == 1
         if single:
             positions = np.vstack([positions, positions])
@@ -236,11 +289,46 @@ class Envelope:
             geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
         return tuple(violations + geometric)
 
+    def _check_path_compiled(self, positions: np.ndarray, first_only: bool) -> tuple[Violation, ...] | None:
+        """`check_path` in the kernels (`positions` C-contiguous (K, n), K ≥ 1): the same findings,
+        the joint limits' built by `waypoints` only when the kernel saw one. None when a
+        configuration holds a non-finite value (the numpy check says what)."""
+        kernel = self._kernel
+        assert kernel is not None
+        hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+        single = len(positions) == 1
+        if single:  # one configuration does not move: one pass without sweep allowance
+            code = geometry_kernel.check_configuration(positions[0], 0.0, first_only, kernel.ints, kernel.floats, hits)
+            if code == geometry_kernel.NON_FINITE:
+                return None
+            status, count = code >> 32, code & 0xFFFFFFFF
+        else:
+            seg_bound = np.abs(np.diff(positions, axis=0)) @ self.robot.reach
+            status, count, _, _ = geometry_kernel.check_path(np.arange(len(positions), dtype=float), positions, seg_bound,
+                                                             first_only, kernel.ints, kernel.floats, hits)
+            if count == geometry_kernel.NON_FINITE:
+                return None
+        geometric = _in_time_order(self._findings(hits[:count])) if count else []
+        if not status:
+            return tuple(geometric)
+        path = np.vstack([positions, positions]) if single else positions
+        limits = waypoints.check_joint_limits(self.limits, self.robot.joint_names, np.arange(len(path), dtype=float), path)
+        if first_only and any(v.is_hard for v in limits):
+            return tuple(limits)
+        return tuple(limits + geometric)
+
     def _check_configuration(self, q: np.ndarray, allowance_m: float = 0.0) -> list[Violation]:
         """The geometry of one configuration: what `_check_geometry` finds for a path that stays
         there (its samples all sit at `q`, their sweep allowance is zero, so coarse and fine
         passes see the same), in one pass instead of a coarse and a fine one. `allowance_m`
         inflates every body (not the self-collision pairs) as a sweep allowance would."""
+        kernel = self._kernel
+        if kernel is not None and q.shape == (self.robot.nq,):
+            hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+            code = geometry_kernel.check_configuration(geometry_kernel.kernel_array(q), float(allowance_m), False,
+                                                       kernel.ints, kernel.floats, hits)
+            if code != geometry_kernel.NON_FINITE:
+                return _in_time_order(self._findings(hits[:code & 0xFFFFFFFF]))
         samples = _Samples(times=np.zeros(1), positions=q[None],
                            inflation=np.full((1, len(self._padded_radii)), float(allowance_m)),
                            pair_inflation=np.zeros((1, len(self._pairs))))
@@ -323,6 +411,17 @@ class Envelope:
         Plans far from every zone cost a fraction of one fine pass, and a body that passes a few
         millimetres from a surface (fingers over the table) is not refused for the sweep
         allowance of a sparse sampling: the allowance shrinks with the spacing where it matters."""
+        kernel = self._kernel
+        if kernel is not None and positions.ndim == 2 and positions.shape[1] == self.robot.nq and len(positions) >= 2:
+            hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+            seg_bound = np.abs(np.diff(positions, axis=0)) @ self.robot.reach
+            _, count, checked, tcp = geometry_kernel.check_path(
+                geometry_kernel.kernel_array(times), geometry_kernel.kernel_array(positions), seg_bound, first_only,
+                kernel.ints, kernel.floats, hits)
+            if count != geometry_kernel.NON_FINITE:
+                tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
+                found = _in_time_order(self._findings(hits[:count]))
+                return found, tcp_length, self.robot.tcp_pose(positions[-1]), checked
         path = self._path_parameter(times, positions)
         targets = _unit_targets(0.0, path.total, REFINEMENT[0])
         samples = self._samples_at(path, targets)
@@ -347,7 +446,7 @@ class Envelope:
         k = np.flatnonzero(flagged)
         still = _Samples(samples.times[k], samples.positions[k], np.zeros_like(samples.inflation[k]),
                          np.zeros_like(samples.pair_inflation[k]))
-        found, certain, _ = self._geometry_pass(still)
+        found, certain, _ = self._geometry_pass(still, segments=False)  # each a configuration by itself
         checked += len(k)
         if first_only and found:
             return found, checked
@@ -366,10 +465,26 @@ class Envelope:
                 break
         return found, checked
 
-    def _geometry_pass(self, samples: _Samples) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
-        """One check of consecutive samples. Returns the first violation per (code, body, what),
-        which samples found anything, and the TCP positions. Every keep-out candidate of the
-        broad phase is confirmed exactly (`_confirm_keep_out`)."""
+    def _geometry_pass(self, samples: _Samples, segments: bool = True
+                       ) -> tuple[dict[tuple[str, str, str], Violation], np.ndarray, np.ndarray]:
+        """One check of consecutive samples. Returns the first violation per (code, body, what)
+        — per body name its earliest sample's (at it, the lowest-indexed body's) —, which samples
+        found anything, and the TCP positions. Every keep-out candidate of the broad phase is
+        confirmed exactly (`_confirm_keep_out`). `segments`: the TCP's straight segment from
+        the sample before counts too (False: the samples are separate configurations)."""
+        kernel = self._kernel
+        if kernel is not None and samples.positions.ndim == 2 and samples.positions.shape[1] == self.robot.nq:
+            n = len(samples.times)
+            flags = np.zeros(n, dtype=bool)
+            tcp = np.empty((n, 3))
+            hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+            count = geometry_kernel.check_samples(
+                geometry_kernel.kernel_array(samples.times), geometry_kernel.kernel_array(samples.positions),
+                geometry_kernel.kernel_array(samples.inflation),
+                geometry_kernel.kernel_array(samples.pair_inflation.reshape(n, len(self._pairs))), segments,
+                kernel.ints, kernel.floats, flags, tcp, hits)
+            if count != geometry_kernel.NON_FINITE:
+                return self._findings(hits[:count]), flags, tcp
         robot, lim = self.robot, self.limits
         t_s, q_s, inflation = samples.times, samples.positions, samples.inflation
         p0, p1 = robot.body_points(robot.joint_frames(q_s))  # (N, B+1, 3); last body is the TCP point
@@ -384,24 +499,22 @@ class Envelope:
         # workspace: every capsule and the TCP entirely inside the box (exact for capsules)
         outside = ~geometry.bounds_inside(lo, hi, self._ws_lo, self._ws_hi) & self._moving
         flagged |= np.any(outside, axis=1)
-        self._first_per_body(found, outside, t_s, p0, Code.WORKSPACE, "leaves the workspace box")
+        self._first_per_body(found, outside, t_s, p0, Code.WORKSPACE, _LEAVES_WORKSPACE)
 
         # keep-out: bounds that overlap a zone are confirmed exactly (capsule–box distance)
         if len(lim.keep_out):
             overlap = np.all(lo[:, :, None] <= self._ko_hi, axis=-1) & np.all(hi[:, :, None] >= self._ko_lo, axis=-1)
             overlap &= self._moving[None, :, None]
-            if len(tcp) > 1:  # the TCP's straight segments between samples, too
+            if segments and len(tcp) > 1:  # the TCP's straight segments between samples, too
                 r_tcp = radius[1:, -1, None]
                 seg_lo = np.minimum(tcp[:-1], tcp[1:]) - r_tcp
                 seg_hi = np.maximum(tcp[:-1], tcp[1:]) + r_tcp
                 overlap[1:, -1] |= np.all(seg_lo[:, None] <= self._ko_hi, axis=-1) & np.all(seg_hi[:, None] >= self._ko_lo, axis=-1)
             if np.any(overlap):
-                confirmed = self._confirm_keep_out(overlap, p0, p1, radius, tcp)
+                confirmed = self._confirm_keep_out(overlap, p0, p1, radius, tcp, segments)
                 flagged |= np.any(confirmed, axis=(1, 2))
                 for zone_index, zone in enumerate(lim.keep_out):
-                    self._first_per_body(
-                        found, confirmed[:, :, zone_index], t_s, p0, Code.KEEP_OUT, f"enters keep-out zone '{zone.name}'"
-                    )
+                    self._first_per_body(found, confirmed[:, :, zone_index], t_s, p0, Code.KEEP_OUT, _enters(zone))
 
         # self-collision: capsule pairs closer than the sum of their inflated radii
         if len(self._pairs):
@@ -409,14 +522,15 @@ class Envelope:
         return found, flagged, tcp
 
     def _confirm_keep_out(self, overlap: np.ndarray, p0: np.ndarray, p1: np.ndarray, radius: np.ndarray,
-                          tcp: np.ndarray) -> np.ndarray:
+                          tcp: np.ndarray, segments: bool) -> np.ndarray:
         """Exact test of the broad-phase candidates, all at once: each capsule's distance to the
-        zone against its radius, and for the TCP also its straight segment from the previous sample."""
+        zone against its radius, and for the TCP also (`segments`) its straight segment from the
+        previous sample."""
         confirmed = np.zeros_like(overlap)
         k, body, zone = np.nonzero(overlap)
         zone_lo, zone_hi, r = self._ko_lo[zone], self._ko_hi[zone], radius[k, body]
         hit = geometry.segment_box_distance(p0[k, body], p1[k, body], zone_lo, zone_hi) <= r
-        segment = ~hit & (body == radius.shape[1] - 1) & (k > 0)  # the TCP, between samples
+        segment = ~hit & (body == radius.shape[1] - 1) & (k > 0) & segments  # the TCP, between samples
         if np.any(segment):
             ks, rs = k[segment], r[segment, None]
             hit[segment] = geometry.segments_hit_boxes(tcp[ks - 1], tcp[ks], zone_lo[segment] - rs, zone_hi[segment] + rs)
@@ -448,25 +562,44 @@ class Envelope:
             key = (Code.SELF_COLLISION.value, f"{name_a}|{name_b}", "")
             if key in found:
                 continue
-            found[key] = (
-                Violation(
-                    Code.SELF_COLLISION,
-                    f"{name_a} and {name_b} come within {dist[i] - self._pair_radii[pair]:.3f} m of each other "
-                    f"(capsule surfaces, before the {allowed[i] - self._pair_radii[pair]:.3f} m sweep allowance)",
-                    float(t_s[k_idx[i]]),
-                    f"{name_a}|{name_b}",
-                )
-            )
+            found[key] = self._self_collision(pair, float(dist[i]), float(allowed[i]), float(t_s[k_idx[i]]))
         return flagged
 
+    def _self_collision(self, pair: int, distance: float, allowance: float, time: float) -> Violation:
+        name_a, name_b = self._body_names[self._pairs[pair, 0]], self._body_names[self._pairs[pair, 1]]
+        radii = self._pair_radii[pair]
+        return Violation(
+            Code.SELF_COLLISION,
+            f"{name_a} and {name_b} come within {distance - radii:.3f} m of each other "
+            f"(capsule surfaces, before the {allowance - radii:.3f} m sweep allowance)",
+            time,
+            f"{name_a}|{name_b}",
+        )
+
+    def _findings(self, hits: np.ndarray) -> dict[tuple[str, str, str], Violation]:
+        """The kernels' finding rows (`geometry_kernel.HIT_COLUMNS`) as the numpy passes key and word them."""
+        found: dict[tuple[str, str, str], Violation] = {}
+        for kind, index, zone, time, x, y, z, distance, allowance, _ in hits.tolist():
+            if kind == geometry_kernel.KIND_SELF:
+                violation = self._self_collision(int(index), distance, allowance, time)
+                found[(_SELF_COLLISION, violation.body or "", "")] = violation
+                continue
+            if kind == geometry_kernel.KIND_WORKSPACE:
+                code, what = Code.WORKSPACE, _LEAVES_WORKSPACE
+            else:
+                code, what = Code.KEEP_OUT, _enters(self.limits.keep_out[int(zone)])
+            name = self._body_names[int(index)]
+            found[(code.value, name, what)] = Violation(code, f"{name} {what} near ({x:.3f}, {y:.3f}, {z:.3f})", time, name)
+        return found
+
     def _first_per_body(self, found: dict, mask: np.ndarray, t_s: np.ndarray, where: np.ndarray, code: Code, what: str) -> None:
-        """Adds to `found` one violation per body: the first sample at which `mask` is set."""
-        for body in np.flatnonzero(np.any(mask, axis=0)):
+        """Adds to `found` one violation per body name: the first sample at which `mask` is set for
+        any body of that name (a fitted link's capsules share it), at it the lowest-indexed body."""
+        for k, body in zip(*np.nonzero(mask), strict=True):  # by sample, then body
             name = self._body_names[body]
             key = (code.value, name, what)
             if key in found:
                 continue
-            k = int(np.flatnonzero(mask[:, body])[0])
             found[key] = Violation(code, f"{name} {what} near {_fmt(where[k, body])}", float(t_s[k]), name)
 
 
@@ -491,9 +624,22 @@ class _Samples:
     pair_inflation: np.ndarray  # (N, P) per self-collision pair [m]
 
 
+#: what the findings say, in the numpy passes and from the kernels' rows alike
+_LEAVES_WORKSPACE = "leaves the workspace box"
+_SELF_COLLISION = Code.SELF_COLLISION.value
+
+
+def _enters(zone: Box) -> str:
+    return f"enters keep-out zone '{zone.name}'"
+
+
 def _in_time_order(found: dict[tuple[str, str, str], Violation]) -> list[Violation]:
-    """The findings of geometry passes, earliest first (then by code)."""
-    return sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value))
+    """The findings of geometry passes, earliest first, then by code, body and wording: one order
+    however the passes met them."""
+    if len(found) < 2:
+        return list(found.values())
+    return sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value, v.body or "",
+                                                 v.detail))
 
 
 def _half_neighbour_bound(cumulative: np.ndarray) -> np.ndarray:
