@@ -242,3 +242,16 @@ def test_a_non_finite_configuration_is_refused_as_the_numpy_check_refuses_it(env
     assert any(v.is_hard for v in expected)
     assert _said(_compiled(envelope).check_path(np.vstack([READY, q]))) == _said(expected)
     assert _said(_compiled(envelope).check_path(q)) == _said(_numpy(envelope).check_path(q))
+
+
+@BOTH
+def test_first_only_reports_the_first_of_the_full_checks_findings(envelope: Envelope, make) -> None:
+    """A search asks only whether something is hit: it gets one geometric finding, the one the
+    full check reports first (wording every finding costs more than the check itself)."""
+    checked = make(envelope)
+    full = checked.check_path(HAND_ON_THE_BASE)
+    assert len(full) > 1 and all(v.code is not Code.JOINT_LIMIT and v.code is not Code.NEAR_JOINT_LIMIT for v in full)
+    assert checked.check_path(HAND_ON_THE_BASE, first_only=True) == full[:1]
+    motion = np.vstack([READY, HAND_ON_THE_BASE])
+    first = checked.check_path(motion, first_only=True)
+    assert len(first) == 1 and (first[0].code, first[0].body) in {(v.code, v.body) for v in checked.check_path(motion)}

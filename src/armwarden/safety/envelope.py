@@ -150,6 +150,9 @@ class Envelope:
         self._pair_sphere_reach = self._pair_radii + half_lengths[self._pairs[:, 0]] + half_lengths[self._pairs[:, 1]]
         self._ws_lo = limits.workspace.lo
         self._ws_hi = limits.workspace.hi
+        names = [z.name for z in limits.keep_out]
+        if len(set(names)) != len(names):  # the policy refuses it too: findings name their zone
+            raise ValueError(f"keep-out zone names must be unique; got {names}")
         if limits.keep_out:
             self._ko_lo = np.stack([z.lo for z in limits.keep_out])
             self._ko_hi = np.stack([z.hi for z in limits.keep_out])
@@ -180,6 +183,7 @@ class Envelope:
             body_p1=np.vstack([np.array([c.p1_m for c in capsules], dtype=float).reshape(-1, 3), tcp_point]),
             body_group=[c.link for c in capsules] + [robot.tcp_frame],
             body_name=self._body_names,
+            report_order=self._report_order,
             padded_radii=self._padded_radii,
             moving=self._moving,
             pairs=self._pairs,
@@ -198,6 +202,15 @@ class Envelope:
             joint_limit_margin_rad=lim.joint_limit_margin_rad,
             refinement=REFINEMENT,
         )
+
+    def _report_order(self, kind: int, subject: str, zone: int) -> tuple[str, str, str]:
+        """How `_in_time_order` orders findings of one time, for the kernels: by code, body, then
+        the wording after the body's name (for one body, its zones by name)."""
+        if kind == geometry_kernel.KIND_SELF:
+            return _SELF_COLLISION, subject, ""
+        if kind == geometry_kernel.KIND_WORKSPACE:
+            return Code.WORKSPACE.value, subject, f" {_LEAVES_WORKSPACE} near ("
+        return Code.KEEP_OUT.value, subject, f" {_enters(self.limits.keep_out[zone])} near ("
 
     def _relative_reach(self) -> np.ndarray:
         """`(n, P)`: bound on how far the distal capsule of each pair moves *relative to the other*
@@ -268,8 +281,9 @@ class Envelope:
         keep-out, self-collision, every padded capsule and the TCP), without what only a whole timed
         plan has (timing, travel caps, TCP path length). Violation times are waypoint indices.
         `first_only`: a search only needs to know *whether* something is hit, so the check stops
-        at the first hard joint-limit finding or the first sample range with a geometric one (the
-        findings are then incomplete, never fewer than one when there is any).
+        at the first hard joint-limit finding or the first sample range with a geometric one, and
+        reports that range's first geometric finding only (the findings are then incomplete, never
+        fewer than one when there is any; wording one costs more than finding it).
         """
         positions = np.atleast_2d(np.asarray(positions, dtype=float))
         if self._kernel is not None and positions.ndim == 2 and positions.shape[1] == self.robot.nq and len(positions):
@@ -287,7 +301,7 @@ class Envelope:
             geometric = self._check_configuration(positions[0])
         else:
             geometric, _, _, _ = self._check_geometry(index, positions, first_only=first_only)
-        return tuple(violations + geometric)
+        return tuple(violations + (geometric[:1] if first_only else geometric))
 
     def _check_path_compiled(self, positions: np.ndarray, first_only: bool) -> tuple[Violation, ...] | None:
         """`check_path` in the kernels (`positions` C-contiguous (K, n), K ≥ 1): the same findings,
@@ -308,7 +322,8 @@ class Envelope:
                                                              first_only, kernel.ints, kernel.floats, hits)
             if count == geometry_kernel.NON_FINITE:
                 return None
-        geometric = _in_time_order(self._findings(hits[:count])) if count else []
+        # first_only: the first finding in report order (the kernels return them in it)
+        geometric = _in_time_order(self._findings(hits[:1] if first_only else hits[:count])) if count else []
         if not status:
             return tuple(geometric)
         path = np.vstack([positions, positions]) if single else positions

@@ -35,8 +35,10 @@ per unit of path parameter (`_joint_rates`) — and never faster than `sweep_res
 unit, which is how the path parameter is defined; likewise a pair's relative-motion bound with
 the pairs' relative reaches. A pair that survives gets the numpy pass's bounding-sphere test (first
 with its link pair's bound, so its own inflation is computed only when that passes), a bounding-box
-test against its allowance, then the exact distance. Margins of 1e-9 m absorb rounding in the
-bounds. A sample of a pass whose findings are never reported (one that only decides where to
+test against its allowance, then the exact distance. A pair whose spheres are apart by a margin
+is not tested again while the path parameter stays within margin ÷ rate of that sample (its
+centres cannot close the margin sooner), at that inflation bound or a smaller one. Margins of
+1e-9 m absorb rounding in the bounds. A sample of a pass whose findings are never reported (one that only decides where to
 refine) stops at its first hit; the densest pass does not test a key whose kept finding it cannot
 make earlier.
 
@@ -52,8 +54,9 @@ files so the kernels here pick the change up.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -78,7 +81,7 @@ __all__ = [
 KIND_WORKSPACE = 0
 KIND_KEEP_OUT = 1
 KIND_SELF = 2
-#: a hit row: kind, body or pair, zone (-1), sample time, the body's p0 (x, y, z), distance, allowance, sample index
+#: a hit row: kind, body or pair, zone (-1), sample time, the body's p0 (x, y, z), distance, allowance, key slot
 HIT_COLUMNS = 10
 #: what the kernels return instead of a count when a configuration holds a non-finite value
 NON_FINITE = -1
@@ -103,7 +106,8 @@ _I_PAIR = 4  # (P, 3): body a, body b, name-pair key
 _I_GROUP_PAIR = 5  # (GP, 4): group a, group b, first and end index into _I_GROUP_PAIR_PAIRS
 _I_GROUP_PAIR_PAIRS = 6  # (P, 1): pair indices, grouped
 _I_COUNTS = 7  # (1, 2): number of body names, of name pairs
-_N_INT_TABLES = 8
+_I_RANK = 8  # (S, 1): each key slot's place in the order findings are reported in (`Tables.build`)
+_N_INT_TABLES = 9
 # float tables: row ranges of `Tables.floats`
 _F_NODE = 0  # (J, 15) batch_fk node table
 _F_BODY = 1  # (B+1, 7): p0, p1 in the joint frame, padded radius
@@ -149,6 +153,7 @@ class Tables:
         body_p1: np.ndarray,
         body_group: Sequence[str],
         body_name: Sequence[str],
+        report_order: Callable[[int, str, int], Any],
         padded_radii: np.ndarray,
         moving: np.ndarray,
         pairs: np.ndarray,
@@ -174,7 +179,9 @@ class Tables:
         Bodies are grouped by `body_group` (their link) for the broad phases; a group's bodies
         must share one joint and one `moving` flag. Findings are keyed by `body_name` (several
         bodies may share one), pairs by their bodies' names, as `Envelope` keys its violations;
-        bodies of one name must be in one group."""
+        bodies of one name must be in one group. `report_order(kind, subject, zone)` (subject: the
+        body's name, or "a|b" for a pair; zone: index or -1) gives a key that sorts findings of one
+        sample time as `Envelope` reports them: the kernels return findings in that order."""
         n_bodies = len(body_joint)
         n_links = n_bodies - 1
         nq = chain.nq
@@ -230,6 +237,14 @@ class Tables:
         body_ints = np.column_stack([
             np.asarray(body_joint, dtype=np.int64), group_of, np.asarray(moving, dtype=np.int64), body_key,
         ])
+        n_zones = len(np.asarray(keep_out_lo).reshape(-1, 3))
+        pair_subjects = [f"{names_in_order[a]}|{names_in_order[b]}" for a, b in pair_names_in_order]
+        slots = ([(KIND_WORKSPACE, name, -1) for name in names_in_order]
+                 + [(KIND_KEEP_OUT, name, zone) for name in names_in_order for zone in range(n_zones)]
+                 + [(KIND_SELF, subject, -1) for subject in pair_subjects])
+        by_report = sorted(range(len(slots)), key=lambda slot: report_order(*slots[slot]))
+        slot_rank = np.empty(len(slots), dtype=np.int64)
+        slot_rank[by_report] = np.arange(len(slots))
         node_ints, node_floats = chain.node_tables()
         int_tables = [
             node_ints,
@@ -240,6 +255,7 @@ class Tables:
             np.array(gp_rows, dtype=np.int64).reshape(-1, 4),
             np.array(gp_pairs, dtype=np.int64).reshape(-1, 1),
             np.array([[len(names_in_order), len(pair_names_in_order)]], dtype=np.int64),
+            slot_rank.reshape(-1, 1),
         ]
         keep_out_lo = np.asarray(keep_out_lo, dtype=float).reshape(-1, 3)
         keep_out_hi = np.asarray(keep_out_hi, dtype=float).reshape(-1, 3)
@@ -471,7 +487,7 @@ def _place_group(g, group, group_bodies, body_ints, body_floats, poses, points, 
 
 
 @_inline
-def _write_row(row, kind, index, zone, time, point, distance, allowance, sample):  # pragma: no cover - compiled
+def _write_row(row, kind, index, zone, time, point, distance, allowance, slot):  # pragma: no cover - compiled
     row[0] = kind
     row[1] = index
     row[2] = zone
@@ -481,7 +497,7 @@ def _write_row(row, kind, index, zone, time, point, distance, allowance, sample)
     row[6] = point[2]
     row[7] = distance
     row[8] = allowance
-    row[9] = sample
+    row[9] = slot
 
 
 @_inline
@@ -531,7 +547,7 @@ def _improves(state, slot, time):  # pragma: no cover - compiled
 
 
 @_inline
-def _offer(state, slot, kind, index, zone, time, point, distance, allowance, sample):  # pragma: no cover - compiled
+def _offer(state, slot, kind, index, zone, time, point, distance, allowance):  # pragma: no cover - compiled
     found, times, rows, n_found = state
     if found[slot] and not time < times[slot]:
         return
@@ -539,18 +555,28 @@ def _offer(state, slot, kind, index, zone, time, point, distance, allowance, sam
         found[slot] = True
         n_found[0] += 1
     times[slot] = time
-    _write_row(rows[slot], kind, index, zone, time, point, distance, allowance, sample)
+    _write_row(rows[slot], kind, index, zone, time, point, distance, allowance, float(slot))
 
 
 @_inner
-def _output(state, hits):  # pragma: no cover - compiled
-    """The kept findings into `hits`, in slot order; their count."""
-    found, _, rows, _ = state
+def _output(state, hits, ints):  # pragma: no cover - compiled
+    """The kept findings into `hits` in the order they are reported (time, then `_I_RANK`); their count."""
+    found, times, rows, _ = state
+    rank = _int_table(ints, _I_RANK)
+    order = np.empty(found.shape[0], dtype=np.int64)
     count = 0
     for slot in range(found.shape[0]):
-        if found[slot]:
-            hits[count] = rows[slot]
-            count += 1
+        if not found[slot]:
+            continue
+        at = count  # insertion sort: few findings
+        while at > 0 and (times[order[at - 1]] > times[slot]
+                          or (times[order[at - 1]] == times[slot] and rank[order[at - 1], 0] > rank[slot, 0])):
+            order[at] = order[at - 1]
+            at -= 1
+        order[at] = slot
+        count += 1
+    for n in range(count):
+        hits[n] = rows[order[n]]
     return count
 
 
@@ -558,13 +584,15 @@ def _output(state, hits):  # pragma: no cover - compiled
 @_inner
 def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_group_bound,
               pair_inflation_row, lazy, n_pass, tcp, has_previous, mode, poses, points, placed,
-              scratch, state):  # pragma: no cover - compiled
+              scratch, state, tau, coherence):  # pragma: no cover - compiled
     """Every check of one sample. `body_inflation` (B+1,), group and group-pair inflation
     bounds, the pair inflations from `pair_inflation_row` (P,), or its one value for every pair
     when it holds one, or, when it is empty, from the path (`lazy`, see `_lazy_pair_inflation`).
     `tcp` (2, 3): row 1 receives this sample's TCP, row 0 holds the previous sample's (used when
-    `has_previous`). `scratch` (1+G, 8). Returns _CLEAR or _HIT, or NON_FINITE (nothing
-    else done)."""
+    `has_previous`). `scratch` (1+G, 8). `tau`, `coherence`: the sample's path parameter and the
+    pairs' skip intervals (lo, hi, inflation bound per pair; the group pairs' rates), empty
+    arrays: none. Returns _CLEAR or _HIT, or
+    NON_FINITE (nothing else done)."""
     node_ints = _int_table(ints, _I_NODE)
     node_floats = _float_table(ints, floats, _F_NODE)
     if not fk_into(q, node_ints, node_floats, poses):
@@ -628,7 +656,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             flagged = True
             if not record:
                 return _HIT
-            _offer(state, slot, workspace, b, no_zone, time, points[b], 0.0, radius, sample)
+            _offer(state, slot, workspace, b, no_zone, time, points[b], 0.0, radius)
 
     # ---- keep-out zones: bounds that overlap a zone, confirmed exactly
     for zone in range(n_zones):
@@ -675,7 +703,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
                 flagged = True
                 if not record:
                     return _HIT
-                _offer(state, slot, keep_out, b, float(zone), time, p, distance, radius, sample)
+                _offer(state, slot, keep_out, b, float(zone), time, p, distance, radius)
 
     # ---- self-collision: capsule pairs closer than their summed radii plus inflation
     pairs = _int_table(ints, _I_PAIR)
@@ -684,6 +712,8 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
     pair_floats = _float_table(ints, floats, _F_PAIR)
     group_pair_floats = _float_table(ints, floats, _F_GROUP_PAIR)
     pair_slots = n_keys * (1 + n_zones)
+    skip_lo, skip_hi, skip_bound, pair_rate = coherence
+    skipping = skip_lo.shape[0] > 0
     for gp in range(group_pair.shape[0]):
         ga = group_pair[gp, 0]
         gb = group_pair[gp, 1]
@@ -693,11 +723,16 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
         reach = group_floats[ga, 3] + group_floats[gb, 3] + group_pair_floats[gp, 0] + pair_group_bound[gp] + CULL_EPS
         if dx * dx + dy * dy + dz * dz >= reach * reach:
             continue
-        _place_group(ga, group, group_bodies, body_ints, body_floats, poses, points, placed)
-        _place_group(gb, group, group_bodies, body_ints, body_floats, poses, points, placed)
         bound = pair_group_bound[gp] + CULL_EPS
+        both_placed = False
         for m in range(group_pair[gp, 2], group_pair[gp, 3]):
             p = group_pair_pairs[m, 0]
+            if skipping and skip_lo[p] <= tau <= skip_hi[p] and bound <= skip_bound[p]:
+                continue
+            if not both_placed:  # (a helper's array arguments cost reference counting: once per group pair)
+                _place_group(ga, group, group_bodies, body_ints, body_floats, poses, points, placed)
+                _place_group(gb, group, group_bodies, body_ints, body_floats, poses, points, placed)
+                both_placed = True
             ia = pairs[p, 0]
             ib = pairs[p, 1]
             # the numpy pass's broad phase: bounding spheres (centre, half length + radius + inflation),
@@ -707,6 +742,12 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             gz = points[ia, 8] - points[ib, 8]
             reach_bound = pair_floats[p, 1] + bound
             if gx * gx + gy * gy + gz * gz >= reach_bound * reach_bound:
+                if skipping:  # apart by `margin`: the centres cannot close it within margin / rate of path
+                    margin = math.sqrt(gx * gx + gy * gy + gz * gz) - reach_bound
+                    width = margin / pair_rate[gp] if pair_rate[gp] > 0.0 else np.inf
+                    skip_lo[p] = tau - width
+                    skip_hi[p] = tau + width
+                    skip_bound[p] = bound
                 continue
             slot = pair_slots + pairs[p, 2]
             if skip_settled and not _improves(state, slot, time):
@@ -738,7 +779,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             flagged = True
             if not record:
                 return _HIT
-            _offer(state, slot, self_collision, p, no_zone, time, pa, distance, allowance, sample)
+            _offer(state, slot, self_collision, p, no_zone, time, pa, distance, allowance)
     return _HIT if flagged else _CLEAR
 
 
@@ -949,6 +990,10 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
     scratch = np.empty((1 + n_groups, 8))
     first_tcp = np.empty((0, 3))
     still_mode = np.int64(_STILL)  # not a literal (see `_inline`)
+    # pairs found apart by a margin need no test while the path cannot have closed it (`_evaluate`)
+    skip_hi = np.empty(n_pairs)
+    skip_hi[:] = -np.inf
+    coherence = (np.zeros(n_pairs), skip_hi, np.zeros(n_pairs), group_pair_rate)
     checked = 0
 
     # ranges to check, depth first: (level, start, end); the whole path at level 0 first
@@ -1006,7 +1051,8 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
             for a in range(3):
                 tcp[0, a] = tcp[1, a]
             outcome = _evaluate(ints, floats, q, time, n, body_inflation, group_bound, pair_group_bound, no_rows,
-                                lazy, n_pass, tcp, n > 0, mode, poses, points, placed, scratch, state)
+                                lazy, n_pass, tcp, n > 0, mode, poses, points, placed, scratch, state, targets[n],
+                                coherence)
             if outcome == NON_FINITE:
                 return state, NON_FINITE, first_tcp
             if level == 0:
@@ -1025,7 +1071,8 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
             checked += 1
             time = _interpolate(times, positions, k, alpha, at_end, n, q)
             outcome = _evaluate(ints, floats, q, time, n, still_bodies, still_groups, still_group_pairs, still_rows,
-                                lazy, n_pass, tcp, False, still_mode, poses, points, placed, scratch, state)
+                                lazy, n_pass, tcp, False, still_mode, poses, points, placed, scratch, state, targets[n],
+                                coherence)
             certain[n] = outcome == _HIT
         if first_only and n_found[0] > 0:
             return state, checked, first_tcp
@@ -1094,7 +1141,7 @@ def _check_path_entry(times, positions, seg_bound, first_only, ints, floats, hit
     state, checked, tcp = _check_path(times, positions, seg_bound, first_only, ints, floats)
     if checked == NON_FINITE:
         return status, NON_FINITE, 0, tcp
-    return status, _output(state, hits), checked, tcp
+    return status, _output(state, hits, ints), checked, tcp
 
 
 def _check_samples_entry(times, positions, inflation, pair_inflation, segments, ints, floats, flags, tcp_out,
@@ -1122,6 +1169,8 @@ def _check_samples_entry(times, positions, inflation, pair_inflation, segments, 
     scratch = np.empty((1 + n_groups, 8))
     index = np.empty(0, dtype=np.int64)
     unused_lazy = (points, index, points, points, index, tcp[0], placed)  # pair inflations are given: not read
+    nothing = np.empty(0)
+    no_coherence = (nothing, nothing, nothing, nothing)
     mode = np.int64(_FULL)  # not a literal (see `_inline`)
     for n in range(n_samples):
         for g in range(n_groups):
@@ -1138,13 +1187,14 @@ def _check_samples_entry(times, positions, inflation, pair_inflation, segments, 
             tcp[0, a] = tcp[1, a]
         row = pair_inflation[n] if pair_inflation.shape[1] > 1 else pair_inflation[n, :1]
         outcome = _evaluate(ints, floats, positions[n], times[n], n, inflation[n], group_bound, pair_group_bound,
-                            row, unused_lazy, n_samples, tcp, segments and n > 0, mode, poses, points, placed, scratch, state)
+                            row, unused_lazy, n_samples, tcp, segments and n > 0, mode, poses, points, placed, scratch,
+                            state, times[n], no_coherence)
         if outcome == NON_FINITE:
             return NON_FINITE
         flags[n] = outcome == _HIT
         for a in range(3):
             tcp_out[n, a] = tcp[1, a]
-    return _output(state, hits)
+    return _output(state, hits, ints)
 
 
 def _check_configuration_entry(q, allowance, first_only, ints, floats, hits):  # pragma: no cover - compiled
@@ -1174,14 +1224,17 @@ def _check_configuration_entry(q, allowance, first_only, ints, floats, hits):  #
     scratch = np.empty((1 + n_groups, 8))
     index = np.empty(0, dtype=np.int64)
     unused_lazy = (points, index, points, points, index, tcp[0], placed)  # pair inflations are given: not read
+    nothing = np.empty(0)
+    no_coherence = (nothing, nothing, nothing, nothing)
     mode = np.int64(_FULL)  # every finding, first_only or not: as a path that stays at q (not a literal: see `_inline`)
     time, sample, n_pass = 0.0, np.int64(0), np.int64(1)  # not literals (see `_inline`)
     has_previous = sample > 0  # False, not a literal
     outcome = _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_group_bound, pair_inflation,
-                        unused_lazy, n_pass, tcp, has_previous, mode, poses, points, placed, scratch, state)
+                        unused_lazy, n_pass, tcp, has_previous, mode, poses, points, placed, scratch, state, time,
+                        no_coherence)
     if outcome == NON_FINITE:
         return NON_FINITE
-    return (status << 32) + _output(state, hits)
+    return (status << 32) + _output(state, hits, ints)
 
 
 _F1 = numba.float64[::1]
