@@ -45,10 +45,11 @@ def pillar_at(runtime: RuntimeModel, angle: float) -> Box:
     return Box.of("pillar", [centre[0] - 0.03, centre[1] - 0.02, 0.0], [centre[0] + 0.03, centre[1] + 0.02, 0.50])
 
 
-def hemmed_block(runtime: RuntimeModel, gap_m: float = 0.001) -> Box:
-    """A block `gap_m` below the padded hand at the ready pose. With the default 1 mm the ready pose
-    itself is clear, but motions that move the hand into or out of it sweep it into the block (the
-    sweep allowance of a plan's first and last sample is more than 1 mm for them): a search for a
+def hemmed_block(runtime: RuntimeModel, gap_m: float = 0.0001) -> Box:
+    """A block `gap_m` below the padded hand and fingers at the ready pose. With the default 0.1 mm
+    the ready pose itself is clear, but every motion into or out of it sweeps the fingers into the
+    block (the sweep allowance of a plan's first and last sample, half the motion bound of the
+    densest sampling interval, is about 0.3 mm with the bundled 1 cm resolution): a search for a
     way out runs out of budget."""
     robot, limits = runtime.robot, runtime.envelope.limits
     p0, p1 = robot.body_points(robot.joint_frames(READY[None]))

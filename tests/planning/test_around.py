@@ -128,11 +128,19 @@ WRIST_START = READY + np.array([0.0, 0.0, 0.0, 0.0, 1.4, 0.0, 0.0])
 
 
 def elbow_side_and_wrist_obstacle(runtime: RuntimeModel) -> tuple[Box, Box]:
-    """A zone 1 mm beside the ready pose's padded elbow (fr3_link4), and a 1 cm obstacle where
-    the TCP passes halfway along the wrist motion from `WRIST_START`."""
-    radius = runtime.robot.capsule_radii[3] + runtime.envelope.limits.link_padding_m
-    y0 = 0.065 + radius + 0.001
-    elbow = Box.of("elbow_side", [-0.19, y0, 0.59], [-0.14, y0 + 0.05, 0.64])
+    """A zone 1 mm beside the ready pose's padded elbow (fr3_link4, beside its nearest body,
+    found by bisection on the envelope's own check), and a 1 cm obstacle where the TCP passes
+    halfway along the wrist motion from `WRIST_START`."""
+
+    def beside(y0: float) -> Box:
+        return Box.of("elbow_side", [-0.19, y0, 0.59], [-0.14, y0 + 0.05, 0.64])
+
+    inside, clear = 0.0, 0.3  # y of the zone's near face: in the elbow, and well clear of it
+    while clear - inside > 1e-6:
+        middle = (inside + clear) / 2
+        blocked = any(v.is_hard for v in with_zones(runtime, beside(middle)).envelope.check_path(READY))
+        inside, clear = (middle, clear) if blocked else (inside, middle)
+    elbow = beside(clear + 0.001)
     centre = runtime.robot.tcp_pose(READY + (WRIST_START - READY) / 2).position
     return elbow, Box.of("obstacle", centre - 0.005, centre + 0.005)
 
@@ -167,3 +175,34 @@ def test_a_cartesian_path_stays_a_straight_line_even_when_blocked(runtime: Runti
     outcome, report = plan_and_check(model, "cartesian", READY, {"waypoints": waypoints})
     assert report is not None and Code.KEEP_OUT in {v.code for v in report.hard}
     assert not any(v.code is Code.NO_DETOUR for v in outcome.violations)
+
+
+# ------------------------------------------------------------------ the per-plan caps, before and while searching
+BIN_BOX = Box.of("bin_box", [0.40, -0.20, 0.0], [0.70, 0.20, 0.25])
+
+
+def test_a_target_farther_than_the_tcp_cap_is_refused_without_a_search(runtime: RuntimeModel, monkeypatch) -> None:
+    model = with_zones(runtime, BIN_BOX)
+    assert model.detours is not None
+    monkeypatch.setattr(model.detours.search, "find", lambda *a, **k: pytest.fail("searched for a target out of reach"))
+    monkeypatch.setattr(model.detours.goals, "select", lambda *a, **k: pytest.fail("sought goals for a target out of reach"))
+    target = PoseTarget(np.array([0.75, 0.06, 0.08]), None)  # in front of the box, 0.60 m from the ready TCP
+    outcome, report = plan_and_check(model, "pose", READY, {"target": target})
+    assert report is not None and report.hard
+    (no_detour,) = [v for v in outcome.violations if v.code is Code.NO_DETOUR]
+    assert "motion.max_cartesian_step_m" in no_detour.detail and "no path is shorter" in no_detour.detail
+
+
+def test_a_pose_target_behind_an_obstacle_for_the_joint_line_gets_the_straight_tcp_line(runtime: RuntimeModel) -> None:
+    """Beside the box, below the ready pose: the straight joint line swings the hand through the
+    box's corner, the straight TCP line passes it."""
+    model = with_zones(runtime, BIN_BOX)
+    target = PoseTarget(np.array([0.347, 0.1, 0.172]), None)
+    _, straight_report = plan_and_check(with_zones(runtime, BIN_BOX, detours=False), "pose", READY, {"target": target})
+    assert straight_report is not None and Code.KEEP_OUT in {v.code for v in straight_report.hard}
+    outcome, report = plan_and_check(model, "pose", READY, {"target": target})
+    assert report is not None and not report.hard, outcome.violations
+    assert any("straight TCP line" in note for note in outcome.notes)
+    distance = np.linalg.norm(target.position - runtime.robot.tcp_pose(READY).position)
+    assert report.tcp_path_length_m <= distance * 1.01
+    assert oracle_for(model).violations(outcome.trajectory) == []

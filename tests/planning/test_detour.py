@@ -1,17 +1,21 @@
-"""The joint-space search (OMPL RRTConnect) with the envelope's own checks as its validity test."""
+"""The joint-space search (a bidirectional RRT within the per-plan caps) with the envelope's own checks as its validity test."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 
 import numpy as np
 import pytest
 
+from armwarden.guard.planning import plan_and_check
+from armwarden.planning.around import DetourPlanner
 from armwarden.planning.detour import DetourSearch
 from armwarden.preflight import RuntimeModel
+from armwarden.safety.envelope import Envelope
 from tests.helpers import READY
-from tests.planning.scenarios import PILLAR, PILLAR_GOAL, PILLAR_START, base_turn, hemmed_block, with_zones
+from tests.planning.scenarios import PILLAR, PILLAR_GOAL, PILLAR_START, base_turn, hemmed_block, oracle_for, with_zones
 
 
 def test_every_leg_of_a_found_path_passes_the_envelope(runtime: RuntimeModel) -> None:
@@ -109,3 +113,77 @@ def test_a_joint_that_wanders_a_little_past_the_travel_cap_is_straightened(runti
     straightened = search._straighten_joints(path)
 
     assert np.sum(np.abs(np.diff(straightened[:, 6]))) <= cap
+
+
+# ------------------------------------------------------------------ within the per-plan caps while searching
+#: a TCP path cap the straight line (0.368 m) fits and the pillar's detours found without the caps in
+#: mind (0.44-0.49 m, RRTConnect) all broke
+TIGHT_TCP_CAP_M = 0.42
+#: generous: the search returns as soon as it finds a path; a starved CI lane must not make it fail
+PATIENT_BUDGET_S = 30.0
+
+
+def with_tcp_cap(model: RuntimeModel, cap_m: float) -> RuntimeModel:
+    limits = dataclasses.replace(model.envelope.limits, max_cartesian_step_m=cap_m)
+    envelope = Envelope(model.robot, limits)
+    detours = None if model.detours is None else DetourPlanner(model.planner, envelope, model.detours.budget_s)
+    return dataclasses.replace(model, envelope=envelope, detours=detours)
+
+
+def test_a_searched_path_stays_within_a_tcp_cap_that_unbounded_detours_broke(runtime: RuntimeModel) -> None:
+    model = with_tcp_cap(with_zones(runtime, PILLAR, budget_s=PATIENT_BUDGET_S), TIGHT_TCP_CAP_M)
+    outcome, report = plan_and_check(model, "joints", PILLAR_START, {"joint_positions": PILLAR_GOAL})
+    assert report is not None and not report.hard, outcome.violations
+    assert report.tcp_path_length_m <= TIGHT_TCP_CAP_M
+    assert any("search within the per-plan caps" in note for note in outcome.notes)
+    assert oracle_for(model).violations(outcome.trajectory) == []
+
+
+def test_the_same_request_gives_the_same_capped_detour(runtime: RuntimeModel) -> None:
+    model = with_tcp_cap(with_zones(runtime, PILLAR, budget_s=PATIENT_BUDGET_S), TIGHT_TCP_CAP_M)
+    plans = [plan_and_check(model, "joints", PILLAR_START, {"joint_positions": PILLAR_GOAL})[0] for _ in range(2)]
+    assert plans[0].trajectory is not None and plans[1].trajectory is not None
+    assert plans[0].trajectory.digest == plans[1].trajectory.digest
+
+
+def test_every_found_path_is_within_both_caps_by_the_searchs_own_measure(runtime: RuntimeModel) -> None:
+    model = with_zones(runtime, PILLAR)
+    search = DetourSearch(model.envelope)
+    for seed in (1, 2, 3):
+        result = search.find(PILLAR_START, [PILLAR_GOAL], seed, time.monotonic() + PATIENT_BUDGET_S)
+        assert result.path is not None
+        cost = search.path_cost(result.path)
+        assert cost.tcp_m <= search.tcp_cap
+        assert np.all(cost.travel_rad <= model.envelope.limits.max_joint_step_rad + 1e-9)
+
+
+def test_an_approach_leg_after_the_goal_counts_against_the_caps(runtime: RuntimeModel) -> None:
+    """A goal whose leg on to the final configuration already uses the whole travel cap of a
+    joint is out of reach: the search does not look for a way to it."""
+    search = DetourSearch(runtime.envelope)
+    cap = runtime.envelope.limits.max_joint_step_rad
+    entry = READY.copy()
+    entry[6] -= 0.3  # the search's end: the wrist turned 0.3 rad from the start
+    tail = entry.copy()
+    tail[6] += cap  # then on, back past the start: 0.3 + cap in all
+    result = search.find(READY, [entry], seed=1, deadline=time.monotonic() + PATIENT_BUDGET_S, tails=[tail])
+    assert result.path is None and result.goals_within_caps == 0 and result.motion_checks == 0
+    reachable = search.find(READY, [entry], seed=1, deadline=time.monotonic() + PATIENT_BUDGET_S, tails=[None])
+    assert reachable.path is not None and reachable.goals_within_caps == 1
+
+
+def test_samples_are_drawn_only_where_a_path_through_them_fits_the_tcp_cap(runtime: RuntimeModel) -> None:
+    search = DetourSearch(runtime.envelope)
+    goal = base_turn(0.6)
+    ends = search._ends(READY, [goal], None)
+    boxes = search._sampling_boxes(ends, np.array([True]))
+    drawn = [q for turn in range(20) for q in search._draw(np.random.default_rng(turn), ends, boxes, turn)]
+    assert drawn
+    tcp = search.tcp_points(np.array(drawn))
+    through = np.linalg.norm(tcp - ends.start_tcp, axis=1) + np.linalg.norm(tcp - ends.goal_tcp[0], axis=1)
+    assert np.all(through <= search.tcp_cap)
+    _, lo, hi = boxes[0]
+    assert np.all((np.array(drawn) >= lo) & (np.array(drawn) <= hi))
+    # and the box is where a detour through q travels no more than the cap in any joint
+    travel = np.abs(np.array(drawn) - READY) + np.abs(goal - np.array(drawn))
+    assert np.all(travel <= runtime.envelope.limits.max_joint_step_rad + 1e-9)

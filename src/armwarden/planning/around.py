@@ -1,4 +1,5 @@
-"""Planning around what blocked the straight line: other goal configurations, then a joint-space search.
+"""Planning around what blocked the straight line: a straight TCP line, other goal configurations,
+then a joint-space search within the per-plan caps.
 
 The straight-line planners (`planning.planners`) stay the first and, when the envelope accepts
 their plan, the only word: an unobstructed target costs exactly what it cost before and gives the
@@ -7,15 +8,21 @@ avoid (a link in a keep-out zone or outside the workspace, a self-collision, and
 a goal configuration that travels too far) does `DetourPlanner.plan` run, within the policy's
 `motion.planning_time_s`:
 
-1. pose targets: other IK solutions (`planning.goals`), collision-free ones only, best first; the
-   first whose straight joint line (or line to its approach, directly or through home) is clear
+0. a target further from the TCP in a straight line than the TCP path cap
+   (`motion.max_cartesian_step_m`) is refused at once: no path is shorter than that line;
+1. pose targets: the straight TCP line to the target (`plan_cartesian_path`), the shortest
+   path there is;
+2. pose targets: other IK solutions (`planning.goals`; any turn about the tool axis where the
+   request allows a free yaw), collision-free ones only, best first; the first whose straight
+   joint line (or line to its approach, directly or through home) is clear and within the caps
    is taken as it is;
-2. otherwise OMPL's RRTConnect from the start to any of those goals (`planning.detour`), whose
-   validity test is the envelope's own; to a goal close to an obstacle it searches to the goal's
-   approach configuration a few centimetres back (`GoalSelector.approach`: TCP above, or behind
-   along the tool axis) and goes straight in from there, because a goal hemmed in by a zone is a
-   narrow passage a sampler rarely threads;
-3. the path is timed with the existing parameterisation, coming to rest at each corner.
+3. otherwise a bidirectional search from the start to any of those goals (`planning.detour`)
+   that keeps every partial path within the TCP path and joint travel caps while it searches,
+   whose validity test is the envelope's own; to a goal close to an obstacle it searches to the
+   goal's approach configuration a few centimetres back (`GoalSelector.approach`: TCP above, or
+   behind along the tool axis) and goes straight in from there, the leg counted against the caps,
+   because a goal hemmed in by a zone is a narrow passage a sampler rarely threads;
+4. the path is timed with the existing parameterisation, coming to rest at each corner.
 
 It returns a proposal; the caller runs the unchanged `Envelope.check` on it before any plan id
 exists. When nothing is found in time the straight-line plan is returned as it was (still
@@ -38,6 +45,7 @@ from armwarden.planning.detour import DetourSearch, SearchResult
 from armwarden.planning.goals import CLOSE_TO_A_ZONE, GoalSelection, GoalSelector
 from armwarden.planning.planners import Planner, PlanOutcome, PoseTarget
 from armwarden.planning.timing import TimingError, time_parameterize
+from armwarden.planning.trajectory import JointTrajectory
 from armwarden.safety.envelope import Envelope, EnvelopeReport
 from armwarden.safety.violations import Code, Violation
 
@@ -69,7 +77,7 @@ class DetourPlanner:
         self.envelope = envelope
         self.budget_s = float(budget_s)
         self.goals = goals or GoalSelector(planner.ik, envelope, planner.settings.home_rad)
-        self.search = search or DetourSearch(envelope)
+        self.search = search or DetourSearch(envelope, ik=planner.ik)
 
     def worth_trying(self, kind: str, report: EnvelopeReport) -> bool:
         """Whether the envelope's verdict on the straight line is one a different path could change."""
@@ -92,8 +100,17 @@ class DetourPlanner:
         seed = request_seed(kind, start, first_goal if kind == "joints" else target)
         if not self.search.configuration_is_clear(start):
             return self._refuse(straight, report, "the start configuration itself violates the envelope")
+        too_far = self._beyond_the_tcp_cap(kind, start, first_goal, target)
+        if too_far is not None:
+            return self._refuse(straight, report, too_far)
 
+        rejected: list[str] = []
+        context = _Context(straight, report, began, rejected)
         if kind == "pose" and target is not None:
+            # first the straight TCP line: it needs no goal selection, and no path is shorter
+            proposal = self._tcp_line(context, start, target)
+            if proposal is not None:
+                return proposal
             selection = self.goals.select(start, target.position, target.rotation, seed,
                                           began + self.budget_s * _GOAL_SHARE, first=first_goal, free_yaw=target.free_yaw)
             if not selection.goals:
@@ -110,8 +127,6 @@ class DetourPlanner:
         # cheap candidates first: a clear straight line to another goal configuration; then, since
         # a goal close to an obstacle can only be entered from a few directions, lines to its
         # approach configuration a few centimetres back (directly, or through home) and straight in
-        rejected: list[str] = []
-        context = _Context(straight, report, began, rejected)
         hint = f"; {_CLOSE_TO_A_ZONE}" if all(rank == CLOSE_TO_A_ZONE for rank in arrivals) else ""
         home = self.planner.settings.home_rad
         for goal, retreat in zip(goals, retreats, strict=True):
@@ -122,18 +137,25 @@ class DetourPlanner:
                     proposal = self._accepted(context, np.vstack(path), searched=False)
                     if proposal is not None:
                         return proposal
-        # then the search, to the retreat points where there are some; a path the whole-plan check
-        # refuses (too long for the travel or TCP-path cap) is followed by another search while
-        # the budget lasts (OMPL's generators continue, so the next tree differs)
-        entries = [goal if retreat is None else retreat for goal, retreat in zip(goals, retreats, strict=True)]
-        for _ in range(_MAX_SEARCHES):
-            result = self.search.find(start, entries, seed, deadline, should_stop, reseed=not rejected_by_search(rejected))
+        # then the search, within the caps, to the goals and to their retreat points where there
+        # are some (the leg on to the goal counted against the caps: a way in from a few
+        # centimetres back is a wide target, a goal itself the shorter one); a path the whole-plan
+        # check refuses (its samples fall differently from the search's) is followed by another
+        # search while the budget lasts, with other random numbers
+        entries: list[np.ndarray] = []
+        tails: list[np.ndarray | None] = []
+        for goal, retreat in zip(goals, retreats, strict=True):
+            entries += [goal] if retreat is None else [retreat, goal]
+            tails += [None] if retreat is None else [goal, None]
+        for attempt in range(_MAX_SEARCHES):
+            result = self.search.find(start, entries, seed, deadline, should_stop, attempt=attempt, tails=tails)
             if result.path is None or result.goal_index is None:
                 why = _search_failure(result, len(goals), self.budget_s, rejected)
                 return self._refuse(straight, report, why if result.stopped_early else why + hint)
             path = result.path
-            if retreats[result.goal_index] is not None:
-                path = np.vstack([path, goals[result.goal_index]])
+            tail = tails[result.goal_index]
+            if tail is not None:
+                path = np.vstack([path, tail])
             proposal = self._accepted(context, path, searched=True)
             if proposal is not None:
                 return proposal
@@ -142,12 +164,22 @@ class DetourPlanner:
 
     # ------------------------------------------------------------------ helpers
     def _clear(self, path: Sequence[np.ndarray]) -> bool:
-        """Every leg within the joint travel cap and clear (the envelope's untimed check)."""
-        return all(self._within_travel(path[0], q) for q in path[1:]) and all(
+        """Within the per-plan caps (TCP path and joint travel, as the search measures them: no
+        time spent checking a line the whole-plan check refuses for its length) and every leg
+        clear (the envelope's untimed check)."""
+        return self.search.within_caps(self.search.path_cost(np.vstack(path))) and all(
             self.search.segment_is_clear(a, b) for a, b in itertools.pairwise(path))
 
-    def _within_travel(self, start: np.ndarray, q: np.ndarray) -> bool:
-        return bool(np.max(np.abs(q - start)) <= self.envelope.limits.max_joint_step_rad)
+    def _beyond_the_tcp_cap(self, kind: Kind, start: np.ndarray, goal: np.ndarray, target: PoseTarget | None) -> str | None:
+        """Why no path can be short enough, if the straight TCP distance is already over the TCP
+        path cap (no path is shorter than the straight line): refused at once, without a search."""
+        robot, cap = self.planner.robot, self.envelope.limits.max_cartesian_step_m
+        to = target.position if kind == "pose" and target is not None else robot.tcp_pose(goal).position
+        distance = float(np.linalg.norm(np.asarray(to, dtype=float) - robot.tcp_pose(start).position))
+        if distance <= cap:
+            return None
+        return (f"the target is {distance:.3f} m from the TCP in a straight line, more than the TCP path of one plan "
+                f"may be (motion.max_cartesian_step_m {cap:.3f} m): no path is shorter; plan it in two steps")
 
     def _accepted(self, context: _Context, path: np.ndarray, searched: bool) -> PlanOutcome | None:
         """The path timed, if the envelope accepts the whole timed plan (its travel and TCP-length
@@ -164,15 +196,36 @@ class DetourPlanner:
         except TimingError as exc:
             context.rejected.append(f"the path could not be timed: {exc}")
             return None
+        how = (f"a joint-space search within the per-plan caps found a way through {len(path) - 2} intermediate "
+               "configuration(s)" if searched else f"a clear line to a collision-free goal configuration through "
+               f"{len(path) - 2} intermediate configuration(s)")
+        return self._checked(context, trajectory, how)
+
+    def _tcp_line(self, context: _Context, start: np.ndarray, target: PoseTarget) -> PlanOutcome | None:
+        """The straight TCP line to a pose target (`plan_cartesian_path`: the shortest TCP path
+        there is, so the one most likely within the TCP cap), the orientation turned on the way
+        to the target's (kept, for a position-only target; the turn nearest the start's, for a
+        free yaw), if the envelope accepts it; else None, the reason in `context.rejected`."""
+        straight = context.straight
+        rotation = target.rotation_near(self.planner.robot.tcp_pose(start).rotation)
+        line = self.planner.plan_cartesian_path(start, [PoseTarget(target.position, rotation)],
+                                                straight.velocity_scaling, straight.acceleration_scaling)
+        if line.trajectory is None:
+            context.rejected.append(f"straight TCP line: {line.violations[0].detail}" if line.violations
+                                    else "straight TCP line: not planned")
+            return None
+        return self._checked(context, line.trajectory, "a straight TCP line to the target is clear")
+
+    def _checked(self, context: _Context, trajectory: JointTrajectory, how: str) -> PlanOutcome | None:
+        """The proposal, if the envelope accepts the whole timed plan; else None, with the reason
+        appended to `context.rejected`."""
+        straight = context.straight
         checked = self.envelope.check(trajectory)
         if checked.hard:
             context.rejected.append(f"{checked.hard[0].code.value}: {checked.hard[0].detail}")
             return None
         straight_tcp = context.report.tcp_path_length_m
         elapsed = time.monotonic() - context.began
-        how = (f"a joint-space search (RRTConnect) found a way through {len(path) - 2} intermediate configuration(s)"
-               if searched else f"a clear line to a collision-free goal configuration through {len(path) - 2} "
-               "intermediate configuration(s)")
         ratio = f", {checked.tcp_path_length_m / straight_tcp:.2f}× the" if straight_tcp > 0 else "; the"
         note = (f"detour planned: the straight line was blocked; {how}; TCP path {checked.tcp_path_length_m:.3f} m"
                 f"{ratio} straight line's {straight_tcp:.3f} m; planned in {elapsed * 1e3:.0f} ms")
@@ -192,11 +245,6 @@ class _Context:
     report: EnvelopeReport  # the envelope's verdict on the straight line
     began: float
     rejected: list[str]  # why candidates failed the whole-plan check, in order
-
-
-def rejected_by_search(rejected: list[str]) -> bool:
-    """Whether a search already ran in this `plan` call (its generators then continue, not restart)."""
-    return any(reason.startswith("search: ") for reason in rejected)
 
 
 def request_seed(kind: str, start: np.ndarray, goal: np.ndarray | PoseTarget | None) -> int:
@@ -223,6 +271,10 @@ def _search_failure(result: SearchResult, n_goals: int, budget_s: float, rejecte
     if result.stopped_early:
         return "the search was stopped (an e-stop latched)"
     also = f"; shorter candidates failed the whole-plan check ({rejected[0]})" if rejected else ""
-    return (f"no path to any of {n_goals} collision-free goal configuration(s) found within the planning budget "
-            f"of {budget_s:.2f} s (motion.planning_time_s; {result.state_checks} configurations and "
-            f"{result.motion_checks} motions checked){also}")
+    if result.goals_within_caps == 0:
+        return (f"every one of the {n_goals} collision-free goal configuration(s) lies further than one plan may go: "
+                "its straight TCP distance or straight joint travel is over motion.max_cartesian_step_m or "
+                f"motion.max_joint_step_rad, and no path is shorter{also}")
+    return (f"no path within the per-plan caps to any of {result.goals_within_caps} collision-free goal configuration(s) "
+            f"found within the planning budget of {budget_s:.2f} s (motion.planning_time_s; {result.state_checks} "
+            f"configurations and {result.motion_checks} motions checked){also}")
