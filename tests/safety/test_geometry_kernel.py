@@ -86,7 +86,7 @@ def _pair(envelope: Envelope, *changes: dict) -> tuple[Envelope, Envelope]:
 def _random_scene(rng: np.random.Generator, envelope: Envelope, lo: np.ndarray, hi: np.ndarray) -> dict:
     """Zero to three keep-out boxes near the arm and, half the time, a random workspace box."""
     robot = envelope.robot
-    centre = robot.tcp_pose(rng.uniform(lo, hi)).position
+    centre = robot.tcp_pose(rng.uniform(lo, hi) if rng.integers(0, 2) else READY).position
     zones = []
     for k in range(int(rng.integers(0, 4))):
         middle = centre + rng.uniform(-0.4, 0.4, 3)
@@ -101,8 +101,10 @@ def _random_scene(rng: np.random.Generator, envelope: Envelope, lo: np.ndarray, 
 
 
 def _random_path(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Two to four waypoints within the limits, each step up to ~1 rad per joint."""
-    first = rng.uniform(lo, hi)
+    """Two to four waypoints within the limits, each step up to ~1 rad per joint; half the time
+    near the ready pose (mostly clear of the table and the arm itself, so the passes refine
+    around near misses rather than stop at a contact)."""
+    first = rng.uniform(lo, hi) if rng.integers(0, 2) else np.clip(READY + rng.uniform(-0.5, 0.5, len(lo)), lo, hi)
     steps = [first]
     for _ in range(int(rng.integers(1, 4))):
         steps.append(np.clip(steps[-1] + rng.uniform(-1.0, 1.0, len(lo)) * rng.uniform(0.0, 1.0), lo, hi))

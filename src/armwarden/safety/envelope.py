@@ -285,11 +285,12 @@ class Envelope:
         reports that range's first geometric finding only (the findings are then incomplete, never
         fewer than one when there is any; wording one costs more than finding it).
         """
-        positions = np.atleast_2d(np.asarray(positions, dtype=float))
-        if self._kernel is not None and positions.ndim == 2 and positions.shape[1] == self.robot.nq and len(positions):
+        positions = positions if type(positions) is np.ndarray else np.asarray(positions, dtype=float)
+        if self._kernel is not None and 1 <= positions.ndim <= 2 and positions.shape[-1] == self.robot.nq and len(positions):
             found = self._check_path_compiled(geometry_kernel.kernel_array(positions), first_only)
             if found is not None:
                 return found
+        positions = np.atleast_2d(np.asarray(positions, dtype=float))
         single = len(positions) == 1
         if single:
             positions = np.vstack([positions, positions])
@@ -304,15 +305,16 @@ class Envelope:
         return tuple(violations + (geometric[:1] if first_only else geometric))
 
     def _check_path_compiled(self, positions: np.ndarray, first_only: bool) -> tuple[Violation, ...] | None:
-        """`check_path` in the kernels (`positions` C-contiguous (K, n), K ≥ 1): the same findings,
-        the joint limits' built by `waypoints` only when the kernel saw one. None when a
-        configuration holds a non-finite value (the numpy check says what)."""
+        """`check_path` in the kernels (`positions` C-contiguous (K, n), K ≥ 1, or one configuration
+        (n,)): the same findings, the joint limits' built by `waypoints` only when the kernel saw
+        one. None when a configuration holds a non-finite value (the numpy check says what)."""
         kernel = self._kernel
         assert kernel is not None
         hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
-        single = len(positions) == 1
+        single = positions.ndim == 1 or len(positions) == 1
         if single:  # one configuration does not move: one pass without sweep allowance
-            code = geometry_kernel.check_configuration(positions[0], 0.0, first_only, kernel.ints, kernel.floats, hits)
+            q = positions if positions.ndim == 1 else positions[0]
+            code = geometry_kernel.check_configuration(q, 0.0, first_only, kernel.ints, kernel.floats, hits)
             if code == geometry_kernel.NON_FINITE:
                 return None
             status, count = code >> 32, code & 0xFFFFFFFF
@@ -326,7 +328,7 @@ class Envelope:
         geometric = _in_time_order(self._findings(hits[:1] if first_only else hits[:count])) if count else []
         if not status:
             return tuple(geometric)
-        path = np.vstack([positions, positions]) if single else positions
+        path = np.vstack([positions, positions]) if single else positions  # (one row or two: as the numpy check)
         limits = waypoints.check_joint_limits(self.limits, self.robot.joint_names, np.arange(len(path), dtype=float), path)
         if first_only and any(v.is_hard for v in limits):
             return tuple(limits)

@@ -513,6 +513,17 @@ def _outside_box(point, radius, box, grow):  # pragma: no cover - compiled
 
 
 @_inline
+def _boxes_apart(pa, pb, allowance):  # pragma: no cover - compiled
+    """Whether the segments' bounds, grown by `allowance`, miss each other: then the segments are
+    farther apart than it."""
+    for a in range(3):
+        if (min(pa[a], pa[3 + a]) - allowance > max(pb[a], pb[3 + a])
+                or min(pb[a], pb[3 + a]) - allowance > max(pa[a], pa[3 + a])):
+            return True
+    return False
+
+
+@_inline
 def _bounds_overlap(point, radius, box):  # pragma: no cover - compiled
     for a in range(3):
         low = min(point[a], point[3 + a]) - radius
@@ -584,14 +595,15 @@ def _output(state, hits, ints):  # pragma: no cover - compiled
 @_inner
 def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_group_bound,
               pair_inflation_row, lazy, n_pass, tcp, has_previous, mode, poses, points, placed,
-              scratch, state, tau, coherence):  # pragma: no cover - compiled
+              scratch, state, tau, gap, coherence):  # pragma: no cover - compiled
     """Every check of one sample. `body_inflation` (B+1,), group and group-pair inflation
     bounds, the pair inflations from `pair_inflation_row` (P,), or its one value for every pair
     when it holds one, or, when it is empty, from the path (`lazy`, see `_lazy_pair_inflation`).
     `tcp` (2, 3): row 1 receives this sample's TCP, row 0 holds the previous sample's (used when
-    `has_previous`). `scratch` (1+G, 8). `tau`, `coherence`: the sample's path parameter and the
-    pairs' skip intervals (lo, hi, inflation bound per pair; the group pairs' rates), empty
-    arrays: none. Returns _CLEAR or _HIT, or
+    `has_previous`). `scratch` (1+G, 8). `tau`, `gap`, `coherence`: the sample's path parameter,
+    half the larger target gap next to it, and (skip_lo, skip_hi, skip_gap, pair_rate (P,): the
+    pairs' skip intervals and their relative-motion rates per unit of path parameter, -1 until
+    computed; rates (nq,): `_joint_rates`), empty arrays: no path. Returns _CLEAR or _HIT, or
     NON_FINITE (nothing else done)."""
     node_ints = _int_table(ints, _I_NODE)
     node_floats = _float_table(ints, floats, _F_NODE)
@@ -712,7 +724,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
     pair_floats = _float_table(ints, floats, _F_PAIR)
     group_pair_floats = _float_table(ints, floats, _F_GROUP_PAIR)
     pair_slots = n_keys * (1 + n_zones)
-    skip_lo, skip_hi, skip_bound, pair_rate = coherence
+    skip_lo, skip_hi, skip_gap, pair_rate, rates = coherence
     skipping = skip_lo.shape[0] > 0
     for gp in range(group_pair.shape[0]):
         ga = group_pair[gp, 0]
@@ -727,7 +739,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
         both_placed = False
         for m in range(group_pair[gp, 2], group_pair[gp, 3]):
             p = group_pair_pairs[m, 0]
-            if skipping and skip_lo[p] <= tau <= skip_hi[p] and bound <= skip_bound[p]:
+            if skipping and skip_lo[p] <= tau <= skip_hi[p] and gap <= skip_gap[p]:
                 continue
             if not both_placed:  # (a helper's array arguments cost reference counting: once per group pair)
                 _place_group(ga, group, group_bodies, body_ints, body_floats, poses, points, placed)
@@ -740,14 +752,23 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             gx = points[ia, 6] - points[ib, 6]
             gy = points[ia, 7] - points[ib, 7]
             gz = points[ia, 8] - points[ib, 8]
-            reach_bound = pair_floats[p, 1] + bound
+            if skipping:  # the pair's own inflation bound: its rate times the gap (cached per path)
+                rate = pair_rate[p]
+                if rate < 0.0:
+                    rate = 0.0
+                    for i in range(rates.shape[0]):
+                        rate += rates[i] * pair_reach[p, i]
+                    pair_rate[p] = rate
+                reach_bound = pair_floats[p, 1] + rate * gap + CULL_EPS
+            else:
+                reach_bound = pair_floats[p, 1] + bound
             if gx * gx + gy * gy + gz * gz >= reach_bound * reach_bound:
                 if skipping:  # apart by `margin`: the centres cannot close it within margin / rate of path
                     margin = math.sqrt(gx * gx + gy * gy + gz * gz) - reach_bound
-                    width = margin / pair_rate[gp] if pair_rate[gp] > 0.0 else np.inf
+                    width = margin / rate if rate > 0.0 else np.inf
                     skip_lo[p] = tau - width
                     skip_hi[p] = tau + width
-                    skip_bound[p] = bound
+                    skip_gap[p] = gap
                 continue
             slot = pair_slots + pairs[p, 2]
             if skip_settled and not _improves(state, slot, time):
@@ -755,25 +776,33 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             centre_distance = math.sqrt(gx * gx + gy * gy + gz * gz)
             pa = points[ia]
             pb = points[ib]
-            if pair_inflation_row.shape[0] > 1:
-                inflation = pair_inflation_row[p]
-            elif pair_inflation_row.shape[0] == 1:
-                inflation = pair_inflation_row[0]
+            if skipping:
+                # on a path, the allowance is bounded before it is known: far enough apart by the
+                # bound, the pair is not touching whatever its own inflation (and stays so a while)
+                allowance = pair_floats[p, 0] + rate * gap + CULL_EPS
+                if _boxes_apart(pa, pb, allowance):
+                    continue
+                distance = _segment_segment_distance(pa, pb)
+                if distance >= allowance:
+                    width = (distance - allowance) / rate if rate > 0.0 else np.inf
+                    skip_lo[p] = tau - width
+                    skip_hi[p] = tau + width
+                    skip_gap[p] = gap
+                    continue
+                if pair_inflation_row.shape[0] == 1:  # one value for every pair (a still sample's: none)
+                    inflation = pair_inflation_row[0]
+                else:
+                    inflation = _lazy_pair_inflation(pair_cum, pair_valid, steps, pair_reach, k, alpha, at_end,
+                                                     n_pass, sample, p)
             else:
-                inflation = _lazy_pair_inflation(pair_cum, pair_valid, steps, pair_reach, k, alpha, at_end, n_pass,
-                                                 sample, p)
+                inflation = pair_inflation_row[p] if pair_inflation_row.shape[0] > 1 else pair_inflation_row[0]
+                if _boxes_apart(pa, pb, pair_floats[p, 0] + inflation):
+                    continue
+                distance = _segment_segment_distance(pa, pb)
+            # the numpy pass's own tests, with the pair's own inflation
             if not (centre_distance < pair_floats[p, 1] + inflation):
                 continue
             allowance = pair_floats[p, 0] + inflation
-            # the segments' bounds grown by the allowance must overlap, or they are farther apart than it
-            apart = False
-            for a in range(3):
-                if (min(pa[a], pa[3 + a]) - allowance > max(pb[a], pb[3 + a])
-                        or min(pb[a], pb[3 + a]) - allowance > max(pa[a], pa[3 + a])):
-                    apart = True
-            if apart:
-                continue
-            distance = _segment_segment_distance(pa, pb)
             if not (distance < allowance):
                 continue
             flagged = True
@@ -993,7 +1022,9 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
     # pairs found apart by a margin need no test while the path cannot have closed it (`_evaluate`)
     skip_hi = np.empty(n_pairs)
     skip_hi[:] = -np.inf
-    coherence = (np.zeros(n_pairs), skip_hi, np.zeros(n_pairs), group_pair_rate)
+    pair_rate = np.empty(n_pairs)
+    pair_rate[:] = -1.0
+    coherence = (np.zeros(n_pairs), skip_hi, np.zeros(n_pairs), pair_rate, rates)
     checked = 0
 
     # ranges to check, depth first: (level, start, end); the whole path at level 0 first
@@ -1052,7 +1083,7 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
                 tcp[0, a] = tcp[1, a]
             outcome = _evaluate(ints, floats, q, time, n, body_inflation, group_bound, pair_group_bound, no_rows,
                                 lazy, n_pass, tcp, n > 0, mode, poses, points, placed, scratch, state, targets[n],
-                                coherence)
+                                gap, coherence)
             if outcome == NON_FINITE:
                 return state, NON_FINITE, first_tcp
             if level == 0:
@@ -1072,7 +1103,7 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
             time = _interpolate(times, positions, k, alpha, at_end, n, q)
             outcome = _evaluate(ints, floats, q, time, n, still_bodies, still_groups, still_group_pairs, still_rows,
                                 lazy, n_pass, tcp, False, still_mode, poses, points, placed, scratch, state, targets[n],
-                                coherence)
+                                0.0, coherence)
             certain[n] = outcome == _HIT
         if first_only and n_found[0] > 0:
             return state, checked, first_tcp
@@ -1170,7 +1201,7 @@ def _check_samples_entry(times, positions, inflation, pair_inflation, segments, 
     index = np.empty(0, dtype=np.int64)
     unused_lazy = (points, index, points, points, index, tcp[0], placed)  # pair inflations are given: not read
     nothing = np.empty(0)
-    no_coherence = (nothing, nothing, nothing, nothing)
+    no_coherence = (nothing, nothing, nothing, nothing, nothing)
     mode = np.int64(_FULL)  # not a literal (see `_inline`)
     for n in range(n_samples):
         for g in range(n_groups):
@@ -1188,7 +1219,7 @@ def _check_samples_entry(times, positions, inflation, pair_inflation, segments, 
         row = pair_inflation[n] if pair_inflation.shape[1] > 1 else pair_inflation[n, :1]
         outcome = _evaluate(ints, floats, positions[n], times[n], n, inflation[n], group_bound, pair_group_bound,
                             row, unused_lazy, n_samples, tcp, segments and n > 0, mode, poses, points, placed, scratch,
-                            state, times[n], no_coherence)
+                            state, times[n], 0.0, no_coherence)
         if outcome == NON_FINITE:
             return NON_FINITE
         flags[n] = outcome == _HIT
@@ -1225,13 +1256,13 @@ def _check_configuration_entry(q, allowance, first_only, ints, floats, hits):  #
     index = np.empty(0, dtype=np.int64)
     unused_lazy = (points, index, points, points, index, tcp[0], placed)  # pair inflations are given: not read
     nothing = np.empty(0)
-    no_coherence = (nothing, nothing, nothing, nothing)
+    no_coherence = (nothing, nothing, nothing, nothing, nothing)
     mode = np.int64(_FULL)  # every finding, first_only or not: as a path that stays at q (not a literal: see `_inline`)
     time, sample, n_pass = 0.0, np.int64(0), np.int64(1)  # not literals (see `_inline`)
     has_previous = sample > 0  # False, not a literal
     outcome = _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_group_bound, pair_inflation,
                         unused_lazy, n_pass, tcp, has_previous, mode, poses, points, placed, scratch, state, time,
-                        no_coherence)
+                        time, no_coherence)
     if outcome == NON_FINITE:
         return NON_FINITE
     return (status << 32) + _output(state, hits, ints)
