@@ -752,6 +752,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             gx = points[ia, 6] - points[ib, 6]
             gy = points[ia, 7] - points[ib, 7]
             gz = points[ia, 8] - points[ib, 8]
+            rate = 0.0
             if skipping:  # the pair's own inflation bound: its rate times the gap (cached per path)
                 rate = pair_rate[p]
                 if rate < 0.0:
