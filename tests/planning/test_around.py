@@ -205,4 +205,4 @@ def test_a_pose_target_behind_an_obstacle_for_the_joint_line_gets_the_straight_t
     assert any("straight TCP line" in note for note in outcome.notes)
     distance = np.linalg.norm(target.position - runtime.robot.tcp_pose(READY).position)
     assert report.tcp_path_length_m <= distance * 1.01
-    assert oracle_for(model).violations(outcome.trajectory) == []
+    assert outcome.trajectory is not None and oracle_for(model).violations(outcome.trajectory) == []

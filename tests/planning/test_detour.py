@@ -136,7 +136,7 @@ def test_a_searched_path_stays_within_a_tcp_cap_that_unbounded_detours_broke(run
     assert report is not None and not report.hard, outcome.violations
     assert report.tcp_path_length_m <= TIGHT_TCP_CAP_M
     assert any("search within the per-plan caps" in note for note in outcome.notes)
-    assert oracle_for(model).violations(outcome.trajectory) == []
+    assert outcome.trajectory is not None and oracle_for(model).violations(outcome.trajectory) == []
 
 
 def test_the_same_request_gives_the_same_capped_detour(runtime: RuntimeModel) -> None:
