@@ -32,20 +32,23 @@ COLLISION_AUTO = "auto"
 COLLISION_URDF = "urdf"
 
 
+def _bundled_or_file(value: str, what: str, bundled: dict[str, str], also: str = "") -> Path:
+    """The bundled file `builtin:<name>` names in `bundled`, or the readable file at path `value`."""
+    if value.startswith(BUILTIN_PREFIX):
+        key = value[len(BUILTIN_PREFIX):]
+        if key not in bundled:
+            available = ", ".join(BUILTIN_PREFIX + k for k in sorted(bundled))
+            raise RobotModelError(f"unknown built-in {what} {value!r}; available: {available}{also}")
+        return Path(str(resources.files("armwarden.robot") / "description" / bundled[key]))
+    path = Path(value).expanduser()
+    if not path.is_file():
+        raise RobotModelError(f"{what} {value!r} is not a readable file")
+    return path
+
+
 def resolve_description(description: str) -> Path:
     """Path of the URDF named by `robot.description` (`builtin:<name>` or a file path)."""
-    if description.startswith(BUILTIN_PREFIX):
-        key = description[len(BUILTIN_PREFIX):]
-        if key not in BUILTIN_DESCRIPTIONS:
-            raise RobotModelError(
-                f"unknown built-in robot description {description!r}; "
-                f"available: {', '.join(BUILTIN_PREFIX + k for k in sorted(BUILTIN_DESCRIPTIONS))}"
-            )
-        return Path(str(resources.files("armwarden.robot") / "description" / BUILTIN_DESCRIPTIONS[key]))
-    path = Path(description).expanduser()
-    if not path.is_file():
-        raise RobotModelError(f"robot description {description!r} is not a readable file")
-    return path
+    return _bundled_or_file(description, "robot description", BUILTIN_DESCRIPTIONS)
 
 
 def resolve_collision_geometry(collision_geometry: str, description: str) -> FittedGeometry | None:
@@ -61,18 +64,8 @@ def resolve_collision_geometry(collision_geometry: str, description: str) -> Fit
         if key not in BUILTIN_FITTED:
             return None
         collision_geometry = BUILTIN_PREFIX + key
-    if collision_geometry.startswith(BUILTIN_PREFIX):
-        key = collision_geometry[len(BUILTIN_PREFIX):]
-        if key not in BUILTIN_FITTED:
-            raise RobotModelError(
-                f"unknown built-in collision geometry {collision_geometry!r}; available: "
-                f"{', '.join(BUILTIN_PREFIX + k for k in sorted(BUILTIN_FITTED))}, {COLLISION_AUTO}, {COLLISION_URDF}"
-            )
-        path = Path(str(resources.files("armwarden.robot") / "description" / BUILTIN_FITTED[key]))
-    else:
-        path = Path(collision_geometry).expanduser()
-        if not path.is_file():
-            raise RobotModelError(f"collision geometry {collision_geometry!r} is not a readable file")
+    path = _bundled_or_file(collision_geometry, "collision geometry", BUILTIN_FITTED,
+                            also=f", {COLLISION_AUTO}, {COLLISION_URDF}")
     try:
         return load_fitted(path)
     except FittingError as exc:
