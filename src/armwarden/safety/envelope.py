@@ -134,7 +134,9 @@ class Envelope:
         self.robot = robot
         self.limits = limits
         self._body_names = [_body_name(robot, c) for c in robot.capsules]
-        self._body_names.append(robot.tcp_frame)  # the TCP point is the last body (zero radius, no padding)
+        # the TCP point is the last body (zero radius, no padding); a TCP frame that is also a link
+        # with bodies of its own (`tcp_frame: fr3_hand`) is told apart from that link's bodies
+        self._body_names.append(robot.tcp_frame if robot.tcp_frame not in self._body_names else f"{robot.tcp_frame} (TCP)")
         unknown = sorted(set(limits.padding_by_link_m) - set(robot.link_names()))
         if unknown:
             raise RobotModelError(f"padding_by_link_m names unknown link(s) {unknown}; valid links: {sorted(robot.link_names())}")
@@ -181,7 +183,7 @@ class Envelope:
             body_joint=[c.joint_index for c in capsules] + [int(tcp.parentJoint)],
             body_p0=np.vstack([np.array([c.p0_m for c in capsules], dtype=float).reshape(-1, 3), tcp_point]),
             body_p1=np.vstack([np.array([c.p1_m for c in capsules], dtype=float).reshape(-1, 3), tcp_point]),
-            body_group=[c.link for c in capsules] + [robot.tcp_frame],
+            body_group=[c.link for c in capsules] + [self._body_names[-1]],
             body_name=self._body_names,
             report_order=self._report_order,
             padded_radii=self._padded_radii,
