@@ -312,7 +312,10 @@ def _pack(int_tables: list[np.ndarray], float_tables: list[np.ndarray]) -> tuple
 
 # ---------------------------------------------------------------------------------------- helpers
 # Compiled into the entry points below (no signatures of their own; `cache=False`: the entry
-# points' cache holds them).
+# points' cache holds them). Every array a function binds (an argument, a row view, a tuple's
+# element) costs an atomic reference-count pair, ~10 ns: the hot helpers take the whole arrays and
+# indices rather than rows, and the ones that loop or branch are real calls, not inlined, whose
+# counting numba can prune (an inlined body's bindings it often cannot).
 _inner = numba.njit(nogil=True, cache=False)
 # numba types an int constant passed to a function as a literal and compiles a specialisation of
 # the callee for each value (minutes of compile time for `_evaluate`): values passed on are made
@@ -332,14 +335,13 @@ def _float_table(ints, floats, index):  # pragma: no cover - compiled
 
 
 @_inner
-def _segment_box_distance(p0x, p0y, p0z, p1x, p1y, p1z, box, lo_shift, hi_shift, knots):  # pragma: no cover - compiled
-    """`geometry.segment_box_distance` for one segment and the box `box` (lo xyz, hi xyz) with
-    lo + lo_shift, hi + hi_shift: the same knots, pieces, minimisers and candidates. `knots`:
-    scratch of 8."""
+def _segment_box_distance(p0x, p0y, p0z, p1x, p1y, p1z, boxes, row, knots):  # pragma: no cover - compiled
+    """`geometry.segment_box_distance` for one segment and the box `boxes[row]` (lo xyz, hi
+    xyz): the same knots, pieces, minimisers and candidates. `knots`: scratch (at least 8)."""
     p0 = (p0x, p0y, p0z)
     d = (p1x - p0x, p1y - p0y, p1z - p0z)
-    lo = (box[0] + lo_shift, box[1] + lo_shift, box[2] + lo_shift)
-    hi = (box[3] + hi_shift, box[4] + hi_shift, box[5] + hi_shift)
+    lo = (boxes[row, 0], boxes[row, 1], boxes[row, 2])
+    hi = (boxes[row, 3], boxes[row, 4], boxes[row, 5])
     knots[0] = 0.0
     knots[1] = 1.0
     for a in range(3):
@@ -389,21 +391,23 @@ def _segment_box_distance(p0x, p0y, p0z, p1x, p1y, p1z, box, lo_shift, hi_shift,
 
 
 @_inline
-def _segment_hits_box(p0, p1, box, grow):  # pragma: no cover - compiled
-    """`geometry.segments_hit_boxes` (the slab test) for one segment and `box` grown by `grow`."""
+def _segment_hits_box(tcp, boxes, row, grow):  # pragma: no cover - compiled
+    """`geometry.segments_hit_boxes` (the slab test) for the segment tcp[0]–tcp[1] and the box
+    `boxes[row]` grown by `grow`."""
     enter = -np.inf
     leave = np.inf
     for a in range(3):
-        lo = box[a] - grow
-        hi = box[3 + a] + grow
-        d = p1[a] - p0[a]
+        lo = boxes[row, a] - grow
+        hi = boxes[row, 3 + a] + grow
+        start = tcp[0, a]
+        d = tcp[1, a] - start
         if abs(d) > 1e-12:
             inv = 1.0 / d
-            t_a = (lo - p0[a]) * inv
-            t_b = (hi - p0[a]) * inv
+            t_a = (lo - start) * inv
+            t_b = (hi - start) * inv
             near = min(t_a, t_b)
             far = max(t_a, t_b)
-        elif p0[a] >= lo and p0[a] <= hi:
+        elif start >= lo and start <= hi:
             near = -np.inf
             far = np.inf
         else:
@@ -420,12 +424,13 @@ def _clip01(x):  # pragma: no cover - compiled
 
 
 @_inline
-def _segment_segment_distance(pa, pb):  # pragma: no cover - compiled
-    """`geometry.segment_segment_distance` for segments pa[0:3]–pa[3:6] and pb[0:3]–pb[3:6]."""
+def _segment_segment_distance(points, ia, ib):  # pragma: no cover - compiled
+    """`geometry.segment_segment_distance` for the segments of bodies ia and ib (`points` rows:
+    p0 xyz, p1 xyz)."""
     eps = 1e-12
-    d1x, d1y, d1z = pa[3] - pa[0], pa[4] - pa[1], pa[5] - pa[2]
-    d2x, d2y, d2z = pb[3] - pb[0], pb[4] - pb[1], pb[5] - pb[2]
-    rx, ry, rz = pa[0] - pb[0], pa[1] - pb[1], pa[2] - pb[2]
+    d1x, d1y, d1z = points[ia, 3] - points[ia, 0], points[ia, 4] - points[ia, 1], points[ia, 5] - points[ia, 2]
+    d2x, d2y, d2z = points[ib, 3] - points[ib, 0], points[ib, 4] - points[ib, 1], points[ib, 5] - points[ib, 2]
+    rx, ry, rz = points[ia, 0] - points[ib, 0], points[ia, 1] - points[ib, 1], points[ia, 2] - points[ib, 2]
     a = d1x * d1x + d1y * d1y + d1z * d1z
     e = d2x * d2x + d2y * d2y + d2z * d2z
     f = d2x * rx + d2y * ry + d2z * rz
@@ -453,21 +458,21 @@ def _segment_segment_distance(pa, pb):  # pragma: no cover - compiled
         t = 0.0
         if not p_is_point:
             s = _clip01(-c / a_safe)
-    x = (pa[0] + s * d1x) - (pb[0] + t * d2x)
-    y = (pa[1] + s * d1y) - (pb[1] + t * d2y)
-    z = (pa[2] + s * d1z) - (pb[2] + t * d2z)
+    x = (points[ia, 0] + s * d1x) - (points[ib, 0] + t * d2x)
+    y = (points[ia, 1] + s * d1y) - (points[ib, 1] + t * d2y)
+    z = (points[ia, 2] + s * d1z) - (points[ib, 2] + t * d2z)
     return math.sqrt(x * x + y * y + z * z)
 
 
 @_inline
-def _transform(pose, x, y, z):  # pragma: no cover - compiled
-    """R · (x, y, z) + t for the homogeneous `pose`."""
-    return (pose[0, 0] * x + pose[0, 1] * y + pose[0, 2] * z + pose[0, 3],
-            pose[1, 0] * x + pose[1, 1] * y + pose[1, 2] * z + pose[1, 3],
-            pose[2, 0] * x + pose[2, 1] * y + pose[2, 2] * z + pose[2, 3])
+def _transform(poses, j, x, y, z):  # pragma: no cover - compiled
+    """R · (x, y, z) + t for the homogeneous pose `poses[j]`."""
+    return (poses[j, 0, 0] * x + poses[j, 0, 1] * y + poses[j, 0, 2] * z + poses[j, 0, 3],
+            poses[j, 1, 0] * x + poses[j, 1, 1] * y + poses[j, 1, 2] * z + poses[j, 1, 3],
+            poses[j, 2, 0] * x + poses[j, 2, 1] * y + poses[j, 2, 2] * z + poses[j, 2, 3])
 
 
-@_inline
+@_inner
 def _place_group(g, group, group_bodies, body_ints, body_floats, poses, points, placed):  # pragma: no cover - compiled
     """World end points of group g's bodies into points[b] (p0 xyz, p1 xyz, midpoint xyz), once
     per sample."""
@@ -475,60 +480,60 @@ def _place_group(g, group, group_bodies, body_ints, body_floats, poses, points, 
         return
     for m in range(group[g, 2], group[g, 3]):
         b = group_bodies[m, 0]
-        pose = poses[body_ints[b, 0]]
-        local = body_floats[b]
-        out = points[b]
-        out[0], out[1], out[2] = _transform(pose, local[0], local[1], local[2])
-        out[3], out[4], out[5] = _transform(pose, local[3], local[4], local[5])
-        out[6] = (out[0] + out[3]) / 2.0
-        out[7] = (out[1] + out[4]) / 2.0
-        out[8] = (out[2] + out[5]) / 2.0
+        j = body_ints[b, 0]
+        points[b, 0], points[b, 1], points[b, 2] = _transform(poses, j, body_floats[b, 0], body_floats[b, 1],
+                                                              body_floats[b, 2])
+        points[b, 3], points[b, 4], points[b, 5] = _transform(poses, j, body_floats[b, 3], body_floats[b, 4],
+                                                              body_floats[b, 5])
+        points[b, 6] = (points[b, 0] + points[b, 3]) / 2.0
+        points[b, 7] = (points[b, 1] + points[b, 4]) / 2.0
+        points[b, 8] = (points[b, 2] + points[b, 5]) / 2.0
     placed[g] = True
 
 
 @_inline
-def _write_row(row, kind, index, zone, time, point, distance, allowance, slot):  # pragma: no cover - compiled
+def _write_row(row, kind, index, zone, time, points, b, distance, allowance, slot):  # pragma: no cover - compiled
     row[0] = kind
     row[1] = index
     row[2] = zone
     row[3] = time
-    row[4] = point[0]
-    row[5] = point[1]
-    row[6] = point[2]
+    row[4] = points[b, 0]
+    row[5] = points[b, 1]
+    row[6] = points[b, 2]
     row[7] = distance
     row[8] = allowance
     row[9] = slot
 
 
 @_inline
-def _outside_box(point, radius, box, grow):  # pragma: no cover - compiled
-    """Whether the capsule point[0:3]–point[3:6] with `radius` leaves `box` grown by `grow`
-    (the numpy pass: its bounds not inside the box)."""
+def _outside_box(points, b, radius, boxes, row):  # pragma: no cover - compiled
+    """Whether body b's capsule (`points[b]`: p0 xyz, p1 xyz) with `radius` leaves the box
+    `boxes[row]` (the numpy pass: its bounds not inside the box)."""
     for a in range(3):
-        low = min(point[a], point[3 + a]) - radius
-        high = max(point[a], point[3 + a]) + radius
-        if not (low >= box[a] - grow) or not (high <= box[3 + a] + grow):
+        low = min(points[b, a], points[b, 3 + a]) - radius
+        high = max(points[b, a], points[b, 3 + a]) + radius
+        if not (low >= boxes[row, a]) or not (high <= boxes[row, 3 + a]):
             return True
     return False
 
 
 @_inline
-def _boxes_apart(pa, pb, allowance):  # pragma: no cover - compiled
-    """Whether the segments' bounds, grown by `allowance`, miss each other: then the segments are
-    farther apart than it."""
+def _boxes_apart(points, ia, ib, allowance):  # pragma: no cover - compiled
+    """Whether the bounds of bodies ia's and ib's segments, grown by `allowance`, miss each
+    other: then the segments are farther apart than it."""
     for a in range(3):
-        if (min(pa[a], pa[3 + a]) - allowance > max(pb[a], pb[3 + a])
-                or min(pb[a], pb[3 + a]) - allowance > max(pa[a], pa[3 + a])):
+        if (min(points[ia, a], points[ia, 3 + a]) - allowance > max(points[ib, a], points[ib, 3 + a])
+                or min(points[ib, a], points[ib, 3 + a]) - allowance > max(points[ia, a], points[ia, 3 + a])):
             return True
     return False
 
 
 @_inline
-def _bounds_overlap(point, radius, box):  # pragma: no cover - compiled
+def _bounds_overlap(points, b, radius, boxes, row):  # pragma: no cover - compiled
     for a in range(3):
-        low = min(point[a], point[3 + a]) - radius
-        high = max(point[a], point[3 + a]) + radius
-        if not (low <= box[3 + a]) or not (high >= box[a]):
+        low = min(points[b, a], points[b, 3 + a]) - radius
+        high = max(points[b, a], points[b, 3 + a]) + radius
+        if not (low <= boxes[row, 3 + a]) or not (high >= boxes[row, a]):
             return False
     return True
 
@@ -551,14 +556,14 @@ def _new_state(n_keys, n_zones, n_pair_keys):  # pragma: no cover - compiled
             np.zeros(1, dtype=np.int64))
 
 
-@_inline
+@_inner
 def _improves(state, slot, time):  # pragma: no cover - compiled
     """Whether a finding at `time` would be kept for `slot` (none yet, or a later one)."""
     return not state[0][slot] or time < state[1][slot]
 
 
-@_inline
-def _offer(state, slot, kind, index, zone, time, point, distance, allowance):  # pragma: no cover - compiled
+@_inner
+def _offer(state, slot, kind, index, zone, time, points, b, distance, allowance):  # pragma: no cover - compiled
     found, times, rows, n_found = state
     if found[slot] and not time < times[slot]:
         return
@@ -566,7 +571,7 @@ def _offer(state, slot, kind, index, zone, time, point, distance, allowance):  #
         found[slot] = True
         n_found[0] += 1
     times[slot] = time
-    _write_row(rows[slot], kind, index, zone, time, point, distance, allowance, float(slot))
+    _write_row(rows[slot], kind, index, zone, time, points, b, distance, allowance, float(slot))
 
 
 @_inner
@@ -622,26 +627,25 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
     n_groups = group.shape[0]
     n_zones = boxes.shape[0] - 1
     record = mode != _FLAG
+    knots = scratch[0]
     skip_settled = mode == _LAST  # keys whose finding this sample cannot improve
     flagged = False
     # floats: numba gives int constants literal types, and a specialisation of `_write_row` each
     workspace, keep_out, self_collision, no_zone = float(KIND_WORKSPACE), float(KIND_KEEP_OUT), float(KIND_SELF), -1.0
 
     # the TCP point (body B) and the group spheres' centres
-    local = body_floats[tcp_body]
-    x, y, z = _transform(poses[body_ints[tcp_body, 0]], local[0], local[1], local[2])
-    tcp_point = points[tcp_body]
-    tcp_point[0] = tcp_point[3] = tcp[1, 0] = x
-    tcp_point[1] = tcp_point[4] = tcp[1, 1] = y
-    tcp_point[2] = tcp_point[5] = tcp[1, 2] = z
-    centres = scratch[1:]
+    x, y, z = _transform(poses, body_ints[tcp_body, 0], body_floats[tcp_body, 0], body_floats[tcp_body, 1],
+                         body_floats[tcp_body, 2])
+    points[tcp_body, 0] = points[tcp_body, 3] = tcp[1, 0] = x
+    points[tcp_body, 1] = points[tcp_body, 4] = tcp[1, 1] = y
+    points[tcp_body, 2] = points[tcp_body, 5] = tcp[1, 2] = z
+    # the group spheres' centres: scratch rows 1..G (row 0 is the knots' scratch)
     for g in range(n_groups):
         placed[g] = False
-        row = group_floats[g]
-        centres[g, 0], centres[g, 1], centres[g, 2] = _transform(poses[group[g, 0]], row[0], row[1], row[2])
+        scratch[1 + g, 0], scratch[1 + g, 1], scratch[1 + g, 2] = _transform(
+            poses, group[g, 0], group_floats[g, 0], group_floats[g, 1], group_floats[g, 2])
 
-    # ---- workspace: every moving capsule and the TCP entirely inside the box
-    box = boxes[0]
+    # ---- workspace (boxes row 0): every moving capsule and the TCP entirely inside the box
     for g in range(n_groups + 1):
         if g < n_groups:
             if group[g, 1] == 0:
@@ -649,7 +653,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             grown = group_floats[g, 4] + group_bound[g] + CULL_EPS
             inside = True
             for a in range(3):
-                if not (centres[g, a] - grown >= box[a]) or not (centres[g, a] + grown <= box[3 + a]):
+                if not (scratch[1 + g, a] - grown >= boxes[0, a]) or not (scratch[1 + g, a] + grown <= boxes[0, 3 + a]):
                     inside = False
             if inside:
                 continue
@@ -663,16 +667,16 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             if skip_settled and not _improves(state, slot, time):
                 continue
             radius = body_inflation[b] + body_floats[b, 6]
-            if not _outside_box(points[b], radius, box, 0.0):
+            if not _outside_box(points, b, radius, boxes, 0):
                 continue
             flagged = True
             if not record:
                 return _HIT
-            _offer(state, slot, workspace, b, no_zone, time, points[b], 0.0, radius)
+            _offer(state, slot, workspace, b, no_zone, time, points, b, 0.0, radius)
 
     # ---- keep-out zones: bounds that overlap a zone, confirmed exactly
     for zone in range(n_zones):
-        box = boxes[1 + zone]
+        row = 1 + zone  # of boxes
         for g in range(n_groups + 1):
             if g < n_groups:
                 if group[g, 1] == 0:
@@ -680,7 +684,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
                 grown = group_floats[g, 4] + group_bound[g] + CULL_EPS
                 apart = False
                 for a in range(3):
-                    if centres[g, a] + grown < box[a] or centres[g, a] - grown > box[3 + a]:
+                    if scratch[1 + g, a] + grown < boxes[row, a] or scratch[1 + g, a] - grown > boxes[row, 3 + a]:
                         apart = True
                 if apart:
                     continue
@@ -694,28 +698,28 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
                 if skip_settled and not _improves(state, slot, time):
                     continue
                 radius = body_inflation[b] + body_floats[b, 6]
-                overlap = _bounds_overlap(points[b], radius, box)
+                overlap = _bounds_overlap(points, b, radius, boxes, row)
                 segment = b == tcp_body and has_previous
                 if segment and not overlap:  # the TCP's straight segment from the previous sample
                     overlap = True
                     for a in range(3):
                         low = min(tcp[0, a], tcp[1, a]) - radius
                         high = max(tcp[0, a], tcp[1, a]) + radius
-                        if not (low <= box[3 + a]) or not (high >= box[a]):
+                        if not (low <= boxes[row, 3 + a]) or not (high >= boxes[row, a]):
                             overlap = False
                 if not overlap:
                     continue
-                p = points[b]
-                distance = _segment_box_distance(p[0], p[1], p[2], p[3], p[4], p[5], box, 0.0, 0.0, scratch[0])
+                distance = _segment_box_distance(points[b, 0], points[b, 1], points[b, 2], points[b, 3], points[b, 4],
+                                                 points[b, 5], boxes, row, knots)
                 hit = distance <= radius
                 if not hit and segment:
-                    hit = _segment_hits_box(tcp[0], tcp[1], box, radius)
+                    hit = _segment_hits_box(tcp, boxes, row, radius)
                 if not hit:
                     continue
                 flagged = True
                 if not record:
                     return _HIT
-                _offer(state, slot, keep_out, b, float(zone), time, p, distance, radius)
+                _offer(state, slot, keep_out, b, float(zone), time, points, b, distance, radius)
 
     # ---- self-collision: capsule pairs closer than their summed radii plus inflation
     pairs = _int_table(ints, _I_PAIR)
@@ -729,9 +733,9 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
     for gp in range(group_pair.shape[0]):
         ga = group_pair[gp, 0]
         gb = group_pair[gp, 1]
-        dx = centres[ga, 0] - centres[gb, 0]
-        dy = centres[ga, 1] - centres[gb, 1]
-        dz = centres[ga, 2] - centres[gb, 2]
+        dx = scratch[1 + ga, 0] - scratch[1 + gb, 0]
+        dy = scratch[1 + ga, 1] - scratch[1 + gb, 1]
+        dz = scratch[1 + ga, 2] - scratch[1 + gb, 2]
         reach = group_floats[ga, 3] + group_floats[gb, 3] + group_pair_floats[gp, 0] + pair_group_bound[gp] + CULL_EPS
         if dx * dx + dy * dy + dz * dz >= reach * reach:
             continue
@@ -775,15 +779,13 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             if skip_settled and not _improves(state, slot, time):
                 continue
             centre_distance = math.sqrt(gx * gx + gy * gy + gz * gz)
-            pa = points[ia]
-            pb = points[ib]
             if skipping:
                 # on a path, the allowance is bounded before it is known: far enough apart by the
                 # bound, the pair is not touching whatever its own inflation (and stays so a while)
                 allowance = pair_floats[p, 0] + rate * gap + CULL_EPS
-                if _boxes_apart(pa, pb, allowance):
+                if _boxes_apart(points, ia, ib, allowance):
                     continue
-                distance = _segment_segment_distance(pa, pb)
+                distance = _segment_segment_distance(points, ia, ib)
                 if distance >= allowance:
                     width = (distance - allowance) / rate if rate > 0.0 else np.inf
                     skip_lo[p] = tau - width
@@ -797,9 +799,9 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
                                                      n_pass, sample, p)
             else:
                 inflation = pair_inflation_row[p] if pair_inflation_row.shape[0] > 1 else pair_inflation_row[0]
-                if _boxes_apart(pa, pb, pair_floats[p, 0] + inflation):
+                if _boxes_apart(points, ia, ib, pair_floats[p, 0] + inflation):
                     continue
-                distance = _segment_segment_distance(pa, pb)
+                distance = _segment_segment_distance(points, ia, ib)
             # the numpy pass's own tests, with the pair's own inflation
             if not (centre_distance < pair_floats[p, 1] + inflation):
                 continue
@@ -809,7 +811,7 @@ def _evaluate(ints, floats, q, time, sample, body_inflation, group_bound, pair_g
             flagged = True
             if not record:
                 return _HIT
-            _offer(state, slot, self_collision, p, no_zone, time, pa, distance, allowance)
+            _offer(state, slot, self_collision, p, no_zone, time, points, ia, distance, allowance)
     return _HIT if flagged else _CLEAR
 
 
@@ -833,7 +835,7 @@ def _pair_at(pair_cum, pair_valid, steps, pair_reach, k, alpha, at_end, n, p):  
     return start + alpha[n] * (pair_cum[k[n] + 1, p] - start)
 
 
-@_inline
+@_inner
 def _lazy_pair_inflation(pair_cum, pair_valid, steps, pair_reach, k, alpha, at_end, n_pass, n, p):  # pragma: no cover - compiled
     """Pair p's inflation at sample n of the current pass, as `_half_neighbour_bound(at(path.pairs))`
     gives it, computing the cumulative relative-motion bound of pair p only as far as needed:
@@ -1020,6 +1022,7 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
     scratch = np.empty((1 + n_groups, 8))
     first_tcp = np.empty((0, 3))
     still_mode = np.int64(_STILL)  # not a literal (see `_inline`)
+    no_previous = still_mode < 0  # False, not a literal (see `_inline`): a still sample has no segment
     # pairs found apart by a margin need no test while the path cannot have closed it (`_evaluate`)
     skip_hi = np.empty(n_pairs)
     skip_hi[:] = -np.inf
@@ -1103,7 +1106,7 @@ def _check_path(times, positions, seg_bound, first_only, ints, floats):  # pragm
             checked += 1
             time = _interpolate(times, positions, k, alpha, at_end, n, q)
             outcome = _evaluate(ints, floats, q, time, n, still_bodies, still_groups, still_group_pairs, still_rows,
-                                lazy, n_pass, tcp, False, still_mode, poses, points, placed, scratch, state, targets[n],
+                                lazy, n_pass, tcp, no_previous, still_mode, poses, points, placed, scratch, state, targets[n],
                                 0.0, coherence)
             certain[n] = outcome == _HIT
         if first_only and n_found[0] > 0:
