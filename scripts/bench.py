@@ -118,64 +118,129 @@ def _time_us(fn: Callable[[], object], repeats: int) -> list[float]:
 
 
 def bench_envelope(repeats: int = 400) -> dict[str, float]:
-    import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+    """The envelope's checks, compiled (the default, `safety/geometry_kernel.py`) beside the numpy
+    passes (`compiled=False`, the kernels' oracle), interleaved in one run: a state check and a
+    motion check as the detour search asks them (`check_path(..., first_only=True)`), and the full
+    check of the typical plan; plus where the compiled state and motion checks spend their time."""
+    import numba
+
+    from armwarden.robot.batch_fk import KinematicChain, fk_into
+    from armwarden.safety import geometry_kernel
+    from armwarden.safety.envelope import Envelope
 
     runtime = load_runtime_model(load_policy(bundled_policy("fr3")))
-    robot, envelope, planner = runtime.robot, runtime.envelope, runtime.planner
+    robot, compiled, planner = runtime.robot, runtime.envelope, runtime.planner
+    oracle = Envelope(robot, compiled.limits, compiled=False)
+    limits = compiled.limits
     trajectory = planner.plan_to_joints(READY, READY + TYPICAL_DELTA, velocity_scaling=0.15).trajectory
     if trajectory is None:
         raise RuntimeError("the benchmark motion could not be planned")
-    report = envelope.check(trajectory)
-    assert not report.violations, report.violations
-    # the samples the sweep bound requires (fine), and those a clean plan actually evaluates (the
-    # coarse pass; see Envelope._check_geometry)
-    _, q_fine, _ = envelope.sample_path(trajectory.times, trajectory.positions)
-    n_evaluated = report.samples_checked
-    q_evaluated = q_fine[np.linspace(0, len(q_fine) - 1, n_evaluated).round().astype(int)]
-    model, data = robot.model, robot.data
-    tcp_id = model.getFrameId(robot.tcp_frame)
+    report, oracle_report = compiled.check(trajectory), oracle.check(trajectory)
+    assert not report.violations and not oracle_report.violations, (report.violations, oracle_report.violations)
+    _, q_fine, _ = compiled.sample_path(trajectory.times, trajectory.positions)
 
-    def bare_fk_tcp(samples: np.ndarray) -> Callable[[], None]:
-        def run() -> None:
-            for q in samples:
-                pin.forwardKinematics(model, data, q)
-                pin.updateFramePlacement(model, data, tcp_id).translation  # noqa: B018 - read it, as a check must
-        return run
+    # the detour search's space: the joint limits inside the soft margin; its motions: straight
+    # joint segments up to its range (1 rad, Euclidean), random direction and length
+    rng = np.random.default_rng(25)
+    lower, upper = limits.lower_rad + limits.joint_limit_margin_rad, limits.upper_rad - limits.joint_limit_margin_rad
+    states = rng.uniform(lower, upper, size=(5 * repeats, robot.nq))
+    motions = []
+    for _ in range(2 * repeats):
+        start = rng.uniform(lower, upper)
+        direction = rng.normal(size=robot.nq)
+        motions.append(np.vstack([start, np.clip(start + direction / np.linalg.norm(direction) * rng.uniform(0.0, 1.0),
+                                                 lower, upper)]))
 
-    def bare_fk_bodies() -> None:
-        robot.joint_frames(q_fine)
+    def once_us(fn: Callable[[], object]) -> float:
+        start = time.perf_counter()
+        fn()
+        return (time.perf_counter() - start) * 1e6
 
-    def full_check() -> None:
-        envelope.check(trajectory)
+    # warm up both (first calls fill caches and allocate)
+    for q in states[:20]:
+        compiled.check_path(q, first_only=True)
+        oracle.check_path(q, first_only=True)
+    # interleaved, each input once: the compiled check on every input, the numpy one on every k-th
+    state_c, state_n, motion_c, motion_n, full_c, full_n = [], [], [], [], [], []
+    every = 5
+    for i, q in enumerate(states):
+        state_c.append(once_us(lambda q=q: compiled.check_path(q, first_only=True)))
+        if i % every == 0:
+            state_n.append(once_us(lambda q=q: oracle.check_path(q, first_only=True)))
+    for i, path in enumerate(motions):
+        motion_c.append(once_us(lambda path=path: compiled.check_path(path, first_only=True)))
+        if i % every == 0:
+            motion_n.append(once_us(lambda path=path: oracle.check_path(path, first_only=True)))
+    for i in range(repeats):
+        full_c.append(once_us(lambda: compiled.check(trajectory)))
+        if i % every == 0:
+            full_n.append(once_us(lambda: oracle.check(trajectory)))
+    state_blocked = np.mean([any(v.is_hard for v in compiled.check_path(q, first_only=True)) for q in states])
+    motion_blocked = np.mean([any(v.is_hard for v in compiled.check_path(p, first_only=True)) for p in motions])
 
-    # interleave them so that machine noise hits them alike
-    full, tcp, tcp_eval, bodies = [], [], [], []
-    fk_fine, fk_eval = bare_fk_tcp(q_fine), bare_fk_tcp(q_evaluated)
-    for _ in range(repeats):
-        full += _time_us(full_check, 1)
-        tcp += _time_us(fk_fine, 1)
-        tcp_eval += _time_us(fk_eval, 1)
-        bodies += _time_us(bare_fk_bodies, 1)
-    n = len(q_fine)
-    full_med, tcp_med, bodies_med = statistics.median(full), statistics.median(tcp), statistics.median(bodies)
-    eval_med = statistics.median(tcp_eval)
+    # where the compiled checks spend it: the kernels called bare, FK alone, an empty call's dispatch
+    kernel = compiled._kernel  # the benchmark times the kernels bare
+    assert kernel is not None
+    hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+    node_ints, node_floats = KinematicChain.from_model(robot.model, []).node_tables()
+    poses = np.empty((len(node_ints), 4, 4))
+
+    @numba.njit(numba.int64(numba.float64[::1], numba.float64, numba.boolean, numba.int64[:, ::1], numba.float64[:, ::1],
+                            numba.float64[:, ::1]))
+    def empty_call(q, allowance, first_only, ints, floats, out):  # pragma: no cover - compiled
+        return 0
+
+    # each input through the whole check and through the kernel alone, back to back: the Python
+    # around the kernel is the median of the differences
+    state_whole, kernel_state, fk, empty = [], [], [], []
+    for q in states[:repeats]:
+        state_whole.append(once_us(lambda q=q: compiled.check_path(q, first_only=True)))
+        kernel_state.append(once_us(lambda q=q: geometry_kernel.check_configuration(q, 0.0, True, kernel.ints, kernel.floats,
+                                                                                    hits)))
+        fk.append(once_us(lambda q=q: fk_into(q, node_ints, node_floats, poses)))
+        empty.append(once_us(lambda q=q: empty_call(q, 0.0, True, kernel.ints, kernel.floats, hits)))
+    motion_whole, kernel_motion, motion_samples = [], [], []
+    index = np.arange(2.0)
+    for path in motions[:repeats]:
+        seg_bound = np.abs(np.diff(path, axis=0)) @ robot.reach
+        motion_whole.append(once_us(lambda path=path: compiled.check_path(path, first_only=True)))
+        kernel_motion.append(once_us(lambda path=path, seg_bound=seg_bound: geometry_kernel.check_path(
+            index, path, seg_bound, True, kernel.ints, kernel.floats, hits)))
+        motion_samples.append(geometry_kernel.check_path(index, path, seg_bound, True, kernel.ints, kernel.floats, hits)[2])
+
+    med = statistics.median
     return {
         "plan_duration_s": trajectory.duration_s,
         "plan_waypoints": len(trajectory.times),
-        "evaluated_samples": n_evaluated,
-        "bare_fk_tcp_evaluated_us_median": eval_med,
-        "ratio_full_to_fk_tcp_evaluated": full_med / eval_med,
-        "checked_samples": n,
+        "checked_samples": len(q_fine),
+        "evaluated_samples": report.samples_checked,
         "capsules": len(robot.capsules),
-        "self_collision_pairs": len(envelope.self_collision_pairs),
-        "keep_out_zones": len(envelope.limits.keep_out),
-        "full_check_ms_median": full_med / 1e3,
-        "full_check_ms_p95": _percentile(full, 95) / 1e3,
-        "checked_samples_per_s": n / (full_med / 1e6),
-        "bare_fk_tcp_us_median": tcp_med,
-        "bare_fk_bodies_us_median": bodies_med,
-        "ratio_full_to_fk_tcp": full_med / tcp_med,
-        "ratio_full_to_fk_bodies": full_med / bodies_med,
+        "self_collision_pairs": len(compiled.self_collision_pairs),
+        "keep_out_zones": len(limits.keep_out),
+        "states": len(states),
+        "motions": len(motions),
+        "state_blocked_share": float(state_blocked),
+        "motion_blocked_share": float(motion_blocked),
+        "state_compiled_us_median": med(state_c),
+        "state_compiled_us_p95": _percentile(state_c, 95),
+        "state_numpy_us_median": med(state_n),
+        "state_numpy_us_p95": _percentile(state_n, 95),
+        "motion_compiled_us_median": med(motion_c),
+        "motion_compiled_us_p95": _percentile(motion_c, 95),
+        "motion_numpy_us_median": med(motion_n),
+        "motion_numpy_us_p95": _percentile(motion_n, 95),
+        "full_compiled_ms_median": med(full_c) / 1e3,
+        "full_compiled_ms_p95": _percentile(full_c, 95) / 1e3,
+        "full_numpy_ms_median": med(full_n) / 1e3,
+        "full_numpy_ms_p95": _percentile(full_n, 95) / 1e3,
+        "state_kernel_us_median": med(kernel_state),
+        "fk_call_us_median": med(fk),
+        "empty_call_us_median": med(empty),
+        "motion_kernel_us_median": med(kernel_motion),
+        "motion_samples_median": med(motion_samples),
+        "motion_kernel_us_per_sample_median": med([t / n for t, n in zip(kernel_motion, motion_samples, strict=True)]),
+        "state_python_us_median": med([w - k for w, k in zip(state_whole, kernel_state, strict=True)]),
+        "motion_python_us_median": med([w - k for w, k in zip(motion_whole, kernel_motion, strict=True)]),
     }
 
 
@@ -187,15 +252,27 @@ def _report_envelope(r: dict[str, float]) -> None:
         f"{r['evaluated_samples']}; {r['capsules']} capsules + TCP, "
         f"{r['self_collision_pairs']} self-collision pairs, {r['keep_out_zones']} keep-out zones"
     )
-    print(f"full check: {r['full_check_ms_median']:.3f} ms median, {r['full_check_ms_p95']:.3f} ms p95  "
-          f"(target < 2 ms: {'met' if r['full_check_ms_median'] < 2 else 'MISSED'})")
-    print(f"checked samples per second (samples the sweep bound covers / check time): {r['checked_samples_per_s']:,.0f}")
-    print(f"bare FK + TCP read over the {r['checked_samples']} sweep-bound samples: {r['bare_fk_tcp_us_median']:.0f} us -> ratio "
-          f"{r['ratio_full_to_fk_tcp']:.2f}x (target <= 3x: {'met' if r['ratio_full_to_fk_tcp'] <= 3 else 'MISSED'})")
-    print(f"bare FK + TCP read over the {r['evaluated_samples']} samples actually evaluated: "
-          f"{r['bare_fk_tcp_evaluated_us_median']:.0f} us -> ratio {r['ratio_full_to_fk_tcp_evaluated']:.2f}x")
-    print(f"bare FK + every checked body's placement: {r['bare_fk_bodies_us_median']:.0f} us -> ratio "
-          f"{r['ratio_full_to_fk_bodies']:.2f}x")
+    print(f"{r['states']} random states in the search space ({r['state_blocked_share']:.0%} blocked), "
+          f"{r['motions']} random motions <= 1 rad ({r['motion_blocked_share']:.0%} blocked); "
+          "compiled on every one, numpy on every 5th, interleaved")
+
+    def row(name: str, unit: str, key: str, target: float | None) -> None:
+        c_med, c_p95 = r[f"{key}_compiled_{unit}_median"], r[f"{key}_compiled_{unit}_p95"]
+        n_med, n_p95 = r[f"{key}_numpy_{unit}_median"], r[f"{key}_numpy_{unit}_p95"]
+        verdict = "" if target is None else f"  (target <= {target:g} {unit}: {'met' if c_med <= target else 'MISSED'})"
+        print(f"{name}: compiled {c_med:.3g} {unit} median, {c_p95:.3g} p95 | numpy {n_med:.3g} {unit} median, "
+              f"{n_p95:.3g} p95 | {n_med / c_med:.0f}x{verdict}")
+
+    row("state check (check_path(q, first_only=True))", "us", "state", 10)
+    row("motion check (check_path(segment, first_only=True))", "us", "motion", 100)
+    row("full check of the typical plan (Envelope.check)", "ms", "full", 0.3)
+    print("anchor: VAMP (SIMD sphere checks, robot-specific compiled code) reports ~1.5 us per check")
+    print(f"state check split: kernel called bare {r['state_kernel_us_median']:.2f} us (of which an empty call with the "
+          f"same arguments {r['empty_call_us_median']:.2f} us; bare FK of one configuration from Python "
+          f"{r['fk_call_us_median']:.2f} us), Python around it {r['state_python_us_median']:.2f} us (median of per-state differences)")
+    print(f"motion check split: kernel called bare {r['motion_kernel_us_median']:.1f} us for a median "
+          f"{r['motion_samples_median']:.0f} samples ({r['motion_kernel_us_per_sample_median']:.2f} us per sample, FK "
+          f"included), Python around it {r['motion_python_us_median']:.1f} us")
 
 
 # ------------------------------------------------------------------------------------ server
