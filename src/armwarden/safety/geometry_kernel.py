@@ -33,11 +33,12 @@ inflation is half its motion bound over the neighbouring sample intervals, and t
 along the path at most at the rate Σ_i rate_i · reach_i, where rate_i is joint i's largest step
 per unit of path parameter (`_joint_rates`) — and never faster than `sweep_resolution_m` per
 unit, which is how the path parameter is defined; likewise a pair's relative-motion bound with
-the pairs' relative reaches. A pair that survives gets the numpy pass's bounding-sphere test (first
-with its link pair's bound, so its own inflation is computed only when that passes), a bounding-box
-test against its allowance, then the exact distance. A pair whose spheres are apart by a margin
-is not tested again while the path parameter stays within margin ÷ rate of that sample (its
-centres cannot close the margin sooner), at that inflation bound or a smaller one. Margins of
+the pairs' relative reaches. A pair that survives gets the numpy pass's bounding-sphere test, a
+bounding-box test against its allowance, then the exact distance — on a path first against a
+bound of its inflation (its own relative-motion rate times half the sample gap), so that its
+exact inflation is computed only for a pair that comes within the bound. A pair apart by a
+margin is not tested again while the path parameter stays within margin ÷ rate of that sample
+(its segments cannot close the margin sooner), at that sample gap or a smaller one. Margins of
 1e-9 m absorb rounding in the bounds. A sample of a pass whose findings are never reported (one that only decides where to
 refine) stops at its first hit; the densest pass does not test a key whose kept finding it cannot
 make earlier.
