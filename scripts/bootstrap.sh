@@ -35,11 +35,14 @@ if [ -n "$CONSTRAINTS" ]; then
   want="$want $CONSTRAINTS=$(sha256sum "$CONSTRAINTS" | cut -d' ' -f1)"
   constrain=(-c "$CONSTRAINTS")
 fi
-if [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
-  exit 0
+if ! { [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; }; then
+  echo "bootstrap: installing armwarden[$EXTRAS] into $VENV${CONSTRAINTS:+ (constraints: $CONSTRAINTS)}" >&2
+  "$PYTHON" -m venv "$VENV"
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check uv >&2
+  "$VENV/bin/python" -m uv pip install --quiet --python "$VENV/bin/python" "${constrain[@]}" -e ".[$EXTRAS]" >&2
+  echo "$want" > "$stamp"
 fi
-echo "bootstrap: installing armwarden[$EXTRAS] into $VENV${CONSTRAINTS:+ (constraints: $CONSTRAINTS)}" >&2
-"$PYTHON" -m venv "$VENV"
-"$VENV/bin/python" -m pip install --quiet --disable-pip-version-check uv >&2
-"$VENV/bin/python" -m uv pip install --quiet --python "$VENV/bin/python" "${constrain[@]}" -e ".[$EXTRAS]" >&2
-echo "$want" > "$stamp"
+# Compile the envelope's numba kernels into their on-disk cache now (about 30 s on a fresh machine,
+# well under a second once cached), so that neither the first daemon start nor a test pays it
+# while a backend's real-time thread or a start-up deadline is waiting.
+"$VENV/bin/python" -c "import armwarden.safety.geometry_kernel" >&2
