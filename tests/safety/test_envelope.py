@@ -360,3 +360,17 @@ def test_one_configuration_is_judged_as_a_path_that_stays_there_is(seed: int, ro
     staying = checked.check_path(np.vstack([q, q]), first_only=first_only)
 
     assert [(v.code, v.body, v.detail) for v in alone] == [(v.code, v.body, v.detail) for v in staying]
+
+
+@pytest.mark.parametrize("first_only", [False, True])
+def test_a_nan_in_a_joint_path_is_malformed_for_check_path(envelope: Envelope, first_only: bool) -> None:
+    path = np.vstack([READY, READY])
+    path[1, 2] = np.nan
+    assert {v.code for v in envelope.check_path(path, first_only=first_only)} == {Code.MALFORMED}
+
+
+@pytest.mark.parametrize("bad", [np.inf, -np.inf])
+def test_an_infinite_joint_value_is_a_hard_finding_for_check_path(envelope: Envelope, bad: float) -> None:
+    path = np.vstack([READY, READY])
+    path[1, 2] = bad
+    assert any(v.is_hard for v in envelope.check_path(path, first_only=True))

@@ -293,6 +293,8 @@ class Envelope:
             if found is not None:
                 return found
         positions = np.atleast_2d(np.asarray(positions, dtype=float))
+        if not np.all(np.isfinite(positions)):  # refused as such, not left to how a comparison treats NaN
+            return (Violation(Code.MALFORMED, "non-finite value (NaN or Inf) in the joint path"),)
         single = len(positions) == 1
         if single:
             positions = np.vstack([positions, positions])
