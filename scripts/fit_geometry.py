@@ -268,7 +268,7 @@ def evaluate(meshes: dict[str, LinkMesh], geometry: FittedGeometry, samples: int
     arm = [f"fr3_joint{i}" for i in range(1, 8)]
     today = RobotModel(urdf, arm, "fr3_link0", "fr3_hand_tcp")
     caps = today.capsules
-    today_pairs = [(i, j) for i in range(len(caps)) for j in range(i + 1, len(caps)) if abs(caps[i].joint_index - caps[j].joint_index) >= 2]
+    today_pairs = [(int(i), int(j)) for i, j in today.self_collision_pairs]  # the URDF path's neighbour rule
 
     rng = np.random.default_rng(seed)
     arm_idx = [model.joints[model.getJointId(n)].idx_q for n in arm]

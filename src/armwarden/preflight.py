@@ -35,9 +35,6 @@ class RuntimeModel:
 def load_runtime_model(policy: Policy, source: str = "<policy>") -> RuntimeModel:
     try:
         robot = build_robot(policy)
-    except RobotModelError as exc:
-        raise PolicyError(source, [(_path_for(str(exc)), str(exc))]) from exc
-    try:
         envelope = Envelope(robot, EnvelopeLimits.from_policy(policy))
     except RobotModelError as exc:
         raise PolicyError(source, [(_path_for(str(exc)), str(exc))]) from exc

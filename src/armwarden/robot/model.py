@@ -260,9 +260,9 @@ class RobotModel:
         """The capsules of `check_links` (every one when None), after refusing a list that leaves a
         moving body out. Bodies fixed to the world (joint 0) stay: nothing moves them into a zone,
         so only the self-collision check looks at them — the arm must not fold into its own base."""
-        link_names = set(self.link_names())
         if check_links is None:
             return tuple(candidates)
+        link_names = set(self.link_names())
         unknown = [name for name in check_links if name not in link_names]
         if unknown:
             raise RobotModelError(f"unknown link(s) in check_links {unknown}; valid links: {sorted(link_names)}")

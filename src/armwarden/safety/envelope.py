@@ -480,7 +480,7 @@ class Envelope:
                 dense_found, deeper = self._refine(path, dense_targets, dense, dense_flagged, level + 1, first_only)
                 checked += deeper
             for key, violation in dense_found.items():
-                if key not in found or _earlier(violation, found[key]):
+                if key not in found or _time_of(violation) < _time_of(found[key]):
                     found[key] = violation
             if first_only and found:
                 break
@@ -659,8 +659,7 @@ def _in_time_order(found: dict[tuple[str, str, str], Violation]) -> list[Violati
     however the passes met them."""
     if len(found) < 2:
         return list(found.values())
-    return sorted(found.values(), key=lambda v: (v.time_s if v.time_s is not None else 0.0, v.code.value, v.body or "",
-                                                 v.detail))
+    return sorted(found.values(), key=lambda v: (_time_of(v), v.code.value, v.body or "", v.detail))
 
 
 def _half_neighbour_bound(cumulative: np.ndarray) -> np.ndarray:
@@ -677,8 +676,9 @@ def _unit_targets(start: float, end: float, spacing: float = 1.0) -> np.ndarray:
     return np.linspace(start, end, n_intervals + 1)
 
 
-def _earlier(a: Violation, b: Violation) -> bool:
-    return (a.time_s if a.time_s is not None else 0.0) < (b.time_s if b.time_s is not None else 0.0)
+def _time_of(violation: Violation) -> float:
+    """When a geometric finding happened (one without a time counts as at the start)."""
+    return violation.time_s if violation.time_s is not None else 0.0
 
 
 def _merged_ranges(targets: np.ndarray, flagged: np.ndarray) -> list[tuple[float, float]]:
