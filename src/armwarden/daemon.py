@@ -37,7 +37,7 @@ from armwarden.guard import Guard
 from armwarden.policy import Policy, load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_from_env
+from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_for_serving
 from armwarden.safety.estop import flatten_reason
 from armwarden.safety.refusals import RefusalReports, left_out_recorder
 from armwarden.server.app import ArmWardenServer
@@ -103,7 +103,7 @@ def assemble(policy: Policy, backend_name: str, backend_config: str | None, audi
     runtime = load_runtime_model(policy)
     state_robot = build_robot(policy)
     backend = build_backend(backend_name, policy, robot=state_robot, config_path=backend_config)
-    audit = AuditLog(audit_path, hmac_key=hmac_key_from_env(), commit_window_s=commit_window_s)
+    audit = AuditLog(audit_path, hmac_key=hmac_key_for_serving(), commit_window_s=commit_window_s)
     return policy, backend, audit, runtime, state_robot
 
 

@@ -33,6 +33,7 @@ from armwarden.safety.audit.chain import (
     GENESIS_HASH,
     RECORD_FIELDS,
     AuditRecord,
+    hmac_key_for_serving,
     hmac_key_from_env,
 )
 from armwarden.safety.audit.cli import tail_command, verify_command
@@ -75,6 +76,7 @@ __all__ = [
     "RecordFilter",
     "VerifiedPrefix",
     "VerifyReport",
+    "hmac_key_for_serving",
     "hmac_key_from_env",
     "parse_since",
     "read_tail",

@@ -113,3 +113,22 @@ def hmac_key_from_env(environ: Mapping[str, str] = os.environ) -> bytes | None:
     if not value:
         return None
     return value.encode("utf-8", "surrogateescape")
+
+
+#: how a shell expression starts that a client passed on without expanding it
+UNEXPANDED_PREFIXES = ("${", "$(")
+
+
+def hmac_key_for_serving(environ: Mapping[str, str] = os.environ) -> bytes | None:
+    """`hmac_key_from_env` for a daemon about to write a log: an unexpanded shell expression
+    (``${ARMWARDEN_AUDIT_KEY:-}`` from a client config that a client such as the MCP Inspector
+    does not expand) is refused, not used as the key, or every later `audit verify` fails with
+    the real key."""
+    value = environ.get(AUDIT_KEY_ENV, "")
+    if value.startswith(UNEXPANDED_PREFIXES):
+        raise ConfigurationError(
+            f"{AUDIT_KEY_ENV} is {value!r}, an unexpanded shell expression (the MCP client that started "
+            f"this daemon passed it on literally): set the key itself in the client's env, or leave "
+            f"{AUDIT_KEY_ENV} out for an unkeyed log"
+        )
+    return hmac_key_from_env(environ)

@@ -30,8 +30,13 @@ def verify_command(path: str | os.PathLike[str], key: bytes | None = None) -> in
         print(f"OK: {report.records} records, chain intact{note}")
         return 0
     hint = ""
-    if key is None and report.reason == "hash mismatch" and report.first_bad_line == 1:
-        hint = f" (no HMAC key given; set {AUDIT_KEY_ENV} if this log is keyed)"
+    if report.reason == "hash mismatch" and report.first_bad_line == 1:
+        # the first record's hash is the first use of the key: a mismatch there is most often the key
+        unexpanded = "an unexpanded ${...} that a client passed on literally, which is then the key"
+        if key is None:
+            hint = f" (no HMAC key given; set {AUDIT_KEY_ENV} if this log is keyed: the key, or {unexpanded})"
+        else:
+            hint = f" (the {AUDIT_KEY_ENV} key may be wrong, or the log's key was {unexpanded})"
     print(f"FAILED at line {report.first_bad_line}: {report.reason}{hint}")
     return 1
 
