@@ -429,15 +429,22 @@ async def test_a_fault_while_the_actuators_are_enabled_refuses_the_start_up(monk
 
 
 async def _position_at_rest(backend: Backend, *, within_rad: float = 1e-4, deadline_s: float = 10.0) -> np.ndarray:
-    """The arm's position once two reads 0.1 s apart agree to `within_rad` on every joint."""
-    previous = (await backend.read_joint_state()).positions.copy()
+    """The arm's position once two measurements at least 0.1 s apart agree to `within_rad` on every joint.
+
+    Judged by the states' stamps, not by the reader's clock: on a busy host the servo thread can
+    go 0.1 s without a new reply, and two reads of the same old state would look like rest."""
+    state = await backend.read_joint_state()
+    previous, previous_stamp = state.positions.copy(), state.stamp
     end = time.monotonic() + deadline_s
     while time.monotonic() < end:
-        await asyncio.sleep(0.1)
-        current = (await backend.read_joint_state()).positions.copy()
+        await asyncio.sleep(0.05)
+        state = await backend.read_joint_state()
+        if state.stamp - previous_stamp < 0.1:
+            continue
+        current = state.positions.copy()
         if np.max(np.abs(current - previous)) < within_rad:
             return current
-        previous = current
+        previous, previous_stamp = current, state.stamp
     raise AssertionError(f"the arm did not come to rest within {deadline_s} s")
 
 
