@@ -333,6 +333,28 @@ def test_reset_from_the_browser_needs_the_event_number(tmp_path: Path, browser: 
     assert not guard.latch.is_latched
 
 
+def test_the_release_form_shows_only_while_an_estop_is_latched(tmp_path: Path, browser: Any) -> None:
+    """The Safety page left open: the form appears when an e-stop latches, and goes once released."""
+    from selenium.webdriver.common.by import By
+
+    with console(tmp_path) as session:
+        guard = session.served.harness.guard
+        sign_in(browser, session.served, session.served.operator_token)
+        browser.get(session.served.console + "/safety")
+        hidden_at_first = not browser.find_element(By.ID, "reset-form").is_displayed()
+        session.portal.call(guard.emergency_stop, "test", "estop")
+        shown = wait_for(browser, lambda b: b.find_element(By.ID, "reset-form").is_displayed())
+        browser.find_element(By.ID, "reset-event").send_keys("1")
+        click_and_load(browser, "reset-button")
+        released = browser.find_element(By.ID, "message").text
+        hidden_after = not browser.find_element(By.ID, "reset-form").is_displayed()
+
+    assert hidden_at_first
+    assert shown
+    assert "E-stop #1 released" in released
+    assert hidden_after
+
+
 def test_a_post_without_the_csrf_token_is_refused(tmp_path: Path, browser: Any) -> None:
     from selenium.webdriver.common.by import By
 

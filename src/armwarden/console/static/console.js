@@ -5,11 +5,20 @@
   const body = document.body;
   const base = body.dataset.base;
 
+  // The release form (Safety page, operators) shows only while an e-stop is latched, as the
+  // live safety section (its #estop-status) says; it is never re-rendered, so a number being
+  // typed into it survives the refreshes.
+  function syncReset() {
+    const reset = document.getElementById("reset");
+    const status = document.getElementById("estop-status");
+    if (reset && status) { reset.hidden = status.dataset.estopped !== "yes"; }
+  }
+
   // Live sections: <div data-live="NAME"> is replaced by GET {base}/fragment/NAME every second.
   async function refresh(el) {
     try {
       const reply = await fetch(base + "/fragment/" + el.dataset.live, {credentials: "same-origin", cache: "no-store"});
-      if (reply.ok) { el.innerHTML = await reply.text(); }
+      if (reply.ok) { el.innerHTML = await reply.text(); syncReset(); }
     } catch (e) { /* the daemon may be restarting: keep the last view */ }
   }
   const live = Array.from(document.querySelectorAll("[data-live]"));
