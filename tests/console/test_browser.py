@@ -355,6 +355,30 @@ def test_the_release_form_shows_only_while_an_estop_is_latched(tmp_path: Path, b
     assert hidden_after
 
 
+def test_the_latched_banner_keeps_the_header_on_one_row(tmp_path: Path, browser: Any) -> None:
+    """At a typical desktop width, the E-STOP's answer sits below the header's items; it does not
+    push the navigation or the sign-out onto a row of their own."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+
+    with console(tmp_path) as session:
+        browser.set_window_size(1280, 900)
+        sign_in(browser, session.served, session.served.operator_token)
+        browser.find_element(By.ID, "estop-button").click()
+        wait_for(browser, ec.presence_of_element_located((By.ID, "estop-answer")))
+        wait_for(browser, lambda b: "E-STOP LATCHED" in b.find_element(By.ID, "estop-status").text)
+        boxes = browser.execute_script("""
+            const box = (s) => { const r = document.querySelector(s).getBoundingClientRect();
+                                 return {top: r.top, bottom: r.bottom, middle: (r.top + r.bottom) / 2}; };
+            return {estop: box('#estop-form'), title: box('header h1'), nav: box('header nav'),
+                    signout: box('header .signout'), banner: box('#estop-answer')};""")
+        screenshot(browser, "console-latched-header.png")
+
+    middles = [boxes[k]["middle"] for k in ("estop", "title", "nav", "signout")]
+    assert max(middles) - min(middles) <= 2, boxes  # one row
+    assert boxes["banner"]["top"] >= boxes["estop"]["bottom"], boxes  # below it, not in it
+
+
 def test_a_post_without_the_csrf_token_is_refused(tmp_path: Path, browser: Any) -> None:
     from selenium.webdriver.common.by import By
 
