@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from armwarden import __version__
-from armwarden.backends import BACKENDS, backend_names
+from armwarden.backends import backend_names, backends_help
 from armwarden.errors import ArmWardenError, PolicyError
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
 from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S
@@ -33,8 +33,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
     serve = commands.add_parser("serve", help="run the MCP server (stdio or streamable HTTP)")
     serve.add_argument("--policy", default=None, help="safety policy YAML (default: the bundled FR3 policy)")
-    serve.add_argument("--backend", default="fake", choices=backend_names(),
-                       help=f"robot backend (built: {', '.join(BACKENDS)}; the others are not built yet)")
+    serve.add_argument("--backend", default="fake", choices=backend_names(), help=backends_help())
     serve.add_argument("--backend-config", default=None,
                        help="the backend's options YAML (strict; e.g. the fake's speedup, later ROS names, CAN ids, scene)")
     serve.add_argument("--transport", default="stdio", choices=["stdio", "http"])

@@ -1,4 +1,4 @@
-"""The backend registry: built vs planned backends, strict backend configs, and what the CLI says."""
+"""The backend registry: the backends and what each needs, strict backend configs, and what the CLI says."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import pytest
 from armwarden import backends
 from armwarden.backends import backend_names, create_backend, load_backend_config
 from armwarden.backends.fake import Config, FakeBackend
+from armwarden.cli import main
 from armwarden.errors import BackendUnavailable, ConfigurationError
 from armwarden.policy import Policy
 from armwarden.robot import RobotModel
@@ -19,10 +20,24 @@ from armwarden.robot import RobotModel
 REPO = Path(__file__).resolve().parents[2]
 
 
-def test_the_cli_choices_are_the_built_backends_then_the_planned_ones() -> None:
+def test_the_cli_choices_are_the_backends() -> None:
     assert backend_names() == ("fake", "mujoco", "can", "ros2")
     assert list(backends.BACKENDS) == ["fake", "mujoco", "can", "ros2"]
-    assert backends.PLANNED == ()
+
+
+def test_serve_help_names_every_backend_what_it_needs_and_what_a_missing_one_does(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("COLUMNS", "400")  # wide: no word of the help is cut at a hyphen
+    with pytest.raises(SystemExit):
+        main(["serve", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    start = help_text.index("robot backend:")
+    backend_help = help_text[start:help_text.index("--backend-config BACKEND_CONFIG", start)]
+    assert "not built yet" not in help_text
+    for name in backend_names():
+        assert f"{name} (" in backend_help, name
+    assert "armwarden[mujoco]" in backend_help and "armwarden[can]" in backend_help and "rclpy" in backend_help
+    assert "missing" in backend_help and "says so" in backend_help
 
 
 def test_create_backend_builds_the_fake_for_the_policy_robot(fr3_policy: Policy, robot: RobotModel) -> None:
@@ -37,12 +52,6 @@ def test_create_backend_builds_the_fake_for_the_policy_robot(fr3_policy: Policy,
 def test_create_backend_takes_the_config_model_itself(fr3_policy: Policy, robot: RobotModel) -> None:
     backend = create_backend("fake", robot, fr3_policy, Config(wrench=False))
     assert not backend.capabilities.wrench
-
-
-def test_a_planned_backend_says_it_is_not_built_yet(monkeypatch, fr3_policy: Policy, robot: RobotModel) -> None:
-    monkeypatch.setattr(backends, "PLANNED", ("warp",))
-    with pytest.raises(BackendUnavailable, match="the warp backend is not built yet"):
-        create_backend("warp", robot, fr3_policy)
 
 
 def test_an_unknown_backend_lists_the_available_ones(fr3_policy: Policy, robot: RobotModel) -> None:

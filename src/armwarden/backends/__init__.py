@@ -32,21 +32,31 @@ BACKENDS: dict[str, str] = {
     "can": "armwarden.backends.can.backend",
     "ros2": "armwarden.backends.ros2",
 }
-#: backends announced in the design whose module is not written yet (each has its own issue)
-PLANNED: tuple[str, ...] = ()
+#: what each backend needs beyond the core install (`serve --help`); when it is missing, choosing
+#: that backend refuses to start and names what to install
+REQUIREMENTS: dict[str, str] = {
+    "fake": "built in",
+    "mujoco": "needs armwarden[mujoco]",
+    "can": "needs armwarden[can]",
+    "ros2": "needs rclpy and the ROS interfaces: tests_ros/README.md",
+}
 #: a backend config file larger than this is refused unread [bytes]
 MAX_CONFIG_BYTES = 1_000_000
 
 
 def backend_names() -> tuple[str, ...]:
-    """Every name `--backend` accepts: the built backends, then the planned ones (refused clearly)."""
-    return (*BACKENDS, *PLANNED)
+    """Every name `--backend` accepts."""
+    return tuple(BACKENDS)
+
+
+def backends_help() -> str:
+    """`--backend`'s help: each backend with what it needs, and what happens when that is missing."""
+    listed = ", ".join(f"{name} ({REQUIREMENTS.get(name, 'built in')})" for name in BACKENDS)
+    return f"robot backend: {listed}; a backend whose dependency is missing says so, and what to install, when chosen"
 
 
 def backend_module(name: str) -> ModuleType:
     """Import the module of backend `name`; `BackendUnavailable` says why it cannot be used."""
-    if name in PLANNED:
-        raise BackendUnavailable(f"the {name} backend is not built yet; available backends: {', '.join(BACKENDS)}")
     if name not in BACKENDS:
         raise BackendUnavailable(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")
     try:
@@ -105,10 +115,11 @@ def create_backend(name: str, robot: RobotModel, policy: Policy, config: BaseMod
 
 __all__ = [
     "BACKENDS",
-    "PLANNED",
+    "REQUIREMENTS",
     "backend_config_model",
     "backend_module",
     "backend_names",
+    "backends_help",
     "create_backend",
     "load_backend_config",
     "parse_backend_config",
