@@ -1065,6 +1065,25 @@ def test_summary_flags_self_approval_only_when_allowed(doc: dict[str, Any]) -> N
     assert "SELF-APPROVAL" not in default
 
 
+@pytest.mark.parametrize(("channel", "where"), [("form", "the MCP client's form"), ("url", "the operator console"),
+                                                ("both", "whichever answers first")])
+def test_summary_says_where_a_human_answers_approvals(doc: dict[str, Any], channel: str, where: str) -> None:
+    text = summarize_policy(parse_policy(set_at(doc, "approval.channel", channel)))
+    approval = next(line for line in text.splitlines() if line.startswith("Approval:"))
+    assert f"answered in: {channel} ({where}" in approval
+
+
+def test_summary_says_self_approval_is_off_by_default() -> None:
+    text = summarize_policy(load_policy(FR3_YAML))
+    assert "self-approval off" in text
+
+
+def test_summary_shows_the_collision_geometry_and_the_padding_of_each_link() -> None:
+    text = summarize_policy(load_policy(FR3_YAML))
+    assert "collision geometry: builtin:fr3" in text
+    assert "fr3_leftfinger 0.002 m" in text and "fr3_rightfinger 0.002 m" in text
+
+
 def test_json_schema_describes_every_field() -> None:
     schema = policy_json_schema()
     assert set(schema["required"]) == {"version", "robot", "workspace", "motion", "force"}

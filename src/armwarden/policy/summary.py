@@ -18,12 +18,20 @@ def _box_text(lo: Sequence[float], hi: Sequence[float]) -> str:
     return "  ".join(f"{axis} [{a:+.3f}, {b:+.3f}]" for axis, a, b in zip("xyz", lo, hi, strict=True)) + " m"
 
 
+#: where a human answers a motion's approval, per `approval.channel`
+_APPROVAL_CHANNELS = {
+    "form": "the MCP client's form",
+    "url": "the operator console, linked from the client; never the client's own form",
+    "both": "whichever answers first: the MCP client's form or the operator console",
+}
+
+
 def summarize_policy(policy: Policy) -> str:
     """A human-readable, multi-line summary of what the policy allows (`armwarden check-policy`)."""
     robot, ws, motion, force = policy.robot, policy.workspace, policy.motion, policy.force
     lines = [
         f"Policy version {policy.version}",
-        f"Robot: {robot.name}  description: {robot.description}",
+        f"Robot: {robot.name}  description: {robot.description}  collision geometry: {robot.collision_geometry}",
         f"  base frame: {robot.base_frame}  TCP frame: {robot.tcp_frame}",
         f"  joints ({len(robot.joint_names)}):",
     ]
@@ -48,9 +56,10 @@ def summarize_policy(policy: Policy) -> str:
     else:
         lines.append("Keep-out zones: none")
     checked = "every moving link" if ws.check_links is None else ", ".join(ws.check_links) or "none"
+    per_link = ", ".join(f"{link} {padding:g} m" for link, padding in ws.padding_by_link_m.items())
     lines.append(
-        f"  link padding {ws.link_padding_m:g} m; self-collision {'on' if ws.self_collision else 'OFF'}; "
-        f"checked links: {checked}"
+        f"  link padding {ws.link_padding_m:g} m" + (f" ({per_link})" if per_link else "")
+        + f"; self-collision {'on' if ws.self_collision else 'OFF'}; checked links: {checked}"
     )
     soft = (
         f"approval above {motion.soft_joint_step_rad:g} rad" if motion.soft_joint_step_rad is not None
@@ -90,9 +99,10 @@ def summarize_policy(policy: Policy) -> str:
     ap = policy.approval
     lines.append(
         f"Approval: mode {ap.mode}; required for {', '.join(ap.require_for)}; "
-        f"client without elicitation: {ap.on_client_without_elicitation}"
+        f"client without elicitation: {ap.on_client_without_elicitation}; "
+        f"answered in: {ap.channel} ({_APPROVAL_CHANNELS[ap.channel]})"
         + ("; SELF-APPROVAL ALLOWED: the token that asked may approve its own motion in the console"
-           if ap.allow_self_approval else "")
+           if ap.allow_self_approval else "; self-approval off (another operator approves in the console)")
     )
     lines.append("Dry run: ON (nothing actuates)" if policy.dry_run else "Dry run: off (execution moves the robot)")
     return "\n".join(lines)
