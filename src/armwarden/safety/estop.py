@@ -147,6 +147,8 @@ class EStopLatch:
         self._generation = 0
         self._last: EStopEvent | None = None
         self._held: tuple[EStopEvent, ...] = ()  # every event latched since the last release, oldest first
+        self._latches_by_source: dict[str, int] = {}
+        self._releases = 0
         self._lock = threading.Lock()
 
     @property
@@ -175,6 +177,12 @@ class EStopLatch:
         """Number of latches so far; changes whenever anything latches."""
         return self._generation
 
+    def tallies(self) -> tuple[dict[str, int], int]:
+        """Latches so far by source, and releases: a copy for monitoring (`armwarden.metrics`
+        reads it at scrape time, so nothing on the latching path calls metrics code)."""
+        with self._lock:
+            return dict(self._latches_by_source), self._releases
+
     def latch(self, reason: object, source: str, force_violation: Mapping[str, Any] | None = None) -> EStopEvent:
         """Latch (again): always a new event with the next number; never fails. Any thread."""
         with self._lock:
@@ -192,6 +200,7 @@ class EStopLatch:
         )
         self._last = event
         self._held = (*self._held, event)
+        self._latches_by_source[event.source] = self._latches_by_source.get(event.source, 0) + 1
         return event
 
     def check_release(self, event_number: object) -> ReleaseResult:
@@ -209,6 +218,7 @@ class EStopLatch:
                 return refusal
             released = self._newest_releasable_locked("released")
             self._held = ()
+            self._releases += 1
             return released
 
     def _newest_releasable_locked(self, verb: str) -> ReleaseResult:
