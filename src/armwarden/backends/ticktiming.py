@@ -81,6 +81,12 @@ class TickTiming:
                 self._misses += 1
             self._max_lateness = max(self._max_lateness, lateness)
 
+    def totals(self) -> tuple[int, int, float, float]:
+        """(ticks, deadline misses, max lateness [s], max interval [s]) since the last reset: the
+        cheap part of `report` (no histogram copy), for monitoring scrapes while the loop runs."""
+        with self._lock:
+            return self._ticks, self._misses, self._max_lateness, self._max_interval
+
     def report(self) -> TickReport:
         with self._lock:
             counts, jitter, ticks = list(self._counts), list(self._jitter), self._ticks
