@@ -20,7 +20,7 @@ import os
 import stat
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -148,6 +148,7 @@ class AuditLog:
             )
         self._window_s = float(commit_window_s)
         self._writer_thread: Writer | None = None  # started on first use
+        self._on_durable: Callable[[str, float], None] | None = None  # `observe_writes`
         self._closing = False  # set by close(): no new writer thread, no new record
         self._fd: int | None = None
         self._broken: str | None = None
@@ -420,6 +421,17 @@ class AuditLog:
         except concurrent.futures.TimeoutError as exc:
             raise TimeoutError(f"audit log {str(self._path)!r} did not flush within {timeout_s:g} s") from exc
 
+    def observe_writes(self, callback: Callable[[str, float], None] | None) -> None:
+        """Tell `callback(durability, seconds)`, on the writer thread, how long each record took
+        from hand-over to fsynced (the daemon's metrics). It must be quick; its failures are
+        logged, never raised into the writer."""
+        self._on_durable = callback
+
+    def _durable(self, durability: str, seconds: float) -> None:
+        callback = self._on_durable
+        if callback is not None:
+            callback(durability, seconds)
+
     @property
     def commit_window_s(self) -> float:
         """How long a read-only call's record may wait to be written and fsync-ed [s]; 0: every
@@ -436,7 +448,7 @@ class AuditLog:
             if self._writer_thread is None:
                 if self._fd is None:
                     raise AuditWriteError(f"audit log {self.path} is closed")
-                self._writer_thread = Writer(self._fsync_written, self._window_s)
+                self._writer_thread = Writer(self._fsync_written, self._window_s, on_durable=self._durable)
             self._writer_thread.put(job)
 
     # -- reading ---------------------------------------------------------------------------

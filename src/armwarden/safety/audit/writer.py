@@ -28,7 +28,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from armwarden.handoff import settle_threadsafe
@@ -58,6 +58,8 @@ class Job:
     loop: asyncio.AbstractEventLoop | None = None
     future: asyncio.Future[Any] | None = None
     waiter: concurrent.futures.Future[Any] | None = None  # for a caller outside any event loop
+    #: monotonic time it was handed over [s] (how long its record took to reach the disk: monitoring)
+    queued_mono: float = field(default_factory=time.monotonic)
 
 
 class Writer:
@@ -69,8 +71,12 @@ class Writer:
     so a burst of state polls costs the event loop an append each, not a thread switch each.
     """
 
-    def __init__(self, sync: Callable[[], None], window_s: float, name: str = "armwarden-audit") -> None:
+    def __init__(self, sync: Callable[[], None], window_s: float, name: str = "armwarden-audit",
+                 on_durable: Callable[[str, float], None] | None = None) -> None:
+        """`on_durable(durability, seconds)` is told, on this thread, how long each record took
+        from hand-over to fsynced (monitoring: it must be quick, and its failures are only logged)."""
         self._sync = sync
+        self._on_durable = on_durable
         self._window_s = window_s
         self._jobs: collections.deque[Job | None] = collections.deque()
         self._wake = threading.Event()
@@ -139,9 +145,22 @@ class Writer:
                     self._sync()  # one fsync covers everything written so far
                 except BaseException as exc:  # nothing of this batch is known to be on disk
                     outcomes = [(job, exc, True) for job, *_ in outcomes]
+            durable_mono = time.monotonic()
             self._answer(outcomes)
+            self._report_durable(outcomes, durable_mono)
             if stopping:
                 return
+
+    def _report_durable(self, outcomes: list[tuple[Job, Any, bool]], durable_mono: float) -> None:
+        """After the callers are answered: how long each written record took to reach the disk."""
+        if self._on_durable is None:
+            return
+        try:
+            for job, written, failed in outcomes:  # a record's job returns it; a flush's barrier returns None
+                if not failed and written is not None and job.durability is not Durability.NONE:
+                    self._on_durable(job.durability.value, durable_mono - job.queued_mono)
+        except Exception:  # monitoring must never stop the writer
+            logger.exception("audit writer: reporting write latency failed")
 
     @staticmethod
     def _answer(outcomes: list[tuple[Job, Any, bool]]) -> None:
