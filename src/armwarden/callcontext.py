@@ -34,6 +34,8 @@ class CallRecord:
     extra: dict[str, Any] = field(default_factory=dict)
     #: monotonic time the call reached ArmWarden's middleware (after the SDK parsed it)
     received_mono: float = field(default_factory=time.monotonic)
+    #: protocol 2026-07-28: questions go out in rounds, and the retry carrying an answer asks again
+    rounds: bool = False
 
 
 CURRENT_CALL: contextvars.ContextVar[CallRecord | None] = contextvars.ContextVar("armwarden_call", default=None)
