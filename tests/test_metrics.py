@@ -6,13 +6,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import httpx2
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
+from starlette.responses import PlainTextResponse
+from starlette.types import Receive, Scope, Send
 
 from armwarden.callcontext import CallRecord
 from armwarden.metrics import DaemonMetrics
 from armwarden.safety.audit import AuditLog
 from armwarden.safety.estop import EStopLatch
+from armwarden.transport.http import build_console_only_app
+from armwarden.transport.jsonrpc import RefusedRequest
+from armwarden.transport.tokens import TokenStore
 
 
 def scraped(metrics: DaemonMetrics) -> dict[tuple[str, frozenset[tuple[str, str]]], float]:
@@ -128,3 +134,30 @@ def test_every_audit_record_is_timed_to_the_disk(tmp_path: Path) -> None:
         audit.flush()
     assert value(metrics, "armwarden_audit_write_duration_seconds_count", durability="now") == 1
     assert value(metrics, "armwarden_audit_write_duration_seconds_count", durability="window") == 1
+
+
+# ------------------------------------------------------------------ beside the stdio daemon's console
+async def no_console(scope: Scope, receive: Receive, send: Send) -> None:
+    await PlainTextResponse("console")(scope, receive, send)
+
+
+@pytest.mark.anyio
+async def test_the_console_port_serves_metrics_behind_the_token_file(tmp_path: Path) -> None:
+    tokens = tmp_path / "tokens.json"
+    observer = TokenStore.add(tokens, "observer", name="watcher")
+    refused: list[RefusedRequest] = []
+
+    async def on_refused(request: RefusedRequest) -> None:
+        refused.append(request)
+
+    metrics = DaemonMetrics()
+    app = build_console_only_app(no_console, host="127.0.0.1", port=8799, metrics=metrics.exposition,
+                                 token_store=TokenStore.load(tokens), on_refused=on_refused)
+    transport = httpx2.ASGITransport(app=app)
+    async with httpx2.AsyncClient(transport=transport, base_url="http://127.0.0.1:8799") as client:
+        assert (await client.get("/metrics")).status_code == 401
+        assert (await client.get("/metrics", headers={"Authorization": "Bearer aw_wrong"})).status_code == 401
+        served = await client.get("/metrics", headers={"Authorization": f"Bearer {observer}"})
+    assert served.status_code == 200
+    assert "armwarden_info" in served.text
+    assert len(refused) == 2 and all("/metrics refused (401)" in r.why for r in refused)

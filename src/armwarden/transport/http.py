@@ -27,6 +27,10 @@ Request path (outermost first)::
   request before it reaches the SDK, so ``ctx.headers`` never carries the token.
   Without a token store there is no principal (`current_principal` returns None) and
   `check_bind_safety` only allows loopback binds.
+- With `metrics` (a function returning the Prometheus exposition), ``GET /metrics`` serves it
+  behind the same Host/Origin checks and bearer tokens (any role: an observer's is enough). A
+  scrape refused for its token is handed to `on_refused` (the shared refusal limiter and the
+  audit log: a flood of them is thinned); a scrape served is not recorded (it would flood the log).
 - `serve_http` runs uvicorn without installing signal handlers (the daemon owns SIGINT/SIGTERM and
   sets the `shutdown` event), without access logs, and with a bounded graceful shutdown so that
   open SSE streams cannot hold the process. It believes no proxy header (X-Forwarded-For,
@@ -50,25 +54,27 @@ from mcp.server.auth.middleware.bearer_auth import AuthenticatedUser
 from mcp.server.auth.provider import AccessToken
 from mcp.server.mcpserver import MCPServer
 from mcp.server.transport_security import TransportSecurityMiddleware, TransportSecuritySettings
+from prometheus_client import CONTENT_TYPE_LATEST
 from starlette.applications import Starlette
 from starlette.datastructures import Headers
 from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
-from starlette.routing import Mount, Route
+from starlette.routing import Mount, Route, request_response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, LatchEstopsNotRun, mark_dispatched
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
-from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, StopOnReceipt
+from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, RefusedRequest, StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
     "CONSOLE_PATH",
     "HEALTH_PATH",
     "MCP_PATH",
+    "METRICS_PATH",
     "OBSERVER_GROUPS",
     "OBSERVER_TOOLS",
     "build_console_only_app",
@@ -86,6 +92,7 @@ logger = logging.getLogger(__name__)
 MCP_PATH = "/mcp"
 HEALTH_PATH = "/healthz"
 CONSOLE_PATH = "/console"
+METRICS_PATH = "/metrics"
 PUBLIC_PATHS = frozenset({HEALTH_PATH})
 """Paths served without a bearer token (Host/Origin are still checked)."""
 
@@ -172,9 +179,13 @@ def _unauthorized(description: str, *, invalid: bool) -> Response:
 class BearerAuth:
     """Pure ASGI: require a valid bearer token on every path but `PUBLIC_PATHS`."""
 
-    def __init__(self, app: ASGIApp, token_store: TokenStore, own_auth_prefixes: Sequence[str] = ()) -> None:
+    def __init__(self, app: ASGIApp, token_store: TokenStore, own_auth_prefixes: Sequence[str] = (),
+                 on_refused: RefusedCallback | None = None, reported_paths: Sequence[str] = ()) -> None:
         self.app = AuthContextMiddleware(app)  # SDK: scope["user"] -> get_access_token()
         self.token_store = token_store
+        #: a refusal on one of `reported_paths` is handed to `on_refused` before its 401
+        self.on_refused = on_refused
+        self.reported_paths = frozenset(reported_paths)
         #: path prefixes that authenticate by themselves (the operator console's session cookie)
         self.own_auth_prefixes = tuple(own_auth_prefixes)
 
@@ -188,6 +199,7 @@ class BearerAuth:
         values = Headers(scope=scope).getlist("authorization")
         client = (scope.get("client") or ("?", 0))[0]
         if not values:
+            await self._report(scope, client, "no bearer token")
             await _unauthorized("this server requires 'Authorization: Bearer <token>'", invalid=False)(
                 scope, receive, send
             )
@@ -198,6 +210,7 @@ class BearerAuth:
             principal = self.token_store.authenticate(presented.strip())
         if principal is None:
             logger.warning("rejected HTTP request from %s: invalid bearer token", client)
+            await self._report(scope, client, "the bearer token is not valid")
             await _unauthorized("the bearer token is not valid (unknown or revoked)", invalid=True)(
                 scope, receive, send
             )
@@ -218,6 +231,33 @@ class BearerAuth:
         )
         await self.app(scope, receive, send)
 
+    async def _report(self, scope: Scope, client: str, why: str) -> None:
+        """Hand a refusal on a reported path to `on_refused` (it thins floods and records)."""
+        path = scope["path"]
+        if self.on_refused is None or path not in self.reported_paths:
+            return
+        try:
+            await self.on_refused(RefusedRequest(method=f"{scope.get('method', 'GET')} {path}", params=None,
+                                                 request_id=None, outcome="refused", why=f"{path} refused (401): {why}",
+                                                 peer=client))
+        except Exception:  # the 401 is answered whatever the record did
+            logger.exception("recording a refused request for %s failed", path)
+
+
+def _metrics_route(metrics: Callable[[], bytes], token_store: TokenStore | None = None,
+                   on_refused: RefusedCallback | None = None) -> Route:
+    """``GET /metrics``: the exposition, built on a worker thread so a scrape never holds up the
+    event loop. With `token_store`, behind its own `BearerAuth` (the console-only app has none)."""
+
+    async def scrape(request: Request) -> Response:
+        body = await anyio.to_thread.run_sync(metrics)
+        return Response(body, media_type=CONTENT_TYPE_LATEST)
+
+    if token_store is None:
+        return Route(METRICS_PATH, scrape, methods=["GET"])
+    guarded = BearerAuth(request_response(scrape), token_store, on_refused=on_refused, reported_paths=(METRICS_PATH,))
+    return Route(METRICS_PATH, guarded, methods=["GET"])
+
 
 # ------------------------------------------------------------------------ the app
 def build_http_app(
@@ -234,10 +274,12 @@ def build_http_app(
     console: ASGIApp | None = None,
     on_refused: RefusedCallback | None = None,
     on_estop_refused: LatchOnRefusal | None = None,
+    metrics: Callable[[], bytes] | None = None,
 ) -> Starlette:
     """The ASGI app: ``/mcp`` (stateful streamable HTTP), ``/healthz`` and, when given, the
     operator `console` at ``/console`` (its own sign-in instead of bearer tokens; Host/Origin
-    checked like every path).
+    checked like every path) and the Prometheus exposition `metrics()` at ``/metrics`` (bearer
+    tokens like ``/mcp``; a refused scrape goes to `on_refused`).
 
     Build one app per serve: the SDK's session manager it creates can run only once.
     ``/healthz`` needs no token: `health` must be quick, non-blocking and return JSON-able data that
@@ -286,7 +328,8 @@ def build_http_app(
     middleware = [Middleware(HostOriginGuard, settings=security)]
     if token_store is not None:
         middleware.append(Middleware(BearerAuth, token_store=token_store,
-                                     own_auth_prefixes=(CONSOLE_PATH,) if console is not None else ()))
+                                     own_auth_prefixes=(CONSOLE_PATH,) if console is not None else (),
+                                     on_refused=on_refused, reported_paths=(METRICS_PATH,)))
     # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
     middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned,
                                  on_stop_request=on_stop_request, on_refused=on_refused,
@@ -294,6 +337,8 @@ def build_http_app(
     routes: list[Route | Mount] = [Route(HEALTH_PATH, healthz, methods=["GET"])]
     if console is not None:
         routes.append(Mount(CONSOLE_PATH, app=console))
+    if metrics is not None:
+        routes.append(_metrics_route(metrics))
     return Starlette(
         routes=[*routes, Mount("/", app=mcp_app)],
         middleware=middleware,
@@ -302,16 +347,21 @@ def build_http_app(
 
 
 def build_console_only_app(console: ASGIApp, *, host: str, port: int, allowed_hosts: Sequence[str] = (),
-                           allowed_origins: Sequence[str] = ()) -> Starlette:
+                           allowed_origins: Sequence[str] = (), metrics: Callable[[], bytes] | None = None,
+                           token_store: TokenStore | None = None, on_refused: RefusedCallback | None = None) -> Starlette:
     """The operator console alone (``--console-port`` on stdio): ``/console`` behind the same
-    Host/Origin checks as the HTTP transport; ``/`` redirects there."""
+    Host/Origin checks as the HTTP transport; ``/`` redirects there. With `metrics`, ``GET
+    /metrics`` beside it, behind `token_store`'s bearer tokens as on the HTTP transport (without
+    a token store, open like the console's port: loopback only, `check_bind_safety`)."""
     security = transport_security_settings(host, port, allowed_hosts=allowed_hosts, allowed_origins=allowed_origins)
 
     async def to_console(request: Request) -> Response:
         return RedirectResponse(CONSOLE_PATH + "/", status_code=303)
 
-    return Starlette(routes=[Route("/", to_console, methods=["GET"]), Mount(CONSOLE_PATH, app=console)],
-                     middleware=[Middleware(HostOriginGuard, settings=security)])
+    routes: list[Route | Mount] = [Route("/", to_console, methods=["GET"]), Mount(CONSOLE_PATH, app=console)]
+    if metrics is not None:
+        routes.append(_metrics_route(metrics, token_store, on_refused))
+    return Starlette(routes=routes, middleware=[Middleware(HostOriginGuard, settings=security)])
 
 
 # ------------------------------------------------------------------------ serving
