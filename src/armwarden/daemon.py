@@ -34,7 +34,6 @@ from armwarden.backends.base import Backend
 from armwarden.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
-from armwarden.metrics import DaemonMetrics
 from armwarden.policy import Policy, load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
@@ -63,6 +62,9 @@ SWITCH_INTERVAL_S = 0.0005
 GC_YOUNG_THRESHOLD = 10_000
 #: after SIGTERM/SIGINT on stdio: time for cancelled calls to stop the arm and audit themselves [s]
 SIGNAL_GRACE_S = 0.3
+#: at the end of a stdio session: time the console's server (`--console-port`) has to close its
+#: connections and return before it is cancelled [s] (its own graceful shutdown takes up to 3 s)
+CONSOLE_CLOSE_S = 5.0
 #: records of requests a transport refused, per principal (or host): this many in a row, then one
 #: per second (`RefusalReports`); a client's occasional mistakes are each recorded, a flood is not
 REFUSAL_RECORDS_BURST = 20
@@ -85,8 +87,6 @@ class Assembly:
     audit: AuditLog
     guard: Guard
     server: ArmWardenServer
-    #: what `/metrics` serves (docs/metrics.md)
-    metrics: DaemonMetrics | None = None
     #: the limits on records of refused requests of every door: closed (their counts of refusals
     #: left out recorded) before the final record
     refusal_reports: list[RefusalReports] = field(default_factory=list)
@@ -119,10 +119,8 @@ async def open_assembly(policy: Policy, backend: Backend, audit: AuditLog, runti
     except Exception as exc:
         raise BackendUnavailable(f"backend {backend.name} could not be opened: {exc}") from exc
     guard = build_guard(policy, backend, audit, previewer=plan_previewer(), runtime=runtime, robot=state_robot)
-    metrics = DaemonMetrics(guard.latch, backend)
-    audit.observe_writes(metrics.observe_audit_write)
-    server = ArmWardenServer(guard, metrics=metrics)
-    return Assembly(policy, backend, audit, guard, server, metrics)
+    server = ArmWardenServer(guard)
+    return Assembly(policy, backend, audit, guard, server)
 
 
 async def close_assembly(assembly: Assembly, why: str) -> str | None:
@@ -305,9 +303,24 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
 
             group.start_soon(on_signals)
             if args.transport == "stdio":
+                console_closed = anyio.Event()
+
+                async def serve_console() -> None:
+                    try:
+                        await _serve_console(args, assembly, external, console_stop, shutdown)
+                    finally:
+                        console_closed.set()
+
                 if getattr(args, "console_port", None) is not None:
-                    group.start_soon(_serve_console, args, assembly, external, console_stop)
+                    group.start_soon(serve_console)
+                else:
+                    console_closed.set()
                 why = await _serve_stdio(assembly, external)
+                # The console's server returns once it has closed its connections; cancelled while
+                # it serves, its lifespan task logs a CancelledError traceback on every exit.
+                shutdown.set()
+                with anyio.move_on_after(CONSOLE_CLOSE_S):
+                    await console_closed.wait()
             else:
                 await _serve_http(args, assembly, external, shutdown, console_stop)
             group.cancel_scope.cancel()
@@ -348,20 +361,19 @@ def _link_host(host: str) -> str:
 
 
 async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops,
-                         console_stop: ConsoleStop | None = None) -> None:
-    """``--console-port`` (stdio): the console alone on its own port, until cancelled."""
+                         console_stop: ConsoleStop | None = None, shutdown: anyio.Event | None = None) -> None:
+    """``--console-port`` (stdio): the console alone on its own port, until `shutdown` is set (it
+    then closes its connections and returns) or it is cancelled."""
     from armwarden.transport.http import build_console_only_app, serve_http
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
     app = build_console_only_app(_console_app(args, assembly, external, tokens, console_stop), host=args.console_host,
                                  port=args.console_port, allowed_hosts=getattr(args, "allowed_host", []) or [],
-                                 allowed_origins=getattr(args, "allowed_origin", []) or [],
-                                 metrics=None if assembly.metrics is None else assembly.metrics.exposition,
-                                 token_store=tokens, on_refused=_refusal_recorder(assembly))
+                                 allowed_origins=getattr(args, "allowed_origin", []) or [])
     assembly.guard.approvals.console_url = f"http://{_link_host(args.console_host)}:{args.console_port}/console"
     logger.warning("operator console: %s/", assembly.guard.approvals.console_url)
-    await serve_http(app, args.console_host, args.console_port)
+    await serve_http(app, args.console_host, args.console_port, shutdown=shutdown)
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
@@ -473,8 +485,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
                          on_refused=_refusal_recorder(assembly),
                          on_estop_refused=_refused_estop_latch(assembly, external),
                          allowed_hosts=getattr(args, "allowed_host", []) or [],
-                         allowed_origins=getattr(args, "allowed_origin", []) or [],
-                         metrics=None if assembly.metrics is None else assembly.metrics.exposition)
+                         allowed_origins=getattr(args, "allowed_origin", []) or [])
     await serve_http(app, args.host, args.port, shutdown=shutdown)
 
 
