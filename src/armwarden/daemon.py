@@ -34,6 +34,7 @@ from armwarden.backends.base import Backend
 from armwarden.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
+from armwarden.metrics import DaemonMetrics
 from armwarden.policy import Policy, load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
@@ -87,6 +88,8 @@ class Assembly:
     audit: AuditLog
     guard: Guard
     server: ArmWardenServer
+    #: what `/metrics` serves (docs/metrics.md)
+    metrics: DaemonMetrics | None = None
     #: the limits on records of refused requests of every door: closed (their counts of refusals
     #: left out recorded) before the final record
     refusal_reports: list[RefusalReports] = field(default_factory=list)
@@ -119,8 +122,10 @@ async def open_assembly(policy: Policy, backend: Backend, audit: AuditLog, runti
     except Exception as exc:
         raise BackendUnavailable(f"backend {backend.name} could not be opened: {exc}") from exc
     guard = build_guard(policy, backend, audit, previewer=plan_previewer(), runtime=runtime, robot=state_robot)
-    server = ArmWardenServer(guard)
-    return Assembly(policy, backend, audit, guard, server)
+    metrics = DaemonMetrics(guard.latch, backend)
+    audit.observe_writes(metrics.observe_audit_write)
+    server = ArmWardenServer(guard, metrics=metrics)
+    return Assembly(policy, backend, audit, guard, server, metrics)
 
 
 async def close_assembly(assembly: Assembly, why: str) -> str | None:
@@ -370,7 +375,9 @@ async def _serve_console(args: argparse.Namespace, assembly: Assembly, external:
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
     app = build_console_only_app(_console_app(args, assembly, external, tokens, console_stop), host=args.console_host,
                                  port=args.console_port, allowed_hosts=getattr(args, "allowed_host", []) or [],
-                                 allowed_origins=getattr(args, "allowed_origin", []) or [])
+                                 allowed_origins=getattr(args, "allowed_origin", []) or [],
+                                 metrics=None if assembly.metrics is None else assembly.metrics.exposition,
+                                 token_store=tokens, on_refused=_refusal_recorder(assembly))
     assembly.guard.approvals.console_url = f"http://{_link_host(args.console_host)}:{args.console_port}/console"
     logger.warning("operator console: %s/", assembly.guard.approvals.console_url)
     await serve_http(app, args.console_host, args.console_port, shutdown=shutdown)
@@ -485,7 +492,8 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
                          on_refused=_refusal_recorder(assembly),
                          on_estop_refused=_refused_estop_latch(assembly, external),
                          allowed_hosts=getattr(args, "allowed_host", []) or [],
-                         allowed_origins=getattr(args, "allowed_origin", []) or [])
+                         allowed_origins=getattr(args, "allowed_origin", []) or [],
+                         metrics=None if assembly.metrics is None else assembly.metrics.exposition)
     await serve_http(app, args.host, args.port, shutdown=shutdown)
 
 
