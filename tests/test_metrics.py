@@ -4,6 +4,7 @@ and the audit writer read through their hooks, bounded labels, hooks that never 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import httpx2
@@ -12,6 +13,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from starlette.responses import PlainTextResponse
 from starlette.types import Receive, Scope, Send
 
+from armwarden.backends.servo import ServoHooks, ServoLoop
 from armwarden.callcontext import CallRecord
 from armwarden.metrics import DaemonMetrics
 from armwarden.safety.audit import AuditLog
@@ -19,6 +21,7 @@ from armwarden.safety.estop import EStopLatch
 from armwarden.transport.http import build_console_only_app
 from armwarden.transport.jsonrpc import RefusedRequest
 from armwarden.transport.tokens import TokenStore
+from tests.helpers import REPO
 
 
 def scraped(metrics: DaemonMetrics) -> dict[tuple[str, frozenset[tuple[str, str]]], float]:
@@ -161,3 +164,17 @@ async def test_the_console_port_serves_metrics_behind_the_token_file(tmp_path: P
     assert served.status_code == 200
     assert "armwarden_info" in served.text
     assert len(refused) == 2 and all("/metrics refused (401)" in r.why for r in refused)
+
+
+def test_docs_name_every_metric_the_daemon_exposes() -> None:
+    class ServoBackend:
+        name = "fake"
+        servo = ServoLoop(ServoHooks(), [0.0] * 7, period_s=0.001)  # never started: its timing reads zero
+
+    metrics = DaemonMetrics(EStopLatch(), ServoBackend())  # type: ignore[arg-type]
+    names = {family.name for family in text_string_to_metric_families(metrics.exposition().decode())
+             if family.name.startswith("armwarden_")}
+    documented = set(re.findall(r"`(armwarden_[a-z_]+)`", (REPO / "docs" / "metrics.md").read_text(encoding="utf-8")))
+    exposed = {name + "_total" if name + "_total" in documented else name for name in names}
+    assert len(exposed) >= 14
+    assert exposed <= documented, sorted(exposed - documented)
