@@ -46,3 +46,17 @@ fi
 # well under a second once cached), so that neither the first daemon start nor a test pays it
 # while a backend's real-time thread or a start-up deadline is waiting.
 "$VENV/bin/python" -c "import armwarden.safety.geometry_kernel" >&2
+# The official MCP Bundle CLI, `mcpb` (tools/mcpb: @anthropic-ai/mcpb pinned by its
+# package-lock.json): tests/packaging validate the bundle scripts/build_mcpb.py builds with it.
+# Installed only where npm exists; without it those tests say what to install (and fail in CI).
+mcpb_stamp=tools/mcpb/node_modules/.armwarden-installed
+mcpb_want="$(sha256sum tools/mcpb/package-lock.json | cut -d' ' -f1)"
+if [ "${ARMWARDEN_NO_INSTALL:-0}" != 1 ] && command -v npm >/dev/null 2>&1 \
+    && ! { [ -f "$mcpb_stamp" ] && [ "$(cat "$mcpb_stamp")" = "$mcpb_want" ]; }; then
+  echo "bootstrap: installing the mcpb CLI into tools/mcpb (npm ci)" >&2
+  if npm ci --prefix tools/mcpb --no-audit --no-fund --loglevel=error >&2; then
+    echo "$mcpb_want" > "$mcpb_stamp"
+  else
+    echo "bootstrap: npm ci --prefix tools/mcpb failed; the bundle's tests will say what to install" >&2
+  fi
+fi
