@@ -32,6 +32,7 @@ from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
 from armwarden.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
+from armwarden.extras import log_feature_lines
 from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
 from armwarden.metrics import DaemonMetrics
@@ -262,6 +263,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
         signal_stop, channel = _start_external_stops(args, external, None if door is None else door[0],
                                                      assembly.refusal_reports_for("stop_channel"))
         console_stop = _console_stop(args, channel, None if door is None else door[1])
+        log_feature_lines(logger, assembly.policy.enabled_tools)  # what each absent optional dependency removes
         freeze_long_lived_objects()
         await assembly.audit.append_async(
             "startup",
