@@ -8,13 +8,17 @@
 #   ARMWARDEN_EXTRAS       the extras to install (default dev,mujoco,can,image)
 #   ARMWARDEN_CONSTRAINTS  an optional pip constraints file, e.g. constraints/ros.txt for the ROS
 #                          venv scripts/test.sh builds (.venv-ros, extras dev,can,ros)
+#   ARMWARDEN_NO_INSTALL   1: install nothing (no pip, no apt-get, no network); fail (exit 3) if the
+#                          venv is missing or out of date (tests that run run.sh as a user would)
 #
 # The operator console's browser tests (tests/console) drive Debian's chromium through
 # chromium-driver: installed here with apt-get where that can be done (root, or sudo without a
 # password); otherwise the tests say what to install (and fail in CI, .ci/run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if { [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; } && command -v apt-get >/dev/null 2>&1; then
+no_install="${ARMWARDEN_NO_INSTALL:-0}"
+if [ "$no_install" != 1 ] && { [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; } \
+    && command -v apt-get >/dev/null 2>&1; then
   as_root=()
   if [ "$(id -u)" != 0 ]; then as_root=(sudo -n); fi
   if [ "${#as_root[@]}" = 0 ] || sudo -n true 2>/dev/null; then
@@ -36,6 +40,10 @@ if [ -n "$CONSTRAINTS" ]; then
   constrain=(-c "$CONSTRAINTS")
 fi
 if ! { [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; }; then
+  if [ "$no_install" = 1 ]; then
+    echo "bootstrap: $VENV is missing or out of date and ARMWARDEN_NO_INSTALL=1 forbids installing" >&2
+    exit 3
+  fi
   echo "bootstrap: installing armwarden[$EXTRAS] into $VENV${CONSTRAINTS:+ (constraints: $CONSTRAINTS)}" >&2
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check uv >&2

@@ -12,9 +12,11 @@ the backend's optional parts use: the finger joint states of the gripper, a Join
 (the controller's topic interface, the backend's fallback), the same camera picture as a PNG
 CompressedImage, and a std_srvs/Trigger error-recovery service.
 
-Standalone: ``ROS_DOMAIN_ID=42 python -m tests_ros.cell [--table-height 0.1]``. DDS stays on
-this host: the cell refuses to start unless discovery is limited to localhost (or a Fast DDS
-profile is given); the standalone entry point sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``.
+Standalone: ``bash scripts/ros_cell.sh [--table-height 0.1]`` (sets up .venv-ros, then runs
+``python -m tests_ros.cell``). DDS stays on this host: the cell refuses to start unless discovery
+is limited to localhost (or a Fast DDS profile is given). The standalone entry point uses the
+daemon's defaults where the environment sets nothing (``armwarden.backends.ros2.dds``: domain 0,
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and names both on stderr.
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ import argparse
 import enum
 import itertools
 import os
-import random
 import signal
 import struct
 import sys
@@ -52,6 +53,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from armwarden.backends.ros2.dds import dds_settings
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.robot import RobotModel, build_robot
 
@@ -667,9 +669,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--table-height", type=float, default=None, help="virtual table plane z [m] in the base frame")
     parser.add_argument("--goal-mode", choices=[m.value for m in GoalMode], default=GoalMode.ACCEPT.value)
     args = parser.parse_args(argv)
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    if "ROS_DOMAIN_ID" not in os.environ:
-        os.environ["ROS_DOMAIN_ID"] = str(random.randint(1, 100))
+    # the daemon's own defaults (domain 0, LOCALHOST), so that both meet with nothing set
+    dds = dds_settings(None, os.environ)
+    dds.apply(os.environ)
+    os.environ["ROS_DOMAIN_ID"] = str(dds.domain_id)
+    print(f"fake FR3 cell: {dds.describe()}; start the daemon with the same", file=sys.stderr, flush=True)
     config = CellConfig(table_height_m=args.table_height, goal_mode=GoalMode(args.goal_mode))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -17,8 +17,8 @@ try:
     import rclpy  # noqa: F401
 except ImportError as exc:  # pragma: no cover - environment problem, not a test outcome
     raise ImportError(
-        "tests_ros needs the ROS 2 wheels and the built interfaces: "
-        "pip install -e '.[dev,ros]' -c constraints/ros.txt && python scripts/build_ros_interfaces.py"
+        "tests_ros needs the ROS 2 wheels and the built interfaces, in .venv-ros: "
+        "bash scripts/setup_ros.sh, then run them with .venv-ros/bin/python"
     ) from exc
 
 from tests_ros.cell import Cell, CellConfig

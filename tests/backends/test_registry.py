@@ -112,7 +112,9 @@ def test_serve_with_ros2_but_without_rclpy_exits_2_with_the_install_hint(tmp_pat
     result = _serve(tmp_path, "--backend", "ros2", blocked="rclpy")
     assert result.returncode == 2, result.stderr
     assert "the ros2 backend is not available" in result.stderr
-    assert "pip install -e '.[ros]' -c constraints/ros.txt && python scripts/build_ros_interfaces.py" in result.stderr
+    # a venv of its own, as run.sh builds it: never the ROS wheels into the main venv
+    assert "bash scripts/run.sh --backend ros2" in result.stderr and ".venv-ros" in result.stderr
+    assert "pip install -e '.[ros]'" not in result.stderr
     assert result.stdout == "" and not (tmp_path / "audit.jsonl").exists()
 
 

@@ -21,8 +21,16 @@ if TYPE_CHECKING:
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
 
-#: how to get rclpy and the interfaces that are not on PyPI
-INSTALL_HINT = "pip install -e '.[ros]' -c constraints/ros.txt && python scripts/build_ros_interfaces.py"
+#: how to get rclpy and the interfaces that are not on PyPI: in a venv of their own (the ROS
+#: wheels re-execute every interpreter of their venv with ROS's libraries on LD_LIBRARY_PATH,
+#: which the main venv's Pinocchio and MuJoCo must not see), as scripts/run.sh builds it
+INSTALL_HINT = (
+    "bash scripts/run.sh --backend ros2 --backend-config examples/ros2_fr3.yaml (in a checkout) builds "
+    "the ROS venv .venv-ros and serves from it; a desktop client's command is then "
+    ".venv-ros/bin/armwarden. By hand: ARMWARDEN_VENV=.venv-ros ARMWARDEN_EXTRAS=dev,can,ros "
+    "ARMWARDEN_CONSTRAINTS=constraints/ros.txt bash scripts/bootstrap.sh && "
+    ".venv-ros/bin/python scripts/build_ros_interfaces.py (never into the main .venv)"
+)
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> Backend:

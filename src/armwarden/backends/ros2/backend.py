@@ -108,7 +108,7 @@ from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.camera import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
-from armwarden.backends.ros2.state import JointStateCache, WrenchCache
+from armwarden.backends.ros2.state import JointStateCache, WrenchCache, nothing_heard
 from armwarden.backends.ros2.tf import TransformBuffer
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.errors import BackendError
@@ -317,6 +317,9 @@ class Ros2Backend(Backend):
                                           image_qos) for name, spec in self.config.cameras.items()}
         self.bridge.on_death = lambda error: self._worker_died("executor", error)
         await anyio.to_thread.run_sync(self.bridge.start, self._create_endpoints)  # made before it spins
+        for cache in (self.joint_states, self.fingers, self.wrench):
+            if cache is not None:
+                cache.network = self.bridge.dds  # named when nothing arrives: most often another domain
         try:
             await self._wait_for_first_state()
         except BaseException:
@@ -372,11 +375,12 @@ class Ros2Backend(Backend):
                 if time.monotonic() > deadline:
                     why = f" ({cache.last_drop})" if cache.dropped else ""
                     raise BackendError(f"no joint state naming {', '.join(cache.ros_names)} arrived on "
-                                       f"{cache.topic} within {timeout_s:g} s{why}")
+                                       f"{cache.topic} within {timeout_s:g} s{why}{nothing_heard(self.bridge.dds)}")
                 await anyio.sleep(POLL_S)
         while self.wrench is not None and not self.wrench.received:
             if time.monotonic() > deadline:
-                raise BackendError(f"no wrench arrived on {self.wrench.topic} within {timeout_s:g} s")
+                raise BackendError(f"no wrench arrived on {self.wrench.topic} within {timeout_s:g} s"
+                                   f"{nothing_heard(self.bridge.dds)}")
             await anyio.sleep(POLL_S)
 
     async def _close(self) -> None:

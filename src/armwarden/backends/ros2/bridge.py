@@ -49,6 +49,7 @@ import rclpy.task
 import rclpy.utilities
 from rclpy.signals import SignalHandlerOptions
 
+from armwarden.backends.ros2.dds import DdsSettings, dds_settings
 from armwarden.errors import BackendError
 from armwarden.handoff import settle_threadsafe
 
@@ -68,16 +69,7 @@ DeathListener = Callable[[BaseException | None], object]
 
 def domain_from_environment() -> int:
     """ROS_DOMAIN_ID from the environment (0 when unset, as ROS itself does)."""
-    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
-    if not text:
-        return 0
-    try:
-        domain = int(text)
-    except ValueError:
-        raise BackendError(f"ROS_DOMAIN_ID={text!r} is not a number") from None
-    if not 0 <= domain <= 232:
-        raise BackendError(f"ROS_DOMAIN_ID={domain} is outside 0..232")
-    return domain
+    return dds_settings(None, os.environ).domain_id
 
 
 class RosBridge:
@@ -87,6 +79,8 @@ class RosBridge:
                  executor_factory: ExecutorFactory = rclpy.executors.SingleThreadedExecutor) -> None:
         self.node_name = node_name
         self.domain_id = domain_id
+        #: the domain and discovery range in use, once started (named in "nothing arrived" errors)
+        self.dds: DdsSettings | None = None
         self._executor_factory = executor_factory  # another only to measure it (scripts/bench.py ros2)
         self._context: rclpy.context.Context | None = None
         self._node: rclpy.node.Node | None = None
@@ -110,9 +104,11 @@ class RosBridge:
     def start(self, setup: Callable[[], None] | None = None) -> None:
         """Make the context, the node and the executor, call `setup` (it creates the endpoints that
         live as long as the node, before anything spins), then spin on the executor thread."""
-        domain = self.domain_id if self.domain_id is not None else domain_from_environment()
+        dds = dds_settings(self.domain_id, os.environ)
+        dds.apply(os.environ)  # the default range, where rcl reads it (process-wide, before any init)
+        self.dds = dds
         context = rclpy.context.Context()
-        rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(context=context, domain_id=dds.domain_id, signal_handler_options=SignalHandlerOptions.NO)
         self._context = context
         try:
             self._node = rclpy.create_node(self.node_name, context=context)
@@ -126,7 +122,7 @@ class RosBridge:
             raise
         self._thread = threading.Thread(target=self._spin, name="armwarden-ros2-executor", daemon=True)
         self._thread.start()
-        logger.info("ros2: node %s started in domain %d", self.node_name, domain)
+        logger.info("ros2: node %s started: %s", self.node_name, dds.describe())
 
     def _beat(self) -> None:
         """Executor thread: one more turn (read by the backend's watchdog)."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from armwarden.backends.base import JointState, Wrench
+from armwarden.backends.ros2.dds import DdsSettings
 from armwarden.errors import BackendError
 
 Clock = Callable[[], float]
@@ -40,12 +41,18 @@ class _Sample:
     header_s: float
 
 
+def nothing_heard(network: DdsSettings | None) -> str:
+    """The tail of a "nothing arrived" message: the domain and range in use, and how to agree."""
+    return "" if network is None else f" (this node: {network.describe()}; {network.how_to_agree()})"
+
+
 class JointStateCache:
     """The latest complete joint state, mapped by name to the policy's joint order."""
 
     def __init__(self, topic: str, joint_names: Sequence[str], ros_names: Sequence[str], max_age_s: float,
-                 clock: Clock = time.monotonic) -> None:
+                 clock: Clock = time.monotonic, *, network: DdsSettings | None = None) -> None:
         self.topic = topic
+        self.network = network  # named when nothing came: most often the other side is on another domain
         self.joint_names = tuple(joint_names)
         self.ros_names = tuple(ros_names)
         self.max_age_s = max_age_s
@@ -120,7 +127,7 @@ class JointStateCache:
             sample = self._sample
         if sample is None:
             why = f"; {self.dropped} message(s) not used: {self.last_drop}" if self.dropped else ""
-            raise BackendError(f"no joint state received on {self.topic} yet{why}")
+            raise BackendError(f"no joint state received on {self.topic} yet{why}{nothing_heard(self.network)}")
         age = self._clock() - sample.state.stamp
         if age > self.max_age_s:
             why = f"; {self.dropped} message(s) not used, the last because {self.last_drop}" if self.dropped else ""
@@ -136,8 +143,10 @@ class WrenchCache:
     """The latest wrench; its stamp is the receipt time of the last *new* header stamp, so a
     frozen header stamp makes it age like a silent topic."""
 
-    def __init__(self, topic: str, max_age_s: float, frame_id: str | None, clock: Clock = time.monotonic) -> None:
+    def __init__(self, topic: str, max_age_s: float, frame_id: str | None, clock: Clock = time.monotonic, *,
+                 network: DdsSettings | None = None) -> None:
         self.topic = topic
+        self.network = network
         self.max_age_s = max_age_s
         self.frame_id = frame_id
         self._clock = clock
@@ -173,7 +182,7 @@ class WrenchCache:
         with self._lock:
             wrench, why = self._wrench, self.last_drop
         if wrench is None:
-            raise BackendError(f"no wrench received on {self.topic} yet")
+            raise BackendError(f"no wrench received on {self.topic} yet{nothing_heard(self.network)}")
         age = self._clock() - wrench.stamp
         if age > self.max_age_s:
             cause = f" ({why})" if why else ""
