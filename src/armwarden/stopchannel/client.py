@@ -2,22 +2,27 @@
 
 `send_estop` is the one-shot HTTP client (standard library only, so it works from any script
 next to the daemon); `estop_command` is the body of ``armwarden estop`` and
-`add_estop_arguments` declares its options on an argparse sub-parser.
+`add_estop_arguments` declares its options on an argparse sub-parser. With ``--pid``, the
+reason is written beside the signal (`armwarden.stopchannel.reasons`), within
+`REASON_WRITE_BUDGET_S`; the signal is sent whatever became of it.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import http.client
 import json
 import os
 import signal
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 from armwarden.safety.estop import flatten_reason
+from armwarden.stopchannel.reasons import write_reason
 from armwarden.stopchannel.wire import ESTOP_PATH
 
 __all__ = [
@@ -60,6 +65,8 @@ class EStopRefused(EStopRequestError):
 
 #: how often a connection the channel dropped unanswered is tried again
 RESET_RETRIES = 2
+#: how long ``estop --pid`` gives writing its reason before it signals without it [s]
+REASON_WRITE_BUDGET_S = 0.5
 
 
 def send_estop(url: str, token: str, reason: str = "", timeout_s: float = 2.0) -> dict[str, Any]:
@@ -136,7 +143,15 @@ def estop_command(args: argparse.Namespace) -> int:
         if pid is not None:
             if pid <= 0:  # 0 and negative numbers would signal whole process groups
                 raise EStopRequestError(f"--pid must be a positive process id, got {pid}")
-            os.kill(pid, signal.SIGUSR1)
+            reason = getattr(args, "reason", "") or ""
+            written = _hand_over_reason(pid, reason) if reason else None
+            try:
+                os.kill(pid, signal.SIGUSR1)
+            except OSError:
+                if written is not None:  # no stop will take it
+                    with contextlib.suppress(OSError):
+                        written.unlink()
+                raise
             print(f"armwarden: sent SIGUSR1 (e-stop) to process {pid}; check its log for the event number")
             return 0
         if not url:
@@ -157,6 +172,28 @@ def estop_command(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     print(f"armwarden: e-stop latched, event {answer.get('event')} (stop issued in {answer.get('stop_issued_ms')} ms)")
     return 0
+
+
+def _hand_over_reason(pid: int, reason: str, budget_s: float = REASON_WRITE_BUDGET_S) -> Path | None:
+    """Write `reason` for the daemon `pid` within `budget_s` [s] (a hung file system must not hold
+    the stop back); None, said on stderr, when it was not written: the stop goes ahead without it."""
+    outcome: list[Path | Exception] = []
+
+    def write() -> None:
+        try:
+            outcome.append(write_reason(pid, reason))
+        except Exception as exc:
+            outcome.append(exc)
+
+    writer = threading.Thread(target=write, name="armwarden-estop-reason", daemon=True)
+    writer.start()
+    writer.join(budget_s)
+    done = outcome[0] if outcome else None
+    if isinstance(done, Path):
+        return done
+    why = f"not written within {budget_s:g} s" if done is None else flatten_reason(done, 300)
+    print(f"armwarden: the reason could not be handed over ({why}); the e-stop is sent without it", file=sys.stderr)
+    return None
 
 
 def _fail(message: str) -> int:

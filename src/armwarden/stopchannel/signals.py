@@ -6,6 +6,10 @@ does nothing but set an event, and a thread of our own waits for it and calls th
 thread-safe latch-and-stop as the stop channel (see docs/architecture.md, "Independent stop
 channel"). The handler never takes a lock the interrupted code might hold: it only sets a
 `threading.Event` no one else sets.
+
+``armwarden estop --pid P --reason R`` writes its reason to a file beside the signal
+(`armwarden.stopchannel.reasons`, which says why a file); the thread takes it into the audit
+record only after the stop is issued, so the stop never waits for or depends on it.
 """
 
 from __future__ import annotations
@@ -15,8 +19,10 @@ import signal
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from types import FrameType
 
+from armwarden.stopchannel.reasons import discard_reasons, take_reasons
 from armwarden.stopchannel.server import ChannelStop
 
 logger = logging.getLogger(__name__)
@@ -31,8 +37,10 @@ class SignalStop:
     """Turns each SIGUSR1 into one e-stop on a dedicated thread; `close()` restores the old handler."""
 
     def __init__(self, latch_and_stop: LatchAndStop, *, on_event: Callable[[ChannelStop], None] | None = None,
-                 signum: int = signal.SIGUSR1) -> None:
+                 signum: int = signal.SIGUSR1, reason_directory: Path | None = None) -> None:
+        """`reason_directory`: where ``armwarden estop --pid`` writes reasons (None: its default)."""
         self._latch_and_stop = latch_and_stop
+        self._reason_directory = reason_directory
         self._on_event = on_event
         self._signum = signum
         self._raised = threading.Event()
@@ -44,6 +52,8 @@ class SignalStop:
         """Install the handler (main thread only, as Python requires) and start the stop thread."""
         if self._thread is not None:
             raise RuntimeError("SignalStop already started")
+        if self._signum == signal.SIGUSR1:  # left by an earlier process with this id: not for our stops
+            discard_reasons(directory=self._reason_directory)
         self._thread = threading.Thread(target=self._run, name="armwarden-sigusr1", daemon=True)
         self._thread.start()
         self._previous = signal.signal(self._signum, self._handle)
@@ -83,11 +93,23 @@ class SignalStop:
             number = self._latch_and_stop(f"{name} received", SIGNAL_PRINCIPAL)
         except Exception as exc:
             logger.critical("%s: the e-stop may NOT have been issued: %s", name, exc, exc_info=True)
-            self._report(ChannelStop(SIGNAL_PRINCIPAL, f"{name} received", "signal", None, None, str(exc)))
+            self._report(ChannelStop(SIGNAL_PRINCIPAL, self._reason(name), "signal", None, None, str(exc)))
             return
         issued_ms = round((time.monotonic() - received) * 1e3, 4)
-        logger.warning("%s: e-stop #%d latched and the robot stopped", name, number)
-        self._report(ChannelStop(SIGNAL_PRINCIPAL, f"{name} received", "signal", number, issued_ms, None))
+        reason = self._reason(name)  # only now: the stop never waits for the reason
+        logger.warning("%s: e-stop #%d latched and the robot stopped (%s)", name, number, reason)
+        self._report(ChannelStop(SIGNAL_PRINCIPAL, reason, "signal", number, issued_ms, None))
+
+    def _reason(self, name: str) -> str:
+        """The reasons ``armwarden estop --pid`` wrote for this process, or "<signal> received"."""
+        if self._signum != signal.SIGUSR1:
+            return f"{name} received"
+        try:
+            text = take_reasons(directory=self._reason_directory)
+        except Exception:  # take_reasons never raises; the record must be written all the same
+            logger.exception("reading the reason of the %s e-stop failed", name)
+            text = None
+        return text or f"{name} received"
 
     def _report(self, stop: ChannelStop) -> None:
         if self._on_event is None:

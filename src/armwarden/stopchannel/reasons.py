@@ -1,0 +1,151 @@
+"""The reason of ``armwarden estop --pid PID --reason TEXT``, handed to the daemon beside SIGUSR1.
+
+A signal carries no text. `sigqueue(3)` would carry one integer, and Python has no binding to
+send it; the stop channel carries text but needs a token and a port. So the command writes the
+reason to a file of its own, named for the daemon's process id, in a directory only this user
+can use (``/tmp/armwarden-<uid>``), and then signals. The daemon's signal thread issues the stop
+first, and only then takes the reason files written for it into the audit record: the stop never
+waits for, reads or depends on a reason (a missing, late, refused or unreadable one leaves the
+record's reason "SIGUSR1 received").
+
+The files are text and nothing else: read only from a directory and files owned by the daemon's
+user with no group or other access (opened without following links, never a FIFO), at most
+`MAX_REASON_BYTES`, cleaned to one printable line of at most `REASON_LIMIT` characters, removed
+once read, and ignored when older than `MAX_REASON_AGE_S` (written for a stop that was never
+sent, or for an earlier process with the same id). Both sides must see the same ``/tmp``: under
+systemd's ``PrivateTmp`` or as another user (root signalling a user's daemon) the reason is lost,
+the stop is not.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import secrets
+import stat
+import time
+from pathlib import Path
+
+from armwarden.safety.estop import flatten_reason
+from armwarden.stopchannel.wire import REASON_LIMIT
+
+logger = logging.getLogger(__name__)
+
+#: largest reason file read [bytes]; a larger one is refused unread
+MAX_REASON_BYTES = 2048
+#: a reason file older than this when the stop is handled belongs to no stop of now [s]
+MAX_REASON_AGE_S = 60.0
+_SUFFIX = ".reason"
+
+
+def reason_directory() -> Path:
+    """Where reasons for this user's daemons are written: the same for the command and the daemon."""
+    return Path("/tmp") / f"armwarden-{os.geteuid()}"
+
+
+def _prefix(pid: int) -> str:
+    return f"estop-{pid}-"
+
+
+def _check_private_directory(directory: Path) -> None:
+    """OSError unless `directory` is a real directory of this user that no one else may use."""
+    info = os.lstat(directory)
+    if not stat.S_ISDIR(info.st_mode):
+        raise NotADirectoryError(f"{directory} is not a directory")
+    if info.st_uid != os.geteuid() or info.st_mode & 0o077:
+        raise PermissionError(f"{directory} must belong to this user with no group or other access")
+
+
+def write_reason(pid: int, reason: str, directory: Path | None = None) -> Path:
+    """Write `reason` for the daemon `pid` (owner-only, complete before it appears under its name)
+    and return the file's path. Raises OSError when it cannot."""
+    directory = reason_directory() if directory is None else directory
+    with contextlib.suppress(FileExistsError):
+        os.mkdir(directory, 0o700)
+    _check_private_directory(directory)
+    data = flatten_reason(reason, REASON_LIMIT).encode("utf-8")
+    name = f"{_prefix(pid)}{time.time_ns()}-{secrets.token_hex(4)}"
+    partial, final = directory / f".{name}.tmp", directory / f"{name}{_SUFFIX}"
+    fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    try:
+        with os.fdopen(fd, "wb") as file:
+            file.write(data)
+        os.rename(partial, final)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(partial)
+        raise
+    return final
+
+
+def _read_one(path: Path, now: float) -> tuple[int, str] | None:
+    """(write time, cleaned text) of one reason file, or None when it is refused. Removes it."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError as exc:
+        logger.warning("e-stop reason %s not read: %s", path, exc)
+        return None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_uid != os.geteuid() or info.st_mode & 0o077:
+            logger.warning("e-stop reason %s refused: not a regular file of this user with owner-only access", path)
+            return None
+        if info.st_size > MAX_REASON_BYTES:
+            logger.warning("e-stop reason %s refused: larger than %d bytes", path, MAX_REASON_BYTES)
+            return None
+        if now - info.st_mtime > MAX_REASON_AGE_S:
+            return None  # for a stop long past, or never sent
+        data = os.read(fd, MAX_REASON_BYTES + 1)
+    except OSError as exc:
+        logger.warning("e-stop reason %s not read: %s", path, exc)
+        return None
+    finally:
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+    return info.st_mtime_ns, flatten_reason(data[:MAX_REASON_BYTES], REASON_LIMIT)
+
+
+def _files_for(pid: int, directory: Path) -> list[Path]:
+    prefix = _prefix(pid)
+    with os.scandir(directory) as entries:
+        return [Path(entry.path) for entry in entries if entry.name.startswith(prefix) and entry.name.endswith(_SUFFIX)]
+
+
+def take_reasons(pid: int | None = None, directory: Path | None = None) -> str | None:
+    """Every reason written for `pid` (default: this process) and not yet taken, oldest first and
+    joined by "; " (at most `REASON_LIMIT` characters), removing them; None when there is none.
+    Never raises: a refused or unreadable reason is logged and left out."""
+    pid = os.getpid() if pid is None else pid
+    directory = reason_directory() if directory is None else directory
+    try:
+        _check_private_directory(directory)
+        paths = _files_for(pid, directory)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        logger.warning("e-stop reasons in %s not read: %s", directory, exc)
+        return None
+    now = time.time()
+    taken = sorted(found for found in (_read_one(path, now) for path in paths) if found is not None)
+    texts = [text for _, text in taken if text]
+    return flatten_reason("; ".join(texts), REASON_LIMIT) if texts else None
+
+
+def discard_reasons(pid: int | None = None, directory: Path | None = None) -> None:
+    """Remove reasons left for `pid` (default: this process) by an earlier process with the same
+    id, so none is taken for a later stop. Never raises."""
+    pid = os.getpid() if pid is None else pid
+    directory = reason_directory() if directory is None else directory
+    try:
+        _check_private_directory(directory)
+        paths = _files_for(pid, directory)
+    except OSError:
+        return
+    for path in paths:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+
+
+__all__ = ["MAX_REASON_AGE_S", "MAX_REASON_BYTES", "discard_reasons", "reason_directory", "take_reasons", "write_reason"]

@@ -1,0 +1,215 @@
+"""`armwarden estop --pid P --reason R`: the reason reaches the audit record of the SIGUSR1 stop
+(issue 31, item 7: it said "SIGUSR1 received"), through an owner-only file the daemon reads only
+after the stop is issued, and never trusts for anything but its text."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from armwarden.stopchannel import add_estop_arguments, estop_command, reasons
+from armwarden.stopchannel import client as client_module
+from armwarden.stopchannel import signals as signals_module
+from armwarden.stopchannel.reasons import MAX_REASON_BYTES, discard_reasons, take_reasons, write_reason
+from armwarden.stopchannel.signals import SIGNAL_PRINCIPAL, SignalStop
+from armwarden.stopchannel.wire import REASON_LIMIT
+from tests.helpers import CLI, REPO, child_env, records_of
+from tests.server.http_daemon import http_daemon
+
+from .conftest import Events, Latch
+
+PID = 4242
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="armwarden estop")
+    add_estop_arguments(parser)
+    return parser.parse_args(argv)
+
+
+@pytest.fixture
+def directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The reason directory of this test (the command's and the reader's default points there)."""
+    path = tmp_path / "reasons"
+    monkeypatch.setattr(reasons, "reason_directory", lambda: path)
+    return path
+
+
+def wait_for(predicate, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        time.sleep(0.05)
+
+
+# ------------------------------------------------------------------------------------ the files
+def test_a_written_reason_is_taken_once_and_removed(directory: Path) -> None:
+    path = write_reason(PID, "hand on the button")
+    assert oct(path.stat().st_mode & 0o777) == oct(0o600) and oct(directory.stat().st_mode & 0o777) == oct(0o700)
+    assert take_reasons(PID) == "hand on the button"
+    assert list(directory.iterdir()) == []
+    assert take_reasons(PID) is None
+
+
+def test_only_the_reasons_for_this_process_id_are_taken(directory: Path) -> None:
+    write_reason(PID + 1, "for another daemon")
+    write_reason(PID, "first")
+    write_reason(PID, "second")
+    assert take_reasons(PID) == "first; second"
+    assert take_reasons(PID + 1) == "for another daemon"
+
+
+def test_a_reason_is_cleaned_to_one_bounded_line(directory: Path) -> None:
+    write_reason(PID, "line one\nline two\x1b[31m" + "x" * 1000)
+    text = take_reasons(PID)
+    assert text is not None and text.startswith("line one line two[31m") and "\n" not in text and "\x1b" not in text
+    assert len(text) <= REASON_LIMIT
+
+
+def test_a_reason_file_others_may_read_or_write_is_refused_and_removed(directory: Path) -> None:
+    write_reason(PID, "trusted").chmod(0o666)
+    assert take_reasons(PID) is None
+    assert list(directory.iterdir()) == []
+
+
+def test_a_symbolic_link_is_never_followed(directory: Path, tmp_path: Path) -> None:
+    target = tmp_path / "secret"
+    target.write_text("do not read me", encoding="utf-8")
+    target.chmod(0o600)
+    write_reason(PID, "placeholder")  # creates the directory
+    take_reasons(PID)
+    (directory / f"estop-{PID}-1-link.reason").symlink_to(target)
+    assert take_reasons(PID) is None
+    assert target.read_text(encoding="utf-8") == "do not read me"
+
+
+def test_a_fifo_named_as_a_reason_does_not_block_the_reader(directory: Path) -> None:
+    write_reason(PID, "placeholder")
+    take_reasons(PID)
+    os.mkfifo(directory / f"estop-{PID}-1-fifo.reason", 0o600)  # nobody ever writes to it
+    assert take_reasons(PID) is None
+
+
+def test_a_reason_file_over_the_size_limit_is_refused_unread(directory: Path) -> None:
+    path = write_reason(PID, "placeholder")
+    path.write_bytes(b"x" * (MAX_REASON_BYTES + 1))
+    assert take_reasons(PID) is None
+
+
+def test_a_stale_reason_is_not_taken(directory: Path) -> None:
+    path = write_reason(PID, "for a stop never sent")
+    long_ago = time.time() - reasons.MAX_REASON_AGE_S - 60
+    os.utime(path, (long_ago, long_ago))
+    assert take_reasons(PID) is None
+
+
+def test_a_directory_others_may_use_is_not_read_and_not_written(directory: Path) -> None:
+    directory.mkdir(mode=0o700)
+    (directory / f"estop-{PID}-1-x.reason").write_text("planted", encoding="utf-8")
+    directory.chmod(0o777)
+    assert take_reasons(PID) is None
+    with pytest.raises(PermissionError):
+        write_reason(PID, "mine")
+
+
+def test_reasons_left_for_this_process_id_are_discarded(directory: Path) -> None:
+    write_reason(PID, "left by an earlier process with this id")
+    discard_reasons(PID)
+    assert take_reasons(PID) is None
+
+
+# ------------------------------------------------------------------------------- the signal side
+def test_the_stop_is_issued_before_the_reason_is_read_and_the_record_carries_it(
+        directory: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    order: list[str] = []
+    latch, events = Latch(), Events()
+
+    def latch_and_stop(reason: str, principal: str) -> int:
+        order.append("stop")
+        return latch(reason, principal)
+
+    def take(pid: int | None = None, directory: Path | None = None) -> str | None:
+        order.append("reason")
+        return take_reasons(pid, directory)
+
+    monkeypatch.setattr(signals_module, "take_reasons", take)
+    with SignalStop(latch_and_stop, on_event=events, reason_directory=directory):
+        write_reason(os.getpid(), "hand on the button")
+        os.kill(os.getpid(), signal.SIGUSR1)
+        assert events.arrived.wait(30.0)
+    assert order == ["stop", "reason"]
+    assert latch.calls == [("SIGUSR1 received", SIGNAL_PRINCIPAL)]  # the stop never depends on the reason
+    (stop,) = events.received
+    assert stop.reason == "hand on the button" and stop.event == 1 and stop.error is None
+
+
+def test_a_signal_without_a_reason_is_recorded_as_received(directory: Path) -> None:
+    events = Events()
+    with SignalStop(Latch(), on_event=events, reason_directory=directory):
+        os.kill(os.getpid(), signal.SIGUSR1)
+        assert events.arrived.wait(30.0)
+    assert events.received[0].reason == "SIGUSR1 received"
+
+
+# ------------------------------------------------------------------------------- the command side
+def test_the_command_writes_the_reason_before_it_signals(directory: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[str | None] = []
+    monkeypatch.setattr(os, "kill", lambda pid, sig: seen.append(take_reasons(pid)))
+    assert estop_command(parse(["--pid", str(PID), "--reason", "hand on the button"])) == 0
+    assert seen == ["hand on the button"]
+
+
+def test_the_command_signals_even_when_the_reason_cannot_be_written(
+        directory: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    directory.mkdir(mode=0o755)  # not private: the reason is refused
+    sent: list[tuple[int, int]] = []
+    monkeypatch.setattr(os, "kill", lambda pid, sig: sent.append((pid, sig)))
+    assert estop_command(parse(["--pid", str(PID), "--reason", "hand on the button"])) == 0
+    assert sent == [(PID, signal.SIGUSR1)]
+    assert "the e-stop is sent without it" in capsys.readouterr().err
+
+
+def test_the_command_does_not_wait_for_a_hung_reason_write(directory: Path, monkeypatch: pytest.MonkeyPatch,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    release = threading.Event()
+    monkeypatch.setattr(client_module, "write_reason", lambda pid, reason: release.wait(60.0))
+    monkeypatch.setattr(client_module, "REASON_WRITE_BUDGET_S", 0.05)
+    sent: list[int] = []
+    monkeypatch.setattr(os, "kill", lambda pid, sig: sent.append(pid))
+    try:
+        assert estop_command(parse(["--pid", str(PID), "--reason", "hand on the button"])) == 0
+        assert sent == [PID]  # signalled while the write still hangs
+        assert "not written within" in capsys.readouterr().err
+    finally:
+        release.set()
+
+
+def test_a_reason_for_a_process_that_does_not_exist_is_removed(directory: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def no_such_process(pid: int, sig: int) -> None:
+        raise ProcessLookupError
+
+    monkeypatch.setattr(os, "kill", no_such_process)
+    assert estop_command(parse(["--pid", str(PID), "--reason", "too late"])) == 1
+    assert list(directory.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------ end to end
+def test_the_reason_of_estop_by_pid_reaches_the_audit_record(tmp_path: Path) -> None:
+    with http_daemon(tmp_path, speedup=0.5) as daemon:
+        result = subprocess.run([*CLI, "estop", "--pid", str(daemon.process.pid), "--reason", "hand on the button"],
+                                cwd=REPO, env=child_env(), capture_output=True, text=True, timeout=60)
+        assert result.returncode == 0, result.stderr
+
+        def signal_stops() -> list[dict]:
+            return [r for r in records_of(daemon.audit) if r["event"] == "estop" and r["principal"] == SIGNAL_PRINCIPAL]
+
+        wait_for(lambda: len(signal_stops()) == 1)
+        record = signal_stops()[0]
+    assert record["outcome"] == "latched" and record["arguments"] == {"reason": "hand on the button"}
