@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import dataclasses
 import re
+import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,7 +84,8 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
                          settings: ConsoleSettings | None = None, session_clock: Callable[[], float] | None = None,
                          **fake_options: Any) -> AsyncIterator[ServedConsole]:
     """The harness's Guard and MCP server, served with the console on a free loopback port
-    (`session_clock`: the clock console sessions expire by, e.g. a `FakeClock`; None: monotonic)."""
+    (`session_clock`: the clock console sessions expire by and camera pictures age by, e.g. a
+    `FakeClock`; None: monotonic)."""
     tokens_path = tmp_path / "tokens.json"
     operator = TokenStore.add(tokens_path, "operator", name="alice")
     observer = TokenStore.add(tokens_path, "observer", name="bob")
@@ -102,7 +104,8 @@ async def served_console(tmp_path: Path, policy: Policy | None = None,
         channel = StopChannel(authenticate=lambda _token: None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
                               on_event=external.record, on_refused=external.record_refusal, console=door).start()
         settings = dataclasses.replace(settings, estop_url=channel.console_url)
-        console = build_console_app(harness.guard, sessions, hook, settings)
+        console = build_console_app(harness.guard, sessions, hook, settings,
+                                    clock=time.monotonic if session_clock is None else session_clock)
         harness.guard.approvals.console_url = f"http://{HOST}:{port}/console"
         app = build_http_app(harness.server.mcp, host=HOST, port=port, token_store=tokens, console=console,
                              on_stop_request=external.stop_on_receipt)

@@ -21,7 +21,7 @@ from armwarden.console.routes import ConsoleSettings
 from armwarden.policy import Policy
 from tests.console.browser import chromium
 from tests.console.served import ServedConsole, served_console
-from tests.helpers import records_of, text_of
+from tests.helpers import REPO, records_of, text_of
 from tests.server.harness import HOME_TCP_X, policy_with
 
 URL_POLICY = {"approval.mode": "always", "approval.channel": "url"}
@@ -147,6 +147,74 @@ def test_a_wrong_token_is_refused(tmp_path: Path, browser: Any) -> None:
 
     assert "not valid" in message
     assert still_login
+
+
+# ------------------------------------------------------------------ cameras
+#: the pixels of the picture of one camera on the page, as a data URL (None until it has loaded)
+PICTURE_PIXELS = """
+    const img = document.querySelector('[data-camera="' + arguments[0] + '"] img');
+    if (!img || img.hidden || !img.complete || !img.naturalWidth) { return null; }
+    const canvas = document.createElement('canvas');
+    canvas.width = img.naturalWidth; canvas.height = img.naturalHeight;
+    canvas.getContext('2d').drawImage(img, 0, 0);
+    return canvas.toDataURL();"""
+
+
+def test_the_camera_view_shows_each_camera_and_keeps_it_current(tmp_path: Path, browser: Any) -> None:
+    """The fake's cameras number their frames: the picture on the page changes while it is open."""
+    with console(tmp_path) as session:
+        sign_in(browser, session.served, session.served.observer_token)
+        browser.get(session.served.console + "/cameras")
+        first = {name: wait_for(browser, lambda b, n=name: b.execute_script(PICTURE_PIXELS, n)) for name in ("wrist", "scene")}
+        newer = wait_for(browser, lambda b: (b.execute_script(PICTURE_PIXELS, "scene") or first["scene"]) != first["scene"])
+        loads = int(browser.execute_script("return document.querySelector('[data-camera=\"scene\"] img').dataset.loads"))
+
+    assert all(pixels.startswith("data:image/png") for pixels in first.values())
+    assert newer
+    assert loads >= 2
+
+
+def test_a_failing_camera_shows_its_error_in_the_page(tmp_path: Path, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    from armwarden.errors import BackendError
+
+    async def broken(camera: str) -> None:
+        raise BackendError(f"{camera}: lens cap on")
+
+    with console(tmp_path) as session:
+        session.served.harness.fake._camera_snapshot = broken  # type: ignore[method-assign]
+        sign_in(browser, session.served, session.served.operator_token)
+        browser.get(session.served.console + "/cameras")
+        error = browser.find_element(By.CSS_SELECTOR, '[data-camera="wrist"] .camera-error')
+        wait_for(browser, lambda _: error.is_displayed())
+        text = error.text
+        picture_shown = browser.find_element(By.CSS_SELECTOR, '[data-camera="wrist"] img').is_displayed()
+        nav = browser.find_element(By.ID, "nav-cameras").text
+
+    assert "wrist: lens cap on" in text and "BACKEND_ERROR" in text
+    assert not picture_shown
+    assert nav == "Cameras"
+
+
+def test_the_camera_view_shows_mujocos_rendered_cameras(tmp_path: Path, browser: Any) -> None:
+    """The screenshot in docs/console.md: `armwarden serve --backend mujoco` with the README's
+    scene (its box on the table), as a process of its own, and its cameras in the console."""
+    pytest.importorskip("mujoco")
+    from selenium.webdriver.common.by import By
+
+    from tests.server.http_daemon import http_daemon
+
+    with http_daemon(tmp_path, speedup=1.0, backend="mujoco", config=REPO / "examples" / "mujoco_scene.yaml") as daemon:
+        browser.set_window_size(1400, 940)
+        browser.get(daemon.base + "/console/login")
+        browser.find_element(By.ID, "token").send_keys(daemon.operator_token)
+        click_and_load(browser, "sign-in")
+        browser.get(daemon.base + "/console/cameras")
+        first = {name: wait_for(browser, lambda b, n=name: b.execute_script(PICTURE_PIXELS, n)) for name in ("scene", "wrist")}
+        screenshot(browser, "console-cameras.png")
+
+    assert all(pixels.startswith("data:image/png") for pixels in first.values())
 
 
 # ------------------------------------------------------------------ approvals

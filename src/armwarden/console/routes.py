@@ -1,9 +1,11 @@
-"""The console's HTTP routes: pages, live fragments, pictures, and the four things a human can do
-(sign in/out, E-STOP, release the e-stop, answer an approval request).
+"""The console's HTTP routes: pages, live fragments, pictures (the arm's top/side view, plan
+previews, each camera's latest picture), and the four things a human can do (sign in/out, E-STOP,
+release the e-stop, answer an approval request).
 
 Rules every handler keeps:
 - Pages and reads need a session (`sessions.py`); without one a page redirects to sign-in and a
-  read answers 401.
+  read answers 401. Reads are not audited (they change nothing); camera pictures come through
+  the Guard as `camera_snapshot`'s do (`cameras.py`).
 - Every POST but the E-STOP from loopback needs the session's CSRF token (sign-in: the login
   form's own token); a POST without it is refused (403) and audited.
 - Releasing the e-stop and answering approvals need the operator role; observers see, and stop;
@@ -36,6 +38,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Route
 
+from armwarden.console.cameras import CameraFeed, CameraTrouble
 from armwarden.console.feed import StateFeed, request_view
 from armwarden.console.pages import (
     SECURITY_HEADERS,
@@ -99,12 +102,13 @@ class Console:
     """The handlers of one console, bound to one Guard."""
 
     def __init__(self, guard: Guard, sessions: SessionStore, estop: EStopHook, settings: ConsoleSettings,
-                 refusals: RefusalReports | None = None) -> None:
+                 refusals: RefusalReports | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.guard = guard
         self.sessions = sessions
         self.estop_hook = estop
         self.settings = settings
         self.feed = StateFeed(guard)
+        self.cameras = CameraFeed(guard, clock)
         self.headers = page_headers(_origin_of(settings.estop_url))
         #: records of refusals of nobody in particular, per host (one per second, the rest counted
         #: and reported as `refusals_left_out`); the daemon passes its own to close at shutdown
@@ -253,6 +257,10 @@ class Console:
                          answerable=self.settings.answer_approvals, own_request=pending.is_requested_by(session.name),
                          self_approval_allowed=self.guard.policy.approval.allow_self_approval)
 
+    async def cameras_page(self, request: Request, session: Session) -> Response:
+        return self.page("cameras.html", request, session, title="cameras", cameras=self.cameras.views(),
+                         refresh_ms=self.cameras.refresh_ms, refresh_s=self.cameras.refresh_s)
+
     async def audit_page(self, request: Request, session: Session) -> Response:
         return self.page("audit.html", request, session, title="audit", records=await self.feed.audit_tail(),
                          audit_status=await self.feed.audit_status())
@@ -297,6 +305,23 @@ class Console:
         if png is None:
             return Response("no picture (Pillow is not installed)", status_code=503, headers=SECURITY_HEADERS)
         return Response(png, media_type="image/png", headers=SECURITY_HEADERS)
+
+    async def camera_picture(self, request: Request) -> Response:
+        """A camera's latest picture (PNG), for any signed-in session; otherwise JSON ``{"error": why}``
+        (401 not signed in, 404 no such camera, 403 not allowlisted, 503 the read failed, 429 the
+        rate limits refuse a new read and there is no earlier picture)."""
+        camera = request.path_params["camera"]
+        if self.session_of(request) is None:
+            return JSONResponse({"error": "sign in first"}, status_code=401, headers=SECURITY_HEADERS)
+        if camera not in self.cameras.cameras:
+            return JSONResponse({"error": self.cameras.unknown(camera)}, status_code=404, headers=SECURITY_HEADERS)
+        latest = await self.cameras.latest(camera)
+        if isinstance(latest, CameraTrouble):
+            headers = dict(SECURITY_HEADERS)
+            if latest.kind == "rate_limited":
+                headers["Retry-After"] = str(max(1, round(self.cameras.refresh_s)))
+            return JSONResponse({"error": latest.message, "camera": camera}, status_code=latest.status, headers=headers)
+        return Response(latest.png, media_type="image/png", headers=SECURITY_HEADERS)
 
     async def static(self, request: Request) -> Response:
         name = request.path_params["name"]
@@ -423,6 +448,8 @@ class Console:
             Route("/approvals/{request_id}", self.answer, methods=["POST"]),
             Route("/approvals/{request_id}/picture.png", self.plan_picture, methods=["GET"]),
             Route("/audit", signed(self.audit_page), methods=["GET"]),
+            Route("/cameras", signed(self.cameras_page), methods=["GET"]),
+            Route("/cameras/{camera:path}.png", self.camera_picture, methods=["GET"]),
             Route("/login", self.login_page, methods=["GET"]),
             Route("/login", self.login, methods=["POST"]),
             Route("/logout", self.logout, methods=["POST"]),
@@ -436,11 +463,13 @@ class Console:
 
 
 def build_console_app(guard: Guard, sessions: SessionStore, estop: EStopHook,
-                      settings: ConsoleSettings | None = None, refusals: RefusalReports | None = None) -> Starlette:
+                      settings: ConsoleSettings | None = None, refusals: RefusalReports | None = None,
+                      clock: Callable[[], float] = time.monotonic) -> Starlette:
     """The console as an ASGI app, to be mounted at `settings.path` (beside /mcp, or alone on
     --console-port). Host/Origin checks are the mounting app's job (`transport/http.py`).
-    `refusals`: the limit on records of anonymous refusals (its owner closes it)."""
-    console = Console(guard, sessions, estop, settings or ConsoleSettings(), refusals)
+    `refusals`: the limit on records of anonymous refusals (its owner closes it). `clock`: the
+    monotonic clock camera pictures age by (tests move it by hand)."""
+    console = Console(guard, sessions, estop, settings or ConsoleSettings(), refusals, clock)
     return Starlette(routes=console.routes())
 
 

@@ -30,6 +30,31 @@
     setInterval(() => { img.src = src + "?t=" + Date.now(); }, parseInt(img.dataset.refresh, 10));
   });
 
+  // Camera pictures (<img data-camera-refresh="MS">) reload every MS milliseconds (the daemon
+  // keeps each camera's latest outcome that long, so every open page shares its reads). A
+  // camera that fails answers with JSON instead of a picture: its error is shown in place of
+  // the picture (asked again from the same route, which answers from what it kept).
+  document.querySelectorAll("img[data-camera-refresh]").forEach((img) => {
+    const src = img.getAttribute("src");
+    const error = img.parentElement.querySelector(".camera-error");
+    img.addEventListener("load", () => {
+      img.hidden = false;
+      if (error) { error.hidden = true; }
+      img.dataset.loads = String(parseInt(img.dataset.loads || "0", 10) + 1);
+    });
+    img.addEventListener("error", async () => {
+      let text = "no picture";
+      try {
+        const reply = await fetch(img.src, {credentials: "same-origin", cache: "no-store",
+                                            headers: {"Accept": "application/json"}});
+        text = (await reply.json()).error || text;
+      } catch (e) { text = "no picture: the daemon did not answer"; }
+      if (error) { error.textContent = text; error.hidden = false; }
+      img.hidden = true;
+    });
+    setInterval(() => { img.src = src + "?t=" + Date.now(); }, parseInt(img.dataset.cameraRefresh, 10));
+  });
+
   // E-STOP: post at once with fetch (no page load in between), then show the answer.
   // With the stop channel (data-channel) the post is a "simple" cross-origin request
   // (mode no-cors: no preflight), whose answer is opaque: it cannot say whether the channel
