@@ -19,6 +19,7 @@ from armwarden.backends import backend_names, backends_help
 from armwarden.errors import ArmWardenError, PolicyError
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
 from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S
+from armwarden.snapshot_cli import add_snapshot_arguments, snapshot_command
 from armwarden.stopchannel.client import add_estop_arguments, estop_command
 
 EXIT_OK = 0
@@ -63,6 +64,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     add_estop_arguments(commands.add_parser(
         "estop", help="e-stop a running daemon through its stop channel (--url) or SIGUSR1 (--pid)"))
+    add_snapshot_arguments(commands.add_parser(
+        "snapshot", help="write one camera picture of a running daemon (its camera_snapshot tool) to a file"))
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")
@@ -171,6 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return tokens.tokens_revoke_command(args.file, args.name)
         if args.command == "estop":
             return estop_command(args)
+        if args.command == "snapshot":
+            return snapshot_command(args)
         if args.command == "serve":
             from armwarden.daemon import serve_command
 
