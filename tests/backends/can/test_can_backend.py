@@ -622,10 +622,17 @@ async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was(
         away_from_the_support[1] = 0.02 * float(np.sign(stale[1] - q[1]))
         freeze = backend._freeze_gripper
 
+        lost_the_cpu = threading.Event()
+
         def freeze_then_lose_the_cpu() -> None:  # two ticks run while `_recover` is between its steps
             freeze()
-            ticks = servo.tick_count
-            while servo.tick_count < ticks + 2:
+            # once, and never on the servo thread itself (a fault's stop freezes the gripper there
+            # too, and would wait for its own ticks); bounded, so a stalled loop fails the test
+            if lost_the_cpu.is_set() or threading.current_thread() is servo.thread:
+                return
+            lost_the_cpu.set()
+            ticks, end = servo.tick_count, time.monotonic() + 10.0
+            while servo.tick_count < ticks + 2 and time.monotonic() < end:
                 time.sleep(0.0005)
 
         backend._freeze_gripper = freeze_then_lose_the_cpu  # type: ignore[method-assign]
