@@ -440,7 +440,6 @@ def test_the_latched_banner_keeps_the_header_on_one_row(tmp_path: Path, browser:
                                  return {top: r.top, bottom: r.bottom, middle: (r.top + r.bottom) / 2}; };
             return {estop: box('#estop-form'), title: box('header h1'), nav: box('header nav'),
                     signout: box('header .signout'), banner: box('#estop-answer')};""")
-        screenshot(browser, "console-latched-header.png")
 
     middles = [boxes[k]["middle"] for k in ("estop", "title", "nav", "signout")]
     assert max(middles) - min(middles) <= 2, boxes  # one row
