@@ -10,6 +10,10 @@ Two stops bypass MCP and the event loop (docs/architecture.md, "Independent stop
 SIGUSR1 always, and with `--estop-port` the stop channel (`POST /estop`, any token's role).
 Whenever the operator console is served, a stop channel listens too (`--estop-port`, or an
 ephemeral loopback port only for the console): the console's E-STOP button posts there.
+
+Once it listens, `serve` logs (INFO) every URL it serves and what each one takes (`endpoints`),
+with the ports it really bound: the HTTP socket is bound before anything is built from its port,
+so `--port 0` / `--console-port 0` serve, check Host headers and link on the real port.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import gc
 import logging
 import os
 import signal
+import socket
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -31,6 +36,7 @@ import anyio
 from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.backends.base import Backend
+from armwarden.endpoints import Endpoints, link_host, startup_lines
 from armwarden.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.extras import log_feature_lines
 from armwarden.greeting import first_contact_line, started_from_terminal
@@ -189,7 +195,7 @@ def _console_door(args: argparse.Namespace, external: ExternalStops) -> tuple[Co
         check_ticket=sessions.principal_for_ticket, latch_and_stop=external.latch_and_stop_for("console"),
         allowed_origins=frozenset(security.allowed_origins or ()),
         allow_loopback_without_ticket=not getattr(args, "console_estop_needs_sign_in", False),
-        back_url=f"http://{_link_host(host)}:{port}/console/safety")
+        back_url=f"http://{link_host(host)}:{port}/console/safety")
     return door, sessions
 
 
@@ -197,8 +203,8 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops, con
                           refusals: RefusalReports | None = None) -> tuple[SignalStop, StopChannel | None]:
     """SIGUSR1 and (with --estop-port, or when the console is served) the stop channel, each on
     its own thread. Without --estop-port the console gets a channel of its own on an ephemeral
-    loopback port, which takes no bearer tokens. `refusals`: the channel's limit on records of
-    its refusals."""
+    loopback port, which serves only the console's E-STOP (it takes no bearer token and says so
+    to one). `refusals`: the channel's limit on records of its refusals."""
     signals = SignalStop(external.latch_and_stop_for("signal"), on_event=external.record).start()
     if getattr(args, "estop_port", None) is None and console is None:
         return signals, None
@@ -206,7 +212,7 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops, con
 
     try:
         if getattr(args, "estop_port", None) is None:
-            channel = StopChannel(authenticate=lambda _token: None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
+            channel = StopChannel(authenticate=None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
                                   on_event=external.record, on_refused=external.record_refusal, console=console,
                                   host="127.0.0.1", port=0, refusals=refusals).start()
         else:
@@ -220,7 +226,6 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops, con
     except BaseException:
         signals.close()
         raise
-    logger.warning("stop channel listening: POST %s", channel.url)
     return signals, channel
 
 
@@ -238,7 +243,58 @@ def _console_stop(args: argparse.Namespace, channel: StopChannel | None, session
                        "the console's own route (give --estop-host/--estop-port the browser can reach)",
                        address[0], channel_host)
         return ConsoleStop(sessions, None)
-    return ConsoleStop(sessions, f"http://{_link_host(channel_host)}:{channel.port}/console-estop")
+    return ConsoleStop(sessions, f"http://{link_host(channel_host)}:{channel.port}/console-estop")
+
+
+def _bind_listener(args: argparse.Namespace) -> tuple[argparse.Namespace, socket.socket | None]:
+    """Bind the HTTP socket (`--port`, or `--console-port` on stdio) before anything is built from
+    its port: with port 0, the Host checks, the console's links and origins and every start-up
+    line then name the port really bound. Returns `args` with that port, and the socket."""
+    from armwarden.transport.http import bind_http_socket
+
+    if args.transport == "http":
+        sock = bind_http_socket(args.host, args.port)
+        return argparse.Namespace(**{**vars(args), "port": int(sock.getsockname()[1])}), sock
+    if getattr(args, "console_port", None) is not None:
+        sock = bind_http_socket(args.console_host, args.console_port)
+        return argparse.Namespace(**{**vars(args), "console_port": int(sock.getsockname()[1])}), sock
+    return args, None
+
+
+def _endpoints(args: argparse.Namespace, channel: StopChannel | None, console_stop: ConsoleStop) -> Endpoints:
+    """What this daemon serves, for its start-up lines (ports already bound)."""
+    takes_tokens = getattr(args, "estop_port", None) is not None
+    channel_host = args.estop_host if takes_tokens else "127.0.0.1"
+    return Endpoints(
+        tokens=args.auth_tokens,
+        mcp=(args.host, args.port) if args.transport == "http" else None,
+        console=_console_address(args),
+        channel=None if channel is None else (channel_host, channel.port),
+        channel_takes_tokens=takes_tokens,
+        console_posts_to_channel=console_stop.estop_url is not None)
+
+
+def _log_startup_lines(served: Endpoints) -> None:
+    for line in startup_lines(served):
+        logger.info("%s", line)
+
+
+async def _serve_then_announce(app: Any, host: str, port: int, shutdown: anyio.Event | None,
+                               listener: socket.socket | None, served: Endpoints | None) -> None:
+    """`serve_http`, logging `served`'s start-up lines once requests are accepted (not before: a
+    URL in the log answers)."""
+    from armwarden.transport.http import serve_http
+
+    ready = anyio.Event()
+    async with anyio.create_task_group() as group:
+        async def announce() -> None:
+            await ready.wait()
+            if served is not None:
+                _log_startup_lines(served)
+
+        group.start_soon(announce)
+        await serve_http(app, host, port, shutdown=shutdown, ready=ready, sock=listener)
+        group.cancel_scope.cancel()
 
 
 def freeze_long_lived_objects() -> None:
@@ -257,12 +313,15 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     lost: str | None = None  # why the final record could not be written
     shutdown = anyio.Event()
     signal_stop, channel = None, None
+    listener: socket.socket | None = None
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
+        args, listener = _bind_listener(args)
         door = _console_door(args, external)
         signal_stop, channel = _start_external_stops(args, external, None if door is None else door[0],
                                                      assembly.refusal_reports_for("stop_channel"))
         console_stop = _console_stop(args, channel, None if door is None else door[1])
+        served = _endpoints(args, channel, console_stop)
         log_feature_lines(logger, assembly.policy.enabled_tools)  # what each absent optional dependency removes
         freeze_long_lived_objects()
         await assembly.audit.append_async(
@@ -314,13 +373,14 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
 
                 async def serve_console() -> None:
                     try:
-                        await _serve_console(args, assembly, external, console_stop, shutdown)
+                        await _serve_console(args, assembly, external, console_stop, shutdown, listener, served)
                     finally:
                         console_closed.set()
 
                 if getattr(args, "console_port", None) is not None:
                     group.start_soon(serve_console)
                 else:
+                    _log_startup_lines(served)  # the stop channel of --estop-port, if any: it listens already
                     console_closed.set()
                 why = await _serve_stdio(assembly, external)
                 # The console's server returns once it has closed its connections; cancelled while
@@ -329,9 +389,11 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                 with anyio.move_on_after(CONSOLE_CLOSE_S):
                     await console_closed.wait()
             else:
-                await _serve_http(args, assembly, external, shutdown, console_stop)
+                await _serve_http(args, assembly, external, shutdown, console_stop, listener, served)
             group.cancel_scope.cancel()
     finally:
+        if listener is not None:  # closed by serve_http once it served; not if start-up failed before
+            listener.close()
         if channel is not None:
             channel.close()
         try:
@@ -360,18 +422,13 @@ def _console_app(args: argparse.Namespace, assembly: Assembly, external: Externa
     return build_console_app(assembly.guard, sessions, hook, settings, assembly.refusal_reports_for("console"))
 
 
-def _link_host(host: str) -> str:
-    """The host name a link to this daemon uses: a wildcard bind is reached on loopback here."""
-    if host in ("0.0.0.0", "::", "[::]", ""):
-        return "127.0.0.1"
-    return f"[{host}]" if ":" in host and not host.startswith("[") else host
-
-
 async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops,
-                         console_stop: ConsoleStop | None = None, shutdown: anyio.Event | None = None) -> None:
-    """``--console-port`` (stdio): the console alone on its own port, until `shutdown` is set (it
-    then closes its connections and returns) or it is cancelled."""
-    from armwarden.transport.http import build_console_only_app, serve_http
+                         console_stop: ConsoleStop | None = None, shutdown: anyio.Event | None = None,
+                         listener: socket.socket | None = None, served: Endpoints | None = None) -> None:
+    """``--console-port`` (stdio): the console alone on its own port (`listener`, bound already),
+    until `shutdown` is set (it then closes its connections and returns) or it is cancelled.
+    `served`: the start-up lines logged once it listens."""
+    from armwarden.transport.http import build_console_only_app
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
@@ -380,9 +437,8 @@ async def _serve_console(args: argparse.Namespace, assembly: Assembly, external:
                                  allowed_origins=getattr(args, "allowed_origin", []) or [],
                                  metrics=None if assembly.metrics is None else assembly.metrics.exposition,
                                  token_store=tokens, on_refused=_refusal_recorder(assembly))
-    assembly.guard.approvals.console_url = f"http://{_link_host(args.console_host)}:{args.console_port}/console"
-    logger.warning("operator console: %s/", assembly.guard.approvals.console_url)
-    await serve_http(app, args.console_host, args.console_port, shutdown=shutdown)
+    assembly.guard.approvals.console_url = f"http://{link_host(args.console_host)}:{args.console_port}/console"
+    await _serve_then_announce(app, args.console_host, args.console_port, shutdown, listener, served)
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
@@ -473,8 +529,11 @@ def _refused_estop_latch(assembly: Assembly, external: ExternalStops) -> LatchOn
 
 
 async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event,
-                      console_stop: ConsoleStop | None = None) -> None:
-    from armwarden.transport.http import build_http_app, current_principal, serve_http
+                      console_stop: ConsoleStop | None = None, listener: socket.socket | None = None,
+                      served: Endpoints | None = None) -> None:
+    """``/mcp`` (and the console, ``/metrics``) on `listener`, bound already to ``--port``; logs
+    `served`'s start-up lines once it listens."""
+    from armwarden.transport.http import build_http_app, current_principal
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
@@ -487,7 +546,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
     console = None if getattr(args, "no_console", False) else _console_app(args, assembly, external, tokens,
                                                                             console_stop)
     if console is not None:  # the link URL-mode approvals send
-        assembly.guard.approvals.console_url = f"http://{_link_host(args.host)}:{args.port}/console"
+        assembly.guard.approvals.console_url = f"http://{link_host(args.host)}:{args.port}/console"
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state
     app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
                          on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt, console=console,
@@ -496,7 +555,7 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
                          allowed_hosts=getattr(args, "allowed_host", []) or [],
                          allowed_origins=getattr(args, "allowed_origin", []) or [],
                          metrics=None if assembly.metrics is None else assembly.metrics.exposition)
-    await serve_http(app, args.host, args.port, shutdown=shutdown)
+    await _serve_then_announce(app, args.host, args.port, shutdown, listener, served)
 
 
 def serve_command(args: argparse.Namespace) -> int:

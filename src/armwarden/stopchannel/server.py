@@ -29,6 +29,11 @@ for its session (checked on this thread by `ConsoleDoor.check_ticket`, never on 
 or with no ticket from a loopback peer when the console allows that. A browser's Origin must be
 one of the console's. Its answers are tiny HTML pages (the page without script shows them).
 
+A channel without an authenticator (``authenticate=None``) serves the console's E-STOP only (the
+daemon starts one on an ephemeral loopback port when the console is served without
+`--estop-port`): it refuses ``POST /estop`` (404) with a message saying what it does take, since
+"unknown bearer token" there misled people holding a token that ``/mcp`` accepts.
+
 The audit hook `on_event` runs after the reply was sent, on this thread: it must be quick
 (hand the record to the audit writer) and its failure is logged, never raised.
 """
@@ -66,6 +71,7 @@ from armwarden.stopchannel.wire import (
 )
 
 __all__ = [
+    "CONSOLE_ONLY_REFUSAL",
     "CONSOLE_UNSIGNED_PRINCIPAL",
     "ChannelRefusal",
     "ChannelStop",
@@ -79,6 +85,11 @@ logger = logging.getLogger(__name__)
 
 _LINGER_S = 0.25  # after answering, how long unread request bytes are drained (avoids a reset eating the answer)
 _UNAUTHORIZED = (("WWW-Authenticate", 'Bearer realm="armwarden-estop"'),)
+#: the answer of a console-only channel (no authenticator) to ``POST /estop``, whatever its token
+CONSOLE_ONLY_REFUSAL = (f"this stop channel serves only the operator console's E-STOP button (POST {CONSOLE_ESTOP_PATH} "
+                        "with a console page's ticket) and takes no bearer token; it is not the MCP endpoint. For "
+                        f"POST {ESTOP_PATH} with a token (armwarden estop --url), start the daemon with --estop-port "
+                        "and --auth-tokens")
 
 
 @dataclass(frozen=True)
@@ -181,7 +192,7 @@ class StopChannel:
     def __init__(
         self,
         *,
-        authenticate: Callable[[str], str | None],
+        authenticate: Callable[[str], str | None] | None,
         latch_and_stop: Callable[[str, str], int],
         host: str = "127.0.0.1",
         port: int = 0,
@@ -193,8 +204,10 @@ class StopChannel:
         request_timeout_s: float = 1.0,
         refusals: RefusalReports | None = None,
     ) -> None:
-        """`refusals`: which refusals `on_refused` hears of (`safety.refusals`; the daemon's reports
-        the counts it leaves out to the audit log); closed with the channel."""
+        """`authenticate`: a bearer token's principal (None: not accepted); None for a channel that
+        serves only the `console`'s E-STOP. `refusals`: which refusals `on_refused` hears of
+        (`safety.refusals`; the daemon's reports the counts it leaves out to the audit log);
+        closed with the channel."""
         if not 0 <= port <= 65535:
             raise ConfigurationError(f"stop channel port {port} is outside 0-65535")
         if max_connections < 1:
@@ -233,7 +246,7 @@ class StopChannel:
             self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
             self._thread = threading.Thread(target=self._serve, name="armwarden-stopchannel", daemon=True)
             self._thread.start()
-        logger.info("stop channel listening on %s", self.url)
+        logger.debug("stop channel listening on %s:%s", self._host, self._port)  # the daemon says what it takes
         return self
 
     def close(self) -> None:
@@ -454,6 +467,8 @@ class StopChannel:
 
     def _check_token(self, conn: _Connection) -> str:
         assert conn.head is not None
+        if self._authenticate is None:
+            raise HttpRefusal(404, CONSOLE_ONLY_REFUSAL)
         token = bearer_token(conn.head.authorization)
         try:
             principal = self._authenticate(token)

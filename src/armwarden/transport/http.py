@@ -77,6 +77,7 @@ __all__ = [
     "METRICS_PATH",
     "OBSERVER_GROUPS",
     "OBSERVER_TOOLS",
+    "bind_http_socket",
     "build_console_only_app",
     "build_http_app",
     "check_bind_safety",
@@ -382,7 +383,10 @@ class _Server(uvicorn.Server):
             self._started_event.set()
 
 
-def _bind(host: str, port: int) -> socket.socket:
+def bind_http_socket(host: str, port: int) -> socket.socket:
+    """A socket bound to host:port (not yet listening) for `serve_http`: bound first, so that port 0
+    becomes the real port before anything built from it (Host checks, links) is made, and a busy
+    port is a ConfigurationError instead of uvicorn's sys.exit."""
     try:
         family, kind, proto, _, address = socket.getaddrinfo(
             host.strip("[]"), port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
@@ -409,15 +413,18 @@ async def serve_http(
     shutdown: anyio.Event | None = None,
     graceful_shutdown_s: int = 3,  # whole seconds, as uvicorn takes them
     log_level: str = "warning",
+    sock: socket.socket | None = None,
 ) -> None:
     """Serve `app` on host:port until `shutdown` is set (or the task is cancelled).
 
-    The socket is bound before anything else, so a busy port raises ConfigurationError here
-    instead of uvicorn calling sys.exit. `ready` is set once requests are accepted. Open
-    connections (SSE streams) get `graceful_shutdown_s` seconds [s] to finish.
+    The socket is bound before anything else (or given: `sock`, from `bind_http_socket`; it is
+    closed here either way), so a busy port raises ConfigurationError here instead of uvicorn
+    calling sys.exit. `ready` is set once requests are accepted. Open connections (SSE streams)
+    get `graceful_shutdown_s` seconds [s] to finish.
     Logs go through the `uvicorn` loggers to whatever handlers the daemon configured (stderr).
     """
-    sock = _bind(host, port)
+    if sock is None:
+        sock = bind_http_socket(host, port)
     config = uvicorn.Config(
         app,
         host=host,  # for uvicorn's messages only: it serves the socket bound above
