@@ -1,9 +1,13 @@
 """The MCP Bundle scripts/build_mcpb.py builds: valid for the official `mcpb` CLI, complete, and served.
 
 The CLI is `@anthropic-ai/mcpb` from npm, pinned in tools/mcpb/package-lock.json and installed at
-set-up (`npm ci --prefix tools/mcpb`, scripts/bootstrap.sh), never at test time. Missing, these
-tests fail under CI (`CI` or ARMWARDEN_REQUIRE_MCPB set: .ci/run) and are skipped with the install
-hint otherwise. The launcher's own tests (tests/packaging/test_mcpb_launcher.py) need no CLI.
+set-up (`npm ci --prefix tools/mcpb`, scripts/bootstrap.sh), never at test time. The same package
+holds the host code that fills a bundle's `mcp_config` in from the user's settings
+(`dist/shared/config.js`, `getMcpConfigForManifest`, which Claude Desktop shares): the served
+tests run it with node, so the environment is the one a host hands over, not this file's idea of
+it. Missing (CLI or node), these tests fail under CI (`CI` or ARMWARDEN_REQUIRE_MCPB set: .ci/run)
+and are skipped with the install hint otherwise. The launcher's own tests
+(tests/packaging/test_mcpb_launcher.py) need no CLI.
 """
 
 from __future__ import annotations
@@ -11,10 +15,11 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import anyio
 import pytest
@@ -24,18 +29,54 @@ from armwarden.safety.audit import verify_file
 from tests.helpers import REPO
 
 MCPB = REPO / "tools" / "mcpb" / "node_modules" / ".bin" / "mcpb"
+#: the mcpb host code that fills `mcp_config` in (variables, user_config defaults, the user's settings)
+MCPB_HOST_CONFIG = REPO / "tools" / "mcpb" / "node_modules" / "@anthropic-ai" / "mcpb" / "dist" / "shared" / "config.js"
 BUILD = REPO / "scripts" / "build_mcpb.py"
 REQUIRE_ENV = "ARMWARDEN_REQUIRE_MCPB"
 BUNDLED_TOOL_COUNT = 22
 
 
-def _mcpb() -> Path:
-    if MCPB.is_file():
-        return MCPB
-    message = f"no mcpb CLI at {MCPB}: run `npm ci --prefix tools/mcpb` (node and npm needed)"
+def _missing(message: str) -> NoReturn:
+    """Fail under CI (the bundle must be checked there), skip with the install hint elsewhere."""
     if os.environ.get(REQUIRE_ENV) or os.environ.get("CI"):
         pytest.fail(message)
     pytest.skip(message)
+
+
+def _mcpb() -> Path:
+    if MCPB.is_file():
+        return MCPB
+    _missing(f"no mcpb CLI at {MCPB}: run `npm ci --prefix tools/mcpb` (node and npm needed)")
+
+
+#: node: `getMcpConfigForManifest` on a manifest file with the user's settings (JSON), as a host
+#: calls it; prints the filled-in mcp_config (null when the host would not start the server)
+_HOST_FILLS_IN = """
+import { readFileSync } from "node:fs";
+import { pathToFileURL } from "node:url";
+const [configJs, manifestPath, userConfig, extensionPath, home] = process.argv.slice(1);
+const { getMcpConfigForManifest } = await import(pathToFileURL(configJs).href);
+const config = await getMcpConfigForManifest({
+  manifest: JSON.parse(readFileSync(manifestPath, "utf8")), extensionPath, pathSeparator: "/",
+  systemDirs: { HOME: home, DESKTOP: `${home}/Desktop`, DOCUMENTS: `${home}/Documents`, DOWNLOADS: `${home}/Downloads` },
+  userConfig: JSON.parse(userConfig), logger: console,
+});
+console.log(JSON.stringify(config ?? null));
+"""
+
+
+def _as_the_mcpb_host_fills_it(unpacked: Path, user_config: dict[str, str], home: Path) -> dict[str, Any]:
+    """The bundle's `mcp_config` as the official host code fills it in for `user_config` (the
+    settings the user changed; the others keep the manifest's defaults), at home directory `home`."""
+    node = shutil.which("node")
+    if node is None or not MCPB_HOST_CONFIG.is_file():
+        _missing(f"no node or no mcpb host code at {MCPB_HOST_CONFIG}: install node, run `npm ci --prefix tools/mcpb`")
+    result = _run(node, "--input-type=module", "-e", _HOST_FILLS_IN, MCPB_HOST_CONFIG, unpacked / "manifest.json",
+                  json.dumps(user_config), unpacked, home)
+    assert result.returncode == 0, result.stdout + result.stderr
+    config = json.loads(result.stdout)
+    assert config is not None, f"the host would not start the server: {result.stderr}"
+    return config
 
 
 def _run(*argv: str | Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
@@ -122,34 +163,49 @@ def test_every_user_setting_reaches_the_server_and_only_the_audit_key_is_secret(
     assert manifest["server"]["mcp_config"]["env"]["ARMWARDEN_AUDIT_KEY"] == "${user_config.audit_key}"
 
 
-def _as_the_host_fills_it(value: str, unpacked: Path, settings: dict[str, str]) -> str:
-    value = value.replace("${__dirname}", str(unpacked))
-    return re.sub(r"\$\{user_config\.(\w+)\}", lambda match: settings[match.group(1)], value)
-
-
-@pytest.mark.anyio
-async def test_bundle_serves_from_its_own_source_with_the_settings_the_host_fills_in(unpacked: Path, tmp_path: Path) -> None:
-    """The manifest's env, filled in as a host does, through the bundle's launcher into its own
-    source: the tools are served, the audit log is where the user said and keyed with their key.
+async def _serve_the_bundle(unpacked: Path, config: dict[str, Any], cwd: Path, home: Path) -> tuple[int, Any]:
+    """Serve the bundle as `config` (filled in by the host) says, through its launcher and its own
+    source; returns the number of tools and the robot state's structured content.
 
     Python here stands in for `uv run` (which would install the dependencies from the network); the
     source comes from the bundle alone (PYTHONPATH)."""
-    audit = tmp_path / "audit.jsonl"
-    settings = {"policy": "", "backend": "fake", "backend_config": "", "audit_log": str(audit), "audit_key": "k-e-y"}
-    config = _manifest(unpacked)["server"]["mcp_config"]
-    env = {name: _as_the_host_fills_it(value, unpacked, settings) for name, value in config["env"].items()}
     # numba would compile the envelope's kernels afresh for this new path (about 25 s); they run as plain Python
-    env |= {"PYTHONPATH": str(unpacked / "src"), "NUMBA_DISABLE_JIT": "1"}
-    entry = _as_the_host_fills_it(config["args"][-1], unpacked, settings)
+    env = {**config["env"], "PYTHONPATH": str(unpacked / "src"), "NUMBA_DISABLE_JIT": "1", "HOME": str(home)}
     probe = await anyio.run_process([sys.executable, "-c", "import armwarden; print(armwarden.__file__)"],
-                                    env={**os.environ, **env}, cwd=tmp_path)
+                                    env={**os.environ, **env}, cwd=cwd)
     assert probe.stdout.decode().strip() == str(unpacked / "src" / "armwarden" / "__init__.py")  # the bundle's, not the checkout's
-    params = StdioServerParameters(command=sys.executable, args=[entry, "--log-level", "WARNING"], env=env, cwd=str(tmp_path))
+    entry = config["args"][-1]
+    assert entry == str(unpacked / "server" / "main.py")
+    params = StdioServerParameters(command=sys.executable, args=[entry, "--log-level", "WARNING"], env=env, cwd=str(cwd))
     with anyio.fail_after(120):
         async with Client(params) as client:
             tools = await client.list_tools()
-            assert len(tools.tools) == BUNDLED_TOOL_COUNT
             state = await client.call_tool("get_robot_state", {})
             assert not state.is_error
+            return len(tools.tools), state.structured_content
+
+
+def _startup_record(audit: Path) -> dict[str, Any]:
+    return next(record for line in audit.read_text(encoding="utf-8").splitlines()
+                if (record := json.loads(line)).get("event") == "startup")
+
+
+@pytest.mark.anyio
+async def test_bundle_serves_every_setting_the_user_fills_in(unpacked: Path, tmp_path: Path) -> None:
+    """Every setting filled in, the environment filled in by the official host code: the bundle's
+    launcher serves its own source with the user's policy, backend, backend options, audit log and key."""
+    home, policy, options, audit = tmp_path / "home", tmp_path / "policy.yaml", tmp_path / "fake.yaml", tmp_path / "audit.jsonl"
+    home.mkdir()
+    shutil.copy(REPO / "examples" / "tighter_policy.yaml", policy)
+    options.write_text("wrench: false\n", encoding="utf-8")  # the default provides one: seen in the state
+    settings = {"policy": str(policy), "backend": "fake", "backend_config": str(options), "audit_log": str(audit),
+                "audit_key": "k-e-y"}
+    config = _as_the_mcpb_host_fills_it(unpacked, settings, home)
+    tool_count, state = await _serve_the_bundle(unpacked, config, tmp_path, home)
+    assert tool_count == BUNDLED_TOOL_COUNT
+    assert state["wrench"] is None
     assert verify_file(audit, b"k-e-y").ok
     assert not verify_file(audit).ok
+    startup = _startup_record(audit)
+    assert startup["extra"]["policy"] == str(policy)
+    assert "with the fake backend" in startup["detail"]
