@@ -15,7 +15,7 @@ The wrench is computed on the servo thread and stamped with that tick's monotoni
 
 The gripper is a width model driven on the event loop (no thread): it moves at the requested
 speed (time-scaled); a stop freezes it where it is (`stop_now` from any thread, the loop-side
-bookkeeping follows). Cameras render a small top view with Pillow when it is installed.
+bookkeeping follows). Cameras render a small top view with Pillow (none in a broken install without it).
 
 Fault injection for tests: `fail_stop` (stop raises and is not delivered), `freeze_wrench` (the
 wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that

@@ -1,6 +1,7 @@
 """The fake backend's cameras: a deterministic top view of the table, the base and the TCP.
 
-Pillow is optional: without it `HAVE_PILLOW` is false and the fake declares no cameras.
+Pillow is a core dependency; in a broken install without it `HAVE_PILLOW` is false and the fake
+declares no cameras (`armwarden serve` says so at start-up).
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import math
 
 import numpy as np
 
-#: pillow is optional: without it the fake has no cameras (imported where an image is drawn)
+#: False only in a broken install (Pillow is a core dependency): the fake then has no cameras
+#: (imported where an image is drawn)
 HAVE_PILLOW = importlib.util.find_spec("PIL") is not None
 
 #: camera image size [px]
@@ -34,7 +36,7 @@ def render_top_view(
     def to_px(x: float, y: float) -> tuple[float, float]:
         return (CAMERA_WIDTH_PX / 2 - (y - centre_y) * scale, CAMERA_HEIGHT_PX / 2 - (x - centre_x) * scale)
 
-    from PIL import Image, ImageDraw  # only with Pillow installed: the fake declares no cameras otherwise
+    from PIL import Image, ImageDraw  # the fake declares no cameras without Pillow (a broken install)
 
     image = Image.new("RGB", (CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX), (200, 170, 130) if table_height_m is not None else (90, 90, 90))
     draw = ImageDraw.Draw(image)

@@ -122,6 +122,6 @@ class Readings:
 
             if not pillow_available():
                 raise SafetyRefusal(RefusalCode.IMAGE_TOO_WIDE, f"the image is {width} px wide (limit {limit}) and "
-                                    "Pillow is not installed to shrink it")
+                                    "Pillow, which shrinks it, is missing from this environment: reinstall armwarden")
             png, width, height = await anyio.to_thread.run_sync(downscale_png, png, limit)
         return width, height, image.stamp, png

@@ -1,7 +1,8 @@
 """PNG helpers for image tool results (plan previews, camera snapshots).
 
-Pillow is optional (`armwarden[image]`). `pillow_available()` says whether it is installed;
-`downscale_png` raises `ImageSupportMissing` when it is not.
+Pillow is a core dependency: an environment without it is a broken install (`armwarden serve`
+says so at start-up, `armwarden.extras`). `pillow_available()` says whether it can be imported;
+`downscale_png` raises `ImageSupportMissing` when it cannot.
 
 Input images come from outside the server (cameras, backends), so decoding is guarded: only
 PNG is accepted, and the pixel count is checked from the header *before* any pixel data is
@@ -26,10 +27,11 @@ MAX_PIXELS = 40_000_000
 
 
 class ImageSupportMissing(RuntimeError):
-    """Pillow is not installed."""
+    """Pillow cannot be imported: the install is broken (it is a core dependency)."""
 
     def __init__(self) -> None:
-        super().__init__("image support needs Pillow: install armwarden[image] (pip install 'armwarden[image]')")
+        super().__init__("Pillow is missing from this environment: reinstall armwarden (Pillow is one of its "
+                         "dependencies; pip install pillow restores it)")
 
 
 def pillow_available() -> bool:

@@ -20,7 +20,8 @@ compares with the plan-less picture and compresses only in the row bands the pla
 without per-row filter search (`images.BandedPngEncoder`). Per picture, Pillow allocates no
 image memory of its own: the masks and the canvas are NumPy arrays it draws into.
 
-Pillow is optional (`armwarden[image]`); without it the renderer returns None. The output is
+Pillow is a core dependency; in a broken install without it the renderer returns None (and
+`armwarden serve` names the pictures lost at start-up). The output is
 deterministic: the same inputs give the same bytes (Pillow's built-in default font, no
 timestamps or other metadata in the PNG).
 
@@ -105,7 +106,7 @@ class PlanPreviewer:
         *,
         status: str | None = None,
     ) -> bytes | None:
-        """PNG bytes of the plan preview, or None when Pillow is not installed.
+        """PNG bytes of the plan preview, or None when Pillow is missing (a broken install).
 
         `status` defaults to what the report implies (hard violation → rejected, soft →
         needs_approval, none → ok); pass the Guard's own verdict when it knows more (e.g.

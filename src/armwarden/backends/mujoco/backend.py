@@ -483,7 +483,7 @@ class MujocoBackend(Backend, ServoHooks):
 
     def _render_png(self, camera: str, qpos: np.ndarray) -> bytes:
         """Render thread: the published configuration seen by `camera`, as PNG bytes."""
-        from PIL import Image  # the render path only: pillow is optional for the other backends
+        from PIL import Image  # the render path only (Pillow is a core dependency)
 
         width, height = self.camera_size_px
         renderer, data = self._renderer, self._render_data

@@ -70,9 +70,10 @@ def png_from_compressed(msg) -> tuple[int, int, bytes]:
         return width, height, data
     if data.startswith(b"\xff\xd8"):
         try:
-            from PIL import Image  # JPEG only: Pillow is optional (the `image` extra)
+            from PIL import Image  # JPEG only (Pillow is a core dependency)
         except ImportError:
-            raise BackendError("a JPEG camera image needs Pillow to become a PNG: pip install armwarden[image]") from None
+            raise BackendError("a JPEG camera image needs Pillow to become a PNG, and Pillow is missing from this "
+                               "environment: reinstall armwarden") from None
         try:
             with Image.open(io.BytesIO(data)) as image:
                 if not (0 < image.width <= MAX_SIDE_PX and 0 < image.height <= MAX_SIDE_PX):
