@@ -120,6 +120,30 @@ async def test_a_camera_the_policy_does_not_allow_is_refused_without_a_backend_r
     assert 'data-camera="wrist"' in page.text and "not allowlisted" in page.text
 
 
+async def test_with_the_perception_group_disabled_no_camera_is_shown_or_read(tmp_path: Path) -> None:
+    """The policy still lists cameras under perception.cameras but does not enable the `perception`
+    tool group, so no client is served `camera_snapshot`: the console shows no picture either."""
+    policy = policy_with(**{"tools.enabled": ["introspect", "motion", "gripper", "control", "safety"]})
+    async with served_console(tmp_path, policy) as served, served.browser_client() as http:
+        reads: list[str] = []
+        original = served.harness.fake._camera_snapshot
+
+        async def counted(camera: str):
+            reads.append(camera)
+            return await original(camera)
+
+        served.harness.fake._camera_snapshot = counted  # type: ignore[method-assign]
+        await sign_in(http, served.observer_token)
+        page = await http.get("/console/cameras")
+        pictures = {name: await http.get(f"/console/cameras/{name}.png") for name in ("wrist", "scene")}
+
+    assert reads == []
+    for picture in pictures.values():
+        assert picture.status_code == 403 and not picture.content.startswith(PNG_MAGIC)
+        assert "NOT_ALLOWED" in picture.json()["error"] and "perception" in picture.json()["error"]
+    assert page.status_code == 200 and "perception" in page.text and "tools.enabled" in page.text
+
+
 async def test_a_backend_without_cameras_shows_no_cameras(tmp_path: Path) -> None:
     """The minimal example backend declares no camera."""
     async with served_console(tmp_path, backend="minimal") as served, served.browser_client() as http:

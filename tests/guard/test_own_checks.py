@@ -5,6 +5,8 @@
   Guard's own argument checks (`safety.checks`), not only by the tools' input schemas, which
   publish the same caps and so refuse first over MCP: a caller that reaches the Guard without a
   schema (the operator console, a future transport, a schema bug) is refused above the cap too.
+- A camera is read only when the policy enables the `perception` tool group: without it no client
+  is served `camera_snapshot`, and the Guard refuses any other caller (the console) the same way.
 """
 
 from __future__ import annotations
@@ -62,3 +64,24 @@ async def test_collision_thresholds_above_the_policy_cap_are_refused_by_the_guar
         assert "force_n 500 N must be in (0, 30] N" in str(refused.value)
         assert arm.actuations == []
         assert arm.fake.collision_thresholds is None
+
+
+async def test_a_camera_read_with_the_perception_group_disabled_is_refused_by_the_guard_itself(tmp_path) -> None:
+    """The policy still allowlists the cameras, but `camera_snapshot` is not served: a caller that
+    reaches the Guard directly gets no picture either, and the backend is not asked for one."""
+    policy = policy_with(**{"tools.enabled": ["introspect", "motion", "gripper", "control", "safety"]})
+    async with arm_harness(tmp_path, policy) as arm:
+        reads: list[str] = []
+        original = arm.fake._camera_snapshot
+
+        async def counted(camera: str) -> Any:
+            reads.append(camera)
+            return await original(camera)
+
+        arm.fake._camera_snapshot = counted  # type: ignore[method-assign]
+        with pytest.raises(SafetyRefusal) as refused:
+            await arm.guard.camera("scene")
+
+        assert refused.value.code is RefusalCode.NOT_ALLOWED
+        assert "perception" in str(refused.value) and "tools.enabled" in str(refused.value)
+        assert reads == []

@@ -2,7 +2,8 @@
 
 Why this shape:
 - One path to the backend. A picture is read through `Guard.camera` (`guard/readings.py`), the
-  body of the MCP tool `camera_snapshot`: the policy's camera allowlist, the backend's deadline,
+  body of the MCP tool `camera_snapshot`: the policy's `perception` tool group and camera
+  allowlist (`safety.checks.check_camera`, which the page also asks), the backend's deadline,
   its failures turned into refusals, the policy's image width. The backend sees one kind of
   request whoever asks.
 - The policy's rate limits apply, on a budget of the console's own: every camera may be read as
@@ -33,6 +34,7 @@ import anyio
 
 from armwarden.errors import SafetyRefusal
 from armwarden.guard import Guard
+from armwarden.safety import checks
 from armwarden.safety.ratelimit import RateLimiter
 
 __all__ = ["CameraFeed", "CameraPicture", "CameraTrouble", "CameraView"]
@@ -101,7 +103,15 @@ class CameraFeed:
         return math.ceil(self.refresh_s * 1000)
 
     def allowed(self, camera: str) -> bool:
-        return camera in self.guard.policy.perception.cameras
+        return self._refusal(camera) is None
+
+    def _refusal(self, camera: str) -> SafetyRefusal | None:
+        """Why the policy lets no one read `camera` (the Guard's own check), or None."""
+        try:
+            checks.check_camera(self.guard.policy, camera)
+        except SafetyRefusal as exc:
+            return exc
+        return None
 
     def views(self) -> list[CameraView]:
         """The cameras for the page, with what is already known (no backend read here)."""
@@ -109,9 +119,10 @@ class CameraFeed:
         for name in self.cameras:
             latest = self._latest.get(name)
             error = latest.message if isinstance(latest, CameraTrouble) else None
-            if not self.allowed(name):
-                error = self._not_allowed(name).message
-            views.append(CameraView(name, self.allowed(name), error))
+            refusal = self._refusal(name)
+            if refusal is not None:
+                error = self._not_allowed(refusal).message
+            views.append(CameraView(name, refusal is None, error))
         return views
 
     def unknown(self, camera: str) -> str:
@@ -127,8 +138,9 @@ class CameraFeed:
         the limits refuse keeps the last picture (or says when to retry). `camera` must be one
         of `cameras` (KeyError otherwise)."""
         lock = self._locks[camera]
-        if not self.allowed(camera):
-            return self._not_allowed(camera)
+        refusal = self._refusal(camera)
+        if refusal is not None:
+            return self._not_allowed(refusal)
         async with lock:  # viewers that arrive during a read get its outcome
             now = self._clock()
             latest = self._latest.get(camera)
@@ -168,7 +180,5 @@ class CameraFeed:
         elif not isinstance(before, CameraTrouble) or before.message != outcome.message:
             logger.warning("console camera %s: %s", camera, outcome.message)
 
-    def _not_allowed(self, camera: str) -> CameraTrouble:
-        return CameraTrouble("not_allowed", f"camera {camera!r} is not allowlisted by the policy "
-                             f"(perception.cameras: {', '.join(self.guard.policy.perception.cameras) or 'none'})",
-                             self._clock())
+    def _not_allowed(self, refusal: SafetyRefusal) -> CameraTrouble:
+        return CameraTrouble("not_allowed", f"{refusal.code}: {refusal}", self._clock())

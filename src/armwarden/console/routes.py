@@ -308,7 +308,7 @@ class Console:
 
     async def camera_picture(self, request: Request) -> Response:
         """A camera's latest picture (PNG), for any signed-in session; otherwise JSON ``{"error": why}``
-        (401 not signed in, 404 no such camera, 403 not allowlisted, 503 the read failed, 429 the
+        (401 not signed in, 404 no such camera, 403 the policy does not allow it, 503 the read failed, 429 the
         rate limits refuse a new read and there is no earlier picture)."""
         camera = request.path_params["camera"]
         if self.session_of(request) is None:

@@ -67,10 +67,16 @@ def check_thresholds(policy: Policy, force_n: float, torque_nm: float) -> None:
 
 
 def check_camera(policy: Policy, camera: str) -> None:
+    """A camera may be read only when the policy serves `camera_snapshot` (the `perception` tool
+    group) and allowlists it. The group is checked here, not only by the tool's registration, so
+    a caller that reaches the Guard without the tool (the console) is refused the same way."""
+    if "perception" not in policy.tools.enabled:
+        raise SafetyRefusal(RefusalCode.NOT_ALLOWED, "cameras are not read: the policy does not enable the "
+                            "perception tool group (tools.enabled), so camera_snapshot is not served")
     allowed = policy.perception.cameras
     if camera not in allowed:
-        raise SafetyRefusal(RefusalCode.NOT_ALLOWED, f"camera {flatten_reason(camera, 64)!r} is not allowlisted; "
-                            f"allowed: {list(allowed)}")
+        raise SafetyRefusal(RefusalCode.NOT_ALLOWED, f"camera {flatten_reason(camera, 64)!r} is not allowlisted by the "
+                            f"policy (perception.cameras); allowed: {list(allowed)}")
 
 
 def _out_of_range(message: str) -> SafetyRefusal:
