@@ -53,7 +53,12 @@ def _version() -> str:
 
 
 def manifest(version: str) -> dict[str, Any]:
-    """The bundle's manifest.json: the user's settings reach the launcher as environment variables."""
+    """The bundle's manifest.json: the user's settings reach the launcher as environment variables.
+
+    Every optional setting has a default: the host (mcpb's `getMcpConfigForManifest`) leaves
+    `${user_config.X}` literal in the environment when X has neither a value nor a default, and
+    the launcher and the daemon refuse such a placeholder. An empty default is an empty
+    variable, which the launcher reads as "the daemon's default"."""
     return {
         "manifest_version": MANIFEST_VERSION,
         "name": "armwarden",
@@ -100,6 +105,7 @@ def manifest(version: str) -> dict[str, Any]:
                 "type": "file",
                 "title": "Safety policy",
                 "description": "Policy YAML (check it with `armwarden check-policy FILE`). Empty: the bundled Franka FR3 policy.",
+                "default": "",
                 "required": False,
             },
             "backend": {
@@ -114,6 +120,7 @@ def manifest(version: str) -> dict[str, Any]:
                 "type": "file",
                 "title": "Backend configuration",
                 "description": "The backend's options YAML (e.g. examples/mujoco_scene.yaml). Empty: the backend's defaults.",
+                "default": "",
                 "required": False,
             },
             "audit_log": {
@@ -130,6 +137,7 @@ def manifest(version: str) -> dict[str, Any]:
                 "description": "Optional key for the audit log's hash chain (keep it to verify the log later). "
                                "Empty: a plain SHA-256 chain.",
                 "sensitive": True,
+                "default": "",
                 "required": False,
             },
         },

@@ -209,3 +209,11 @@ async def test_bundle_serves_every_setting_the_user_fills_in(unpacked: Path, tmp
     startup = _startup_record(audit)
     assert startup["extra"]["policy"] == str(policy)
     assert "with the fake backend" in startup["detail"]
+
+
+def test_the_mcpb_host_leaves_no_placeholder_for_a_setting_the_user_left_untouched(unpacked: Path, tmp_path: Path) -> None:
+    """A fresh install (no setting changed): a setting without a default would stay `${user_config.X}`
+    in the environment, which the launcher and the daemon refuse, so the bundle would never start."""
+    env = _as_the_mcpb_host_fills_it(unpacked, {}, tmp_path)["env"]
+    assert {name: value for name, value in env.items() if "${user_config." in value} == {}
+    assert env["ARMWARDEN_POLICY"] == env["ARMWARDEN_BACKEND_CONFIG"] == env["ARMWARDEN_AUDIT_KEY"] == ""
