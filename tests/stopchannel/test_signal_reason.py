@@ -11,6 +11,7 @@ import subprocess
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -119,6 +120,15 @@ def test_a_directory_others_may_use_is_not_read_and_not_written(directory: Path)
         write_reason(PID, "mine")
 
 
+def test_a_stop_takes_only_the_reasons_signalled_between_its_wake_and_the_last(directory: Path) -> None:
+    write_reason(PID, "came after its own stop was recorded", signalled_ns=100)
+    write_reason(PID, "this stop's", signalled_ns=200)
+    write_reason(PID, "the next stop's", signalled_ns=300)
+    assert take_reasons(PID, signalled_from_ns=150, signalled_before_ns=300) == "this stop's"
+    assert take_reasons(PID) == "the next stop's"
+    assert list(directory.iterdir()) == []
+
+
 def test_reasons_left_for_this_process_id_are_discarded(directory: Path) -> None:
     write_reason(PID, "left by an earlier process with this id")
     discard_reasons(PID)
@@ -135,9 +145,9 @@ def test_the_stop_is_issued_before_the_reason_is_read_and_the_record_carries_it(
         order.append("stop")
         return latch(reason, principal)
 
-    def take(pid: int | None = None, directory: Path | None = None) -> str | None:
+    def take(*args: Any, **kwargs: Any) -> str | None:
         order.append("reason")
-        return take_reasons(pid, directory)
+        return take_reasons(*args, **kwargs)
 
     monkeypatch.setattr(signals_module, "take_reasons", take)
     with SignalStop(latch_and_stop, on_event=events, reason_directory=directory):
@@ -148,6 +158,30 @@ def test_the_stop_is_issued_before_the_reason_is_read_and_the_record_carries_it(
     assert latch.calls == [("SIGUSR1 received", SIGNAL_PRINCIPAL)]  # the stop never depends on the reason
     (stop,) = events.received
     assert stop.reason == "hand on the button" and stop.event == 1 and stop.error is None
+
+
+def test_a_reason_written_during_an_earlier_stop_is_not_put_on_it(directory: Path) -> None:
+    """A wired button's bare ``kill -USR1`` is still being issued when an operator's command
+    hands over its reason and signals: the reason is the second stop's, not the first's."""
+    in_first_stop, finish_first_stop = threading.Event(), threading.Event()
+    events, latch = Events(), Latch()
+
+    def latch_and_stop(reason: str, principal: str) -> int:
+        number = latch(reason, principal)
+        if number == 1:  # the first stop takes a moment (the backend's stop_now)
+            in_first_stop.set()
+            assert finish_first_stop.wait(30.0)
+        return number
+
+    with SignalStop(latch_and_stop, on_event=events, reason_directory=directory):
+        os.kill(os.getpid(), signal.SIGUSR1)  # stop 1: no reason
+        assert in_first_stop.wait(30.0)
+        write_reason(os.getpid(), "operator: gripper dropped the part", directory)
+        os.kill(os.getpid(), signal.SIGUSR1)  # stop 2
+        finish_first_stop.set()
+        wait_for(lambda: len(events.received) == 2)
+    assert [(stop.event, stop.reason) for stop in events.received] == [
+        (1, "SIGUSR1 received"), (2, "operator: gripper dropped the part")]
 
 
 def test_a_signal_without_a_reason_is_recorded_as_received(directory: Path) -> None:

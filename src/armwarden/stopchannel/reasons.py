@@ -15,6 +15,15 @@ once read, and ignored when older than `MAX_REASON_AGE_S` (written for a stop th
 sent, or for an earlier process with the same id). Both sides must see the same ``/tmp``: under
 systemd's ``PrivateTmp`` or as another user (root signalling a user's daemon) the reason is lost,
 the stop is not.
+
+Which stop a reason belongs to: signals carry nothing and coalesce, so a file is matched to a stop
+by time. Its name carries the ``CLOCK_MONOTONIC`` time (shared by all processes of the machine)
+its command took just before signalling; the daemon's signal thread notes the same clock when a
+signal wakes it, after clearing the signal's flag. A command's signal sets that flag after the
+time in its file, so the stop that answers it woke later: each stop takes the files signalled
+before it woke and after the previous stop woke (files signalled during a stop are the next
+stop's, whenever they were written). Not the file's mtime: it comes from a coarse clock (a
+jiffy on Linux) and says when the file was written, not when its signal was sent.
 """
 
 from __future__ import annotations
@@ -57,15 +66,18 @@ def _check_private_directory(directory: Path) -> None:
         raise PermissionError(f"{directory} must belong to this user with no group or other access")
 
 
-def write_reason(pid: int, reason: str, directory: Path | None = None) -> Path:
+def write_reason(pid: int, reason: str, directory: Path | None = None, *, signalled_ns: int | None = None) -> Path:
     """Write `reason` for the daemon `pid` (owner-only, complete before it appears under its name)
-    and return the file's path. Raises OSError when it cannot."""
+    and return the file's path. `signalled_ns`: ``time.monotonic_ns()`` taken just before the
+    signal was sent (None: now, for a reason written before signalling). Raises OSError when it
+    cannot."""
     directory = reason_directory() if directory is None else directory
+    signalled_ns = time.monotonic_ns() if signalled_ns is None else signalled_ns
     with contextlib.suppress(FileExistsError):
         os.mkdir(directory, 0o700)
     _check_private_directory(directory)
     data = flatten_reason(reason, REASON_LIMIT).encode("utf-8")
-    name = f"{_prefix(pid)}{time.time_ns()}-{secrets.token_hex(4)}"
+    name = f"{_prefix(pid)}{signalled_ns}-{secrets.token_hex(4)}"
     partial, final = directory / f".{name}.tmp", directory / f"{name}{_SUFFIX}"
     fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
     try:
@@ -79,8 +91,8 @@ def write_reason(pid: int, reason: str, directory: Path | None = None) -> Path:
     return final
 
 
-def _read_one(path: Path, now: float) -> tuple[int, str] | None:
-    """(write time, cleaned text) of one reason file, or None when it is refused. Removes it."""
+def _read_one(path: Path, now: float) -> str | None:
+    """The cleaned text of one reason file, or None when it is refused. Removes it."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
     except OSError as exc:
@@ -104,7 +116,7 @@ def _read_one(path: Path, now: float) -> tuple[int, str] | None:
         os.close(fd)
         with contextlib.suppress(OSError):
             os.unlink(path)
-    return info.st_mtime_ns, flatten_reason(data[:MAX_REASON_BYTES], REASON_LIMIT)
+    return flatten_reason(data[:MAX_REASON_BYTES], REASON_LIMIT)
 
 
 def _files_for(pid: int, directory: Path) -> list[Path]:
@@ -113,10 +125,19 @@ def _files_for(pid: int, directory: Path) -> list[Path]:
         return [Path(entry.path) for entry in entries if entry.name.startswith(prefix) and entry.name.endswith(_SUFFIX)]
 
 
-def take_reasons(pid: int | None = None, directory: Path | None = None) -> str | None:
-    """Every reason written for `pid` (default: this process) and not yet taken, oldest first and
-    joined by "; " (at most `REASON_LIMIT` characters), removing them; None when there is none.
-    Never raises: a refused or unreadable reason is logged and left out."""
+def _signalled_ns(path: Path, pid: int) -> int | None:
+    """The signalling time in a reason file's name, or None when the name carries none."""
+    stamp = path.name[len(_prefix(pid)):].split("-", 1)[0]
+    return int(stamp) if stamp.isascii() and stamp.isdigit() else None
+
+
+def take_reasons(pid: int | None = None, directory: Path | None = None, *, signalled_from_ns: int | None = None,
+                 signalled_before_ns: int | None = None) -> str | None:
+    """The reasons written for `pid` (default: this process) whose signal was sent in
+    [`signalled_from_ns`, `signalled_before_ns`) (``time.monotonic_ns()``; None: unbounded), oldest
+    signal first and joined by "; " (at most `REASON_LIMIT` characters), removing them; None when
+    there is none. Later ones are left for a later stop; earlier ones came too late for theirs and
+    are removed unread. Never raises: a refused or unreadable reason is logged and left out."""
     pid = os.getpid() if pid is None else pid
     directory = reason_directory() if directory is None else directory
     try:
@@ -128,8 +149,19 @@ def take_reasons(pid: int | None = None, directory: Path | None = None) -> str |
         logger.warning("e-stop reasons in %s not read: %s", directory, exc)
         return None
     now = time.time()
-    taken = sorted(found for found in (_read_one(path, now) for path in paths) if found is not None)
-    texts = [text for _, text in taken if text]
+    mine: list[tuple[int, str, Path]] = []
+    for path in paths:
+        signalled_ns = _signalled_ns(path, pid)
+        if signalled_before_ns is not None and signalled_ns is not None and signalled_ns >= signalled_before_ns:
+            continue  # its signal came after this stop began: the next stop's
+        if signalled_ns is None or (signalled_from_ns is not None and signalled_ns < signalled_from_ns):
+            why = "names no signalling time" if signalled_ns is None else "came after its stop was recorded"
+            logger.warning("e-stop reason %s left out: it %s", path, why)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            continue
+        mine.append((signalled_ns, path.name, path))
+    texts = [text for _, _, path in sorted(mine) if (text := _read_one(path, now))]
     return flatten_reason("; ".join(texts), REASON_LIMIT) if texts else None
 
 

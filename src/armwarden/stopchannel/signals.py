@@ -9,7 +9,10 @@ channel"). The handler never takes a lock the interrupted code might hold: it on
 
 ``armwarden estop --pid P --reason R`` writes its reason to a file beside the signal
 (`armwarden.stopchannel.reasons`, which says why a file); the thread takes it into the audit
-record only after the stop is issued, so the stop never waits for or depends on it.
+record only after the stop is issued, so the stop never waits for or depends on it. A stop takes
+only the reasons whose signal was sent before the thread woke for it and after it woke for the
+previous stop (`reasons` says why that time and not the file's): one handed over while an earlier
+stop is still being issued is the next stop's.
 """
 
 from __future__ import annotations
@@ -46,12 +49,14 @@ class SignalStop:
         self._raised = threading.Event()
         self._closing = False
         self._thread: threading.Thread | None = None
+        self._started_ns = 0  # time.monotonic_ns() before the handler was installed
         self._previous: Callable[[int, FrameType | None], object] | int | None = None
 
     def start(self) -> SignalStop:
         """Install the handler (main thread only, as Python requires) and start the stop thread."""
         if self._thread is not None:
             raise RuntimeError("SignalStop already started")
+        self._started_ns = time.monotonic_ns()  # every signal this handler sees was sent after it
         if self._signum == signal.SIGUSR1:  # left by an earlier process with this id: not for our stops
             discard_reasons(directory=self._reason_directory)
         self._thread = threading.Thread(target=self._run, name="armwarden-sigusr1", daemon=True)
@@ -79,33 +84,39 @@ class SignalStop:
         self._raised.set()
 
     def _run(self) -> None:
+        previous_woke_ns = self._started_ns
         while True:
             self._raised.wait()
             self._raised.clear()
+            woke_ns = time.monotonic_ns()  # after clear(): every signal this stop answers was sent before
             if self._closing:
                 return
-            self._stop()
+            self._stop(previous_woke_ns, woke_ns)
+            previous_woke_ns = woke_ns
 
-    def _stop(self) -> None:
+    def _stop(self, previous_woke_ns: int, woke_ns: int) -> None:
         name = signal.Signals(self._signum).name
         received = time.monotonic()
         try:
             number = self._latch_and_stop(f"{name} received", SIGNAL_PRINCIPAL)
         except Exception as exc:
             logger.critical("%s: the e-stop may NOT have been issued: %s", name, exc, exc_info=True)
-            self._report(ChannelStop(SIGNAL_PRINCIPAL, self._reason(name), "signal", None, None, str(exc)))
+            reason = self._reason(name, previous_woke_ns, woke_ns)
+            self._report(ChannelStop(SIGNAL_PRINCIPAL, reason, "signal", None, None, str(exc)))
             return
         issued_ms = round((time.monotonic() - received) * 1e3, 4)
-        reason = self._reason(name)  # only now: the stop never waits for the reason
+        reason = self._reason(name, previous_woke_ns, woke_ns)  # only now: the stop never waits for the reason
         logger.warning("%s: e-stop #%d latched and the robot stopped (%s)", name, number, reason)
         self._report(ChannelStop(SIGNAL_PRINCIPAL, reason, "signal", number, issued_ms, None))
 
-    def _reason(self, name: str) -> str:
-        """The reasons ``armwarden estop --pid`` wrote for this process, or "<signal> received"."""
+    def _reason(self, name: str, previous_woke_ns: int, woke_ns: int) -> str:
+        """The reasons ``armwarden estop --pid`` wrote for this process with signals sent between
+        the two wake-ups, or "<signal> received"."""
         if self._signum != signal.SIGUSR1:
             return f"{name} received"
         try:
-            text = take_reasons(directory=self._reason_directory)
+            text = take_reasons(directory=self._reason_directory, signalled_from_ns=previous_woke_ns,
+                                signalled_before_ns=woke_ns)
         except Exception:  # take_reasons never raises; the record must be written all the same
             logger.exception("reading the reason of the %s e-stop failed", name)
             text = None
