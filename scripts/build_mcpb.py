@@ -127,8 +127,10 @@ def manifest(version: str) -> dict[str, Any]:
                 "type": "string",
                 "title": "Audit log",
                 "description": "Append-only, hash-chained audit log (JSONL); an absolute path. "
-                               "`armwarden audit verify FILE` checks it.",
-                "default": "${HOME}/armwarden-audit.jsonl",
+                               "`armwarden audit verify FILE` checks it. Empty: ~/armwarden-audit.jsonl.",
+                # not "${HOME}/…": the host substitutes ${HOME} before the settings, so it would stay literal;
+                # the launcher puts an empty one in the home directory
+                "default": "",
                 "required": False,
             },
             "audit_key": {

@@ -217,3 +217,25 @@ def test_the_mcpb_host_leaves_no_placeholder_for_a_setting_the_user_left_untouch
     env = _as_the_mcpb_host_fills_it(unpacked, {}, tmp_path)["env"]
     assert {name: value for name, value in env.items() if "${user_config." in value} == {}
     assert env["ARMWARDEN_POLICY"] == env["ARMWARDEN_BACKEND_CONFIG"] == env["ARMWARDEN_AUDIT_KEY"] == ""
+
+
+@pytest.mark.anyio
+async def test_bundle_serves_on_a_fresh_install_with_the_audit_log_in_the_home_directory(unpacked: Path, tmp_path: Path) -> None:
+    """No setting changed, the environment filled in by the official host code: every variable is
+    expanded (the host substitutes `${HOME}` before the settings, so a default reading `${HOME}/…`
+    would reach the launcher literally), the bundle serves the bundled policy on the fake backend,
+    and the audit log, unkeyed, is `~/armwarden-audit.jsonl`, not in the host's working directory."""
+    home, cwd = tmp_path / "home", tmp_path / "cwd"
+    home.mkdir()
+    cwd.mkdir()
+    config = _as_the_mcpb_host_fills_it(unpacked, {}, home)
+    assert {name: value for name, value in config["env"].items() if "$" in value} == {}
+    tool_count, state = await _serve_the_bundle(unpacked, config, cwd, home)
+    assert tool_count == BUNDLED_TOOL_COUNT
+    assert state["wrench"] is not None  # the fake backend's default options
+    audit = home / "armwarden-audit.jsonl"
+    assert verify_file(audit).ok
+    startup = _startup_record(audit)
+    assert startup["extra"]["policy"] == "bundled fr3"
+    assert "with the fake backend" in startup["detail"]
+    assert list(cwd.iterdir()) == []

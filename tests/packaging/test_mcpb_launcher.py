@@ -12,7 +12,7 @@ from types import ModuleType
 
 import pytest
 
-from tests.helpers import REPO
+from tests.helpers import REPO, child_env
 
 LAUNCHER = REPO / "scripts" / "mcpb_launcher.py"
 
@@ -26,9 +26,37 @@ def launcher() -> ModuleType:
     return module
 
 
-def test_empty_settings_leave_the_daemons_defaults(launcher: ModuleType) -> None:
-    environ = {"ARMWARDEN_POLICY": "", "ARMWARDEN_BACKEND": " ", "ARMWARDEN_BACKEND_CONFIG": "", "ARMWARDEN_AUDIT_LOG": ""}
-    assert launcher.serve_arguments(environ) == ["serve"]
+def test_empty_settings_leave_the_daemons_defaults_but_the_audit_log_goes_home(launcher: ModuleType) -> None:
+    """The daemon's own default audit log is relative to its working directory, which the host
+    picks (often `/`): the launcher puts it in the user's home directory and says so."""
+    environ = {"ARMWARDEN_POLICY": "", "ARMWARDEN_BACKEND": " ", "ARMWARDEN_BACKEND_CONFIG": "", "ARMWARDEN_AUDIT_LOG": "",
+               "HOME": "/home/u"}
+    notes: list[str] = []
+    assert launcher.serve_arguments(environ, say=notes.append) == ["serve", "--audit-log", "/home/u/armwarden-audit.jsonl"]
+    assert notes == ["ARMWARDEN_AUDIT_LOG is empty (no audit log in the extension's settings): "
+                     "the audit log is /home/u/armwarden-audit.jsonl"]
+
+
+def test_a_set_audit_log_is_passed_on_without_a_note(launcher: ModuleType) -> None:
+    notes: list[str] = []
+    environ = {"ARMWARDEN_AUDIT_LOG": "/var/log/arm.jsonl", "HOME": "/home/u"}
+    assert launcher.serve_arguments(environ, say=notes.append) == ["serve", "--audit-log", "/var/log/arm.jsonl"]
+    assert notes == []
+
+
+def test_an_empty_audit_log_without_a_home_directory_is_refused(launcher: ModuleType) -> None:
+    with pytest.raises(launcher.RefusedSetting, match="no home directory"):
+        launcher.serve_arguments({"ARMWARDEN_AUDIT_LOG": "", "HOME": "relative/home"})
+
+
+def test_launcher_says_on_stderr_where_it_put_the_audit_log(tmp_path) -> None:
+    """`--help` after the settings: the daemon prints its help and exits, having opened nothing."""
+    env = {**child_env(), "HOME": str(tmp_path), "ARMWARDEN_AUDIT_LOG": ""}
+    result = subprocess.run([sys.executable, str(LAUNCHER), "--help"], env=env, cwd=tmp_path, input="",
+                            capture_output=True, text=True, timeout=60, check=False)
+    assert result.returncode == 0, result.stderr
+    assert f"the audit log is {tmp_path / 'armwarden-audit.jsonl'}" in result.stderr
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_each_setting_becomes_its_serve_option(launcher: ModuleType) -> None:
