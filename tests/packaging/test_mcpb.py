@@ -44,9 +44,9 @@ def _missing(message: str) -> NoReturn:
 
 
 def _mcpb() -> Path:
-    if MCPB.is_file():
+    if MCPB.is_file() and shutil.which("node") is not None:  # the CLI is a node script
         return MCPB
-    _missing(f"no mcpb CLI at {MCPB}: run `npm ci --prefix tools/mcpb` (node and npm needed)")
+    _missing(f"no mcpb CLI at {MCPB} or no node on PATH: run `npm ci --prefix tools/mcpb` (node and npm needed)")
 
 
 #: node: `getMcpConfigForManifest` on a manifest file with the user's settings (JSON), as a host
