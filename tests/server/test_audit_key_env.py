@@ -11,11 +11,20 @@ from pathlib import Path
 import pytest
 
 from armwarden.errors import ConfigurationError
-from armwarden.safety.audit import AuditLog
+from armwarden.safety.audit import AuditLog, hmac_key_for_serving
 from tests.helpers import CLI, REPO, child_env
 
+#: what a client hands over when it did not expand the key's reference: shell `${...}`, `$(...)`
+#: and `$NAME`, one with a space around it, a reference inside a longer value, Windows `%NAME%`
+UNEXPANDED = ["${ARMWARDEN_AUDIT_KEY:-}", "${ARMWARDEN_AUDIT_KEY}", "$(cat key.txt)", "$ARMWARDEN_AUDIT_KEY",
+              " ${ARMWARDEN_AUDIT_KEY}", "${ARMWARDEN_AUDIT_KEY} ", "\t$ARMWARDEN_AUDIT_KEY", "key-${SUFFIX}",
+              "key-$(cat suffix.txt)", "%ARMWARDEN_AUDIT_KEY%", "%audit_key_1%", "s3cr3t\n", "   "]
+#: real keys that merely contain a `$` or a `%`
+REAL_KEYS = ["pa$$word${x", "s3cr3t$", "abc$def", "pa$(ss", "$", "$1abc", "100%", "%", "%%", "a%b%c", "%not a name%"]
 
-@pytest.mark.parametrize("expression", ["${ARMWARDEN_AUDIT_KEY:-}", "${ARMWARDEN_AUDIT_KEY}", "$(cat key.txt)"])
+
+@pytest.mark.parametrize("expression", ["${ARMWARDEN_AUDIT_KEY:-}", "${ARMWARDEN_AUDIT_KEY}", "$(cat key.txt)",
+                                        "$ARMWARDEN_AUDIT_KEY", " ${ARMWARDEN_AUDIT_KEY}", "%ARMWARDEN_AUDIT_KEY%"])
 def test_serve_refuses_an_unexpanded_shell_expression_as_audit_key(tmp_path: Path, expression: str) -> None:
     audit = tmp_path / "audit.jsonl"
     env = {**child_env(), "ARMWARDEN_AUDIT_KEY": expression}
@@ -29,18 +38,22 @@ def test_serve_refuses_an_unexpanded_shell_expression_as_audit_key(tmp_path: Pat
     assert not audit.exists()  # refused before the log was opened: nothing keyed with the literal
 
 
-def test_a_real_key_that_merely_contains_a_dollar_is_used() -> None:
-    from armwarden.safety.audit import hmac_key_for_serving
+@pytest.mark.parametrize("key", REAL_KEYS)
+def test_a_real_key_that_merely_contains_a_dollar_or_a_percent_is_used(key: str) -> None:
+    assert hmac_key_for_serving({"ARMWARDEN_AUDIT_KEY": key}) == key.encode()
 
-    assert hmac_key_for_serving({"ARMWARDEN_AUDIT_KEY": "pa$$word${x"}) == b"pa$$word${x"
+
+def test_no_key_is_an_unkeyed_log() -> None:
     assert hmac_key_for_serving({}) is None
+    assert hmac_key_for_serving({"ARMWARDEN_AUDIT_KEY": ""}) is None
 
 
-def test_the_serving_key_refuses_with_a_configuration_error() -> None:
-    from armwarden.safety.audit import hmac_key_for_serving
+@pytest.mark.parametrize("expression", UNEXPANDED)
+def test_the_serving_key_refuses_an_unexpanded_reference(expression: str) -> None:
+    with pytest.raises(ConfigurationError, match="unexpanded") as refused:
+        hmac_key_for_serving({"ARMWARDEN_AUDIT_KEY": expression})
 
-    with pytest.raises(ConfigurationError, match="unexpanded"):
-        hmac_key_for_serving({"ARMWARDEN_AUDIT_KEY": "${ARMWARDEN_AUDIT_KEY:-}"})
+    assert repr(expression) in str(refused.value)
 
 
 def keyed_log(path: Path, key: bytes) -> Path:

@@ -12,6 +12,7 @@ import hashlib
 import hmac as _hmac
 import json
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -117,18 +118,34 @@ def hmac_key_from_env(environ: Mapping[str, str] = os.environ) -> bytes | None:
 
 #: how a shell expression starts that a client passed on without expanding it
 UNEXPANDED_PREFIXES = ("${", "$(")
+#: an unexpanded reference a client passed on literally, wherever it is in the value: a complete
+#: shell `${...}`/`$(...)` anywhere, `$NAME` at the start, or the whole value a Windows `%NAME%`.
+#: A `$` or `%` otherwise (``pa$$word``, ``100%``, an unclosed ``${``) is part of a real key.
+UNEXPANDED_REFERENCE = re.compile(r"\$\{[^}]*\}|\$\([^)]*\)|^\$[A-Za-z_]|^%[A-Za-z_][A-Za-z0-9_]*%\Z")
+
+
+def _unexpanded_reason(value: str) -> str | None:
+    """Why `value` looks like a reference to the key rather than the key, or None."""
+    if value.startswith(UNEXPANDED_PREFIXES) or UNEXPANDED_REFERENCE.search(value):
+        return "an unexpanded variable reference or shell expression"
+    if value != value.strip():
+        return ("a value with leading or trailing whitespace (a quoting slip, or an unexpanded reference "
+                "with a space around it)")
+    return None
 
 
 def hmac_key_for_serving(environ: Mapping[str, str] = os.environ) -> bytes | None:
-    """`hmac_key_from_env` for a daemon about to write a log: an unexpanded shell expression
-    (``${ARMWARDEN_AUDIT_KEY:-}`` from a client config that a client such as the MCP Inspector
-    does not expand) is refused, not used as the key, or every later `audit verify` fails with
-    the real key."""
+    """`hmac_key_from_env` for a daemon about to write a log: a value that is an unexpanded
+    reference (``${ARMWARDEN_AUDIT_KEY:-}`` or ``$ARMWARDEN_AUDIT_KEY`` from a client config that
+    a client such as the MCP Inspector does not expand, ``%ARMWARDEN_AUDIT_KEY%`` on Windows) or
+    has whitespace around it is refused, not used as the key: such a key is public (anyone could
+    re-chain the log with it), and every later `audit verify` with the real key fails."""
     value = environ.get(AUDIT_KEY_ENV, "")
-    if value.startswith(UNEXPANDED_PREFIXES):
+    reason = _unexpanded_reason(value)
+    if reason is not None:
         raise ConfigurationError(
-            f"{AUDIT_KEY_ENV} is {value!r}, an unexpanded shell expression (the MCP client that started "
-            f"this daemon passed it on literally): set the key itself in the client's env, or leave "
-            f"{AUDIT_KEY_ENV} out for an unkeyed log"
+            f"{AUDIT_KEY_ENV} is {value!r}, {reason}: the MCP client that started this daemon most likely "
+            f"passed it on unexpanded. Set the key itself in the client's env, or leave {AUDIT_KEY_ENV} out "
+            "for an unkeyed log"
         )
     return hmac_key_from_env(environ)
