@@ -7,6 +7,7 @@ so the test process and every child process it starts stay off the LAN.
 
 from __future__ import annotations
 
+import os
 import random
 from collections.abc import Iterator
 
@@ -23,12 +24,15 @@ except ImportError as exc:  # pragma: no cover - environment problem, not a test
 
 from tests_ros.cell import Cell, CellConfig
 from tests_ros.client import RosClient
+from tests_ros.domains import TEST_DOMAIN_ENV
 
 
 @pytest.fixture(scope="session", autouse=True)
 def ros_local_domain() -> Iterator[int]:
-    """A random domain id and localhost-only discovery for this process and its children."""
-    domain = random.randint(1, 100)
+    """A random domain id (the one `tests_ros.domains` gave this xdist worker, when loaded) and
+    localhost-only discovery for this process and its children."""
+    chosen = os.environ.get(TEST_DOMAIN_ENV, "")
+    domain = int(chosen) if chosen.isdigit() else random.randint(1, 100)
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("ROS_DOMAIN_ID", str(domain))
         patch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
