@@ -3,20 +3,21 @@
 `send_estop` is the one-shot HTTP client (standard library only, so it works from any script
 next to the daemon); `estop_command` is the body of ``armwarden estop`` and
 `add_estop_arguments` declares its options on an argparse sub-parser. With ``--pid``, the
-reason is written beside the signal (`armwarden.stopchannel.reasons`), within
-`REASON_WRITE_BUDGET_S`; the signal is sent whatever became of it.
+signal goes first and the reason is written after it (`armwarden.stopchannel.reasons`), so a
+stalled file system never holds the stop back; the command gives the write
+`REASON_WRITE_BUDGET_S`, about as long as the daemon waits for it (`signals.REASON_GRACE_S`).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import http.client
 import json
 import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -65,7 +66,7 @@ class EStopRefused(EStopRequestError):
 
 #: how often a connection the channel dropped unanswered is tried again
 RESET_RETRIES = 2
-#: how long ``estop --pid`` gives writing its reason before it signals without it [s]
+#: how long ``estop --pid`` gives writing its reason, after the signal, before it gives up [s]
 REASON_WRITE_BUDGET_S = 0.5
 
 
@@ -144,15 +145,12 @@ def estop_command(args: argparse.Namespace) -> int:
             if pid <= 0:  # 0 and negative numbers would signal whole process groups
                 raise EStopRequestError(f"--pid must be a positive process id, got {pid}")
             reason = getattr(args, "reason", "") or ""
-            written = _hand_over_reason(pid, reason) if reason else None
-            try:
-                os.kill(pid, signal.SIGUSR1)
-            except OSError:
-                if written is not None:  # no stop will take it
-                    with contextlib.suppress(OSError):
-                        written.unlink()
-                raise
-            print(f"armwarden: sent SIGUSR1 (e-stop) to process {pid}; check its log for the event number")
+            signalled_ns = time.monotonic_ns()  # before the signal: the stop that answers it wakes later
+            os.kill(pid, signal.SIGUSR1)  # the stop first: it never waits for the reason
+            print(f"armwarden: sent SIGUSR1 (e-stop) to process {pid}; check its log for the event number",
+                  flush=True)
+            if reason:
+                _hand_over_reason(pid, reason, signalled_ns)
             return 0
         if not url:
             raise EStopRequestError("give --url URL (with --token-file) or --pid PID")
@@ -174,14 +172,16 @@ def estop_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _hand_over_reason(pid: int, reason: str, budget_s: float = REASON_WRITE_BUDGET_S) -> Path | None:
-    """Write `reason` for the daemon `pid` within `budget_s` [s] (a hung file system must not hold
-    the stop back); None, said on stderr, when it was not written: the stop goes ahead without it."""
+def _hand_over_reason(pid: int, reason: str, signalled_ns: int, budget_s: float | None = None) -> Path | None:
+    """Write `reason` for the daemon `pid`, signalled at `signalled_ns` (``time.monotonic_ns()``),
+    within `budget_s` [s] (None: `REASON_WRITE_BUDGET_S`; a hung file system must not hang the
+    command); None, said on stderr, when it was not written: the stop has gone out without it."""
+    budget_s = REASON_WRITE_BUDGET_S if budget_s is None else budget_s
     outcome: list[Path | Exception] = []
 
     def write() -> None:
         try:
-            outcome.append(write_reason(pid, reason))
+            outcome.append(write_reason(pid, reason, signalled_ns=signalled_ns))
         except Exception as exc:
             outcome.append(exc)
 
@@ -192,7 +192,7 @@ def _hand_over_reason(pid: int, reason: str, budget_s: float = REASON_WRITE_BUDG
     if isinstance(done, Path):
         return done
     why = f"not written within {budget_s:g} s" if done is None else flatten_reason(done, 300)
-    print(f"armwarden: the reason could not be handed over ({why}); the e-stop is sent without it", file=sys.stderr)
+    print(f"armwarden: the reason could not be handed over ({why}); the e-stop was sent without it", file=sys.stderr)
     return None
 
 

@@ -1,12 +1,12 @@
 """The reason of ``armwarden estop --pid PID --reason TEXT``, handed to the daemon beside SIGUSR1.
 
 A signal carries no text. `sigqueue(3)` would carry one integer, and Python has no binding to
-send it; the stop channel carries text but needs a token and a port. So the command writes the
-reason to a file of its own, named for the daemon's process id, in a directory only this user
-can use (``/tmp/armwarden-<uid>``), and then signals. The daemon's signal thread issues the stop
-first, and only then takes the reason files written for it into the audit record: the stop never
-waits for, reads or depends on a reason (a missing, late, refused or unreadable one leaves the
-record's reason "SIGUSR1 received").
+send it; the stop channel carries text but needs a token and a port. So the command signals,
+then writes the reason to a file of its own, named for the daemon's process id, in a directory
+only this user can use (``/tmp/armwarden-<uid>``). The daemon's signal thread issues the stop,
+and its recorder then waits briefly for the reason files of that stop and takes them into the
+audit record (`armwarden.stopchannel.signals`): the stop never waits for, reads or depends on a
+reason (a missing, late, refused or unreadable one leaves the record's reason "SIGUSR1 received").
 
 The files are text and nothing else: read only from a directory and files owned by the daemon's
 user with no group or other access (opened without following links, never a FIFO), at most
