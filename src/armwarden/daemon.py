@@ -249,13 +249,16 @@ def _console_stop(args: argparse.Namespace, channel: StopChannel | None, session
 def _bind_listener(args: argparse.Namespace) -> tuple[argparse.Namespace, socket.socket | None]:
     """Bind the HTTP socket (`--port`, or `--console-port` on stdio) before anything is built from
     its port: with port 0, the Host checks, the console's links and origins and every start-up
-    line then name the port really bound. Returns `args` with that port, and the socket."""
-    from armwarden.transport.http import bind_http_socket
-
+    line then name the port really bound. Returns `args` with that port, and the socket. (Plain
+    stdio imports nothing of the HTTP transport: tests/server/test_daemon_stdio.py.)"""
     if args.transport == "http":
+        from armwarden.transport.http import bind_http_socket
+
         sock = bind_http_socket(args.host, args.port)
         return argparse.Namespace(**{**vars(args), "port": int(sock.getsockname()[1])}), sock
     if getattr(args, "console_port", None) is not None:
+        from armwarden.transport.http import bind_http_socket
+
         sock = bind_http_socket(args.console_host, args.console_port)
         return argparse.Namespace(**{**vars(args), "console_port": int(sock.getsockname()[1])}), sock
     return args, None
