@@ -39,7 +39,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
 def directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """The reason directory of this test (the command's and the reader's default points there)."""
     path = tmp_path / "reasons"
-    monkeypatch.setattr(reasons, "reason_directory", lambda: path)
+    monkeypatch.setattr(reasons, "reason_directories", lambda: [path])
     return path
 
 
@@ -133,6 +133,67 @@ def test_reasons_left_for_this_process_id_are_discarded(directory: Path) -> None
     write_reason(PID, "left by an earlier process with this id")
     discard_reasons(PID)
     assert take_reasons(PID) is None
+
+
+# -------------------------------------------------------------------------------- the directory
+@pytest.fixture
+def places(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
+    """This test's stand-ins for $XDG_RUNTIME_DIR, /run/user and /tmp (none of them created)."""
+    found = {"xdg": tmp_path / "xdg", "run_user": tmp_path / "run" / "user", "tmp": tmp_path / "tmp"}
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(found["xdg"]))
+    monkeypatch.setattr(reasons, "RUNTIME_ROOT", found["run_user"])
+    monkeypatch.setattr(reasons, "SHARED_TMP", found["tmp"])
+    found["tmp"].mkdir(mode=0o777)
+    return found
+
+
+def test_reasons_go_to_the_users_runtime_directory(places: dict[str, Path]) -> None:
+    places["xdg"].mkdir(mode=0o700)
+    assert reasons.reason_directory() == places["xdg"] / "armwarden"
+
+
+def test_without_xdg_runtime_dir_reasons_go_to_run_user_when_it_is_ours(
+        places: dict[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("XDG_RUNTIME_DIR")
+    (places["run_user"] / str(os.geteuid())).mkdir(mode=0o700, parents=True)
+    assert reasons.reason_directory() == places["run_user"] / str(os.geteuid()) / "armwarden"
+
+
+def test_a_runtime_directory_others_may_use_is_passed_over_for_the_shared_one(places: dict[str, Path]) -> None:
+    places["xdg"].mkdir(mode=0o700)
+    places["xdg"].chmod(0o777)
+    assert reasons.reason_directory() == places["tmp"] / f"armwarden-{os.geteuid()}"
+
+
+def test_a_squatted_shared_directory_does_not_lose_the_reason_given_a_runtime_directory(
+        places: dict[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    squatted = places["tmp"] / f"armwarden-{os.geteuid()}"
+    squatted.mkdir(mode=0o700)
+    squatted.chmod(0o777)  # what another user's directory looks like to the checks: not ours alone
+    places["xdg"].mkdir(mode=0o700)
+    monkeypatch.setattr(os, "kill", lambda pid, sig: None)
+    assert estop_command(parse(["--pid", str(PID), "--reason", "hand on the button"])) == 0
+    assert take_reasons(PID) == "hand on the button"
+
+
+def test_the_daemon_finds_a_reason_in_any_of_the_users_directories(places: dict[str, Path]) -> None:
+    """The command and the daemon may not share $XDG_RUNTIME_DIR (a service started without it)."""
+    places["xdg"].mkdir(mode=0o700)
+    write_reason(PID, "from a shell without XDG_RUNTIME_DIR", places["tmp"] / f"armwarden-{os.geteuid()}")
+    assert take_reasons(PID) == "from a shell without XDG_RUNTIME_DIR"
+
+
+def test_the_command_says_which_directory_it_refused(places: dict[str, Path], monkeypatch: pytest.MonkeyPatch,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.delenv("XDG_RUNTIME_DIR")
+    squatted = places["tmp"] / f"armwarden-{os.geteuid()}"
+    squatted.mkdir(mode=0o700)
+    squatted.chmod(0o755)
+    sent: list[int] = []
+    monkeypatch.setattr(os, "kill", lambda pid, sig: sent.append(pid))
+    assert estop_command(parse(["--pid", str(PID), "--reason", "hand on the button"])) == 0
+    err = capsys.readouterr().err
+    assert sent == [PID] and f"reason directory {squatted} refused" in err and "XDG_RUNTIME_DIR" in err
 
 
 # ------------------------------------------------------------------------------- the signal side

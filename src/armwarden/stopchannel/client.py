@@ -191,7 +191,7 @@ def _hand_over_reason(pid: int, reason: str, signalled_ns: int, budget_s: float 
     done = outcome[0] if outcome else None
     if isinstance(done, Path):
         return done
-    why = f"not written within {budget_s:g} s" if done is None else flatten_reason(done, 300)
+    why = f"not written within {budget_s:g} s" if done is None else flatten_reason(str(done), 600)
     print(f"armwarden: the reason could not be handed over ({why}); the e-stop was sent without it", file=sys.stderr)
     return None
 
