@@ -35,10 +35,12 @@ there, so the data model and `load_fitted` stay on the runtime's dependencies.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Literal
 
 import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
@@ -738,14 +740,28 @@ class FittedGeometry:
 
 
 def load_fitted(path: Path) -> FittedGeometry:
-    """Read and validate a fitted-geometry file."""
+    """Read and validate a fitted-geometry file.
+
+    The file is read every time; what it says is parsed once per distinct content (`_parse_fitted`):
+    every robot model reads it (every daemon start, every Guard a test builds), and parsing the
+    bundled ~4,000 lines costs 0.05-0.1 s even with libyaml, which made YAML most of the test
+    suite's time. The result is immutable, so sharing it is safe."""
     try:
-        # libyaml's safe loader where PyYAML has it: the bundled file (~4,000 lines) parses in 0.05 s
-        # instead of 0.4 s, and every robot model (every daemon start, every test harness) reads it
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise FittingError(f"cannot read fitted geometry {path}: {exc}") from exc
+    return _parse_fitted(text, str(path))
+
+
+@functools.lru_cache(maxsize=8)
+def _parse_fitted(text: str, path: str) -> FittedGeometry:
+    """The geometry `text` (the file at `path`) describes; a memo of a pure function of its arguments."""
+    try:
+        # libyaml's safe loader where PyYAML has it (0.05 s instead of 0.4 s for the bundled file)
         loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-        raw = yaml.load(Path(path).read_text(encoding="utf-8"), Loader=loader)  # a safe loader either way
+        raw = yaml.load(text, Loader=loader)  # a safe loader either way
         parsed = _FileModel.model_validate(raw)
-    except (OSError, yaml.YAMLError, ValueError) as exc:
+    except (yaml.YAMLError, ValueError) as exc:
         raise FittingError(f"cannot read fitted geometry {path}: {exc}") from exc
     links = {
         name: LinkFit(
@@ -761,12 +777,12 @@ def load_fitted(path: Path) -> FittedGeometry:
         for name, entry in parsed.links.items()
     }
     pairs = parsed.pairs
-    return FittedGeometry(
+    return FittedGeometry(  # read-only mappings: one parse is shared by every model of this content
         robot=parsed.robot,
-        source=dict(parsed.source),
+        source=MappingProxyType(dict(parsed.source)),
         margin_m=parsed.margin_m,
-        links=links,
-        joint_limits=dict(pairs.joint_limits) if pairs else {},
+        links=MappingProxyType(links),
+        joint_limits=MappingProxyType(dict(pairs.joint_limits) if pairs else {}),
         pair_clearance_m=pairs.clearance_m if pairs else 0.0,
         included_pairs=tuple(tuple(p) for p in pairs.included) if pairs else (),  # type: ignore[misc]
         excluded_pairs=tuple(ExcludedPair(e.bodies, e.reason, e.proof) for e in pairs.excluded) if pairs else (),
