@@ -23,6 +23,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from armwarden.safety.estop import flatten_reason
+from armwarden.tokenfile import read_token_file
 
 __all__ = ["Snapshot", "SnapshotFailed", "add_snapshot_arguments", "snapshot_command", "take_snapshot"]
 
@@ -59,7 +60,7 @@ def add_snapshot_arguments(parser: argparse.ArgumentParser) -> None:
 def snapshot_command(args: argparse.Namespace) -> int:
     """The body of ``armwarden snapshot``: see the module docstring for the exit status."""
     try:
-        token = _read_token(args.token_file)
+        token = read_token_file(args.token_file)
         parts = urlsplit(args.url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
             raise ValueError(f"--url must look like http://127.0.0.1:PORT/mcp, got {args.url!r}")
@@ -160,16 +161,6 @@ def _leaves(exc: BaseException) -> list[BaseException]:
     if isinstance(inner, (list, tuple)):
         return [leaf for each in inner if isinstance(each, BaseException) for leaf in _leaves(each)]
     return [exc]
-
-
-def _read_token(path: str) -> str:
-    try:
-        token = Path(path).read_text(encoding="utf-8").strip()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read token file {path}: {exc}") from exc
-    if not token or any(char.isspace() for char in token):
-        raise ValueError(f"token file {path} must hold just the token")
-    return token
 
 
 def _write_atomically(path: Path, data: bytes) -> None:

@@ -25,6 +25,7 @@ from urllib.parse import urlsplit
 from armwarden.safety.estop import flatten_reason
 from armwarden.stopchannel.reasons import write_reason
 from armwarden.stopchannel.wire import ESTOP_PATH
+from armwarden.tokenfile import read_token_file
 
 __all__ = [
     "EStopRefused",
@@ -158,11 +159,9 @@ def estop_command(args: argparse.Namespace) -> int:
         if not token_file:
             raise EStopRequestError("--url needs --token-file FILE holding a bearer token")
         try:
-            token = Path(token_file).read_text(encoding="utf-8").strip()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise EStopRequestError(f"cannot read token file {token_file}: {exc}") from exc
-        if not token or any(char.isspace() for char in token):
-            raise EStopRequestError(f"token file {token_file} must hold just the token")
+            token = read_token_file(token_file)
+        except ValueError as exc:
+            raise EStopRequestError(str(exc)) from exc
         answer = send_estop(url, token, getattr(args, "reason", "") or "", getattr(args, "timeout", 2.0))
     except ProcessLookupError:
         return _fail(f"no process {pid}")
