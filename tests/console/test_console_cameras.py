@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 from armwarden.errors import BackendError
-from tests.console.served import served_console, sign_in
+from tests.console.served import ServedConsole, served_console, sign_in
 from tests.helpers import REPO, FakeClock, records_of
 from tests.server.harness import policy_with
 from tests.server.http_daemon import http_daemon
@@ -98,17 +98,23 @@ async def test_a_failing_camera_shows_its_error_and_the_page_still_renders(tmp_p
     assert other.status_code == 503  # each camera reports for itself
 
 
+def count_camera_reads(served: ServedConsole) -> list[str]:
+    """The cameras the fake backend is asked for from now on, in order."""
+    reads: list[str] = []
+    original = served.harness.fake._camera_snapshot
+
+    async def counted(camera: str):
+        reads.append(camera)
+        return await original(camera)
+
+    served.harness.fake._camera_snapshot = counted  # type: ignore[method-assign]
+    return reads
+
+
 async def test_a_camera_the_policy_does_not_allow_is_refused_without_a_backend_read(tmp_path: Path) -> None:
     policy = policy_with(**{"perception.cameras": ["scene"]})
     async with served_console(tmp_path, policy) as served, served.browser_client() as http:
-        reads: list[str] = []
-        original = served.harness.fake._camera_snapshot
-
-        async def counted(camera: str):
-            reads.append(camera)
-            return await original(camera)
-
-        served.harness.fake._camera_snapshot = counted  # type: ignore[method-assign]
+        reads = count_camera_reads(served)
         await sign_in(http, served.operator_token)
         page = await http.get("/console/cameras")
         wrist = await http.get("/console/cameras/wrist.png")
@@ -125,14 +131,7 @@ async def test_with_the_perception_group_disabled_no_camera_is_shown_or_read(tmp
     tool group, so no client is served `camera_snapshot`: the console shows no picture either."""
     policy = policy_with(**{"tools.enabled": ["introspect", "motion", "gripper", "control", "safety"]})
     async with served_console(tmp_path, policy) as served, served.browser_client() as http:
-        reads: list[str] = []
-        original = served.harness.fake._camera_snapshot
-
-        async def counted(camera: str):
-            reads.append(camera)
-            return await original(camera)
-
-        served.harness.fake._camera_snapshot = counted  # type: ignore[method-assign]
+        reads = count_camera_reads(served)
         await sign_in(http, served.observer_token)
         page = await http.get("/console/cameras")
         pictures = {name: await http.get(f"/console/cameras/{name}.png") for name in ("wrist", "scene")}
