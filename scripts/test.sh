@@ -4,15 +4,16 @@
 # suite as two parallel lanes, each logging to build/test-logs/ (printed as each lane ends); fails
 # if a set-up step fails, or either lane fails or collects no test:
 #
-#   tests  `tests/` in .venv (no ROS), on ARMWARDEN_TEST_WORKERS pytest-xdist workers (default 3)
+#   tests  `tests/` in .venv (no ROS), on ARMWARDEN_TEST_WORKERS pytest-xdist workers (default 2)
 #   ros    `tests_ros/` and the scenario suite on the ros2 backend only
 #          (ARMWARDEN_HARNESS_BACKENDS=ros2, see tests/server/harness.py), on ARMWARDEN_ROS_WORKERS
-#          workers (default 2), each on a ROS domain of its own (`-p tests_ros.domains`), with
+#          workers (default 1), each on a ROS domain of its own (`-p tests_ros.domains`), with
 #          `-p tests_ros.no_skips`: a skipped test there is a failure.
 #
-# Most tests wait (for a servo loop, a subprocess, a socket) more than they compute, so three
-# workers beside the two of the ros lane keep this machine's two cores busy: the suite takes
-# about a third of its serial time. Every test is independent of the others and of their order.
+# The suite is CPU-bound on this machine's two cores (each test process with the daemons it
+# starts keeps about 1.6 cores busy): more workers do not make it faster, and past one per core
+# they starve servo and monitor threads of the interpreter (a fake's wrench 0.51 s old beside two
+# CPU hogs). Every test is independent of the others and of their order; the counts are settable.
 #
 # The ROS wheels' .pth re-executes every interpreter of their venv with ROS's lib/ on
 # LD_LIBRARY_PATH, hence a venv of their own, away from the main venv's Pinocchio and MuJoCo.
@@ -33,13 +34,13 @@ mkdir -p "$logs"
 rm -f "$logs"/*.log "$logs"/*.rc
 
 lane_tests() {
-  .venv/bin/python -m pytest -m "not slow" -n "${ARMWARDEN_TEST_WORKERS:-3}" --dist worksteal "$@" tests
+  .venv/bin/python -m pytest -m "not slow" -n "${ARMWARDEN_TEST_WORKERS:-2}" --dist worksteal "$@" tests
 }
 
 lane_ros() {
   ROS_DOMAIN_ID="$((RANDOM % 100 + 1))" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ARMWARDEN_HARNESS_BACKENDS=ros2 \
     PYTHONPATH="$PWD" .venv-ros/bin/python -m pytest -m "not slow" -p tests_ros.domains -p tests_ros.no_skips \
-    -n "${ARMWARDEN_ROS_WORKERS:-2}" --dist worksteal "$@" tests_ros tests/scenarios tests/backends/test_harness_backends.py
+    -n "${ARMWARDEN_ROS_WORKERS:-1}" --dist worksteal "$@" tests_ros tests/scenarios tests/backends/test_harness_backends.py
 }
 
 # each lane in the background; its exit status lands in $logs/<lane>.rc when it ends
