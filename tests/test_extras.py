@@ -72,3 +72,11 @@ async def test_the_picture_tools_are_the_plan_tools_with_a_preview_and_camera_sn
     drawing = {tool.name for tool in tools if "preview" in (tool.input_schema.get("properties") or {})}
     assert "camera_snapshot" in {tool.name for tool in tools}
     assert set(extras.PICTURE_TOOLS) == drawing | {"camera_snapshot"}
+
+
+def test_a_missing_ros_stack_points_to_the_ros_venv_not_into_this_one():
+    """The ROS wheels live in .venv-ros, a venv of their own (README): the hint must not send the
+    user to install them beside this venv's Pinocchio and MuJoCo, nor to a test README."""
+    ros = next(d for d in extras.DEPENDENCIES if "rclpy" in d.modules)
+    assert "--backend ros2" in ros.install and ".venv-ros" in ros.install
+    assert "pip install" not in ros.install and "tests_ros" not in ros.install

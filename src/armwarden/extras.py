@@ -49,7 +49,8 @@ DEPENDENCIES: tuple[OptionalDependency, ...] = (
     OptionalDependency("mujoco", ("mujoco",), "the mujoco backend", "pip install 'armwarden[mujoco]'", logging.INFO),
     OptionalDependency("python-can", ("can",), "the can backend", "pip install 'armwarden[can]'", logging.INFO),
     OptionalDependency("rclpy and control_msgs", ("rclpy", "control_msgs"), "the ros2 backend",
-                       "see tests_ros/README.md (a ROS venv with the ros extra and the built interfaces)",
+                       "from a checkout, `bash scripts/run.sh --backend ros2 ...` sets up and serves from .venv-ros, "
+                       "a venv of its own (README)",
                        logging.INFO),
 )
 
