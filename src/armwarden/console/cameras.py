@@ -88,7 +88,7 @@ class CameraFeed:
         self.guard = guard
         self._clock = clock
         limits = guard.policy.rate_limits
-        per_camera = limits.per_tool.get("camera_snapshot", limits.default_per_minute)
+        per_camera = limits.limit_for("camera_snapshot")
         self.cameras: tuple[str, ...] = tuple(guard.capabilities.cameras)
         #: how long an outcome is kept, and how often the page asks: no faster than one camera's
         #: rate, nor than the global rate shared by all of them
