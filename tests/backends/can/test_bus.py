@@ -310,3 +310,12 @@ def test_a_drain_stops_when_its_time_budget_is_spent_and_leaves_the_rest(channel
         assert bus.drain(budget_s=0.001) == 1
         assert bus.drain() == 19
         assert handler.ids() == list(range(1, 21))
+
+
+def test_a_drain_past_its_budget_still_handles_its_floor_so_a_backlog_cannot_grow(channel: str, peer: can.BusABC) -> None:
+    handler = StallsOnFirst(0.01)  # as a host that preempts the drain past its budget on the first frame
+    with CanBus(BusConfig(channel=channel), handler) as bus:
+        send_after_hand_over(bus, peer, 20)
+        assert bus.drain(budget_s=0.001, at_least=6) == 6
+        assert bus.drain() == 14
+        assert handler.ids() == list(range(1, 21))

@@ -91,6 +91,9 @@ logger = logging.getLogger(__name__)
 POLL_S = 0.002
 #: the share of a servo period the tick may spend handling received frames (the rest wait a tick)
 DRAIN_BUDGET = 0.3
+#: ... but it always handles this many replies per actuator first: a tick brings one reply each,
+#: so the backlog shrinks however often a loaded host preempts the drain past its budget
+DRAIN_FLOOR_PER_ACTUATOR = 2
 #: fingers still this long short of their target are blocked (by an object) [s]
 BLOCKED_S = 0.05
 #: finger speed of `gripper_home` [m/s]
@@ -646,7 +649,7 @@ class CanBackend(Backend, ServoHooks):
             return
         self._worker_checkpoint("servo")
         if self.bus is not None:  # the frames that arrived before this tick, a fault among them, count now
-            self.bus.drain(budget_s=DRAIN_BUDGET * self.period_s)
+            self.bus.drain(budget_s=DRAIN_BUDGET * self.period_s, at_least=DRAIN_FLOOR_PER_ACTUATOR * len(self._everyone))
         now = time.monotonic()
         self._publish()
         measured = self._published.positions if self._published is not None else None

@@ -252,10 +252,13 @@ class CanBus:
             if self._bus is not None and not self._closed and self._notifier is None:
                 self._notifier = can.Notifier(self._bus, [_Listener(self)], timeout=READ_TIMEOUT_S)
 
-    def drain(self, limit: int = DRAIN_LIMIT, budget_s: float | None = None) -> int:
+    def drain(self, limit: int = DRAIN_LIMIT, budget_s: float | None = None, at_least: int = 0) -> int:
         """Handle, on the calling thread, the frames that have arrived — at most `limit`, and no
-        more once `budget_s` has passed (the rest wait for the next call); how many. Only while
-        reading is handed over (two readers would handle frames out of order)."""
+        more once `budget_s` has passed and `at_least` have been handled (the rest wait for the
+        next call); how many. The floor keeps a drain that a loaded host preempted from ending
+        after one frame tick after tick: the backlog, and a fault frame queued behind it, would
+        then wait ever longer. Only while reading is handed over (two readers would handle
+        frames out of order)."""
         with self._read_lock:
             bus = self._bus
             if bus is None or self._closed or self._notifier is not None:
@@ -272,7 +275,7 @@ class CanBus:
                     break
                 self._received(msg)
                 handled += 1
-                if deadline is not None and time.perf_counter() > deadline:
+                if deadline is not None and handled >= at_least and time.perf_counter() > deadline:
                     break
             return handled
 
