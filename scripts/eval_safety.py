@@ -27,10 +27,10 @@ from mcp import Client
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from armwarden.assembly import build_backend, build_guard
+from armwarden.audit import AuditLog, verify_file
 from armwarden.backends.counting import CountingBackend
 from armwarden.policy import Policy, apply_overrides, bundled_policy, parse_policy
 from armwarden.preflight import load_runtime_model
-from armwarden.safety.audit import AuditLog, verify_file
 from armwarden.server.app import ArmWardenServer
 
 READY = [0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]

@@ -242,8 +242,8 @@ def evaluate(meshes: dict[str, LinkMesh], geometry: FittedGeometry, samples: int
     """
     import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
+    from armwarden.core.geometry import segment_segment_distance
     from armwarden.robot.model import RobotModel
-    from armwarden.safety.geometry import segment_segment_distance
 
     urdf = resolve_description("builtin:fr3")
     model = pin.buildModelFromUrdf(str(urdf))

@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from armwarden.audit import AUDIT_KEY_ENV
 from armwarden.planning.planners import Planner, PlannerSettings
 from armwarden.policy import Policy, load_policy
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.audit import AUDIT_KEY_ENV
-from armwarden.safety.envelope import Envelope, EnvelopeLimits
+from armwarden.safety.envelope import Envelope
+from armwarden.safety.limits import EnvelopeLimits
 from tests.helpers import READY
 
 

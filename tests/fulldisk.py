@@ -1,4 +1,4 @@
-"""A disk that fills up, for the audit log's `disk` seam (`armwarden.safety.audit.Disk`).
+"""A disk that fills up, for the audit log's `disk` seam (`armwarden.audit.Disk`).
 
 Why: a full audit disk is a fault the daemon must survive honestly, and reproducing it with a
 real tiny file system needs root (a tmpfs or loop mount). `SmallDisk` behaves like the kernel

@@ -13,10 +13,10 @@ from prometheus_client.parser import text_string_to_metric_families
 from starlette.responses import PlainTextResponse
 from starlette.types import Receive, Scope, Send
 
+from armwarden.audit import AuditLog
 from armwarden.backends.servo import ServoHooks, ServoLoop
 from armwarden.callcontext import CallRecord
 from armwarden.metrics import DaemonMetrics
-from armwarden.safety.audit import AuditLog
 from armwarden.safety.estop import EStopLatch
 from armwarden.transport.http import build_console_only_app
 from armwarden.transport.jsonrpc import RefusedRequest

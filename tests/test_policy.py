@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
 import armwarden
-from armwarden.errors import ConfigurationError, PolicyError
+from armwarden.core.errors import ConfigurationError, PolicyError
 from armwarden.policy import (
     ALL_TOOLS,
     APPROVAL_ACTIONS,

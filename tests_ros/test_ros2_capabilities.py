@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from armwarden.backends.base import Capabilities
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from armwarden.guard.readings import Readings
 from tests_ros.backend_setup import POLICY, ROBOT, example_config, opened
 from tests_ros.cell import Cell, CellConfig

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from tests.backends.contract import straight_line
 
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from tests_ros.backend_setup import opened
 from tests_ros.test_cell_process import cell_process  # noqa: F401 - the standalone cell fixture
 

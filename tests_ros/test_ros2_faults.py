@@ -25,8 +25,8 @@ from tests.backends.contract import straight_line
 
 from armwarden.backends.base import ExecutionResult
 from armwarden.backends.ros2.backend import Ros2Backend
-from armwarden.errors import BackendError
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError
+from armwarden.core.trajectory import JointTrajectory
 from tests_ros.backend_setup import example_config, opened
 from tests_ros.cell import Cell, CellConfig, GoalMode
 

@@ -259,8 +259,8 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
     import anyio.to_thread
     from mcp import Client
 
+    from armwarden.core.errors import ArmWardenError
     from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
-    from armwarden.errors import ArmWardenError
     from armwarden.stopchannel.external import ExternalStops
     from armwarden.stopchannel.server import StopChannel
 

@@ -15,7 +15,7 @@ none of its code, that says whether a joint path the backend was sent stays clea
 How a path is checked:
 
 - Between two waypoints the path is the straight line in joint space (what every backend
-  executes, `armwarden.planning.trajectory`). Each such segment is cut so that between two checked
+  executes, `armwarden.core.trajectory`). Each such segment is cut so that between two checked
   configurations no point of any body moves more than `max_step_m` (1 mm by default): joint i
   turning by Δ moves a point at most `reach_i`·|Δ|, with `reach_i` the bound of
   `RobotModel._compute_reach` (the joint-to-joint offsets along the chain plus the body's

@@ -223,7 +223,7 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, Any]:
     library = _library_share_ms(lambda: preview(runtime, trajectory, report), repeats)
     # Pinocchio's calls go through Boost.Python, which cProfile does not see: its forward
     # kinematics for the picture (the swept poses and the thinned TCP path) is timed apart
-    from armwarden.server.preview import MAX_PATH_POINTS, SWEEP_SAMPLES
+    from armwarden.preview.render import MAX_PATH_POINTS, SWEEP_SAMPLES
 
     robot, positions = runtime.robot, np.asarray(trajectory.positions)
     swept = np.vstack([trajectory.sample(t) for t in np.linspace(0.0, trajectory.duration_s, SWEEP_SAMPLES)])

@@ -47,7 +47,8 @@ from armwarden.planning.planners import PoseTarget
 from armwarden.planning.timing import TimingError, time_parameterize
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
-from armwarden.safety.envelope import Box, Envelope
+from armwarden.safety.envelope import Envelope
+from armwarden.safety.limits import Box
 
 READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
 DOWN = np.diag([1.0, -1.0, -1.0])  # the tool pointing at the table

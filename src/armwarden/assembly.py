@@ -18,18 +18,18 @@ from armwarden.robot import build_robot
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
+    from armwarden.audit import AuditLog
     from armwarden.backends.base import Backend
-    from armwarden.planning.trajectory import JointTrajectory
+    from armwarden.core.trajectory import JointTrajectory
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
-    from armwarden.safety.audit import AuditLog
-    from armwarden.safety.envelope import EnvelopeReport
+    from armwarden.safety.limits import EnvelopeReport
 
 def plan_previewer() -> Previewer:
     """The plan preview renderer the daemon attaches to every plan summary: one `PlanPreviewer`
     (which caches the static scene) per policy's limits, rebuilt only if the runtime model's
     limits are replaced. Called on the planning thread only, like the robot model it uses."""
-    from armwarden.server.preview import PlanPreviewer
+    from armwarden.preview.render import PlanPreviewer
 
     previewers: list[PlanPreviewer] = []  # the current one; a list so the closure can replace it
 

@@ -15,10 +15,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from armwarden import __version__
+from armwarden.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.backends import backend_names, backends_help
-from armwarden.errors import ArmWardenError, PolicyError
+from armwarden.core.errors import ArmWardenError, PolicyError
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
-from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.snapshot_cli import add_snapshot_arguments, snapshot_command
 from armwarden.stopchannel.client import add_estop_arguments, estop_command
 
@@ -132,7 +132,7 @@ def check_policy_command(path: str | None) -> int:
 
 def _tail(args: argparse.Namespace) -> int:
     """`audit tail`, with its record filters (exit 2 on a malformed --since)."""
-    from armwarden.safety import audit
+    from armwarden import audit
 
     try:
         since = None if args.since is None else audit.parse_since(args.since)
@@ -154,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "check-policy":
             return check_policy_command(args.policy)
         if args.command == "audit":
-            from armwarden.safety import audit
+            from armwarden import audit
 
             if args.audit_command == "verify":
                 return audit.verify_command(args.file, audit.hmac_key_from_env())

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
-from armwarden.backends.base import GripperState, JointState, Wrench
+from armwarden.core.state import GripperState, JointState, Wrench
 from armwarden.results import (
     EnvelopeModel,
     EStopInfo,
@@ -26,7 +26,7 @@ from armwarden.safety.violations import Violation
 
 if TYPE_CHECKING:
     from armwarden.policy import Policy
-    from armwarden.safety.envelope import EnvelopeReport
+    from armwarden.safety.limits import EnvelopeReport
 
 
 def vector(values) -> Vector3:

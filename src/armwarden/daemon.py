@@ -35,9 +35,10 @@ import anyio
 
 from armwarden import __version__
 from armwarden.assembly import build_backend, build_guard, plan_previewer
+from armwarden.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_for_serving
 from armwarden.backends.base import Backend
+from armwarden.core.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.endpoints import Endpoints, link_host, startup_lines
-from armwarden.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
 from armwarden.extras import log_feature_lines
 from armwarden.greeting import first_contact_line, started_from_terminal
 from armwarden.guard import Guard
@@ -45,7 +46,6 @@ from armwarden.metrics import DaemonMetrics
 from armwarden.policy import Policy, load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_for_serving
 from armwarden.safety.estop import flatten_reason
 from armwarden.safety.refusals import RefusalReports, left_out_recorder
 from armwarden.server.app import ArmWardenServer

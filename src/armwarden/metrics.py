@@ -34,7 +34,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from armwarden import __version__
-from armwarden.errors import RefusalCode
+from armwarden.core.errors import RefusalCode
 from armwarden.policy import ALL_TOOLS
 
 if TYPE_CHECKING:

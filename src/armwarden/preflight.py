@@ -12,13 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armwarden.errors import PolicyError, RobotModelError
+from armwarden.core.errors import PolicyError, RobotModelError
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.planning.around import DetourPlanner
 from armwarden.planning.planners import Planner, PlannerSettings
-from armwarden.planning.trajectory import JointTrajectory
 from armwarden.policy import Policy
 from armwarden.robot import RobotModel, build_robot
-from armwarden.safety.envelope import Envelope, EnvelopeLimits
+from armwarden.safety.envelope import Envelope
+from armwarden.safety.limits import EnvelopeLimits
 
 
 @dataclass(frozen=True)

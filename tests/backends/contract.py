@@ -30,11 +30,11 @@ import numpy as np
 import pytest
 
 from armwarden.assembly import build_guard
+from armwarden.audit import AuditLog
 from armwarden.backends.base import PREEMPTED, Backend, Capabilities
-from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.policy import bundled_policy, load_policy
-from armwarden.safety.audit import AuditLog
 from tests.helpers import records_of
 
 

@@ -12,8 +12,9 @@ import time
 import anyio
 import numpy as np
 
-from armwarden.backends.base import PREEMPTED, Backend, Capabilities, ExecutionResult, JointState
-from armwarden.errors import BackendError
+from armwarden.backends.base import PREEMPTED, Backend, Capabilities, ExecutionResult
+from armwarden.core.errors import BackendError
+from armwarden.core.state import JointState
 
 STEP_S = 0.002  # how often the arm moves to the next sample [s]
 

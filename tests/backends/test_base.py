@@ -8,8 +8,9 @@ import asyncio
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, CameraImage, Capabilities, ExecutionResult, GripperState, JointState
-from armwarden.errors import BackendError, BackendTimeout
+from armwarden.backends.base import Backend, CameraImage, Capabilities, ExecutionResult
+from armwarden.core.errors import BackendError, BackendTimeout
+from armwarden.core.state import GripperState, JointState
 
 NAMES = ("j1", "j2")
 

@@ -13,8 +13,9 @@ import threading
 import numpy as np
 import pytest
 
-from armwarden.backends.base import PREEMPTED, Backend, Capabilities, ExecutionResult, JointState
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.backends.base import PREEMPTED, Backend, Capabilities, ExecutionResult
+from armwarden.core.state import JointState
+from armwarden.core.trajectory import JointTrajectory
 
 NAMES = ("j1", "j2")
 

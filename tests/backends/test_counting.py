@@ -10,7 +10,7 @@ import pytest
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import ACTUATING_METHODS, CountingBackend
 from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from tests.backends.contract import BackendContract, straight_line
 from tests.backends.minimal_backend import MinimalBackend
 

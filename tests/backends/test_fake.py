@@ -19,8 +19,8 @@ from PIL import Image
 
 from armwarden.backends.base import Backend, ControllerInfo
 from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
-from armwarden.errors import BackendError
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 from tests.backends.contract import BackendContract
 from tests.helpers import run_opened

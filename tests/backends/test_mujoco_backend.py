@@ -22,7 +22,7 @@ from pydantic import ValidationError
 from armwarden.backends.base import Backend
 from armwarden.backends.mujoco.backend import HOLD_ACCURACY_RAD, Config, MujocoBackend, ObjectConfig, create_backend
 from armwarden.backends.mujoco.model import build_model, scene_for_policy
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy
 from armwarden.robot import build_robot

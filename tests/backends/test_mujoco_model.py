@@ -35,7 +35,8 @@ from armwarden.robot import build_robot  # noqa: E402
 from armwarden.robot.fitting import ExcludedPair  # noqa: E402
 from armwarden.robot.ik import IkSolver  # noqa: E402
 from armwarden.robot.model import RobotModel, resolve_description  # noqa: E402
-from armwarden.safety.envelope import Envelope, EnvelopeLimits  # noqa: E402
+from armwarden.safety.envelope import Envelope  # noqa: E402
+from armwarden.safety.limits import EnvelopeLimits  # noqa: E402
 
 ARM = tuple(f"fr3_joint{i}" for i in range(1, 8))
 FINGERS = ("fr3_finger_joint1", "fr3_finger_joint2")

@@ -12,7 +12,7 @@ import pytest
 from armwarden.backends import realtime
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.servo import ServoHooks, ServoLoop
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 
 class SchedulerSpy:

@@ -13,7 +13,7 @@ from armwarden import backends
 from armwarden.backends import backend_names, create_backend, load_backend_config
 from armwarden.backends.fake import Config, FakeBackend
 from armwarden.cli import main
-from armwarden.errors import BackendUnavailable, ConfigurationError
+from armwarden.core.errors import BackendUnavailable, ConfigurationError
 from armwarden.policy import Policy
 from armwarden.robot import RobotModel
 

@@ -13,7 +13,7 @@ import yaml
 from armwarden.backends import create_backend, load_backend_config, parse_backend_config
 from armwarden.backends.ros2 import INSTALL_HINT
 from armwarden.backends.ros2.config import Config, check_against_policy
-from armwarden.errors import BackendUnavailable, ConfigurationError
+from armwarden.core.errors import BackendUnavailable, ConfigurationError
 from armwarden.policy import Policy
 from armwarden.robot import RobotModel
 

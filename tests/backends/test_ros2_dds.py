@@ -8,7 +8,7 @@ import pytest
 
 from armwarden.backends.ros2.dds import dds_settings
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 
 def test_an_empty_environment_means_domain_0_on_localhost() -> None:

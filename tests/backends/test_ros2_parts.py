@@ -14,7 +14,7 @@ from PIL import Image
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache
 from armwarden.backends.ros2.tf import TransformBuffer
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 
 class Clock:

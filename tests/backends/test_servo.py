@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, segment_velocity
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.handoff import settle, settle_threadsafe
-from armwarden.planning.trajectory import JointTrajectory
 
 pytestmark = pytest.mark.anyio
 NAMES = ("a", "b")

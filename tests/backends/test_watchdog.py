@@ -16,7 +16,7 @@ from armwarden.backends.watchdog import (
     WorkerWatchdog,
     stall_deadline_s,
 )
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from armwarden.guard import MAX_STATE_AGE_S
 
 

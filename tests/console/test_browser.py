@@ -183,7 +183,7 @@ def test_the_camera_view_shows_each_camera_and_keeps_it_current(tmp_path: Path, 
 def test_a_failing_camera_shows_its_error_in_the_page(tmp_path: Path, browser: Any) -> None:
     from selenium.webdriver.common.by import By
 
-    from armwarden.errors import BackendError
+    from armwarden.core.errors import BackendError
 
     async def broken(camera: str) -> None:
         raise BackendError(f"{camera}: lens cap on")

@@ -17,8 +17,8 @@ import pytest
 from mcp.client.session import ClientSession
 from mcp.server.mcpserver import AcceptedElicitation
 
-from armwarden.errors import RefusalCode, SafetyRefusal
-from armwarden.safety.approval import ApprovalForm
+from armwarden.approval.decision import ApprovalForm
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from tests.console.served import served_console
 from tests.helpers import records_of, text_of
 from tests.server.harness import MODES, approve, arm_harness, plan_down, policy_with

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from tests.console.served import ServedConsole, served_console, sign_in
 from tests.helpers import REPO, FakeClock, records_of
 from tests.server.harness import policy_with

@@ -336,7 +336,7 @@ async def test_a_round_state_sealed_by_another_daemon_is_refused(tmp_path: Path)
     # own check, called as the tool body calls it, with a state another daemon's key sealed.
     from types import SimpleNamespace
 
-    from armwarden.safety.approval import ConsoleAnswer, ConsoleChannel, Prompt
+    from armwarden.approval.decision import ConsoleAnswer, ConsoleChannel, Prompt
     from armwarden.server.outofband import answer_round
     from armwarden.server.roundstate import RoundClaims, RoundSeal
 

@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 from mcp.server.mcpserver import AcceptedElicitation
 
-from armwarden.errors import RefusalCode, SafetyRefusal
-from armwarden.safety.approval import ServerDecision
+from armwarden.approval.decision import ServerDecision
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from tests.helpers import text_of
 from tests.server.harness import answer, arm_harness, policy_with
 

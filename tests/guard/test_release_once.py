@@ -12,7 +12,7 @@ import asyncio
 
 import pytest
 
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from tests.helpers import records_of
 from tests.server.harness import arm_harness
 

@@ -25,7 +25,7 @@ import anyio
 import pytest
 from mcp import Client, StdioServerParameters
 
-from armwarden.safety.audit import verify_file
+from armwarden.audit import verify_file
 from tests.helpers import REPO
 
 MCPB = REPO / "tools" / "mcpb" / "node_modules" / ".bin" / "mcpb"

@@ -9,7 +9,8 @@ import dataclasses
 import numpy as np
 
 from armwarden.preflight import RuntimeModel
-from armwarden.safety.envelope import Box, Envelope
+from armwarden.safety.envelope import Envelope
+from armwarden.safety.limits import Box
 from tests.helpers import READY
 from tests.safety.dense_oracle import DenseOracle
 

@@ -14,7 +14,7 @@ from armwarden.guard.planning import plan_and_check
 from armwarden.planning.goals import CLOSE_TO_A_ZONE
 from armwarden.planning.planners import PoseTarget
 from armwarden.preflight import RuntimeModel
-from armwarden.safety.envelope import Box
+from armwarden.safety.limits import Box
 from armwarden.safety.violations import Code
 from tests.helpers import DOWN, READY
 from tests.planning.scenarios import PILLAR, PILLAR_GOAL, PILLAR_START, base_turn, hemmed_block, oracle_for, with_zones

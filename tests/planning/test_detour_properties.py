@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from armwarden.guard.planning import plan_and_check
 from armwarden.planning.planners import PoseTarget
 from armwarden.preflight import RuntimeModel
-from armwarden.safety.envelope import Box
+from armwarden.safety.limits import Box
 from tests.helpers import DOWN, READY
 from tests.planning.scenarios import oracle_for, with_zones
 

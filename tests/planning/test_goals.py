@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 from armwarden.planning.goals import CLOSE_TO_A_ZONE, GoalSelector
 from armwarden.preflight import RuntimeModel
-from armwarden.safety.envelope import Box
+from armwarden.safety.limits import Box
 from armwarden.safety.violations import Code, Violation
 from tests.helpers import DOWN, READY
 from tests.planning.scenarios import hemmed_block, with_zones

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from armwarden.audit import AuditLog
 from armwarden.cli import main
 from armwarden.policy import bundled_policy
-from armwarden.safety.audit import AuditLog
 from tests.helpers import records_of
 from tests.replay.session import SessionLog
 

@@ -20,7 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 from armwarden.robot import RobotModel
 from armwarden.robot.batch_fk import BatchFK, JointKind, KinematicChain
 from tests.helpers import SRC, child_env

@@ -8,13 +8,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from armwarden.errors import PolicyError, RobotModelError
+from armwarden.core.errors import PolicyError, RobotModelError
+from armwarden.core.geometry import segment_segment_distance
 from armwarden.policy import Policy
 from armwarden.preflight import load_runtime_model
 from armwarden.robot import RobotModel, build_robot, resolve_description
 from armwarden.robot.fitted_bodies import fitted_pairs, require_limits_within
 from armwarden.robot.fitting import FittedGeometry
-from armwarden.safety.geometry import segment_segment_distance
 
 FINGERS = ("fr3_leftfinger", "fr3_rightfinger")
 

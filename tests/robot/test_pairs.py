@@ -11,10 +11,10 @@ import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import pytest
 
+from armwarden.core.geometry import segment_segment_distance
 from armwarden.robot.fitting import FittedBody, FittedGeometry, LinkFit, load_fitted
 from armwarden.robot.model import resolve_description
 from armwarden.robot.pairs import PairOptions, PlacedBody, analyse_pairs, place_bodies
-from armwarden.safety.geometry import segment_segment_distance
 
 FITTED_PATH = resolve_description("builtin:fr3").parent / "fr3_fitted.yaml"
 

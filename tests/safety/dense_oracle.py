@@ -11,9 +11,9 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot import RobotModel
-from armwarden.safety.envelope import EnvelopeLimits
+from armwarden.safety.limits import EnvelopeLimits
 from tests.safety.coal_shapes import coal_capsule
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from armwarden.safety.approval import approval_required
+from armwarden.approval.decision import approval_required
 from tests.server.harness import policy_with
 
 OTHER_ACTIONS = ("execute", "switch_controllers", "error_recovery", "set_collision_thresholds")

@@ -17,8 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armwarden.errors import ConfigurationError
-from armwarden.safety.audit import (
+from armwarden.audit import (
     AUDIT_KEY_ENV,
     GENESIS_HASH,
     RECORD_FIELDS,
@@ -34,6 +33,7 @@ from armwarden.safety.audit import (
     verify_command,
     verify_file,
 )
+from armwarden.core.errors import ConfigurationError
 
 KEY = b"correct horse battery staple"
 
@@ -69,7 +69,7 @@ def test_chain_verifies_after_many_appends(tmp_path: Path) -> None:
 
 
 def test_verifying_a_growing_log_again_parses_only_the_appended_records(tmp_path: Path, monkeypatch) -> None:
-    from armwarden.safety.audit import verify as verify_module
+    from armwarden.audit import verify as verify_module
 
     path = tmp_path / "audit.jsonl"
     with AuditLog(path) as log:
@@ -720,7 +720,7 @@ async def test_a_failed_group_fsync_fails_every_caller_of_the_batch(tmp_path: Pa
         def broken_fsync(fd: int) -> None:
             raise OSError(5, "simulated I/O error")
 
-        monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", broken_fsync)
+        monkeypatch.setattr("armwarden.audit.log.os.fsync", broken_fsync)
 
         async def one(i: int) -> None:
             try:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from armwarden.safety.audit import AuditLog, AuditWriteError, verify_file
+from armwarden.audit import AuditLog, AuditWriteError, verify_file
 
 #: how long a test waits for something the writer thread does on its own (not a timing threshold:
 #: only a bound on a hung test)
@@ -50,7 +50,7 @@ def wait_until(predicate) -> None:
 def test_a_read_only_record_is_fsynced_within_the_window_without_any_later_record(tmp_path, monkeypatch) -> None:
     path = tmp_path / "audit.jsonl"
     spy = FsyncSpy(path)
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", spy)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", spy)
     with AuditLog(path, commit_window_s=0.05) as log:
         log.append_soon("tool_call", tool="get_robot_state", outcome="ok")
         wait_until(lambda: any("tool_call" in synced for synced in spy.synced))
@@ -61,7 +61,7 @@ def test_a_read_only_record_does_not_wait_for_a_stalled_disk(tmp_path, monkeypat
     path = tmp_path / "audit.jsonl"
     log = AuditLog(path, commit_window_s=0.001)
     spy = FsyncSpy(path, hold=True)
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", spy)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", spy)
     log.append_soon("tool_call", tool="get_robot_state", outcome="ok")
     assert spy.entered.wait(PATIENCE_S)  # its fsync is under way and stuck
     log.append_soon("tool_call", tool="get_safety_status", outcome="ok")  # still accepted at once
@@ -75,7 +75,7 @@ def test_a_read_only_record_does_not_wait_for_a_stalled_disk(tmp_path, monkeypat
 async def test_a_record_that_must_be_on_disk_carries_the_read_only_records_before_it(tmp_path, monkeypatch) -> None:
     path = tmp_path / "audit.jsonl"
     spy = FsyncSpy(path)
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", spy)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", spy)
     with AuditLog(path, commit_window_s=1.0) as log:  # a window long enough never to close by itself here
         log.append_soon("read", outcome="ok")
         await log.append_async("estop", outcome="latched")
@@ -86,7 +86,7 @@ async def test_a_record_that_must_be_on_disk_carries_the_read_only_records_befor
 def test_closing_the_log_fsyncs_the_records_of_an_open_window(tmp_path, monkeypatch) -> None:
     path = tmp_path / "audit.jsonl"
     spy = FsyncSpy(path)
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", spy)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", spy)
     log = AuditLog(path, commit_window_s=1.0)
     log.append_soon("read", outcome="ok")
     log.close()
@@ -100,7 +100,7 @@ def test_a_failed_fsync_of_a_window_breaks_the_log_and_the_next_record_is_refuse
         raise OSError(5, "simulated I/O error")
 
     log = AuditLog(path, commit_window_s=0.001)
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", broken_fsync)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", broken_fsync)
     log.append_soon("read", outcome="ok")
     wait_until(lambda: log.broken is not None)
     with pytest.raises(AuditWriteError):
@@ -122,7 +122,7 @@ async def test_the_tail_includes_a_read_only_record_handed_over_just_before(tmp_
 def test_flush_puts_the_records_of_an_open_window_on_disk_at_once(tmp_path, monkeypatch) -> None:
     path = tmp_path / "audit.jsonl"
     spy = FsyncSpy(path)
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", spy)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", spy)
     with AuditLog(path, commit_window_s=1.0) as log:
         log.append_soon("read", outcome="ok")
         log.flush()
@@ -138,7 +138,7 @@ def test_a_read_only_record_to_a_closed_log_is_refused(tmp_path) -> None:
 
 @pytest.mark.parametrize("window", [-0.001, 1.5, float("nan"), True, "0.02"])
 def test_a_commit_window_outside_zero_to_one_second_is_refused(tmp_path, window) -> None:
-    from armwarden.errors import ConfigurationError
+    from armwarden.core.errors import ConfigurationError
 
     with pytest.raises(ConfigurationError, match="commit_window_s"):
         AuditLog(tmp_path / "audit.jsonl", commit_window_s=window)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from armwarden.safety.audit import AuditLog, AuditWriteError, read_tail, verify_file
+from armwarden.audit import AuditLog, AuditWriteError, read_tail, verify_file
 from tests.fulldisk import SmallDisk
 
 

@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
+from armwarden.audit import AuditLog, RecordFilter, parse_since
 from armwarden.cli import main
-from armwarden.safety.audit import AuditLog, RecordFilter, parse_since
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from armwarden.safety.audit import AuditLog, AuditWriteError, verify_file
+from armwarden.audit import AuditLog, AuditWriteError, verify_file
 
 
 def test_a_record_submitted_from_another_thread_is_on_disk_after_close(tmp_path: Path) -> None:

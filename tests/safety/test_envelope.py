@@ -9,10 +9,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.planning.planners import Planner, PoseTarget
-from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot import RobotModel
-from armwarden.safety.envelope import Box, Envelope, EnvelopeLimits
+from armwarden.safety.envelope import Envelope
+from armwarden.safety.limits import Box, EnvelopeLimits
 from armwarden.safety.violations import Code, Severity
 from tests.helpers import DOWN, READY
 from tests.safety.dense_oracle import DenseOracle

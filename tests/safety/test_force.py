@@ -9,8 +9,8 @@ import anyio.lowlevel
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Wrench
-from armwarden.errors import BackendError, ConfigurationError
+from armwarden.core.errors import BackendError, ConfigurationError
+from armwarden.core.state import Wrench
 from armwarden.policy import Policy
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
 from tests.helpers import FakeClock

@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armwarden.safety import geometry
+from armwarden.core import geometry
 from tests.safety.coal_shapes import coal_capsule
 
 coords = st.floats(-1.0, 1.0, allow_nan=False)

@@ -16,8 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armwarden.planning.trajectory import JointTrajectory
-from armwarden.safety.envelope import Box, Envelope, _Samples
+from armwarden.core.trajectory import JointTrajectory
+from armwarden.safety.envelope import Envelope, _Samples
+from armwarden.safety.limits import Box
 from armwarden.safety.violations import Code
 from tests.helpers import READY
 

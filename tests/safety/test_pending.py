@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from armwarden.planning.trajectory import JointTrajectory
-from armwarden.safety.envelope import EnvelopeReport
-from armwarden.safety.pending import AnswerRefusal, PendingApprovals, PendingRequest
-from armwarden.safety.plans import PlanStore, StoredPlan
+from armwarden.approval.board import AnswerRefusal, PendingApprovals, PendingRequest
+from armwarden.approval.plans import PlanStore, StoredPlan
+from armwarden.core.trajectory import JointTrajectory
+from armwarden.safety.limits import EnvelopeReport
 from tests.helpers import READY, FakeClock
 
 TTL_S = 60.0

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armwarden.errors import ConfigurationError, RefusalCode
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.approval.plans import RETIRED_MEMORY, PlanRefusal, PlanStore, StoredPlan
+from armwarden.core.errors import ConfigurationError, RefusalCode
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.policy import Policy
-from armwarden.safety.envelope import EnvelopeReport
-from armwarden.safety.plans import RETIRED_MEMORY, PlanRefusal, PlanStore, StoredPlan
+from armwarden.safety.limits import EnvelopeReport
 from armwarden.safety.violations import Code, Violation
 from tests.helpers import FakeClock
 

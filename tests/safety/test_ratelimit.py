@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.policy import RATE_LIMIT_EXEMPT_TOOLS, Policy
 from armwarden.safety.ratelimit import RateLimiter
 from tests.helpers import FakeClock

@@ -31,17 +31,17 @@ import mcp_types as types
 from mcp import Client
 
 from armwarden.assembly import build_backend, build_guard
+from armwarden.audit import OS_DISK, AuditLog, Disk, verify_file
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake import FakeBackend
+from armwarden.core.errors import BackendError
 from armwarden.daemon import SWITCH_INTERVAL_S, freeze_long_lived_objects
-from armwarden.errors import BackendError
 from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from armwarden.robot import build_robot
-from armwarden.safety.audit import OS_DISK, AuditLog, Disk, verify_file
 from armwarden.server.app import ArmWardenServer
 from tests.backends.minimal_backend import MinimalBackend
 from tests.helpers import text_of

@@ -1,5 +1,5 @@
 """REFERENCE ONLY: the plan preview renderer as it was before issue 13 made it cheap (commit
-02432ca, `src/armwarden/server/preview.py`), kept verbatim so `test_preview_reference.py` can
+02432ca, `src/armwarden/preview/render.py`), kept verbatim so `test_preview_reference.py` can
 show that the optimised renderer draws the same picture. Not used by the daemon. One change
 since: keep-out marks are placed where the body meets the zone (`preview._contact_point`, issue
 14's picture-correctness fix), exactly as the renderer under test places them.
@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
-    from armwarden.planning.trajectory import JointTrajectory
+    from armwarden.core.trajectory import JointTrajectory
     from armwarden.robot.model import RobotModel
-    from armwarden.safety.envelope import EnvelopeLimits, EnvelopeReport
+    from armwarden.safety.limits import EnvelopeLimits, EnvelopeReport
 
 #: configurations at which the swept links are drawn (evenly spaced in time, start and goal included)
 SWEEP_SAMPLES = 8
@@ -174,7 +174,7 @@ def _plan_geometry(robot: RobotModel, trajectory: JointTrajectory | None, report
         bodies = [index.get(part) for part in (violation.body or "").split("|")]
         found = [b for b in bodies if b is not None]
         if violation.code.value == "KEEP_OUT" and limits.keep_out:
-            from armwarden.server.preview import _contact_point
+            from armwarden.preview.render import _contact_point
 
             marks.append(_contact_point([(p0[row, b], p1[row, b]) for b in found] or [(p0[row, -1], p0[row, -1])], limits))
             continue

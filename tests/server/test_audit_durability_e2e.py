@@ -12,7 +12,7 @@ from pathlib import Path
 import anyio
 import pytest
 
-from armwarden.safety.audit import AuditLog
+from armwarden.audit import AuditLog
 from tests.server.harness import arm_harness
 
 
@@ -35,7 +35,7 @@ class StalledDisk:
 @pytest.fixture
 def stalled_disk(monkeypatch) -> StalledDisk:
     disk = StalledDisk()
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", disk)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", disk)
     return disk
 
 
@@ -95,6 +95,6 @@ async def test_with_a_zero_window_a_read_only_call_waits_for_its_record_too(tmp_
 
     monkeypatch.setattr(AuditLog, "__init__", strict)
     disk = StalledDisk()
-    monkeypatch.setattr("armwarden.safety.audit.log.os.fsync", disk)
+    monkeypatch.setattr("armwarden.audit.log.os.fsync", disk)
     async with arm_harness(tmp_path) as arm:
         await answered_only_after_the_fsync(arm, "get_robot_state", {}, disk)

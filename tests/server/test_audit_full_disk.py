@@ -18,8 +18,8 @@ from typing import Any
 import anyio
 import pytest
 
-from armwarden.errors import RefusalCode, SafetyRefusal
-from armwarden.safety.plans import PlanRefusal
+from armwarden.approval.plans import PlanRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.stopchannel import StopChannel
 from armwarden.stopchannel.external import ExternalStops
 from tests.fulldisk import SmallDisk
@@ -177,7 +177,7 @@ async def test_the_stop_channel_on_a_full_audit_disk_latches_stops_and_logs_the_
                               on_event=external.record).start()
         try:
             disk.fill()
-            with caplog.at_level(logging.ERROR, logger="armwarden.safety.audit"):
+            with caplog.at_level(logging.ERROR, logger="armwarden.audit"):
                 status, _, answer = await anyio.to_thread.run_sync(lambda: post(channel.port, b"full disk"))
                 assert status == 200 and answer["estopped"] is True, answer
                 assert arm.guard.latch.is_latched and arm.backend.emergency_stops == 1

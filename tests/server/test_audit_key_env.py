@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from armwarden.errors import ConfigurationError
-from armwarden.safety.audit import AuditLog, hmac_key_for_serving
+from armwarden.audit import AuditLog, hmac_key_for_serving
+from armwarden.core.errors import ConfigurationError
 from tests.helpers import CLI, REPO, child_env
 
 #: what a client hands over when it did not expand the key's reference: shell `${...}`, `$(...)`

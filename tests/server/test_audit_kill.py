@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from armwarden.safety.audit import verify_file
+from armwarden.audit import verify_file
 from tests.helpers import records_of
 from tests.server.test_daemon_stdio import RawStdio, start_raw_daemon
 

@@ -25,8 +25,8 @@ import anyio
 import pytest
 from mcp import Client, StdioServerParameters
 
+from armwarden.audit import verify_file
 from armwarden.policy import bundled_policy, load_policy, policy_digest
-from armwarden.safety.audit import verify_file
 from armwarden.transport.pipes import MAX_LINE_BYTES
 from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, stop_process, text_of, wait_for_record
 from tests.server.harness import MODES, MotionStarted

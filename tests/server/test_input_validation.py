@@ -25,7 +25,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armwarden.safety.audit import read_tail, verify_file
+from armwarden.audit import read_tail, verify_file
 from armwarden.safety.estop import REASON_LIMIT
 from tests.helpers import HOME, text_of
 from tests.server.harness import MODES, approve, arm_harness, policy_with

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from armwarden.server.images import (
+from armwarden.preview.images import (
     BandedPngEncoder,
     adler32_combine,
     encode_png,

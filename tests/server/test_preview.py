@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.policy import load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
-from armwarden.server import images
-from armwarden.server.images import ImageSupportMissing, downscale_png, pillow_available
-from armwarden.server.preview import render_plan_preview
+from armwarden.preview import images
+from armwarden.preview.images import ImageSupportMissing, downscale_png, pillow_available
+from armwarden.preview.render import render_plan_preview
 from tests.helpers import READY
 
 Image = pytest.importorskip("PIL.Image")
@@ -191,7 +191,7 @@ def test_without_pillow_downscale_raises_a_clear_error(monkeypatch: pytest.Monke
 def test_keep_out_marks_lie_inside_the_drawn_zone(runtime: RuntimeModel, into_monitor) -> None:
     """Picture correctness on the rendered geometry: each keep-out violation's cross is drawn,
     in both views, inside the pixel rectangle of the zone it violates (and the pixel there is red)."""
-    from armwarden.server.preview import PlanPreviewer, _bounds, _plan_geometry
+    from armwarden.preview.render import PlanPreviewer, _bounds, _plan_geometry
 
     trajectory, report = into_monitor
     previewer = PlanPreviewer(runtime.envelope.limits)
@@ -218,7 +218,7 @@ TITLE = [("   duration ", False), ("12.07", True), (" s   TCP path ", False), ("
 
 
 def _title_scene(runtime: RuntimeModel):
-    from armwarden.server.preview import PlanPreviewer
+    from armwarden.preview.render import PlanPreviewer
 
     previewer = PlanPreviewer(runtime.envelope.limits)
     limits = runtime.envelope.limits
@@ -253,7 +253,7 @@ def test_a_title_that_would_not_land_on_whole_pixels_is_left_to_pillow(runtime: 
 def test_a_title_pillow_must_place_itself_is_still_drawn(runtime: RuntimeModel, accepted, monkeypatch) -> None:
     """Where the title's glyphs would not land on whole pixels, the renderer stamps the title as
     one piece instead: the picture shows the same title."""
-    from armwarden.server.preview import PlanPreviewer, _Scene
+    from armwarden.preview.render import PlanPreviewer, _Scene
 
     trajectory, report = accepted
     stamped = np.asarray(_decode(PlanPreviewer(runtime.envelope.limits).render(runtime.robot, trajectory, report)))

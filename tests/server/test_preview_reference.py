@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.policy import load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
-from armwarden.server.preview import PlanPreviewer
+from armwarden.preview.render import PlanPreviewer
 from tests.helpers import READY
 from tests.server import preview_before
 

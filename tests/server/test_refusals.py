@@ -18,7 +18,7 @@ import anyio
 import numpy as np
 import pytest
 
-from armwarden.safety.audit import read_tail, verify_file
+from armwarden.audit import read_tail, verify_file
 from armwarden.safety.estop import REASON_LIMIT
 from tests.helpers import HOME, text_of
 from tests.server.harness import MODES, answer, approve, arm_harness, policy_with

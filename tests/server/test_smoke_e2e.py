@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from armwarden.audit import read_tail, verify_file
 from armwarden.results import RobotState
-from armwarden.safety.audit import read_tail, verify_file
 from tests.helpers import HOME
 from tests.server.harness import MODES, approve, arm_harness, policy_with
 

@@ -4,11 +4,11 @@ read by a transport calls `stop_now`."""
 
 from __future__ import annotations
 
+from armwarden.approval.plans import PlanStore
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY
 from armwarden.guard.stopping import Stopper
 from armwarden.safety.estop import EStopLatch
-from armwarden.safety.plans import PlanStore
 from tests.backends.minimal_backend import MinimalBackend
 
 

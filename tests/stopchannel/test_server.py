@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.stopchannel import StopChannel, token_store_authenticator
 from armwarden.transport.tokens import TokenStore
 

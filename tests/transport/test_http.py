@@ -21,7 +21,7 @@ from mcp.server.mcpserver import Context, Elicit, ElicitationResult, MCPServer, 
 from mcp_types import CallToolResult, ElicitResult, TextContent
 from pydantic import BaseModel
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.transport.http import (
     build_http_app,
     check_bind_safety,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.transport import tokens as tokens_module
 from armwarden.transport.tokens import (
     Principal,

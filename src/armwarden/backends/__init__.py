@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from armwarden.errors import BackendUnavailable, ConfigurationError
+from armwarden.core.errors import BackendUnavailable, ConfigurationError
 
 if TYPE_CHECKING:
     from armwarden.backends.base import Backend

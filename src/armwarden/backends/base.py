@@ -98,8 +98,9 @@ import anyio
 import numpy as np
 
 from armwarden.backends.watchdog import Heartbeat, WorkerWatchdog
-from armwarden.errors import BackendError, BackendTimeout, StoppedBeforeStart
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError, BackendTimeout, StoppedBeforeStart
+from armwarden.core.state import GripperState, JointState, Transform, Wrench
+from armwarden.core.trajectory import JointTrajectory
 
 logger = logging.getLogger(__name__)
 
@@ -114,41 +115,6 @@ INJECTED_HANG_LIMIT_S = 60.0
 #: how often `fault_behind_stale_data` looks whether the backend's threads moved on [s]
 PROGRESS_POLL_S = 0.005
 T = TypeVar("T")
-
-
-@dataclass(frozen=True)
-class JointState:
-    """Measured joint positions [rad] and velocities [rad/s]; `stamp` on the monotonic clock [s]."""
-
-    names: tuple[str, ...]
-    positions: np.ndarray
-    velocities: np.ndarray
-    stamp: float
-
-
-@dataclass(frozen=True)
-class Wrench:
-    """Estimated external wrench at the TCP in the base frame: force [N], torque [N·m]."""
-
-    force: np.ndarray
-    torque: np.ndarray
-    stamp: float
-
-    @property
-    def force_norm_n(self) -> float:
-        return float(np.linalg.norm(self.force))
-
-    @property
-    def torque_norm_nm(self) -> float:
-        return float(np.linalg.norm(self.torque))
-
-
-@dataclass(frozen=True)
-class GripperState:
-    width_m: float
-    is_grasped: bool
-    moving: bool
-    stamp: float
 
 
 @dataclass(frozen=True)
@@ -191,16 +157,6 @@ class CameraImage:
     width: int
     height: int
     png: bytes
-    stamp: float
-
-
-@dataclass(frozen=True)
-class Transform:
-    """Pose of a source frame in a target frame, from the backend's own frame tree (ROS tf):
-    translation [m], rotation as a unit quaternion (x, y, z, w); `stamp` on the monotonic clock [s]."""
-
-    translation: np.ndarray
-    rotation_xyzw: np.ndarray
     stamp: float
 
 

@@ -21,12 +21,10 @@ from armwarden.backends.base import (
     ExecutionResult,
     FaultListener,
     GripperResult,
-    GripperState,
-    JointState,
     ProgressCallback,
-    Wrench,
 )
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.state import GripperState, JointState, Wrench
+from armwarden.core.trajectory import JointTrajectory
 
 #: the Backend methods that can move or change the robot
 ACTUATING_METHODS = (

@@ -48,10 +48,7 @@ from armwarden.backends.base import (
     ControllerInfo,
     ExecutionResult,
     GripperResult,
-    GripperState,
-    JointState,
     ProgressCallback,
-    Wrench,
     check_grasp_margins,
     check_gripper_width_speed,
     grasp_outcome,
@@ -65,8 +62,9 @@ from armwarden.backends.fake_camera import (
 from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, GripperMotion
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
-from armwarden.errors import BackendError
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError
+from armwarden.core.state import GripperState, JointState, Wrench
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 
 if TYPE_CHECKING:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 #: the SCHED_FIFO priorities Linux accepts
 PRIORITY_RANGE = (1, 99)

@@ -38,9 +38,9 @@ from armwarden.backends.base import PREEMPTED, ExecutionResult, ProgressCallback
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.handoff import settle_threadsafe
-from armwarden.planning.trajectory import JointTrajectory
 
 logger = logging.getLogger(__name__)
 

@@ -32,7 +32,7 @@ from typing import Literal
 
 import anyio
 
-from armwarden.errors import SafetyRefusal
+from armwarden.core.errors import SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.safety import checks
 from armwarden.safety.ratelimit import RateLimiter

@@ -18,12 +18,12 @@ from typing import Any
 import anyio
 import numpy as np
 
-from armwarden.errors import SafetyRefusal
+from armwarden.approval.board import PendingRequest
+from armwarden.audit import VerifiedPrefix, verify_appended
+from armwarden.core.errors import SafetyRefusal
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.guard import Guard
-from armwarden.planning.trajectory import JointTrajectory
-from armwarden.safety.audit import VerifiedPrefix, verify_appended
-from armwarden.safety.envelope import EnvelopeReport
-from armwarden.safety.pending import PendingRequest
+from armwarden.safety.limits import EnvelopeReport
 
 __all__ = ["AuditStatus", "StateFeed", "request_view"]
 
@@ -66,7 +66,7 @@ class StateFeed:
     """Reads for the console pages; one per console."""
 
     def __init__(self, guard: Guard) -> None:
-        from armwarden.server.preview import PlanPreviewer
+        from armwarden.preview.render import PlanPreviewer
 
         self.guard = guard
         #: the plan preview renderer, with its own scene cache (used on the planning thread only)
@@ -162,7 +162,7 @@ class StateFeed:
             cached = self._audit_status
             if cached is not None and cached.signature == signature:
                 return cached
-            from armwarden.safety.audit import hmac_key_from_env
+            from armwarden.audit import hmac_key_from_env
 
             previous = cached.verified if cached is not None else None
             report, verified = await anyio.to_thread.run_sync(lambda: verify_appended(path, hmac_key_from_env(), previous))

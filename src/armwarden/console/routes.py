@@ -38,6 +38,8 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Route
 
+from armwarden.approval.board import AnswerRefusal
+from armwarden.audit import AuditWriteError
 from armwarden.console.cameras import CameraFeed, CameraTrouble
 from armwarden.console.feed import StateFeed, request_view
 from armwarden.console.pages import (
@@ -51,10 +53,8 @@ from armwarden.console.pages import (
     render_fragment,
 )
 from armwarden.console.sessions import COOKIE, LOGIN_COOKIE, Session, SessionStore, SignInRefused, same_secret
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard
-from armwarden.safety.audit import AuditWriteError
-from armwarden.safety.pending import AnswerRefusal
 from armwarden.safety.refusals import RefusalReports, left_out_recorder
 from armwarden.transport.http import CONSOLE_PATH, is_loopback_host
 

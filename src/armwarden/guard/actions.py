@@ -14,12 +14,13 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
+from armwarden.approval import prompts
+from armwarden.approval.decision import Prompt, ServerDecision, approval_required, client_decision
 from armwarden.backends.base import Backend
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
 from armwarden.results import ActionResult
-from armwarden.safety import checks, prompts
-from armwarden.safety.approval import Prompt, ServerDecision, approval_required, client_decision
+from armwarden.safety import checks
 
 if TYPE_CHECKING:
     from armwarden.guard.door import Guard

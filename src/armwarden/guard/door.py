@@ -44,9 +44,13 @@ from collections.abc import Callable
 from typing import Any
 
 from armwarden import conversions, results
+from armwarden.approval import prompts
+from armwarden.approval.board import PendingApprovals
+from armwarden.approval.decision import Approval, Prompt, ServerDecision, approval_required, client_decision, hold_to_channel, interpret
+from armwarden.approval.plans import PlanRefusal, PlanStore
 from armwarden.backends.base import Backend, Capabilities
 from armwarden.callcontext import current_call, current_caller, note_approval
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.actions import ControlActions, ControlTool
 from armwarden.guard.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
 from armwarden.guard.gripper import GripperFlow, GripperTool
@@ -56,11 +60,7 @@ from armwarden.guard.stopping import Stopper
 from armwarden.policy import Policy
 from armwarden.preflight import RuntimeModel
 from armwarden.robot.model import RobotModel
-from armwarden.safety import prompts
-from armwarden.safety.approval import Approval, Prompt, ServerDecision, approval_required, client_decision, hold_to_channel, interpret
 from armwarden.safety.estop import EStopLatch
-from armwarden.safety.pending import PendingApprovals
-from armwarden.safety.plans import PlanRefusal, PlanStore
 from armwarden.safety.ratelimit import RateLimiter
 from armwarden.safety.violations import Violation
 

@@ -30,14 +30,14 @@ from typing import Any
 import anyio
 import numpy as np
 
+from armwarden.approval.decision import Approval
+from armwarden.approval.plans import StoredPlan
 from armwarden.backends.base import Backend, ExecutionResult
-from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
 from armwarden.results import ExecutionReport
-from armwarden.safety.approval import Approval
 from armwarden.safety.estop import EStopEvent, EStopLatch
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
-from armwarden.safety.plans import StoredPlan
 
 logger = logging.getLogger(__name__)
 

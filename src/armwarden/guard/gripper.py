@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Literal
 import anyio
 
 from armwarden.backends.base import GripperResult
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.results import GripperResultModel
 from armwarden.safety import checks
 

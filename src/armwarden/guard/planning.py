@@ -23,16 +23,16 @@ import anyio
 import numpy as np
 
 from armwarden import __version__, conversions
+from armwarden.approval.decision import approval_required
 from armwarden.callcontext import current_call, current_caller
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.planning.around import request_seed
 from armwarden.planning.planners import PlanOutcome, PoseTarget
-from armwarden.planning.trajectory import JointTrajectory
 from armwarden.policy import Policy, policy_digest
 from armwarden.preflight import RuntimeModel
 from armwarden.results import PlanSummary
-from armwarden.safety.approval import approval_required
-from armwarden.safety.envelope import EnvelopeReport
+from armwarden.safety.limits import EnvelopeReport
 from armwarden.safety.violations import Violation
 
 if TYPE_CHECKING:

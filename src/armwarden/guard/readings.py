@@ -15,8 +15,9 @@ import anyio
 import numpy as np
 
 from armwarden import conversions
-from armwarden.backends.base import Backend, JointState
-from armwarden.errors import BackendError, RefusalCode, SafetyRefusal, StoppedBeforeStart
+from armwarden.backends.base import Backend
+from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal, StoppedBeforeStart
+from armwarden.core.state import JointState
 from armwarden.policy import Policy
 from armwarden.results import (
     ControllerList,
@@ -118,7 +119,7 @@ class Readings:
         png, width, height = image.png, image.width, image.height
         limit = self.policy.perception.max_image_width
         if width > limit:
-            from armwarden.server.images import downscale_png, pillow_available
+            from armwarden.preview.images import downscale_png, pillow_available
 
             if not pillow_available():
                 raise SafetyRefusal(RefusalCode.IMAGE_TOO_WIDE, f"the image is {width} px wide (limit {limit}) and "

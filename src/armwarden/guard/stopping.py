@@ -21,13 +21,13 @@ from typing import Any
 import anyio
 
 from armwarden import conversions
+from armwarden.approval.plans import PlanStore
+from armwarden.audit import AuditLog, AuditWriteError
 from armwarden.backends.base import Backend
 from armwarden.callcontext import current_call, note_stop_timing
-from armwarden.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.results import EStopResult, ResetResult, StopResult
-from armwarden.safety.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import EStopEvent, EStopLatch
-from armwarden.safety.plans import PlanStore
 
 
 class Stopper:

@@ -41,12 +41,13 @@ from typing import Literal
 
 import numpy as np
 
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.planning.detour import DetourSearch, SearchResult
 from armwarden.planning.goals import CLOSE_TO_A_ZONE, GoalSelection, GoalSelector
 from armwarden.planning.planners import Planner, PlanOutcome, PoseTarget
 from armwarden.planning.timing import TimingError, time_parameterize
-from armwarden.planning.trajectory import JointTrajectory
-from armwarden.safety.envelope import Envelope, EnvelopeReport
+from armwarden.safety.envelope import Envelope
+from armwarden.safety.limits import EnvelopeReport
 from armwarden.safety.violations import Code, Violation
 
 #: what a different path can avoid; anything else hard (a goal past a joint limit, malformed input) it cannot

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.planning.timing import TimingError, time_parameterize
-from armwarden.planning.trajectory import JointTrajectory
 from armwarden.robot.ik import IkResult, IkSolver
 from armwarden.robot.model import RobotModel
 from armwarden.safety.violations import Code, Violation

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armwarden.planning.trajectory import DEFAULT_DT_S, JointTrajectory
+from armwarden.core.trajectory import DEFAULT_DT_S, JointTrajectory
 from armwarden.safety.waypoints import estimate_accelerations, estimate_velocities
 
 _MAX_STRETCHES = 30

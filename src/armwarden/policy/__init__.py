@@ -15,7 +15,7 @@ anything else:
 * cross-field rules (limits cover the joints, home within limits, defaults within caps, ...) are
   small named functions, each returning the violations it found;
 * every problem is reported at once, each with the YAML path of the offending value, as a
-  :class:`~armwarden.errors.PolicyError`.
+  :class:`~armwarden.core.errors.PolicyError`.
 
 Units are SI throughout: metres, radians, seconds, newtons; positions in the robot base frame.
 

@@ -12,7 +12,7 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from armwarden.errors import PolicyError
+from armwarden.core.errors import PolicyError
 from armwarden.policy.constants import DOCUMENT_PATH, MAX_POLICY_BYTES
 from armwarden.policy.messages import validation_errors
 from armwarden.policy.models import Policy

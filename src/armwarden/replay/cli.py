@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-from armwarden.errors import PolicyError
+from armwarden.core.errors import PolicyError
 from armwarden.policy import load_policy, policy_digest
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.replay.engine import replan

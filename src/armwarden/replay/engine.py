@@ -14,7 +14,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from armwarden.errors import RefusalCode
+from armwarden.core.errors import RefusalCode
 from armwarden.guard.planning import REPLAY_FORMAT, PlanKind, decode_request, plan_offline
 from armwarden.preflight import RuntimeModel
 from armwarden.replay.records import Outcome, PlanCall

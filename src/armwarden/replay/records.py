@@ -12,9 +12,9 @@ import os
 from dataclasses import dataclass, replace
 from typing import Any
 
-from armwarden.errors import ArmWardenError
-from armwarden.safety.audit import AUDIT_KEY_ENV, VerifyReport, verify_file
-from armwarden.safety.audit.chain import DECODER
+from armwarden.audit import AUDIT_KEY_ENV, VerifyReport, verify_file
+from armwarden.audit.chain import DECODER
+from armwarden.core.errors import ArmWardenError
 
 #: the planning tools and the planner kind each one asks for
 PLAN_TOOLS = {"plan_to_joints": "joints", "plan_to_pose": "pose", "plan_cartesian_path": "cartesian"}

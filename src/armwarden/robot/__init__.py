@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 from armwarden.robot.fitted_bodies import require_limits_within
 from armwarden.robot.model import Pose, RobotModel, resolve_description
 

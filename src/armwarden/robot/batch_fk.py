@@ -42,7 +42,7 @@ import numba
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 
 if TYPE_CHECKING:
     from armwarden.robot.model import RobotModel

@@ -22,7 +22,7 @@ import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind 
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import Capsule
 from armwarden.robot.fitting import FittedGeometry
 

@@ -23,7 +23,7 @@ manufacturer's collision mesh so that they
   within `body_tolerance_m` of the best are kept.
 
 Capsules, not spheres: the envelope's predicates are exact for capsules already
-(`armwarden.safety.geometry`), a sphere is a zero-length capsule, and the FR3's links are
+(`armwarden.core.geometry`), a sphere is a zero-length capsule, and the FR3's links are
 cylinders and rounded elbows that a few capsules hold without the scalloping a chain of spheres
 leaves (docs/architecture.md, "Collision geometry fitted to the meshes").
 
@@ -48,7 +48,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from armwarden.errors import ArmWardenError
+from armwarden.core.errors import ArmWardenError
 
 __all__ = [
     "ExcludedPair",

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import Capsule, capsule_from_geometry
 from armwarden.robot.fitted_bodies import fitted_capsules, fitted_pairs
 from armwarden.robot.fitting import FittedGeometry, FittingError, load_fitted

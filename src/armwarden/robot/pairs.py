@@ -37,9 +37,9 @@ from typing import Literal
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
+from armwarden.core.geometry import segment_segment_distance
 from armwarden.robot.fitting import ExcludedPair, FittedGeometry
-from armwarden.safety.geometry import segment_segment_distance
 
 __all__ = ["PairAnalysis", "PairOptions", "PairVerdict", "PlacedBody", "analyse_pairs", "place_bodies"]
 

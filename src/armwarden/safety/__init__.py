@@ -1,1 +1,1 @@
-"""Safety components: envelope, plans, rate limits, e-stop, approval, audit log."""
+"""Safety checks: the envelope, rate limits, the e-stop latch, force limits and the refusals they raise."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
 from armwarden.policy.devices import MIN_FINGER_SPEED_MPS
 from armwarden.safety.estop import flatten_reason

@@ -35,8 +35,8 @@ from typing import Any, Literal
 import anyio
 import numpy as np
 
-from armwarden.backends.base import Wrench
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
+from armwarden.core.state import Wrench
 
 __all__ = [
     "FORCE_RISE_ALLOWANCE_N",

@@ -23,7 +23,7 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.policy import RATE_LIMIT_EXEMPT_TOOLS
 
 __all__ = ["RateDecision", "RateLimiter", "RateScope"]

@@ -254,7 +254,7 @@ def left_out_recorder(audit: Any, door: str) -> Callable[[LeftOut], None]:
     """`on_left_out` for a door ("stop_channel", "console", "transport"): a `refusals_left_out`
     record handed to `audit` (an `AuditLog`) without waiting; a log that cannot take it is said
     loudly on stderr. None: stderr only (a console without an audit log)."""
-    from armwarden.safety.audit import AuditWriteError
+    from armwarden.audit import AuditWriteError
 
     def record(left_out: LeftOut) -> None:
         detail = left_out.describe(door.replace("_", " "))

@@ -12,11 +12,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.safety.violations import Code, Violation
 
 if TYPE_CHECKING:
-    from armwarden.safety.envelope import EnvelopeLimits
+    from armwarden.safety.limits import EnvelopeLimits
 
 ACCELERATION_TOLERANCE = 1.10  # the 10 % tolerance on acceleration estimated from waypoint timing
 _VELOCITY_TOLERANCE = 1.0 + 1e-9

@@ -33,10 +33,10 @@ from mcp_types.version import is_version_at_least
 from pydantic import ValidationError
 
 from armwarden import __version__
-from armwarden.errors import RefusalCode
+from armwarden.audit import AuditEntry, AuditWriteError
+from armwarden.core.errors import RefusalCode
 from armwarden.guard import Guard
 from armwarden.policy import ALL_TOOLS
-from armwarden.safety.audit import AuditEntry, AuditWriteError
 from armwarden.server.calls import CURRENT_CALL, CallRecord
 from armwarden.server.tools import ToolBuilder
 from armwarden.server.unrecorded import answer_unrecorded

@@ -14,7 +14,7 @@ from mcp.server.mcpserver.resolve import build_resolver_plans, find_resolved_par
 from mcp_types import InputRequiredResult
 from mcp_types.version import is_version_at_least
 
-from armwarden.safety.approval import ApprovalForm, ConsoleChannel, Prompt, ServerDecision, form_under_channel
+from armwarden.approval.decision import ApprovalForm, ConsoleChannel, Prompt, ServerDecision, form_under_channel
 from armwarden.server.calls import current_call
 
 #: a tool's hidden `approval` parameter: the server's decision or the human's answer

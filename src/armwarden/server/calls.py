@@ -13,7 +13,7 @@ from pydantic import BaseModel
 from pydantic_core import to_json
 
 from armwarden.callcontext import CURRENT_CALL, CallRecord, current_call, mark_body_ran
-from armwarden.errors import SafetyRefusal
+from armwarden.core.errors import SafetyRefusal
 
 __all__ = ["CURRENT_CALL", "CallRecord", "current_call", "mark_body_ran", "ok", "ok_data", "refused"]
 

@@ -41,9 +41,9 @@ from mcp.server.mcpserver import AcceptedElicitation, Context, DeclinedElicitati
 from mcp_types import ElicitRequest, ElicitRequestFormParams, ElicitRequestURLParams, ElicitResult, InputRequiredResult
 from pydantic import ValidationError
 
+from armwarden.approval.board import PendingRequest
+from armwarden.approval.decision import ApprovalForm, ConsoleAnswer, ConsoleChannel
 from armwarden.guard import Guard
-from armwarden.safety.approval import ApprovalForm, ConsoleAnswer, ConsoleChannel
-from armwarden.safety.pending import PendingRequest
 from armwarden.server.roundstate import RoundClaims, RoundSeal
 
 __all__ = ["FORM_KEY", "answer_out_of_band", "answer_round", "ask_round"]

@@ -27,7 +27,8 @@ from mcp.server.mcpserver import Image as McpImage
 from mcp_types import CallToolResult, InputRequiredResult, ToolAnnotations
 from pydantic import BaseModel, ConfigDict, Field, Strict
 
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.approval.decision import ConsoleChannel, ServerDecision
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard import Guard, PlanKind, Prompt
 from armwarden.planning.planners import MIN_SCALING, PoseTarget
 from armwarden.policy import TOOL_GROUPS
@@ -50,7 +51,6 @@ from armwarden.results import (
     StopResult,
     TransformResult,
 )
-from armwarden.safety.approval import ConsoleChannel, ServerDecision
 from armwarden.server.approval import (
     ApprovalAnswer,
     ApprovalGate,

@@ -16,7 +16,7 @@ from typing import Any
 from mcp_types import CallToolResult, InputRequiredResult, TextContent
 from pydantic_core import to_json
 
-from armwarden.errors import RefusalCode
+from armwarden.core.errors import RefusalCode
 
 #: the tools answered when their record cannot be written (every other call fails closed)
 ANSWERED_UNRECORDED = frozenset({"stop_motion", "estop", "reset_estop", "get_safety_status"})

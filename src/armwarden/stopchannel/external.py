@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from armwarden.safety.audit import AuditLog, AuditWriteError
+from armwarden.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import EStopEvent
 from armwarden.stopchannel.server import ChannelRefusal, ChannelStop
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import ipaddress
 import socket
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 
 __all__ = ["is_loopback", "open_listener"]
 

@@ -50,7 +50,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.safety.estop import flatten_reason
 from armwarden.safety.refusals import RefusalReports
 from armwarden.stopchannel.listener import is_loopback, open_listener

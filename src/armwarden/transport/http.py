@@ -63,7 +63,7 @@ from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Mount, Route, request_response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, LatchEstopsNotRun, mark_dispatched
 from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows

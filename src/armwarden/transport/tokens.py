@@ -48,7 +48,7 @@ from typing import Any, Literal, get_args
 import yaml
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 
 try:  # POSIX advisory lock between concurrent `tokens add/revoke` runs.
     import fcntl

@@ -12,7 +12,7 @@ from can.interfaces.virtual import VirtualBus
 
 from armwarden.backends.can.bus import BusConfig, CanBus, FrameKind, HealthFlag, decode_error_frame, open_interface
 from armwarden.backends.can.errors import InvalidFrame
-from armwarden.errors import BackendError, BackendUnavailable
+from armwarden.core.errors import BackendError, BackendUnavailable
 from tests.backends.can.polling import eventually, unique_channel
 
 

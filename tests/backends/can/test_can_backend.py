@@ -31,7 +31,7 @@ from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config
 from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
 from armwarden.backends.can.ranges import model_ranges
-from armwarden.errors import BackendError, ConfigurationError
+from armwarden.core.errors import BackendError, ConfigurationError
 from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy
 from armwarden.robot import build_robot

@@ -12,7 +12,7 @@ import pytest
 
 from armwarden.backends import parse_backend_config
 from armwarden.backends.can.backend import CanBackend
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from tests.backends.can.test_can_backend import MIT_SIM, Spy, _async_true, build, config_document
 from tests.backends.contract import wait_until
 

@@ -8,7 +8,7 @@ import pytest
 
 from armwarden.backends.can.errors import UnknownModel
 from armwarden.backends.can.ranges import MODELS, Protocol, Range, model_ranges
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 
 
 def test_mit_models_share_position_and_gain_ranges() -> None:

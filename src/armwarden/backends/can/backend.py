@@ -61,8 +61,6 @@ from armwarden.backends.base import (
     Capabilities,
     ExecutionResult,
     GripperResult,
-    GripperState,
-    JointState,
     ProgressCallback,
     check_grasp_margins,
     check_gripper_width_speed,
@@ -78,8 +76,9 @@ from armwarden.backends.can.gripper import GripperMotion, capped_setpoint
 from armwarden.backends.can.ranges import ModelRanges, Protocol
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
-from armwarden.errors import BackendError
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError
+from armwarden.core.state import GripperState, JointState
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 
 if TYPE_CHECKING:

@@ -30,7 +30,7 @@ import can
 from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.can.errors import InvalidFrame
-from armwarden.errors import BackendError, BackendUnavailable
+from armwarden.core.errors import BackendError, BackendUnavailable
 
 logger = logging.getLogger(__name__)
 

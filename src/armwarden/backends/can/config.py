@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from armwarden.backends.can.bus import BusConfig
 from armwarden.backends.can.errors import UnknownModel
 from armwarden.backends.can.ranges import ModelRanges, Protocol, Range, model_ranges
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 

@@ -7,7 +7,7 @@ health event and goes on reading; any other exception from a parser is a bug.
 
 from __future__ import annotations
 
-from armwarden.errors import BackendError, ConfigurationError
+from armwarden.core.errors import BackendError, ConfigurationError
 
 
 class InvalidFrame(BackendError):

@@ -59,10 +59,7 @@ from armwarden.backends.base import (
     Capabilities,
     ExecutionResult,
     GripperResult,
-    GripperState,
-    JointState,
     ProgressCallback,
-    Wrench,
     check_grasp_margins,
     check_gripper_width_speed,
     grasp_outcome,
@@ -78,8 +75,9 @@ from armwarden.backends.mujoco.model import (
 )
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
-from armwarden.errors import BackendError
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError
+from armwarden.core.state import GripperState, JointState, Wrench
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel, resolve_description
 
 if TYPE_CHECKING:

@@ -45,7 +45,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.errors import RobotModelError
+from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import capsule_from_geometry
 from armwarden.robot.model import RobotModel
 

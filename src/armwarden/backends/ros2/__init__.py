@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from armwarden.backends.ros2.config import Config
-from armwarden.errors import BackendUnavailable
+from armwarden.core.errors import BackendUnavailable
 
 if TYPE_CHECKING:
     from armwarden.backends.base import Backend

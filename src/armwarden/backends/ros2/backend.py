@@ -94,11 +94,7 @@ from armwarden.backends.base import (
     ControllerInfo,
     ExecutionResult,
     GripperResult,
-    GripperState,
-    JointState,
     ProgressCallback,
-    Transform,
-    Wrench,
     check_grasp_margins,
     check_gripper_width_speed,
     grasp_outcome,
@@ -111,8 +107,9 @@ from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache, nothing_heard
 from armwarden.backends.ros2.tf import TransformBuffer
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
-from armwarden.errors import BackendError
-from armwarden.planning.trajectory import JointTrajectory
+from armwarden.core.errors import BackendError
+from armwarden.core.state import GripperState, JointState, Transform, Wrench
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 
 if TYPE_CHECKING:

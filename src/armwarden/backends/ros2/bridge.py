@@ -50,7 +50,7 @@ import rclpy.utilities
 from rclpy.signals import SignalHandlerOptions
 
 from armwarden.backends.ros2.dds import DdsSettings, dds_settings
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from armwarden.handoff import settle_threadsafe
 
 logger = logging.getLogger(__name__)

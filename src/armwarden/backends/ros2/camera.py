@@ -23,7 +23,7 @@ import rclpy.qos
 import rclpy.subscription
 
 from armwarden.backends.ros2.bridge import RosBridge
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 from armwarden.handoff import settle_threadsafe
 
 

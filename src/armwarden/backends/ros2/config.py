@@ -14,7 +14,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 

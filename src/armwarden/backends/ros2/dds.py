@@ -12,7 +12,7 @@ import os
 from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass
 
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 DOMAIN_ENV = "ROS_DOMAIN_ID"
 RANGE_ENV = "ROS_AUTOMATIC_DISCOVERY_RANGE"

@@ -13,7 +13,7 @@ import zlib
 
 import numpy as np
 
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 #: channels of each accepted encoding, and the channel order to put it in RGB(A) order
 ENCODINGS: dict[str, tuple[int, tuple[int, ...]]] = {

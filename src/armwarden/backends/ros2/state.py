@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armwarden.backends.base import JointState, Wrench
 from armwarden.backends.ros2.dds import DdsSettings
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
+from armwarden.core.state import JointState, Wrench
 
 Clock = Callable[[], float]
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armwarden.errors import BackendError
+from armwarden.core.errors import BackendError
 
 #: parent chains longer than this are refused (a cycle, or a malformed tree)
 MAX_DEPTH = 64

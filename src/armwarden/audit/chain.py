@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from armwarden.errors import ConfigurationError
+from armwarden.core.errors import ConfigurationError
 
 AUDIT_KEY_ENV = "ARMWARDEN_AUDIT_KEY"
 GENESIS_HASH = "0" * 64

@@ -25,8 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from armwarden.errors import ArmWardenError, ConfigurationError
-from armwarden.safety.audit.chain import (
+from armwarden.audit.chain import (
     GENESIS_HASH,
     AuditRecord,
     canonical_json,
@@ -35,9 +34,10 @@ from armwarden.safety.audit.chain import (
     utc_now,
     with_hash,
 )
-from armwarden.safety.audit.sanitise import Sanitizer, sanitize
-from armwarden.safety.audit.verify import clamp_tail, decode_records, scan, tail_lines
-from armwarden.safety.audit.writer import MAX_COMMIT_WINDOW_S, Durability, Job, Writer
+from armwarden.audit.sanitise import Sanitizer, sanitize
+from armwarden.audit.verify import clamp_tail, decode_records, scan, tail_lines
+from armwarden.audit.writer import MAX_COMMIT_WINDOW_S, Durability, Job, Writer
+from armwarden.core.errors import ArmWardenError, ConfigurationError
 
 try:  # POSIX advisory lock: one writer per log file.
     import fcntl

@@ -13,7 +13,7 @@ lets the requester approve, which the prompt and the audit record then say.
 
 This module is pure: the MCP resolvers that use it must stay side-effect free (under protocol
 2026-07-28 they may run more than once per call). The prompt texts themselves are in
-`armwarden.safety.prompts`.
+`armwarden.approval.prompts`.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
-from armwarden.errors import RefusalCode, SafetyRefusal
+from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.results import ApprovalInfo
 from armwarden.safety.estop import flatten_reason
 

@@ -28,7 +28,7 @@ writer thread and its durability classes), `log` (the log), `query` (the record 
 
 from __future__ import annotations
 
-from armwarden.safety.audit.chain import (
+from armwarden.audit.chain import (
     AUDIT_KEY_ENV,
     GENESIS_HASH,
     RECORD_FIELDS,
@@ -36,8 +36,8 @@ from armwarden.safety.audit.chain import (
     hmac_key_for_serving,
     hmac_key_from_env,
 )
-from armwarden.safety.audit.cli import tail_command, verify_command
-from armwarden.safety.audit.log import (
+from armwarden.audit.cli import tail_command, verify_command
+from armwarden.audit.log import (
     DEFAULT_COMMIT_WINDOW_S,
     MAX_EVENT_CHARS,
     OS_DISK,
@@ -46,9 +46,9 @@ from armwarden.safety.audit.log import (
     AuditWriteError,
     Disk,
 )
-from armwarden.safety.audit.query import RecordFilter, parse_since
-from armwarden.safety.audit.sanitise import sanitize
-from armwarden.safety.audit.verify import (
+from armwarden.audit.query import RecordFilter, parse_since
+from armwarden.audit.sanitise import sanitize
+from armwarden.audit.verify import (
     MAX_TAIL,
     VerifiedPrefix,
     VerifyReport,
@@ -56,7 +56,7 @@ from armwarden.safety.audit.verify import (
     verify_appended,
     verify_file,
 )
-from armwarden.safety.audit.writer import MAX_COMMIT_WINDOW_S, Durability
+from armwarden.audit.writer import MAX_COMMIT_WINDOW_S, Durability
 
 __all__ = [
     "AUDIT_KEY_ENV",

@@ -13,11 +13,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from armwarden.approval.decision import Prompt, approval_code, compose_prompt
+from armwarden.approval.plans import StoredPlan
 from armwarden.conversions import iso_utc
 from armwarden.policy import Policy
-from armwarden.safety.approval import Prompt, approval_code, compose_prompt
 from armwarden.safety.estop import EStopEvent, flatten_reason
-from armwarden.safety.plans import StoredPlan
 
 __all__ = ["execute_prompt", "recovery_prompt", "reset_prompt", "switch_prompt", "thresholds_prompt"]
 

@@ -9,10 +9,10 @@ import json
 import os
 import sys
 
-from armwarden.errors import ConfigurationError
-from armwarden.safety.audit.chain import AUDIT_KEY_ENV
-from armwarden.safety.audit.query import RecordFilter
-from armwarden.safety.audit.verify import clamp_tail, decode_records, read_tail, verify_file
+from armwarden.audit.chain import AUDIT_KEY_ENV
+from armwarden.audit.query import RecordFilter
+from armwarden.audit.verify import clamp_tail, decode_records, read_tail, verify_file
+from armwarden.core.errors import ConfigurationError
 
 
 def verify_command(path: str | os.PathLike[str], key: bytes | None = None) -> int:

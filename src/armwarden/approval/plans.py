@@ -29,10 +29,10 @@ from typing import Any, Literal, TypeGuard
 import numpy as np
 
 from armwarden.conversions import iso_utc
-from armwarden.errors import ConfigurationError, RefusalCode
-from armwarden.planning.trajectory import JointTrajectory
-from armwarden.safety.envelope import EnvelopeReport
+from armwarden.core.errors import ConfigurationError, RefusalCode
+from armwarden.core.trajectory import JointTrajectory
 from armwarden.safety.estop import flatten_reason
+from armwarden.safety.limits import EnvelopeReport
 
 __all__ = ["PLAN_ID_PREFIX", "PlanRefusal", "PlanStatus", "PlanStore", "RefusalCode", "StoredPlan"]
 

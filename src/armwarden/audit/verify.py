@@ -12,7 +12,7 @@ import os
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-from armwarden.safety.audit.chain import (
+from armwarden.audit.chain import (
     DECODER,
     FIELD_SET,
     GENESIS_HASH,

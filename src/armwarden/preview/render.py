@@ -40,12 +40,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armwarden.server.images import BandedPngEncoder, mask_image, pillow_available, rgbx_image, rgbx_words
+from armwarden.preview.images import BandedPngEncoder, mask_image, pillow_available, rgbx_image, rgbx_words
 
 if TYPE_CHECKING:  # pragma: no cover
-    from armwarden.planning.trajectory import JointTrajectory
+    from armwarden.core.trajectory import JointTrajectory
     from armwarden.robot.model import RobotModel
-    from armwarden.safety.envelope import EnvelopeLimits, EnvelopeReport
+    from armwarden.safety.limits import EnvelopeLimits, EnvelopeReport
 
 #: configurations at which the swept links are drawn (evenly spaced in time, start and goal included)
 SWEEP_SAMPLES = 8

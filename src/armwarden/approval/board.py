@@ -29,8 +29,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from armwarden.safety.approval import approval_code
-from armwarden.safety.plans import StoredPlan
+from armwarden.approval.decision import approval_code
+from armwarden.approval.plans import StoredPlan
 
 __all__ = ["AnswerRefusal", "PendingApprovals", "PendingRequest"]
 
