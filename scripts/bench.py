@@ -8,7 +8,7 @@
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
     python scripts/bench.py can --can-seconds 10  # the CAN servo loop (default 60 s per rate: opt-in)
     .venv-ros/bin/python scripts/bench.py ros2    # the ROS 2 backend against the fake cell (opt-in: ROS venv)
-    python scripts/bench.py --json out.json # also write the raw figures
+    python scripts/bench.py --json out.json # also write the raw figures, with the run's commit and machine
 
 Sections
 - envelope: cost of the full envelope check (every link, self-collision, keep-out, workspace)
@@ -79,7 +79,9 @@ import argparse
 import importlib
 import json
 import os
+import platform
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -995,6 +997,31 @@ def _report_ros2(r: dict[str, Any]) -> None:
     module.report_executors(r["executors"])
 
 
+def run_meta(argv: list[str]) -> dict[str, Any]:
+    """Where and on what a run measured (commit, uncommitted changes, machine, load), written beside
+    the figures by `--json` so that a committed raw result says by itself what it is."""
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    status = git("status", "--porcelain", "--untracked-files=no")
+    return {
+        "command": ["scripts/bench.py", *argv],
+        "commit": git("rev-parse", "HEAD"),
+        "uncommitted_changes": None if status is None else bool(status),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpus": os.cpu_count(),
+        "load_average": list(os.getloadavg()),
+    }
+
+
 SECTIONS = {
     "envelope": (bench_envelope, _report_envelope),
     "fk": (bench_fk, _report_fk),
@@ -1023,7 +1050,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sections", nargs="*",
                         help=f"any of {', '.join(SECTIONS)} (default: {', '.join(DEFAULT_SECTIONS)})")
-    parser.add_argument("--json", default=None, help="write the raw figures to this file")
+    parser.add_argument("--json", default=None,
+                        help="write the raw figures to this file, under \"meta\" the commit, machine and load")
     parser.add_argument("--flood-stops", type=int, default=200, help="flood only: e-stops per phase (idle, flood), default 200")
     parser.add_argument("--flood-backends", default="fake,ros2",
                         help="flood only: comma-separated, of fake and ros2 (ros2 runs when .venv-ros exists)")
@@ -1045,7 +1073,7 @@ def main() -> int:
     unknown = [name for name in chosen if name not in SECTIONS]
     if unknown:
         parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
-    results = {}
+    results: dict[str, Any] = {"meta": run_meta(sys.argv[1:])}
     for name in chosen:
         run, report = SECTIONS[name]
         if name == "flood":
@@ -1061,6 +1089,7 @@ def main() -> int:
             results[name] = run()
         report(results[name])
     if args.json:
+        results["meta"]["load_average_at_end"] = list(os.getloadavg())
         Path(args.json).write_text(json.dumps(results, indent=2))
     return 0
 
