@@ -79,4 +79,4 @@ class MinimalBackend(Backend):
             self._stops += 1
             state = self._state
             self._state = JointState(self.joint_names, state.positions, np.zeros_like(state.positions), time.monotonic())
-            self.last_stop_stamp = self._state.stamp
+            self._record_stop_stamp(self._state.stamp)

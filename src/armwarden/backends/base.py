@@ -259,11 +259,16 @@ class Backend(abc.ABC):
     @property
     def last_stop_stamp(self) -> float | None:
         """Monotonic time [s] at which the latest stop took effect (no motion commanded after it),
-        for backends that can tell (the fake, servo loops); None otherwise."""
+        for backends that can tell (servo loops, one that records its own with
+        `_record_stop_stamp`); None otherwise."""
+        return self._latest_stop_stamp()
+
+    def _latest_stop_stamp(self) -> float | None:
+        """Hook: where this backend keeps the stamp of its latest stop (default: the recorded one)."""
         return self._last_stop_stamp
 
-    @last_stop_stamp.setter
-    def last_stop_stamp(self, stamp: float | None) -> None:
+    def _record_stop_stamp(self, stamp: float) -> None:
+        """For a backend that commands its own hold: the monotonic time [s] that hold took effect."""
         self._last_stop_stamp = stamp
 
     @property

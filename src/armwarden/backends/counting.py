@@ -70,13 +70,8 @@ class CountingBackend(Backend):
     def is_open(self) -> bool:
         return self.inner.is_open
 
-    @property
-    def last_stop_stamp(self) -> float | None:
+    def _latest_stop_stamp(self) -> float | None:
         return self.inner.last_stop_stamp
-
-    @last_stop_stamp.setter
-    def last_stop_stamp(self, stamp: float | None) -> None:  # the inner backend records it
-        pass
 
     def set_fault_listener(self, listener: FaultListener | None) -> None:
         self.inner.set_fault_listener(listener)

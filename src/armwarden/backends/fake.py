@@ -42,7 +42,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.base import (
-    Backend,
     CameraImage,
     Capabilities,
     ControllerInfo,
@@ -60,7 +59,7 @@ from armwarden.backends.fake_camera import (
     render_top_view,
 )
 from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, GripperMotion
-from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench
@@ -102,7 +101,7 @@ class Config(BaseModel):
     wrench: bool = Field(default=True, description="Provide an external wrench estimate (boolean).")
 
 
-class FakeBackend(Backend, ServoHooks):
+class FakeBackend(ServoBackend):
     """Kinematic FR3 + Franka Hand driven by a servo loop (see the module docstring)."""
 
     name = "fake"
@@ -228,14 +227,6 @@ class FakeBackend(Backend, ServoHooks):
     def tick_count(self) -> int:
         """Servo ticks run so far (the thread's heartbeat)."""
         return self.servo.tick_count
-
-    @property
-    def last_stop_stamp(self) -> float | None:  # the hold is published by the stopping thread
-        return self.servo.last_hold_stamp
-
-    @last_stop_stamp.setter
-    def last_stop_stamp(self, stamp: float | None) -> None:  # the servo loop records it
-        pass
 
     async def _open(self) -> None:
         """Start the servo thread and return once it has published a state of its own (until

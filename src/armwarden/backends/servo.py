@@ -34,7 +34,7 @@ from typing import Any
 import anyio
 import numpy as np
 
-from armwarden.backends.base import PREEMPTED, ExecutionResult, ProgressCallback
+from armwarden.backends.base import PREEMPTED, Backend, ExecutionResult, ProgressCallback
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
@@ -92,8 +92,19 @@ class ServoHooks:
         """Any thread, under the lock, on every stop: command standing still at
         `setpoint.positions` (velocities are zero). Must be quick; raising reports a failed stop."""
 
+    def servo_held(self, stamp: float) -> None:
+        """Any thread, under the lock, once a stop's hold is commanded: when [s, monotonic]."""
+
     def servo_failed(self, error: BaseException) -> None:
         """Servo thread: the loop died with `error` (called once, before executions are failed)."""
+
+
+class ServoBackend(Backend, ServoHooks):
+    """A backend whose arm a `ServoLoop` drives (the fake, MuJoCo, CAN): the loop's hold, commanded
+    by whichever thread stops, is when a stop took effect."""
+
+    def servo_held(self, stamp: float) -> None:
+        self._record_stop_stamp(stamp)
 
 
 @dataclass(eq=False)
@@ -278,6 +289,7 @@ class ServoLoop:
                 failure = None
                 self._latest = setpoint
                 self.last_hold_stamp = setpoint.stamp
+                self.hooks.servo_held(setpoint.stamp)
         if failure is not None:
             for execution in stopped:
                 settle_threadsafe(execution.loop, execution.future, error=BackendError(f"{self.name}: stop failed: {failure}"))

@@ -57,7 +57,6 @@ import can
 import numpy as np
 
 from armwarden.backends.base import (
-    Backend,
     Capabilities,
     ExecutionResult,
     GripperResult,
@@ -74,7 +73,7 @@ from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
 from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.gripper import GripperMotion, capped_setpoint
 from armwarden.backends.can.ranges import ModelRanges, Protocol
-from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState
@@ -137,7 +136,7 @@ class _OutFrame:
     extended: bool
 
 
-class CanBackend(Backend, ServoHooks):
+class CanBackend(ServoBackend):
     """The arm of CAN actuators (see the module docstring)."""
 
     name = "can"
@@ -208,14 +207,6 @@ class CanBackend(Backend, ServoHooks):
     @property
     def capabilities(self) -> Capabilities:
         return Capabilities(gripper=self.config.gripper is not None)
-
-    @property
-    def last_stop_stamp(self) -> float | None:
-        return None if self.servo is None else self.servo.last_hold_stamp
-
-    @last_stop_stamp.setter
-    def last_stop_stamp(self, stamp: float | None) -> None:  # the servo loop records it
-        pass
 
     async def _open(self) -> None:
         try:

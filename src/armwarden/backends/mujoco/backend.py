@@ -54,7 +54,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.base import (
-    Backend,
     CameraImage,
     Capabilities,
     ExecutionResult,
@@ -73,7 +72,7 @@ from armwarden.backends.mujoco.model import (
     default_cameras,
     scene_for_policy,
 )
-from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, frozen
+from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench
@@ -225,7 +224,7 @@ class _Measured:
     stamp: float
 
 
-class MujocoBackend(Backend, ServoHooks):
+class MujocoBackend(ServoBackend):
     """The simulated arm (see the module docstring)."""
 
     name = "mujoco"
@@ -310,14 +309,6 @@ class MujocoBackend(Backend, ServoHooks):
     @property
     def capabilities(self) -> Capabilities:
         return self._capabilities
-
-    @property
-    def last_stop_stamp(self) -> float | None:  # the hold is commanded by the stopping thread
-        return self.servo.last_hold_stamp
-
-    @last_stop_stamp.setter
-    def last_stop_stamp(self, stamp: float | None) -> None:  # the servo loop records it
-        pass
 
     async def _open(self) -> None:
         self._last_wall = time.perf_counter()
