@@ -58,7 +58,8 @@ from armwarden.backends.fake_camera import (
     HAVE_PILLOW,
     render_top_view,
 )
-from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, GripperMotion
+from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FingerMotion
+from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
@@ -205,7 +206,7 @@ class FakeBackend(ServoBackend):
         # ---- gripper (event loop only)
         self._gripper_width_m = self.gripper_max_width_m
         self._gripper_grasped = False
-        self._gripper_motion: GripperMotion | None = None
+        self._gripper_motion: FingerMotion | None = None
         self._gripper_lock = threading.Lock()  # starting the fingers vs a stop from another thread
 
     # ================================================================ lifecycle
@@ -373,7 +374,7 @@ class FakeBackend(ServoBackend):
         """Move the fingers to `target_m`; returns (final width, whether a stop interrupted it)."""
         if self._gripper_motion is not None:
             raise BackendError("the gripper is already moving; one gripper action at a time")
-        motion = GripperMotion(self._gripper_width_m, target_m, speed_mps * self.speedup, time.perf_counter())
+        motion = FingerMotion(Ramp(self._gripper_width_m, target_m, speed_mps * self.speedup, time.perf_counter()))
         with self._gripper_lock:  # started atomically with the check: a stop from any thread that came first wins
             if self._gripper_stop_landed():
                 return self._gripper_width_m, True
@@ -381,7 +382,7 @@ class FakeBackend(ServoBackend):
         self._gripper_grasped = False  # any motion releases what was held
         finished = False
         try:
-            with anyio.move_on_after(motion.duration_s):
+            with anyio.move_on_after(motion.ramp.duration_s):
                 await motion.halted.wait()
             finished = True
         finally:

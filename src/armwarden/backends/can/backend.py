@@ -71,8 +71,9 @@ from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config, GripperConfig, JointConfig, check_against_policy
 from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
 from armwarden.backends.can.errors import InvalidFrame
-from armwarden.backends.can.gripper import GripperMotion, capped_setpoint
+from armwarden.backends.can.gripper import ImpedanceFingerMotion, capped_setpoint
 from armwarden.backends.can.ranges import ModelRanges, Protocol
+from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
@@ -196,7 +197,7 @@ class CanBackend(ServoBackend):
         self.moving_executions = 0
         # ---- gripper (the servo thread streams it; the event loop starts and watches its actions)
         self._gripper_lock = threading.Lock()  # an action's start vs a stop from any thread
-        self._gripper_motion: GripperMotion | None = None
+        self._gripper_motion: ImpedanceFingerMotion | None = None
         self._gripper_hold_rad = 0.0 if gripper is None else gripper.open_position_rad
         self._gripper_grasped = False
         if gripper is not None:
@@ -540,7 +541,7 @@ class CanBackend(ServoBackend):
             if motion is None:
                 wanted, velocity, cap = self._gripper_hold_rad, 0.0, g.torque_limit_nm
             else:
-                (wanted, velocity), cap = motion.ramp(now), motion.torque_cap_nm
+                (wanted, velocity), cap = motion.setpoint(now), motion.torque_cap_nm
         low, high = sorted((g.open_position_rad, g.closed_position_rad))
         position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad), low), high)
         return self._command_frame(a, MotorCommand(g.direction * position + g.homing_offset_rad, g.direction * velocity,
@@ -589,8 +590,8 @@ class CanBackend(ServoBackend):
         if self._damping:
             raise BackendError("can backend: the actuators are damped (e-stop or fault); the gripper does not move")
         start = self._gripper_position()
-        motion = GripperMotion(start, target_rad, speed_mps / abs(g.width_per_rad_m), torque_cap_nm, time.monotonic(),
-                               grasp is not None)
+        motion = ImpedanceFingerMotion(Ramp(start, target_rad, speed_mps / abs(g.width_per_rad_m), time.monotonic()),
+                                       torque_cap_nm, grasp is not None)
         with self._gripper_lock:  # started atomically with the check: a stop that came first wins
             if self._gripper_stop_landed():
                 return GripperResult(False, g.width_of(start), False, "stopped")
@@ -611,7 +612,7 @@ class CanBackend(ServoBackend):
                 speed = abs(self._gripper.raw_velocity)
             now = time.monotonic()
             still_since = (still_since or now) if speed <= rest else None
-            arrived = motion.ramp_done(now) and abs(position - target_rad) <= g.position_tolerance_rad and speed <= rest
+            arrived = motion.ramp.done(now) and abs(position - target_rad) <= g.position_tolerance_rad and speed <= rest
             blocked = still_since is not None and now - still_since >= BLOCKED_S and not arrived
             if arrived or blocked:
                 break

@@ -9,34 +9,27 @@ than the cap (a grasp's force, a move's torque limit) when the fingers are block
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+
+from armwarden.backends.ramp import Ramp
 
 
 @dataclass
-class GripperMotion:
-    """One move or grasp in gripper positions [rad] (see `GripperConfig`), monotonic seconds."""
+class ImpedanceFingerMotion:
+    """One move or grasp: a ramp in gripper positions [rad] (see `GripperConfig`) on the monotonic
+    clock, with the torque its spring may push with."""
 
-    start_rad: float
-    target_rad: float
-    speed_rad_s: float
+    ramp: Ramp
     torque_cap_nm: float
-    started: float
     grasp: bool
     #: the action has ended; a successful grasp keeps squeezing with the capped torque
     settled: bool = False
 
-    def ramp(self, now: float) -> tuple[float, float]:
-        """The ramp's position [rad] and velocity [rad/s] at `now`."""
-        distance = self.target_rad - self.start_rad
-        travelled = self.speed_rad_s * max(0.0, now - self.started)
-        if self.settled or travelled >= abs(distance):
-            return self.target_rad, 0.0
-        sign = math.copysign(1.0, distance)
-        return self.start_rad + sign * travelled, sign * self.speed_rad_s
-
-    def ramp_done(self, now: float) -> bool:
-        return self.speed_rad_s * max(0.0, now - self.started) >= abs(self.target_rad - self.start_rad)
+    def setpoint(self, now: float) -> tuple[float, float]:
+        """Where the ramp is [rad] and how fast it goes [rad/s] at `now` (at rest once settled)."""
+        if self.settled:
+            return self.ramp.target, 0.0
+        return self.ramp.position(now), self.ramp.velocity(now)
 
 
 def capped_setpoint(wanted_rad: float, measured_rad: float, torque_cap_nm: float, kp_nm_per_rad: float) -> float:
@@ -45,4 +38,4 @@ def capped_setpoint(wanted_rad: float, measured_rad: float, torque_cap_nm: float
     return measured_rad + min(max(wanted_rad - measured_rad, -reach), reach)
 
 
-__all__ = ["GripperMotion", "capped_setpoint"]
+__all__ = ["ImpedanceFingerMotion", "capped_setpoint"]

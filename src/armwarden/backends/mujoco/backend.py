@@ -72,6 +72,7 @@ from armwarden.backends.mujoco.model import (
     default_cameras,
     scene_for_policy,
 )
+from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
@@ -123,22 +124,11 @@ GRIPPER_ARRIVED_M = 1e-3
 
 @dataclass(frozen=True)
 class _FingerTarget:
-    """What the finger actuator tracks: a ramp of the width [m] from `start_m` to `goal_m` at
-    `speed_mps`, begun at simulated time `start_s`, pressing with at most `force_n` [N]."""
+    """What the finger actuator tracks: a ramp of the width [m] on simulated time, pressing with
+    at most `force_n` [N]."""
 
-    start_m: float
-    goal_m: float
-    speed_mps: float
-    start_s: float
+    ramp: Ramp
     force_n: float
-
-    def width_at(self, sim_s: float) -> float:
-        travel = abs(self.goal_m - self.start_m)
-        done = min(travel, self.speed_mps * max(0.0, sim_s - self.start_s))
-        return self.goal_m if done >= travel else self.start_m + np.sign(self.goal_m - self.start_m) * done
-
-    def ramp_done(self, sim_s: float) -> bool:
-        return self.speed_mps * (sim_s - self.start_s) >= abs(self.goal_m - self.start_m)
 
 
 Vector3 = tuple[float, float, float]
@@ -267,7 +257,7 @@ class MujocoBackend(ServoBackend):
         self.gripper_travel_m = self.gripper_max_width_m
         self._grasp_force_limit_n = float(model.actuator_forcerange[self._gripper][1]) if self._gripper is not None else 0.0
         #: what the fingers track; replaced whole (gripper actions, stops), read before every physics step
-        self._fingers = _FingerTarget(self.gripper_max_width_m, self.gripper_max_width_m, 1.0, 0.0, self._grasp_force_limit_n)
+        self._fingers = _FingerTarget(Ramp(self.gripper_max_width_m, self.gripper_max_width_m, 1.0, 0.0), self._grasp_force_limit_n)
         self._gripper_lock = threading.Lock()  # starting the fingers vs a stop from any thread
         self._gripper_busy = False  # a gripper action runs (event loop only)
         self._gripper_grasped = False
@@ -396,8 +386,8 @@ class MujocoBackend(ServoBackend):
         servo's lag of their measured width."""
         with self._gripper_lock:
             fingers, sim_s = self._fingers, self._measured.sim_s
-            width = fingers.width_at(sim_s)
-            self._fingers = _FingerTarget(width, width, 1.0, sim_s, fingers.force_n)
+            width = fingers.ramp.position(sim_s)
+            self._fingers = _FingerTarget(Ramp(width, width, 1.0, sim_s), fingers.force_n)
 
     # ================================================================ gripper
     def _latest_gripper_state(self) -> GripperState:
@@ -441,7 +431,7 @@ class MujocoBackend(ServoBackend):
             if self._gripper_stop_landed():
                 return self._measured.gripper_width_m, True
             sample = self._measured
-            target = _FingerTarget(sample.gripper_width_m, goal_m, speed_mps, sample.sim_s, force_n)
+            target = _FingerTarget(Ramp(sample.gripper_width_m, goal_m, speed_mps, sample.sim_s), force_n)
             self._fingers = target
         self._gripper_busy = True
         self._gripper_grasped = False  # any motion releases what was held
@@ -455,7 +445,7 @@ class MujocoBackend(ServoBackend):
                 still = abs(sample.gripper_speed_mps) <= GRIPPER_STILL_MPS
                 if arrive and abs(sample.gripper_width_m - goal_m) <= GRIPPER_ARRIVED_M and still:
                     return sample.gripper_width_m, False
-                if target.ramp_done(sample.sim_s - 0.05) and still:  # 50 ms simulated past the ramp, still
+                if target.ramp.done(sample.sim_s - 0.05) and still:  # 50 ms simulated past the ramp, still
                     return sample.gripper_width_m, False
         finally:
             self._gripper_busy = False
@@ -544,7 +534,7 @@ class MujocoBackend(ServoBackend):
                 data.ctrl[cell.arm_actuators] = cell.arm_ctrl(target.positions, target.velocities)
             if self._gripper is not None:
                 fingers = self._fingers
-                data.ctrl[self._gripper] = fingers.width_at(data.time)
+                data.ctrl[self._gripper] = fingers.ramp.position(data.time)
                 model.actuator_forcerange[self._gripper] = (-fingers.force_n, fingers.force_n)
             mujoco.mj_step(model, data)
         self.step_count += steps
