@@ -5,7 +5,7 @@ checked. An id is random (unguessable), expires (TTL on the monotonic clock, so 
 jumps change nothing), is bound to the joint state it starts from and to the caller that made
 it (its owner: another caller who learns the id cannot run it), and is spent the moment its
 owner's `execute_plan` examines it, whatever the outcome, so a replay can never move the arm
-twice. An e-stop invalidates every outstanding plan (docs/architecture.md, "Stopping").
+twice. An e-stop invalidates every outstanding plan (docs/stopping.md).
 
 `peek` only reads (approval resolvers may run several times); `consume` removes the plan in
 the same step as it returns it. Ids that are gone are remembered (bounded) with the reason, so

@@ -5,7 +5,7 @@ trajectory checks and the stop semantics — and calls small `_hooks` that each 
 (template methods, as python-can's `BusABC.recv` calls `_recv_internal`). Backends only talk to
 hardware or simulation: they never decide whether a motion is allowed; the Guard is the only
 caller. `tests/backends/contract.py` (`BackendContract`) checks every rule below; a new backend
-subclasses it with one fixture. See docs/architecture.md, section "Backends".
+subclasses it with one fixture. See docs/backends/common.md and docs/add-a-backend.md.
 
 Writing a backend
 - Subclass `Backend`; call `super().__init__(joint_names, start_tolerance_rad=...)` with the

@@ -25,7 +25,7 @@ manufacturer's collision mesh so that they
 Capsules, not spheres: the envelope's predicates are exact for capsules already
 (`armwarden.core.geometry`), a sphere is a zero-length capsule, and the FR3's links are
 cylinders and rounded elbows that a few capsules hold without the scalloping a chain of spheres
-leaves (docs/architecture.md, "Collision geometry fitted to the meshes").
+leaves (docs/envelope.md, "Collision geometry fitted to the meshes").
 
 The output is deterministic: fixed seeds, no data-dependent iteration order, every coordinate
 rounded to `decimals` *before* the radius is computed from it (radii rounded up), so the same

@@ -49,7 +49,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-#: tools that must work whatever they are sent: stopping always works (docs/architecture.md, "Stopping")
+#: tools that must work whatever they are sent: stopping always works (docs/stopping.md)
 _ACCEPTS_ANY_ARGUMENTS = frozenset({"stop_motion", "estop"})
 #: read-only tools whose results are observations, not decisions: the call is recorded, the
 #: (large, frequent) result is not — it would make every state poll cost a big audit record

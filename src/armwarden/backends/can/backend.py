@@ -38,7 +38,7 @@ execution, which recovers to a hold at the measured position first.
 
 Calibration: joint = direction·(raw − homing_offset_rad); velocity and torque: direction only.
 Zeroing and id/baud changes are maintenance operations: no code path here sends them.
-See docs/architecture.md, section "Backends" (CAN).
+See docs/backends/can.md.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 `model` builds the cell from the same robot description as the Pinocchio model, with the
 envelope's capsules as collision geometry; `backend` is `MujocoBackend`, its `Config` and
 `create_backend`: physics on the servo thread, measured state, braking stops, the wrench, the
-gripper, offscreen cameras. See docs/architecture.md, "Backends".
+gripper, offscreen cameras. See docs/backends/mujoco.md.
 
 Importing this package chooses MuJoCo's offscreen OpenGL platform when the user has not:
 `MUJOCO_GL=egl` (Mesa's EGL renders on CPU-only, headless machines). MuJoCo reads it once, when

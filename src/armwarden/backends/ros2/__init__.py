@@ -5,8 +5,8 @@ context, node and executor thread; rclpy futures awaited from asyncio), `state` 
 caches of joint states and wrench with their receipt times), `images` (sensor_msgs images to
 PNG), `tf` (a small transform buffer), `backend` (`Ros2Backend`). Importing this package does not
 import rclpy: `create_backend` does, and turns a missing rclpy or control_msgs into
-`BackendUnavailable` with the install hint (exit 2 at start-up). See docs/architecture.md,
-section "Backends".
+`BackendUnavailable` with the install hint (exit 2 at start-up). See
+docs/backends/ros2.md.
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ holds where the cancel reached it. The test cell ends exactly at the goal and pu
 velocities at rest; a cancel reaches its 10 ms loop at most one period late, and the joint state a
 stop reads is at most one 10 ms period old, so at the contract's 0.05 rad/s the arm rests within
 0.05 × (10 + 10 + DDS latency) ms ≈ 1–2e-3 rad of where the stop read it. A real arm with looser
-goal tolerances, or faster motions, needs larger values (see docs/architecture.md, "Backends").
+goal tolerances, or faster motions, needs larger values (see docs/backends/ros2.md).
 """
 
 from __future__ import annotations
