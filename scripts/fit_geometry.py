@@ -36,20 +36,9 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "src"))
 
-from armwarden.robot.fitting import (  # noqa: E402 - the src path above first
-    FitOptions,
-    FittedGeometry,
-    LinkFit,
-    LinkMesh,
-    box_mesh,
-    fit_link,
-    load_fitted,
-    load_mesh,
-    merge_meshes,
-    render_fitted,
-    rotate_fit,
-    transform_mesh,
-)
+from armwarden.robot.fitted_file import FittedGeometry, LinkFit, load_fitted, render_fitted  # noqa: E402 - the src path above first
+from armwarden.robot.fitting import FitOptions, fit_link, rotate_fit  # noqa: E402
+from armwarden.robot.fitting_mesh import LinkMesh, box_mesh, load_mesh, merge_meshes, transform_mesh  # noqa: E402
 from armwarden.robot.model import resolve_description  # noqa: E402
 from armwarden.robot.pairs import PairOptions, analyse_pairs, place_bodies  # noqa: E402
 

@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT / "src") not in sys.path:  # after PYTHONPATH: a copy of the sources named there wins
     sys.path.append(str(ROOT / "src"))
 
-from armwarden.robot.fitting import load_fitted  # noqa: E402 - the src path above first
+from armwarden.robot.fitted_file import load_fitted  # noqa: E402 - the src path above first
 from armwarden.robot.model import resolve_description  # noqa: E402
 
 FITTED = ROOT / "src" / "armwarden" / "robot" / "description" / "fr3_fitted.yaml"

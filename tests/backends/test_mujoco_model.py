@@ -32,7 +32,7 @@ from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importor
 from armwarden.policy import load_policy  # noqa: E402
 from armwarden.policy.loading import bundled_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402
-from armwarden.robot.fitting import ExcludedPair  # noqa: E402
+from armwarden.robot.fitted_file import ExcludedPair  # noqa: E402
 from armwarden.robot.ik import IkSolver  # noqa: E402
 from armwarden.robot.model import RobotModel, resolve_description  # noqa: E402
 from armwarden.safety.envelope import Envelope  # noqa: E402

@@ -14,7 +14,7 @@ from armwarden.policy import Policy
 from armwarden.preflight import load_runtime_model
 from armwarden.robot import RobotModel, build_robot, resolve_description
 from armwarden.robot.fitted_bodies import fitted_pairs, require_limits_within
-from armwarden.robot.fitting import FittedGeometry
+from armwarden.robot.fitted_file import FittedGeometry
 
 FINGERS = ("fr3_leftfinger", "fr3_rightfinger")
 

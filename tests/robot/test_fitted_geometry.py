@@ -19,19 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from armwarden.robot.fitting import (
-    FitOptions,
-    FittingError,
+from armwarden.robot.fitted_file import FittingError, load_fitted, render_fitted
+from armwarden.robot.fitting import FitOptions, fit_link, rotate_fit
+from armwarden.robot.fitting_mesh import (
     LinkMesh,
     box_mesh,
     capsule_surface_points,
-    fit_link,
-    load_fitted,
     load_mesh,
     merge_meshes,
     point_segment_distances,
-    render_fitted,
-    rotate_fit,
     subdivide,
     winding_numbers,
 )
@@ -116,7 +112,7 @@ def test_a_mesh_of_separate_parts_is_fitted_part_by_part_without_bridging_the_ga
 
 
 def test_fit_is_deterministic_to_the_byte() -> None:
-    from armwarden.robot.fitting import FittedGeometry
+    from armwarden.robot.fitted_file import FittedGeometry
 
     mesh = box_mesh("box", (0.2, 0.08, 0.05), (0.01, -0.02, 0.03), np.eye(3), "a box")
     texts = [render_fitted(FittedGeometry("toy", {"repository": "here"}, FAST.margin_m, {"box": fit_link(mesh, FAST)}), ["toy"])

@@ -12,7 +12,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 import pytest
 
 from armwarden.core.geometry import segment_segment_distance
-from armwarden.robot.fitting import FittedBody, FittedGeometry, LinkFit, load_fitted
+from armwarden.robot.fitted_file import FittedBody, FittedGeometry, LinkFit, load_fitted
 from armwarden.robot.model import resolve_description
 from armwarden.robot.pairs import PairOptions, PlacedBody, analyse_pairs, place_bodies
 

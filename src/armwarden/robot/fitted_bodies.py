@@ -1,6 +1,6 @@
 """The fitted collision capsules of a robot, placed on the joints of the policy's reduced model.
 
-A fitted-geometry file (`armwarden.robot.fitting`, e.g. `description/fr3_fitted.yaml`) holds
+A fitted-geometry file (`armwarden.robot.fitted_file`, e.g. `description/fr3_fitted.yaml`) holds
 capsules per link, in the link's frame, and the self-collision pair analysis made over stated
 joint limits. The envelope needs each capsule in the frame of the *driven* joint that moves it
 (`Capsule`), and the body pairs it must check. Three things happen on the way:
@@ -32,7 +32,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import Capsule
-from armwarden.robot.fitting import FittedGeometry
+from armwarden.robot.fitted_file import FittedGeometry
 
 __all__ = ["fitted_capsules", "fitted_pairs", "require_limits_within"]
 

@@ -21,7 +21,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import Capsule, capsule_from_geometry
 from armwarden.robot.fitted_bodies import fitted_capsules, fitted_pairs
-from armwarden.robot.fitting import FittedGeometry, FittingError, load_fitted
+from armwarden.robot.fitted_file import FittedGeometry, FittingError, load_fitted
 
 BUILTIN_PREFIX = "builtin:"
 BUILTIN_DESCRIPTIONS = {"fr3": "fr3.urdf"}

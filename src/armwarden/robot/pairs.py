@@ -39,7 +39,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 
 from armwarden.core.errors import RobotModelError
 from armwarden.core.geometry import segment_segment_distance
-from armwarden.robot.fitting import ExcludedPair, FittedGeometry
+from armwarden.robot.fitted_file import ExcludedPair, FittedGeometry
 
 __all__ = ["PairAnalysis", "PairOptions", "PairVerdict", "PlacedBody", "analyse_pairs", "place_bodies"]
 

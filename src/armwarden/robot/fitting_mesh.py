@@ -1,0 +1,230 @@
+"""Collision meshes for the fitter: loading (trimesh, imported only by `load_mesh`: the `fit`
+extra), subdividing, inside/outside by winding number, exact point–mesh distances (coal) and
+points on a capsule's surface. Used by `armwarden.robot.fitting`; never by the runtime."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+import numpy as np
+
+from armwarden.robot.fitted_file import FittingError
+
+__all__ = [
+    "LinkMesh",
+    "box_mesh",
+    "bvh_distances",
+    "capsule_surface_points",
+    "interior_points",
+    "load_mesh",
+    "merge_meshes",
+    "mesh_bvh",
+    "mesh_distances",
+    "over_approximation",
+    "point_segment_distances",
+    "subdivide",
+    "transform_mesh",
+    "winding_numbers",
+]
+
+@dataclass(frozen=True)
+class LinkMesh:
+    """A link's collision surface in the link frame [m]: vertices (n, 3) and triangles (m, 3)."""
+
+    link: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+    source: str
+    #: per triangle, which closed surface it belongs to (a finger is several overlapping boxes)
+    components: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def __post_init__(self) -> None:
+        if len(self.components) != len(self.triangles):
+            object.__setattr__(self, "components", np.zeros(len(self.triangles), dtype=np.int64))
+
+    def unique_vertices(self) -> np.ndarray:
+        """The distinct vertices, sorted (the vertex cloud the containment test reads)."""
+        return np.unique(self.vertices[np.unique(self.triangles)], axis=0)
+
+
+def point_segment_distances(points: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """Distances (N, K) from each of `points` (N, 3) to each segment `p0[k]`–`p1[k]` (K, 3)."""
+    points = np.asarray(points, dtype=float)
+    p0 = np.atleast_2d(np.asarray(p0, dtype=float))
+    p1 = np.atleast_2d(np.asarray(p1, dtype=float))
+    d = p1 - p0  # (K, 3)
+    length2 = np.einsum("ki,ki->k", d, d)
+    rel = points[:, None, :] - p0[None, :, :]  # (N, K, 3)
+    t = np.einsum("nki,ki->nk", rel, d) / np.where(length2 > 0.0, length2, 1.0)
+    t = np.clip(np.where(length2 > 0.0, t, 0.0), 0.0, 1.0)
+    closest = rel - t[..., None] * d[None, :, :]
+    return np.sqrt(np.einsum("nki,nki->nk", closest, closest))
+
+
+def box_mesh(link: str, size_m: Sequence[float], origin_m: Sequence[float], rotation: np.ndarray, source: str) -> LinkMesh:
+    """The 8 corners and 12 triangles of a box (URDF `<box size>` at `origin`, rotated)."""
+    half = np.asarray(size_m, dtype=float) / 2.0
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+    corners = (signs * half) @ np.asarray(rotation, dtype=float).T + np.asarray(origin_m, dtype=float)
+    # corner index = 4·(x>0) + 2·(y>0) + (z>0); two triangles per face, outward winding
+    faces = [
+        (0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5),  # x−, x+
+        (0, 4, 5), (0, 5, 1), (2, 3, 7), (2, 7, 6),  # y−, y+
+        (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3),  # z−, z+
+    ]
+    return LinkMesh(link, corners, np.array(faces, dtype=np.int64), source)
+
+
+def merge_meshes(link: str, meshes: Sequence[LinkMesh], source: str) -> LinkMesh:
+    """Several closed surfaces of one link as one triangle set (each stays closed)."""
+    vertices, triangles, components, offset = [], [], [], 0
+    for number, mesh in enumerate(meshes):
+        vertices.append(mesh.vertices)
+        triangles.append(mesh.triangles + offset)
+        components.append(np.full(len(mesh.triangles), number, dtype=np.int64))
+        offset += len(mesh.vertices)
+    return LinkMesh(link, np.vstack(vertices), np.vstack(triangles), source, np.concatenate(components))
+
+
+def transform_mesh(mesh: LinkMesh, rotation: np.ndarray, translation_m: Sequence[float], source: str | None = None) -> LinkMesh:
+    """The mesh in another frame: p' = R p + t."""
+    vertices = mesh.vertices @ np.asarray(rotation, dtype=float).T + np.asarray(translation_m, dtype=float)
+    return LinkMesh(mesh.link, vertices, mesh.triangles, source or mesh.source, mesh.components)
+
+
+def load_mesh(link: str, data: bytes, file_type: str, source: str) -> LinkMesh:
+    """A mesh file's (STL/OBJ/DAE bytes) vertices and triangles, merged and as written.
+
+    `trimesh` is imported here only: the fitting tool needs it, the runtime does not.
+    """
+    import io
+
+    import trimesh  # pyright: ignore[reportMissingImports] - the optional `fit` extra
+
+    loaded: Any = trimesh.load(io.BytesIO(data), file_type=file_type, force="mesh", process=True)
+    vertices = np.asarray(loaded.vertices, dtype=float)
+    triangles = np.asarray(loaded.faces, dtype=np.int64)
+    if len(triangles) == 0:
+        raise FittingError(f"{source}: no triangles")
+    return LinkMesh(link, vertices, triangles, source)
+
+
+def subdivide(vertices: np.ndarray, triangles: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Halve every triangle across its longest edge until no edge exceeds `max_edge_m`.
+
+    The halves tile the triangle exactly, so a set holding every piece holds the triangle.
+    Returns the points (shared corners merged) and the pieces as corner indices.
+    """
+    points = [tuple(float(c) for c in v) for v in vertices]
+    index = {p: i for i, p in enumerate(points)}
+    coords = [np.array(p) for p in points]
+
+    def midpoint(i: int, j: int) -> int:
+        key = tuple(float(c) for c in (coords[i] + coords[j]) / 2.0)
+        if key not in index:
+            index[key] = len(coords)
+            coords.append(np.array(key))
+        return index[key]
+
+    pieces: list[tuple[int, int, int]] = []
+    stack = [tuple(int(i) for i in tri) for tri in triangles[::-1]]
+    while stack:
+        a, b, c = stack.pop()
+        edges = (np.linalg.norm(coords[b] - coords[a]), np.linalg.norm(coords[c] - coords[b]), np.linalg.norm(coords[a] - coords[c]))
+        longest = int(np.argmax(edges))
+        if edges[longest] <= max_edge_m:
+            pieces.append((a, b, c))
+            continue
+        a, b, c = ((a, b, c), (b, c, a), (c, a, b))[longest]  # a–b is the longest edge
+        m = midpoint(a, b)
+        stack += [(m, b, c), (a, m, c)]
+    return np.array(coords), np.array(pieces, dtype=np.int64)
+
+
+def winding_numbers(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Generalised winding number of each point (≈1 inside a closed surface, ≈0 outside;
+    overlapping closed surfaces add up). Van Oosterom–Strackee solid angles, summed."""
+    total = np.zeros(len(points))
+    tri = vertices[triangles]  # (M, 3, 3)
+    for start in range(0, len(points), 512):
+        rel = tri[None, :, :, :] - points[start:start + 512, None, None, :]  # (n, M, 3, 3)
+        a, b, c = rel[:, :, 0], rel[:, :, 1], rel[:, :, 2]
+        la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
+        det = np.einsum("nmi,nmi->nm", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("nmi,nmi->nm", a, b) * lc + np.einsum("nmi,nmi->nm", b, c) * la
+               + np.einsum("nmi,nmi->nm", c, a) * lb)
+        total[start:start + 512] = np.sum(2.0 * np.arctan2(det, den), axis=1) / (4.0 * math.pi)
+    return total
+
+
+def mesh_distances(mesh: LinkMesh, points: np.ndarray) -> np.ndarray:
+    """Distance from each point to the mesh's surface (coal's BVH distance; exact)."""
+    return bvh_distances(mesh_bvh(mesh), points)
+
+
+def mesh_bvh(mesh: LinkMesh) -> coal.BVHModelOBBRSS:
+    bvh = coal.BVHModelOBBRSS()
+    bvh.beginModel(len(mesh.triangles), len(mesh.vertices))
+    bvh.addVertices(np.ascontiguousarray(mesh.vertices, dtype=float))
+    bvh.addTriangles(np.ascontiguousarray(mesh.triangles, dtype=np.int64))
+    bvh.endModel()
+    return bvh
+
+
+def bvh_distances(bvh: coal.BVHModelOBBRSS, points: np.ndarray) -> np.ndarray:
+    probe, identity, request, rotation = coal.Sphere(0.0), coal.Transform3s(), coal.DistanceRequest(), np.eye(3)
+    out = np.empty(len(points))
+    for k, point in enumerate(points):
+        out[k] = coal.distance(bvh, identity, probe, coal.Transform3s(rotation, point), request, coal.DistanceResult())
+    return out
+
+
+def capsule_surface_points(p0: np.ndarray, p1: np.ndarray, radius: float, spacing: float) -> np.ndarray:
+    """Points on a capsule's surface, no surface point farther than about `spacing` from one."""
+    axis = p1 - p0
+    length = float(np.linalg.norm(axis))
+    w = axis / length if length > 0 else np.array([0.0, 0.0, 1.0])
+    helper = np.array([1.0, 0.0, 0.0]) if abs(w[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(w, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    n_around = max(8, math.ceil(2 * math.pi * radius / spacing))
+    phi = np.arange(n_around) * (2 * math.pi / n_around)
+    ring = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v  # (n_around, 3)
+    points = []
+    n_along = max(1, math.ceil(length / spacing))
+    for t in np.linspace(0.0, 1.0, n_along + 1):
+        points.append(p0 + t * axis + radius * ring)
+    n_polar = max(2, math.ceil((math.pi / 2) * radius / spacing))
+    for end, sign in ((p1, 1.0), (p0, -1.0)):
+        for theta in np.linspace(0.0, math.pi / 2, n_polar + 1)[1:]:
+            count = max(1, math.ceil(2 * math.pi * radius * math.cos(theta) / spacing))
+            around = np.arange(count) * (2 * math.pi / count)
+            circle = np.cos(around)[:, None] * u + np.sin(around)[:, None] * v
+            points.append(end + radius * (math.cos(theta) * circle + sign * math.sin(theta) * w))
+    return np.vstack(points)
+
+
+def over_approximation(mesh: LinkMesh, segments: np.ndarray, radii: np.ndarray, spacing: float) -> float:
+    """Largest distance from a point of the union's outer surface to the mesh (sampled)."""
+    worst = 0.0
+    for i, (seg, radius) in enumerate(zip(segments, radii, strict=True)):
+        points = capsule_surface_points(seg[:3], seg[3:], float(radius), spacing)
+        others = [j for j in range(len(segments)) if j != i]
+        if others:
+            dist = point_segment_distances(points, segments[others, :3], segments[others, 3:])
+            points = points[np.all(dist >= radii[others] - 1e-9, axis=1)]
+        if len(points):
+            worst = max(worst, float(np.max(mesh_distances(mesh, points))))
+    return worst
+
+
+def interior_points(mesh: LinkMesh, pitch: float) -> np.ndarray:
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    axes = [np.arange(lo[i] + pitch / 2, hi[i], pitch) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return grid[winding_numbers(grid, mesh.vertices, mesh.triangles) > 0.5]
