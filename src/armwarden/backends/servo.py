@@ -163,8 +163,6 @@ class ServoLoop:
         self.realtime_priority = realtime_priority
         #: ticks run so far (the thread's heartbeat: the backend's watchdog reads it, see `heartbeat`)
         self.tick_count = 0
-        #: monotonic time [s] at which the latest hold was commanded
-        self.last_hold_stamp: float | None = None
         #: when each tick began against when it was scheduled (rate, deadline misses, jitter)
         self.timing = TickTiming(self.period_s)
         #: why the thread died, if it did
@@ -288,7 +286,6 @@ class ServoLoop:
             else:
                 failure = None
                 self._latest = setpoint
-                self.last_hold_stamp = setpoint.stamp
                 self.hooks.servo_held(setpoint.stamp)
         if failure is not None:
             for execution in stopped:
