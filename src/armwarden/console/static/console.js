@@ -37,11 +37,13 @@
   document.querySelectorAll("img[data-camera-refresh]").forEach((img) => {
     const src = img.getAttribute("src");
     const error = img.parentElement.querySelector(".camera-error");
-    img.addEventListener("load", () => {
+    const shown = () => {
       img.hidden = false;
       if (error) { error.hidden = true; }
       img.dataset.loads = String(parseInt(img.dataset.loads || "0", 10) + 1);
-    });
+    };
+    img.addEventListener("load", shown);
+    if (img.complete && img.naturalWidth) { shown(); }  // the first picture came before this script
     img.addEventListener("error", async () => {
       let text = "no picture";
       try {
