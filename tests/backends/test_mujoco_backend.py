@@ -207,6 +207,14 @@ def test_widths_forces_and_speeds_out_of_range_are_refused():
     assert state is not None and state.width_m == pytest.approx(0.08, abs=1e-6)
 
 
+def published_position(backend: MujocoBackend, body: str) -> np.ndarray:
+    """Where a free body is [m] in the last published sample (never `_data`, which the physics
+    thread is stepping: a read there can catch a value half computed)."""
+    model = backend.cell.model
+    address = model.jnt_qposadr[model.body(body).jntadr[0]]  # a free joint: x, y, z, then a quaternion
+    return np.array(backend._measured.scene_qpos[address:address + 3])
+
+
 def hand_down_at(position, seed: np.ndarray) -> np.ndarray:
     """The arm with its TCP at `position` [m], the hand pointing down."""
     solution = IkSolver(ROBOT).solve(np.asarray(position, dtype=float), np.diag([1.0, -1.0, -1.0]), [seed])
@@ -226,17 +234,15 @@ def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts(st
     rise_m = float(ROBOT.tcp_pose(q_up).position[2] - ROBOT.tcp_pose(q_grasp).position[2])
 
     async def scenario(backend: MujocoBackend):
-        box_id = backend.cell.model.body("box").id
         await asyncio.sleep(0.1)
         grasp = await backend.gripper_grasp(0.03, 40.0, 0.1, 0.005, 0.005)
         if stop_after_grasp:  # a stop must not open the hand
             await backend.stop()
-        z_before = float(backend._data.xpos[box_id][2])
+        z_before = published_position(backend, "box")[2]
         q_now = (await backend.read_joint_state()).positions
         lifted = await backend.execute(straight_line(backend.joint_names, q_now, q_up, 1.0), stop_epoch=backend.stop_epoch)
         await asyncio.sleep(0.2)
-        squeeze_n = -float(backend._data.actuator_force[backend.cell.gripper_actuator])
-        return grasp, lifted, float(backend._data.xpos[box_id][2]) - z_before, squeeze_n
+        return grasp, lifted, published_position(backend, "box")[2] - z_before, backend._measured.gripper_force_n
 
     def build_at_grasp() -> MujocoBackend:
         scene = scene_for_policy(POLICY, objects=(box.spec(),))

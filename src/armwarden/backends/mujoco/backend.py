@@ -208,6 +208,7 @@ class _Measured:
     torque: np.ndarray  # external torque about the TCP, base frame [N·m]
     gripper_width_m: float
     gripper_speed_mps: float
+    gripper_force_n: float  # how hard the finger actuator squeezes [N] (0: no fingers)
     sim_s: float  # simulated time of the sample [s]
     scene_qpos: np.ndarray  # every body's configuration (arm, fingers, objects), for rendering
     robot_penetration_m: float  # deepest overlap of a robot geom with anything [m]; 0: none
@@ -610,6 +611,7 @@ class MujocoBackend(ServoBackend):
             torque=frozen(base_rotation @ torque_tcp),
             gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),
             gripper_speed_mps=float(np.sum(data.qvel[self._finger_dofs])),
+            gripper_force_n=-float(data.actuator_force[self._gripper]) if self._gripper is not None else 0.0,
             sim_s=float(data.time),
             scene_qpos=frozen(data.qpos),
             robot_penetration_m=self._robot_penetration_m(),
