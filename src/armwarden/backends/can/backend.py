@@ -75,6 +75,7 @@ from armwarden.backends.can.gripper import ImpedanceFingerMotion, capped_setpoin
 from armwarden.backends.can.ranges import ModelRanges, Protocol
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
+from armwarden.backends.settle import settle
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState
@@ -427,22 +428,15 @@ class CanBackend(ServoBackend):
         return replace(result, max_tracking_error_rad=self._tracking_peak_rad)
 
     async def _settle(self, servo: ServoLoop, goal: np.ndarray) -> ExecutionResult:
-        """The goal is commanded; wait until the measured arm is there and still (or a stop, a
-        fault, or `settle_timeout_s`)."""
-        deadline = time.monotonic() + self.config.settle_timeout_s
-        while True:
-            self._raise_if_faulted()
-            sample = self._latest_joint_state()
-            if self._stop_landed():
-                return ExecutionResult(False, "stopped", servo.latest.positions.copy())
-            if (np.max(np.abs(sample.positions - goal)) <= self.goal_accuracy_rad
-                    and np.max(np.abs(sample.velocities)) <= self.rest_speed_rad_s):
-                return ExecutionResult(True, "completed", sample.positions.copy())
-            if time.monotonic() > deadline:
-                error = float(np.max(np.abs(sample.positions - goal)))
-                return ExecutionResult(False, f"did not settle at the goal within {self.config.settle_timeout_s} s "
-                                       f"(off by {error:.4f} rad)", sample.positions.copy())
-            await asyncio.sleep(POLL_S)
+        """The goal is commanded; wait until the measured arm is there and still (`settle`; a stop
+        ends it where the servo last commanded, a fault raises)."""
+        async def commanded() -> np.ndarray:
+            return servo.latest.positions.copy()
+
+        return await settle(goal, measure=self._latest_joint_state, check=self._raise_if_faulted,
+                            stop_landed=self._stop_landed, rest_position=commanded,
+                            accuracy_rad=self.goal_accuracy_rad, rest_speed_rad_s=self.rest_speed_rad_s,
+                            timeout_s=self.config.settle_timeout_s, poll_s=POLL_S)
 
     def _raise_if_faulted(self) -> None:
         fault = self.fault

@@ -74,6 +74,7 @@ from armwarden.backends.mujoco.model import (
 )
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
+from armwarden.backends.settle import settle
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench
@@ -346,22 +347,11 @@ class MujocoBackend(ServoBackend):
 
     async def _settle(self, goal: np.ndarray) -> ExecutionResult:
         """The trajectory's time is up and its goal is commanded; the physical arm is still
-        catching up. Finished = at the goal (`SETTLE_POSITION_RAD`) and still (`SETTLE_SPEED_RAD_S`),
-        within `SETTLE_TIMEOUT_S` of simulated time; a stop meanwhile ends it "stopped"."""
-        deadline = time.monotonic() + SETTLE_TIMEOUT_S / self.servo.speedup
-        while True:
-            sample = self._measured
-            if self._stop_landed():
-                return ExecutionResult(False, "stopped", await self._rest_position())
-            if (np.max(np.abs(sample.positions - goal)) <= SETTLE_POSITION_RAD
-                    and np.max(np.abs(sample.velocities)) <= SETTLE_SPEED_RAD_S):
-                return ExecutionResult(True, "completed", sample.positions.copy())
-            if time.monotonic() > deadline:
-                error = float(np.max(np.abs(sample.positions - goal)))
-                return ExecutionResult(False, f"did not settle at the goal within {SETTLE_TIMEOUT_S} s "
-                                       f"(off by {error:.4f} rad)", sample.positions.copy())
-            self.servo.require_running()
-            await asyncio.sleep(SETTLE_POLL_S)
+        catching up: within `SETTLE_TIMEOUT_S` of simulated time (`settle`)."""
+        return await settle(goal, measure=lambda: self._measured, check=self.servo.require_running,
+                            stop_landed=self._stop_landed, rest_position=self._rest_position,
+                            accuracy_rad=SETTLE_POSITION_RAD, rest_speed_rad_s=SETTLE_SPEED_RAD_S,
+                            timeout_s=SETTLE_TIMEOUT_S, poll_s=SETTLE_POLL_S, speedup=self.servo.speedup)
 
     async def _rest_position(self) -> np.ndarray:
         """Where a stopped arm came to rest: once the brake has let go (or after
