@@ -554,3 +554,19 @@ def test_refuses_a_control_period_above_one_millisecond(period_s):
 def test_refuses_a_home_outside_the_joint_limits():
     with pytest.raises(ValueError, match="outside the joint limits"):
         FakeBackend(home=[0.0] * 7)
+
+
+def test_stopping_the_fingers_from_another_thread_ends_a_gripper_move_stopped_where_they_froze():
+    async def scenario(backend: FakeBackend):
+        task = asyncio.create_task(backend.gripper_move(0.0, 0.01))  # 8 s to close
+        await wait_until(lambda: _gripper_moving(backend))
+        stopper = threading.Thread(target=backend._stop_fingers)
+        stopper.start()
+        result = await task
+        stopper.join()
+        return result, await backend.gripper_state()
+
+    result, held = run_with_backend(scenario)
+    assert not result.success and result.detail == "stopped"
+    assert 0.0 < result.width_m < 0.08
+    assert not held.moving and held.width_m == result.width_m

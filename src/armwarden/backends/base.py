@@ -19,7 +19,8 @@ Writing a backend
 
 Rules every backend follows
 - `stop()` is fast, idempotent, safe at any time from the event loop (also during an execution,
-  before `open` and after `close`: then it does nothing) and stops the arm *and* the gripper.
+  before `open` and after `close`: then it does nothing) and stops the arm *and* the gripper
+  (the gripper through `_stop_fingers`, callable from any thread).
 - `stop_now()` is the same stop, synchronous and thread-safe: any thread may call it while the
   event loop is busy or blocked, and the arm is held before it returns (a servo loop commands a
   hold under its lock; see `armwarden.backends.servo`). It must not await the event loop.
@@ -809,6 +810,13 @@ class Backend(abc.ABC):
     def _emergency_stop_now(self) -> None:
         """Synchronous, thread-safe e-stop (see `emergency_stop_now`); default: `_stop_now`."""
         self._stop_now()
+
+    def _stop_fingers(self) -> None:
+        """Any thread (the event loop, a servo or watchdog thread, a stop from a signal), never
+        awaiting the event loop: the fingers stop where they are and the gripper action in
+        progress ends "stopped". The one name every backend's stop, e-stop and fault paths call
+        for "stop the fingers"; default: no gripper, nothing to stop."""
+        return None
 
     def _latest_gripper_state(self) -> GripperState | None:
         """Like `_latest_joint_state`, for the gripper: its published state, without waiting."""

@@ -284,23 +284,14 @@ class FakeBackend(ServoBackend):
         if self.fail_stop:  # neither the arm nor the gripper hears this stop
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
         self.servo.hold()
-        self._halt_gripper()
+        self._stop_fingers()
         self._require_running()  # held either way; a dead control thread is still reported as a failure
 
     def _stop_now(self) -> None:
         if self.fail_stop:
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
         self.servo.hold()
-        with self._gripper_lock:  # the fingers are either not started yet (and will not be) or frozen here
-            motion = self._gripper_motion
-            freeze = motion is not None and motion.halted_at is None
-            if freeze and motion is not None:
-                motion.halted_at = time.perf_counter()  # frozen now; the loop does the bookkeeping later
-        if freeze:
-            loop = self._loop
-            if loop is not None:
-                with contextlib.suppress(RuntimeError):  # the loop is closed
-                    loop.call_soon_threadsafe(self._halt_gripper)
+        self._stop_fingers()
         self._require_running()
 
     # ================================================================ servo hooks (servo thread)
@@ -394,7 +385,28 @@ class FakeBackend(ServoBackend):
         interrupted = motion.halted_at is not None and not math.isclose(self._gripper_width_m, target_m, abs_tol=1e-9)
         return self._gripper_width_m, interrupted
 
-    def _halt_gripper(self) -> None:
+    def _stop_fingers(self) -> None:
+        """Any thread: the fingers freeze now (`halted_at`); the event loop ends the motion's wait
+        and books its width, at once when this runs on the loop, else at the loop's next turn."""
+        with self._gripper_lock:  # the fingers are either not started yet (and will not be) or frozen here
+            motion = self._gripper_motion
+            froze = motion is not None and motion.halted_at is None
+            if froze and motion is not None:
+                motion.halted_at = time.perf_counter()
+        loop = self._loop
+        if loop is None:
+            return
+        try:
+            on_loop = asyncio.get_running_loop() is loop
+        except RuntimeError:  # no loop runs in this thread
+            on_loop = False
+        if on_loop:
+            self._end_finger_motion()
+        elif froze:
+            with contextlib.suppress(RuntimeError):  # the loop is closed
+                loop.call_soon_threadsafe(self._end_finger_motion)
+
+    def _end_finger_motion(self) -> None:
         """Event loop: freeze the fingers where they are and end the motion's wait."""
         motion = self._gripper_motion
         if motion is not None:

@@ -625,7 +625,7 @@ async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was(
         q = await _position_at_rest(backend)
         away_from_the_support = np.full(len(q), 0.02)
         away_from_the_support[1] = 0.02 * float(np.sign(stale[1] - q[1]))
-        freeze = backend._freeze_gripper
+        freeze = backend._stop_fingers
 
         lost_the_cpu = threading.Event()
 
@@ -640,7 +640,7 @@ async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was(
             while servo.tick_count < ticks + 2 and time.monotonic() < end:
                 time.sleep(0.0005)
 
-        backend._freeze_gripper = freeze_then_lose_the_cpu  # type: ignore[method-assign]
+        backend._stop_fingers = freeze_then_lose_the_cpu  # type: ignore[method-assign]
         mark = len(spy.seen())
         await backend.execute(straight_line(backend.joint_names, q, q + away_from_the_support, 0.5))
         stiff = [s for s in spy.seen()[mark:] if s.motor == 2 and s.command is not None and s.command.kp > 0]

@@ -459,7 +459,7 @@ class CanBackend(ServoBackend):
                 return  # (the servo loop refuses the trajectory as "stopped before it started")
             # hold where the arm is *before* damping ends: a tick between the two would otherwise
             # send the setpoint frozen when damping began, stiffly, to an arm that sagged since
-            self._freeze_gripper()  # the fingers hold where damping left them
+            self._stop_fingers()  # the fingers hold where damping left them
             self._require_servo().hold()
             self.fault, self._damping, self._limit_violation, self._estopped = None, False, None, False
         logger.warning("can backend: damping ended after a reset; holding again")
@@ -469,7 +469,7 @@ class CanBackend(ServoBackend):
 
     def _stop_now(self) -> None:
         servo = self._require_servo()
-        self._freeze_gripper()
+        self._stop_fingers()
         servo.hold()
         servo.require_running()
 
@@ -480,7 +480,7 @@ class CanBackend(ServoBackend):
         """The e-stop: damping frames on every joint now, from the calling thread, and from every
         later tick, until an execution is admitted again (after a human reset) — as for a fault."""
         servo = self._require_servo()
-        self._freeze_gripper()
+        self._stop_fingers()
         with self._fault_lock:  # against `_recover` leaving damping at the same moment
             self._estopped = self._damping = True
             servo.hold()  # the running execution ends "stopped"; the hold is sent as damping
@@ -512,8 +512,9 @@ class CanBackend(ServoBackend):
             raise BackendError(f"can backend: {a.label} reported no position")
         return g.direction * (raw - g.homing_offset_rad), stamp
 
-    def _freeze_gripper(self) -> None:
-        """Any thread, on every stop and fault: end the gripper's action and hold where it is."""
+    def _stop_fingers(self) -> None:
+        """Any thread, on every stop and fault (`Backend._stop_fingers`): end the gripper's action
+        and hold where it is."""
         if self._gripper is None:
             return
         with self._gripper_lock:
@@ -676,7 +677,7 @@ class CanBackend(ServoBackend):
             self._damping = True
         logger.error("can backend fault: %s; damping every joint", self.fault)
         self._bump_stop_epoch()
-        self._freeze_gripper()
+        self._stop_fingers()
         self._require_servo().hold()  # damping frames now, and the running execution ends
         self._report_fault(f"can backend fault: {self.fault}")
 

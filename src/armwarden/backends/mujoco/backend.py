@@ -24,7 +24,7 @@ environment applies to the hand — at the TCP, in the base frame.
 
 Gripper: the finger actuator tracks a width ramp at the requested speed, its force capped by the
 grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
-the finger target where its ramp is (fingers on an object keep their grip; see `_freeze_fingers`).
+the finger target where its ramp is (fingers on an object keep their grip; see `_stop_fingers`).
 
 Cameras render offscreen on their own thread (it owns the GL context), from the last published
 configuration of every body, so rendering never holds up the physics. The renderer is made by the
@@ -367,11 +367,12 @@ class MujocoBackend(ServoBackend):
 
     def _stop_now(self) -> None:
         self.servo.hold()
-        self._freeze_fingers()
+        self._stop_fingers()
         self.servo.require_running()  # held either way; a dead physics thread is still a failure
 
-    def _freeze_fingers(self) -> None:
-        """Any thread: the finger ramp stops where it is from the next physics step on. The target
+    def _stop_fingers(self) -> None:
+        """Any thread (`Backend._stop_fingers`): the finger ramp stops where it is from the next
+        physics step on. The target
         freezes, not the measured width: fingers closed on an object keep squeezing it (with the
         grasp's force), so a stop never drops what the hand holds; free fingers stop within the
         servo's lag of their measured width."""

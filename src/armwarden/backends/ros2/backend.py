@@ -764,16 +764,23 @@ class Ros2Backend(Backend):
     def _stop_now(self) -> None:
         """Any thread, never awaiting: cancel the running goal (or hold), cancel the gripper's goal."""
         with self._motion_lock:
-            run, gripper = self._run, self._gripper_run
+            run = self._run
         if isinstance(run, _GoalRun):
             self._cancel_goal(run)
         elif isinstance(run, _TopicRun):
             self._hold(run)
-        if gripper is not None:
-            self._cancel_gripper(gripper)
+        self._stop_fingers()
 
     # ================================================================ gripper
+    def _stop_fingers(self) -> None:
+        """Any thread, never awaiting: cancel the gripper's goal in progress."""
+        with self._motion_lock:
+            run = self._gripper_run
+        if run is not None:
+            self._cancel_gripper(run)
+
     def _cancel_gripper(self, run: _GripperRun) -> None:
+        """Any thread: cancel `run`'s goal, once (a cancel before its acceptance is sent again then)."""
         action = self._endpoints.gripper_action
         if action is None or run.cancel_sent:
             return
