@@ -120,15 +120,16 @@ def _time_us(fn: Callable[[], object], repeats: int) -> list[float]:
 
 
 def bench_envelope(repeats: int = 400) -> dict[str, float]:
-    """The envelope's checks, compiled (the default, `safety/geometry_kernel.py`) beside the numpy
+    """The envelope's checks, compiled (the default, `safety/kernel/`) beside the numpy
     passes (`compiled=False`, the kernels' oracle), interleaved in one run: a state check and a
     motion check as the detour search asks them (`check_path(..., first_only=True)`), and the full
     check of the typical plan; plus where the compiled state and motion checks spend their time."""
     import numba
 
     from armwarden.robot.batch_fk import KinematicChain, fk_into
-    from armwarden.safety import geometry_kernel
     from armwarden.safety.envelope import Envelope
+    from armwarden.safety.kernel import driver as kernels
+    from armwarden.safety.kernel.tables import HIT_COLUMNS
 
     runtime = load_runtime_model(load_policy(bundled_policy("fr3")))
     robot, compiled, planner = runtime.robot, runtime.envelope, runtime.planner
@@ -183,7 +184,7 @@ def bench_envelope(repeats: int = 400) -> dict[str, float]:
     # where the compiled checks spend it: the kernels called bare, FK alone, an empty call's dispatch
     kernel = compiled._kernel  # the benchmark times the kernels bare
     assert kernel is not None
-    hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+    hits = np.empty((kernel.hit_capacity + 1, HIT_COLUMNS))
     node_ints, node_floats = KinematicChain.from_model(robot.model, []).node_tables()
     poses = np.empty((len(node_ints), 4, 4))
 
@@ -197,8 +198,7 @@ def bench_envelope(repeats: int = 400) -> dict[str, float]:
     state_whole, kernel_state, fk, empty = [], [], [], []
     for q in states[:repeats]:
         state_whole.append(once_us(lambda q=q: compiled.check_path(q, first_only=True)))
-        kernel_state.append(once_us(lambda q=q: geometry_kernel.check_configuration(q, 0.0, True, kernel.ints, kernel.floats,
-                                                                                    hits)))
+        kernel_state.append(once_us(lambda q=q: kernels.check_configuration(q, 0.0, True, kernel.ints, kernel.floats, hits)))
         fk.append(once_us(lambda q=q: fk_into(q, node_ints, node_floats, poses)))
         empty.append(once_us(lambda q=q: empty_call(q, 0.0, True, kernel.ints, kernel.floats, hits)))
     motion_whole, kernel_motion, motion_samples = [], [], []
@@ -206,9 +206,9 @@ def bench_envelope(repeats: int = 400) -> dict[str, float]:
     for path in motions[:repeats]:
         seg_bound = np.abs(np.diff(path, axis=0)) @ robot.reach
         motion_whole.append(once_us(lambda path=path: compiled.check_path(path, first_only=True)))
-        kernel_motion.append(once_us(lambda path=path, seg_bound=seg_bound: geometry_kernel.check_path(
+        kernel_motion.append(once_us(lambda path=path, seg_bound=seg_bound: kernels.check_path(
             index, path, seg_bound, True, kernel.ints, kernel.floats, hits)))
-        motion_samples.append(geometry_kernel.check_path(index, path, seg_bound, True, kernel.ints, kernel.floats, hits)[2])
+        motion_samples.append(kernels.check_path(index, path, seg_bound, True, kernel.ints, kernel.floats, hits)[2])
 
     med = statistics.median
     return {

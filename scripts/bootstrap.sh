@@ -53,7 +53,7 @@ fi
 # Compile the envelope's numba kernels into their on-disk cache now (about 30 s on a fresh machine,
 # well under a second once cached), so that neither the first daemon start nor a test pays it
 # while a backend's real-time thread or a start-up deadline is waiting.
-"$VENV/bin/python" -c "import armwarden.safety.geometry_kernel" >&2
+"$VENV/bin/python" -c "import armwarden.safety.kernel.driver" >&2
 # The official MCP Bundle CLI, `mcpb` (tools/mcpb: @anthropic-ai/mcpb pinned by its
 # package-lock.json): tests/packaging validate the bundle scripts/build_mcpb.py builds with it.
 # Installed only where npm exists; without it those tests say what to install (and fail in CI).

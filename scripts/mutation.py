@@ -151,7 +151,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "if tcp_length > self.limits.max_cartesian_step_m:", "if False:",
            (f"{REFUSALS}::test_cartesian_path_over_the_length_cap_is_refused[legacy]",),
            "the TCP path length cap"),
-    Mutant("envelope-keep-out", "safety/geometry_kernel.py",  # the compiled pass the envelope runs
+    Mutant("envelope-keep-out", "safety/kernel/sample.py",  # the compiled check the envelope runs
            "hit = distance <= radius", "hit = False",
            (f"{REFUSALS}::test_elbow_sweeping_through_a_keep_out_zone_is_refused_although_the_tcp_stays_clear[legacy]",),
            "links stay out of keep-out zones"),

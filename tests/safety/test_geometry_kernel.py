@@ -1,6 +1,6 @@
 """The compiled geometry checks against the numpy ones they replace, and the semantics both share.
 
-`Envelope(robot, limits)` checks geometry with the numba kernels of `safety.geometry_kernel`;
+`Envelope(robot, limits)` checks geometry with the numba kernels of `safety.kernel`;
 `Envelope(robot, limits, compiled=False)` with the numpy passes, kept as the oracle. Here both
 must return the same violations (codes, bodies, times) and the same per-sample flags on random
 paths, keep-out boxes and workspace boxes, and on the cases that matter most: a thin zone crossed

@@ -9,7 +9,7 @@ human needs to judge the motion. The checks (docs/architecture.md, "Where each l
 - geometry, with forward kinematics at conservatively chosen samples: every checked link's
   capsule (padded) inside the workspace box and out of every keep-out box, the TCP likewise (its
   segments between samples too), and capsule pairs apart (self-collision). By default the
-  geometry runs compiled (`safety.geometry_kernel`: the same samples and findings); the numpy
+  geometry runs compiled (`safety.kernel`: the same samples and findings); the numpy
   passes below (`compiled=False`) are its test oracle.
 
 **Why the sampling is a guarantee.** Moving joint i by Δq_i moves any point of body b by at most
@@ -33,7 +33,9 @@ from armwarden.core.errors import RobotModelError
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.batch_fk import KinematicChain
 from armwarden.robot.model import Pose, RobotModel
-from armwarden.safety import geometry_kernel, waypoints
+from armwarden.safety import waypoints
+from armwarden.safety.kernel import driver as kernels
+from armwarden.safety.kernel.tables import HIT_COLUMNS, KIND_SELF, KIND_WORKSPACE, NON_FINITE, Tables
 from armwarden.safety.limits import Box, EnvelopeLimits, EnvelopeReport
 from armwarden.safety.violations import Code, Violation
 from armwarden.safety.waypoints import ACCELERATION_TOLERANCE, estimate_accelerations, estimate_velocities
@@ -46,7 +48,7 @@ REFINEMENT = (4.0, 1.0, 0.25, 0.0625)
 class Envelope:
     """Checks trajectories against the limits for one robot model. Not thread safe (shares Pinocchio data).
 
-    `compiled` (the default): the geometry runs in the numba kernels of `safety.geometry_kernel`
+    `compiled` (the default): the geometry runs in the numba kernels of `safety.kernel`
     — the same samples, predicates and findings as the numpy passes here, ~100× faster. False:
     the numpy passes, the kernels' test oracle (tests/safety/test_geometry_kernel.py)."""
 
@@ -88,7 +90,7 @@ class Envelope:
         return self._kernel is not None
 
     # ------------------------------------------------------------------ set-up
-    def _kernel_tables(self) -> geometry_kernel.Tables:
+    def _kernel_tables(self) -> Tables:
         """What the kernels need of this envelope: the chain of joints (the robot's own Pinocchio
         model, in the base frame), every body on its joint, the radii, pairs, reaches and boxes."""
         robot, lim = self.robot, self.limits
@@ -98,7 +100,7 @@ class Envelope:
         tcp = model.frames[robot.frame_id(robot.tcp_frame)]
         tcp_point = np.asarray(tcp.placement.translation, dtype=float)[None]
         capsules = robot.capsules
-        return geometry_kernel.Tables.build(
+        return Tables.build(
             chain=chain,
             body_joint=[c.joint_index for c in capsules] + [int(tcp.parentJoint)],
             body_p0=np.vstack([np.array([c.p0_m for c in capsules], dtype=float).reshape(-1, 3), tcp_point]),
@@ -128,9 +130,9 @@ class Envelope:
     def _report_order(self, kind: int, subject: str, zone: int) -> tuple[str, str, str]:
         """How `_in_time_order` orders findings of one time, for the kernels: by code, body, then
         the wording after the body's name (for one body, its zones by name)."""
-        if kind == geometry_kernel.KIND_SELF:
+        if kind == KIND_SELF:
             return _SELF_COLLISION, subject, ""
-        if kind == geometry_kernel.KIND_WORKSPACE:
+        if kind == KIND_WORKSPACE:
             return Code.WORKSPACE.value, subject, f" {_LEAVES_WORKSPACE} near ("
         return Code.KEEP_OUT.value, subject, f" {_enters(self.limits.keep_out[zone])} near ("
 
@@ -209,7 +211,7 @@ class Envelope:
         """
         positions = positions if type(positions) is np.ndarray else np.asarray(positions, dtype=float)
         if self._kernel is not None and 1 <= positions.ndim <= 2 and positions.shape[-1] == self.robot.nq and len(positions):
-            found = self._check_path_compiled(geometry_kernel.kernel_array(positions), first_only)
+            found = self._check_path_compiled(kernels.kernel_array(positions), first_only)
             if found is not None:
                 return found
         positions = np.atleast_2d(np.asarray(positions, dtype=float))
@@ -234,19 +236,19 @@ class Envelope:
         one. None when a configuration holds a non-finite value (the numpy check says what)."""
         kernel = self._kernel
         assert kernel is not None
-        hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+        hits = np.empty((kernel.hit_capacity + 1, HIT_COLUMNS))
         single = positions.ndim == 1 or len(positions) == 1
         if single:  # one configuration does not move: one pass without sweep allowance
             q = positions if positions.ndim == 1 else positions[0]
-            code = geometry_kernel.check_configuration(q, 0.0, first_only, kernel.ints, kernel.floats, hits)
-            if code == geometry_kernel.NON_FINITE:
+            code = kernels.check_configuration(q, 0.0, first_only, kernel.ints, kernel.floats, hits)
+            if code == NON_FINITE:
                 return None
             status, count = code >> 32, code & 0xFFFFFFFF
         else:
             seg_bound = np.abs(np.diff(positions, axis=0)) @ self.robot.reach
-            status, count, _, _ = geometry_kernel.check_path(np.arange(len(positions), dtype=float), positions, seg_bound,
+            status, count, _, _ = kernels.check_path(np.arange(len(positions), dtype=float), positions, seg_bound,
                                                              first_only, kernel.ints, kernel.floats, hits)
-            if count == geometry_kernel.NON_FINITE:
+            if count == NON_FINITE:
                 return None
         # first_only: the first finding in report order (the kernels return them in it)
         geometric = _in_time_order(self._findings(hits[:1] if first_only else hits[:count])) if count else []
@@ -265,10 +267,10 @@ class Envelope:
         inflates every body (not the self-collision pairs) as a sweep allowance would."""
         kernel = self._kernel
         if kernel is not None and q.shape == (self.robot.nq,):
-            hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
-            code = geometry_kernel.check_configuration(geometry_kernel.kernel_array(q), float(allowance_m), False,
+            hits = np.empty((kernel.hit_capacity + 1, HIT_COLUMNS))
+            code = kernels.check_configuration(kernels.kernel_array(q), float(allowance_m), False,
                                                        kernel.ints, kernel.floats, hits)
-            if code != geometry_kernel.NON_FINITE:
+            if code != NON_FINITE:
                 return _in_time_order(self._findings(hits[:code & 0xFFFFFFFF]))
         samples = _Samples(times=np.zeros(1), positions=q[None],
                            inflation=np.full((1, len(self._padded_radii)), float(allowance_m)),
@@ -354,12 +356,12 @@ class Envelope:
         allowance of a sparse sampling: the allowance shrinks with the spacing where it matters."""
         kernel = self._kernel
         if kernel is not None and positions.ndim == 2 and positions.shape[1] == self.robot.nq and len(positions) >= 2:
-            hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
+            hits = np.empty((kernel.hit_capacity + 1, HIT_COLUMNS))
             seg_bound = np.abs(np.diff(positions, axis=0)) @ self.robot.reach
-            _, count, checked, tcp = geometry_kernel.check_path(
-                geometry_kernel.kernel_array(times), geometry_kernel.kernel_array(positions), seg_bound, first_only,
+            _, count, checked, tcp = kernels.check_path(
+                kernels.kernel_array(times), kernels.kernel_array(positions), seg_bound, first_only,
                 kernel.ints, kernel.floats, hits)
-            if count != geometry_kernel.NON_FINITE:
+            if count != NON_FINITE:
                 tcp_length = float(np.sum(np.linalg.norm(np.diff(tcp, axis=0), axis=1))) if len(tcp) > 1 else 0.0
                 found = _in_time_order(self._findings(hits[:count]))
                 return found, tcp_length, self.robot.tcp_pose(positions[-1]), checked
@@ -418,13 +420,13 @@ class Envelope:
             n = len(samples.times)
             flags = np.zeros(n, dtype=bool)
             tcp = np.empty((n, 3))
-            hits = np.empty((kernel.hit_capacity + 1, geometry_kernel.HIT_COLUMNS))
-            count = geometry_kernel.check_samples(
-                geometry_kernel.kernel_array(samples.times), geometry_kernel.kernel_array(samples.positions),
-                geometry_kernel.kernel_array(samples.inflation),
-                geometry_kernel.kernel_array(samples.pair_inflation.reshape(n, len(self._pairs))), segments,
+            hits = np.empty((kernel.hit_capacity + 1, HIT_COLUMNS))
+            count = kernels.check_samples(
+                kernels.kernel_array(samples.times), kernels.kernel_array(samples.positions),
+                kernels.kernel_array(samples.inflation),
+                kernels.kernel_array(samples.pair_inflation.reshape(n, len(self._pairs))), segments,
                 kernel.ints, kernel.floats, flags, tcp, hits)
-            if count != geometry_kernel.NON_FINITE:
+            if count != NON_FINITE:
                 return self._findings(hits[:count]), flags, tcp
         robot, lim = self.robot, self.limits
         t_s, q_s, inflation = samples.times, samples.positions, samples.inflation
@@ -518,14 +520,14 @@ class Envelope:
         )
 
     def _findings(self, hits: np.ndarray) -> dict[tuple[str, str, str], Violation]:
-        """The kernels' finding rows (`geometry_kernel.HIT_COLUMNS`) as the numpy passes key and word them."""
+        """The kernels' finding rows (`kernel.tables.HIT_COLUMNS`) as the numpy passes key and word them."""
         found: dict[tuple[str, str, str], Violation] = {}
         for kind, index, zone, time, x, y, z, distance, allowance, _ in hits.tolist():
-            if kind == geometry_kernel.KIND_SELF:
+            if kind == KIND_SELF:
                 violation = self._self_collision(int(index), distance, allowance, time)
                 found[(_SELF_COLLISION, violation.body or "", "")] = violation
                 continue
-            if kind == geometry_kernel.KIND_WORKSPACE:
+            if kind == KIND_WORKSPACE:
                 code, what = Code.WORKSPACE, _LEAVES_WORKSPACE
             else:
                 code, what = Code.KEEP_OUT, _enters(self.limits.keep_out[int(zone)])
