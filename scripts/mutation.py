@@ -212,7 +212,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "execute: a trajectory must start where the arm is"),
     # ------------------------------------------------------------------ access rules
     Mutant("access-observer-tools", "transport/access.py",
-           "return tool in OBSERVER_TOOLS or group_of.get(tool) in OBSERVER_GROUPS", "return True",
+           "return spec is not None and spec.observer_may_call", "return True",
            ("tests/transport/test_http.py::test_observer_may_not_call_other_tools",),
            "an observer token calls only introspection, perception and stop tools"),
 )

@@ -30,7 +30,7 @@ from pydantic import BaseModel
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 
 from armwarden.results import EStopResult, PlanSummary, RobotState, SafetyStatus
-from armwarden.server.tools import inline_refs
+from armwarden.server.registration import inline_refs
 
 
 class Trivial(BaseModel):

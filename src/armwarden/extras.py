@@ -21,10 +21,12 @@ import sys
 from collections.abc import Collection
 from dataclasses import dataclass
 
+from armwarden.tools import TOOLS
+
 #: the tools whose pictures need Pillow: a camera image wider than the policy's
 #: `perception.max_image_width` is shrunk with it (and the MuJoCo backend renders every camera
 #: with it); the plan tools draw their preview with it
-PICTURE_TOOLS: tuple[str, ...] = ("camera_snapshot", "plan_to_joints", "plan_to_pose", "plan_cartesian_path")
+PICTURE_TOOLS: tuple[str, ...] = tuple(spec.name for spec in TOOLS if spec.picture)
 
 ALL_AVAILABLE = "every optional feature is available: Pillow (camera pictures, plan previews), mujoco, can and ros2 backends"
 

@@ -36,6 +36,7 @@ from prometheus_client.registry import Collector
 from armwarden import __version__
 from armwarden.core.errors import RefusalCode
 from armwarden.policy import ALL_TOOLS
+from armwarden.tools import names
 
 if TYPE_CHECKING:
     from armwarden.backends.base import Backend
@@ -49,7 +50,7 @@ logger = logging.getLogger(__name__)
 P = ParamSpec("P")
 
 #: the tools whose latency is also a planning latency, labelled by the plan's status
-PLAN_TOOLS = frozenset({"plan_to_joints", "plan_to_pose", "plan_cartesian_path"})
+PLAN_TOOLS = names(lambda spec: spec.plan_kind)
 _TOOLS = frozenset(ALL_TOOLS)
 _CODES = frozenset(code.value for code in RefusalCode) | {"ERROR"}
 _STATUSES = frozenset({"ok", "refused", "invalid", "error", "cancelled", "input_required"})

@@ -394,7 +394,7 @@ async def test_a_force_limit_crossed_after_the_last_poll_still_aborts_and_latche
 @pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
 async def test_nothing_moves_while_the_audit_log_cannot_be_written(tmp_path, mode, caplog) -> None:
-    with caplog.at_level(logging.INFO, logger="armwarden.server.tools"):
+    with caplog.at_level(logging.INFO, logger="armwarden.server.registration"):
         async with arm_harness(tmp_path) as arm, arm.client(mode, approve()) as client:
             summary = await plan_down(client, z=0.40)
             arm.audit._broken = "injected: no space left on device"

@@ -22,6 +22,7 @@ from mcp_types import CallToolResult, ElicitResult, TextContent
 from pydantic import BaseModel
 
 from armwarden.core.errors import ConfigurationError
+from armwarden.tools import spec_of
 from armwarden.transport.http import (
     build_http_app,
     check_bind_safety,
@@ -32,7 +33,6 @@ from armwarden.transport.http import (
 from armwarden.transport.tokens import TokenStore
 from tests.helpers import free_port
 
-GROUP_OF = {"read_thing": "introspect", "move_thing": "motion"}
 PROTOCOL_MODES = {"legacy": "2025-11-25", "2026-07-28": "2026-07-28"}
 INIT_BODY = {
     "jsonrpc": "2.0",
@@ -70,7 +70,7 @@ def make_server() -> MCPServer:
     async def move_thing(x: float) -> CallToolResult:
         """Pretend to move."""
         principal = current_principal()
-        if principal is None or not role_allows(principal.role, "move_thing", GROUP_OF):
+        if principal is None or not role_allows(principal.role, "move_thing"):
             refusal = TextContent(type="text", text="refused: operator role required")
             return CallToolResult(content=[refusal], is_error=True)
         return CallToolResult(content=[TextContent(type="text", text=f"moved to {x} by {principal.name}")])
@@ -386,7 +386,9 @@ def test_loopback_bind_without_tokens_is_allowed(host: str) -> None:
     ],
 )
 def test_observer_may_call_introspection_perception_and_stop_tools(tool: str, group: str) -> None:
-    assert role_allows("observer", tool, {tool: group})
+    spec = spec_of(tool)
+    assert spec is not None and spec.group == group
+    assert role_allows("observer", tool)
 
 
 @pytest.mark.parametrize(
@@ -394,13 +396,14 @@ def test_observer_may_call_introspection_perception_and_stop_tools(tool: str, gr
     [("execute_plan", "motion"), ("reset_estop", "safety"), ("error_recovery", "safety"), ("unknown", None)],
 )
 def test_observer_may_not_call_other_tools(tool: str, group: str | None) -> None:
-    assert not role_allows("observer", tool, {tool: group} if group else {})
+    assert getattr(spec_of(tool), "group", None) == group
+    assert not role_allows("observer", tool)
 
 
 def test_operator_may_call_everything() -> None:
-    assert role_allows("operator", "reset_estop", {"reset_estop": "safety"})
-    assert role_allows("operator", "unknown", {})
+    assert role_allows("operator", "reset_estop")
+    assert role_allows("operator", "unknown")
 
 
 def test_unknown_role_may_call_nothing() -> None:
-    assert not role_allows("admin", "estop", {"estop": "safety"})
+    assert not role_allows("admin", "estop")

@@ -27,8 +27,8 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.results import ApprovalInfo
 from armwarden.safety.estop import flatten_reason
+from armwarden.tools import ApprovalAction
 
-Action = Literal["execute", "switch_controllers", "reset_estop", "error_recovery", "set_collision_thresholds"]
 UNTRUSTED_TEXT_LIMIT = 160
 
 
@@ -225,7 +225,7 @@ def hold_to_channel(policy, approval: Approval) -> Approval:
                     "requesting client's own form; nothing was done")
 
 
-def approval_required(policy, action: Action, has_soft_violations: bool = False) -> bool:
+def approval_required(policy, action: ApprovalAction, has_soft_violations: bool = False) -> bool:
     """Whether `action` needs a human, per `approval.mode` and `approval.require_for`."""
     approval = policy.approval
     if action == "reset_estop":

@@ -25,12 +25,10 @@ from armwarden.backends.base import (
 )
 from armwarden.core.state import GripperState, JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory
+from armwarden.tools import TOOLS
 
 #: the Backend methods that can move or change the robot
-ACTUATING_METHODS = (
-    "execute", "gripper_move", "gripper_grasp", "gripper_home", "switch_controllers",
-    "set_collision_thresholds", "error_recovery",
-)
+ACTUATING_METHODS = tuple(spec.backend_call for spec in TOOLS if spec.backend_call is not None)
 
 
 class CountingBackend(Backend):

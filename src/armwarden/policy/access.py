@@ -8,15 +8,9 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, Field, WrapSerializer
 
-from armwarden.policy.constants import (
-    ALL_TOOLS,
-    APPROVAL_ACTIONS,
-    RATE_LIMIT_EXEMPT_TOOLS,
-    TOOL_GROUPS,
-    ApprovalAction,
-    ToolGroup,
-)
+from armwarden.policy.constants import ALL_TOOLS, APPROVAL_ACTIONS, RATE_LIMIT_EXEMPT_TOOLS, TOOL_GROUPS
 from armwarden.policy.fields import MODEL_CONFIG, FrozenMap, Rate, StrictBool, freeze_map, serialize_map
+from armwarden.tools import ApprovalAction, ToolGroup
 
 
 def _normalise_groups(groups: tuple[str, ...]) -> tuple[str, ...]:

@@ -15,9 +15,10 @@ from typing import Any
 from armwarden.audit import AUDIT_KEY_ENV, VerifyReport, verify_file
 from armwarden.audit.chain import DECODER
 from armwarden.core.errors import ArmWardenError
+from armwarden.tools import TOOLS
 
 #: the planning tools and the planner kind each one asks for
-PLAN_TOOLS = {"plan_to_joints": "joints", "plan_to_pose": "pose", "plan_cartesian_path": "cartesian"}
+PLAN_TOOLS = {spec.name: spec.plan_kind for spec in TOOLS if spec.plan_kind is not None}
 #: execution statuses of a motion that actually moved the arm (a dry run moved nothing)
 MOVED = ("succeeded", "aborted")
 

@@ -38,8 +38,9 @@ from armwarden.core.errors import RefusalCode
 from armwarden.guard import Guard
 from armwarden.policy import ALL_TOOLS
 from armwarden.server.calls import CURRENT_CALL, CallRecord
-from armwarden.server.tools import ToolBuilder
+from armwarden.server.registration import ToolBuilder
 from armwarden.server.unrecorded import answer_unrecorded
+from armwarden.tools import names
 from armwarden.transport.access import current_principal, role_allows
 from armwarden.transport.jsonrpc import malformed_call
 
@@ -50,13 +51,10 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 #: tools that must work whatever they are sent: stopping always works (docs/stopping.md)
-_ACCEPTS_ANY_ARGUMENTS = frozenset({"stop_motion", "estop"})
+_ACCEPTS_ANY_ARGUMENTS = names(lambda spec: spec.stops_on_read)
 #: read-only tools whose results are observations, not decisions: the call is recorded, the
 #: (large, frequent) result is not — it would make every state poll cost a big audit record
-_UNRECORDED_RESULTS = frozenset({
-    "get_robot_state", "get_safety_envelope", "lookup_transform", "list_controllers", "list_ros_graph",
-    "get_audit_tail", "get_motion_status", "get_safety_status", "camera_snapshot",
-})
+_UNRECORDED_RESULTS = names(lambda spec: not spec.records_result)
 #: argument names that are dropped, not refused: approvals come from a human, never from the
 #: client, and an `approval` sent as an argument is ignored (and stays visible in the audit record)
 _IGNORED_ARGUMENTS = frozenset({"approval"})
@@ -77,10 +75,9 @@ class ArmWardenServer:
         self.guard = guard
         #: told of every finished call, before its record is written (`armwarden.metrics`; never raises)
         self.metrics = metrics
-        self.mcp = MCPServer(name, instructions=INSTRUCTIONS, version=__version__)
-        builder = ToolBuilder(self.mcp, guard)
-        self.tools = builder.build()
-        self.group_of = builder.group_of
+        builder = ToolBuilder(guard)
+        self.mcp = MCPServer(name, instructions=INSTRUCTIONS, version=__version__, tools=builder.build())
+        self.tools = builder.registered
         self._read_only = frozenset(builder.read_only)
         self._sessions = SessionNames()
         self._declared: dict[str, frozenset[str]] | None = None  # tool -> argument names, built on first call
@@ -111,7 +108,7 @@ class ArmWardenServer:
         )
         token = CURRENT_CALL.set(record)
         try:
-            if principal is not None and not role_allows(principal.role, record.tool, self.group_of):
+            if principal is not None and not role_allows(principal.role, record.tool):
                 record.outcome, record.code = "refused", RefusalCode.FORBIDDEN.value
                 record.detail = f"the {principal.role} role may not call {record.tool}"
                 result: Any = CallToolResult(
@@ -245,7 +242,7 @@ class ArmWardenServer:
 
     def _filter_tools(self, result: Any, role: str) -> Any:
         def allowed(name: str) -> bool:
-            return role_allows(role, name, self.group_of)
+            return role_allows(role, name)
 
         if isinstance(result, ListToolsResult):
             return result.model_copy(update={"tools": [t for t in result.tools if allowed(t.name)]})

@@ -17,9 +17,10 @@ from mcp_types import CallToolResult, InputRequiredResult, TextContent
 from pydantic_core import to_json
 
 from armwarden.core.errors import RefusalCode
+from armwarden.tools import names
 
 #: the tools answered when their record cannot be written (every other call fails closed)
-ANSWERED_UNRECORDED = frozenset({"stop_motion", "estop", "reset_estop", "get_safety_status"})
+ANSWERED_UNRECORDED = names(lambda spec: spec.answers_unrecorded)
 
 
 def answer_unrecorded(tool: str, model: Any, error: BaseException) -> CallToolResult | None:

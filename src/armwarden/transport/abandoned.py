@@ -51,6 +51,7 @@ import anyio
 from mcp.server.context import CallNext, ServerRequestContext
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from armwarden.tools import names
 from armwarden.transport.access import current_principal
 from armwarden.transport.jsonrpc import (
     HEADER_MISMATCH,
@@ -76,7 +77,7 @@ from armwarden.transport.jsonrpc import (
 logger = logging.getLogger(__name__)
 
 #: tools whose call, abandoned by its client, must be cancelled
-MOTION_TOOLS = frozenset({"execute_plan", "gripper_move", "gripper_grasp", "gripper_home"})
+MOTION_TOOLS = names(lambda spec: spec.moves)
 #: POST bodies above this are refused (413); no MCP message this server accepts comes near it
 MAX_BODY_BYTES = 1024 * 1024
 #: how long the injected cancellation may take before it is given up (logged) [s]

@@ -7,30 +7,30 @@ principal to the SDK; `current_principal` reads it back inside a tool.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 from mcp.server.auth.middleware.auth_context import get_access_token
 
+from armwarden.tools import names, spec_of
 from armwarden.transport.tokens import ROLES, Principal
 
-__all__ = ["OBSERVER_GROUPS", "OBSERVER_TOOLS", "current_principal", "role_allows"]
+__all__ = ["OBSERVER_TOOLS", "current_principal", "role_allows"]
 
-OBSERVER_GROUPS = frozenset({"introspect", "perception"})
-OBSERVER_TOOLS = frozenset({"get_safety_status", "stop_motion", "estop"})
-"""Observers may always stop the robot and read the safety status, whatever group those are in."""
+#: what an observer token may call: the introspect and perception groups, and whatever an observer
+#: needs to stay safe — stopping the robot and reading the safety status (`ToolSpec.observer_may_call`)
+OBSERVER_TOOLS = names(lambda spec: spec.observer_may_call)
 
 
-def role_allows(role: str, tool: str, group_of: Mapping[str, str]) -> bool:
-    """May `role` call `tool`? `group_of` maps tool name -> policy group (e.g. 'introspect').
+def role_allows(role: str, tool: str) -> bool:
+    """May `role` call `tool`?
 
     operator and agent: every tool (the policy decides which exist; an agent's token only cannot
-    sign in to the operator console). observer: the introspect and perception groups plus
-    `OBSERVER_TOOLS`. Unknown roles and, for observers, tools of unknown group are refused.
+    sign in to the operator console). observer: `OBSERVER_TOOLS`. Unknown roles and, for
+    observers, unknown tools are refused.
     """
     if role in ("operator", "agent"):
         return True
     if role == "observer":
-        return tool in OBSERVER_TOOLS or group_of.get(tool) in OBSERVER_GROUPS
+        spec = spec_of(tool)
+        return spec is not None and spec.observer_may_call
     return False
 
 

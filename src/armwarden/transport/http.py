@@ -66,7 +66,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from armwarden.core.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, LatchEstopsNotRun, mark_dispatched
-from armwarden.transport.access import OBSERVER_GROUPS, OBSERVER_TOOLS, current_principal, role_allows
+from armwarden.transport.access import OBSERVER_TOOLS, current_principal, role_allows
 from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, RefusedRequest, StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
@@ -75,7 +75,6 @@ __all__ = [
     "HEALTH_PATH",
     "MCP_PATH",
     "METRICS_PATH",
-    "OBSERVER_GROUPS",
     "OBSERVER_TOOLS",
     "bind_http_socket",
     "build_console_only_app",

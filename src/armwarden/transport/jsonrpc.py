@@ -12,6 +12,8 @@ from typing import Any
 
 from mcp.shared.dispatcher import coerce_request_id
 
+from armwarden.tools import names
+
 logger = logging.getLogger(__name__)
 
 #: the line is not JSON
@@ -33,7 +35,7 @@ def request_id_key(request_id: Any) -> str:
 
 
 #: tools whose request stops the robot the moment the transport reads it, before it is queued
-STOP_TOOLS = frozenset({"estop", "stop_motion"})
+STOP_TOOLS = names(lambda spec: spec.stops_on_read)
 #: (tool, principal or None): hold the robot now; the tool itself runs later and does the rest
 StopOnReceipt = Callable[[str, "str | None"], None]
 #: (reason, principal or None, why) -> the e-stop event number: latch the e-stop for an `estop`
