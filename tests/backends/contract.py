@@ -35,6 +35,7 @@ from armwarden.backends.base import PREEMPTED, Backend, Capabilities
 from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.policy import bundled_policy, load_policy
+from armwarden.tools import spec_of
 from tests.helpers import records_of
 
 
@@ -61,18 +62,26 @@ async def _true_when(condition: bool) -> bool:
     return condition
 
 
-#: optional call → (capability test, the call with arguments a backend having it must accept)
-OPTIONAL_CALLS: dict[str, tuple[Callable[[Capabilities], bool], Callable[[Backend, Any], Awaitable[Any]]]] = {
-    "gripper_move": (lambda c: c.gripper, lambda b, s: b.gripper_move(s.gripper_width_m, 0.1)),
-    "gripper_grasp": (lambda c: c.gripper, lambda b, s: b.gripper_grasp(s.gripper_width_m, 10.0, 0.1, 0.01, 0.01)),
-    "gripper_home": (lambda c: c.gripper, lambda b, s: b.gripper_home()),
-    "camera_snapshot": (lambda c: bool(c.cameras), lambda b, s: b.camera_snapshot((b.capabilities.cameras or ("none",))[0])),
-    "list_controllers": (lambda c: c.controllers, lambda b, s: b.list_controllers()),
-    "switch_controllers": (lambda c: c.controllers, lambda b, s: b.switch_controllers([], [])),
-    "set_collision_thresholds": (lambda c: c.collision_thresholds, lambda b, s: b.set_collision_thresholds(20.0, 20.0)),
-    "error_recovery": (lambda c: c.error_recovery, lambda b, s: b.error_recovery()),
-    "graph": (lambda c: c.graph, lambda b, s: b.graph()),
+#: each tool that needs a backend capability (its record's `capability`) → the backend call it
+#: makes, with arguments a backend declaring the capability must accept
+OPTIONAL_CALLS: dict[str, Callable[[Backend, Any], Awaitable[Any]]] = {
+    "gripper_move": lambda b, s: b.gripper_move(s.gripper_width_m, 0.1),
+    "gripper_grasp": lambda b, s: b.gripper_grasp(s.gripper_width_m, 10.0, 0.1, 0.01, 0.01),
+    "gripper_home": lambda b, s: b.gripper_home(),
+    "camera_snapshot": lambda b, s: b.camera_snapshot((b.capabilities.cameras or ("none",))[0]),
+    "list_controllers": lambda b, s: b.list_controllers(),
+    "switch_controllers": lambda b, s: b.switch_controllers([], []),
+    "set_collision_thresholds": lambda b, s: b.set_collision_thresholds(20.0, 20.0),
+    "error_recovery": lambda b, s: b.error_recovery(),
+    "list_ros_graph": lambda b, s: b.graph(),
 }
+
+
+def declares(capabilities: Capabilities, tool: str) -> bool:
+    """Does a backend with `capabilities` serve `tool` (its record's capability)?"""
+    spec = spec_of(tool)
+    assert spec is not None and spec.capability is not None, f"{tool} needs no capability"
+    return bool(getattr(capabilities, spec.capability))
 
 
 class BackendContract:
@@ -371,8 +380,8 @@ class BackendContract:
     # ------------------------------------------------------------------ capabilities
     @pytest.mark.parametrize("call", sorted(OPTIONAL_CALLS))
     async def test_an_optional_call_works_when_declared_and_is_refused_otherwise(self, backend: Backend, call: str) -> None:
-        declared, invoke = OPTIONAL_CALLS[call]
-        if declared(backend.capabilities):
+        invoke = OPTIONAL_CALLS[call]
+        if declares(backend.capabilities, call):
             await invoke(backend, self)
         else:
             with pytest.raises(BackendError, match="has no"):

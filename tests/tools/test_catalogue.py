@@ -88,7 +88,7 @@ async def test_a_face_that_returns_another_result_than_its_record_says_stops_the
 
 def test_the_policys_groups_and_approvable_actions_come_from_the_records() -> None:
     assert list(TOOL_GROUPS) == list(get_args(ToolGroup))
-    assert ALL_TOOLS == tuple(spec.name for spec in TOOLS)
+    assert tuple(spec.name for spec in TOOLS) == ALL_TOOLS
     assert set(RATE_LIMIT_EXEMPT_TOOLS) == {"stop_motion", "estop", "get_safety_status"}
     assert {spec.approval for spec in TOOLS if spec.approval} == set(APPROVAL_ACTIONS)
 
@@ -126,3 +126,9 @@ def test_no_module_outside_the_catalogue_lists_tool_names_as_a_set() -> None:
     offenders = [str(path.relative_to(SRC)) for path in SRC.rglob("*.py")
                  if path.parent.name != "tools" and listing.search(path.read_text())]
     assert offenders == []
+
+
+def test_the_backend_contract_tries_every_tool_that_needs_a_capability() -> None:
+    from tests.backends.contract import OPTIONAL_CALLS
+
+    assert set(OPTIONAL_CALLS) == names(lambda spec: spec.capability is not None)
