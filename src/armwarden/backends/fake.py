@@ -48,9 +48,6 @@ from armwarden.backends.base import (
     ExecutionResult,
     GripperResult,
     ProgressCallback,
-    check_grasp_margins,
-    check_gripper_width_speed,
-    grasp_outcome,
 )
 from armwarden.backends.fake_camera import (
     CAMERA_HEIGHT_PX,
@@ -59,6 +56,7 @@ from armwarden.backends.fake_camera import (
     render_top_view,
 )
 from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FingerMotion
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.watchdog import Heartbeat

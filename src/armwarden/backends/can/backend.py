@@ -61,8 +61,6 @@ from armwarden.backends.base import (
     ExecutionResult,
     GripperResult,
     ProgressCallback,
-    check_grasp_margins,
-    check_gripper_width_speed,
 )
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
@@ -73,6 +71,7 @@ from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
 from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.gripper import ImpedanceFingerMotion, capped_setpoint
 from armwarden.backends.can.ranges import ModelRanges, Protocol
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle

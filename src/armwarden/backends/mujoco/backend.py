@@ -59,10 +59,8 @@ from armwarden.backends.base import (
     ExecutionResult,
     GripperResult,
     ProgressCallback,
-    check_grasp_margins,
-    check_gripper_width_speed,
-    grasp_outcome,
 )
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.mujoco.model import (
     GRAVITY_MPS2,
     CameraSpec,

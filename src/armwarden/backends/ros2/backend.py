@@ -95,10 +95,8 @@ from armwarden.backends.base import (
     ExecutionResult,
     GripperResult,
     ProgressCallback,
-    check_grasp_margins,
-    check_gripper_width_speed,
-    grasp_outcome,
 )
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.camera import CameraFeed
