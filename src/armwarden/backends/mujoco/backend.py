@@ -47,11 +47,10 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.base import (
     CameraImage,
@@ -61,11 +60,10 @@ from armwarden.backends.base import (
     ProgressCallback,
 )
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
+from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.model import (
     GRAVITY_MPS2,
-    CameraSpec,
     MujocoModel,
-    SceneObject,
     build_model,
     default_cameras,
     scene_for_policy,
@@ -128,59 +126,6 @@ class _FingerTarget:
 
     ramp: Ramp
     force_n: float
-
-
-Vector3 = tuple[float, float, float]
-
-
-class CameraConfig(BaseModel):
-    """A named camera: in the base frame (no `body`) or on a body, looking from `position_m` at `target_m`."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    name: str = Field(min_length=1, description="Camera name, as `camera_snapshot` takes it.")
-    position_m: Vector3 = Field(description="Camera position [m] in the base frame, or in `body`'s frame.")
-    target_m: Vector3 = Field(description="Point the camera looks at [m], same frame.")
-    body: str | None = Field(default=None, description="Body the camera rides on (e.g. the hand); null: fixed in the cell.")
-    up: Vector3 = Field(default=(0.0, 0.0, 1.0), description="Up direction of the image, no unit, same frame.")
-    fovy_deg: float = Field(default=45.0, gt=0, lt=180, allow_inf_nan=False, description="Vertical field of view [deg].")
-
-    def spec(self) -> CameraSpec:
-        return CameraSpec(self.name, self.position_m, self.target_m, self.body, self.up, self.fovy_deg)
-
-
-class ObjectConfig(BaseModel):
-    """A loose rigid object on the table: a box, or an upright cylinder."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-    name: str = Field(min_length=1, description="Body name of the object.")
-    shape: Literal["box", "cylinder"] = Field(description="'box' or 'cylinder'.")
-    position_m: Vector3 = Field(description="Centre [m] in the base frame.")
-    size_m: Vector3 = Field(description="Box: full extents (x, y, z) [m]; cylinder: (diameter, unused, height) [m].")
-    mass_kg: float = Field(gt=0, description="Mass [kg].")
-    yaw_rad: float = Field(default=0.0, description="Rotation about the vertical [rad].")
-    friction: float = Field(default=1.0, gt=0, description="Sliding friction coefficient, no unit.")
-
-    def spec(self) -> SceneObject:
-        return SceneObject(self.name, self.shape, self.position_m, self.size_m, self.mass_kg, self.yaw_rad, self.friction)
-
-
-class Config(BaseModel):
-    """`--backend-config` for the MuJoCo backend (strict, like every config file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    timestep_s: float = Field(default=0.001, gt=0, le=0.005, allow_inf_nan=False, description="Physics step [s].")
-    speedup: float = Field(default=1.0, gt=0, le=100, allow_inf_nan=False,
-                           description="Simulated time per wall time, no unit (2 = twice as fast as real time).")
-    table_top_z_m: float | None = Field(
-        default=None, allow_inf_nan=False,
-        description="Height of the table top [m] in the base frame; null: the policy's workspace floor.",
-    )
-    cameras: tuple[CameraConfig, ...] | None = Field(
-        default=None, description="Named cameras; null: a scene camera and a wrist camera."
-    )
-    camera_width_px: int = Field(default=640, ge=16, le=1280, description="Rendered image width [px].")
-    camera_height_px: int = Field(default=480, ge=16, le=960, description="Rendered image height [px].")
-    objects: tuple[ObjectConfig, ...] = Field(default=(), description="Loose objects in the cell.")
 
 
 @dataclass
@@ -643,4 +588,4 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoB
                          camera_size_px=(config.camera_width_px, config.camera_height_px))
 
 
-__all__ = ["CONTROL_PERIOD_S", "CameraConfig", "Config", "MujocoBackend", "ObjectConfig", "create_backend"]
+__all__ = ["CONTROL_PERIOD_S", "Config", "MujocoBackend", "create_backend"]
