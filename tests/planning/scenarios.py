@@ -63,4 +63,4 @@ def hemmed_block(runtime: RuntimeModel, gap_m: float = 0.0001) -> Box:
 
 def oracle_for(model: RuntimeModel) -> DenseOracle:
     """The independent dense checker with the model's zones and self-collision pairs."""
-    return DenseOracle(model.robot, model.envelope.limits, [tuple(p) for p in model.envelope._pairs])
+    return DenseOracle(model.robot, model.envelope.limits, [tuple(p) for p in model.envelope.bodies.pairs])

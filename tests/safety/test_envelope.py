@@ -229,7 +229,7 @@ def zone_contacts_of_an_accepted_plan(seed: int, robot: RobotModel, envelope: En
     geometric = {Code.KEEP_OUT, Code.WORKSPACE, Code.SELF_COLLISION}
     if _codes(report) & geometric:
         return []  # refused: nothing to prove
-    return DenseOracle(robot, checked.limits, [tuple(p) for p in checked._pairs]).violations(trajectory)
+    return DenseOracle(robot, checked.limits, [tuple(p) for p in checked.bodies.pairs]).violations(trajectory)
 
 
 def self_contacts_of_an_accepted_folding_plan(seed: int, robot: RobotModel, envelope: Envelope, planner: Planner) -> list[str]:
@@ -248,7 +248,7 @@ def self_contacts_of_an_accepted_folding_plan(seed: int, robot: RobotModel, enve
     report = relaxed.check(trajectory)
     if _codes(report) & {Code.SELF_COLLISION, Code.WORKSPACE}:
         return []
-    return DenseOracle(robot, relaxed.limits, [tuple(p) for p in relaxed._pairs]).violations(trajectory)
+    return DenseOracle(robot, relaxed.limits, [tuple(p) for p in relaxed.bodies.pairs]).violations(trajectory)
 
 
 @settings(max_examples=10, **FUZZ)

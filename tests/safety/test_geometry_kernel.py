@@ -17,8 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from armwarden.core.trajectory import JointTrajectory
-from armwarden.safety.envelope import Envelope, _Samples
+from armwarden.safety.envelope import Envelope
 from armwarden.safety.limits import Box
+from armwarden.safety.sampling import Samples, samples_at
 from armwarden.safety.violations import Code
 from tests.helpers import READY
 
@@ -46,8 +47,8 @@ def test_a_link_of_several_bodies_is_reported_at_its_earliest_finding(envelope: 
     inflation = np.zeros((2, len(checked.robot.capsules) + 1))
     inflation[0, later] = 10.0  # sample 0: only the link's last capsule leaves the workspace
     inflation[1, first] = 10.0  # sample 1: its first one
-    samples = _Samples(np.array([0.0, 1.0]), np.vstack([READY, READY]), inflation,
-                       np.zeros((2, len(checked.self_collision_pairs))))
+    samples = Samples(np.array([0.0, 1.0]), np.vstack([READY, READY]), inflation,
+                      np.zeros((2, len(checked.self_collision_pairs))))
     found, flagged, _ = checked._geometry_pass(samples)
     (violation,) = [v for v in found.values() if v.code is Code.WORKSPACE and v.body == "fr3_link5"]
     assert violation.time_s == 0.0
@@ -69,7 +70,7 @@ def test_a_sample_is_not_a_finding_by_itself_for_the_line_to_another_flagged_sam
     assert checked.check_path(positions) == ()  # the motion itself is clear
     path = checked._path_parameter(np.arange(2.0), positions)
     targets = np.array([0.0, path.total / 2, path.total])
-    samples = checked._samples_at(path, targets)
+    samples = samples_at(path, targets)
     found, _ = checked._refine(path, targets, samples, np.array([True, False, True]), 1, False)
     assert found == {}
 
@@ -159,8 +160,8 @@ def passes_flag_alike(seed: int, envelope: Envelope) -> None:
     start, end = rng.uniform(lo, hi), rng.uniform(lo, hi)
     positions = start + np.linspace(0.0, 1.0, n)[:, None] * (end - start) * rng.uniform(0.0, 1.0)
     bodies, pairs = len(envelope.robot.capsules) + 1, len(envelope.self_collision_pairs)
-    samples = _Samples(np.sort(rng.uniform(0.0, 5.0, n)), positions, rng.uniform(0.0, 0.05, (n, bodies)),
-                       rng.uniform(0.0, 0.05, (n, pairs)))
+    samples = Samples(np.sort(rng.uniform(0.0, 5.0, n)), positions, rng.uniform(0.0, 0.05, (n, bodies)),
+                      rng.uniform(0.0, 0.05, (n, pairs)))
     segments = bool(rng.integers(0, 2))
     expected, expected_flags, expected_tcp = numpy_envelope._geometry_pass(samples, segments)
     found, flags, tcp = compiled_envelope._geometry_pass(samples, segments)
@@ -200,7 +201,7 @@ def test_the_tcp_segment_between_two_samples_catches_a_thin_zone_neither_sample_
     thin = Box.of("thin", (a + b) / 2 - 0.002, (a + b) / 2 + 0.002)
     checked = make(envelope, keep_out=(thin,))
     bodies, pairs = len(envelope.robot.capsules) + 1, len(envelope.self_collision_pairs)
-    samples = _Samples(np.array([0.0, 1.0]), np.vstack([start, goal]), np.zeros((2, bodies)), np.zeros((2, pairs)))
+    samples = Samples(np.array([0.0, 1.0]), np.vstack([start, goal]), np.zeros((2, bodies)), np.zeros((2, pairs)))
     found, flagged, _ = checked._geometry_pass(samples)
     assert [(v.code, v.body, v.time_s) for v in found.values()] == [(Code.KEEP_OUT, "fr3_hand_tcp", 1.0)]
     assert flagged.tolist() == [False, True]

@@ -8,9 +8,9 @@ runs in numba kernels — forward kinematics (`robot.batch_fk`'s `fk_into`, deri
 Pinocchio model), the sampling of the path, the three checks and the refinement — with nothing
 crossing back into Python until the answer is known.
 
-**Same answer.** The kernels place the samples exactly where `Envelope._samples_at` places them
-(the same arithmetic, operation for operation: `_unit_targets`, `searchsorted`, the linear
-interpolation, `_half_neighbour_bound`; the per-segment body bounds come in from numpy's own
+**Same answer.** The kernels place the samples exactly where `sampling.samples_at` places them
+(the same arithmetic, operation for operation: `unit_targets`, `searchsorted`, the linear
+interpolation, `half_neighbour_bound`; the per-segment body bounds come in from numpy's own
 product), give each body and pair the same inflation, check flagged samples without allowance and
 refine the rest in the same depth-first order (`Envelope._refine`), and confirm every candidate
 with the predicates of `safety.geometry`, ported line for line: capsule bounds in the workspace

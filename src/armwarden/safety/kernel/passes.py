@@ -1,4 +1,4 @@
-"""A path's check (`check_path_geometry`): the samples placed where `Envelope._samples_at` places
+"""A path's check (`check_path_geometry`): the samples placed where `sampling.samples_at` places
 them, pass after pass from coarse to fine, refined depth first where a pass flags a sample."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from armwarden.safety.kernel.tables import (
 
 @helper
 def _unit_targets(start, end, spacing):  # pragma: no cover - compiled
-    """`envelope._unit_targets` (numpy's linspace, operation for operation)."""
+    """`sampling.unit_targets` (numpy's linspace, operation for operation)."""
     n_intervals = max(1, math.ceil((end - start) / spacing - 1e-12)) if end > start else 1
     out = np.empty(n_intervals + 1)
     delta = end - start
@@ -59,7 +59,7 @@ def _search_left(cum, target):  # pragma: no cover - compiled
 
 @inlined
 def _half_neighbour(values, n, column):  # pragma: no cover - compiled
-    """`_half_neighbour_bound` of `values` (N, C) at row n, column `column`."""
+    """`sampling.half_neighbour_bound` of `values` (N, C) at row n, column `column`."""
     count = values.shape[0]
     if count == 1:
         return 0.0
@@ -197,7 +197,7 @@ def check_path_geometry(times, positions, seg_bound, first_only, ints, floats): 
         targets = _unit_targets(stack_start[depth], stack_end[depth], params[4 + level])
         n_pass = targets.shape[0]
         last_level = level == n_levels - 1
-        # the samples (`Envelope._samples_at`)
+        # the samples (`sampling.samples_at`)
         k = np.empty(n_pass, dtype=np.int64)
         alpha = np.empty(n_pass)
         at_end = np.empty(n_pass, dtype=np.bool_)

@@ -276,7 +276,7 @@ def evaluate_sample(ints, floats, q, time, sample, body_inflation, group_bound, 
 
 @helper
 def _lazy_pair_inflation(pair_cum, pair_valid, steps, pair_reach, k, alpha, at_end, n_pass, n, p):  # pragma: no cover - compiled
-    """Pair p's inflation at sample n of the current pass, as `_half_neighbour_bound(at(path.pairs))`
+    """Pair p's inflation at sample n of the current pass, as `sampling.half_neighbour_bound(at(path.pairs))`
     gives it, computing the cumulative relative-motion bound of pair p only as far as needed:
     pair_cum (K, P) with pair_valid (P,) rows computed, from steps (K-1, nq) and pair_reach (P, nq);
     the pass's samples at k (N,), alpha (N,), at_end (N,)."""
