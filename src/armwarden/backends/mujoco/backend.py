@@ -26,12 +26,9 @@ Gripper: the finger actuator tracks a width ramp at the requested speed, its for
 grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
 the finger target where its ramp is (fingers on an object keep their grip; see `_stop_fingers`).
 
-Cameras render offscreen on their own thread (it owns the GL context), from the last published
-configuration of every body, so rendering never holds up the physics. The renderer is made by the
-first snapshot, not at open (most sessions never look); that first frame (GL context, shaders, the
-model's meshes and textures uploaded) took 1.2–1.5 s with software EGL on a loaded 2-core
-machine, the next ones 0.2–0.35 s, so the first gets `camera_setup_timeout_s` on top of the usual
-deadline.
+Cameras render offscreen on their own thread from the last published configuration of every
+body (`OffscreenCameras`, mujoco/cameras.py); the first snapshot gets `camera_setup_timeout_s` on
+top of the usual deadline.
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -40,12 +37,9 @@ deadline.
 from __future__ import annotations
 
 import asyncio
-import io
 import logging
-import os
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -60,6 +54,7 @@ from armwarden.backends.base import (
     ProgressCallback,
 )
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
+from armwarden.backends.mujoco.cameras import OffscreenCameras
 from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.model import (
     GRAVITY_MPS2,
@@ -228,13 +223,7 @@ class MujocoBackend(ServoBackend):
         #: physics steps run so far, and steps skipped because the thread fell too far behind
         self.step_count = 0
         self.dropped_steps = 0
-        #: rendered image size (width, height) [px]
-        self.camera_size_px = camera_size_px
-        # one thread owns the renderer (its GL context is current there), off the physics thread
-        self._render_pool: ThreadPoolExecutor | None = None
-        self._renderer: mujoco.Renderer | None = None
-        self._render_data: mujoco.MjData | None = None
-        self._rendered = threading.Event()  # a frame has been rendered: the one-time setup is done
+        self._cameras = OffscreenCameras(model, camera_size_px)
         self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, cameras=tuple(cell.cameras),
                                           frames=tuple(robot.frame_names()))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
@@ -255,10 +244,7 @@ class MujocoBackend(ServoBackend):
 
     async def _close(self) -> None:
         await self.servo.shutdown()
-        pool, self._render_pool = self._render_pool, None
-        if pool is not None:
-            await asyncio.wrap_future(pool.submit(self._close_renderer))
-            pool.shutdown(wait=False)
+        await self._cameras.close()
 
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
@@ -388,44 +374,11 @@ class MujocoBackend(ServoBackend):
     # ================================================================ cameras
     async def _camera_snapshot(self, camera: str) -> CameraImage:
         self.servo.require_running()
-        if self._render_pool is None:
-            self._render_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="armwarden-mujoco-render")
         sample = self._measured
-        png = await asyncio.wrap_future(self._render_pool.submit(self._render_png, camera, sample.scene_qpos))
-        width, height = self.camera_size_px
-        return CameraImage(camera, width, height, png, sample.stamp)
-
-    def _render_png(self, camera: str, qpos: np.ndarray) -> bytes:
-        """Render thread: the published configuration seen by `camera`, as PNG bytes."""
-        from PIL import Image  # the render path only (Pillow is a core dependency)
-
-        width, height = self.camera_size_px
-        renderer, data = self._renderer, self._render_data
-        if renderer is None or data is None:
-            try:
-                renderer = self._renderer = mujoco.Renderer(self._model, height, width)
-            except (mujoco.FatalError, RuntimeError) as exc:
-                raise BackendError(
-                    f"cannot render offscreen ({exc}); MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} when mujoco was "
-                    "imported: import armwarden.backends.mujoco before mujoco, or set MUJOCO_GL=egl"
-                ) from exc
-            data = self._render_data = mujoco.MjData(self._model)
-        data.qpos[:] = qpos
-        mujoco.mj_kinematics(self._model, data)
-        mujoco.mj_camlight(self._model, data)
-        renderer.update_scene(data, camera=camera)
-        buffer = io.BytesIO()
-        Image.fromarray(renderer.render()).save(buffer, format="PNG")
-        self._rendered.set()
-        return buffer.getvalue()
+        return await self._cameras.snapshot(camera, sample.scene_qpos, sample.stamp)
 
     def _camera_set_up(self) -> bool:
-        return self._rendered.is_set()
-
-    def _close_renderer(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        return self._cameras.set_up
 
     # ================================================================ servo hooks
     def servo_prepare(self, setpoint: Setpoint) -> None:
