@@ -49,11 +49,10 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import anyio
-import can
 import numpy as np
 
 from armwarden.backends.base import (
@@ -64,13 +63,13 @@ from armwarden.backends.base import (
 )
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can.actuators import Actuator, OutFrame, ReplyDecoder
 from armwarden.backends.can.bus import NO_FLAGS, BusFactory, CanBus, FrameKind, HealthFlag, open_interface
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config, GripperConfig, JointConfig, check_against_policy
 from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
-from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.gripper import ImpedanceFingerMotion, capped_setpoint
-from armwarden.backends.can.ranges import ModelRanges, Protocol
+from armwarden.backends.can.ranges import Protocol
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
@@ -99,44 +98,6 @@ BLOCKED_S = 0.05
 GRIPPER_HOMING_SPEED_MPS = 0.05
 
 
-@dataclass
-class _Actuator:
-    """One actuator's configuration and what it last reported (written by the reader thread,
-    read by the servo thread, both under the backend's state lock)."""
-
-    index: int  # the joint's index; -1: the gripper
-    joint: JointConfig | GripperConfig
-    ranges: ModelRanges
-    unwrapper: mit.PositionUnwrapper | None
-    raw_position: float | None = None
-    raw_velocity: float = 0.0
-    reported_at: float | None = None  # monotonic time its last position arrived
-    temperature_c: float | None = None
-    fault_bits: tuple[str, ...] = ()  # reported in the latest feedback (current)
-    fault_frames: tuple[str, ...] = ()  # RobStride type-21 reports (latched until recovery)
-    invalid_frames: int = 0  # malformed frames from it (latched until recovery)
-    mode: rs.MotorMode | None = None  # RobStride only
-    pinged: bool = False
-    replies: int = 0
-    parameters: dict[int, float] = field(default_factory=dict)
-    unanswered_since: float | None = None  # monotonic time of the oldest frame not yet answered
-
-    @property
-    def label(self) -> str:
-        what = "" if self.index < 0 else "joint "  # the gripper's name says what it is
-        return f"{what}{self.joint.name} (can id {self.joint.can_id})"
-
-
-@dataclass(frozen=True)
-class _OutFrame:
-    """A frame to send to `actuator` (encoded before any frame of its batch is sent)."""
-
-    actuator: _Actuator
-    arbitration_id: int
-    data: bytes
-    extended: bool
-
-
 class CanBackend(ServoBackend):
     """The arm of CAN actuators (see the module docstring)."""
 
@@ -153,12 +114,12 @@ class CanBackend(ServoBackend):
         self._upper = np.asarray(tuple(upper), dtype=float)
         self._home = np.asarray(tuple(home), dtype=float)
         self._actuators = [
-            _Actuator(i, j, j.ranges, mit.PositionUnwrapper(j.ranges.position.lo, j.ranges.position.hi)
+            Actuator(i, j, j.ranges, mit.PositionUnwrapper(j.ranges.position.lo, j.ranges.position.hi)
                       if j.protocol is Protocol.MIT else None)
             for i, j in enumerate(joints)
         ]
         gripper = config.gripper
-        self._gripper = None if gripper is None else _Actuator(
+        self._gripper = None if gripper is None else Actuator(
             -1, gripper, gripper.ranges, mit.PositionUnwrapper(gripper.ranges.position.lo, gripper.ranges.position.hi)
             if gripper.protocol is Protocol.MIT else None)
         #: the arm's actuators, then the gripper's: start-up, health, damping and frames cover all
@@ -181,6 +142,7 @@ class CanBackend(ServoBackend):
         self.emulator: ActuatorEmulator | None = None
         self.servo: ServoLoop | None = None
         self._state_lock = threading.Lock()
+        self._replies = ReplyDecoder(self._robstride, self._mit, self._state_lock, config.host_id, config.mit_reply_id)
         self._fault_lock = threading.Lock()
         #: the active fault ("joint ...: why; ..."), None when healthy; damping while set
         self.fault: str | None = None
@@ -222,7 +184,7 @@ class CanBackend(ServoBackend):
         if config.simulate is not None:
             self.emulator = self._build_emulator()
             self.emulator.start()
-        self.bus = CanBus(config.bus, self._on_frame, bus_factory=self._bus_factory)
+        self.bus = CanBus(config.bus, self._replies.on_frame, bus_factory=self._bus_factory)
         self.bus.open()
         host = config.host_id
         # 1. ping (harmless: MIT exit-mode leaves the actuator disabled and answers with its state)
@@ -355,7 +317,7 @@ class CanBackend(ServoBackend):
         except ValueError:
             return f"{value:g} (undefined)"
 
-    async def _await_all(self, ready: Callable[[_Actuator], bool], what: str) -> None:
+    async def _await_all(self, ready: Callable[[Actuator], bool], what: str) -> None:
         deadline = time.monotonic() + self.config.startup_timeout_s
         while True:
             with self._state_lock:
@@ -522,7 +484,7 @@ class CanBackend(ServoBackend):
             with contextlib.suppress(BackendError):  # no position yet: keep the previous hold
                 self._gripper_hold_rad = self._gripper_position()
 
-    def _gripper_frame(self) -> _OutFrame | None:
+    def _gripper_frame(self) -> OutFrame | None:
         """Servo thread, under the servo lock: this tick's command to the gripper (not damping)."""
         a = self._gripper
         if a is None:
@@ -719,7 +681,7 @@ class CanBackend(ServoBackend):
     def _send_commands(self, positions: np.ndarray, velocities: np.ndarray, *, following: bool) -> None:
         """This tick's command to every actuator: every frame is encoded (a value the model
         cannot carry refuses the whole tick before anything is sent), then sent as one batch."""
-        frames: list[_OutFrame] = []
+        frames: list[OutFrame] = []
         if not self._damping:
             bad = self._outside_limits(positions, "commanded" if following else "hold")
             if bad:  # never sent: damp instead, and the next tick turns it into a fault
@@ -751,7 +713,7 @@ class CanBackend(ServoBackend):
                 self._moved_this_execution = True
                 self.moving_executions += 1
 
-    def _following_frames(self, positions: np.ndarray, velocities: np.ndarray) -> list[_OutFrame]:
+    def _following_frames(self, positions: np.ndarray, velocities: np.ndarray) -> list[OutFrame]:
         """Every actuator's stiff command of this tick (the gripper's too), all encoded before any is
         sent; `BackendError` if one cannot be."""
         raw = (self._direction * positions + self._offset).tolist()
@@ -764,23 +726,23 @@ class CanBackend(ServoBackend):
             frames.append(gripper)
         return frames
 
-    def _command_frame(self, a: _Actuator, command: MotorCommand) -> _OutFrame:
+    def _command_frame(self, a: Actuator, command: MotorCommand) -> OutFrame:
         """`command` for `a` as a frame; `BackendError` (nothing sent) if the model cannot carry it."""
         try:
             if a.joint.protocol is Protocol.ROBSTRIDE:
                 frame = rs.control_frame(a.joint.can_id, command, a.ranges)
-                return _OutFrame(a, frame.arbitration_id, frame.data, True)
-            return _OutFrame(a, a.joint.can_id, mit.pack_command(command, a.ranges), False)
+                return OutFrame(a, frame.arbitration_id, frame.data, True)
+            return OutFrame(a, a.joint.can_id, mit.pack_command(command, a.ranges), False)
         except ValueError as exc:  # a value the model cannot carry: never sent
             raise BackendError(f"can backend: {a.label}: command refused: {exc}") from exc
 
-    def _send_rs(self, frame: rs.Frame, kind: FrameKind, a: _Actuator) -> None:
-        self._send_batch([_OutFrame(a, frame.arbitration_id, frame.data, True)], kind)
+    def _send_rs(self, frame: rs.Frame, kind: FrameKind, a: Actuator) -> None:
+        self._send_batch([OutFrame(a, frame.arbitration_id, frame.data, True)], kind)
 
-    def _send_mit(self, a: _Actuator, data: bytes, kind: FrameKind) -> None:
-        self._send_batch([_OutFrame(a, a.joint.can_id, data, False)], kind)
+    def _send_mit(self, a: Actuator, data: bytes, kind: FrameKind) -> None:
+        self._send_batch([OutFrame(a, a.joint.can_id, data, False)], kind)
 
-    def _send_batch(self, frames: list[_OutFrame], kind: FrameKind) -> None:
+    def _send_batch(self, frames: list[OutFrame], kind: FrameKind) -> None:
         """Send `frames` in order; each actuator now owes an answer (its RX timeout runs from the
         oldest unanswered frame)."""
         bus = self.bus
@@ -793,68 +755,6 @@ class CanBackend(ServoBackend):
                     frame.actuator.unanswered_since = now
         # a refused send latches TX overrun
         bus.send_frames([(f.arbitration_id, f.data, f.extended) for f in frames], kind)
-
-    # ================================================================ frames in (reader thread)
-    def _on_frame(self, msg: can.Message) -> None:
-        data = bytes(msg.data)
-        if msg.is_extended_id:
-            fields = rs.split_id(msg.arbitration_id)
-            motor = fields.data2 & 0xFF
-            a = self._robstride.get(motor)
-            if a is None:
-                raise InvalidFrame(f"frame 0x{msg.arbitration_id:X} from unknown RobStride motor {motor}")
-            with self._state_lock:
-                try:
-                    self._on_robstride(a, fields.comm_type, msg.arbitration_id, data)
-                except InvalidFrame:
-                    a.invalid_frames += 1
-                    raise
-                a.replies += 1
-                a.unanswered_since = None
-            return
-        if msg.arbitration_id != self.config.mit_reply_id or not data:
-            raise InvalidFrame(f"unexpected standard frame 0x{msg.arbitration_id:X}")
-        a = self._mit.get(data[0])
-        if a is None:
-            raise InvalidFrame(f"MIT reply from unknown motor {data[0]}")
-        with self._state_lock:
-            try:
-                reply = mit.parse_reply(data, a.ranges, motor_id=a.joint.can_id)
-            except InvalidFrame:
-                a.invalid_frames += 1
-                raise
-            assert a.unwrapper is not None
-            a.raw_position = a.unwrapper.update(reply.position)
-            a.raw_velocity = reply.velocity
-            a.reported_at = time.monotonic()
-            if reply.temperature_c is not None:
-                a.temperature_c = float(reply.temperature_c)
-            a.fault_bits = () if reply.error in (None, mit.MitError.NONE) else (reply.error.name,)
-            a.pinged = True
-            a.replies += 1
-            a.unanswered_since = None
-
-    def _on_robstride(self, a: _Actuator, comm_type: int, arbitration_id: int, data: bytes) -> None:
-        host = self.config.host_id
-        if comm_type == rs.CommType.FEEDBACK:
-            feedback = rs.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
-            a.raw_position, a.raw_velocity = feedback.position, feedback.velocity
-            a.reported_at = time.monotonic()
-            a.temperature_c, a.mode = feedback.temperature_c, feedback.mode
-            a.fault_bits = rs.flag_names(feedback.faults)
-        elif comm_type == rs.CommType.FAULT:
-            report = rs.parse_fault(arbitration_id, data, host_id=host)
-            names = rs.flag_names(report.faults) + ((f"0x{report.unknown_bits:X}",) if report.unknown_bits else ())
-            if names:
-                a.fault_frames = tuple(dict.fromkeys(a.fault_frames + names))
-        elif comm_type == rs.CommType.GET_ID:
-            rs.parse_device_id(arbitration_id, data)
-            a.pinged = True
-        elif comm_type == rs.CommType.READ_PARAMETER:
-            value = rs.parse_parameter(arbitration_id, data, host_id=host)
-            a.parameters[value.parameter.index] = float(value.value)
-        else:
-            raise InvalidFrame(f"unexpected RobStride frame type {comm_type} from motor {a.joint.can_id}")
 
 
 def _confirms(read_back: float | None, written: float) -> bool:
