@@ -17,10 +17,7 @@ from tests.helpers import REPO, SRC
 
 LINT_IMPORTS = Path(sys.executable).with_name("lint-imports")
 #: loops still to be cut, each named with why it is there (empty is the goal)
-KNOWN_LOOPS: dict[frozenset[str], str] = {
-    frozenset({"armwarden.guard.actions", "armwarden.guard.door", "armwarden.guard.gripper", "armwarden.guard.planning"}):
-        "the flows take the Guard itself (under TYPE_CHECKING); issue 26 makes them peers over one state record",
-}
+KNOWN_LOOPS: dict[frozenset[str], str] = {}
 
 
 def lint_imports(repo: Path, src: Path) -> subprocess.CompletedProcess[str]:

@@ -49,7 +49,7 @@ async def test_a_plan_that_breaks_the_envelope_in_force_at_execution_is_refused(
         assert summary["status"] == "ok"
         fixture = {"name": "new_fixture", "min": [0.20, -0.10, 0.38], "max": [0.40, 0.10, 0.43]}
         stricter = policy_with(**{"workspace.keep_out": [fixture]})
-        arm.guard.planning = dataclasses.replace(arm.guard.planning, envelope=load_runtime_model(stricter).envelope)
+        arm.guard.state.planning = dataclasses.replace(arm.guard.planning, envelope=load_runtime_model(stricter).envelope)
 
         result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
 

@@ -19,7 +19,7 @@ FAST = 50.0
 async def test_plan_to_joints_around_a_pillar_is_ok_and_its_notes_say_it_is_a_detour(tmp_path) -> None:
     async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client("legacy", approve("alice")) as client:
         # from the ready pose (where the fake starts) a base turn of 1 rad sweeps the hand through the pillar
-        arm.guard.planning = with_zones(arm.guard.planning, pillar_at(arm.guard.planning, 0.5))
+        arm.guard.state.planning = with_zones(arm.guard.planning, pillar_at(arm.guard.planning, 0.5))
         result = await client.call_tool("plan_to_joints", {"joint_positions": list(base_turn(1.0)), "preview": False})
         summary = result.structured_content
         assert summary["status"] in ("ok", "needs_approval"), summary
@@ -32,7 +32,7 @@ async def test_an_estop_during_a_long_detour_search_is_served_at_once_and_voids_
     async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client("legacy", approve("alice")) as client:
         # the arm rests where every motion sweeps the hand into a block: the search runs its whole 2 s budget
         budget_s = 2.0
-        arm.guard.planning = with_zones(arm.guard.planning, hemmed_block(arm.guard.planning), budget_s=budget_s)
+        arm.guard.state.planning = with_zones(arm.guard.planning, hemmed_block(arm.guard.planning), budget_s=budget_s)
         outcome: dict[str, Any] = {}
 
         async def plan() -> None:

@@ -528,7 +528,7 @@ class _HeldPlanner:
 async def test_a_plan_being_made_when_the_estop_latches_is_discarded_and_cannot_run_after_the_reset(tmp_path, mode) -> None:
     async with arm_harness(tmp_path, speedup=FAST) as arm, arm.client(mode, approve("alice")) as client:
         gate = threading.Event()
-        arm.guard.planning = dataclasses.replace(arm.guard.planning, planner=_HeldPlanner(arm.guard.planning.planner, gate))
+        arm.guard.state.planning = dataclasses.replace(arm.guard.planning, planner=_HeldPlanner(arm.guard.planning.planner, gate))
         outcome: dict[str, Any] = {}
 
         async def plan() -> None:

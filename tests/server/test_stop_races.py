@@ -53,14 +53,14 @@ async def test_a_control_action_decided_before_a_channel_estop_does_nothing(tmp_
                                                                             arguments) -> None:
     policy = policy_with(**{"controllers.allowlist": ["fr3_arm_controller", "joint_impedance_controller"]})
     async with arm_harness(tmp_path, policy) as arm:
-        interpret = arm.guard.interpret_approval
+        interpret = arm.guard.state.interpret_approval
 
         def approve_then_estop_elsewhere(*args, **kwargs):
             approval = interpret(*args, **kwargs)
             estop_from_another_thread(arm.guard)  # after the latch check, before the backend command
             return approval
 
-        monkeypatch.setattr(arm.guard, "interpret_approval", approve_then_estop_elsewhere)
+        monkeypatch.setattr(arm.guard.state, "interpret_approval", approve_then_estop_elsewhere)
         controllers_before = await arm.inner.list_controllers()
         async with arm.client("legacy", approve()) as client:
             result = await client.call_tool(tool, arguments)
@@ -71,7 +71,7 @@ async def test_a_control_action_decided_before_a_channel_estop_does_nothing(tmp_
 
 def estop_right_after_the_latch_check(arm, monkeypatch, what: str) -> None:
     """The stop channel's thread latches in the gap right after the Guard's latch check for `what`."""
-    original = arm.guard.require_not_estopped
+    original = arm.guard.state.require_not_estopped
     fired: list[bool] = []
 
     def check_then_estop_elsewhere(checked: str) -> None:
@@ -80,7 +80,7 @@ def estop_right_after_the_latch_check(arm, monkeypatch, what: str) -> None:
             fired.append(True)
             estop_from_another_thread(arm.guard)
 
-    monkeypatch.setattr(arm.guard, "require_not_estopped", check_then_estop_elsewhere)
+    monkeypatch.setattr(arm.guard.state, "require_not_estopped", check_then_estop_elsewhere)
 
 
 async def test_a_gripper_move_whose_latch_check_a_channel_estop_just_missed_does_not_start(tmp_path: Path,

@@ -12,18 +12,16 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 from armwarden.approval import prompts
 from armwarden.approval.decision import Prompt, ServerDecision, approval_required, client_decision
 from armwarden.backends.base import Backend
 from armwarden.core.errors import RefusalCode, SafetyRefusal
+from armwarden.guard.gates import GuardState
 from armwarden.policy import Policy
 from armwarden.results import ActionResult
 from armwarden.safety import checks
-
-if TYPE_CHECKING:
-    from armwarden.guard.door import Guard
 
 ControlTool = Literal["switch_controllers", "set_collision_thresholds", "error_recovery"]
 
@@ -65,8 +63,8 @@ class ControlActions:
     """The control-action flow, through the Guard's gates. Counts the completed actions per tool
     (see `round`)."""
 
-    def __init__(self, door: Guard) -> None:
-        self._door = door
+    def __init__(self, state: GuardState) -> None:
+        self._state = state
         self._done: dict[str, int] = {}
 
     def round(self, tool: str) -> str:
@@ -74,43 +72,43 @@ class ControlActions:
         of `tool`, with each e-stop and with each stop, so an approval (or a replayed protocol round
         carrying one) never carries over to a later request, across an e-stop and its reset, or
         past a stop pressed while a human decided."""
-        return f"{self._door.latch.generation}.{self._door.stopper.generation}.{self._done.get(tool, 0)}"
+        return f"{self._state.latch.generation}.{self._state.stopper.generation}.{self._done.get(tool, 0)}"
 
     def _bind(self, tool: ControlTool, arguments: dict[str, Any]) -> ControlAction:
-        door = self._door
-        return control_action(tool, arguments, policy=door.policy, backend=door.backend, round_=self.round(tool),
-                              faults=door.faults, dry_run=door.dry_run)
+        state = self._state
+        return control_action(tool, arguments, policy=state.policy, backend=state.backend, round_=self.round(tool),
+                              faults=state.faults, dry_run=state.dry_run)
 
     def precheck(self, tool: ControlTool, can_elicit: bool, arguments: dict[str, Any]) -> ServerDecision | Prompt:
         """Everything that would refuse `tool`, checked before any human is asked. Read-only."""
-        door = self._door
+        state = self._state
         action = self._bind(tool, arguments)
         try:  # never ask a human to approve a request that would be refused anyway
             action.check()
         except SafetyRefusal as exc:
             return ServerDecision.refusal(exc)
-        if (d := door.peek_rate(tool)) is not None:
+        if (d := state.peek_rate(tool)) is not None:
             return d
-        if (r := door.estop_refusal(tool)) is not None:
+        if (r := state.estop_refusal(tool)) is not None:
             return ServerDecision.refusal(r)
-        decision = client_decision(door.policy, tool, approval_required(door.policy, tool), can_elicit)
+        decision = client_decision(state.policy, tool, approval_required(state.policy, tool), can_elicit)
         return decision if decision is not None else action.prompt()
 
     async def run(self, tool: ControlTool, approval_outcome: Any, shown: str | None, arguments: dict[str, Any]) -> ActionResult:
-        door = self._door
+        state = self._state
         action = self._bind(tool, arguments)
         action.check()
-        door.require_audit(tool)
-        stop_epoch = door.backend.stop_epoch  # decided now: a stop from here on keeps it from starting ...
-        door.require_not_estopped(tool)  # ... and an e-stop latched before it refuses
-        approval = door.interpret_approval(approval_outcome, approval_required(door.policy, tool))
+        state.require_audit(tool)
+        stop_epoch = state.backend.stop_epoch  # decided now: a stop from here on keeps it from starting ...
+        state.require_not_estopped(tool)  # ... and an e-stop latched before it refuses
+        approval = state.interpret_approval(approval_outcome, approval_required(state.policy, tool))
         if not approval.granted:
             raise approval.refusal(tool)
         if approval.via == "elicitation" and shown != action.prompt().digest:
             raise SafetyRefusal(RefusalCode.APPROVAL_MISMATCH,
                                 f"{tool}: the approval was given for a different request; nothing was done")
         self._done[tool] = self._done.get(tool, 0) + 1  # this approval is now spent
-        if door.dry_run:
+        if state.dry_run:
             return ActionResult(status="dry_run", approval=approval.info(), detail=f"dry run: {action.done} would be done; nothing changed")
-        await door.readings.backend_call(tool.replace("_", " "), action.actuate(stop_epoch))
+        await state.readings.backend_call(tool.replace("_", " "), action.actuate(stop_epoch))
         return ActionResult(status="succeeded", approval=approval.info(), detail=action.done)

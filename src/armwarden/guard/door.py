@@ -46,15 +46,16 @@ from typing import Any
 from armwarden import conversions, results
 from armwarden.approval import prompts
 from armwarden.approval.board import PendingApprovals
-from armwarden.approval.decision import Approval, Prompt, ServerDecision, approval_required, client_decision, hold_to_channel, interpret
+from armwarden.approval.decision import Prompt, ServerDecision, approval_required, client_decision
 from armwarden.approval.plans import PlanRefusal, PlanStore
 from armwarden.backends.base import Backend, Capabilities
-from armwarden.callcontext import current_call, current_caller, note_approval
+from armwarden.callcontext import current_call, current_caller
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.actions import ControlActions, ControlTool
 from armwarden.guard.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
+from armwarden.guard.gates import GuardState
 from armwarden.guard.gripper import GripperFlow, GripperTool
-from armwarden.guard.planning import PlanKind, PlanningFlow, Previewer
+from armwarden.guard.planning import PlanningFlow, Previewer
 from armwarden.guard.readings import Readings
 from armwarden.guard.stopping import Stopper
 from armwarden.policy import Policy
@@ -63,6 +64,7 @@ from armwarden.robot.model import RobotModel
 from armwarden.safety.estop import EStopLatch
 from armwarden.safety.ratelimit import RateLimiter
 from armwarden.safety.violations import Violation
+from armwarden.tools import PlanKind
 
 logger = logging.getLogger(__name__)
 
@@ -77,7 +79,6 @@ class Guard:
     def __init__(self, policy: Policy, planning: RuntimeModel, state_robot: RobotModel, backend: Backend, *,
                  audit=None, previewer: Previewer | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.policy = policy
-        self.planning = planning
         self.robot = state_robot
         self.backend = backend
         self.audit = audit
@@ -90,18 +91,19 @@ class Guard:
         self.readings = Readings(policy, state_robot, backend, clock)
         self.stopper = Stopper(backend, self.latch, self.plans, audit)
         self.faults = self.stopper.faults  # one list: stops, the audit writer and error recovery add to it
+        #: what the flows share, and the gates they run (`gates.py`)
+        self.state = GuardState(policy, planning, backend, self.readings, self.limiter, self.latch, self.plans,
+                                self.stopper, audit)
         backend.set_fault_listener(self._backend_fault)  # faults a backend finds on its own thread
         self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
                                    emergency_stop=self.emergency_stop, stop_for=self.stopper.stop_for,
                                    record=self._record)
-        self.planning_flow = PlanningFlow(self, previewer)
+        self.planning_flow = PlanningFlow(self.state, previewer)
         self._execution: Execution | None = None
-        self.actions = ControlActions(self)
-        self.gripper_flow = GripperFlow(self)
-        self.last_violation: Violation | None = None
-        self.last_result: results.ExecutionReport | None = None
+        self.actions = ControlActions(self.state)
+        self.gripper_flow = GripperFlow(self.state)
 
-    # ================================================================== admission
+    # ================================================================== admission (the gates: gates.py)
     @property
     def dry_run(self) -> bool:
         return self.policy.dry_run
@@ -110,41 +112,38 @@ class Guard:
     def capabilities(self) -> Capabilities:
         return self.backend.capabilities
 
+    @property
+    def planning(self) -> RuntimeModel:
+        return self.state.planning
+
+    @property
+    def last_violation(self) -> Violation | None:
+        return self.state.last_violation
+
+    @property
+    def last_result(self) -> results.ExecutionReport | None:
+        return self.state.last_result
+
     def admit(self, tool: str) -> None:
-        """Rate limit (exempt tools always pass). Raises RATE_LIMITED."""
-        decision = self.limiter.try_acquire(tool)
-        if not decision.allowed:
-            raise refuse(RefusalCode.RATE_LIMITED, decision.message)
+        self.state.admit(tool)
 
     def charge(self, tool: str) -> None:
-        """Take a rate token for a call refused before its body ran (bad arguments): floods of
-        invalid calls still cost tokens."""
-        self.limiter.try_acquire(tool)
+        self.state.charge(tool)
 
     def peek_rate(self, tool: str) -> ServerDecision | None:
-        decision = self.limiter.peek(tool)
-        return None if decision.allowed else ServerDecision.refused(RefusalCode.RATE_LIMITED, decision.message)
+        return self.state.peek_rate(tool)
 
     def estop_refusal(self, what: str) -> SafetyRefusal | None:
-        event = self.latch.current_event
-        if event is None:
-            return None
-        return refuse(RefusalCode.ESTOPPED, f"{what} refused: the software e-stop #{event.number} is latched "
-                      f"({event.source}: {event.reason}). A human must approve reset_estop before anything can move again.")
+        return self.state.estop_refusal(what)
 
     def audit_unusable(self) -> str | None:
-        """Why the audit log cannot be written now (None while it can, or when there is no log)."""
-        return None if self.audit is None else self.audit.unusable
+        return self.state.audit_unusable()
 
     def require_audit(self, what: str) -> None:
-        """Nothing actuates unless it can be audited: a log that failed a write refuses, and so do we."""
-        if (why := self.audit_unusable()) is not None:
-            raise refuse(RefusalCode.AUDIT_UNAVAILABLE, f"{what} refused: the audit log cannot be written "
-                         f"({why}); nothing moves until it is repaired and the daemon restarted")
+        self.state.require_audit(what)
 
     def require_not_estopped(self, what: str) -> None:
-        if (refusal := self.estop_refusal(what)) is not None:
-            raise refusal
+        self.state.require_not_estopped(what)
 
     # ================================================================== introspection (reads only, see readings.py)
     async def robot_state(self) -> results.RobotState:
@@ -228,15 +227,6 @@ class Guard:
                              requester=None if call is None else call.principal)
         return prompt
 
-    def interpret_approval(self, outcome: Any, required: bool) -> Approval:
-        """The resolver's outcome as an Approval, noted on the call's audit record. Under
-        `approval.channel: url` a form answer is the requester's own (`hold_to_channel`)."""
-        approval = hold_to_channel(self.policy, interpret(outcome, required))
-        note_approval(approval.granted, approval.via, approval.operator, type(outcome).__name__)
-        if approval.self_approved and (call := current_call()) is not None:
-            call.extra["approval"]["self_approval"] = True  # the approver was the requester (policy allows it)
-        return approval
-
     async def execute(self, plan_id: str, approval_outcome: Any, shown_digest: str | None,
                       report_progress: ProgressReporter | None = None) -> results.ExecutionReport:
         """Run a stored plan: the only way the arm moves. The tool layer has admitted the call (rate
@@ -255,7 +245,7 @@ class Guard:
                 raise refuse(plan.code, plan.message)
             asked_at = self.approvals.asked_at(plan.plan_id, self.latch.generation)
             self.approvals.withdraw(plan.plan_id, "the plan was used")
-            approval = self.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
+            approval = self.state.interpret_approval(approval_outcome, approval_required(self.policy, "execute", bool(plan.report.soft)))
             if not approval.granted:
                 raise approval.refusal(f"execute_plan {plan.plan_id}")
             asked_a_human = approval.via in ("elicitation", "console")
@@ -265,9 +255,9 @@ class Guard:
             if asked_a_human and shown_digest != plan.digest:
                 raise refuse(RefusalCode.APPROVAL_MISMATCH, "the approval was given for a different plan; nothing was done")
             self.require_not_estopped("execute_plan")
-            recheck = await self.planning_flow.on_thread(lambda: self.planning.envelope.check(plan.trajectory))
+            recheck = await self.planning_flow.on_thread(lambda: self.state.planning.envelope.check(plan.trajectory))
             if recheck.hard:
-                self.last_violation = recheck.hard[0]
+                self.state.last_violation = recheck.hard[0]
                 raise refuse(RefusalCode.ENVELOPE, f"re-validation failed: {recheck.hard[0].code.value}: {recheck.hard[0].detail}")
             state = await self.readings.joint_state()  # the arm may have moved while a human was deciding
             if (stale := self.plans.check_start(plan, state.positions)) is not None:
@@ -300,7 +290,7 @@ class Guard:
             logger.critical("backend fault not audited (%s): e-stop #%d: %s", exc, event.number, reason)
 
     def _record(self, report: results.ExecutionReport) -> results.ExecutionReport:
-        self.last_result = report
+        self.state.last_result = report
         return report
 
     async def abandoned_call(self, tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool | None,
@@ -352,7 +342,7 @@ class Guard:
 
     async def reset_estop(self, approval_outcome: Any, shown_event: str | None) -> results.ResetResult:
         """Release the e-stop a human approved resetting; recorded before it takes effect."""
-        approval = self.interpret_approval(approval_outcome, True)
+        approval = self.state.interpret_approval(approval_outcome, True)
         if not approval.granted:
             raise approval.refusal("reset_estop")
         return await self.stopper.release(shown_event, approval.operator, approval.via)

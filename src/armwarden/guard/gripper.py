@@ -8,17 +8,15 @@ cancel, disconnect, timeout) stops arm and gripper before the cancellation goes 
 from __future__ import annotations
 
 from collections.abc import Awaitable
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import anyio
 
 from armwarden.backends.base import GripperResult
 from armwarden.core.errors import RefusalCode, SafetyRefusal
+from armwarden.guard.gates import GuardState
 from armwarden.results import GripperResultModel
 from armwarden.safety import checks
-
-if TYPE_CHECKING:
-    from armwarden.guard.door import Guard
 
 GripperTool = Literal["gripper_move", "gripper_grasp", "gripper_home"]
 
@@ -26,29 +24,29 @@ GripperTool = Literal["gripper_move", "gripper_grasp", "gripper_home"]
 class GripperFlow:
     """Runs the gripper tools through the Guard's gates; `busy` while a gripper action runs."""
 
-    def __init__(self, door: Guard) -> None:
-        self._door = door
+    def __init__(self, state: GuardState) -> None:
+        self._state = state
         self.busy = False
 
     async def run(self, tool: GripperTool, width_m: float | None, force_n: float | None, speed_mps: float | None,
                   epsilon_inner_m: float, epsilon_outer_m: float) -> GripperResultModel:
-        door = self._door
-        door.require_audit(tool)
-        stop_epoch = door.backend.stop_epoch  # decided now: any stop from here on keeps the fingers still ...
-        door.require_not_estopped(tool)  # ... and an e-stop latched before it refuses
-        speed = checks.check_gripper(door.policy, width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
+        state = self._state
+        state.require_audit(tool)
+        stop_epoch = state.backend.stop_epoch  # decided now: any stop from here on keeps the fingers still ...
+        state.require_not_estopped(tool)  # ... and an e-stop latched before it refuses
+        speed = checks.check_gripper(state.policy, width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
         if self.busy:
             raise SafetyRefusal(RefusalCode.BUSY, "another gripper action is running")
-        if door.dry_run:
+        if state.dry_run:
             return GripperResultModel(status="dry_run", width_m=None, is_grasped=None, detail="dry run: nothing moved")
         self.busy = True
         try:
             call = self._command(tool, width_m, force_n, speed, epsilon_inner_m, epsilon_outer_m, stop_epoch)
             try:
-                result = await door.readings.backend_call(tool.replace("_", " "), call)
+                result = await state.readings.backend_call(tool.replace("_", " "), call)
             except anyio.get_cancelled_exc_class():
                 with anyio.CancelScope(shield=True):
-                    await door.stop_motion()
+                    await state.stopper.stop_motion()
                 raise
         finally:
             self.busy = False
@@ -61,7 +59,7 @@ class GripperFlow:
                  epsilon_inner_m: float, epsilon_outer_m: float, stop_epoch: int) -> Awaitable[GripperResult]:
         """The backend command for `tool`. The tool schemas require width (and force for a grasp);
         a caller that bypasses them is refused, not guessed for."""
-        backend = self._door.backend
+        backend = self._state.backend
         if tool == "gripper_home":
             return backend.gripper_home(stop_epoch=stop_epoch)
         if width_m is None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar
 
 import anyio
 import numpy as np
@@ -27,6 +27,7 @@ from armwarden.approval.decision import approval_required
 from armwarden.callcontext import current_call, current_caller
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.core.trajectory import JointTrajectory
+from armwarden.guard.gates import GuardState
 from armwarden.planning.around import request_seed
 from armwarden.planning.planners import PlanOutcome, PoseTarget
 from armwarden.policy import Policy, policy_digest
@@ -34,11 +35,8 @@ from armwarden.preflight import RuntimeModel
 from armwarden.results import PlanSummary
 from armwarden.safety.limits import EnvelopeReport
 from armwarden.safety.violations import Violation
+from armwarden.tools import PlanKind
 
-if TYPE_CHECKING:
-    from armwarden.guard.door import Guard
-
-PlanKind = Literal["joints", "pose", "cartesian"]
 PlanStatus = Literal["ok", "needs_approval", "rejected"]
 #: version of the `replay` object a planning call's audit record carries (`replay_facts`)
 REPLAY_FORMAT = 1
@@ -201,8 +199,8 @@ def _number_or_none(value: Any) -> float | None:
 class PlanningFlow:
     """Plans for the Guard (with its `planning` model) on its one planning thread."""
 
-    def __init__(self, door: Guard, previewer: Previewer | None) -> None:
-        self._door = door
+    def __init__(self, state: GuardState, previewer: Previewer | None) -> None:
+        self._state = state
         self._previewer = previewer
         self._slot = anyio.CapacityLimiter(1)  # one planning thread, one Pinocchio Data
         self._digest: tuple[Policy, str] | None = None  # the last policy digested and its digest
@@ -221,17 +219,17 @@ class PlanningFlow:
     async def plan(self, kind: PlanKind, request: dict[str, Any]) -> tuple[PlanSummary, bytes | None]:
         """Plan and check a motion (never moves); the plan belongs to the caller. Returns the
         summary and an optional preview PNG."""
-        door = self._door
-        generation = door.latch.generation  # an e-stop from now on (any thread) voids the result ...
-        door.require_not_estopped("planning")  # ... and one before it refuses
-        start = (await door.readings.joint_state()).positions.copy()
-        model, previewer = door.planning, self._previewer  # the Guard's model, as it is now
+        state = self._state
+        generation = state.latch.generation  # an e-stop from now on (any thread) voids the result ...
+        state.require_not_estopped("planning")  # ... and one before it refuses
+        start = (await state.readings.joint_state()).positions.copy()
+        model, previewer = state.planning, self._previewer  # the Guard's model, as it is now
         call = current_call()
         if call is not None:  # before planning: a call that fails while planning can be replayed too
-            call.extra["replay"] = replay_facts(self.policy_digest(door.policy), model, kind, start, request)
+            call.extra["replay"] = replay_facts(self.policy_digest(state.policy), model, kind, start, request)
 
         def work() -> tuple[Any, EnvelopeReport | None, bytes | None]:
-            outcome, report = plan_and_check(model, kind, start, request, lambda: door.latch.generation != generation)
+            outcome, report = plan_and_check(model, kind, start, request, lambda: state.latch.generation != generation)
             if outcome.trajectory is None or report is None:
                 return outcome, None, None
             wants_preview = request.get("preview", True) and previewer is not None
@@ -242,20 +240,20 @@ class PlanningFlow:
         if call is not None:  # the scalings the planner used (after the policy's caps)
             call.extra["replay"]["planner"].update(velocity_scaling=outcome.velocity_scaling,
                                                    acceleration_scaling=outcome.acceleration_scaling)
-        if door.latch.generation != generation:
+        if state.latch.generation != generation:
             raise SafetyRefusal(RefusalCode.ESTOPPED, "an e-stop latched while this motion was being planned; the plan "
                                 "was discarded. A human must approve reset_estop before anything can move again.")
-        verdict = judge(door.policy, outcome, report)
+        verdict = judge(state.policy, outcome, report)
         violations = list(verdict.violations)
         hard = [v for v in violations if v.is_hard]
         if violations:
-            door.last_violation = hard[0] if hard else violations[0]
-        monitoring = door.backend.capabilities.wrench
-        notes = conversions.plan_notes(outcome.notes, monitoring, door.policy.force.require_wrench, door.dry_run)
+            state.last_violation = hard[0] if hard else violations[0]
+        monitoring = state.backend.capabilities.wrench
+        notes = conversions.plan_notes(outcome.notes, monitoring, state.policy.force.require_wrench, state.dry_run)
         if outcome.trajectory is None or report is None:
             return conversions.plan_summary(violations, notes, monitoring), preview
         status, needs = verdict.status, verdict.requires_approval
-        stored = door.plans.add(outcome.trajectory, report, status=status, estop_generation=generation,
+        stored = state.plans.add(outcome.trajectory, report, status=status, estop_generation=generation,
                                 owner=current_caller(),
                                 meta={"kind": kind, "notes": tuple(notes), "velocity_scaling": outcome.velocity_scaling})
         return conversions.plan_summary(

@@ -15,10 +15,11 @@ from typing import Any, cast
 import numpy as np
 
 from armwarden.core.errors import RefusalCode
-from armwarden.guard.planning import REPLAY_FORMAT, PlanKind, decode_request, plan_offline
+from armwarden.guard.planning import REPLAY_FORMAT, decode_request, plan_offline
 from armwarden.preflight import RuntimeModel
 from armwarden.replay.records import Outcome, PlanCall
 from armwarden.safety.violations import Code
+from armwarden.tools import PlanKind
 
 #: what the notes of a plan the detour planner produced start with (`planning.around`)
 DETOUR_NOTE = "detour planned:"

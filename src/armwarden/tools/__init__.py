@@ -6,6 +6,6 @@ of them keeps its own list of names. Adding a tool starts here (docs/add-a-tool.
 """
 
 from armwarden.tools.registry import TOOLS, names, spec_of, specs
-from armwarden.tools.spec import ApprovalAction, Hints, ToolGroup, ToolSpec
+from armwarden.tools.spec import ApprovalAction, Hints, PlanKind, ToolGroup, ToolSpec
 
-__all__ = ["TOOLS", "ApprovalAction", "Hints", "ToolGroup", "ToolSpec", "names", "spec_of", "specs"]
+__all__ = ["TOOLS", "ApprovalAction", "Hints", "PlanKind", "ToolGroup", "ToolSpec", "names", "spec_of", "specs"]

@@ -17,7 +17,7 @@ from pydantic import Field
 
 from armwarden.approval.decision import ConsoleChannel, ServerDecision
 from armwarden.core.errors import RefusalCode, SafetyRefusal
-from armwarden.guard import PlanKind, Prompt
+from armwarden.guard import Prompt
 from armwarden.planning.planners import MIN_SCALING, PoseTarget
 from armwarden.results import ExecutionReport, MotionStatus, PlanSummary
 from armwarden.server.approval import ApprovalAnswer, ResolvedByHand, ShownDigest, approval_parameters, can_elicit, uses_rounds
@@ -26,6 +26,7 @@ from armwarden.server.faces.arguments import JOINT_BOUND, MAX_WAYPOINTS, Finite,
 from armwarden.server.faces.face import FaceContext, Faces
 from armwarden.server.outofband import answer_out_of_band, answer_round, ask_round
 from armwarden.server.roundstate import RoundSeal
+from armwarden.tools import PlanKind
 
 
 def motion_faces(c: FaceContext) -> Faces:
