@@ -3,7 +3,8 @@
 One job per module: `config` (the strict `--backend-config`; no rclpy), `bridge` (a private rclpy
 context, node and executor thread; rclpy futures awaited from asyncio), `state` (thread-safe
 caches of joint states and wrench with their receipt times), `images` (sensor_msgs images to
-PNG), `tf` (a small transform buffer), `backend` (`Ros2Backend`). Importing this package does not
+PNG), `tf` (a small transform buffer), `runs` (the trajectory and hold messages, the records of
+goals in flight and of stops), `backend` (`Ros2Backend`). Importing this package does not
 import rclpy: `create_backend` does, and turns a missing rclpy or control_msgs into
 `BackendUnavailable` with the install hint (exit 2 at start-up). See
 docs/backends/ros2.md.

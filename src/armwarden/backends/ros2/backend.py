@@ -60,9 +60,7 @@ import logging
 import math
 import threading
 import time
-import uuid
 from collections import deque
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import anyio
@@ -83,8 +81,6 @@ from sensor_msgs.msg import JointState as JointStateMsg
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory as JointTrajectoryMsg
-from trajectory_msgs.msg import JointTrajectoryPoint
-from unique_identifier_msgs.msg import UUID
 
 from armwarden.backends.base import (
     PREEMPTED,
@@ -102,6 +98,17 @@ from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.camera import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
+from armwarden.backends.ros2.runs import (
+    Endpoints,
+    Fault,
+    GoalRun,
+    GripperRun,
+    StopRecord,
+    TopicRun,
+    hold_message,
+    new_goal_id,
+    trajectory_message,
+)
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache, nothing_heard
 from armwarden.backends.ros2.tf import TransformBuffer
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
@@ -133,119 +140,6 @@ STATUS_NAMES = {getattr(GoalStatus, name): name[len("STATUS_"):].lower() for nam
                 if name.startswith("STATUS_")}
 
 
-def _duration(seconds: float) -> tuple[int, int]:
-    """(sec, nanosec) of a non-negative duration [s]."""
-    nanoseconds = round(seconds * 1e9)
-    return nanoseconds // 1_000_000_000, nanoseconds % 1_000_000_000
-
-
-def trajectory_message(trajectory: JointTrajectory, ros_names: tuple[str, ...]) -> JointTrajectoryMsg:
-    """The validated waypoints and times, unchanged, under the controller's joint names (header
-    stamp zero: start on receipt)."""
-    msg = JointTrajectoryMsg()
-    msg.joint_names = list(ros_names)
-    points = []
-    for t, q in zip(trajectory.times, trajectory.positions, strict=True):
-        point = JointTrajectoryPoint(positions=[float(v) for v in q])
-        point.time_from_start.sec, point.time_from_start.nanosec = _duration(float(t))
-        points.append(point)
-    msg.points = points
-    return msg
-
-
-def hold_message(positions: np.ndarray, ros_names: tuple[str, ...], hold_time_s: float) -> JointTrajectoryMsg:
-    """A one-point trajectory at `positions`, reached after `hold_time_s` [s]: the topic stop."""
-    msg = JointTrajectoryMsg()
-    msg.joint_names = list(ros_names)
-    point = JointTrajectoryPoint(positions=[float(v) for v in positions], velocities=[0.0] * len(ros_names))
-    point.time_from_start.sec, point.time_from_start.nanosec = _duration(hold_time_s)
-    msg.points = [point]
-    return msg
-
-
-@dataclass(frozen=True)
-class StopRecord:
-    """One stop as the backend carried it out: `stamp` = monotonic time [s] the cancel request
-    (or the topic hold) was sent; `what` = "cancel", "hold", "gripper cancel"."""
-
-    what: str
-    stamp: float
-
-
-@dataclass
-class _GoalRun:
-    """One trajectory goal: written under the motion lock (event loop, stopping threads) and by
-    the goal-response and feedback callbacks (the executor thread)."""
-
-    goal_id: UUID
-    epoch: int
-    duration_s: float
-    sent_at: float
-    handle: rclpy.action.client.ClientGoalHandle | None = None
-    cancel_sent: bool = False
-    terminal: bool = False  # a result (any status) arrived
-    feedback_s: float = 0.0  # the latest feedback's trajectory time [s]
-
-    def on_feedback(self, message: Any) -> None:
-        desired = message.feedback.desired.time_from_start
-        t = float(desired.sec) + float(desired.nanosec) * 1e-9
-        if t <= 0.0:  # a server that does not fill in the time: time since the goal was sent
-            t = time.monotonic() - self.sent_at
-        self.feedback_s = max(self.feedback_s, t)
-
-    def fraction(self) -> float:
-        if self.duration_s <= 0.0:
-            return 0.0
-        return min(1.0, self.feedback_s / self.duration_s)
-
-
-@dataclass(frozen=True)
-class _Fault:
-    """A fault the backend found (idle or mid-motion): `problem` names it; `epoch` is the stop
-    epoch before the stop it caused, so an execution decided under `epoch` or earlier ran into it."""
-
-    problem: str
-    epoch: int
-
-
-@dataclass
-class _TopicRun:
-    """One trajectory published on the fallback topic."""
-
-    epoch: int
-    duration_s: float
-    sent_at: float
-    trajectory: JointTrajectory | None = None  # what was published: where the controller is told to be
-    held_at: float | None = None  # when the stop's hold was published (monotonic [s])
-    held_measured: float | None = None  # header stamp of the latest joint state then [s, the cell's clock]
-
-
-@dataclass
-class _GripperRun:
-    goal_id: UUID
-    epoch: int
-    handle: rclpy.action.client.ClientGoalHandle | None = None
-    cancel_sent: bool = False
-
-
-def _new_goal_id() -> UUID:
-    return UUID(uuid=list(uuid.uuid4().bytes))
-
-
-@dataclass
-class _Endpoints:
-    """The rclpy entities the backend created (built in `_open`)."""
-
-    trajectory_action: rclpy.action.client.ActionClient | None = None
-    trajectory_topic: rclpy.publisher.Publisher | None = None
-    gripper_action: rclpy.action.client.ActionClient | None = None
-    list_controllers: rclpy.client.Client | None = None
-    switch_controller: rclpy.client.Client | None = None
-    error_recovery: rclpy.client.Client | None = None
-    watchdog: rclpy.timer.Timer | None = None
-    subscriptions: list[rclpy.subscription.Subscription] = field(default_factory=list)
-
-
 class Ros2Backend(Backend):
     """A ros2_control arm over rclpy (see the module docstring)."""
 
@@ -269,17 +163,17 @@ class Ros2Backend(Backend):
         self.fingers = None if gripper is None else JointStateCache(
             gripper.joint_states_topic, gripper.finger_joints, gripper.finger_joints, gripper.max_age_s)
         self.transforms = TransformBuffer(config.tf.max_age_s) if config.tf.enabled else None
-        self._endpoints = _Endpoints()
+        self._endpoints = Endpoints()
         self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
-        self._run: _GoalRun | _TopicRun | None = None
-        self._gripper_run: _GripperRun | None = None
+        self._run: GoalRun | TopicRun | None = None
+        self._gripper_run: GripperRun | None = None
         self._gripper_grasped = False
         #: the stops carried out, newest last (the benchmark reads e-stop -> cancel sent)
         self.stop_records: deque[StopRecord] = deque(maxlen=1000)
         self._server_seen = False  # the trajectory action server was seen at least once
         self._fault_lock = threading.Lock()
         self._fault_active = False  # a fault was reported and the cell has not been healthy since
-        self._last_fault: _Fault | None = None  # the latest fault found (executions name it)
+        self._last_fault: Fault | None = None  # the latest fault found (executions name it)
         if gripper is not None:
             self.gripper_travel_m = gripper.max_width_m
         if config.cameras:
@@ -447,7 +341,7 @@ class Ros2Backend(Backend):
             if self._fault_active:
                 return
             self._fault_active = True
-            self._last_fault = _Fault(problem, self.stop_epoch)
+            self._last_fault = Fault(problem, self.stop_epoch)
         self._bump_stop_epoch()
         try:
             self._stop_now()
@@ -515,7 +409,7 @@ class Ros2Backend(Backend):
         with self._motion_lock:  # the stops take it: a stop is either before the send or cancels it
             if self._stop_landed():
                 return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
-            run = _GoalRun(_new_goal_id(), self._execution_epoch, trajectory.duration_s, time.monotonic())
+            run = GoalRun(new_goal_id(), self._execution_epoch, trajectory.duration_s, time.monotonic())
             self._run = run
             sending = action.send_goal_async(goal, feedback_callback=run.on_feedback, goal_uuid=run.goal_id)
         sending.add_done_callback(lambda future: self._on_goal_response(run, future))
@@ -536,7 +430,7 @@ class Ros2Backend(Backend):
                 if self._run is run:
                     self._run = None
 
-    def _on_goal_response(self, run: _GoalRun, future: Any) -> None:
+    def _on_goal_response(self, run: GoalRun, future: Any) -> None:
         """Executor thread: note the handle; a goal accepted after a stop is cancelled now."""
         if future.exception() is not None:
             return
@@ -547,7 +441,7 @@ class Ros2Backend(Backend):
         if handle.accepted and stopped_meanwhile:
             self._cancel_goal(run, again=True)
 
-    def _cancel_goal(self, run: _GoalRun, *, again: bool = False) -> None:
+    def _cancel_goal(self, run: GoalRun, *, again: bool = False) -> None:
         """Any thread, without waiting: ask the server to cancel `run`'s goal (by id, so it works
         before the goal was even answered). Sent once, plus once more on a late acceptance."""
         action = self._endpoints.trajectory_action
@@ -559,7 +453,7 @@ class Ros2Backend(Backend):
         handle.cancel_goal_async()
         self.stop_records.append(StopRecord("cancel", time.monotonic()))
 
-    async def _follow_goal(self, run: _GoalRun, handle: rclpy.action.client.ClientGoalHandle,
+    async def _follow_goal(self, run: GoalRun, handle: rclpy.action.client.ClientGoalHandle,
                            trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
         """The goal was accepted: report progress until its result, a stop, a fault or the deadline."""
         cfg = self.config.trajectory
@@ -625,7 +519,7 @@ class Ros2Backend(Backend):
         self._abort_on_fault(epoch, sent)
         return self._stop_landed()
 
-    async def _stopped_goal(self, run: _GoalRun, waiting: asyncio.Future[Any]) -> ExecutionResult:
+    async def _stopped_goal(self, run: GoalRun, waiting: asyncio.Future[Any]) -> ExecutionResult:
         """A stop cancelled the goal: wait (bounded) for its result, then for the arm to rest."""
         self._cancel_goal(run)  # the stop sent it already; this only covers a stop that found no run
         if self.is_open:
@@ -689,7 +583,7 @@ class Ros2Backend(Backend):
         with self._motion_lock:
             if self._stop_landed():
                 return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
-            run = _TopicRun(self._execution_epoch, trajectory.duration_s, time.monotonic(), trajectory)
+            run = TopicRun(self._execution_epoch, trajectory.duration_s, time.monotonic(), trajectory)
             self._run = run
             publisher.publish(message)
         try:
@@ -732,7 +626,7 @@ class Ros2Backend(Backend):
                 raise BackendError(f"nothing subscribes to {name} (waited {timeout_s:g} s); nothing was sent")
             await anyio.sleep(POLL_S)
 
-    def _hold(self, run: _TopicRun) -> None:
+    def _hold(self, run: TopicRun) -> None:
         """Any thread: publish a one-point hold (once per run) at the measured positions — or, when
         the latest joint state is older than the hold's own time (the states stopped or lag), at
         the published trajectory's setpoint for now, where the controller is driving the arm: a
@@ -763,9 +657,9 @@ class Ros2Backend(Backend):
         """Any thread, never awaiting: cancel the running goal (or hold), cancel the gripper's goal."""
         with self._motion_lock:
             run = self._run
-        if isinstance(run, _GoalRun):
+        if isinstance(run, GoalRun):
             self._cancel_goal(run)
-        elif isinstance(run, _TopicRun):
+        elif isinstance(run, TopicRun):
             self._hold(run)
         self._stop_fingers()
 
@@ -777,7 +671,7 @@ class Ros2Backend(Backend):
         if run is not None:
             self._cancel_gripper(run)
 
-    def _cancel_gripper(self, run: _GripperRun) -> None:
+    def _cancel_gripper(self, run: GripperRun) -> None:
         """Any thread: cancel `run`'s goal, once (a cancel before its acceptance is sent again then)."""
         action = self._endpoints.gripper_action
         if action is None or run.cancel_sent:
@@ -840,7 +734,7 @@ class Ros2Backend(Backend):
         with self._motion_lock:
             if self._gripper_stop_landed():
                 return self._measured_width(), True
-            run = _GripperRun(_new_goal_id(), self._gripper_epoch)
+            run = GripperRun(new_goal_id(), self._gripper_epoch)
             self._gripper_run = run
             sending = action.send_goal_async(goal, goal_uuid=run.goal_id)
         finished = False
