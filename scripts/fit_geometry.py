@@ -6,7 +6,7 @@
 PATH is franka_description (https://github.com/frankaemika/franka_description, Apache-2.0): a
 checkout, or a bare git directory (then files are read at REV with `git show`). Nothing from it
 is written into the project except the fitted capsules and the pair analysis (FILE, by default
-src/armwarden/robot/description/fr3_fitted.yaml); `--vertices` also writes the unique
+src/armwarden/robots/fr3/fitted.yaml); `--vertices` also writes the unique
 collision-mesh vertices per link (link frame, float32 .npz; `--only-vertices`: that alone) that
 tests/robot/test_fitted_geometry.py checks containment against — derived from Franka's meshes, so
 it is not committed (see tests/robot/data/README.md). `--evaluate N` counts self-collisions on N
@@ -48,7 +48,7 @@ ARM_MESHES = {f"fr3_link{i}": f"meshes/robot_arms/fr3/collision/link{i}.stl" for
 HAND_MESH = ("fr3_hand", "meshes/robot_ee/franka_hand_white/collision/hand.stl")
 HAND_XACRO = "end_effectors/common/franka_hand.xacro"
 KINEMATICS = "robots/fr3/kinematics.yaml"
-DEFAULT_OUT = ROOT / "src" / "armwarden" / "robot" / "description" / "fr3_fitted.yaml"
+DEFAULT_OUT = ROOT / "src" / "armwarden" / "robots" / "fr3" / "fitted.yaml"
 
 
 @dataclass(frozen=True)

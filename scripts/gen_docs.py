@@ -299,7 +299,7 @@ def render_policy_doc() -> str:
         "It is validated strictly: unknown keys, duplicate keys, wrong types (`true` for a number, `\"0.3\"`",
         "for a number), NaN and infinity are all errors, and every problem is reported with its YAML path.",
         "Run `armwarden check-policy FILE` to validate a file and print what it allows. The bundled",
-        "`src/armwarden/policies/fr3.yaml` is a fully commented example.",
+        "`src/armwarden/robots/fr3/policy.yaml` is a fully commented example.",
         "",
         "Units are SI: metres, radians, seconds, newtons. Positions are in `robot.base_frame`. Numbers are",
         "finite; integers are accepted where a number is expected. In paths, `[]` stands for any list item",

@@ -16,7 +16,6 @@ Habits of this suite:
 
 from __future__ import annotations
 
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,7 @@ import pytest
 
 from armwarden.audit import AUDIT_KEY_ENV
 from armwarden.planning.planners import Planner, PlannerSettings
-from armwarden.policy import Policy, load_policy
+from armwarden.policy import Policy, bundled_policy, load_policy
 from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.envelope import Envelope
 from armwarden.safety.limits import EnvelopeLimits
@@ -48,7 +47,7 @@ def _no_audit_key_from_the_developer(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def bundled_policy_path(name: str) -> Path:
-    return Path(str(resources.files("armwarden") / "policies" / f"{name}.yaml"))
+    return bundled_policy(name)
 
 
 @pytest.fixture(scope="session")

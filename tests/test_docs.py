@@ -81,6 +81,6 @@ def test_client_config_examples_launch_serve_on_stdio(name: str) -> None:
     (server,) = document["mcpServers"].values()
     args = server["args"]
     assert args[0] == "serve"
-    assert "--policy" in args and args[args.index("--policy") + 1].endswith("fr3.yaml")
+    assert "--policy" in args and args[args.index("--policy") + 1].endswith("/robots/fr3/policy.yaml")
     assert "--audit-log" in args and args[args.index("--audit-log") + 1].startswith("/")
     assert "--transport" not in args or args[args.index("--transport") + 1] == "stdio"

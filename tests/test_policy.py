@@ -19,7 +19,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
-import armwarden
 from armwarden.core.errors import ConfigurationError, PolicyError
 from armwarden.policy import (
     ALL_TOOLS,
@@ -29,15 +28,15 @@ from armwarden.policy import (
     RATE_LIMIT_EXEMPT_TOOLS,
     TOOL_GROUPS,
     Policy,
+    bundled_policy,
     load_policy,
     parse_policy,
     policy_json_schema,
     summarize_policy,
 )
 
-POLICIES = Path(armwarden.__file__).parent / "policies"
-FR3_YAML = POLICIES / "fr3.yaml"
-READONLY_YAML = POLICIES / "readonly.yaml"
+FR3_YAML = bundled_policy("fr3")
+READONLY_YAML = bundled_policy("readonly")
 NAN, INF = float("nan"), float("inf")
 FIRST_JOINT = "fr3_joint1"
 

@@ -5,7 +5,7 @@ Verification tooling (tests and benchmarks), never runtime: an oracle beside the
 none of its code, that says whether a joint path the backend was sent stays clear of the table
 (the plane z = 0 of the base frame) and of the policy's keep-out boxes. Two geometries:
 
-- the **fitted capsules** of `src/armwarden/robot/description/fr3_fitted.yaml`, exactly as the
+- the **fitted capsules** of `src/armwarden/robots/fr3/fitted.yaml`, exactly as the
   file states them, *without* padding. They contain Franka's collision meshes with a margin (a
   test per link holds that), so a path clear of them is clear of the meshes. Needs nothing but
   the repository: the CI level.
@@ -54,7 +54,7 @@ if str(ROOT / "src") not in sys.path:  # after PYTHONPATH: a copy of the sources
 from armwarden.robot.fitted_file import load_fitted  # noqa: E402 - the src path above first
 from armwarden.robot.model import resolve_description  # noqa: E402
 
-FITTED = ROOT / "src" / "armwarden" / "robot" / "description" / "fr3_fitted.yaml"
+FITTED = ROOT / "src" / "armwarden" / "robots" / "fr3" / "fitted.yaml"
 #: the local mesh cache (derived from Franka's meshes: git ignores it, see tests/planning/data/README.md)
 MESH_CACHE = ROOT / "tests" / "planning" / "data" / "fr3_collision_meshes.npz"
 #: environment variable naming another mesh cache
@@ -435,7 +435,7 @@ def _fit_geometry_module():
 
 def write_mesh_cache(source: Path, out: Path, revision: str | None = None) -> str:
     """Franka's collision meshes (links 0-7, hand, finger boxes) in ArmWarden's link frames, read
-    from franka_description at the commit fr3_fitted.yaml was fitted to (or `revision`), to `out`."""
+    from franka_description at the commit robots/fr3/fitted.yaml was fitted to (or `revision`), to `out`."""
     fit = _fit_geometry_module()
     revision = revision or load_fitted(FITTED).source.get("commit", "HEAD")
     src = fit.Source.open(source, revision)
@@ -454,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--source", type=Path, required=True, help="franka_description: a checkout or a git directory")
     parser.add_argument("--write-meshes", type=Path, default=MESH_CACHE, metavar="FILE")
-    parser.add_argument("--commit", default=None, help="revision to read (default: the one fr3_fitted.yaml names)")
+    parser.add_argument("--commit", default=None, help="revision to read (default: the one robots/fr3/fitted.yaml names)")
     args = parser.parse_args(argv)
     commit = write_mesh_cache(args.source, args.write_meshes, args.commit)
     print(f"wrote {args.write_meshes} (franka_description at {commit})", file=sys.stderr)

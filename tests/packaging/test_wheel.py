@@ -18,8 +18,9 @@ from pathlib import Path
 
 import pytest
 
+import armwarden
 from armwarden.policy.loading import bundled_policy
-from armwarden.robot.model import BUILTIN_DESCRIPTIONS, BUILTIN_FITTED
+from armwarden.robots import builtin_robots, load_profile
 from tests.helpers import REPO
 
 #: what the build never copies into a wheel, and should not
@@ -80,8 +81,9 @@ def test_wheel_holds_every_file_of_the_package(source: Path, wheel: Path) -> Non
 
 def test_wheel_holds_the_bundled_files_the_runtime_opens(wheel: Path) -> None:
     """Named from the code that opens them, so a file deleted from the tree is caught too."""
-    needed = {f"armwarden/robot/description/{name}" for name in (*BUILTIN_DESCRIPTIONS.values(), *BUILTIN_FITTED.values())}
-    needed |= {f"armwarden/policies/{bundled_policy(name).name}" for name in ("fr3", "readonly")}
+    needed = {f"armwarden/robots/{robot}/{name}" for robot in builtin_robots() for name in
+              ("profile.yaml", load_profile(robot).description, load_profile(robot).collision_geometry) if name}
+    needed |= {f"armwarden/robots/fr3/{bundled_policy(name).name}" for name in ("fr3", "readonly")}
     needed |= {"armwarden/py.typed", "armwarden/console/templates/base.html", "armwarden/console/static/console.js",
                "armwarden/console/static/console.css"}
     assert sorted(needed - _wheel_names(wheel)) == []
@@ -104,7 +106,7 @@ def test_check_policy_runs_from_the_unpacked_wheel_alone(unpacked: Path, tmp_pat
     env["NUMBA_DISABLE_JIT"] = "1"
     probe = ("import sys, armwarden; print('imported from', armwarden.__file__); "
              "from armwarden.cli import main; sys.exit(main(sys.argv[1:]))")
-    policy_file = unpacked / "armwarden" / "policies" / f"{policy}.yaml"
+    policy_file = unpacked / "armwarden" / bundled_policy(policy).relative_to(Path(armwarden.__file__).parent)
     result = subprocess.run([sys.executable, "-c", probe, "check-policy", str(policy_file)], cwd=tmp_path, env=env,
                             capture_output=True, text=True, timeout=120, check=False)
     assert f"imported from {unpacked / 'armwarden' / '__init__.py'}" in result.stdout

@@ -35,7 +35,7 @@ from armwarden.robot.model import resolve_description
 from tests.helpers import SRC
 
 URDF_PATH = resolve_description("builtin:fr3")
-FITTED_PATH = URDF_PATH.parent / "fr3_fitted.yaml"
+FITTED_PATH = URDF_PATH.parent / "fitted.yaml"
 DATA = Path(__file__).resolve().parent / "data"
 CLOUD_PATH = Path(os.environ.get("ARMWARDEN_FR3_VERTICES", DATA / "fr3_collision_vertices.npz"))
 FAST = FitOptions(max_bodies=2, simplex_evaluations=300, lloyd_iterations=6, surface_spacing_m=0.004)

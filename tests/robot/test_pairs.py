@@ -16,7 +16,7 @@ from armwarden.robot.fitted_file import FittedBody, FittedGeometry, LinkFit, loa
 from armwarden.robot.model import resolve_description
 from armwarden.robot.pairs import PairOptions, PlacedBody, analyse_pairs, place_bodies
 
-FITTED_PATH = resolve_description("builtin:fr3").parent / "fr3_fitted.yaml"
+FITTED_PATH = resolve_description("builtin:fr3").parent / "fitted.yaml"
 
 TOY_URDF = """<?xml version="1.0"?>
 <robot name="toy">

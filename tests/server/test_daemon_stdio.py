@@ -262,7 +262,7 @@ def test_literal_non_finite_json_numbers_over_stdio_are_refused_and_nothing_move
 
 # ------------------------------------------------------------------ refusing to start
 def _invalid_policy(tmp_path: Path) -> Path:
-    text = (SRC / "armwarden" / "policies" / "fr3.yaml").read_text(encoding="utf-8")
+    text = bundled_policy("fr3").read_text(encoding="utf-8")
     path = tmp_path / "bad-policy.yaml"
     path.write_text(text + "\nmystery_section: {loosen_everything: true}\n", encoding="utf-8")
     return path

@@ -6,14 +6,12 @@ import io
 import struct
 import sys
 import zlib
-from importlib import resources
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from armwarden.core.trajectory import JointTrajectory
-from armwarden.policy import load_policy
+from armwarden.policy import bundled_policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.preview import images
 from armwarden.preview.images import ImageSupportMissing, downscale_png, pillow_available
@@ -24,7 +22,7 @@ Image = pytest.importorskip("PIL.Image")
 
 @pytest.fixture(scope="module")
 def runtime() -> RuntimeModel:
-    return load_runtime_model(load_policy(Path(str(resources.files("armwarden") / "policies" / "fr3.yaml"))))
+    return load_runtime_model(load_policy(bundled_policy("fr3")))
 
 
 def _plan(runtime: RuntimeModel, goal: np.ndarray):

@@ -7,14 +7,12 @@ from __future__ import annotations
 import io
 import sys
 import threading
-from importlib import resources
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from armwarden.core.trajectory import JointTrajectory
-from armwarden.policy import load_policy
+from armwarden.policy import bundled_policy, load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.preview.render import PlanPreviewer
 from tests.helpers import READY
@@ -41,7 +39,7 @@ GOALS = {
 
 @pytest.fixture(scope="module")
 def runtime() -> RuntimeModel:
-    return load_runtime_model(load_policy(Path(str(resources.files("armwarden") / "policies" / "fr3.yaml"))))
+    return load_runtime_model(load_policy(bundled_policy("fr3")))
 
 
 def plan(runtime: RuntimeModel, name: str):
@@ -109,7 +107,7 @@ def test_a_malformed_trajectory_draws_the_boxes_alone_as_before(runtime: Runtime
 def test_a_previewer_shared_by_two_threads_gives_each_plan_its_own_picture() -> None:
     """Each thread brings its own robot model (Pinocchio's data is not thread safe); the previewer,
     whose pictures share one canvas per scene, draws one at a time."""
-    policy = load_policy(Path(str(resources.files("armwarden") / "policies" / "fr3.yaml")))
+    policy = load_policy(bundled_policy("fr3"))
     runtimes = [load_runtime_model(policy), load_runtime_model(policy)]
     plans = [plan(runtimes[0], "small_turn"), plan(runtimes[0], "into_monitor")]  # one scene, two pictures
     shared = PlanPreviewer(runtimes[0].envelope.limits)

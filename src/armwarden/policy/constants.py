@@ -25,5 +25,4 @@ MAX_POLICY_BYTES = 1024 * 1024
 #: The path reported for problems with the document as a whole (unreadable, not YAML, not a mapping).
 DOCUMENT_PATH = "<document>"
 
-BUILTIN_PREFIX = "builtin:"
 DEFAULT_SCALING = 0.1

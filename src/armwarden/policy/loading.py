@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 import os
 from collections.abc import Mapping
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +15,16 @@ from armwarden.core.errors import PolicyError
 from armwarden.policy.constants import DOCUMENT_PATH, MAX_POLICY_BYTES
 from armwarden.policy.messages import validation_errors
 from armwarden.policy.models import Policy
+from armwarden.robots import bundled_policies
 
 
 def bundled_policy(name: str = "fr3") -> Path:
-    """Path of a policy shipped inside the package (`fr3` or `readonly`)."""
-    return Path(str(resources.files("armwarden") / "policies" / f"{name}.yaml"))
+    """Path of a policy shipped inside the package, by name (`fr3`, `readonly`: each robot
+    profile lists its own, `armwarden.robots`)."""
+    policies = bundled_policies()
+    if name not in policies:
+        raise PolicyError(f"bundled policy {name!r}", [(DOCUMENT_PATH, f"no such bundled policy; bundled: {', '.join(sorted(policies))}")])
+    return policies[name]
 
 
 class _PolicyLoader(yaml.SafeLoader):

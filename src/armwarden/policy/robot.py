@@ -9,7 +9,6 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, Field, ValidationInfo, WrapSerializer, field_validator, model_validator
 
-from armwarden.policy.constants import BUILTIN_PREFIX
 from armwarden.policy.fields import (
     MODEL_CONFIG,
     FiniteFloat,
@@ -23,6 +22,7 @@ from armwarden.policy.fields import (
     not_empty,
     serialize_map,
 )
+from armwarden.robots import BUILTIN_PREFIX
 
 #: Fastest joint speed a policy may allow [rad/s]: one turn per second, above any arm joint
 #: ArmWarden drives (FR3: 2.62–5.26). More is a unit slip (°/s) or no velocity limit at all.

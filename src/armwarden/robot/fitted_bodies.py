@@ -1,6 +1,6 @@
 """The fitted collision capsules of a robot, placed on the joints of the policy's reduced model.
 
-A fitted-geometry file (`armwarden.robot.fitted_file`, e.g. `description/fr3_fitted.yaml`) holds
+A fitted-geometry file (`armwarden.robot.fitted_file`, e.g. `robots/fr3/fitted.yaml`) holds
 capsules per link, in the link's frame, and the self-collision pair analysis made over stated
 joint limits. The envelope needs each capsule in the frame of the *driven* joint that moves it
 (`Capsule`), and the body pairs it must check. Three things happen on the way:

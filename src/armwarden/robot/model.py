@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -22,24 +21,24 @@ from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import Capsule, capsule_from_geometry
 from armwarden.robot.fitted_bodies import fitted_capsules, fitted_pairs
 from armwarden.robot.fitted_file import FittedGeometry, FittingError, load_fitted
+from armwarden.robots import BUILTIN_PREFIX, RobotProfile, load_profile
 
-BUILTIN_PREFIX = "builtin:"
-BUILTIN_DESCRIPTIONS = {"fr3": "fr3.urdf"}
-#: collision capsules fitted to the manufacturer's meshes, per built-in description
-BUILTIN_FITTED = {"fr3": "fr3_fitted.yaml"}
 #: `robot.collision_geometry` values that are not a file
 COLLISION_AUTO = "auto"
 COLLISION_URDF = "urdf"
 
 
-def _bundled_or_file(value: str, what: str, bundled: dict[str, str], also: str = "") -> Path:
-    """The bundled file `builtin:<name>` names in `bundled`, or the readable file at path `value`."""
-    if value.startswith(BUILTIN_PREFIX):
-        key = value[len(BUILTIN_PREFIX):]
-        if key not in bundled:
-            available = ", ".join(BUILTIN_PREFIX + k for k in sorted(bundled))
-            raise RobotModelError(f"unknown built-in {what} {value!r}; available: {available}{also}")
-        return Path(str(resources.files("armwarden.robot") / "description" / bundled[key]))
+def _builtin_profile(value: str, what: str) -> RobotProfile | None:
+    """The profile `builtin:<name>` names (None for a file path)."""
+    if not value.startswith(BUILTIN_PREFIX):
+        return None
+    try:
+        return load_profile(value[len(BUILTIN_PREFIX):])
+    except RobotModelError as exc:
+        raise RobotModelError(f"unknown built-in {what} {value!r}: {exc}") from exc
+
+
+def _readable_file(value: str, what: str) -> Path:
     path = Path(value).expanduser()
     if not path.is_file():
         raise RobotModelError(f"{what} {value!r} is not a readable file")
@@ -47,25 +46,31 @@ def _bundled_or_file(value: str, what: str, bundled: dict[str, str], also: str =
 
 
 def resolve_description(description: str) -> Path:
-    """Path of the URDF named by `robot.description` (`builtin:<name>` or a file path)."""
-    return _bundled_or_file(description, "robot description", BUILTIN_DESCRIPTIONS)
+    """Path of the URDF named by `robot.description` (`builtin:<name>`: a shipped robot's, or a file path)."""
+    profile = _builtin_profile(description, "robot description")
+    return profile.file(profile.description) if profile is not None else _readable_file(description, "robot description")
 
 
 def resolve_collision_geometry(collision_geometry: str, description: str) -> FittedGeometry | None:
     """The fitted collision geometry `robot.collision_geometry` names, or None for the URDF's own
     collision primitives (each turned into one capsule).
 
-    `auto`: the fitted file bundled with a built-in description, else the URDF's primitives;
-    `urdf`: the URDF's primitives; `builtin:<name>`: a bundled fitted file; else a file path."""
+    `auto`: the fitted file of a shipped robot's description, else the URDF's primitives;
+    `urdf`: the URDF's primitives; `builtin:<name>`: a shipped robot's fitted file; else a file path."""
     if collision_geometry == COLLISION_URDF:
         return None
     if collision_geometry == COLLISION_AUTO:
-        key = description[len(BUILTIN_PREFIX):] if description.startswith(BUILTIN_PREFIX) else None
-        if key not in BUILTIN_FITTED:
+        profile = _builtin_profile(description, "robot description")
+        if profile is None or profile.collision_geometry is None:
             return None
-        collision_geometry = BUILTIN_PREFIX + key
-    path = _bundled_or_file(collision_geometry, "collision geometry", BUILTIN_FITTED,
-                            also=f", {COLLISION_AUTO}, {COLLISION_URDF}")
+        path = profile.file(profile.collision_geometry)
+    else:
+        profile = _builtin_profile(collision_geometry, "collision geometry")
+        if profile is not None and profile.collision_geometry is None:
+            raise RobotModelError(f"the built-in robot {profile.name!r} ships no fitted collision geometry; "
+                                  f"use {COLLISION_AUTO} or {COLLISION_URDF}")
+        path = (profile.file(profile.collision_geometry) if profile is not None and profile.collision_geometry
+                else _readable_file(collision_geometry, "collision geometry"))
     try:
         return load_fitted(path)
     except FittingError as exc:
