@@ -36,6 +36,7 @@ if str(ROOT / "src") not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(ROOT / "src"))
 
 from armwarden import policy as policy_module  # noqa: E402 - needs the sys.path set-up above
+from armwarden.guard.order import GATES  # noqa: E402 - needs the sys.path set-up above
 from armwarden.policy import TOOL_GROUPS, Policy  # noqa: E402 - needs the sys.path set-up above
 
 POLICY_DOC = ROOT / "docs" / "policy.md"
@@ -501,6 +502,9 @@ def render_tools_doc(tools: list[dict[str, Any]] | None = None) -> str:
             f"Annotations: {_annotations_text(tool.get('annotations', {}))}.",
             "",
         ]
+        if tool["name"] in GATES:
+            lines += ["Gates, in order (the first that fails refuses; `guard/order.py`): "
+                      + " → ".join(gate.name for gate in GATES[tool["name"]]) + ".", ""]
         rows = list(_parameter_rows(schema, input_schema, "", set(input_schema.get("required", []))))
         if rows:
             lines += ["Parameters:", "", "| parameter | type | default | bounds | description |",

@@ -5,8 +5,9 @@ every backend read goes through a Guard method; the tool layer never touches the
 Guard holds no check logic of its own: it owns the shared safety state (rate limiter, e-stop
 latch, plan store, execution slot) and its gates (`admit`, `require_audit`,
 `require_not_estopped`, `interpret_approval`), and each flow runs them in its order, refusing with
-a `SafetyRefusal` at the first that says no. The tool layer admits every call first (rate limit,
-`ToolBuilder.answer` in `server/registration.py`); then:
+a `SafetyRefusal` at the first that says no. The order is data in `order.py` (tested there, printed
+in docs/tools.md). The tool layer admits every call first (rate limit, `ToolBuilder.answer` in
+`server/registration.py`); then:
 
 - execute_plan (here): audit writable → execution slot free (claimed) → the plan
   (`safety.plans`: exists, unexpired, this caller's, made since the last e-stop; spent from here
