@@ -323,7 +323,7 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
     import anyio
     from mcp import Client, StdioServerParameters
 
-    from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, open_assembly
+    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))

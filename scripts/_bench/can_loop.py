@@ -260,7 +260,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
     from mcp import Client
 
     from armwarden.core.errors import ArmWardenError
-    from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
+    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
     from armwarden.stopchannel.external import ExternalStops
     from armwarden.stopchannel.server import StopChannel
 

@@ -87,7 +87,7 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
     import anyio
     from mcp import Client
 
-    from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
+    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     policy = bench_policy()

@@ -154,7 +154,7 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
     from mcp import Client
     from tests_ros.cell import Cell
 
-    from armwarden.daemon import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
+    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     policy = bench_policy()

@@ -18,13 +18,13 @@ from armwarden import __version__
 from armwarden.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.backends import backend_names, backends_help
 from armwarden.core.errors import ArmWardenError, PolicyError
+from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
 from armwarden.snapshot_cli import add_snapshot_arguments, snapshot_command
 from armwarden.stopchannel.client import add_estop_arguments, estop_command
 
 EXIT_OK = 0
 EXIT_FAILED = 1
-EXIT_REFUSED = 2
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -143,6 +143,18 @@ def _tail(args: argparse.Namespace) -> int:
     return audit.tail_command(args.file, args.n, where)
 
 
+def serve_options(args: argparse.Namespace) -> ServeOptions:
+    """The `serve` flags as the daemon's one typed record (its only contact with argparse)."""
+    return ServeOptions(
+        policy=args.policy, backend=args.backend, backend_config=args.backend_config, transport=args.transport,
+        host=args.host, port=args.port, audit_log=args.audit_log,
+        audit_commit_window_s=args.audit_commit_window_ms / 1e3, auth_tokens=args.auth_tokens,
+        allowed_hosts=tuple(args.allowed_host), allowed_origins=tuple(args.allowed_origin),
+        estop_port=args.estop_port, estop_host=args.estop_host, console_port=args.console_port,
+        console_host=args.console_host, no_console=args.no_console,
+        console_estop_needs_sign_in=args.console_estop_needs_sign_in, dry_run=args.dry_run)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _build_parser().parse_args(argv)
     logging.basicConfig(
@@ -177,9 +189,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "snapshot":
             return snapshot_command(args)
         if args.command == "serve":
-            from armwarden.daemon import serve_command
+            from armwarden.daemon.serve import serve_command
 
-            return serve_command(args)
+            return serve_command(serve_options(args))
     except ArmWardenError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)
         return EXIT_REFUSED

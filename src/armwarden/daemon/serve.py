@@ -18,7 +18,6 @@ so `--port 0` / `--console-port 0` serve, check Host headers and link on the rea
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import gc
 import logging
@@ -38,6 +37,7 @@ from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError, hmac_key_for_serving
 from armwarden.backends.base import Backend
 from armwarden.core.errors import ArmWardenError, BackendError, BackendUnavailable, ConfigurationError, PolicyError
+from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
 from armwarden.endpoints import Endpoints, link_host, startup_lines
 from armwarden.extras import log_feature_lines
 from armwarden.greeting import first_contact_line, started_from_terminal
@@ -58,7 +58,6 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger("armwarden")
 
-EXIT_REFUSED = 2
 #: the daemon served, then stopped the arm and closed everything, but its final audit record
 #: (`shutdown`) could not be written (e.g. the audit disk is full): the log ends without it
 EXIT_AUDIT_INCOMPLETE = 3
@@ -76,6 +75,8 @@ CONSOLE_CLOSE_S = 5.0
 #: records of requests a transport refused, per principal (or host): this many in a row, then one
 #: per second (`RefusalReports`); a client's occasional mistakes are each recorded, a flood is not
 REFUSAL_RECORDS_BURST = 20
+#: why `serve` refuses a stop channel without a token file
+ESTOP_PORT_NEEDS_TOKENS = "--estop-port needs --auth-tokens: the stop channel accepts any role's token, and none without one"
 
 
 class FinalRecordLost(ArmWardenError):
@@ -169,18 +170,9 @@ class ConsoleStop:
     estop_url: str | None
 
 
-def _console_address(args: argparse.Namespace) -> tuple[str, int] | None:
-    """Host and port the console is served on, or None when this daemon serves no console."""
-    if args.transport == "http":
-        return None if getattr(args, "no_console", False) else (args.host, args.port)
-    if getattr(args, "console_port", None) is not None:
-        return args.console_host, args.console_port
-    return None
-
-
-def _console_door(args: argparse.Namespace, external: ExternalStops) -> tuple[ConsoleDoor, Any] | None:
+def _console_door(options: ServeOptions, external: ExternalStops) -> tuple[ConsoleDoor, Any] | None:
     """The stop channel's door for the console's E-STOP and the console's sessions, if served."""
-    address = _console_address(args)
+    address = options.console_address()
     if address is None:
         return None
     from armwarden.console import SessionStore
@@ -188,39 +180,41 @@ def _console_door(args: argparse.Namespace, external: ExternalStops) -> tuple[Co
     from armwarden.transport.tokens import TokenStore
 
     host, port = address
-    sessions = SessionStore(TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
-    security = transport_security_settings(host, port, allowed_hosts=getattr(args, "allowed_host", []) or [],
-                                           allowed_origins=getattr(args, "allowed_origin", []) or [])
+    sessions = SessionStore(TokenStore.load(options.auth_tokens) if options.auth_tokens else None)
+    security = transport_security_settings(host, port, allowed_hosts=options.allowed_hosts,
+                                           allowed_origins=options.allowed_origins)
     door = ConsoleDoor(
         check_ticket=sessions.principal_for_ticket, latch_and_stop=external.latch_and_stop_for("console"),
         allowed_origins=frozenset(security.allowed_origins or ()),
-        allow_loopback_without_ticket=not getattr(args, "console_estop_needs_sign_in", False),
+        allow_loopback_without_ticket=not options.console_estop_needs_sign_in,
         back_url=f"http://{link_host(host)}:{port}/console/safety")
     return door, sessions
 
 
-def _start_external_stops(args: argparse.Namespace, external: ExternalStops, console: ConsoleDoor | None = None,
+def _start_external_stops(options: ServeOptions, external: ExternalStops, console: ConsoleDoor | None = None,
                           refusals: RefusalReports | None = None) -> tuple[SignalStop, StopChannel | None]:
     """SIGUSR1 and (with --estop-port, or when the console is served) the stop channel, each on
     its own thread. Without --estop-port the console gets a channel of its own on an ephemeral
     loopback port, which serves only the console's E-STOP (it takes no bearer token and says so
     to one). `refusals`: the channel's limit on records of its refusals."""
     signals = SignalStop(external.latch_and_stop_for("signal"), on_event=external.record).start()
-    if getattr(args, "estop_port", None) is None and console is None:
+    if options.estop_port is None and console is None:
         return signals, None
     from armwarden.transport.tokens import TokenStore
 
     try:
-        if getattr(args, "estop_port", None) is None:
+        if options.estop_port is None:
             channel = StopChannel(authenticate=None, latch_and_stop=external.latch_and_stop_for("stop_channel"),
                                   on_event=external.record, on_refused=external.record_refusal, console=console,
                                   host="127.0.0.1", port=0, refusals=refusals).start()
+        elif not options.auth_tokens:
+            raise ConfigurationError(ESTOP_PORT_NEEDS_TOKENS)
         else:
             channel = StopChannel(
-                authenticate=token_store_authenticator(TokenStore.load(args.auth_tokens)),
+                authenticate=token_store_authenticator(TokenStore.load(options.auth_tokens)),
                 latch_and_stop=external.latch_and_stop_for("stop_channel"), on_event=external.record,
                 on_refused=external.record_refusal, console=console,
-                host=args.estop_host, port=args.estop_port, allow_non_loopback=True,  # tokens are required
+                host=options.estop_host, port=options.estop_port, allow_non_loopback=True,  # tokens are required
                 refusals=refusals,
             ).start()
     except BaseException:
@@ -229,15 +223,15 @@ def _start_external_stops(args: argparse.Namespace, external: ExternalStops, con
     return signals, channel
 
 
-def _console_stop(args: argparse.Namespace, channel: StopChannel | None, sessions: Any) -> ConsoleStop:
+def _console_stop(options: ServeOptions, channel: StopChannel | None, sessions: Any) -> ConsoleStop:
     """Where the console's button posts: the channel, when a browser of the console can reach it.
     A console on a non-loopback address with the channel on loopback keeps its own route."""
-    address = _console_address(args)
+    address = options.console_address()
     if channel is None or address is None:
         return ConsoleStop(sessions, None)
     from armwarden.transport.http import is_loopback_host
 
-    channel_host = args.estop_host if getattr(args, "estop_port", None) is not None else "127.0.0.1"
+    channel_host = options.stop_channel_host
     if is_loopback_host(channel_host) and not is_loopback_host(address[0]):
         logger.warning("the console on %s cannot reach the stop channel on %s: its E-STOP button posts to "
                        "the console's own route (give --estop-host/--estop-port the browser can reach)",
@@ -246,34 +240,28 @@ def _console_stop(args: argparse.Namespace, channel: StopChannel | None, session
     return ConsoleStop(sessions, f"http://{link_host(channel_host)}:{channel.port}/console-estop")
 
 
-def _bind_listener(args: argparse.Namespace) -> tuple[argparse.Namespace, socket.socket | None]:
+def _bind_listener(options: ServeOptions) -> tuple[ServeOptions, socket.socket | None]:
     """Bind the HTTP socket (`--port`, or `--console-port` on stdio) before anything is built from
     its port: with port 0, the Host checks, the console's links and origins and every start-up
-    line then name the port really bound. Returns `args` with that port, and the socket. (Plain
-    stdio imports nothing of the HTTP transport: tests/server/test_daemon_stdio.py.)"""
-    if args.transport == "http":
-        from armwarden.transport.http import bind_http_socket
+    line then name the port really bound. Returns `options` with that port, and the socket.
+    (Plain stdio imports nothing of the HTTP transport: tests/server/test_daemon_stdio.py.)"""
+    address = options.console_address() if options.transport == "stdio" else (options.host, options.port)
+    if address is None:
+        return options, None
+    from armwarden.transport.http import bind_http_socket
 
-        sock = bind_http_socket(args.host, args.port)
-        return argparse.Namespace(**{**vars(args), "port": int(sock.getsockname()[1])}), sock
-    if getattr(args, "console_port", None) is not None:
-        from armwarden.transport.http import bind_http_socket
-
-        sock = bind_http_socket(args.console_host, args.console_port)
-        return argparse.Namespace(**{**vars(args), "console_port": int(sock.getsockname()[1])}), sock
-    return args, None
+    sock = bind_http_socket(*address)
+    return options.with_bound_port(int(sock.getsockname()[1])), sock
 
 
-def _endpoints(args: argparse.Namespace, channel: StopChannel | None, console_stop: ConsoleStop) -> Endpoints:
+def _endpoints(options: ServeOptions, channel: StopChannel | None, console_stop: ConsoleStop) -> Endpoints:
     """What this daemon serves, for its start-up lines (ports already bound)."""
-    takes_tokens = getattr(args, "estop_port", None) is not None
-    channel_host = args.estop_host if takes_tokens else "127.0.0.1"
     return Endpoints(
-        tokens=args.auth_tokens,
-        mcp=(args.host, args.port) if args.transport == "http" else None,
-        console=_console_address(args),
-        channel=None if channel is None else (channel_host, channel.port),
-        channel_takes_tokens=takes_tokens,
+        tokens=options.auth_tokens,
+        mcp=(options.host, options.port) if options.transport == "http" else None,
+        console=options.console_address(),
+        channel=None if channel is None else (options.stop_channel_host, channel.port),
+        channel_takes_tokens=options.stop_channel_takes_tokens,
         console_posts_to_channel=console_stop.estop_url is not None)
 
 
@@ -310,7 +298,7 @@ def freeze_long_lived_objects() -> None:
     gc.set_threshold(GC_YOUNG_THRESHOLD, *gc.get_threshold()[1:])
 
 
-async def _run(args: argparse.Namespace, parts: tuple) -> None:
+async def _run(options: ServeOptions, parts: tuple) -> None:
     assembly = await open_assembly(*parts)
     why = "shutdown"
     lost: str | None = None  # why the final record could not be written
@@ -319,25 +307,25 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
     listener: socket.socket | None = None
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
-        args, listener = _bind_listener(args)
-        door = _console_door(args, external)
-        signal_stop, channel = _start_external_stops(args, external, None if door is None else door[0],
+        options, listener = _bind_listener(options)
+        door = _console_door(options, external)
+        signal_stop, channel = _start_external_stops(options, external, None if door is None else door[0],
                                                      assembly.refusal_reports_for("stop_channel"))
-        console_stop = _console_stop(args, channel, None if door is None else door[1])
-        served = _endpoints(args, channel, console_stop)
+        console_stop = _console_stop(options, channel, None if door is None else door[1])
+        served = _endpoints(options, channel, console_stop)
         log_feature_lines(logger, assembly.policy.enabled_tools)  # what each absent optional dependency removes
         freeze_long_lived_objects()
         await assembly.audit.append_async(
             "startup",
             outcome="ok",
-            detail=f"armwarden {__version__} serving {args.transport} with the {args.backend} backend",
-            extra={"policy": str(args.policy or "bundled fr3"), "policy_digest": policy_digest(assembly.policy),
+            detail=f"armwarden {__version__} serving {options.transport} with the {options.backend} backend",
+            extra={"policy": options.policy_label, "policy_digest": policy_digest(assembly.policy),
                    "dry_run": assembly.policy.dry_run,
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
                    "pid": os.getpid()},
         )
-        if args.transport == "stdio" and started_from_terminal(sys.stdin):
-            print(first_contact_line(backend=args.backend, policy=str(args.policy or "bundled fr3"),
+        if options.transport == "stdio" and started_from_terminal(sys.stdin):
+            print(first_contact_line(backend=options.backend, policy=options.policy_label,
                                      audit_log=assembly.audit.path, tools=len(assembly.server.tools),
                                      dry_run=assembly.policy.dry_run), file=sys.stderr, flush=True)
         async with anyio.create_task_group() as group:
@@ -351,11 +339,11 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                                 await assembly.backend.stop()
                             except Exception as exc:
                                 logger.error("stop on %s failed: %s", why, exc)
-                        if args.transport == "http":
+                        if options.transport == "http":
                             shutdown.set()  # uvicorn drains and returns; in-flight executions stop
                             return
                         group.cancel_scope.cancel()
-                        if args.transport == "stdio":
+                        if options.transport == "stdio":
                             # The SDK reads stdin in a worker thread that cancellation cannot interrupt,
                             # so the group would not unwind until the client closes stdin. Let the
                             # cancelled calls stop and record, then stop, close and record here and exit.
@@ -371,16 +359,16 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                         return
 
             group.start_soon(on_signals)
-            if args.transport == "stdio":
+            if options.transport == "stdio":
                 console_closed = anyio.Event()
 
                 async def serve_console() -> None:
                     try:
-                        await _serve_console(args, assembly, external, console_stop, shutdown, listener, served)
+                        await _serve_console(options, assembly, external, console_stop, shutdown, listener, served)
                     finally:
                         console_closed.set()
 
-                if getattr(args, "console_port", None) is not None:
+                if options.console_port is not None:
                     group.start_soon(serve_console)
                 else:
                     _log_startup_lines(served)  # the stop channel of --estop-port, if any: it listens already
@@ -392,7 +380,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
                 with anyio.move_on_after(CONSOLE_CLOSE_S):
                     await console_closed.wait()
             else:
-                await _serve_http(args, assembly, external, shutdown, console_stop, listener, served)
+                await _serve_http(options, assembly, external, shutdown, console_stop, listener, served)
             group.cancel_scope.cancel()
     finally:
         if listener is not None:  # closed by serve_http once it served; not if start-up failed before
@@ -408,7 +396,7 @@ async def _run(args: argparse.Namespace, parts: tuple) -> None:
         raise FinalRecordLost(lost)
 
 
-def _console_app(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, tokens: Any,
+def _console_app(options: ServeOptions, assembly: Assembly, external: ExternalStops, tokens: Any,
                  console_stop: ConsoleStop | None = None) -> Any:
     """The operator console for this daemon (docs/console.md): sign-in with `tokens` (None: nobody
     can sign in), the E-STOP button posting to the stop channel (`console_stop`; its own route,
@@ -417,7 +405,7 @@ def _console_app(args: argparse.Namespace, assembly: Assembly, external: Externa
     from armwarden.console import ConsoleSettings, SessionStore, build_console_app, timed_estop
 
     settings = ConsoleSettings(
-        estop_from_loopback_without_sign_in=not getattr(args, "console_estop_needs_sign_in", False),
+        estop_from_loopback_without_sign_in=not options.console_estop_needs_sign_in,
         answer_approvals=assembly.policy.approval.channel in ("url", "both"),
         estop_url=None if console_stop is None else console_stop.estop_url)
     hook = timed_estop(external.latch_and_stop_for("console"), external.record)
@@ -425,7 +413,7 @@ def _console_app(args: argparse.Namespace, assembly: Assembly, external: Externa
     return build_console_app(assembly.guard, sessions, hook, settings, assembly.refusal_reports_for("console"))
 
 
-async def _serve_console(args: argparse.Namespace, assembly: Assembly, external: ExternalStops,
+async def _serve_console(options: ServeOptions, assembly: Assembly, external: ExternalStops,
                          console_stop: ConsoleStop | None = None, shutdown: anyio.Event | None = None,
                          listener: socket.socket | None = None, served: Endpoints | None = None) -> None:
     """``--console-port`` (stdio): the console alone on its own port (`listener`, bound already),
@@ -434,14 +422,18 @@ async def _serve_console(args: argparse.Namespace, assembly: Assembly, external:
     from armwarden.transport.http import build_console_only_app
     from armwarden.transport.tokens import TokenStore
 
-    tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
-    app = build_console_only_app(_console_app(args, assembly, external, tokens, console_stop), host=args.console_host,
-                                 port=args.console_port, allowed_hosts=getattr(args, "allowed_host", []) or [],
-                                 allowed_origins=getattr(args, "allowed_origin", []) or [],
+    address = options.console_address()
+    if address is None:  # only run with --console-port on stdio
+        raise ConfigurationError("no console address: the console alone is served only with --console-port")
+    host, port = address
+    tokens = TokenStore.load(options.auth_tokens) if options.auth_tokens else None
+    app = build_console_only_app(_console_app(options, assembly, external, tokens, console_stop), host=host,
+                                 port=port, allowed_hosts=options.allowed_hosts,
+                                 allowed_origins=options.allowed_origins,
                                  metrics=None if assembly.metrics is None else assembly.metrics.exposition,
                                  token_store=tokens, on_refused=_refusal_recorder(assembly))
-    assembly.guard.approvals.console_url = f"http://{link_host(args.console_host)}:{args.console_port}/console"
-    await _serve_then_announce(app, args.console_host, args.console_port, shutdown, listener, served)
+    assembly.guard.approvals.console_url = f"http://{link_host(host)}:{port}/console"
+    await _serve_then_announce(app, host, port, shutdown, listener, served)
 
 
 async def _serve_stdio(assembly: Assembly, external: ExternalStops) -> str:
@@ -531,7 +523,7 @@ def _refused_estop_latch(assembly: Assembly, external: ExternalStops) -> LatchOn
     return latch
 
 
-async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event,
+async def _serve_http(options: ServeOptions, assembly: Assembly, external: ExternalStops, shutdown: anyio.Event,
                       console_stop: ConsoleStop | None = None, listener: socket.socket | None = None,
                       served: Endpoints | None = None) -> None:
     """``/mcp`` (and the console, ``/metrics``) on `listener`, bound already to ``--port``; logs
@@ -539,49 +531,48 @@ async def _serve_http(args: argparse.Namespace, assembly: Assembly, external: Ex
     from armwarden.transport.http import build_http_app, current_principal
     from armwarden.transport.tokens import TokenStore
 
-    tokens = TokenStore.load(args.auth_tokens) if args.auth_tokens else None
+    tokens = TokenStore.load(options.auth_tokens) if options.auth_tokens else None
 
     async def on_abandoned(tool: str, arguments: dict[str, Any], request_id: Any, cancelled: bool | None) -> None:
         principal = current_principal()
         await assembly.guard.abandoned_call(tool, arguments, request_id, cancelled,
                                             principal=None if principal is None else principal.name)
 
-    console = None if getattr(args, "no_console", False) else _console_app(args, assembly, external, tokens,
+    console = None if options.no_console else _console_app(options, assembly, external, tokens,
                                                                             console_stop)
     if console is not None:  # the link URL-mode approvals send
-        assembly.guard.approvals.console_url = f"http://{link_host(args.host)}:{args.port}/console"
+        assembly.guard.approvals.console_url = f"http://{link_host(options.host)}:{options.port}/console"
     # /healthz answers without a token: it says only that the daemon is up, never the arm's state
-    app = build_http_app(assembly.server.mcp, host=args.host, port=args.port, token_store=tokens,
+    app = build_http_app(assembly.server.mcp, host=options.host, port=options.port, token_store=tokens,
                          on_abandoned=on_abandoned, on_stop_request=external.stop_on_receipt, console=console,
                          on_refused=_refusal_recorder(assembly),
                          on_estop_refused=_refused_estop_latch(assembly, external),
-                         allowed_hosts=getattr(args, "allowed_host", []) or [],
-                         allowed_origins=getattr(args, "allowed_origin", []) or [],
+                         allowed_hosts=options.allowed_hosts,
+                         allowed_origins=options.allowed_origins,
                          metrics=None if assembly.metrics is None else assembly.metrics.exposition)
-    await _serve_then_announce(app, args.host, args.port, shutdown, listener, served)
+    await _serve_then_announce(app, options.host, options.port, shutdown, listener, served)
 
 
-def serve_command(args: argparse.Namespace) -> int:
+def serve_command(options: ServeOptions) -> int:
     from armwarden.policy import bundled_policy
 
-    policy_path = Path(args.policy) if args.policy else bundled_policy()
+    policy_path = Path(options.policy) if options.policy else bundled_policy()
     try:
-        policy = load_policy(policy_path).with_dry_run(args.dry_run)
-        if args.transport == "http":
+        policy = load_policy(policy_path).with_dry_run(options.dry_run)
+        if options.transport == "http":
             from armwarden.transport.http import check_bind_safety
             from armwarden.transport.tokens import TokenStore
 
-            check_bind_safety(args.host, TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
-        if getattr(args, "console_port", None) is not None:
+            check_bind_safety(options.host, TokenStore.load(options.auth_tokens) if options.auth_tokens else None)
+        if options.console_port is not None:
             from armwarden.transport.http import check_bind_safety
             from armwarden.transport.tokens import TokenStore
 
-            check_bind_safety(args.console_host, TokenStore.load(args.auth_tokens) if args.auth_tokens else None)
-        if getattr(args, "estop_port", None) is not None and not args.auth_tokens:
-            raise ConfigurationError("--estop-port needs --auth-tokens: the stop channel accepts any role's token, "
-                                     "and none without one")
-        parts = assemble(policy, args.backend, args.backend_config, args.audit_log,
-                         args.audit_commit_window_ms / 1e3)
+            check_bind_safety(options.console_host, TokenStore.load(options.auth_tokens) if options.auth_tokens else None)
+        if options.estop_port is not None and not options.auth_tokens:
+            raise ConfigurationError(ESTOP_PORT_NEEDS_TOKENS)
+        parts = assemble(policy, options.backend, options.backend_config, options.audit_log,
+                         options.audit_commit_window_s)
     except PolicyError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)
         return EXIT_REFUSED
@@ -590,7 +581,7 @@ def serve_command(args: argparse.Namespace) -> int:
         return EXIT_REFUSED
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
-        anyio.run(_run, args, parts)
+        anyio.run(_run, options, parts)
     except FinalRecordLost as exc:
         print(final_record_lost_message(str(exc)), file=sys.stderr)
         return EXIT_AUDIT_INCOMPLETE
