@@ -29,7 +29,7 @@ from tests.helpers import text_of
 from tests.scenarios.steps import executing, joints, plan_joints
 from tests.server.harness import MODES, approve, arm_harness, policy_with
 
-from armwarden.backends.base import CameraImage
+from armwarden.backends.values import CameraImage
 from tests_ros.backend_setup import opened
 from tests_ros.cell import Cell
 

@@ -23,8 +23,8 @@ from rclpy.action.server import ActionServer
 from rclpy.signals import SignalHandlerOptions
 from tests.backends.contract import straight_line
 
-from armwarden.backends.base import ExecutionResult
 from armwarden.backends.ros2.backend import Ros2Backend
+from armwarden.backends.values import ExecutionResult
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
 from tests_ros.backend_setup import example_config, opened

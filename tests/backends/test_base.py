@@ -8,7 +8,8 @@ import asyncio
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, CameraImage, Capabilities, ExecutionResult
+from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.values import CameraImage, ExecutionResult
 from armwarden.core.errors import BackendError, BackendTimeout
 from armwarden.core.state import GripperState, JointState
 

@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from armwarden.backends.base import Backend, ControllerInfo
+from armwarden.backends.base import Backend
 from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
+from armwarden.backends.values import ControllerInfo
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel

@@ -13,6 +13,8 @@ Writing a backend
   `_read_joint_state`, `_execute`, `_stop` and `_stop_now`; implement the optional hooks
   (`_read_wrench`, `_gripper_*`, `_camera_snapshot`, `_list_controllers`, ...) only for the
   capabilities you declare. A call to a capability you do not declare raises `BackendError`.
+  Every hook, accuracy and deadline is listed in `armwarden.backends.hooks.BackendHooks`; the
+  values the hooks return are in `armwarden.backends.values`.
 - In the backend's module: a strict pydantic `Config` (extra="forbid", frozen, units in names and
   descriptions) and `create_backend(robot, policy, config: Config) -> Backend`; then add the
   module to `armwarden.backends.BACKENDS`.
@@ -84,6 +86,8 @@ from typing import TypeVar
 import anyio
 import numpy as np
 
+from armwarden.backends.hooks import BackendHooks
+from armwarden.backends.values import PREEMPTED, CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.workers import WorkerSupervision
 from armwarden.core.errors import BackendError, BackendTimeout, StoppedBeforeStart
 from armwarden.core.state import GripperState, JointState, Transform, Wrench
@@ -91,49 +95,10 @@ from armwarden.core.trajectory import JointTrajectory
 
 logger = logging.getLogger(__name__)
 
-ProgressCallback = Callable[[float], None]
 #: told (from any thread) that the backend found a fault and has already stopped or damped the arm;
 #: called with the fault's description, what it returns is ignored
 FaultListener = Callable[[str], object]
-#: `ExecutionResult.reason` of an execution a stop preempted before anything moved
-PREEMPTED = "stopped before it started"
 T = TypeVar("T")
-
-
-@dataclass(frozen=True)
-class GripperResult:
-    success: bool
-    width_m: float
-    is_grasped: bool
-    detail: str = ""
-
-
-@dataclass(frozen=True)
-class CameraImage:
-    camera: str
-    width: int
-    height: int
-    png: bytes
-    stamp: float
-
-
-@dataclass(frozen=True)
-class ControllerInfo:
-    name: str
-    type: str
-    state: str  # "active" | "inactive"
-
-
-@dataclass(frozen=True)
-class ExecutionResult:
-    """How an execution ended: `completed` (reached the goal) or stopped early, with why."""
-
-    completed: bool
-    reason: str
-    final_positions: np.ndarray
-    #: largest deviation [rad] of a measured joint from its commanded trajectory sample while the
-    #: trajectory ran; None: the backend does not measure one (a kinematic arm follows exactly)
-    max_tracking_error_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -152,43 +117,8 @@ class Capabilities:
     transforms: bool = False
 
 
-class Backend(WorkerSupervision, abc.ABC):
+class Backend(WorkerSupervision, BackendHooks):
     """Base class: lifecycle, deadlines, checks and logging; subclasses implement the `_hooks`."""
-
-    name: str = "abstract"
-    #: how far from the goal a completed execution may end [rad] (see "Rules every backend follows")
-    goal_accuracy_rad: float = 0.0
-    #: how far a resting arm may be from where it is held [rad]
-    hold_accuracy_rad: float = 0.0
-    #: joint speed [rad/s] at or below which the arm counts as at rest
-    rest_speed_rad_s: float = 0.0
-    #: deadline for a stop command to be issued [s]; a stop that misses it is a failure
-    stop_timeout_s: float = 0.5
-    #: deadline for state/wrench reads [s]
-    read_timeout_s: float = 0.5
-    #: deadline for a gripper state read [s]
-    gripper_state_timeout_s: float = 0.5
-    #: fixed part of a gripper move/grasp deadline [s]; the travel time at the requested speed is added
-    gripper_timeout_s: float = 5.0
-    #: the longest finger travel [m] a move or grasp may need (the gripper's full opening)
-    gripper_travel_m: float = 0.1
-    #: deadline for homing the gripper [s]
-    gripper_home_timeout_s: float = 30.0
-    #: deadline for a camera snapshot [s]
-    camera_timeout_s: float = 2.0
-    #: added to the deadline of a backend's first camera snapshot [s], for one-time setup (an
-    #: offscreen renderer's GL context and first frame); see `_camera_deadline`
-    camera_setup_timeout_s: float = 0.0
-    #: deadline for listing or switching controllers [s]
-    controllers_timeout_s: float = 5.0
-    #: deadline for setting collision thresholds [s]
-    thresholds_timeout_s: float = 2.0
-    #: deadline for error recovery [s]
-    error_recovery_timeout_s: float = 10.0
-    #: deadline for describing the graph [s]
-    graph_timeout_s: float = 2.0
-    #: deadline for a transform lookup [s]
-    transform_timeout_s: float = 0.5
 
     def __init__(self, joint_names: Sequence[str], *, start_tolerance_rad: float) -> None:
         if not (isinstance(start_tolerance_rad, (int, float)) and math.isfinite(start_tolerance_rad)
@@ -564,93 +494,3 @@ class Backend(WorkerSupervision, abc.ABC):
                     except BackendError:
                         logger.exception("backend %s: stop after a missed %s deadline failed", self.name, what)
             raise BackendTimeout(f"backend {self.name}: {what} did not finish within {timeout_s:g} s") from exc
-
-    # ---------------------------------------------------------------- hooks
-    @abc.abstractmethod
-    async def _open(self) -> None: ...
-
-    @abc.abstractmethod
-    async def _close(self) -> None: ...
-
-    @abc.abstractmethod
-    async def _read_joint_state(self) -> JointState: ...
-
-    def _latest_joint_state(self) -> JointState | None:
-        """The newest published sample, without waiting (may raise BackendError); None = ask
-        `_read_joint_state` under the read deadline."""
-        return None
-
-    def _latest_wrench(self) -> Wrench | None:
-        """Like `_latest_joint_state`, for the wrench estimate."""
-        return None
-
-    async def _read_wrench(self) -> Wrench | None:
-        return None
-
-    @abc.abstractmethod
-    async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult: ...
-
-    @abc.abstractmethod
-    async def _stop(self) -> None: ...
-
-    @abc.abstractmethod
-    def _stop_now(self) -> None:
-        """Synchronous, thread-safe stop (see `stop_now`); must not touch the event loop."""
-
-    async def _emergency_stop(self) -> None:
-        """The e-stop's stop (see `emergency_stop`); default: the ordinary stop."""
-        await self._stop()
-
-    def _emergency_stop_now(self) -> None:
-        """Synchronous, thread-safe e-stop (see `emergency_stop_now`); default: `_stop_now`."""
-        self._stop_now()
-
-    def _stop_fingers(self) -> None:
-        """Any thread (the event loop, a servo or watchdog thread, a stop from a signal), never
-        awaiting the event loop: the fingers stop where they are and the gripper action in
-        progress ends "stopped". The one name every backend's stop, e-stop and fault paths call
-        for "stop the fingers"; default: no gripper, nothing to stop."""
-        return None
-
-    def _latest_gripper_state(self) -> GripperState | None:
-        """Like `_latest_joint_state`, for the gripper: its published state, without waiting."""
-        return None
-
-    async def _gripper_state(self) -> GripperState | None:
-        return None
-
-    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        raise NotImplementedError
-
-    async def _gripper_grasp(
-        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
-    ) -> GripperResult:
-        raise NotImplementedError
-
-    async def _gripper_home(self) -> GripperResult:
-        raise NotImplementedError
-
-    async def _camera_snapshot(self, camera: str) -> CameraImage:
-        raise NotImplementedError
-
-    def _camera_set_up(self) -> bool:
-        """Whether the one-time camera setup `camera_setup_timeout_s` allows for is done."""
-        return True
-
-    async def _list_controllers(self) -> list[ControllerInfo]:
-        raise NotImplementedError
-
-    async def _switch_controllers(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
-        raise NotImplementedError
-
-    async def _set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
-        raise NotImplementedError
-
-    async def _error_recovery(self) -> None:
-        raise NotImplementedError
-
-    async def _graph(self) -> dict[str, list[str]]:
-        raise NotImplementedError
-
-    async def _lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
-        raise NotImplementedError

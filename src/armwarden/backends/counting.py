@@ -13,16 +13,8 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from armwarden.backends.base import (
-    Backend,
-    CameraImage,
-    Capabilities,
-    ControllerInfo,
-    ExecutionResult,
-    FaultListener,
-    GripperResult,
-    ProgressCallback,
-)
+from armwarden.backends.base import Backend, Capabilities, FaultListener
+from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.core.state import GripperState, JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.tools import TOOLS

@@ -41,14 +41,7 @@ import anyio
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from armwarden.backends.base import (
-    CameraImage,
-    Capabilities,
-    ControllerInfo,
-    ExecutionResult,
-    GripperResult,
-    ProgressCallback,
-)
+from armwarden.backends.base import Capabilities
 from armwarden.backends.fake_camera import (
     CAMERA_HEIGHT_PX,
     CAMERA_WIDTH_PX,
@@ -59,6 +52,7 @@ from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FingerMoti
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
+from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench

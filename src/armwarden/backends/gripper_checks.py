@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from armwarden.backends.base import GripperResult
+from armwarden.backends.values import GripperResult
 from armwarden.core.errors import BackendError
 
 

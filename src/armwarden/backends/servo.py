@@ -34,9 +34,10 @@ from typing import Any
 import anyio
 import numpy as np
 
-from armwarden.backends.base import PREEMPTED, Backend, ExecutionResult, ProgressCallback
+from armwarden.backends.base import Backend
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
+from armwarden.backends.values import PREEMPTED, ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory

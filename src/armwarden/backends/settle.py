@@ -16,7 +16,7 @@ from typing import Protocol
 import anyio
 import numpy as np
 
-from armwarden.backends.base import ExecutionResult
+from armwarden.backends.values import ExecutionResult
 
 
 class MeasuredJoints(Protocol):

@@ -32,7 +32,8 @@ import numpy as np
 
 from armwarden.approval.decision import Approval
 from armwarden.approval.plans import StoredPlan
-from armwarden.backends.base import Backend, ExecutionResult
+from armwarden.backends.base import Backend
+from armwarden.backends.values import ExecutionResult
 from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
 from armwarden.results import ExecutionReport

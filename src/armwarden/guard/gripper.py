@@ -12,7 +12,7 @@ from typing import Literal
 
 import anyio
 
-from armwarden.backends.base import GripperResult
+from armwarden.backends.values import GripperResult
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.gates import GuardState
 from armwarden.results import GripperResultModel

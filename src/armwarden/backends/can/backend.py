@@ -55,12 +55,7 @@ from typing import TYPE_CHECKING
 import anyio
 import numpy as np
 
-from armwarden.backends.base import (
-    Capabilities,
-    ExecutionResult,
-    GripperResult,
-    ProgressCallback,
-)
+from armwarden.backends.base import Capabilities
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.actuators import Actuator, OutFrame, ReplyDecoder
@@ -74,6 +69,7 @@ from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
+from armwarden.backends.values import ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState

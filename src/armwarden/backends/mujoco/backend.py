@@ -46,13 +46,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from armwarden.backends.base import (
-    CameraImage,
-    Capabilities,
-    ExecutionResult,
-    GripperResult,
-    ProgressCallback,
-)
+from armwarden.backends.base import Capabilities
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.mujoco.cameras import OffscreenCameras
 from armwarden.backends.mujoco.config import Config
@@ -66,6 +60,7 @@ from armwarden.backends.mujoco.model import (
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
+from armwarden.backends.values import CameraImage, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench

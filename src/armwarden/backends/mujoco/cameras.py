@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 import mujoco
 import numpy as np
 
-from armwarden.backends.base import CameraImage
+from armwarden.backends.values import CameraImage
 from armwarden.core.errors import BackendError
 
 

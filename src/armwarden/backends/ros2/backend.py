@@ -82,16 +82,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory as JointTrajectoryMsg
 
-from armwarden.backends.base import (
-    PREEMPTED,
-    Backend,
-    CameraImage,
-    Capabilities,
-    ControllerInfo,
-    ExecutionResult,
-    GripperResult,
-    ProgressCallback,
-)
+from armwarden.backends.base import Backend, Capabilities
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
@@ -111,6 +102,7 @@ from armwarden.backends.ros2.runs import (
 )
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache, nothing_heard
 from armwarden.backends.ros2.tf import TransformBuffer
+from armwarden.backends.values import PREEMPTED, CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Transform, Wrench
