@@ -323,7 +323,8 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
     import anyio
     from mcp import Client, StdioServerParameters
 
-    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, open_assembly
+    from armwarden.daemon.shutdown import close_assembly
+    from armwarden.daemon.startup import SWITCH_INTERVAL_S, assemble, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))
@@ -341,7 +342,7 @@ def bench_server(repeats: int = 400) -> dict[str, Any]:
             return {"position": {"x": 0.40 + 0.02 * (i % 2), "y": 0.05, "z": 0.35}}
 
         async def in_memory() -> dict[str, Any]:
-            assembly = await open_assembly(*assemble(policy, "fake", None, str(directory / "audit.jsonl")))
+            assembly = await open_assembly(assemble(policy, "fake", None, str(directory / "audit.jsonl")))
             audit = assembly.guard.audit
             series: dict[str, list[float]] = {"audited": [], "unaudited": [], "shape": [], "trivial": []}
             out: dict[str, Any] = {}

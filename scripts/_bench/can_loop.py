@@ -260,7 +260,8 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
     from mcp import Client
 
     from armwarden.core.errors import ArmWardenError
-    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
+    from armwarden.daemon.shutdown import close_assembly
+    from armwarden.daemon.startup import SWITCH_INTERVAL_S, assemble, freeze_long_lived_objects, open_assembly
     from armwarden.stopchannel.external import ExternalStops
     from armwarden.stopchannel.server import StopChannel
 
@@ -281,7 +282,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
         return calls
 
     async def floor(directory: Path, rate_hz: int, busy: bool) -> dict[str, Any]:
-        cell = await open_assembly(*assemble(policy, "fake", None, str(directory / f"audit-floor-{uuid.uuid4().hex[:8]}.jsonl"))) \
+        cell = await open_assembly(assemble(policy, "fake", None, str(directory / f"audit-floor-{uuid.uuid4().hex[:8]}.jsonl"))) \
             if busy else None
         freeze_long_lived_objects()
         loop = BareLoop(rate_hz)
@@ -305,7 +306,7 @@ def bench_can(seconds: float = 60.0, rates_hz: tuple[int, ...] = RATES_HZ, compa
 
     async def ours(directory: Path, rate_hz: int, busy: bool, realtime_priority: int | None = None) -> dict[str, Any]:
         config = _config_file(directory, rate_hz, realtime_priority)
-        cell = await open_assembly(*assemble(policy, "can", str(config), str(directory / f"audit-{uuid.uuid4().hex[:8]}.jsonl")))
+        cell = await open_assembly(assemble(policy, "can", str(config), str(directory / f"audit-{uuid.uuid4().hex[:8]}.jsonl")))
         freeze_long_lived_objects()
         backend: Any = cell.backend  # a CanBackend: its servo loop's timing and config are read
         servo = backend.servo

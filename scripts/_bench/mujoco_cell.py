@@ -87,7 +87,8 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
     import anyio
     from mcp import Client
 
-    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
+    from armwarden.daemon.shutdown import close_assembly
+    from armwarden.daemon.startup import SWITCH_INTERVAL_S, assemble, freeze_long_lived_objects, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     policy = bench_policy()
@@ -97,8 +98,8 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
 
     async def run(directory: Path) -> dict[str, Any]:
         out: dict[str, Any] = {}
-        fake = await open_assembly(*assemble(policy, "fake", None, str(directory / "fake-audit.jsonl")))
-        cell = await open_assembly(*assemble(policy, "mujoco", None, str(directory / "mujoco-audit.jsonl")))
+        fake = await open_assembly(assemble(policy, "fake", None, str(directory / "fake-audit.jsonl")))
+        cell = await open_assembly(assemble(policy, "mujoco", None, str(directory / "mujoco-audit.jsonl")))
         freeze_long_lived_objects()
         backend: Any = cell.backend  # a MujocoBackend: its published sample and step counters are read
         watch = StillWatch(backend)

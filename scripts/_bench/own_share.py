@@ -128,12 +128,13 @@ async def _clients(transport: str, directory: Path, policy_path: Path, shapes_pa
     import trivial_server
     from mcp import Client, StdioServerParameters
 
-    from armwarden.daemon.serve import assemble, close_assembly, open_assembly
+    from armwarden.daemon.shutdown import close_assembly
+    from armwarden.daemon.startup import assemble, open_assembly
     from armwarden.policy import load_policy
 
     async with AsyncExitStack() as stack:
         if transport == "memory":
-            assembly = await open_assembly(*assemble(load_policy(policy_path), "fake", None,
+            assembly = await open_assembly(assemble(load_policy(policy_path), "fake", None,
                                                      str(directory / "memory-audit.jsonl")))
             stack.push_async_callback(close_assembly, assembly, "benchmark done")
             armwarden = await stack.enter_async_context(Client(assembly.server.mcp, elicitation_callback=approve_all))
@@ -192,7 +193,7 @@ def _render_p95_ms(policy_path: Path, repeats: int = 300) -> dict[str, Any]:
     """The preview renderer alone, as the daemon runs it (one previewer per policy, the daemon's
     garbage-collector regime), on a typical 0.5 rad plan: p50 and p95 over `repeats` pictures."""
     from armwarden.assembly import plan_previewer
-    from armwarden.daemon.serve import freeze_long_lived_objects
+    from armwarden.daemon.startup import freeze_long_lived_objects
     from armwarden.policy import load_policy
     from armwarden.preflight import load_runtime_model
 
@@ -271,7 +272,7 @@ def _library_share_ms(render: Callable[[], Any], repeats: int) -> dict[str, floa
 def bench_own_share(policy_path: Path, directory: Path, rounds: int = 6) -> dict[str, Any]:
     import anyio
 
-    from armwarden.daemon.serve import SWITCH_INTERVAL_S
+    from armwarden.daemon.startup import SWITCH_INTERVAL_S
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs
     results: dict[str, Any] = {"transports": {}}

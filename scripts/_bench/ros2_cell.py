@@ -154,7 +154,8 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
     from mcp import Client
     from tests_ros.cell import Cell
 
-    from armwarden.daemon.serve import SWITCH_INTERVAL_S, assemble, close_assembly, freeze_long_lived_objects, open_assembly
+    from armwarden.daemon.shutdown import close_assembly
+    from armwarden.daemon.startup import SWITCH_INTERVAL_S, assemble, freeze_long_lived_objects, open_assembly
 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     policy = bench_policy()
@@ -165,8 +166,8 @@ def bench_ros2(runs: int = 100, state_calls: int = 200) -> dict[str, Any]:
     async def run(directory: Path) -> dict[str, Any]:
         out: dict[str, Any] = {"runs": runs, "domain_id": int(os.environ["ROS_DOMAIN_ID"])}
         with Cell() as cell:
-            fake = await open_assembly(*assemble(policy, "fake", None, str(directory / "fake-audit.jsonl")))
-            ros = await open_assembly(*assemble(policy, "ros2", str(EXAMPLE), str(directory / "ros2-audit.jsonl")))
+            fake = await open_assembly(assemble(policy, "fake", None, str(directory / "fake-audit.jsonl")))
+            ros = await open_assembly(assemble(policy, "ros2", str(EXAMPLE), str(directory / "ros2-audit.jsonl")))
             freeze_long_lived_objects()
             watch = StillWatch(cell)
             try:

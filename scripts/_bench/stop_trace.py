@@ -43,7 +43,7 @@ from typing import Any
 
 import gc_watch  # this directory is sys.path[0] when run as a script
 
-import armwarden.daemon.serve
+import armwarden.daemon.startup
 from armwarden.cli import main
 from armwarden.stopchannel import external
 from armwarden.stopchannel import server as channel_server
@@ -210,7 +210,7 @@ def _name_threads(path: str) -> None:
 
 if __name__ == "__main__":
     if os.environ.get("ARMWARDEN_BENCH_SWITCH_INTERVAL_S"):
-        armwarden.daemon.serve.SWITCH_INTERVAL_S = float(os.environ["ARMWARDEN_BENCH_SWITCH_INTERVAL_S"])
+        armwarden.daemon.startup.SWITCH_INTERVAL_S = float(os.environ["ARMWARDEN_BENCH_SWITCH_INTERVAL_S"])
     if os.environ.get("ARMWARDEN_BENCH_ECHO_PORT"):
         gc_watch._echo(int(os.environ["ARMWARDEN_BENCH_ECHO_PORT"]))
     if os.environ.get("ARMWARDEN_BENCH_THREADS"):

@@ -37,7 +37,7 @@ from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake import FakeBackend
 from armwarden.core.errors import BackendError
-from armwarden.daemon.serve import SWITCH_INTERVAL_S, freeze_long_lived_objects
+from armwarden.daemon.startup import SWITCH_INTERVAL_S, freeze_long_lived_objects
 from armwarden.guard import Guard
 from armwarden.policy import Policy, apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S

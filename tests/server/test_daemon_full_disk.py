@@ -25,7 +25,8 @@ from mcp import Client, StdioServerParameters
 
 import armwarden
 from armwarden.audit import AuditLog, verify_file
-from armwarden.daemon.serve import EXIT_AUDIT_INCOMPLETE, Assembly, close_assembly
+from armwarden.daemon.shutdown import EXIT_AUDIT_INCOMPLETE, close_assembly
+from armwarden.daemon.startup import Assembly
 from tests.fulldisk import SmallDisk
 from tests.helpers import REPO, stop_process, text_of
 from tests.server.harness import MODES, approve, arm_harness

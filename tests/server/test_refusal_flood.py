@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from armwarden.daemon.serve import REFUSAL_RECORDS_BURST
+from armwarden.daemon.refusals import REFUSAL_RECORDS_BURST
 from armwarden.safety.refusals import REPORT_INTERVAL_S
 from tests.helpers import records_of, stop_process
 from tests.server.http_daemon import Daemon, RawSession, http_daemon

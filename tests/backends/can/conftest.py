@@ -8,7 +8,7 @@ from collections.abc import AsyncIterator
 import pytest
 
 from armwarden.backends.can.backend import CanBackend
-from armwarden.daemon.serve import SWITCH_INTERVAL_S
+from armwarden.daemon.startup import SWITCH_INTERVAL_S
 from tests.backends.can.test_can_backend import build
 
 
