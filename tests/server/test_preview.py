@@ -251,11 +251,12 @@ def test_a_title_that_would_not_land_on_whole_pixels_is_left_to_pillow(runtime: 
 def test_a_title_pillow_must_place_itself_is_still_drawn(runtime: RuntimeModel, accepted, monkeypatch) -> None:
     """Where the title's glyphs would not land on whole pixels, the renderer stamps the title as
     one piece instead: the picture shows the same title."""
-    from armwarden.preview.render import PlanPreviewer, _Scene
+    from armwarden.preview.render import PlanPreviewer
+    from armwarden.preview.scene import Scene
 
     trajectory, report = accepted
     stamped = np.asarray(_decode(PlanPreviewer(runtime.envelope.limits).render(runtime.robot, trajectory, report)))
-    monkeypatch.setattr(_Scene, "line", lambda *args, **kwargs: False)
+    monkeypatch.setattr(Scene, "line", lambda *args, **kwargs: False)
     whole = np.asarray(_decode(PlanPreviewer(runtime.envelope.limits).render(runtime.robot, trajectory, report)))
 
     assert np.sum(np.any(stamped != whole, axis=-1)) <= 2  # where two glyphs' anti-aliased edges overlap
