@@ -2,8 +2,9 @@
 
 - `tokens`: the hashed token file; authenticates presented tokens.
 - `access`: the caller's `Principal` inside a tool (`current_principal`) and what a role may call.
-- `http`: the Starlette app (``/mcp`` + ``/healthz``) with Host/Origin checks and bearer auth,
-  served with uvicorn; `abandoned` cancels the motion call of an HTTP client that went away.
+- `http`: the Starlette app (``/mcp`` + ``/healthz``) with Host/Origin checks, served with
+  uvicorn; `bearer` authenticates its bearer tokens; `abandoned` cancels the motion call of an
+  HTTP client that went away.
 - `stdio`: MCP on stdin/stdout, with parse errors answered and open request ids kept unique.
 - `jsonrpc`: error codes and the request-id rule both transports share.
 

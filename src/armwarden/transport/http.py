@@ -18,7 +18,8 @@ Request path (outermost first)::
   port, plus `allowed_hosts`. A wildcard bind (``0.0.0.0``/``::``) is not a Host a client sends:
   pass the names clients use in `allowed_hosts`. Requests without an Origin (non-browser
   clients) pass; with one, it must be ``http://<allowed host>`` or listed in `allowed_origins`.
-- With a `TokenStore`, every path except ``/healthz`` needs ``Authorization: Bearer <token>``.
+- With a `TokenStore`, every path except ``/healthz`` needs ``Authorization: Bearer <token>``
+  (`bearer.BearerAuth`).
   The authenticated `Principal` becomes the SDK's `AuthenticatedUser`/`AccessToken`
   (``client_id`` = token name, ``subject`` = a fingerprint of the token, ``scopes`` = [role]); the
   SDK copies it into the task that runs the tool under both protocol revisions, binds sessions and
@@ -41,7 +42,6 @@ Request path (outermost first)::
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
 import socket
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
@@ -49,14 +49,10 @@ from typing import Any
 
 import anyio
 import uvicorn
-from mcp.server.auth.middleware.auth_context import AuthContextMiddleware
-from mcp.server.auth.middleware.bearer_auth import AuthenticatedUser
-from mcp.server.auth.provider import AccessToken
 from mcp.server.mcpserver import MCPServer
 from mcp.server.transport_security import TransportSecurityMiddleware, TransportSecuritySettings
 from prometheus_client import CONTENT_TYPE_LATEST
 from starlette.applications import Starlette
-from starlette.datastructures import Headers
 from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
@@ -67,7 +63,8 @@ from armwarden.core.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, LatchEstopsNotRun, mark_dispatched
 from armwarden.transport.access import OBSERVER_TOOLS, current_principal, role_allows
-from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, RefusedRequest, StopOnReceipt
+from armwarden.transport.bearer import BearerAuth
+from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, StopOnReceipt
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
@@ -166,84 +163,6 @@ class HostOriginGuard:
         await self.app(scope, receive, send)
 
 
-# ------------------------------------------------------------------------ bearer tokens
-def _unauthorized(description: str, *, invalid: bool) -> Response:
-    challenge = 'Bearer realm="armwarden"' + (', error="invalid_token"' if invalid else "")
-    return JSONResponse(
-        {"error": "invalid_token" if invalid else "unauthorized", "error_description": description},
-        status_code=401,
-        headers={"WWW-Authenticate": challenge},
-    )
-
-
-class BearerAuth:
-    """Pure ASGI: require a valid bearer token on every path but `PUBLIC_PATHS`."""
-
-    def __init__(self, app: ASGIApp, token_store: TokenStore, own_auth_prefixes: Sequence[str] = (),
-                 on_refused: RefusedCallback | None = None, reported_paths: Sequence[str] = ()) -> None:
-        self.app = AuthContextMiddleware(app)  # SDK: scope["user"] -> get_access_token()
-        self.token_store = token_store
-        #: a refusal on one of `reported_paths` is handed to `on_refused` before its 401
-        self.on_refused = on_refused
-        self.reported_paths = frozenset(reported_paths)
-        #: path prefixes that authenticate by themselves (the operator console's session cookie)
-        self.own_auth_prefixes = tuple(own_auth_prefixes)
-
-    def _own_auth(self, path: str) -> bool:
-        return any(path == prefix or path.startswith(prefix + "/") for prefix in self.own_auth_prefixes)
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["path"] in PUBLIC_PATHS or self._own_auth(scope["path"]):
-            await self.app(scope, receive, send)
-            return
-        values = Headers(scope=scope).getlist("authorization")
-        client = (scope.get("client") or ("?", 0))[0]
-        if not values:
-            await self._report(scope, client, "no bearer token")
-            await _unauthorized("this server requires 'Authorization: Bearer <token>'", invalid=False)(
-                scope, receive, send
-            )
-            return
-        scheme, _, presented = values[0].partition(" ")
-        principal = None
-        if len(values) == 1 and scheme.lower() == "bearer":
-            principal = self.token_store.authenticate(presented.strip())
-        if principal is None:
-            logger.warning("rejected HTTP request from %s: invalid bearer token", client)
-            await self._report(scope, client, "the bearer token is not valid")
-            await _unauthorized("the bearer token is not valid (unknown or revoked)", invalid=True)(
-                scope, receive, send
-            )
-            return
-        scope = dict(scope)
-        scope["headers"] = [(k, v) for k, v in scope["headers"] if k.lower() != b"authorization"]
-        scope["user"] = AuthenticatedUser(
-            AccessToken(
-                token=f"redacted:{principal.name}",  # never the token itself
-                client_id=principal.name,
-                # the SDK binds sessions and sealed request state to (client_id, issuer, subject):
-                # a fingerprint of this very token, so a new token under a revoked token's name
-                # cannot take over that token's sessions or pending questions
-                subject=hashlib.sha256(presented.strip().encode("utf-8")).hexdigest()[:32],
-                scopes=[principal.role],
-                claims={"armwarden_role": principal.role},
-            )
-        )
-        await self.app(scope, receive, send)
-
-    async def _report(self, scope: Scope, client: str, why: str) -> None:
-        """Hand a refusal on a reported path to `on_refused` (it thins floods and records)."""
-        path = scope["path"]
-        if self.on_refused is None or path not in self.reported_paths:
-            return
-        try:
-            await self.on_refused(RefusedRequest(method=f"{scope.get('method', 'GET')} {path}", params=None,
-                                                 request_id=None, outcome="refused", why=f"{path} refused (401): {why}",
-                                                 peer=client))
-        except Exception:  # the 401 is answered whatever the record did
-            logger.exception("recording a refused request for %s failed", path)
-
-
 def _metrics_route(metrics: Callable[[], bytes], token_store: TokenStore | None = None,
                    on_refused: RefusedCallback | None = None) -> Route:
     """``GET /metrics``: the exposition, built on a worker thread so a scrape never holds up the
@@ -329,7 +248,8 @@ def build_http_app(
     if token_store is not None:
         middleware.append(Middleware(BearerAuth, token_store=token_store,
                                      own_auth_prefixes=(CONSOLE_PATH,) if console is not None else (),
-                                     on_refused=on_refused, reported_paths=(METRICS_PATH,)))
+                                     on_refused=on_refused, reported_paths=(METRICS_PATH,),
+                                     public_paths=PUBLIC_PATHS))
     # innermost: only requests that passed the checks above; always on (it also bounds POST bodies)
     middleware.append(Middleware(AbandonedMotionStop, path=MCP_PATH, on_abandoned=on_abandoned,
                                  on_stop_request=on_stop_request, on_refused=on_refused,
