@@ -1025,7 +1025,7 @@ def test_with_dry_run_false_never_turns_off_a_policy_dry_run(doc: dict[str, Any]
 
 def test_tool_groups_hold_the_22_tool_names() -> None:
     assert list(TOOL_GROUPS) == ["introspect", "perception", "motion", "gripper", "control", "safety"]
-    assert len(ALL_TOOLS) == len(set(ALL_TOOLS)) == 22
+    assert len(ALL_TOOLS) == len(set(ALL_TOOLS)) == 23
     assert set(RATE_LIMIT_EXEMPT_TOOLS) <= set(TOOL_GROUPS["safety"])
 
 

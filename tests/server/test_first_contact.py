@@ -51,7 +51,7 @@ def test_serve_from_a_terminal_says_what_it_serves_on_one_stderr_line(tmp_path) 
     lines = [line for line in stderr.splitlines() if line.startswith(GREETING)]
     assert len(lines) == 1, stderr
     line = lines[0]
-    for fact in ("fake backend", "policy bundled fr3", str((tmp_path / "audit.jsonl").resolve()), "22 tools",
+    for fact in ("fake backend", "policy bundled fr3", str((tmp_path / "audit.jsonl").resolve()), "23 tools",
                  "docs/quickstart.md"):
         assert fact in line, line
 

@@ -197,6 +197,17 @@ class Guard:
         summary and an optional preview PNG."""
         return await self.planning_flow.plan(kind, request)
 
+    def plan_summary(self, plan_id: object) -> results.PlanSummary:
+        """A plan this caller made and could still run, summarised as its plan_* call was (reads
+        only: the plan stays usable). Refuses as execute_plan would for a plan that cannot run."""
+        plan = self.plans.peek(plan_id, self.latch.generation, current_caller())
+        if isinstance(plan, PlanRefusal):
+            raise refuse(plan.code, plan.message)
+        return conversions.plan_summary(
+            list(plan.meta["violations"]), list(plan.meta["notes"]), self.backend.capabilities.wrench, report=plan.report,
+            plan_id=plan.plan_id, status=plan.status, requires_approval=plan.meta["requires_approval"],
+            duration_s=plan.trajectory.duration_s, expires_at=plan.expires_at_wall)
+
     # ================================================================== execution
     async def precheck_execute(self, plan_id: object, can_elicit: bool) -> ServerDecision | Prompt:
         """Everything that would refuse execute_plan, checked before any human is asked. Read-only,

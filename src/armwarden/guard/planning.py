@@ -255,7 +255,8 @@ class PlanningFlow:
         status, needs = verdict.status, verdict.requires_approval
         stored = state.plans.add(outcome.trajectory, report, status=status, estop_generation=generation,
                                 owner=current_caller(),
-                                meta={"kind": kind, "notes": tuple(notes), "velocity_scaling": outcome.velocity_scaling})
+                                meta={"kind": kind, "notes": tuple(notes), "velocity_scaling": outcome.velocity_scaling,
+                                      "violations": tuple(violations), "requires_approval": needs})
         return conversions.plan_summary(
             violations, notes, monitoring, report=report, plan_id=stored.plan_id, status=status, requires_approval=needs,
             duration_s=outcome.trajectory.duration_s, expires_at=stored.expires_at_wall), preview

@@ -35,6 +35,7 @@ TOOLS: tuple[ToolSpec, ...] = (
     ToolSpec("plan_cartesian_path", "motion", PLANS, r.PlanSummary, picture=True, plan_kind="cartesian"),
     ToolSpec("execute_plan", "motion", ACTUATES, r.ExecutionReport, approval="execute", moves=True,
              backend_call="execute"),
+    ToolSpec("get_plan", "motion", READS_DAEMON, r.PlanSummary, records_result=False),
     ToolSpec("get_motion_status", "motion", READS_DAEMON, r.MotionStatus, records_result=False),
     # gripper
     ToolSpec("gripper_move", "gripper", ACTUATES, r.GripperResultModel, capability="gripper", moves=True,

@@ -145,6 +145,14 @@ def motion_faces(c: FaceContext) -> Faces:
                 return outcome  # the console link (and form): a question round, not admitted
         return await c.answer("execute_plan", lambda: execute(plan_id, ctx, approval, shown, outcome))
 
+    @faces.add("The summary of a plan you made and have not run (status, findings, whether a human will be asked, "
+               "expiry), as its plan_* call returned it, without the preview. Refused for a plan that was used, "
+               "expired, made before the latest e-stop or by another client.")
+    async def get_plan(
+        plan_id: Annotated[str, Field(min_length=1, max_length=64, description="The plan_id from a plan_* result")],
+    ) -> Annotated[CallToolResult, PlanSummary]:
+        return ok(guard.plan_summary(plan_id))
+
     @faces.add("Whether a plan is executing, its progress (0..1) and the last execution result.")
     async def get_motion_status() -> Annotated[CallToolResult, MotionStatus]:
         return ok(guard.motion_status())
