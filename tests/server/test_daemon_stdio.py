@@ -491,8 +491,9 @@ def test_serving_on_stdio_imports_no_http_module_of_armwarden(tmp_path) -> None:
     assert report["code"] == 0
     assert [r["event"] for r in records_of(audit)] == ["startup", "shutdown"]  # it served stdio, then stdin ended
     assert "armwarden.transport.stdio" in report["armwarden"]
-    assert not {"armwarden.transport.http", "armwarden.transport.bearer", "armwarden.transport.abandoned"} & set(
-        report["armwarden"])
+    http_modules = {"armwarden.transport.http", "armwarden.transport.bearer", "armwarden.transport.abandoned",
+                    "armwarden.transport.request_body", "armwarden.transport.mcp_middleware"}
+    assert not http_modules & set(report["armwarden"])
     assert [entry for entry in report["importers"] if (entry[1] or "").startswith("armwarden")] == []
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import anyio
 import pytest
 
-from armwarden.transport.abandoned import MAX_BODY_BYTES
+from armwarden.transport.request_body import MAX_BODY_BYTES
 from tests.helpers import records_of
 from tests.server.harness import HOME_TCP_X, MODES, MotionStarted
 from tests.server.harness import approve as approving

@@ -21,7 +21,7 @@ import httpx2
 import pytest
 from mcp_types import CLIENT_CAPABILITIES_META_KEY, CLIENT_INFO_META_KEY, PROTOCOL_VERSION_META_KEY
 
-from armwarden.transport.abandoned import MAX_BODY_BYTES
+from armwarden.transport.request_body import MAX_BODY_BYTES
 from tests.helpers import records_of
 from tests.server.http_daemon import Daemon, RawSession, http_daemon
 

@@ -13,14 +13,10 @@ from typing import Any
 import anyio
 import pytest
 
-from armwarden.transport.abandoned import (
-    MAX_BODY_BYTES,
-    AbandonedMotionStop,
-    LatchEstopsNotRun,
-    decode_message,
-    motion_call,
-)
+from armwarden.transport.abandoned import AbandonedMotionStop, motion_call
 from armwarden.transport.jsonrpc import RefusedRequest, StopTaken
+from armwarden.transport.mcp_middleware import LatchEstopsNotRun
+from armwarden.transport.request_body import MAX_BODY_BYTES, decode_message
 
 SESSION = (b"mcp-session-id", b"s-123")
 

@@ -8,7 +8,8 @@ posted later, or moving the arm to its goal with nobody watching.
 
 This ASGI layer closes that gap for exactly the call that was abandoned. For each POST to the MCP
 endpoint it reads the body first (at most `MAX_BODY_BYTES`; a larger body, declared or sent, is
-refused with 413 before the SDK sees it, so no call escapes the watch by being large), refuses
+refused with 413 before the SDK sees it, so no call escapes the watch by being large;
+`request_body.py`), refuses
 (409) a request whose id is already used by an open request of the same session (the SDK would
 overwrite the open call's entry, and that call could no longer be cancelled), and notes whether
 the response was sent in full. When a request that carried a `tools/call` of a motion tool ends without its
@@ -34,25 +35,21 @@ SDK gives a `tools/call` (or a body nobody could read) before its dispatch reach
 a routing header that disagrees with the body (2026-07-28, -32020), a body its JSON parser
 rejects (-32700), an unknown session. Such an answer is held back until its record is written;
 whether the dispatch was reached is told by `mark_dispatched`, an MCP server middleware the
-HTTP app installs outermost, so a call the tools saw (and the tool layer recorded) is not
+HTTP app installs outermost (`mcp_middleware.py`), so a call the tools saw (and the tool layer recorded) is not
 recorded twice. Apart from the repair it never changes or drops a message of a request it passes on.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 from collections.abc import Awaitable, Callable
-from contextvars import ContextVar
 from typing import Any
 
 import anyio
-from mcp.server.context import CallNext, ServerRequestContext
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from armwarden.tools import names
-from armwarden.transport.access import current_principal
 from armwarden.transport.jsonrpc import (
     HEADER_MISMATCH,
     INVALID_PARAMS,
@@ -73,13 +70,23 @@ from armwarden.transport.jsonrpc import (
     unanswerable_call,
     usable_request_id,
 )
+from armwarden.transport.mcp_middleware import noting_dispatch
+from armwarden.transport.request_body import (
+    MAX_BODY_BYTES,
+    ClientGone,
+    body_digest,
+    declared_length,
+    decode_body,
+    header,
+    read_body,
+    refuse_unseen,
+    replaying,
+)
 
 logger = logging.getLogger(__name__)
 
 #: tools whose call, abandoned by its client, must be cancelled
 MOTION_TOOLS = names(lambda spec: spec.moves)
-#: POST bodies above this are refused (413); no MCP message this server accepts comes near it
-MAX_BODY_BYTES = 1024 * 1024
 #: how long the injected cancellation may take before it is given up (logged) [s]
 CANCEL_TIMEOUT_S = 2.0
 SESSION_HEADER = b"mcp-session-id"
@@ -97,62 +104,6 @@ _REFUSAL_OUTCOMES = {PARSE_ERROR: "unreadable", INVALID_REQUEST: "unreadable", H
 #: it was not; None = no session, so there was nothing to cancel (the SDK ends such a call itself)
 AbandonedCallback = Callable[[str, dict[str, Any], Any, "bool | None"], Awaitable[None]]
 
-#: per POST to the MCP endpoint: `mark_dispatched` notes there that its `tools/call` reached the
-#: server's middleware chain (the tool layer's audit records such a call itself)
-_DISPATCHED: ContextVar[list[str] | None] = ContextVar("armwarden_dispatched", default=None)
-
-
-async def mark_dispatched(ctx: ServerRequestContext[Any, Any], call_next: CallNext) -> Any:
-    """MCP server middleware, installed outermost by the HTTP app: notes that the `tools/call` of
-    the request being served reached the tools' side, so an error answer to it is not recorded
-    again as a refusal (`AbandonedMotionStop`)."""
-    if ctx.method == "tools/call" and (seen := _DISPATCHED.get()) is not None:
-        seen.append(ctx.method)
-    return await call_next(ctx)
-
-
-class LatchEstopsNotRun:
-    """MCP server middleware, installed by the HTTP app: an `estop` call that reached the server
-    but ended without an answer of its tool — refused by the SDK after the transport passed it on
-    (a forged or expired 2026-07-28 request state, params its validation rejects) or cancelled
-    (its 2026-07-28 client hung up) — latches the e-stop all the same, before the error goes out
-    (a readable estop request shows the intent; `refused_stops`)."""
-
-    def __init__(self, latch: LatchOnRefusal) -> None:
-        self.latch = latch
-
-    async def __call__(self, ctx: ServerRequestContext[Any, Any], call_next: CallNext) -> Any:
-        if stop_call(ctx.method, ctx.params) != "estop":
-            return await call_next(ctx)
-        try:
-            return await call_next(ctx)
-        except BaseException as exc:
-            principal = current_principal()
-            why = f"the estop call ended without its tool's answer ({type(exc).__name__}: {str(exc)[:200]})"
-            refused_stops([("estop", ctx.params)], self.latch, None if principal is None else principal.name, why)
-            raise
-
-
-def body_digest(body: bytes) -> str:
-    """What a record says of a body it does not carry: its size and SHA-256."""
-    return f"{len(body)} bytes, sha256 {hashlib.sha256(body).hexdigest()}"
-
-
-def decode_body(body: bytes) -> Any:
-    """A request body's JSON (an object, a batch's list, ...), or None when it is not JSON.
-    Decoded once per request; the SDK parses the body again on its own."""
-    try:
-        return json.loads(body)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        return None
-
-
-def decode_message(body: bytes) -> dict[str, Any] | None:
-    """The JSON-RPC message object in a request body, or None (not JSON, or not one object)."""
-    message = decode_body(body)
-    return message if isinstance(message, dict) else None
-
-
 def motion_call(message: dict[str, Any] | None) -> tuple[str, dict[str, Any], Any] | None:
     """(tool, arguments, request id) if `message` is a JSON-RPC `tools/call` request of a motion tool."""
     if message is None or message.get("method") != "tools/call":
@@ -167,66 +118,13 @@ def motion_call(message: dict[str, Any] | None) -> tuple[str, dict[str, Any], An
     return str(params["name"]), arguments if isinstance(arguments, dict) else {}, request_id
 
 
-class _ClientGone(Exception):
-    """The client disconnected before its request body arrived."""
-
-
-async def _read_body(receive: Receive) -> tuple[bytes, bool]:
-    """(the request body, True), or (what was read, False) once it exceeds `MAX_BODY_BYTES`."""
-    body = bytearray()
-    while True:
-        message = await receive()
-        if message["type"] != "http.request":
-            raise _ClientGone
-        body.extend(message.get("body", b""))
-        if len(body) > MAX_BODY_BYTES:
-            return bytes(body), False
-        if not message.get("more_body", False):
-            return bytes(body), True
-
-
-def _replaying(body: bytes, afterwards: Callable[[], Awaitable[Message]]) -> Receive:
-    """A `receive` that hands over `body` in one message, then defers to `afterwards`."""
-    pending = True
-
-    async def receive() -> Message:
-        nonlocal pending
-        if pending:
-            pending = False
-            return {"type": "http.request", "body": body, "more_body": False}
-        return await afterwards()
-
-    return receive
-
-
-async def _refuse(send: Send, status: int, message: str, request_id: Any = None) -> None:
-    """A JSON-RPC error answer that the SDK never saw the request for."""
-    payload = json.dumps({"jsonrpc": "2.0", "id": request_id, "error": {"code": INVALID_REQUEST, "message": message}}).encode()
-    await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode()),
-                            (b"connection", b"close")]})
-    await send({"type": "http.response.body", "body": payload})
-
-
-def _header(scope: Scope, name: bytes) -> bytes | None:
-    return next((value for key, value in scope.get("headers", []) if key == name), None)
-
-
-def _declared_length(scope: Scope) -> int | None:
-    value = _header(scope, b"content-length")
-    try:
-        return int(value) if value is not None else None
-    except ValueError:
-        return None
-
-
 def _request_key(scope: Scope, message: dict[str, Any] | None) -> tuple[str, bytes, str] | None:
     """(principal, session, id) of a JSON-RPC request sent in a session: the SDK matches
     cancellations (and answers) by id, with 7, "7" and "07" the same (`request_id_key`), so two
     open requests must never share one. The principal is part of the key: the session header is
     the client's claim, checked by the SDK only later, so nobody can block (or probe) the ids of
     another principal's session."""
-    session = _header(scope, SESSION_HEADER)
+    session = header(scope, SESSION_HEADER)
     if session is None:
         return None
     if message is None or "method" not in message or "id" not in message:
@@ -258,20 +156,20 @@ class AbandonedMotionStop:
         if scope["type"] != "http" or scope.get("method") != "POST" or scope.get("path", "").rstrip("/") != self.path:
             await self.app(scope, receive, send)
             return
-        declared = _declared_length(scope)
+        declared = declared_length(scope)
         too_large = f"request body over {MAX_BODY_BYTES} bytes refused"
         if declared is not None and declared > MAX_BODY_BYTES:  # refused before reading: no "100 Continue" for it
             await self._report(scope, None, "too_large", f"{too_large} (HTTP 413): declared {declared} bytes, not read", 0)
-            await _refuse(send, 413, too_large)
+            await refuse_unseen(send, 413, too_large)
             return
         try:
-            body, whole = await _read_body(receive)
-        except _ClientGone:
+            body, whole = await read_body(receive)
+        except ClientGone:
             return  # nothing was asked, nothing runs
         if not whole:
             await self._report(scope, None, "too_large", f"{too_large} (HTTP 413): sent without a declared length, cut off "
                                f"after {body_digest(body)}", len(body))
-            await _refuse(send, 413, too_large)
+            await refuse_unseen(send, 413, too_large)
             return
         decoded = decode_body(body)
         principal = _principal(scope) or None
@@ -295,7 +193,7 @@ class AbandonedMotionStop:
                     idless := unanswerable_call(message.get("method"), params)) is not None:
                 taken = refused_stops(stops, self.on_estop_refused, principal, idless)
                 await self._report(scope, message, "invalid_request", idless, len(body), taken)
-                await _refuse(send, 400, idless)
+                await refuse_unseen(send, 400, idless)
                 return
             if malformed is not None:
                 await self._report(scope, message, "invalid_params", malformed, len(body))  # the SDK answers it
@@ -307,7 +205,7 @@ class AbandonedMotionStop:
             why = f"{message.get('method') if message else None} refused: {duplicate_id_message(request_id)}"
             taken = refused_stops(stops, self.on_estop_refused, principal, why)
             await self._report(scope, message, "duplicate_request_id", why, len(body), taken)
-            await _refuse(send, 409, duplicate_id_message(request_id), request_id=request_id)
+            await refuse_unseen(send, 409, duplicate_id_message(request_id), request_id=request_id)
             return
         if key is not None:
             self._open_requests.add(key)
@@ -325,7 +223,7 @@ class AbandonedMotionStop:
         why = batch_refusal(len(elements))
         taken = refused_stops(stops, self.on_estop_refused, principal, why)
         await self._report(scope, None, "invalid_request", why, body_bytes, taken, names)
-        await _refuse(send, 400, why)
+        await refuse_unseen(send, 400, why)
 
     async def _report(self, scope: Scope, message: dict[str, Any] | None, outcome: str, why: str, body_bytes: int,
                       stops: tuple[StopTaken, ...] = (), batch: tuple[str, ...] | None = None) -> None:
@@ -343,7 +241,7 @@ class AbandonedMotionStop:
             elif body_bytes > RECORDED_BODY_BYTES:
                 params = {"name": params["name"]} if isinstance(params.get("name"), str) else None
         try:
-            session = _header(scope, SESSION_HEADER)
+            session = header(scope, SESSION_HEADER)
             await self.on_refused(RefusedRequest(
                 method, params, request_id, outcome, why, stops, batch, principal=_principal(scope) or None,
                 session=None if session is None else session.decode("latin-1"), peer=(scope.get("client") or (None,))[0]))
@@ -401,18 +299,17 @@ class AbandonedMotionStop:
             if out["type"] == "http.response.body" and not out.get("more_body", False):
                 answered = True
 
-        token = _DISPATCHED.set(dispatched)
         try:
-            await self.app(scope, _replaying(body, receive), send_and_note)  # then: the client's disconnect, if any
+            with noting_dispatch(dispatched):
+                await self.app(scope, replaying(body, receive), send_and_note)  # then: the client's disconnect, if any
         finally:
-            _DISPATCHED.reset(token)
             if not answered and (call := motion_call(message)) is not None:
                 with anyio.CancelScope(shield=True):  # runs also when this request task was cancelled
                     await self._abandoned(scope, *call)
 
     async def _abandoned(self, scope: Scope, tool: str, arguments: dict[str, Any], request_id: Any) -> None:
         cancelled: bool | None = None  # no session: the call ended with its request (2026-07-28)
-        if _header(scope, SESSION_HEADER) is not None:
+        if header(scope, SESSION_HEADER) is not None:
             cancelled = False
             try:
                 cancelled = await self._cancel(scope, request_id)
@@ -446,7 +343,7 @@ class AbandonedMotionStop:
                 done.set()
 
         with anyio.move_on_after(CANCEL_TIMEOUT_S):
-            await self.app({**scope, "headers": headers}, _replaying(payload, after_the_response), send)
+            await self.app({**scope, "headers": headers}, replaying(payload, after_the_response), send)
         if not status or status[0] >= 300:
             logger.error("the SDK did not accept the cancellation of request %r (status %s)", request_id, status)
             return False

@@ -61,10 +61,11 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from armwarden.core.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
-from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop, LatchEstopsNotRun, mark_dispatched
+from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
 from armwarden.transport.access import OBSERVER_TOOLS, current_principal, role_allows
 from armwarden.transport.bearer import BearerAuth
 from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, StopOnReceipt
+from armwarden.transport.mcp_middleware import LatchEstopsNotRun, mark_dispatched
 from armwarden.transport.tokens import TokenStore
 
 __all__ = [
