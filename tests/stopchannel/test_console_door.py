@@ -7,7 +7,7 @@ import http.client
 from collections.abc import Callable
 
 from armwarden.stopchannel import ConsoleDoor, StopChannel
-from armwarden.stopchannel.server import CONSOLE_UNSIGNED_PRINCIPAL
+from armwarden.stopchannel.console_door import CONSOLE_UNSIGNED_PRINCIPAL
 
 from .conftest import NETWORK_TIMEOUT_S, OPERATOR_TOKEN, Events, Latch, post
 

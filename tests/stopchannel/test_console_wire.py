@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from armwarden.stopchannel.server import CONSOLE_UNSIGNED_PRINCIPAL, ConsoleDoor, authorise_console_estop
+from armwarden.stopchannel.console_door import CONSOLE_UNSIGNED_PRINCIPAL, ConsoleDoor, authorise_console_estop
 from armwarden.stopchannel.wire import (
     CONSOLE_ESTOP_PATH,
     FORM_CONTENT_TYPE,

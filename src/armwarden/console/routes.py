@@ -476,7 +476,7 @@ def build_console_app(guard: Guard, sessions: SessionStore, estop: EStopHook,
 def timed_estop(latch_and_stop: Callable[[str, str], int], record: Callable[[Any], None]) -> EStopHook:
     """An `EStopHook` from the stop channel's parts: latch and stop, then audit (without waiting)
     as the channel does, with the time the stop took."""
-    from armwarden.stopchannel.server import ChannelStop
+    from armwarden.stopchannel.records import ChannelStop
 
     def hook(reason: str, principal: str, peer: str) -> int:
         started = time.monotonic()

@@ -15,13 +15,9 @@ from armwarden.stopchannel.client import (
     estop_command,
     send_estop,
 )
-from armwarden.stopchannel.server import (
-    ChannelRefusal,
-    ChannelStop,
-    ConsoleDoor,
-    StopChannel,
-    token_store_authenticator,
-)
+from armwarden.stopchannel.console_door import ConsoleDoor
+from armwarden.stopchannel.records import ChannelRefusal, ChannelStop
+from armwarden.stopchannel.server import StopChannel, token_store_authenticator
 
 __all__ = [
     "ChannelRefusal",

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 from armwarden.audit import AuditLog, AuditWriteError
 from armwarden.safety.estop import EStopEvent
-from armwarden.stopchannel.server import ChannelRefusal, ChannelStop
+from armwarden.stopchannel.records import ChannelRefusal, ChannelStop
 
 logger = logging.getLogger(__name__)
 

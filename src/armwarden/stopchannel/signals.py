@@ -39,7 +39,7 @@ from pathlib import Path
 from types import FrameType
 
 from armwarden.stopchannel.reasons import discard_reasons, take_reasons
-from armwarden.stopchannel.server import ChannelStop
+from armwarden.stopchannel.records import ChannelStop
 
 logger = logging.getLogger(__name__)
 
