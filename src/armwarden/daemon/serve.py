@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import signal
 import socket
 import sys
 from pathlib import Path
@@ -35,10 +34,10 @@ from armwarden.daemon.http import bind_listener, log_startup_lines, serve_consol
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
 from armwarden.daemon.shutdown import (
     EXIT_AUDIT_INCOMPLETE,
-    SIGNAL_GRACE_S,
     FinalRecordLost,
     close_assembly,
     final_record_lost_message,
+    stop_on_signals,
 )
 from armwarden.daemon.startup import AssemblyParts, assemble, freeze_long_lived_objects, open_assembly
 from armwarden.daemon.stdio import serve_stdio_client
@@ -88,36 +87,11 @@ async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
                                      audit_log=assembly.audit.path, tools=len(assembly.server.tools),
                                      dry_run=assembly.policy.dry_run), file=sys.stderr, flush=True)
         async with anyio.create_task_group() as group:
-            async def on_signals() -> None:
+            def signalled(signal_why: str) -> None:
                 nonlocal why
-                with anyio.open_signal_receiver(signal.SIGTERM, signal.SIGINT) as signals:
-                    async for signum in signals:
-                        why = f"signal {signal.Signals(signum).name}"
-                        with anyio.CancelScope(shield=True):  # the arm stops first, whatever follows
-                            try:
-                                await assembly.backend.stop()
-                            except Exception as exc:
-                                logger.error("stop on %s failed: %s", why, exc)
-                        if options.transport == "http":
-                            shutdown.set()  # uvicorn drains and returns; in-flight executions stop
-                            return
-                        group.cancel_scope.cancel()
-                        if options.transport == "stdio":
-                            # The SDK reads stdin in a worker thread that cancellation cannot interrupt,
-                            # so the group would not unwind until the client closes stdin. Let the
-                            # cancelled calls stop and record, then stop, close and record here and exit.
-                            final_record_lost: str | None = None
-                            with anyio.CancelScope(shield=True):
-                                await anyio.sleep(SIGNAL_GRACE_S)
-                                final_record_lost = await close_assembly(assembly, why)
-                            if final_record_lost is not None:
-                                print(final_record_lost_message(final_record_lost), file=sys.stderr)
-                            logging.shutdown()
-                            sys.stderr.flush()
-                            os._exit(0 if final_record_lost is None else EXIT_AUDIT_INCOMPLETE)
-                        return
+                why = signal_why
 
-            group.start_soon(on_signals)
+            group.start_soon(stop_on_signals, assembly, options.transport, shutdown, group.cancel_scope, signalled)
             if options.transport == "stdio":
                 console_closed = anyio.Event()
 

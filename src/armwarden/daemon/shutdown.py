@@ -1,15 +1,20 @@
-"""Shutdown: stop the arm and the gripper, close the backend, record the counts of refusals left
-out, write the final audit record and close the log; and what `serve` says and returns when that
-record could not be written."""
+"""Shutdown: on a signal, or when the client leaves, stop the arm and the gripper, close the
+backend, record the counts of refusals left out, write the final audit record and close the log;
+and what `serve` says and returns when that record could not be written."""
 
 from __future__ import annotations
 
 import logging
+import os
+import signal
+import sys
+from collections.abc import Callable
 
 import anyio
 
 from armwarden.audit import AuditWriteError
 from armwarden.core.errors import ArmWardenError
+from armwarden.daemon.options import Transport
 from armwarden.daemon.startup import Assembly
 
 logger = logging.getLogger("armwarden")
@@ -56,3 +61,35 @@ async def close_assembly(assembly: Assembly, why: str) -> str | None:
         finally:
             assembly.audit.close()
         return None
+
+
+async def stop_on_signals(assembly: Assembly, transport: Transport, shutdown: anyio.Event,
+                          serving: anyio.CancelScope, signalled: Callable[[str], None]) -> None:
+    """On SIGTERM or SIGINT: stop the arm first, then end the serving. `signalled` gets why (for
+    the final record) before anything else. HTTP: `shutdown` lets uvicorn drain and return (the
+    run then closes the assembly). Stdio: the SDK reads stdin in a worker thread that cancellation
+    cannot interrupt, so `serving` would not unwind until the client closes stdin; the cancelled
+    calls get `SIGNAL_GRACE_S` to stop and record, then the assembly is closed here and the
+    process exits (`EXIT_AUDIT_INCOMPLETE` without a final record)."""
+    with anyio.open_signal_receiver(signal.SIGTERM, signal.SIGINT) as signals:
+        async for signum in signals:
+            why = f"signal {signal.Signals(signum).name}"
+            signalled(why)
+            with anyio.CancelScope(shield=True):  # the arm stops first, whatever follows
+                try:
+                    await assembly.backend.stop()
+                except Exception as exc:
+                    logger.error("stop on %s failed: %s", why, exc)
+            if transport == "http":
+                shutdown.set()  # uvicorn drains and returns; in-flight executions stop
+                return
+            serving.cancel()
+            final_record_lost: str | None = None
+            with anyio.CancelScope(shield=True):
+                await anyio.sleep(SIGNAL_GRACE_S)
+                final_record_lost = await close_assembly(assembly, why)
+            if final_record_lost is not None:
+                print(final_record_lost_message(final_record_lost), file=sys.stderr)
+            logging.shutdown()
+            sys.stderr.flush()
+            os._exit(0 if final_record_lost is None else EXIT_AUDIT_INCOMPLETE)
