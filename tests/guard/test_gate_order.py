@@ -38,6 +38,17 @@ def refusal_code(result: CallToolResult) -> RefusalCode | None:
     return RefusalCode(text[text.index("[") + 1:text.index("]")])
 
 
+def assert_first_broken_gate_answered(result: CallToolResult, actuations: list[str], gates: tuple[order.Gate, ...],
+                                      broken: set[order.Gate], actuation: str) -> None:
+    """The first broken gate refused and nothing moved; with none broken, the call ran once."""
+    first = order.first_refusal(gates, broken)
+    if first is None:
+        assert refusal_code(result) is None and actuations == [actuation], text_of(result)
+    else:
+        assert refusal_code(result) in first.refuses, text_of(result)
+        assert actuations == []
+
+
 def test_every_tool_that_changes_the_robot_has_its_gates_stated_and_the_rate_limit_first() -> None:
     changes = names(lambda spec: not spec.hints.read_only and not spec.stops_on_read) | names(lambda spec: spec.plan_kind)
     assert set(order.GATES) == changes
@@ -68,13 +79,7 @@ async def test_a_gripper_move_is_refused_by_its_first_broken_gate(tmp_path: Path
             return ok(await flow.run("gripper_move", width, None, None, 0.005, 0.005))
 
         result = await ToolBuilder(arm.guard).answer("gripper_move", move)
-        actuations = list(arm.actuations)
-    first = order.first_refusal(GRIPPER_GATES, broken)
-    if first is None:
-        assert refusal_code(result) is None and actuations == ["gripper_move"]
-    else:
-        assert refusal_code(result) in first.refuses, text_of(result)
-        assert actuations == []
+        assert_first_broken_gate_answered(result, arm.actuations, GRIPPER_GATES, broken, "gripper_move")
 
 
 ACTION_GATES = order.GATES["set_collision_thresholds"]
@@ -104,10 +109,4 @@ async def test_a_control_action_is_refused_by_its_first_broken_gate(tmp_path: Pa
             return ok(await actions.run("set_collision_thresholds", answer, shown, arguments))
 
         result = await ToolBuilder(arm.guard).answer("set_collision_thresholds", act)
-        actuations = list(arm.actuations)
-    first = order.first_refusal(ACTION_GATES, broken)
-    if first is None:
-        assert refusal_code(result) is None and actuations == ["set_collision_thresholds"]
-    else:
-        assert refusal_code(result) in first.refuses, text_of(result)
-        assert actuations == []
+        assert_first_broken_gate_answered(result, arm.actuations, ACTION_GATES, broken, "set_collision_thresholds")
