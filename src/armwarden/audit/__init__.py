@@ -22,7 +22,8 @@ is not detectable from the file alone (compare `seq` against an external copy of
 
 Modules: `sanitise` (bounded, strict-JSON copies of arguments), `chain` (record fields,
 canonical JSON, hashing, the key), `verify` (chain verification and tail reading), `writer` (the
-writer thread and its durability classes), `log` (the log), `query` (the record filters of `audit tail`) and
+writer thread and its durability classes), `entry` (what a caller records, and the record it
+becomes), `disk` (opening and locking the file, the disk seam), `log` (the log), `query` (the record filters of `audit tail`) and
 `cli` (`armwarden audit verify|tail`).
 """
 
@@ -37,15 +38,9 @@ from armwarden.audit.chain import (
     hmac_key_from_env,
 )
 from armwarden.audit.cli import tail_command, verify_command
-from armwarden.audit.log import (
-    DEFAULT_COMMIT_WINDOW_S,
-    MAX_EVENT_CHARS,
-    OS_DISK,
-    AuditEntry,
-    AuditLog,
-    AuditWriteError,
-    Disk,
-)
+from armwarden.audit.disk import OS_DISK, Disk
+from armwarden.audit.entry import MAX_EVENT_CHARS, AuditEntry
+from armwarden.audit.log import DEFAULT_COMMIT_WINDOW_S, AuditLog, AuditWriteError
 from armwarden.audit.query import RecordFilter, parse_since
 from armwarden.audit.sanitise import sanitize
 from armwarden.audit.verify import (

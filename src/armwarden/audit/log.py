@@ -6,105 +6,35 @@ the log never rewrites history: it terminates the fragment with a newline and ap
 (``torn_line``, ``torn_bytes``, ``torn_sha256``). Anything else that does not verify makes the
 open fail with `ConfigurationError` naming the first bad line: the operator must move the file
 aside.
+
+The file itself (opening, locking, the disk seam) is `disk`'s; what a record holds, `entry`'s.
 """
 
 from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import errno
 import functools
 import hashlib
-import json
 import os
-import stat
 import threading
-import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
-from armwarden.audit.chain import (
-    GENESIS_HASH,
-    AuditRecord,
-    canonical_json,
-    check_key,
-    digest,
-    utc_now,
-    with_hash,
-)
-from armwarden.audit.sanitise import Sanitizer, sanitize
-from armwarden.audit.verify import clamp_tail, decode_records, scan, tail_lines
+from armwarden.audit.chain import GENESIS_HASH, AuditRecord, check_key
+from armwarden.audit.disk import OS_DISK, Disk, last_byte, open_log_file
+from armwarden.audit.entry import AuditEntry, RecordMaker, entry_of
+from armwarden.audit.verify import clamp_tail, decode_records, tail_lines
 from armwarden.audit.writer import MAX_COMMIT_WINDOW_S, Durability, Job, Writer
 from armwarden.core.errors import ArmWardenError, ConfigurationError
 
-try:  # POSIX advisory lock: one writer per log file.
-    import fcntl
-except ImportError:  # pragma: no cover - non-POSIX
-    fcntl = None  # type: ignore[assignment]
-
-MAX_EVENT_CHARS = 64
 #: how long a read-only call's record may wait to be written and fsync-ed [s] (writer.py)
 DEFAULT_COMMIT_WINDOW_S = 0.02
 
 
-
-
 class AuditWriteError(ArmWardenError):
     """A record could not be made durable (log closed, disk error). Callers must fail closed."""
-
-
-class Disk(Protocol):
-    """What the log asks of the file system once the file is open: write some bytes (``os.write``
-    semantics: may write fewer than given) and fsync. The default is the OS (`OS_DISK`); tests
-    inject a disk that fills up, so a full disk is reproduced without root or a real tiny file
-    system."""
-
-    def write(self, fd: int, data: memoryview) -> int: ...
-
-    def fsync(self, fd: int) -> None: ...
-
-
-class _OsDisk:
-    """The real file system (looked up at call time, so a patched ``os.fsync`` still applies)."""
-
-    def write(self, fd: int, data: memoryview) -> int:
-        return os.write(fd, data)
-
-    def fsync(self, fd: int) -> None:
-        os.fsync(fd)
-
-
-OS_DISK: Disk = _OsDisk()
-
-
-@dataclass(frozen=True, slots=True)
-class AuditEntry:
-    """What a caller records: the event and its context. The log adds seq, times and the chain.
-
-    Values are sanitised on write (`sanitize`), so anything may be passed; `AuditLog.append`
-    also takes the same fields as keywords after the event name.
-    """
-
-    event: str
-    session: str | None = None
-    principal: str | None = None
-    tool: str | None = None
-    arguments: Any = None
-    outcome: str | None = None
-    detail: str | None = None
-    operator: str | None = None
-    extra: Mapping[str, Any] | None = None
-
-
-def _entry_of(entry: AuditEntry | str, fields: Mapping[str, Any]) -> AuditEntry:
-    """`append(AuditEntry(...))` or `append("event", tool=..., ...)`, never a mix of both."""
-    if isinstance(entry, AuditEntry):
-        if fields:
-            raise TypeError(f"pass either an AuditEntry or an event name with keywords, not both: {sorted(fields)}")
-        return entry
-    return AuditEntry(entry, **fields)
 
 
 class AuditLog:
@@ -134,8 +64,7 @@ class AuditLog:
             raise ConfigurationError(
                 f"audit max_string_chars must be an int in 16..1000000, got {max_string_chars!r}"
             )
-        self._max_chars = max_string_chars
-        self._texter = Sanitizer(max_string_chars, 1, 1, 1)  # text() only; stateless
+        self._records = RecordMaker(self._key, max_string_chars)
         self._lock = threading.Lock()  # the file, the chain's head, the broken flag (held while a record is built)
         # the writer thread and the closing flag: never held while a record is built, so handing a
         # record over never waits for the writer thread's work (a lock convoy under the GIL)
@@ -159,34 +88,8 @@ class AuditLog:
 
     # -- opening ---------------------------------------------------------------------------
     def _open(self) -> None:
-        path = self._path
-        parent = path.parent
-        if not parent.is_dir():
-            raise ConfigurationError(
-                f"audit log directory {str(parent)!r} does not exist (create it; it is not created for you)"
-            )
-        created = not path.exists()
+        fd, scanned = open_log_file(self._path, self._key)
         try:
-            fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o600)
-        except OSError as exc:
-            raise ConfigurationError(f"cannot open audit log {str(path)!r}: {exc.strerror or exc}") from exc
-        try:
-            if not stat.S_ISREG(os.fstat(fd).st_mode):
-                raise ConfigurationError(f"audit log {str(path)!r} is not a regular file")
-            if fcntl is not None:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except OSError as exc:
-                    if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                        raise ConfigurationError(
-                            f"audit log {str(path)!r} is already open by another writer"
-                        ) from exc
-                    raise
-            if created:
-                _fsync_dir(parent)
-            with os.fdopen(os.dup(fd), "rb") as stream:
-                stream.seek(0)
-                scanned = scan(stream, self._key)
             self._fd = fd
             self._seq, self._prev = scanned.last_seq, scanned.last_hash
             report = scanned.report
@@ -195,7 +98,7 @@ class AuditLog:
                 torn = scanned.bad_is_last and (report.reason == "torn last line" or not scanned.bad_parses)
                 if not torn:
                     raise ConfigurationError(
-                        f"audit log {str(path)!r} does not verify: line {report.first_bad_line}: "
+                        f"audit log {str(self._path)!r} does not verify: line {report.first_bad_line}: "
                         f"{report.reason}. Refusing to continue a damaged chain; move the file "
                         f"aside (and keep it for investigation), then start again."
                     )
@@ -204,7 +107,7 @@ class AuditLog:
             self._fd = None
             os.close(fd)
             if isinstance(exc, OSError):
-                raise ConfigurationError(f"cannot use audit log {str(path)!r}: {exc}") from exc
+                raise ConfigurationError(f"cannot use audit log {str(self._path)!r}: {exc}") from exc
             raise
 
     def _recover(self, lineno: int, fragment: bytes) -> None:
@@ -213,7 +116,7 @@ class AuditLog:
         only if an earlier recovery was itself cut short)."""
         last = lineno + fragment.count(b"\n")
         lines = f"line {lineno}" if last == lineno else f"lines {lineno}-{last}"
-        record, line = self._build(
+        record, line = self._records.build(
             AuditEntry(
                 "recovery",
                 detail=f"torn {lines} ({len(fragment)} bytes) from an interrupted write; "
@@ -224,11 +127,13 @@ class AuditLog:
                     "torn_bytes": len(fragment),
                     "torn_sha256": hashlib.sha256(fragment).hexdigest(),
                 },
-            )
+            ),
+            self._seq,
+            self._prev,
         )
         assert self._fd is not None
         size = os.fstat(self._fd).st_size
-        needs_newline = size > 0 and _last_byte(self._fd, size) != b"\n"
+        needs_newline = size > 0 and last_byte(self._fd, size) != b"\n"
         try:
             self._write((b"\n" if needs_newline else b"") + line)
         except OSError as exc:
@@ -276,46 +181,6 @@ class AuditLog:
         return self._recovery
 
     # -- writing ---------------------------------------------------------------------------
-    def _text_field(self, value: Any) -> str | None:
-        if value is None:
-            return None
-        if not isinstance(value, str):
-            value = sanitize(value, max_string_chars=self._max_chars)
-            if not isinstance(value, str):
-                value = json.dumps(value, ensure_ascii=False, allow_nan=False)
-        return self._texter.text(value)
-
-    def _build(self, entry: AuditEntry) -> tuple[AuditRecord, bytes]:
-        """Make the next record (caller holds the lock or is the constructor)."""
-        event = entry.event
-        if not isinstance(event, str) or not event or len(event) > MAX_EVENT_CHARS:
-            raise ValueError(f"audit event must be a non-empty str of at most {MAX_EVENT_CHARS} chars")
-        event = self._texter.text(event, MAX_EVENT_CHARS)
-        extra: Any = entry.extra
-        if extra is not None:
-            extra = sanitize(extra, max_string_chars=self._max_chars)
-            if not isinstance(extra, dict):
-                extra = {"value": extra}
-        body: dict[str, Any] = {
-            "seq": self._seq + 1,
-            "wall_time": utc_now(),
-            "mono_time": time.monotonic(),
-            "event": event,
-            "session": self._text_field(entry.session),
-            "principal": self._text_field(entry.principal),
-            "tool": self._text_field(entry.tool),
-            "arguments": sanitize(entry.arguments, max_string_chars=self._max_chars),
-            "outcome": self._text_field(entry.outcome),
-            "detail": self._text_field(entry.detail),
-            "operator": self._text_field(entry.operator),
-            "extra": extra,
-            "prev": self._prev,
-        }
-        body_json = canonical_json(body)
-        body["hash"] = digest(body_json, self._key)
-        line = with_hash(body_json, body["hash"]) + b"\n"
-        return AuditRecord(**body), line
-
     def _write(self, data: bytes, sync: bool = True) -> None:
         assert self._fd is not None
         view = memoryview(data)
@@ -349,7 +214,7 @@ class AuditLog:
         After a write failure the log refuses further appends (the file may now end in a torn
         line; reopening recovers it), so callers fail closed instead of writing past a hole.
         """
-        return self._append(_entry_of(entry, fields), sync=True)
+        return self._append(entry_of(entry, fields), sync=True)
 
     def _append(self, entry: AuditEntry, *, sync: bool) -> AuditRecord:
         with self._lock:
@@ -359,7 +224,7 @@ class AuditLog:
                 raise AuditWriteError(
                     f"audit log {str(self._path)!r} is unusable after an earlier write failure: {self._broken}"
                 )
-            record, line = self._build(entry)
+            record, line = self._records.build(entry, self._seq, self._prev)
             try:
                 self._write(line, sync=sync)
             except OSError as exc:
@@ -377,7 +242,7 @@ class AuditLog:
         thread and a plain queue cost far less per record than a generic thread pool hop, which
         matters because every tool call writes one; under load one fsync serves many calls.
         """
-        call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
+        call = functools.partial(self._append, entry_of(entry, fields), sync=False)
         loop = asyncio.get_running_loop()
         future: asyncio.Future[AuditRecord] = loop.create_future()
         self._hand_over(Job(call, Durability.NOW, loop, future))
@@ -395,7 +260,7 @@ class AuditLog:
             raise AuditWriteError(
                 f"audit log {str(self._path)!r} is unusable after an earlier write failure: {self._broken}"
             )
-        call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
+        call = functools.partial(self._append, entry_of(entry, fields), sync=False)
         self._hand_over(Job(call, Durability.WINDOW))
 
     def submit(self, entry: AuditEntry | str, /, **fields: Any) -> None:
@@ -404,7 +269,7 @@ class AuditLog:
         wait on the disk or the event loop, such as the independent stop channel; a record that
         cannot be written is logged, and the log is then broken like after any failed write.
         Raises `AuditWriteError` if the log is closed."""
-        call = functools.partial(self._append, _entry_of(entry, fields), sync=False)
+        call = functools.partial(self._append, entry_of(entry, fields), sync=False)
         self._hand_over(Job(call, Durability.NOW))
 
     def flush(self, timeout_s: float = 30.0) -> None:
@@ -493,20 +358,3 @@ class AuditLog:
         state = "closed" if self._fd is None else f"seq={self._seq}"
         keyed = "hmac" if self._key is not None else "sha256"
         return f"<AuditLog {str(self._path)!r} {keyed} {state}>"
-
-
-def _last_byte(fd: int, size: int) -> bytes:
-    return os.pread(fd, 1, size - 1)
-
-
-def _fsync_dir(directory: Path) -> None:
-    try:
-        dfd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError:
-        return
-    try:
-        os.fsync(dfd)
-    except OSError:
-        pass
-    finally:
-        os.close(dfd)
