@@ -32,7 +32,7 @@ from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, stop_proc
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
 
-BUNDLED_TOOL_COUNT = 22
+BUNDLED_TOOL_COUNT = 23
 def backend_config(tmp_path: Path, speedup: float) -> Path:
     path = tmp_path / f"fake-{speedup:g}.yaml"
     path.write_text(f"speedup: {speedup}\n", encoding="utf-8")
