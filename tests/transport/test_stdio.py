@@ -14,7 +14,7 @@ from mcp.shared.message import ServerMessageMetadata, SessionMessage
 from pydantic import ValidationError
 
 from armwarden.transport.jsonrpc import INVALID_REQUEST, PARSE_ERROR, RefusedRequest, StopTaken
-from armwarden.transport.stdio import gate_streams
+from armwarden.transport.stdio_gate import gate_streams
 
 
 def request(request_id: Any, method: str = "tools/call", name: str = "execute_plan") -> SessionMessage:
