@@ -233,7 +233,7 @@ def test_load_warns_about_file_readable_by_others(token_path: Path, caplog: pyte
     TokenStore.add(token_path, "operator")
     token_path.chmod(0o644)
 
-    with caplog.at_level(logging.WARNING, logger="armwarden.transport.tokens"):
+    with caplog.at_level(logging.WARNING, logger="armwarden.transport.token_storage"):
         store = TokenStore.load(token_path)
 
     assert len(store) == 1

@@ -17,9 +17,9 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from armwarden.transport.token_storage import Role
 from armwarden.transport.tokens import (
     Principal,
-    Role,
     TokenInfo,
     TokenStore,
     tokens_add_command,

@@ -10,7 +10,8 @@ from __future__ import annotations
 from mcp.server.auth.middleware.auth_context import get_access_token
 
 from armwarden.tools import names, spec_of
-from armwarden.transport.tokens import ROLES, Principal
+from armwarden.transport.token_storage import ROLES
+from armwarden.transport.tokens import Principal
 
 __all__ = ["OBSERVER_TOOLS", "current_principal", "role_allows"]
 
