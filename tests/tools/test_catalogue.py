@@ -51,7 +51,7 @@ async def test_a_group_the_policy_leaves_out_is_not_registered_but_safety_always
     async with arm_harness(tmp_path, policy_with(**{"tools.enabled": ["introspect"]})) as arm, arm.client() as client:
         listed = {tool.name for tool in (await client.list_tools()).tools}
     assert not listed & (names(group="motion") | names(group="gripper") | names(group="control"))
-    assert names(group="safety") - {"error_recovery"} <= listed  # error_recovery needs the capability (the fake has none)
+    assert names(group="safety") <= listed  # the fake has error recovery's capability
 
 
 async def test_each_listed_tool_carries_its_records_annotations_and_result_schema(tmp_path: Path) -> None:
@@ -132,3 +132,20 @@ def test_the_backend_contract_tries_every_tool_that_needs_a_capability() -> None
     from tests.backends.contract import OPTIONAL_CALLS
 
     assert set(OPTIONAL_CALLS) == names(lambda spec: spec.capability is not None)
+
+
+def test_the_records_say_which_tools_stop_observe_and_move_exactly() -> None:
+    """The sets the daemon treats specially, spelled out: a flag flipped on one record fails here."""
+    assert names(lambda spec: spec.observer_may_call) == {
+        "get_robot_state", "get_safety_envelope", "lookup_transform", "list_controllers", "list_ros_graph",
+        "get_audit_tail", "camera_snapshot", "stop_motion", "estop", "get_safety_status"}
+    assert names(lambda spec: spec.stops_on_read) == {"stop_motion", "estop"}
+    assert names(lambda spec: spec.rate_exempt) == {"stop_motion", "estop", "get_safety_status"}
+    assert names(lambda spec: spec.answers_unrecorded) == {"stop_motion", "estop", "reset_estop", "get_safety_status"}
+    assert names(lambda spec: spec.moves) == {"execute_plan", "gripper_move", "gripper_grasp", "gripper_home"}
+    assert names(lambda spec: not spec.records_result) == {
+        "get_robot_state", "get_safety_envelope", "lookup_transform", "list_controllers", "list_ros_graph",
+        "get_audit_tail", "camera_snapshot", "get_plan", "get_motion_status", "get_safety_status"}
+    assert names(lambda spec: not spec.hints.read_only) == {
+        "execute_plan", "gripper_move", "gripper_grasp", "gripper_home", "switch_controllers",
+        "set_collision_thresholds", "stop_motion", "estop", "reset_estop", "error_recovery"}

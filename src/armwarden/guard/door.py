@@ -2,10 +2,10 @@
 
 Every actuation (trajectory, gripper, controller switch, threshold change, error recovery) and
 every backend read goes through a Guard method; the tool layer never touches the backend. The
-Guard holds no check logic of its own: it owns the shared safety state (rate limiter, e-stop
-latch, plan store, execution slot) and its gates (`admit`, `require_audit`,
-`require_not_estopped`, `interpret_approval`), and each flow runs them in its order, refusing with
-a `SafetyRefusal` at the first that says no. The order is data in `order.py` (tested there, printed
+Guard holds no check logic of its own: it builds the state its flows share and the gates over it
+(`GuardState` in `gates.py`: rate limiter, e-stop latch, plan store, `admit`, `require_audit`,
+`require_not_estopped`, `interpret_approval`), owns the execution slot, and each flow runs the
+gates in its order, refusing with a `SafetyRefusal` at the first that says no. The order is data in `order.py` (tested there, printed
 in docs/tools.md). The tool layer admits every call first (rate limit, `ToolBuilder.answer` in
 `server/registration.py`); then:
 
