@@ -17,7 +17,7 @@ import anyio.from_thread
 import mcp_types as types
 import pytest
 
-from armwarden.console.routes import ConsoleSettings
+from armwarden.console.core import ConsoleSettings
 from armwarden.policy import Policy
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from tests.console.browser import chromium

@@ -17,10 +17,14 @@ or on its own loopback port with ``--console-port`` on stdio. Server-rendered HT
 autoescaped), one static script and one style sheet; no build step, nothing from another origin.
 
 Modules: `sessions` (sign-in, CSRF), `feed` (what the pages read), `pages` (templates and
-security headers), `routes` (handlers and the ASGI app).
+security headers), `core` (what every handler shares: settings, session look-up, audit,
+refusals), `signin`, `views` (pages and live reads), `actions` (E-STOP, release, answer) and
+`routes` (the routes and the ASGI app).
 """
 
-from armwarden.console.routes import CONSOLE_PATH, ConsoleSettings, EStopHook, build_console_app, timed_estop
+from armwarden.console.actions import timed_estop
+from armwarden.console.core import CONSOLE_PATH, ConsoleSettings, EStopHook
+from armwarden.console.routes import build_console_app
 from armwarden.console.sessions import SessionStore
 
 __all__ = ["CONSOLE_PATH", "ConsoleSettings", "EStopHook", "SessionStore", "build_console_app", "timed_estop"]
