@@ -1,9 +1,77 @@
-"""What a backend implements and declares: its accuracies and deadlines, and the `_hooks` that
-`Backend`'s public methods call (template methods; see `armwarden.backends.base` for the rules).
+"""What a backend implements and declares, and the rules it keeps: its accuracies and deadlines,
+and the `_hooks` that `Backend`'s public methods call (template methods, as python-can's
+`BusABC.recv` calls `_recv_internal`; `armwarden.backends.base` enforces what it can).
 
 Kept apart from `Backend` so a backend author reads one short class for what to write: the
 abstract hooks (and `Backend.capabilities`) are required, the others belong to optional
 capabilities (declare the capability in `capabilities`, then override its hooks).
+`tests/backends/contract.py` (`BackendContract`) checks every rule below; a new backend
+subclasses it with one fixture. See docs/backends/common.md and docs/add-a-backend.md.
+
+Writing a backend
+- Subclass `Backend`; call `super().__init__(joint_names, start_tolerance_rad=...)` with the
+  policy's `motion.start_tolerance_rad`. Implement `capabilities`, `_open`, `_close`,
+  `_read_joint_state`, `_execute`, `_stop` and `_stop_now`; implement the optional hooks
+  (`_read_wrench`, `_gripper_*`, `_camera_snapshot`, `_list_controllers`, ...) only for the
+  capabilities you declare. A call to a capability you do not declare raises `BackendError`.
+  Every hook, accuracy and deadline is listed in `armwarden.backends.hooks.BackendHooks`; the
+  values the hooks return are in `armwarden.backends.values`.
+- In the backend's module: a strict pydantic `Config` (extra="forbid", frozen, units in names and
+  descriptions) and `create_backend(robot, policy, config: Config) -> Backend`; then add the
+  module to `armwarden.backends.BACKENDS`.
+
+Rules every backend follows
+- `stop()` is fast, idempotent, safe at any time from the event loop (also during an execution,
+  before `open` and after `close`: then it does nothing) and stops the arm *and* the gripper
+  (the gripper through `_stop_fingers`, callable from any thread).
+- `stop_now()` is the same stop, synchronous and thread-safe: any thread may call it while the
+  event loop is busy or blocked, and the arm is held before it returns (a servo loop commands a
+  hold under its lock; see `armwarden.backends.servo`). It must not await the event loop.
+- `emergency_stop()` / `emergency_stop_now()` are the e-stop's stop (the `estop` tool, the stop
+  channel, SIGUSR1): the same guarantees as `stop()` / `stop_now()` (fast, idempotent, any time;
+  the `_now` form synchronous and thread-safe from any thread, done before it returns), and they
+  bump the stop epoch too. By default they are `stop()` / `stop_now()`; a physical arm that
+  should go limp rather than stiff on an e-stop overrides `_emergency_stop` / `_emergency_stop_now`
+  (the CAN backend damps every joint, kp = 0, kd > 0, until the next admitted execution after a
+  reset).
+- A stop is never overtaken by an actuation that was decided before it (trajectories, gripper
+  actions, controller switches, threshold changes, error recovery all take `stop_epoch`). Every stop (`stop`,
+  `stop_now`, any thread) first bumps `stop_epoch`; `execute(..., stop_epoch=E)` refuses to start
+  ("stopped before it started", nothing moved) once the epoch is no longer E, and the `_execute`
+  hook checks `_stop_landed()` again *under the same lock its stop takes* when it hands the
+  trajectory over (the servo core does this for you). So either the trajectory was handed over
+  first and the stop ends it, or the stop came first and the trajectory never starts.
+- `execute()` runs exactly the trajectory it is given (same waypoints, same timing, not
+  modified), ends at its goal (within `goal_accuracy_rad`), reports progress in [0, 1] never
+  decreasing, returns when the arm has finished ("completed") or was stopped ("stopped"), and stops
+  the arm if the awaiting task is cancelled. The base class refuses, before `_execute` runs, a
+  malformed trajectory and one that does not start within `start_tolerance_rad` of the measured
+  joint positions.
+- Physical arms are never exactly where they were told to be. Each backend declares how close it
+  gets, and the conformance suite holds it to that: `goal_accuracy_rad` (a completed execution's
+  final positions from the goal), `hold_accuracy_rad` (where a stopped arm comes to rest from
+  where the stop found it — its braking distance — and how still a resting arm stays) and
+  `rest_speed_rad_s` (the joint speed below which the arm is at rest). A stopped execution
+  reports in `final_positions` where the arm came to rest and is held. A kinematic backend
+  declares zeros: it is exactly where it is commanded.
+- State samples carry their stamp (monotonic clock [s]); stamps never go backwards and advance
+  with new samples. Freshness is never assumed: the Guard refuses stale ones.
+- Blocking work (hardware I/O, simulation stepping) lives on the backend's own thread; results
+  cross into asyncio with `armwarden.handoff.settle_threadsafe`. A backend whose thread publishes
+  every sample answers `_latest_joint_state` / `_latest_wrench` / `_latest_gripper_state` from that snapshot
+  without awaiting; the read deadline is then skipped.
+- A fault the backend finds on its own thread (a physical arm's health watch) is handled there
+  first — the arm stopped or damped, the stop epoch bumped — then reported to the listener set
+  with `set_fault_listener` (the Guard latches its e-stop from any thread). A fault during an
+  execution also makes `execute` raise `BackendError` naming it.
+- The backend's own threads (a servo or physics loop, a ROS executor) are supervised as
+  `armwarden.backends.workers` describes: a dead or hung one stops the arm, is reported once and
+  refuses every later call but stop and close.
+- Deadlines (class attributes, seconds): reads `read_timeout_s`, stops `stop_timeout_s`, and one
+  per optional capability (`*_timeout_s`; gripper motions get `gripper_timeout_s` plus the time
+  `gripper_travel_m` takes at the requested speed; camera snapshots get `camera_setup_timeout_s`
+  more until `_camera_set_up` says a one-time setup, e.g. an offscreen renderer, is done). A
+  missed deadline raises `BackendTimeout`; an actuating call that misses it is followed by a stop.
 """
 
 from __future__ import annotations
@@ -25,7 +93,7 @@ class BackendHooks(abc.ABC):
     """The accuracies and deadlines a backend declares, and the hooks it implements."""
 
     name: str = "abstract"
-    #: how far from the goal a completed execution may end [rad] (see `armwarden.backends.base`, "Rules")
+    #: how far from the goal a completed execution may end [rad] (see "Rules every backend follows" above)
     goal_accuracy_rad: float = 0.0
     #: how far a resting arm may be from where it is held [rad]
     hold_accuracy_rad: float = 0.0
