@@ -5,12 +5,23 @@ Each backend module owns a strict pydantic `Config` and a factory
 so `--backend fake` never imports mujoco, rclpy or python-can; a backend whose dependency is
 missing raises `BackendUnavailable` (exit 2 at start-up), as python-can's interface registry does.
 `--backend-config` files are read and validated here, in one place.
+
+A third party adds a backend with an entry point in the group `armwarden.backends` (name → the
+module that defines `Config` and `create_backend`), e.g. in its pyproject.toml::
+
+    [project.entry-points."armwarden.backends"]
+    myarm = "myarm_armwarden.backend"
+
+A built-in name cannot be taken over: such an entry point is ignored, and said so on stderr.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
+import logging
 from collections.abc import Mapping
+from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -25,7 +36,11 @@ if TYPE_CHECKING:
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
 
-#: backends that exist: name -> module (which defines `Config` and `create_backend`)
+logger = logging.getLogger(__name__)
+
+#: the entry-point group third-party backends register in (name -> module)
+ENTRY_POINT_GROUP = "armwarden.backends"
+#: the built-in backends: name -> module (which defines `Config` and `create_backend`)
 BACKENDS: dict[str, str] = {
     "fake": "armwarden.backends.fake",
     "mujoco": "armwarden.backends.mujoco.backend",
@@ -44,27 +59,50 @@ REQUIREMENTS: dict[str, str] = {
 MAX_CONFIG_BYTES = 1_000_000
 
 
+@functools.cache
+def _entry_point_backends() -> tuple[tuple[str, str], ...]:
+    """(name, module) of each backend installed packages register under `ENTRY_POINT_GROUP`
+    (read once per process), by name."""
+    return tuple(sorted((entry.name, entry.value) for entry in entry_points(group=ENTRY_POINT_GROUP)))
+
+
+def registered_backends() -> dict[str, str]:
+    """Every backend: the built-in ones, then the entry points' (none may take a name already given)."""
+    found = dict(BACKENDS)
+    for name, module in _entry_point_backends():
+        if name in found:
+            why = "a built-in backend" if name in BACKENDS else "registered already"
+            logger.warning("ignoring the entry point %s = %s: %r is %s", name, module, name, why)
+        else:
+            found[name] = module
+    return found
+
+
 def backend_names() -> tuple[str, ...]:
     """Every name `--backend` accepts."""
-    return tuple(BACKENDS)
+    return tuple(registered_backends())
 
 
 def backends_help() -> str:
     """`--backend`'s help: each backend with what it needs, and what happens when that is missing."""
-    listed = ", ".join(f"{name} ({REQUIREMENTS.get(name, 'built in')})" for name in BACKENDS)
+    listed = ", ".join(f"{name} ({REQUIREMENTS.get(name, 'installed')})" for name in registered_backends())
     return f"robot backend: {listed}; a backend whose dependency is missing says so, and what to install, when chosen"
 
 
 def backend_module(name: str) -> ModuleType:
     """Import the module of backend `name`; `BackendUnavailable` says why it cannot be used."""
-    if name not in BACKENDS:
-        raise BackendUnavailable(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")
+    backends = registered_backends()
+    if name not in backends:
+        raise BackendUnavailable(f"unknown backend {name!r}; choose one of {', '.join(backends)}")
     try:
-        return importlib.import_module(BACKENDS[name])
+        module = importlib.import_module(backends[name])
     except ImportError as exc:
-        raise BackendUnavailable(
-            f"the {name} backend is not available: {exc}; install armwarden[{name}]"
-        ) from exc
+        install = f"install armwarden[{name}]" if name in BACKENDS else f"reinstall the package that registers {name!r}"
+        raise BackendUnavailable(f"the {name} backend is not available: {exc}; {install}") from exc
+    if not (isinstance(getattr(module, "Config", None), type) and callable(getattr(module, "create_backend", None))):
+        raise BackendUnavailable(f"the {name} backend's module {backends[name]} defines no `Config` model and "
+                                 "`create_backend` function")
+    return module
 
 
 def backend_config_model(name: str) -> type[BaseModel]:
@@ -115,6 +153,7 @@ def create_backend(name: str, robot: RobotModel, policy: Policy, config: BaseMod
 
 __all__ = [
     "BACKENDS",
+    "ENTRY_POINT_GROUP",
     "REQUIREMENTS",
     "backend_config_model",
     "backend_module",
@@ -123,4 +162,5 @@ __all__ = [
     "create_backend",
     "load_backend_config",
     "parse_backend_config",
+    "registered_backends",
 ]

@@ -17,8 +17,9 @@ Writing a backend
   Every hook, accuracy and deadline is listed in `armwarden.backends.hooks.BackendHooks`; the
   values the hooks return are in `armwarden.backends.values`.
 - In the backend's module: a strict pydantic `Config` (extra="forbid", frozen, units in names and
-  descriptions) and `create_backend(robot, policy, config: Config) -> Backend`; then add the
-  module to `armwarden.backends.BACKENDS`.
+  descriptions) and `create_backend(robot, policy, config: Config) -> Backend`; then register the
+  module: a built-in one in `armwarden.backends.BACKENDS`, a third party's as an entry point in
+  the group `armwarden.backends` of its own package.
 
 Rules every backend follows
 - `stop()` is fast, idempotent, safe at any time from the event loop (also during an execution,
