@@ -9,10 +9,14 @@ import pytest
 
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import ACTUATING_METHODS, CountingBackend
-from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
+from armwarden.backends.fake import FakeBackend
 from armwarden.core.errors import BackendError
+from armwarden.robots import load_profile
 from tests.backends.contract import BackendContract, straight_line
 from tests.backends.minimal_backend import MinimalBackend
+
+_READY = load_profile("fr3").ready_joint_positions or {}
+FR3_JOINT_NAMES, FR3_READY = tuple(_READY), tuple(_READY.values())
 
 pytestmark = pytest.mark.anyio
 

@@ -18,13 +18,17 @@ import pytest
 from PIL import Image
 
 from armwarden.backends.base import Backend
-from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY, FakeBackend
+from armwarden.backends.fake import FakeBackend
 from armwarden.backends.values import ControllerInfo
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
+from armwarden.robots import load_profile
 from tests.backends.contract import BackendContract
 from tests.helpers import run_opened
+
+_READY = load_profile("fr3").ready_joint_positions or {}
+FR3_JOINT_NAMES, FR3_READY = tuple(_READY), tuple(_READY.values())
 
 Q_READY = np.array(FR3_READY)
 # joint 2 forward: the TCP goes down (≈ 3 cm per 0.1 rad near "ready")

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from armwarden.backends.base import Backend
-from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY
+from armwarden.robots import load_profile
 from tests.backends.contract import BackendContract
 from tests.backends.minimal_backend import MinimalBackend
+
+_READY = load_profile("fr3").ready_joint_positions or {}
+FR3_JOINT_NAMES, FR3_READY = tuple(_READY), tuple(_READY.values())
 
 
 class TestMinimalBackendContract(BackendContract):

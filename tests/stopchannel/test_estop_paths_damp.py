@@ -6,10 +6,13 @@ from __future__ import annotations
 
 from armwarden.approval.plans import PlanStore
 from armwarden.backends.counting import CountingBackend
-from armwarden.backends.fake import FR3_JOINT_NAMES, FR3_READY
 from armwarden.guard.stopping import Stopper
+from armwarden.robots import load_profile
 from armwarden.safety.estop import EStopLatch
 from tests.backends.minimal_backend import MinimalBackend
+
+_READY = load_profile("fr3").ready_joint_positions or {}
+FR3_JOINT_NAMES, FR3_READY = tuple(_READY), tuple(_READY.values())
 
 
 def stopper() -> tuple[Stopper, CountingBackend]:

@@ -1,4 +1,9 @@
-"""The fake backend: a kinematic FR3 + Franka Hand, deterministic, no dependency beyond the core.
+"""The fake backend: a kinematic arm and a parallel gripper, deterministic, no dependency beyond the core.
+
+The robot is the policy's (`robot.description`); a `builtin:<name>` robot's profile gives the
+defaults a bare `FakeBackend()` needs (joints, ready pose, frames) and the controllers and ROS graph
+it reports (armwarden.backends.fake_controllers); a user's URDF needs its joints, frames and home
+given (`create_backend` passes the policy's) and reports a generic controller set.
 
 The arm is kinematic and driven by a `ServoLoop` (armwarden.backends.servo) ticking every
 `control_period_s` (≤ 1 ms) on its own thread: each tick commands `trajectory.sample(elapsed ×
@@ -35,7 +40,7 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import anyio
 import numpy as np
@@ -48,6 +53,7 @@ from armwarden.backends.fake_camera import (
     HAVE_PILLOW,
     render_top_view,
 )
+from armwarden.backends.fake_controllers import FakeControllers
 from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FingerMotion
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.ramp import Ramp
@@ -58,27 +64,13 @@ from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
+from armwarden.robots import builtin_profile
 
 if TYPE_CHECKING:
     from armwarden.policy import Policy
 
 
 logger = logging.getLogger(__name__)
-
-FR3_JOINT_NAMES = tuple(f"fr3_joint{i}" for i in range(1, 8))
-FR3_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
-
-#: the controller that executes trajectories; arm motion is refused while it is inactive
-TRAJECTORY_CONTROLLER = "fr3_arm_controller"
-
-DEFAULT_CONTROLLERS = (
-    ControllerInfo("fr3_arm_controller", "joint_trajectory_controller/JointTrajectoryController", "active"),
-    ControllerInfo("joint_impedance_controller", "franka_example_controllers/JointImpedanceExampleController", "inactive"),
-    ControllerInfo("franka_robot_state_broadcaster", "franka_robot_state_broadcaster/FrankaRobotStateBroadcaster", "active"),
-)
-#: controllers that command the arm joints; at most one of them may be active (ros2_control claims)
-ARM_COMMAND_CONTROLLER_TYPES = ("joint_trajectory_controller/", "franka_example_controllers/")
-
 
 class Config(BaseModel):
     """`--backend-config` for the fake backend (strict, like every config file)."""
@@ -95,7 +87,7 @@ class Config(BaseModel):
 
 
 class FakeBackend(ServoBackend):
-    """Kinematic FR3 + Franka Hand driven by a servo loop (see the module docstring)."""
+    """Kinematic arm and gripper driven by a servo loop (see the module docstring)."""
 
     name = "fake"
     worker_threads = ("control",)  # the servo loop
@@ -122,10 +114,17 @@ class FakeBackend(ServoBackend):
         stall_wrench_s: float = 0.0,
         start_tolerance_rad: float = 0.05,
     ) -> None:
-        joint_names = tuple(joint_names if joint_names is not None else (robot.joint_names if robot else FR3_JOINT_NAMES))
+        profile = builtin_profile(description)
+        ready = profile.ready_joint_positions if profile is not None else None
+        if joint_names is None:
+            joint_names = robot.joint_names if robot else _from_profile(
+                tuple(ready) if ready else None, "joint_names", description)
+        joint_names = tuple(joint_names)
         super().__init__(joint_names, start_tolerance_rad=start_tolerance_rad)
-        base_frame = base_frame or (robot.base_frame if robot else "fr3_link0")
-        tcp_frame = tcp_frame or (robot.tcp_frame if robot else "fr3_hand_tcp")
+        base_frame = base_frame or (robot.base_frame if robot else _from_profile(
+            profile and profile.base_frame, "base_frame", description))
+        tcp_frame = tcp_frame or (robot.tcp_frame if robot else _from_profile(
+            profile and profile.tcp_frame, "tcp_frame", description))
         _require(math.isfinite(speedup) and speedup > 0, f"speedup must be a positive number, got {speedup}")
         _require(
             math.isfinite(control_period_s) and 0 < control_period_s <= 0.001,
@@ -145,7 +144,11 @@ class FakeBackend(ServoBackend):
         # The thread's own kinematics (Pinocchio data is not thread safe); `robot` stays on the loop side.
         self._model = RobotModel.from_description(description, joint_names, base_frame, tcp_frame)
         self.robot = robot
-        q_home = np.array(FR3_READY if home is None else home, dtype=float)
+        if home is None:
+            home = _from_profile(tuple(ready.values()) if ready else None, "home", description)
+            _require(tuple(ready or ()) == joint_names, f"home: the ready pose of {description} is for the joints "
+                     f"{list(ready or ())}, not {list(joint_names)}; give home")
+        q_home = np.array(home, dtype=float)
         _require(q_home.shape == (len(joint_names),), f"home needs {len(joint_names)} positions, got {q_home.shape}")
         _require(bool(np.all(np.isfinite(q_home))), f"home must be finite, got {q_home.tolist()}")
         _require(
@@ -182,9 +185,7 @@ class FakeBackend(ServoBackend):
             graph=True,
             frames=tuple(frames),
         )
-        self._controllers = {
-            c.name: c for c in (ControllerInfo(*c) if isinstance(c, tuple) else c for c in (controllers or DEFAULT_CONTROLLERS))
-        }
+        self._controllers = FakeControllers.for_profile(profile, controllers)
         self._camera_frames = dict.fromkeys(self._capabilities.cameras, 0)
 
         # ---- the servo thread's kinematics cache (`_compute_tcp`), then the loop itself
@@ -266,9 +267,7 @@ class FakeBackend(ServoBackend):
         self._require_running()
         if self.fault:
             raise BackendError(f"robot is in an error state ({self.fault_reason or 'fault'}); error recovery is needed")
-        arm_controller = self._controllers.get(TRAJECTORY_CONTROLLER)
-        if arm_controller is not None and arm_controller.state != "active":
-            raise BackendError(f"{TRAJECTORY_CONTROLLER} is not active; the arm cannot follow a trajectory")
+        self._controllers.require_trajectory_active()
         # a cancelled caller is held at once, unless the injected fault says stops are lost
         return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop, preempted=self._stop_landed)
 
@@ -421,29 +420,11 @@ class FakeBackend(ServoBackend):
 
     # ================================================================ controllers, thresholds, recovery, graph
     async def _list_controllers(self) -> list[ControllerInfo]:
-        return list(self._controllers.values())
+        return list(self._controllers.controllers.values())
 
     async def _switch_controllers(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
         self.actuation_commands += 1
-        unknown = [name for name in (*activate, *deactivate) if name not in self._controllers]
-        if unknown:
-            raise BackendError(f"unknown controller(s) {unknown}; available: {sorted(self._controllers)}")
-        both = sorted(set(activate) & set(deactivate))
-        if both:
-            raise BackendError(f"controller(s) {both} both activated and deactivated")
-        if (activate or deactivate) and self.servo.busy:
-            raise BackendError("cannot switch controllers while a trajectory is executing")
-        states = {name: info.state for name, info in self._controllers.items()}
-        states.update(dict.fromkeys(deactivate, "inactive"))
-        states.update(dict.fromkeys(activate, "active"))
-        commanding = [
-            name
-            for name, state in states.items()
-            if state == "active" and self._controllers[name].type.startswith(ARM_COMMAND_CONTROLLER_TYPES)
-        ]
-        if len(commanding) > 1:
-            raise BackendError(f"controllers {commanding} would both claim the arm's command interfaces")
-        self._controllers = {name: ControllerInfo(name, info.type, states[name]) for name, info in self._controllers.items()}
+        self._controllers.switch(activate, deactivate, arm_busy=self.servo.busy)
 
     async def _set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
         self.actuation_commands += 1
@@ -458,30 +439,18 @@ class FakeBackend(ServoBackend):
         self.fault_reason = ""
 
     async def _graph(self) -> dict[str, list[str]]:
-        topics = ["/joint_states", "/robot_description", "/tf", "/tf_static", "/franka_gripper/joint_states"]
-        if self._capabilities.wrench:
-            topics.append("/franka_robot_state_broadcaster/external_wrench_in_base_frame")
-        topics += [f"/cameras/{name}/image_raw" for name in self._capabilities.cameras]
-        return {
-            "nodes": ["/armwarden_fake", "/controller_manager", "/franka_gripper", "/robot_state_publisher"]
-            + [f"/{name}" for name in self._controllers],
-            "topics": sorted(topics),
-            "services": [
-                "/controller_manager/list_controllers",
-                "/controller_manager/switch_controller",
-                "/service_server/set_full_collision_behavior",
-            ],
-            "actions": [
-                "/action_server/error_recovery",
-                "/fr3_arm_controller/follow_joint_trajectory",
-                "/franka_gripper/grasp",
-                "/franka_gripper/homing",
-                "/franka_gripper/move",
-            ],
-        }
+        return self._controllers.graph(wrench=self._capabilities.wrench, cameras=self._capabilities.cameras)
 
 
 _ZERO3 = frozen(np.zeros(3))
+_T = TypeVar("_T")
+
+
+def _from_profile(value: _T | None, what: str, description: str) -> _T:
+    """A default the robot's profile gives; refused (never guessed) when it gives none."""
+    if value is None:
+        raise ValueError(f"{what} must be given: the robot {description!r} has no profile that names it")
+    return value
 
 
 def _require(condition: bool, message: str) -> None:
