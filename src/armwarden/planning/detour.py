@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
+from armwarden.planning.search_tree import SearchEnds, SearchTree
 from armwarden.robot.batch_fk import BatchFK
 from armwarden.robot.ik import IkSolver
 from armwarden.safety.envelope import Envelope
@@ -91,56 +92,6 @@ class PathCost:
 
     tcp_m: float  # TCP path length
     travel_rad: np.ndarray  # per joint, summed along the path
-
-
-class _Tree:
-    """One search tree: configurations, their TCP positions, and what the path from the root used."""
-
-    def __init__(self, n: int, capacity: int) -> None:
-        self.q = np.empty((capacity, n))
-        self.tcp = np.empty((capacity, 3))
-        self.used_tcp = np.empty(capacity)
-        self.used_travel = np.empty((capacity, n))
-        self.parent = np.empty(capacity, dtype=np.intp)
-        self.root = np.empty(capacity, dtype=np.intp)  # the goal a node of the goal tree leads to; -1: the start
-        self.size = 0
-
-    def add(self, q: np.ndarray, tcp: np.ndarray, used_tcp: float, used_travel: np.ndarray, parent: int, root: int) -> int:
-        i = self.size
-        self.q[i], self.tcp[i], self.used_tcp[i], self.used_travel[i] = q, tcp, used_tcp, used_travel
-        self.parent[i], self.root[i] = parent, root
-        self.size += 1
-        return i
-
-    @property
-    def full(self) -> bool:
-        return self.size >= len(self.q)
-
-    def nearest(self, q: np.ndarray) -> int:
-        d = self.q[: self.size] - q
-        return int(np.argmin(np.einsum("ij,ij->i", d, d)))
-
-    def branch(self, i: int) -> list[np.ndarray]:
-        """Configurations from node `i` back to the root."""
-        out = []
-        while i >= 0:
-            out.append(self.q[i].copy())
-            i = int(self.parent[i])
-        return out
-
-
-@dataclass(frozen=True)
-class _Ends:
-    """The start and the goals (with their approach legs' use of the caps) one search connects."""
-
-    start: np.ndarray
-    start_tcp: np.ndarray
-    start_rotation: np.ndarray
-    goals: np.ndarray  # (G, n)
-    goal_tcp: np.ndarray  # (G, 3)
-    goal_rotation: np.ndarray  # (G, 3, 3)
-    tail_tcp: np.ndarray  # (G,) TCP length of the leg after each goal
-    tail_travel: np.ndarray  # (G, n)
 
 
 class DetourSearch:
@@ -223,8 +174,8 @@ class DetourSearch:
             return SearchResult(None, None, 0, 0, time.monotonic() - began, False, 0)
         rng = np.random.default_rng([seed, attempt])
         opts = self.options
-        start_tree = _Tree(self._n, opts.max_nodes)
-        goal_tree = _Tree(self._n, opts.max_nodes)
+        start_tree = SearchTree(self._n, opts.max_nodes)
+        goal_tree = SearchTree(self._n, opts.max_nodes)
         start_tree.add(start, ends.start_tcp, 0.0, np.zeros(self._n), -1, -1)
         for k in np.flatnonzero(reachable):
             goal_tree.add(ends.goals[k], ends.goal_tcp[k], float(ends.tail_tcp[k]), ends.tail_travel[k], -1, int(k))
@@ -262,7 +213,7 @@ class DetourSearch:
             return self._result(self._polish(path, tail), end, began, False, int(np.sum(reachable)))
         return self._result(None, None, began, stopped, int(np.sum(reachable)))
 
-    def _ends(self, start: np.ndarray, goals: Sequence[np.ndarray], tails: Sequence[np.ndarray | None] | None) -> _Ends:
+    def _ends(self, start: np.ndarray, goals: Sequence[np.ndarray], tails: Sequence[np.ndarray | None] | None) -> SearchEnds:
         goal_array = np.array([np.asarray(g, dtype=float) for g in goals]).reshape(len(goals), self._n)
         tail_tcp = np.zeros(len(goals))
         tail_travel = np.zeros((len(goals), self._n))
@@ -271,17 +222,17 @@ class DetourSearch:
                 tail_tcp[k] = self.segment_tcp_length(goal_array[k], np.asarray(tail, dtype=float))[0]
                 tail_travel[k] = np.abs(np.asarray(tail, dtype=float) - goal_array[k])
         poses = self.tcp_poses(np.vstack([start, goal_array]))
-        return _Ends(start, poses[0, :3, 3], poses[0, :3, :3], goal_array, poses[1:, :3, 3], poses[1:, :3, :3],
+        return SearchEnds(start, poses[0, :3, 3], poses[0, :3, :3], goal_array, poses[1:, :3, 3], poses[1:, :3, :3],
                      tail_tcp, tail_travel)
 
-    def _within_reach(self, ends: _Ends) -> np.ndarray:
+    def _within_reach(self, ends: SearchEnds) -> np.ndarray:
         """Per goal: whether the straight TCP distance and the straight joint travel (plus its
         approach leg) are within the caps — no path to it uses less."""
         tcp = np.linalg.norm(ends.goal_tcp - ends.start_tcp, axis=1) + ends.tail_tcp
         travel = np.abs(ends.goals - ends.start) + ends.tail_travel
         return (tcp <= self.tcp_cap) & np.all(travel <= self.travel_cap + _TRAVEL_EPS, axis=1)
 
-    def _sampling_boxes(self, ends: _Ends, reachable: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    def _sampling_boxes(self, ends: SearchEnds, reachable: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """Per reachable goal: the joint box a path to it may pass through (per joint, a detour to
         q travels |q - start| + |goal - q| ≥ the straight travel plus twice the excursion)."""
         boxes = []
@@ -295,7 +246,7 @@ class DetourSearch:
             boxes.append((int(k), lo, hi))
         return boxes
 
-    def _draw(self, rng: np.random.Generator, ends: _Ends, boxes: list[tuple[int, np.ndarray, np.ndarray]],
+    def _draw(self, rng: np.random.Generator, ends: SearchEnds, boxes: list[tuple[int, np.ndarray, np.ndarray]],
               turn: int) -> list[np.ndarray]:
         """A batch of configurations in one goal's box (the goals in turn) whose TCP lies in its
         ellipsoid: a path through them can stay within both caps. Maybe none.
@@ -317,7 +268,7 @@ class DetourSearch:
                        + ends.tail_tcp[k])
         return list(qs[lower_bound <= self.tcp_cap][::-1])
 
-    def _near_line(self, rng: np.random.Generator, ends: _Ends, k: int) -> np.ndarray | None:
+    def _near_line(self, rng: np.random.Generator, ends: SearchEnds, k: int) -> np.ndarray | None:
         """One IK solution for a random point of the TCP tube from the start to goal `k` (None:
         IK missed it)."""
         assert self.ik is not None
@@ -333,7 +284,7 @@ class DetourSearch:
         return result.q if result.success else None
 
     def _admissible(self, tree_is_start: bool, tcp: np.ndarray, q: np.ndarray, used_tcp: float,
-                    used_travel: np.ndarray, ends: _Ends) -> bool:
+                    used_travel: np.ndarray, ends: SearchEnds) -> bool:
         """Whether a node's path so far plus the least the rest could use stays within the caps."""
         if tree_is_start:  # the rest: to some goal, and its approach leg
             rest_tcp = np.linalg.norm(ends.goal_tcp - tcp, axis=1) + ends.tail_tcp
@@ -345,7 +296,7 @@ class DetourSearch:
         return (used_tcp + float(np.linalg.norm(ends.start_tcp - tcp)) <= self.tcp_cap
                 and bool(np.all(used_travel + np.abs(ends.start - q) <= self.travel_cap + _TRAVEL_EPS)))
 
-    def _extend(self, tree: _Tree, target: np.ndarray, ends: _Ends) -> int | None:
+    def _extend(self, tree: SearchTree, target: np.ndarray, ends: SearchEnds) -> int | None:
         """One step of at most `range_rad` from the nearest node towards `target`: the new node,
         or None when the step leaves the caps or the envelope refuses it."""
         if tree.full:
@@ -371,7 +322,7 @@ class DetourSearch:
             return None
         return tree.add(q_new, tcp, used_tcp, used_travel, i, root)
 
-    def _connect(self, tree: _Tree, target: np.ndarray, ends: _Ends) -> int | None:
+    def _connect(self, tree: SearchTree, target: np.ndarray, ends: SearchEnds) -> int | None:
         """RRT-Connect's greedy connection: steps towards `target` until it is reached (the node
         at `target`) or a step fails (None)."""
         while True:
