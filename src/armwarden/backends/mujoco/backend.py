@@ -54,7 +54,6 @@ from armwarden.backends.mujoco.model import (
     GRAVITY_MPS2,
     MujocoModel,
     build_model,
-    default_cameras,
     scene_for_policy,
 )
 from armwarden.backends.ramp import Ramp
@@ -527,7 +526,8 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoB
     overrides: dict[str, object] = {"timestep_s": config.timestep_s}
     if config.table_top_z_m is not None:
         overrides["table_top_z_m"] = config.table_top_z_m
-    overrides["cameras"] = default_cameras() if config.cameras is None else tuple(c.spec() for c in config.cameras)
+    if config.cameras is not None:  # else the robot profile's mounts (scene_for_policy)
+        overrides["cameras"] = tuple(c.spec() for c in config.cameras)
     overrides["objects"] = tuple(o.spec() for o in config.objects)
     scene = scene_for_policy(policy, **overrides)
     cell = build_model(resolve_description(policy.robot.description), robot, scene)

@@ -56,7 +56,7 @@ class Config(BaseModel):
         description="Height of the table top [m] in the base frame; null: the policy's workspace floor.",
     )
     cameras: tuple[CameraConfig, ...] | None = Field(
-        default=None, description="Named cameras; null: a scene camera and a wrist camera."
+        default=None, description="Named cameras; null: the robot profile's mounts (a user URDF must list them)."
     )
     camera_width_px: int = Field(default=640, ge=16, le=1280, description="Rendered image width [px].")
     camera_height_px: int = Field(default=480, ge=16, le=960, description="Rendered image height [px].")

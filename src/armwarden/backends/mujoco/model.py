@@ -37,7 +37,7 @@ feed-forward, so tracking does not lag by kv·q̇/kp.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -48,6 +48,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import capsule_from_geometry
 from armwarden.robot.model import RobotModel
+from armwarden.robots import builtin_profile
 
 if TYPE_CHECKING:
     from armwarden.policy import Policy
@@ -82,14 +83,16 @@ class CameraSpec:
     fovy_deg: float = 45.0
 
 
-def default_cameras() -> tuple[CameraSpec, ...]:
-    """A scene camera in front of the bundled FR3's table and a wrist camera on its hand."""
-    return (
-        CameraSpec("scene", position_m=(1.9, 0.0, 1.2), target_m=(0.3, 0.0, 0.3), fovy_deg=50.0),
-        # beside the palm, looking past the fingertips along the hand's approach axis
-        CameraSpec("wrist", position_m=(0.07, 0.0, 0.085), target_m=(0.0, 0.0, 0.22), body="fr3_hand",
-                   up=(1.0, 0.0, 0.0), fovy_deg=70.0),
-    )
+def profile_cameras(description: str) -> tuple[CameraSpec, ...]:
+    """The camera mounts of the robot `description` names (`builtin:<name>`: its profile's, none if
+    it lists none). A user's URDF has no profile and its bodies are not ours to guess: refused, the
+    backend config names its cameras (`cameras`, an empty list for none)."""
+    profile = builtin_profile(description)
+    if profile is None:
+        raise RobotModelError(f"the robot {description!r} has no profile naming its camera mounts: list them "
+                              "in the MuJoCo backend config (`cameras`; [] for none)")
+    return tuple(CameraSpec(mount.name, mount.position_m, mount.target_m, mount.body, mount.up, mount.fovy_deg)
+                 for mount in profile.cameras or ())
 
 
 @dataclass(frozen=True)
@@ -121,7 +124,8 @@ class SceneSpec:
     table_height_m: float = 0.75
     table_thickness_m: float = 0.04
     table_friction: float = 0.8
-    cameras: tuple[CameraSpec, ...] = field(default_factory=default_cameras)
+    #: the robot profile's mounts for a built-in robot (`scene_for_policy`)
+    cameras: tuple[CameraSpec, ...] = ()
     objects: tuple[SceneObject, ...] = ()
     #: physics step [s]
     timestep_s: float = 0.001
@@ -131,11 +135,13 @@ class SceneSpec:
 
 def scene_for_policy(policy: Policy, **overrides: Any) -> SceneSpec:
     """The cell the policy describes: the table top is the workspace floor and covers the workspace
-    box's footprint; the finger force limit is the policy's grasp force cap. `overrides` replace
-    any other `SceneSpec` field."""
+    box's footprint; the finger force limit is the policy's grasp force cap; the cameras are the
+    robot profile's (`profile_cameras`). `overrides` replace any other `SceneSpec` field."""
     box = policy.workspace.box
+    cameras = overrides.get("cameras")
     scene = SceneSpec(table_top_z_m=float(box.min[2]),
-                      table_xy_m=(float(box.min[0]), float(box.min[1]), float(box.max[0]), float(box.max[1])))
+                      table_xy_m=(float(box.min[0]), float(box.min[1]), float(box.max[0]), float(box.max[1])),
+                      cameras=profile_cameras(policy.robot.description) if cameras is None else cameras)
     if policy.gripper is not None:
         scene = replace(scene, gripper_force_limit_n=float(policy.gripper.max_grasp_force_n))
     return replace(scene, **overrides)
