@@ -18,7 +18,7 @@ import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.core.errors import RobotModelError
-from armwarden.robot.capsules import Capsule, capsule_from_geometry
+from armwarden.robot.capsules import checked_capsules, moving_links, neighbour_rule_pairs, urdf_capsules
 from armwarden.robot.fitted_bodies import fitted_capsules, fitted_pairs
 from armwarden.robot.fitted_file import FittedGeometry, FittingError, load_fitted
 from armwarden.robots import BUILTIN_PREFIX, RobotProfile, load_profile
@@ -156,12 +156,12 @@ class RobotModel:
 
         self.fitted = fitted
         if fitted is None:
-            candidates = self._urdf_capsules()
+            candidates = urdf_capsules(self.model, self.geometry)
         else:
             candidates = fitted_capsules(full_model, self.model, fitted, reference)
-        self.capsules = self._checked_capsules(candidates, check_links)
+        self.capsules = checked_capsules(candidates, check_links, self.link_names())
         self.self_collision_pairs = (
-            fitted_pairs(self.capsules, fitted) if fitted is not None else self._neighbour_rule_pairs()
+            fitted_pairs(self.capsules, fitted) if fitted is not None else neighbour_rule_pairs(self.capsules)
         )
         self._build_batch_tables()
 
@@ -244,60 +244,10 @@ class RobotModel:
             return None
         return world_from_base.inverse()
 
-    def _urdf_capsules(self) -> tuple[Capsule, ...]:
-        """One capsule around each collision primitive of the description (`capsule_from_geometry`)."""
-        capsules = []
-        for obj in self.geometry.geometryObjects:
-            p0, p1, radius = capsule_from_geometry(obj)
-            capsules.append(
-                Capsule(
-                    name=obj.name,
-                    link=self.model.frames[obj.parentFrame].name,
-                    joint_index=int(obj.parentJoint),
-                    p0_m=(float(p0[0]), float(p0[1]), float(p0[2])),
-                    p1_m=(float(p1[0]), float(p1[1]), float(p1[2])),
-                    radius_m=radius,
-                )
-            )
-        return tuple(capsules)
-
-    def _checked_capsules(self, candidates: Sequence[Capsule], check_links: Sequence[str] | None) -> tuple[Capsule, ...]:
-        """The capsules of `check_links` (every one when None), after refusing a list that leaves a
-        moving body out. Bodies fixed to the world (joint 0) stay: nothing moves them into a zone,
-        so only the self-collision check looks at them — the arm must not fold into its own base."""
-        if check_links is None:
-            return tuple(candidates)
-        link_names = set(self.link_names())
-        unknown = [name for name in check_links if name not in link_names]
-        if unknown:
-            raise RobotModelError(f"unknown link(s) in check_links {unknown}; valid links: {sorted(link_names)}")
-        moving = _moving_links(candidates)
-        unchecked = [link for link in moving if link not in check_links]
-        if unchecked:
-            raise RobotModelError(
-                f"check_links leaves {len(unchecked)} moving link(s) with collision geometry unchecked: {unchecked}; "
-                f"the workspace, keep-out and self-collision checks would not see them. Name every one of {moving} "
-                "(links fixed to the base may be added), or use null for every moving link"
-            )
-        wanted = set(check_links)
-        return tuple(c for c in candidates if c.link in wanted)
-
     def moving_links_with_geometry(self) -> list[str]:
         """Links that move with a driven joint and carry collision capsules, in description order:
         the bodies the workspace and keep-out checks look at."""
-        return _moving_links(self.capsules)
-
-    def _neighbour_rule_pairs(self) -> np.ndarray:
-        """Self-collision pairs for capsules taken from the URDF (no pair analysis): every pair
-        whose joints are at least two apart (neighbours touch at their joint by design)."""
-        capsules = self.capsules
-        pairs = [
-            (a, b)
-            for a in range(len(capsules))
-            for b in range(a + 1, len(capsules))
-            if abs(capsules[a].joint_index - capsules[b].joint_index) >= 2
-        ]
-        return np.array(pairs, dtype=np.intp).reshape(-1, 2)
+        return moving_links(self.capsules)
 
     def _build_batch_tables(self) -> None:
         """Index tables so a batch of configurations maps to capsule end points in a few numpy ops."""
@@ -432,11 +382,3 @@ class RobotModel:
         n_bodies = len(self.capsules) + 1
         return world[:, :n_bodies], world[:, n_bodies:]
 
-
-def _moving_links(capsules: Sequence[Capsule]) -> list[str]:
-    """Links of `capsules` that a driven joint moves (not fixed to the world), first-seen order."""
-    links: list[str] = []
-    for capsule in capsules:
-        if capsule.joint_index != 0 and capsule.link not in links:
-            links.append(capsule.link)
-    return links
