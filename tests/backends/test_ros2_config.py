@@ -12,10 +12,11 @@ import yaml
 
 from armwarden.backends import create_backend, load_backend_config, parse_backend_config
 from armwarden.backends.ros2 import INSTALL_HINT
-from armwarden.backends.ros2.config import Config, check_against_policy
+from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names
 from armwarden.core.errors import BackendUnavailable, ConfigurationError
 from armwarden.policy import Policy
 from armwarden.robot import RobotModel
+from armwarden.robots import load_profile
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "ros2_fr3.yaml"
 
@@ -31,6 +32,44 @@ def test_the_example_config_is_valid_and_names_the_cells_endpoints() -> None:
     assert isinstance(config, Config)
     assert config.trajectory.action == "/fr3_arm_controller/follow_joint_trajectory"
     assert config.gripper is not None and config.controller_manager is not None and "scene" in config.cameras
+
+
+def test_the_drivers_names_left_null_come_from_the_fr3_profile() -> None:
+    ros = load_profile("fr3").ros
+    assert ros is not None
+    config = resolve_robot_names(Config.model_validate({"gripper": {}}), "builtin:fr3")
+    assert config.trajectory.action == ros.trajectory_action == "/fr3_arm_controller/follow_joint_trajectory"
+    assert config.gripper is not None
+    assert config.gripper.action == ros.gripper_action == "/franka_gripper/gripper_action"
+    assert config.gripper.joint_states_topic == ros.gripper_joint_states == "/franka_gripper/joint_states"
+    assert config.gripper.finger_joints == ros.finger_joints == ("fr3_finger_joint1", "fr3_finger_joint2")
+
+
+def test_names_the_config_gives_win_over_the_profiles() -> None:
+    document = {"trajectory": {"topic": "/arm/joint_trajectory"},
+                "gripper": {"action": "/hand/gripper_cmd", "finger_joints": ["left"]}}
+    config = resolve_robot_names(Config.model_validate(document), "builtin:fr3")
+    assert (config.trajectory.action, config.trajectory.topic) == (None, "/arm/joint_trajectory")
+    assert config.gripper is not None
+    assert (config.gripper.action, config.gripper.joint_states_topic, config.gripper.finger_joints) == (
+        "/hand/gripper_cmd", "/franka_gripper/joint_states", ("left",))
+
+
+def test_a_user_urdf_must_name_its_drivers_endpoints() -> None:
+    with pytest.raises(ConfigurationError) as caught:
+        resolve_robot_names(Config.model_validate({"gripper": {"finger_joints": ["left"]}}), "/cell/arm.urdf")
+    message = str(caught.value)
+    for key in ("trajectory.action", "gripper.action", "gripper.joint_states_topic"):
+        assert f"{key}: required: the robot '/cell/arm.urdf' has no profile that names it" in message
+    assert "gripper.finger_joints" not in message
+
+
+def test_a_user_urdf_config_that_names_everything_is_kept() -> None:
+    document = {"trajectory": {"action": "/arm/follow_joint_trajectory"},
+                "gripper": {"action": "/hand/gripper_cmd", "joint_states_topic": "/hand/joint_states",
+                            "finger_joints": ["left", "right"]}}
+    config = Config.model_validate(document)
+    assert resolve_robot_names(config, "/cell/arm.urdf") == config
 
 
 def test_an_unknown_key_is_named_with_its_path() -> None:

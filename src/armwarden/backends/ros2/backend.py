@@ -87,7 +87,7 @@ from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper
 from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.camera import CameraFeed
-from armwarden.backends.ros2.config import Config, check_against_policy
+from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.runs import (
     Endpoints,
@@ -153,7 +153,9 @@ class Ros2Backend(Backend):
             config.wrench.topic, config.wrench.max_age_s, config.wrench.frame_id)
         gripper = config.gripper
         self.fingers = None if gripper is None else JointStateCache(
-            gripper.joint_states_topic, gripper.finger_joints, gripper.finger_joints, gripper.max_age_s)
+            resolved(gripper.joint_states_topic, "gripper.joint_states_topic"),
+            resolved(gripper.finger_joints, "gripper.finger_joints"),
+            resolved(gripper.finger_joints, "gripper.finger_joints"), gripper.max_age_s)
         self.transforms = TransformBuffer(config.tf.max_age_s) if config.tf.enabled else None
         self._endpoints = Endpoints()
         self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
@@ -236,7 +238,8 @@ class Ros2Backend(Backend):
             assert cfg.trajectory.topic is not None
             e.trajectory_topic = node.create_publisher(JointTrajectoryMsg, cfg.trajectory.topic, 10)
         if cfg.gripper is not None:
-            e.gripper_action = ActionClient(node, GripperCommand, cfg.gripper.action, callback_group=group)
+            e.gripper_action = ActionClient(node, GripperCommand, resolved(cfg.gripper.action, "gripper.action"),
+                                            callback_group=group)
         if cfg.controller_manager is not None:
             ns = cfg.controller_manager.namespace.rstrip("/")
             e.list_controllers = node.create_client(ListControllers, f"{ns}/list_controllers", callback_group=group)
@@ -720,7 +723,7 @@ class Ros2Backend(Backend):
         assert action is not None and gripper is not None
         if self._gripper_run is not None:
             raise BackendError("the gripper is already moving; one gripper action at a time")
-        await self._wait_for_server(action, gripper.action, gripper.server_timeout_s)
+        await self._wait_for_server(action, resolved(gripper.action, "gripper.action"), gripper.server_timeout_s)
         goal = GripperCommand.Goal()
         goal.command.position, goal.command.max_effort = float(width_m), float(effort_n)
         with self._motion_lock:
@@ -859,6 +862,7 @@ class Ros2Backend(Backend):
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> Ros2Backend:
     """Registry factory: the ROS 2 backend for `policy`'s joints, named as `config` says."""
+    config = resolve_robot_names(config, policy.robot.description)
     ros_names = check_against_policy(config, tuple(policy.robot.joint_names))
     return Ros2Backend(robot, config, ros_names, start_tolerance_rad=policy.motion.start_tolerance_rad)
 

@@ -6,16 +6,24 @@ Sections that are optional (`wrench`, `gripper`, `controller_manager`, `error_re
 are `null` (or empty) when the cell lacks them: the backend then declares no such capability and
 the server registers none of its tools. `check_against_policy` makes the cross-checks that need
 the policy (the `joints` mapping names policy joints only) when the backend is built.
+
+The names that belong to the robot's driver (the trajectory action, the gripper's action, finger
+state topic and finger joints) default to null: `resolve_robot_names` fills them from the robot
+profile of a `builtin:<name>` policy robot (armwarden.robots) when the backend is built. A user's
+URDF has no profile: the config must give them, and the backend is refused, naming each missing
+key, when it does not.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from armwarden.core.errors import ConfigurationError
+from armwarden.robots import builtin_profile
 
+_T = TypeVar("_T")
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 #: a ROS name: absolute or relative, no whitespace
@@ -51,8 +59,8 @@ class TrajectoryConfig(BaseModel):
     (fallback) a `trajectory_msgs/JointTrajectory` topic. Exactly one of the two."""
 
     model_config = _STRICT
-    action: RosName | None = Field(default="/fr3_arm_controller/follow_joint_trajectory",
-                                   description="FollowJointTrajectory action; null: use `topic`.")
+    action: RosName | None = Field(default=None, description="FollowJointTrajectory action; null: use `topic`, "
+                                                             "or without one the robot profile's action.")
     topic: RosName | None = Field(default=None, description="JointTrajectory topic (fallback); null: use `action`.")
     server_timeout_s: float = Field(default=5.0, gt=0, le=60,
                                     description="How long an execution waits for the action server [s] before refusing.")
@@ -65,8 +73,9 @@ class TrajectoryConfig(BaseModel):
 
     @model_validator(mode="after")
     def _exactly_one(self) -> TrajectoryConfig:
-        if (self.action is None) == (self.topic is None):
-            raise ValueError("give exactly one of action (FollowJointTrajectory) and topic (JointTrajectory fallback)")
+        if self.action is not None and self.topic is not None:
+            raise ValueError("give exactly one of action (FollowJointTrajectory) and topic (JointTrajectory fallback), "
+                             "or neither for the robot profile's action")
         return self
 
 
@@ -74,15 +83,17 @@ class GripperConfig(BaseModel):
     """A `control_msgs/GripperCommand` action; command.position is the finger gap [m]."""
 
     model_config = _STRICT
-    action: RosName = Field(default="/franka_gripper/gripper_action", description="GripperCommand action.")
+    action: RosName | None = Field(default=None, description="GripperCommand action; null: the robot profile's.")
     max_width_m: float = Field(default=0.08, gt=0, le=0.5, description="The fingers' full opening [m].")
     max_effort_n: float = Field(default=70.0, gt=0, le=1000, description="Largest grasp force [N] sent as max_effort.")
     move_effort_n: float = Field(default=0.0, ge=0, le=1000,
                                  description="max_effort [N] of a plain move (franka_gripper: 0 = move, not grasp).")
-    joint_states_topic: RosName = Field(default="/franka_gripper/joint_states",
-                                        description="JointState topic of the finger joints (the width is their sum).")
-    finger_joints: tuple[str, ...] = Field(default=("fr3_finger_joint1", "fr3_finger_joint2"), min_length=1,
-                                           description="Finger joint names; width [m] = sum of their positions.")
+    joint_states_topic: RosName | None = Field(
+        default=None, description="JointState topic of the finger joints (the width is their sum); null: the "
+                                  "robot profile's.")
+    finger_joints: tuple[str, ...] | None = Field(
+        default=None, min_length=1, description="Finger joint names; width [m] = sum of their positions; null: "
+                                                "the robot profile's.")
     max_age_s: float = Field(default=0.5, gt=0, le=5, description="Finger state older than this [s] is refused.")
     server_timeout_s: float = Field(default=5.0, gt=0, le=60, description="How long to wait for the action server [s].")
 
@@ -147,6 +158,37 @@ class Config(BaseModel):
         return self
 
 
+def resolve_robot_names(config: Config, description: str) -> Config:
+    """`config` with the driver names it leaves null taken from the robot profile `description`
+    names (`builtin:<name>`); `ConfigurationError` naming every key still missing (a user's URDF
+    has no profile: no name is guessed for it)."""
+    profile = builtin_profile(description)
+    ros = profile.ros if profile is not None else None
+    trajectory, gripper = config.trajectory, config.gripper
+    if trajectory.action is None and trajectory.topic is None and ros is not None:
+        trajectory = trajectory.model_copy(update={"action": ros.trajectory_action})
+    if gripper is not None and ros is not None:
+        gripper = gripper.model_copy(update={
+            "action": gripper.action or ros.gripper_action,
+            "joint_states_topic": gripper.joint_states_topic or ros.gripper_joint_states,
+            "finger_joints": gripper.finger_joints or ros.finger_joints or None})
+    missing = ["trajectory.action"] if trajectory.action is None and trajectory.topic is None else []
+    if gripper is not None:
+        missing += [f"gripper.{key}" for key in ("action", "joint_states_topic", "finger_joints")
+                    if getattr(gripper, key) is None]
+    if missing:
+        lines = "\n".join(f"  {key}: required: the robot {description!r} has no profile that names it" for key in missing)
+        raise ConfigurationError(f"invalid ros2 backend config:\n{lines}")
+    return config.model_copy(update={"trajectory": trajectory, "gripper": gripper})
+
+
+def resolved(value: _T | None, key: str) -> _T:
+    """A name `resolve_robot_names` has filled in (`key` is its YAML path, for the error)."""
+    if value is None:
+        raise ConfigurationError(f"ros2 backend config: {key} was not resolved from the robot profile")
+    return value
+
+
 def check_against_policy(config: Config, joint_names: tuple[str, ...]) -> tuple[str, ...]:
     """The JointState name of each policy joint, in policy order; `ConfigurationError` (with the
     YAML path) if `joints` names a joint the policy does not have."""
@@ -178,4 +220,6 @@ __all__ = [
     "TrajectoryConfig",
     "WrenchConfig",
     "check_against_policy",
+    "resolve_robot_names",
+    "resolved",
 ]
