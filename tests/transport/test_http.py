@@ -23,13 +23,8 @@ from pydantic import BaseModel
 
 from armwarden.core.errors import ConfigurationError
 from armwarden.tools import spec_of
-from armwarden.transport.http import (
-    build_http_app,
-    check_bind_safety,
-    current_principal,
-    role_allows,
-    serve_http,
-)
+from armwarden.transport.access import current_principal, role_allows
+from armwarden.transport.http import build_http_app, check_bind_safety, serve_http
 from armwarden.transport.tokens import TokenStore
 from tests.helpers import free_port
 

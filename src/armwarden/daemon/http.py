@@ -114,7 +114,8 @@ async def serve_http_clients(options: ServeOptions, assembly: Assembly, external
                       served: Endpoints | None = None) -> None:
     """``/mcp`` (and the console, ``/metrics``) on `listener`, bound already to ``--port``; logs
     `served`'s start-up lines once it listens."""
-    from armwarden.transport.http import build_http_app, current_principal
+    from armwarden.transport.access import current_principal
+    from armwarden.transport.http import build_http_app
     from armwarden.transport.tokens import TokenStore
 
     tokens = TokenStore.load(options.auth_tokens) if options.auth_tokens else None

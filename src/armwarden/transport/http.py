@@ -62,7 +62,6 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from armwarden.core.errors import ConfigurationError
 from armwarden.stopchannel.listener import is_loopback
 from armwarden.transport.abandoned import AbandonedCallback, AbandonedMotionStop
-from armwarden.transport.access import OBSERVER_TOOLS, current_principal, role_allows
 from armwarden.transport.bearer import BearerAuth
 from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, StopOnReceipt
 from armwarden.transport.mcp_middleware import LatchEstopsNotRun, mark_dispatched
@@ -73,14 +72,11 @@ __all__ = [
     "HEALTH_PATH",
     "MCP_PATH",
     "METRICS_PATH",
-    "OBSERVER_TOOLS",
     "bind_http_socket",
     "build_console_only_app",
     "build_http_app",
     "check_bind_safety",
-    "current_principal",
     "is_loopback_host",
-    "role_allows",
     "serve_http",
     "transport_security_settings",
 ]
