@@ -8,7 +8,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from armwarden.backends.mujoco.model import CameraSpec, SceneObject
+from armwarden.backends.mujoco.camera_mounts import CameraSpec
+from armwarden.backends.mujoco.model import SceneObject
 
 Vector3 = tuple[float, float, float]
 

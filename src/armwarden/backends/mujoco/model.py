@@ -45,10 +45,10 @@ import mujoco
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
+from armwarden.backends.mujoco.camera_mounts import CameraSpec, look_at_quat, profile_cameras
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import capsule_from_geometry
 from armwarden.robot.model import RobotModel
-from armwarden.robots import builtin_profile
 
 if TYPE_CHECKING:
     from armwarden.policy import Policy
@@ -68,31 +68,6 @@ TABLE_GEOM = "table"
 FLOOR_GEOM = "floor"
 #: geom group of shapes that exist for the envelope only (not rendered by default, no contacts)
 HIDDEN_GROUP = 3
-
-
-@dataclass(frozen=True)
-class CameraSpec:
-    """A named camera. World cameras (`body` None) are placed in the policy's base frame; body
-    cameras in that body's frame. The camera looks from `position_m` at `target_m`."""
-
-    name: str
-    position_m: tuple[float, float, float]
-    target_m: tuple[float, float, float]
-    body: str | None = None
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    fovy_deg: float = 45.0
-
-
-def profile_cameras(description: str) -> tuple[CameraSpec, ...]:
-    """The camera mounts of the robot `description` names (`builtin:<name>`: its profile's, none if
-    it lists none). A user's URDF has no profile and its bodies are not ours to guess: refused, the
-    backend config names its cameras (`cameras`, an empty list for none)."""
-    profile = builtin_profile(description)
-    if profile is None:
-        raise RobotModelError(f"the robot {description!r} has no profile naming its camera mounts: list them "
-                              "in the MuJoCo backend config (`cameras`; [] for none)")
-    return tuple(CameraSpec(mount.name, mount.position_m, mount.target_m, mount.body, mount.up, mount.fovy_deg)
-                 for mount in profile.cameras or ())
 
 
 @dataclass(frozen=True)
@@ -203,22 +178,6 @@ class MujocoModel:
         data.qpos[self.arm_qpos] = q
         data.qvel[self.arm_dofs] = 0.0
         data.ctrl[self.arm_actuators] = q
-
-
-def _look_at_quat(position: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """Quaternion (w, x, y, z) of a MuJoCo camera (looks along −z, y up) at `position` facing `target`."""
-    forward = target - position
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    norm = np.linalg.norm(right)
-    if norm < 1e-9:
-        raise RobotModelError("camera 'up' must not be parallel to its viewing direction")
-    right /= norm
-    true_up = np.cross(right, forward)
-    rotation = np.column_stack([right, true_up, -forward])
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, rotation.reshape(-1))
-    return quat
 
 
 class _Builder:
@@ -576,7 +535,7 @@ class _Builder:
             body = self.spec.body(camera.body)
             if body is None:
                 raise RobotModelError(f"camera {camera.name!r}: MuJoCo has no body {camera.body!r}")
-        body.add_camera(name=camera.name, pos=position, quat=_look_at_quat(position, target, up), fovy=camera.fovy_deg)
+        body.add_camera(name=camera.name, pos=position, quat=look_at_quat(position, target, up), fovy=camera.fovy_deg)
 
     def set_options(self) -> None:
         option = self.spec.option
