@@ -47,16 +47,15 @@ import mujoco
 import numpy as np
 
 from armwarden.backends.base import Capabilities
-from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.mujoco.cameras import OffscreenCameras
 from armwarden.backends.mujoco.config import Config
+from armwarden.backends.mujoco.fingers import SimulatedFingers
+from armwarden.backends.mujoco.measurement import CellMeter
 from armwarden.backends.mujoco.model import (
-    GRAVITY_MPS2,
     MujocoModel,
     build_model,
     scene_for_policy,
 )
-from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
 from armwarden.backends.values import CameraImage, ExecutionResult, GripperResult, ProgressCallback
@@ -100,21 +99,6 @@ SETTLE_POLL_S = 0.002
 #: extra deadline [s] for the first camera snapshot, which creates the renderer and draws its first
 #: frame (1.2–1.5 s measured on a loaded 2-core machine with software EGL, vs 0.2–0.35 s after)
 RENDERER_SETUP_TIMEOUT_S = 15.0
-#: finger speed [m/s] of `gripper_home`
-GRIPPER_HOMING_SPEED_MPS = 0.05
-#: the fingers count as still below this opening speed [m/s]
-GRIPPER_STILL_MPS = 1e-3
-#: a finger move has arrived within this width [m]
-GRIPPER_ARRIVED_M = 1e-3
-
-
-@dataclass(frozen=True)
-class _FingerTarget:
-    """What the finger actuator tracks: a ramp of the width [m] on simulated time, pressing with
-    at most `force_n` [N]."""
-
-    ramp: Ramp
-    force_n: float
 
 
 @dataclass
@@ -129,23 +113,6 @@ class _ArmTarget:
     following: bool = False
     braking: bool = False
     since_s: float | None = None
-
-
-@dataclass(frozen=True)
-class _Measured:
-    """One published simulation sample; arrays are read-only."""
-
-    positions: np.ndarray
-    velocities: np.ndarray
-    force: np.ndarray  # external force on the hand at the TCP, base frame [N]
-    torque: np.ndarray  # external torque about the TCP, base frame [N·m]
-    gripper_width_m: float
-    gripper_speed_mps: float
-    gripper_force_n: float  # how hard the finger actuator squeezes [N] (0: no fingers)
-    sim_s: float  # simulated time of the sample [s]
-    scene_qpos: np.ndarray  # every body's configuration (arm, fingers, objects), for rendering
-    robot_penetration_m: float  # deepest overlap of a robot geom with anything [m]; 0: none
-    stamp: float
 
 
 class MujocoBackend(ServoBackend):
@@ -184,32 +151,23 @@ class MujocoBackend(ServoBackend):
                 self._data.qpos[address] = model.jnt_range[model.joint(name).id][1]
             self._data.ctrl[cell.gripper_actuator] = model.actuator_ctrlrange[cell.gripper_actuator][1]
         mujoco.mj_forward(model, self._data)
-        self._finger_dofs = np.array([model.jnt_dofadr[model.joint(name).id] for name in cell.finger_joints], dtype=np.intp)
         self._gripper = cell.gripper_actuator
         #: the full opening [m] (the finger actuator's control range)
         self.gripper_max_width_m = float(model.actuator_ctrlrange[self._gripper][1]) if self._gripper is not None else 0.0
         self.gripper_travel_m = self.gripper_max_width_m
-        self._grasp_force_limit_n = float(model.actuator_forcerange[self._gripper][1]) if self._gripper is not None else 0.0
-        #: what the fingers track; replaced whole (gripper actions, stops), read before every physics step
-        self._fingers = _FingerTarget(Ramp(self.gripper_max_width_m, self.gripper_max_width_m, 1.0, 0.0), self._grasp_force_limit_n)
-        self._gripper_lock = threading.Lock()  # starting the fingers vs a stop from any thread
-        self._gripper_busy = False  # a gripper action runs (event loop only)
-        self._gripper_grasped = False
-        self._flange_body = model.body(cell.flange_body).id
-        self._flange_site = model.site(_site_name(model, self._flange_body)).id
-        self._tcp_body = model.body(robot.tcp_frame).id
-        self._base_body = model.body(robot.base_frame).id
-        #: geoms that belong to the robot (the arm's kinematic tree under the world)
-        self._robot_geom = model.body_rootid[model.geom_bodyid] == model.body_rootid[self._base_body]
+        force_limit_n = float(model.actuator_forcerange[self._gripper][1]) if self._gripper is not None else 0.0
+        #: the fingers: what they track (read before every physics step) and the gripper actions
+        self.fingers = SimulatedFingers(self.gripper_max_width_m, force_limit_n, lambda: self._measured,
+                                        self._gripper_stop_landed, lambda: self.servo.require_running())
+        self._meter = CellMeter(cell, robot)
         #: deepest robot contact [m] seen since `reset_peak_penetration` (simulation diagnostics)
         self.peak_robot_penetration_m = 0.0
-        self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
         #: what the arm's actuators do; replaced whole (stops, ticks), read before every physics step
         self._target = _ArmTarget(frozen(home), frozen(np.zeros_like(home)))
         self._braking_gains = False  # the actuators' gains are the brake's (physics thread)
         self._tracking_kv = np.asarray(cell.gains.kv, dtype=float)
         self._tracking_kp = np.asarray(cell.gains.kp, dtype=float)
-        self._measured = self._measure()
+        self._measured = self._meter.measure(self._data)
         self._last_wall: float | None = None  # perf_counter up to which physics has run; None: not started
         self._pending_sim_s = 0.0
         #: largest |measured − commanded| [rad] over the running trajectory's samples (servo thread)
@@ -294,76 +252,22 @@ class MujocoBackend(ServoBackend):
         self.servo.require_running()  # held either way; a dead physics thread is still a failure
 
     def _stop_fingers(self) -> None:
-        """Any thread (`Backend._stop_fingers`): the finger ramp stops where it is from the next
-        physics step on. The target
-        freezes, not the measured width: fingers closed on an object keep squeezing it (with the
-        grasp's force), so a stop never drops what the hand holds; free fingers stop within the
-        servo's lag of their measured width."""
-        with self._gripper_lock:
-            fingers, sim_s = self._fingers, self._measured.sim_s
-            width = fingers.ramp.position(sim_s)
-            self._fingers = _FingerTarget(Ramp(width, width, 1.0, sim_s), fingers.force_n)
+        """Any thread (`Backend._stop_fingers`): see `SimulatedFingers.freeze`."""
+        self.fingers.freeze()
 
-    # ================================================================ gripper
+    # ================================================================ gripper (fingers.py)
     def _latest_gripper_state(self) -> GripperState:
-        sample = self._measured
-        moving = self._gripper_busy or abs(sample.gripper_speed_mps) > GRIPPER_STILL_MPS
-        return GripperState(sample.gripper_width_m, self._gripper_grasped, moving, sample.stamp)
+        return self.fingers.state()
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
-        width, stopped = await self._run_fingers(width_m, speed_mps, self._grasp_force_limit_n, arrive=True)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        if abs(width - width_m) > GRIPPER_ARRIVED_M:
-            return GripperResult(False, width, False, f"blocked at {width:.4f} m")
-        return GripperResult(True, width, False, "")
+        return await self.fingers.move(width_m, speed_mps)
 
     async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
                              epsilon_outer_m: float) -> GripperResult:
-        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
-        check_grasp_margins(epsilon_inner_m, epsilon_outer_m)
-        if not (np.isfinite(force_n) and 0 < force_n <= self._grasp_force_limit_n):
-            raise BackendError(f"gripper grasp force {force_n} N outside (0, {self._grasp_force_limit_n}] N")
-        # close fully with the force capped: the fingers stop where the object stops them
-        width, stopped = await self._run_fingers(0.0, speed_mps, float(force_n), arrive=False)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
-        self._gripper_grasped = result.is_grasped
-        return result
+        return await self.fingers.grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
 
     async def _gripper_home(self) -> GripperResult:
-        return await self._gripper_move(self.gripper_max_width_m, GRIPPER_HOMING_SPEED_MPS)
-
-    async def _run_fingers(self, goal_m: float, speed_mps: float, force_n: float, *, arrive: bool) -> tuple[float, bool]:
-        """Ramp the fingers to `goal_m`; wait until they arrived (`arrive`) or, the ramp done, stand
-        still (against an object or at the goal). Returns (measured width, whether a stop ended it)."""
-        if self._gripper_busy:
-            raise BackendError("the gripper is already moving; one gripper action at a time")
-        self.servo.require_running()
-        with self._gripper_lock:  # started atomically with the check: a stop from any thread that came first wins
-            if self._gripper_stop_landed():
-                return self._measured.gripper_width_m, True
-            sample = self._measured
-            target = _FingerTarget(Ramp(sample.gripper_width_m, goal_m, speed_mps, sample.sim_s), force_n)
-            self._fingers = target
-        self._gripper_busy = True
-        self._gripper_grasped = False  # any motion releases what was held
-        try:
-            while True:
-                await asyncio.sleep(SETTLE_POLL_S)
-                self.servo.require_running()
-                sample = self._measured
-                if self._gripper_stop_landed():
-                    return sample.gripper_width_m, True
-                still = abs(sample.gripper_speed_mps) <= GRIPPER_STILL_MPS
-                if arrive and abs(sample.gripper_width_m - goal_m) <= GRIPPER_ARRIVED_M and still:
-                    return sample.gripper_width_m, False
-                if target.ramp.done(sample.sim_s - 0.05) and still:  # 50 ms simulated past the ramp, still
-                    return sample.gripper_width_m, False
-        finally:
-            self._gripper_busy = False
+        return await self.fingers.home()
 
     # ================================================================ cameras
     async def _camera_snapshot(self, camera: str) -> CameraImage:
@@ -415,7 +319,7 @@ class MujocoBackend(ServoBackend):
             elif not target.braking:
                 data.ctrl[cell.arm_actuators] = cell.arm_ctrl(target.positions, target.velocities)
             if self._gripper is not None:
-                fingers = self._fingers
+                fingers = self.fingers.target
                 data.ctrl[self._gripper] = fingers.ramp.position(data.time)
                 model.actuator_forcerange[self._gripper] = (-fingers.force_n, fingers.force_n)
             mujoco.mj_step(model, data)
@@ -423,7 +327,7 @@ class MujocoBackend(ServoBackend):
         unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
         if unstable or not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
             raise BackendError("the simulation diverged (" + ("unstable accelerations" if unstable else "non-finite state") + ")")
-        self._measured = self._measure()
+        self._measured = self._meter.measure(self._data)
         self.peak_robot_penetration_m = max(self.peak_robot_penetration_m, self._measured.robot_penetration_m)
         if setpoint.following:  # the physics has reached this sample's time: how far off is the arm?
             error = float(np.max(np.abs(self._measured.positions - setpoint.positions)))
@@ -467,58 +371,8 @@ class MujocoBackend(ServoBackend):
         if self._target is braking:
             self._target = _ArmTarget(frozen(arm), braking.velocities)
 
-    # ================================================================ measurement (servo thread)
-    def _measure(self) -> _Measured:
-        data, cell = self._data, self.cell
-        site_rotation = data.site_xmat[self._flange_site].reshape(3, 3)
-        site_position = data.site_xpos[self._flange_site]
-        # what the hand's subtree exerts on the arm, in the world frame, about the flange site
-        exerted_force = site_rotation @ data.sensordata[cell.force_sensor_adr:cell.force_sensor_adr + 3]
-        exerted_torque = site_rotation @ data.sensordata[cell.torque_sensor_adr:cell.torque_sensor_adr + 3]
-        # the hand's own weight, at its centre of mass: what it exerts at rest with nothing touching it
-        weight = np.array([0.0, 0.0, -self._hand_weight_n])
-        weight_torque = np.cross(data.subtree_com[self._flange_body] - site_position, weight)
-        # the sensor reads the arm's force on the hand: at rest it carries the weight exactly
-        # (arm + weight + environment = 0), so the environment's share is what remains, reversed;
-        # while the hand accelerates, its inertial force shows up here too
-        force = -(exerted_force + weight)
-        torque_site = -(exerted_torque + weight_torque)
-        torque_tcp = torque_site + np.cross(site_position - data.xpos[self._tcp_body], force)
-        base_rotation = data.xmat[self._base_body].reshape(3, 3).T  # world → base
-        return _Measured(
-            positions=frozen(data.qpos[cell.arm_qpos]),
-            velocities=frozen(data.qvel[cell.arm_dofs]),
-            force=frozen(base_rotation @ force),
-            torque=frozen(base_rotation @ torque_tcp),
-            gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),
-            gripper_speed_mps=float(np.sum(data.qvel[self._finger_dofs])),
-            gripper_force_n=-float(data.actuator_force[self._gripper]) if self._gripper is not None else 0.0,
-            sim_s=float(data.time),
-            scene_qpos=frozen(data.qpos),
-            robot_penetration_m=self._robot_penetration_m(),
-            stamp=time.monotonic(),
-        )
-
-    def _robot_penetration_m(self) -> float:
-        """How deep the deepest contact involving a robot geom overlaps [m] (0: none)."""
-        data = self._data
-        if data.ncon == 0:
-            return 0.0
-        contacts = data.contact
-        involved = self._robot_geom[contacts.geom1[:data.ncon]] | self._robot_geom[contacts.geom2[:data.ncon]]
-        depths = -contacts.dist[:data.ncon][involved]
-        return float(max(0.0, depths.max())) if depths.size else 0.0
-
-
 def _log_mujoco_warning(text: str) -> None:
     logger.warning("mujoco: %s", text.strip())
-
-
-def _site_name(model: mujoco.MjModel, body_id: int) -> str:
-    for site in range(model.nsite):
-        if model.site_bodyid[site] == body_id:
-            return model.site(site).name
-    raise BackendError("the MuJoCo model has no flange site")
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoBackend:

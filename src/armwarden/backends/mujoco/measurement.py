@@ -1,0 +1,105 @@
+"""What one step of the simulated cell publishes: joint positions and velocities, the external
+wrench at the TCP (the hand's weight taken out), the fingers' width, speed and squeeze, every
+body's configuration for rendering, and how deep the robot overlaps anything.
+
+Read on the physics thread right after a step and published whole (`Measured`, read-only
+arrays): every other thread reads the last sample, never `MjData` the physics thread is stepping.
+"""
+
+# mujoco ships compiled pybind11 modules without type stubs (see model.py)
+# pyright: reportAttributeAccessIssue=false
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from armwarden.backends.mujoco.model import GRAVITY_MPS2, MujocoModel
+from armwarden.backends.servo import frozen
+from armwarden.core.errors import BackendError
+from armwarden.robot.model import RobotModel
+
+
+@dataclass(frozen=True)
+class Measured:
+    """One published simulation sample; arrays are read-only."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    force: np.ndarray  # external force on the hand at the TCP, base frame [N]
+    torque: np.ndarray  # external torque about the TCP, base frame [N·m]
+    gripper_width_m: float
+    gripper_speed_mps: float
+    gripper_force_n: float  # how hard the finger actuator squeezes [N] (0: no fingers)
+    sim_s: float  # simulated time of the sample [s]
+    scene_qpos: np.ndarray  # every body's configuration (arm, fingers, objects), for rendering
+    robot_penetration_m: float  # deepest overlap of a robot geom with anything [m]; 0: none
+    stamp: float
+
+
+class CellMeter:
+    """Reads a `Measured` sample from the cell's data (the indices it needs found once)."""
+
+    def __init__(self, cell: MujocoModel, robot: RobotModel) -> None:
+        model = cell.model
+        self._cell = cell
+        self._gripper = cell.gripper_actuator
+        self._finger_dofs = np.array([model.jnt_dofadr[model.joint(name).id] for name in cell.finger_joints], dtype=np.intp)
+        self._flange_body = model.body(cell.flange_body).id
+        self._flange_site = model.site(_site_name(model, self._flange_body)).id
+        self._tcp_body = model.body(robot.tcp_frame).id
+        self._base_body = model.body(robot.base_frame).id
+        #: geoms that belong to the robot (the arm's kinematic tree under the world)
+        self._robot_geom = model.body_rootid[model.geom_bodyid] == model.body_rootid[self._base_body]
+        self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
+
+    def measure(self, data: mujoco.MjData) -> Measured:
+        """The sample the data holds after a step (servo thread)."""
+        cell = self._cell
+        site_rotation = data.site_xmat[self._flange_site].reshape(3, 3)
+        site_position = data.site_xpos[self._flange_site]
+        # what the hand's subtree exerts on the arm, in the world frame, about the flange site
+        exerted_force = site_rotation @ data.sensordata[cell.force_sensor_adr:cell.force_sensor_adr + 3]
+        exerted_torque = site_rotation @ data.sensordata[cell.torque_sensor_adr:cell.torque_sensor_adr + 3]
+        # the hand's own weight, at its centre of mass: what it exerts at rest with nothing touching it
+        weight = np.array([0.0, 0.0, -self._hand_weight_n])
+        weight_torque = np.cross(data.subtree_com[self._flange_body] - site_position, weight)
+        # the sensor reads the arm's force on the hand: at rest it carries the weight exactly
+        # (arm + weight + environment = 0), so the environment's share is what remains, reversed;
+        # while the hand accelerates, its inertial force shows up here too
+        force = -(exerted_force + weight)
+        torque_site = -(exerted_torque + weight_torque)
+        torque_tcp = torque_site + np.cross(site_position - data.xpos[self._tcp_body], force)
+        base_rotation = data.xmat[self._base_body].reshape(3, 3).T  # world → base
+        return Measured(
+            positions=frozen(data.qpos[cell.arm_qpos]),
+            velocities=frozen(data.qvel[cell.arm_dofs]),
+            force=frozen(base_rotation @ force),
+            torque=frozen(base_rotation @ torque_tcp),
+            gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),
+            gripper_speed_mps=float(np.sum(data.qvel[self._finger_dofs])),
+            gripper_force_n=-float(data.actuator_force[self._gripper]) if self._gripper is not None else 0.0,
+            sim_s=float(data.time),
+            scene_qpos=frozen(data.qpos),
+            robot_penetration_m=self._robot_penetration_m(data),
+            stamp=time.monotonic(),
+        )
+
+    def _robot_penetration_m(self, data: mujoco.MjData) -> float:
+        """How deep the deepest contact involving a robot geom overlaps [m] (0: none)."""
+        if data.ncon == 0:
+            return 0.0
+        contacts = data.contact
+        involved = self._robot_geom[contacts.geom1[:data.ncon]] | self._robot_geom[contacts.geom2[:data.ncon]]
+        depths = -contacts.dist[:data.ncon][involved]
+        return float(max(0.0, depths.max())) if depths.size else 0.0
+
+
+def _site_name(model: mujoco.MjModel, body_id: int) -> str:
+    for site in range(model.nsite):
+        if model.site_bodyid[site] == body_id:
+            return model.site(site).name
+    raise BackendError("the MuJoCo model has no flange site")
