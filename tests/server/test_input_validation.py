@@ -57,6 +57,7 @@ BASELINE: dict[str, dict[str, Any]] = {
     "plan_to_joints": {"joint_positions": [0.1, *HOME[1:]]},
     "plan_to_pose": {"position": POINT},
     "plan_cartesian_path": {"waypoints": [{"position": {"x": 0.35, "y": 0.0, "z": 0.45}}]},
+    "get_plan": {"plan_id": "plan_from_the_baseline_test"},
     "execute_plan": {"plan_id": "plan_from_the_baseline_test"},
     "get_motion_status": {},
     "gripper_move": {"width_m": 0.04},
@@ -84,6 +85,7 @@ FIELDS: dict[str, dict[str, str]] = {
     "plan_cartesian_path": {"waypoints": "waypoints", "frame_id": "frame", "velocity_scaling": "scaling",
                             "acceleration_scaling": "scaling", "preview": "flag"},
     "execute_plan": {"plan_id": "name"},
+    "get_plan": {"plan_id": "name"},
     "gripper_move": {"width_m": "number", "speed_mps": "speed"},
     "gripper_grasp": {"width_m": "number", "force_n": "number", "speed_mps": "speed",
                       "epsilon_inner_m": "number", "epsilon_outer_m": "number"},
@@ -156,7 +158,8 @@ async def test_the_fuzz_tables_cover_every_registered_tool_and_argument_and_the_
         for tool in tools:
             assert set(tool.input_schema.get("properties", {})) == set(FIELDS.get(tool.name, {})), tool.name
         planned = await client.call_tool("plan_to_joints", BASELINE["plan_to_joints"])
-        calls = dict(BASELINE, execute_plan={"plan_id": planned.structured_content["plan_id"]})
+        plan_id = planned.structured_content["plan_id"]
+        calls = dict(BASELINE, get_plan={"plan_id": plan_id}, execute_plan={"plan_id": plan_id})  # read, then run
         del calls["estop"], calls["reset_estop"]  # checked elsewhere (latching changes everything after)
         for name, arguments in calls.items():
             result = await client.call_tool(name, arguments)
