@@ -21,10 +21,14 @@ from typing import Any, TypeVar
 import anyio
 import numpy as np
 
+from armwarden.policy import ALL_TOOLS
+
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
 #: the CLI as a child process runs it (with `child_env()`, so this worktree's `src` wins)
 CLI = [sys.executable, "-m", "armwarden.cli"]
+#: tools a daemon serves with the bundled policy (every group) on the fake (every capability)
+BUNDLED_TOOL_COUNT = len(ALL_TOOLS)
 
 #: the FR3 ready pose, exact (rad)
 READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])

@@ -26,14 +26,13 @@ import pytest
 from mcp import Client, StdioServerParameters
 
 from armwarden.audit import verify_file
-from tests.helpers import REPO
+from tests.helpers import BUNDLED_TOOL_COUNT, REPO
 
 MCPB = REPO / "tools" / "mcpb" / "node_modules" / ".bin" / "mcpb"
 #: the mcpb host code that fills `mcp_config` in (variables, user_config defaults, the user's settings)
 MCPB_HOST_CONFIG = REPO / "tools" / "mcpb" / "node_modules" / "@anthropic-ai" / "mcpb" / "dist" / "shared" / "config.js"
 BUILD = REPO / "scripts" / "build_mcpb.py"
 REQUIRE_ENV = "ARMWARDEN_REQUIRE_MCPB"
-BUNDLED_TOOL_COUNT = 22
 
 
 def _missing(message: str) -> NoReturn:

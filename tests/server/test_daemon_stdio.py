@@ -28,11 +28,11 @@ from mcp import Client, StdioServerParameters
 from armwarden.audit import verify_file
 from armwarden.policy import bundled_policy, load_policy, policy_digest
 from armwarden.transport.pipes import MAX_LINE_BYTES
-from tests.helpers import CLI, HOME, REPO, SRC, child_env, records_of, stop_process, text_of, wait_for_record
+from tests.helpers import BUNDLED_TOOL_COUNT, CLI, HOME, REPO, SRC, child_env, records_of, stop_process, text_of, wait_for_record
 from tests.server.harness import MODES, MotionStarted
 from tests.server.harness import approve as approving
 
-BUNDLED_TOOL_COUNT = 23
+
 def backend_config(tmp_path: Path, speedup: float) -> Path:
     path = tmp_path / f"fake-{speedup:g}.yaml"
     path.write_text(f"speedup: {speedup}\n", encoding="utf-8")
