@@ -339,9 +339,7 @@ class FakeBackend(ServoBackend):
         # the fingers close until they touch the object, or fully if it is not between them
         target = object_width if 0.0 <= object_width <= self._gripper_width_m else 0.0
         width, stopped = await self._run_gripper(target, speed_mps)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
+        result = grasp_outcome(width_m, width, stopped, epsilon_inner_m, epsilon_outer_m)
         self._gripper_grasped = result.is_grasped
         return result
 

@@ -29,9 +29,12 @@ def check_grasp_margins(epsilon_inner_m: float, epsilon_outer_m: float, force_n:
             raise BackendError(f"gripper grasp: {name} must be finite and ≥ 0, got {value}")
 
 
-def grasp_outcome(width_m: float, final_width_m: float, epsilon_inner_m: float, epsilon_outer_m: float) -> GripperResult:
-    """A grasp that ended (not stopped) with the fingers at `final_width_m`: grasped if that lies within
-    [width_m − epsilon_inner_m, width_m + epsilon_outer_m]."""
+def grasp_outcome(width_m: float, final_width_m: float, stopped: bool, epsilon_inner_m: float,
+                  epsilon_outer_m: float) -> GripperResult:
+    """A grasp that ended with the fingers at `final_width_m`: "stopped" when a stop ended it, else
+    grasped if that width lies within [width_m − epsilon_inner_m, width_m + epsilon_outer_m]."""
+    if stopped:
+        return GripperResult(False, final_width_m, False, "stopped")
     low, high = width_m - epsilon_inner_m, width_m + epsilon_outer_m
     grasped = low <= final_width_m <= high
     detail = "" if grasped else f"final width {final_width_m:.4f} m outside [{low:.4f}, {high:.4f}] m"

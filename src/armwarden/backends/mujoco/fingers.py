@@ -87,9 +87,7 @@ class SimulatedFingers:
             raise BackendError(f"gripper grasp force {force_n} N outside (0, {self.force_limit_n}] N")
         # close fully with the force capped: the fingers stop where the object stops them
         width, stopped = await self._run(0.0, speed_mps, float(force_n), arrive=False)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
+        result = grasp_outcome(width_m, width, stopped, epsilon_inner_m, epsilon_outer_m)
         self.grasped = result.is_grasped
         return result
 

@@ -706,9 +706,7 @@ class Ros2Backend(Backend):
             raise BackendError(f"gripper grasp force {force_n} N outside (0, {gripper.max_effort_n}] N")
         self._gripper_grasped = False
         width, stopped = await self._gripper_goal(width_m, force_n)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        result = grasp_outcome(width_m, width, epsilon_inner_m, epsilon_outer_m)
+        result = grasp_outcome(width_m, width, stopped, epsilon_inner_m, epsilon_outer_m)
         self._gripper_grasped = result.is_grasped
         return result
 
