@@ -18,9 +18,8 @@ along +z, where penetration = max(0, table_height_m − tcp_z) and tcp_z comes f
 thread's own `RobotModel` (Pinocchio data is not thread safe, so the loop side never shares it).
 The wrench is computed on the servo thread and stamped with that tick's monotonic time.
 
-The gripper is a width model driven on the event loop (no thread): it moves at the requested
-speed (time-scaled); a stop freezes it where it is (`stop_now` from any thread, the loop-side
-bookkeeping follows). Cameras render a small top view with Pillow (none in a broken install without it).
+The gripper (`fake_gripper.FakeFingers`) is a width model on the event loop, time-scaled, frozen
+by a stop from any thread. Cameras render a small top view with Pillow (none without it).
 
 Fault injection for tests: `fail_stop` (stop raises and is not delivered), `freeze_wrench` (the
 wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that
@@ -34,7 +33,6 @@ deadline, `inject_worker_hang`): the watchdog holds the arm from its own thread.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import threading
@@ -54,9 +52,8 @@ from armwarden.backends.fake_camera import (
     render_top_view,
 )
 from armwarden.backends.fake_controllers import FakeControllers
-from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FingerMotion
-from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
-from armwarden.backends.ramp import Ramp
+from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FakeFingers
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
@@ -196,11 +193,8 @@ class FakeBackend(ServoBackend):
         self.servo = ServoLoop(self, q_home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
         self._loop: asyncio.AbstractEventLoop | None = None
 
-        # ---- gripper (event loop only)
-        self._gripper_width_m = self.gripper_max_width_m
-        self._gripper_grasped = False
-        self._gripper_motion: FingerMotion | None = None
-        self._gripper_lock = threading.Lock()  # starting the fingers vs a stop from another thread
+        #: the fingers (their motions run on the event loop; a stop freezes them from any thread)
+        self.fingers = FakeFingers(self.gripper_max_width_m, lambda: self.speedup, self._gripper_stop_landed)
 
     # ================================================================ lifecycle
     @property
@@ -313,20 +307,14 @@ class FakeBackend(ServoBackend):
         penetration_m = max(0.0, self.table_height_m - float(tcp_position[2]))
         return self.table_stiffness_n_per_m * penetration_m
 
-    # ================================================================ gripper (event loop side)
+    # ================================================================ gripper (fake_gripper.py)
     def _latest_gripper_state(self) -> GripperState:
-        motion = self._gripper_motion
-        width = motion.width_at(time.perf_counter()) if motion is not None else self._gripper_width_m
-        moving = motion is not None and motion.halted_at is None
-        return GripperState(width, self._gripper_grasped, moving, time.monotonic())
+        return self.fingers.state()
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
         self.actuation_commands += 1
         check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
-        width, stopped = await self._run_gripper(width_m, speed_mps)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        return GripperResult(True, width, False, "")
+        return await self.fingers.move(width_m, speed_mps)
 
     async def _gripper_grasp(
         self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
@@ -335,75 +323,15 @@ class FakeBackend(ServoBackend):
         check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
         check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
         self.last_grasp_force_n = float(force_n)
-        object_width = width_m if self.object_width_m is None else float(self.object_width_m)
-        # the fingers close until they touch the object, or fully if it is not between them
-        target = object_width if 0.0 <= object_width <= self._gripper_width_m else 0.0
-        width, stopped = await self._run_gripper(target, speed_mps)
-        result = grasp_outcome(width_m, width, stopped, epsilon_inner_m, epsilon_outer_m)
-        self._gripper_grasped = result.is_grasped
-        return result
+        return await self.fingers.grasp(width_m, speed_mps, epsilon_inner_m, epsilon_outer_m, self.object_width_m)
 
     async def _gripper_home(self) -> GripperResult:
         self.actuation_commands += 1
-        width, stopped = await self._run_gripper(self.gripper_max_width_m, GRIPPER_HOMING_SPEED_MPS)
-        if stopped:
-            return GripperResult(False, width, False, "stopped")
-        return GripperResult(True, width, False, "")
-
-    async def _run_gripper(self, target_m: float, speed_mps: float) -> tuple[float, bool]:
-        """Move the fingers to `target_m`; returns (final width, whether a stop interrupted it)."""
-        if self._gripper_motion is not None:
-            raise BackendError("the gripper is already moving; one gripper action at a time")
-        motion = FingerMotion(Ramp(self._gripper_width_m, target_m, speed_mps * self.speedup, time.perf_counter()))
-        with self._gripper_lock:  # started atomically with the check: a stop from any thread that came first wins
-            if self._gripper_stop_landed():
-                return self._gripper_width_m, True
-            self._gripper_motion = motion
-        self._gripper_grasped = False  # any motion releases what was held
-        finished = False
-        try:
-            with anyio.move_on_after(motion.ramp.duration_s):
-                await motion.halted.wait()
-            finished = True
-        finally:
-            if self._gripper_motion is motion:  # not halted on the loop: it arrived, or our caller was cancelled
-                self._gripper_motion = None
-                arrived = finished and motion.halted_at is None
-                self._gripper_width_m = target_m if arrived else motion.width_at(time.perf_counter())
-        # a stop that lands after the fingers arrived (before this task resumed) did not interrupt it
-        interrupted = motion.halted_at is not None and not math.isclose(self._gripper_width_m, target_m, abs_tol=1e-9)
-        return self._gripper_width_m, interrupted
+        return await self.fingers.move(self.gripper_max_width_m, GRIPPER_HOMING_SPEED_MPS)
 
     def _stop_fingers(self) -> None:
-        """Any thread: the fingers freeze now (`halted_at`); the event loop ends the motion's wait
-        and books its width, at once when this runs on the loop, else at the loop's next turn."""
-        with self._gripper_lock:  # the fingers are either not started yet (and will not be) or frozen here
-            motion = self._gripper_motion
-            froze = motion is not None and motion.halted_at is None
-            if froze and motion is not None:
-                motion.halted_at = time.perf_counter()
-        loop = self._loop
-        if loop is None:
-            return
-        try:
-            on_loop = asyncio.get_running_loop() is loop
-        except RuntimeError:  # no loop runs in this thread
-            on_loop = False
-        if on_loop:
-            self._end_finger_motion()
-        elif froze:
-            with contextlib.suppress(RuntimeError):  # the loop is closed
-                loop.call_soon_threadsafe(self._end_finger_motion)
-
-    def _end_finger_motion(self) -> None:
-        """Event loop: freeze the fingers where they are and end the motion's wait."""
-        motion = self._gripper_motion
-        if motion is not None:
-            if motion.halted_at is None:
-                motion.halted_at = time.perf_counter()
-            self._gripper_width_m = motion.width_at(time.perf_counter())
-            self._gripper_motion = None
-            motion.halted.set()
+        """Any thread: see `FakeFingers.freeze`."""
+        self.fingers.freeze(self._loop)
 
     # ================================================================ cameras
     async def _camera_snapshot(self, camera: str) -> CameraImage:
@@ -411,7 +339,7 @@ class FakeBackend(ServoBackend):
         frame = self._camera_frames[camera]
         setpoint = self.servo.latest
         stamp, tcp = setpoint.stamp, setpoint.extra[0]
-        width = self._gripper_width_m if self._gripper_motion is None else self._gripper_motion.width_at(time.perf_counter())
+        width = self.fingers.state().width_m
         force_z = self._wrench[0]
         png = await anyio.to_thread.run_sync(render_top_view, camera, frame, tcp.copy(), width, force_z, self.table_height_m)
         return CameraImage(camera, CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX, png, stamp)
