@@ -1,14 +1,8 @@
 """The CAN backend: an arm of MIT-mode and RobStride actuators driven directly over python-can.
 
-Start-up (`_open`): start the emulator if the config asks for one, open the bus, ping every
-actuator (RobStride type 0; MIT: the exit-motor-mode frame, which every MIT actuator answers and
-which leaves it disabled), read positions (RobStride: a stop frame, answered with feedback),
-write and read back the actuator-side CAN timeout (RobStride 0x7028; MIT mode has no frame for
-it: the firmware's own setting applies), refuse a RobStride actuator whose run_mode (0x7005) is not
-0 (operation/MIT mode; naming the joint), write and read back each RobStride actuator's configured
-torque limit (0x700B limit_torque; MIT: the firmware's), refuse a fault bit or an over-temperature, and enable
-the actuators only at the very end, when the servo loop is about to hold them. A missing reply
-refuses to open (`BackendError` naming the joints and ids; the daemon exits 2).
+Start-up (`_open`): the actuators pinged, read and configured (`bring_up`), refused on any fault
+condition or a joint outside the policy limits, and enabled only at the very end, when the servo
+loop is about to hold them. A missing reply refuses to open (the daemon exits 2).
 
 The servo loop (`armwarden.backends.servo.ServoLoop`) ticks at `control_rate_hz` whether moving
 or not — the stream of frames is what feeds the actuators' watchdogs. Each tick sends one
@@ -18,10 +12,8 @@ outside the policy's joint limits: such a setpoint is not sent but turned into a
 are parsed on the bus's reader thread; what is published is what the actuators measured, stamped
 with the time of the oldest reply it contains (silent actuators make it age; the Guard refuses it).
 
-Health, every tick: an actuator that has left a command unanswered for `rx_timeout_s` (RX
-timeout), fault bits in its feedback or a RobStride fault frame, a temperature above
-`temperature_limit_c`, invalid frames, an actuator that left run mode, and the bus's latched
-flags (bus-off and other error frames, TX overrun, reader errors). ANY fault: damping frames on
+Health, every tick (`health.fault_conditions`): RX timeouts, fault bits and frames, over-temperature,
+invalid frames, an actuator out of run mode, the bus's latched flags. ANY fault: damping frames on
 every joint from that tick on, the stop epoch bumped, the running execution ended (`execute`
 raises `BackendError` naming the joint and the fault, which makes the Guard latch its e-stop), and
 the fault reported through the backend's fault listener (the Guard latches the e-stop when idle
@@ -44,7 +36,6 @@ See docs/backends/can.md.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import threading
 import time
@@ -59,14 +50,21 @@ from armwarden.backends.base import Capabilities
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.actuators import Actuator, OutFrame, ReplyDecoder
-from armwarden.backends.can.bus import NO_FLAGS, BusFactory, CanBus, FrameKind, HealthFlag, open_interface
+from armwarden.backends.can.bring_up import (
+    build_emulator,
+    command_frame,
+    configure_actuators,
+    disable_frame,
+    enable_frame,
+)
+from armwarden.backends.can.bus import BusFactory, CanBus, FrameKind, open_interface
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config, GripperConfig, JointConfig, check_against_policy
-from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
-from armwarden.backends.can.gripper import ImpedanceFingerMotion, capped_setpoint
+from armwarden.backends.can.emulator import ActuatorEmulator
+from armwarden.backends.can.fingers import GRIPPER_HOMING_SPEED_MPS, CanFingers
+from armwarden.backends.can.health import fault_conditions
 from armwarden.backends.can.ranges import Protocol
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
-from armwarden.backends.ramp import Ramp
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
 from armwarden.backends.values import ExecutionResult, GripperResult, ProgressCallback
@@ -88,10 +86,6 @@ DRAIN_BUDGET = 0.3
 #: ... but it always handles this many replies per actuator first: a tick brings one reply each,
 #: so the backlog shrinks however often a loaded host preempts the drain past its budget
 DRAIN_FLOOR_PER_ACTUATOR = 2
-#: fingers still this long short of their target are blocked (by an object) [s]
-BLOCKED_S = 0.05
-#: finger speed of `gripper_home` [m/s]
-GRIPPER_HOMING_SPEED_MPS = 0.05
 
 
 class CanBackend(ServoBackend):
@@ -153,11 +147,9 @@ class CanBackend(ServoBackend):
         self.motion_frames = 0
         #: executions that sent at least one motion frame
         self.moving_executions = 0
-        # ---- gripper (the servo thread streams it; the event loop starts and watches its actions)
-        self._gripper_lock = threading.Lock()  # an action's start vs a stop from any thread
-        self._gripper_motion: ImpedanceFingerMotion | None = None
-        self._gripper_hold_rad = 0.0 if gripper is None else gripper.open_position_rad
-        self._gripper_grasped = False
+        #: the gripper (the servo thread streams it; the event loop starts and watches its actions)
+        self._fingers = None if self._gripper is None or gripper is None else CanFingers(
+            self._gripper, gripper, self._state_lock, command_frame)
         if gripper is not None:
             self.gripper_travel_m = gripper.max_width_m
         self._moved_this_execution = False
@@ -178,45 +170,11 @@ class CanBackend(ServoBackend):
     async def _start_up(self) -> None:
         config = self.config
         if config.simulate is not None:
-            self.emulator = self._build_emulator()
+            self.emulator = build_emulator(config, self._actuators, self._home)
             self.emulator.start()
         self.bus = CanBus(config.bus, self._replies.on_frame, bus_factory=self._bus_factory)
         self.bus.open()
-        host = config.host_id
-        # 1. ping (harmless: MIT exit-mode leaves the actuator disabled and answers with its state)
-        for a in self._everyone:
-            if a.joint.protocol is Protocol.ROBSTRIDE:
-                self._send_rs(rs.get_id_frame(a.joint.can_id, host), FrameKind.QUERY, a)
-            else:
-                self._send_mit(a, mit.Special.EXIT_MOTOR_MODE.value, FrameKind.QUERY)
-        await self._await_all(lambda a: a.pinged, "did not answer the ping")
-        # 2. positions: a RobStride stop frame (disabled already) is answered with feedback
-        for a in self._robstride.values():
-            self._send_rs(rs.stop_frame(a.joint.can_id, host), FrameKind.MODE, a)
-        await self._await_all(lambda a: a.raw_position is not None, "reported no position")
-        # 3. actuator-side CAN timeout (RobStride 0x7028), written and read back
-        ticks = rs.can_timeout_ticks(config.can_timeout_s)
-        for a in self._robstride.values():
-            self._send_rs(rs.write_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT, ticks), FrameKind.PARAMETER, a)
-            self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT), FrameKind.PARAMETER, a)
-        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or a.parameters.get(rs.CAN_TIMEOUT.index) == ticks,
-                              f"did not confirm canTimeout = {ticks} ticks ({config.can_timeout_s} s)")
-        # 3b. RobStride: operation (MIT-style) control mode, or nothing is enabled; the torque limit
-        # written (0x700B limit_torque) and read back
-        for a in self._robstride.values():
-            self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.RUN_MODE), FrameKind.PARAMETER, a)
-        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or rs.RUN_MODE.index in a.parameters,
-                              "did not report run_mode (0x7005)")
-        wrong = [f"{a.label} is in run_mode {self._run_mode_name(a.parameters[rs.RUN_MODE.index])}"
-                 for a in self._robstride.values() if a.parameters[rs.RUN_MODE.index] != rs.RunMode.OPERATION]
-        if wrong:
-            raise BackendError(f"can backend: refusing to enable: {'; '.join(wrong)} (must be 0, operation/MIT mode)")
-        for a in self._robstride.values():
-            self._send_rs(rs.write_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE, a.joint.torque_limit_nm),
-                          FrameKind.PARAMETER, a)
-            self._send_rs(rs.read_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE), FrameKind.PARAMETER, a)
-        await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or _confirms(
-            a.parameters.get(rs.LIMIT_TORQUE.index), a.joint.torque_limit_nm), "did not confirm its limit_torque (0x700B)")
+        await configure_actuators(self._everyone, config, self._send_batch, self._await_all)
         # 4. nothing wrong before anything is enabled
         problems = self._conditions(time.monotonic())
         if problems:
@@ -228,17 +186,14 @@ class CanBackend(ServoBackend):
             raise BackendError(f"can backend: refusing to enable: joints outside the policy limits: {', '.join(outside)}")
         # 5. the servo loop holds the measured positions from its first tick; enable last
         self._publish()
-        if self._gripper is not None:
-            self._gripper_hold_rad = self._gripper_position()
+        if self._fingers is not None:
+            self._fingers.hold_rad = self._fingers.position()
         self.servo = ServoLoop(self, q, period_s=self.period_s, idle_period_s=self.period_s, speedup=self._speedup,
                                name="can backend", realtime_priority=self.config.realtime_priority)
         await anyio.to_thread.run_sync(self.bus.hand_over_reading)  # each tick reads what arrived before it
         await self.servo.start("armwarden-can-servo")
         for a in self._everyone:
-            if a.joint.protocol is Protocol.ROBSTRIDE:
-                self._send_rs(rs.enable_frame(a.joint.can_id, host), FrameKind.MODE, a)
-            else:
-                self._send_mit(a, mit.Special.ENTER_MOTOR_MODE.value, FrameKind.MODE)
+            self._send_batch([enable_frame(a, config.host_id)], FrameKind.MODE)
         await self._await_all(lambda a: a.joint.protocol is Protocol.MIT or a.mode is rs.MotorMode.RUN,
                               "did not enter run mode")
         # 6. a fault the servo loop found while the actuators were enabled (over-current on enable)
@@ -268,10 +223,7 @@ class CanBackend(ServoBackend):
         if bus is not None and bus.is_open:
             for a in self._everyone:  # disable: zero torque (the actuators' watchdog would do it anyway)
                 try:
-                    if a.joint.protocol is Protocol.ROBSTRIDE:
-                        self._send_rs(rs.stop_frame(a.joint.can_id, self.config.host_id), FrameKind.MODE, a)
-                    else:
-                        self._send_mit(a, mit.Special.EXIT_MOTOR_MODE.value, FrameKind.MODE)
+                    self._send_batch([disable_frame(a, self.config.host_id)], FrameKind.MODE)
                 except BackendError:
                     logger.exception("can backend: disabling %s failed", a.label)
             await asyncio.sleep(5 * POLL_S)  # let the replies come back before the reader stops
@@ -279,39 +231,6 @@ class CanBackend(ServoBackend):
             bus.close()
         if self.emulator is not None:
             self.emulator.close()
-
-    def _build_emulator(self) -> ActuatorEmulator:
-        simulate = self.config.simulate
-        assert simulate is not None
-        specs = []
-        for a, q in zip(self._actuators, self._home, strict=True):
-            load = simulate.loads.get(a.joint.name)
-            extra = {} if load is None else load.model_dump()
-            specs.append(ActuatorSpec(
-                can_id=a.joint.can_id, model=a.joint.model,
-                initial_position_rad=a.joint.direction * float(q) + a.joint.homing_offset_rad,
-                # MIT firmware's watchdog is configured outside this protocol; the emulator gets it here
-                can_timeout_s=self.config.can_timeout_s if a.joint.protocol is Protocol.MIT else 0.0,
-                **extra,
-            ))
-        g = self.config.gripper
-        if g is not None:
-            load = simulate.loads.get(g.name)
-            specs.append(ActuatorSpec(
-                can_id=g.can_id, model=g.model, initial_position_rad=g.direction * g.open_position_rad + g.homing_offset_rad,
-                can_timeout_s=self.config.can_timeout_s if g.protocol is Protocol.MIT else 0.0,
-                **({} if load is None else load.model_dump()),
-            ))
-        return ActuatorEmulator(self.config.bus.channel, specs, interface=self.config.bus.interface,
-                                rate_hz=simulate.rate_hz, host_id=self.config.host_id,
-                                mit_reply_id=self.config.mit_reply_id)
-
-    @staticmethod
-    def _run_mode_name(value: float) -> str:
-        try:
-            return f"{int(value)} ({rs.RunMode(int(value)).name})"
-        except ValueError:
-            return f"{value:g} (undefined)"
 
     async def _await_all(self, ready: Callable[[Actuator], bool], what: str) -> None:
         deadline = time.monotonic() + self.config.startup_timeout_s
@@ -448,65 +367,23 @@ class CanBackend(ServoBackend):
             raise BackendError("can backend: the servo loop is not running")
         return self.servo
 
-    # ================================================================ gripper
-    def _gripper_config(self) -> GripperConfig:
-        g = self.config.gripper
-        if g is None:
+    # ================================================================ gripper (the `CanFingers` part)
+    def _require_fingers(self) -> CanFingers:
+        if self._fingers is None:
             raise BackendError("can backend has no gripper")
-        return g
-
-    def _gripper_position(self) -> float:
-        """The measured gripper position [rad] (see `GripperConfig`)."""
-        return self._gripper_reading()[0]
-
-    def _gripper_reading(self) -> tuple[float, float]:
-        """The measured gripper position [rad] and when it arrived (monotonic clock [s])."""
-        g, a = self._gripper_config(), self._gripper
-        assert a is not None
-        with self._state_lock:
-            raw, stamp = a.raw_position, a.reported_at
-        if raw is None or stamp is None:
-            raise BackendError(f"can backend: {a.label} reported no position")
-        return g.direction * (raw - g.homing_offset_rad), stamp
+        return self._fingers
 
     def _stop_fingers(self) -> None:
         """Any thread, on every stop and fault (`Backend._stop_fingers`): end the gripper's action
         and hold where it is."""
-        if self._gripper is None:
-            return
-        with self._gripper_lock:
-            self._gripper_motion = None
-            self._gripper_grasped = False
-            with contextlib.suppress(BackendError):  # no position yet: keep the previous hold
-                self._gripper_hold_rad = self._gripper_position()
-
-    def _gripper_frame(self) -> OutFrame | None:
-        """Servo thread, under the servo lock: this tick's command to the gripper (not damping)."""
-        a = self._gripper
-        if a is None:
-            return None
-        g = self._gripper_config()
-        now = time.monotonic()
-        measured = self._gripper_position()
-        with self._gripper_lock:
-            motion = self._gripper_motion
-            if motion is None:
-                wanted, velocity, cap = self._gripper_hold_rad, 0.0, g.torque_limit_nm
-            else:
-                (wanted, velocity), cap = motion.setpoint(now), motion.torque_cap_nm
-        low, high = sorted((g.open_position_rad, g.closed_position_rad))
-        position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad), low), high)
-        return self._command_frame(a, MotorCommand(g.direction * position + g.homing_offset_rad, g.direction * velocity,
-                                                   g.kp_nm_per_rad, g.kd_nms_per_rad, 0.0))
+        if self._fingers is not None:
+            self._fingers.stop()
 
     def _latest_gripper_state(self) -> GripperState:
-        g = self._gripper_config()
-        motion = self._gripper_motion
-        position, stamp = self._gripper_reading()  # stamped when it arrived, not when it is read
-        return GripperState(g.width_of(position), self._gripper_grasped, motion is not None and not motion.settled, stamp)
+        return self._require_fingers().state()
 
     def _check_gripper_width_speed(self, width_m: float, speed_mps: float) -> GripperConfig:
-        g = self._gripper_config()
+        g = self._require_fingers().config
         check_gripper_width_speed(width_m, speed_mps, g.max_width_m)
         return g
 
@@ -528,61 +405,20 @@ class CanBackend(ServoBackend):
                                        grasp=(width_m - epsilon_inner_m, width_m + epsilon_outer_m))
 
     async def _gripper_home(self) -> GripperResult:
-        g = self._gripper_config()
+        g = self._require_fingers().config
         return await self._gripper_run(g.open_position_rad, GRIPPER_HOMING_SPEED_MPS, g.torque_limit_nm, grasp=None)
 
     async def _gripper_run(self, target_rad: float, speed_mps: float, torque_cap_nm: float,
                            grasp: tuple[float, float] | None) -> GripperResult:
-        """Stream a ramp to `target_rad` (torque capped) until the fingers are there or blocked; a
-        grasp (`grasp` = the accepted width band [m]) keeps squeezing if it holds something."""
-        g = self._gripper_config()
+        """An action of the fingers (`CanFingers.run`), refused while faulted or damped."""
+        fingers = self._require_fingers()
         servo = self._require_servo()
         servo.require_running()
         self._raise_if_faulted()
         if self._damping:
             raise BackendError("can backend: the actuators are damped (e-stop or fault); the gripper does not move")
-        start = self._gripper_position()
-        motion = ImpedanceFingerMotion(Ramp(start, target_rad, speed_mps / abs(g.width_per_rad_m), time.monotonic()),
-                                       torque_cap_nm, grasp is not None)
-        with self._gripper_lock:  # started atomically with the check: a stop that came first wins
-            if self._gripper_stop_landed():
-                return GripperResult(False, g.width_of(start), False, "stopped")
-            if self._gripper_motion is not None and not self._gripper_motion.settled:
-                raise BackendError("the gripper is already moving; one gripper action at a time")
-            self._gripper_motion, self._gripper_grasped = motion, False
-        rest = max(self.rest_speed_rad_s, 0.02)
-        still_since: float | None = None
-        while True:
-            await asyncio.sleep(POLL_S)
-            self._raise_if_faulted()
-            position = self._gripper_position()
-            width = g.width_of(position)
-            if self._gripper_stop_landed() or self._gripper_motion is not motion:
-                return GripperResult(False, width, False, "stopped")
-            with self._state_lock:
-                assert self._gripper is not None
-                speed = abs(self._gripper.raw_velocity)
-            now = time.monotonic()
-            still_since = (still_since or now) if speed <= rest else None
-            arrived = motion.ramp.done(now) and abs(position - target_rad) <= g.position_tolerance_rad and speed <= rest
-            blocked = still_since is not None and now - still_since >= BLOCKED_S and not arrived
-            if arrived or blocked:
-                break
-        if grasp is not None and grasp[0] <= width <= grasp[1]:
-            with self._gripper_lock:
-                if self._gripper_motion is motion:
-                    motion.settled = True  # keep squeezing at the capped torque
-                    self._gripper_grasped = True
-            return GripperResult(True, width, True, "")
-        with self._gripper_lock:
-            if self._gripper_motion is motion:
-                self._gripper_motion = None
-                self._gripper_hold_rad = target_rad if arrived else position
-        if grasp is not None:
-            return GripperResult(False, width, False, f"final width {width:.4f} m outside [{grasp[0]:.4f}, {grasp[1]:.4f}] m")
-        if blocked:
-            return GripperResult(False, width, False, f"blocked at {width:.4f} m")
-        return GripperResult(True, width, False, "")
+        return await fingers.run(target_rad, speed_mps, torque_cap_nm, grasp, rest_speed_rad_s=self.rest_speed_rad_s,
+                                 check=self._raise_if_faulted, stop_landed=self._gripper_stop_landed)
 
     # ================================================================ servo hooks
     def servo_prepare(self, setpoint: Setpoint) -> None:
@@ -639,32 +475,8 @@ class CanBackend(ServoBackend):
         self._report_fault(f"can backend fault: {self.fault}")
 
     def _conditions(self, now: float) -> list[str]:
-        """Every fault condition present now, naming the joint (or the bus)."""
-        problems: list[str] = []
-        limit = self.config.temperature_limit_c
-        with self._state_lock:
-            for a in self._everyone:
-                if a.unanswered_since is not None and now - a.unanswered_since > self.config.rx_timeout_s:
-                    problems.append(f"{a.label}: no reply for {1000 * (now - a.unanswered_since):.0f} ms (RX timeout)")
-                if a.fault_bits:
-                    problems.append(f"{a.label}: fault {', '.join(a.fault_bits)}")
-                if a.fault_frames:
-                    problems.append(f"{a.label}: fault frame {', '.join(a.fault_frames)}")
-                if a.temperature_c is not None and a.temperature_c > limit:
-                    problems.append(f"{a.label}: over-temperature {a.temperature_c:.1f} °C (limit {limit:g} °C)")
-                if a.invalid_frames:
-                    problems.append(f"{a.label}: {a.invalid_frames} invalid frame(s)")
-                if self._enabled and a.mode is not None and a.mode is not rs.MotorMode.RUN:
-                    problems.append(f"{a.label}: left run mode ({a.mode.name})")
-            attributed = any(a.invalid_frames for a in self._everyone)
-        if self.bus is not None:
-            flags = self.bus.flags
-            if attributed:
-                flags &= ~HealthFlag.INVALID_FRAME
-            if flags != NO_FLAGS:
-                names = ", ".join(f.name or "?" for f in HealthFlag if f in flags)
-                problems.append(f"all joints: CAN bus {names}")
-        return problems
+        """Every fault condition present now, naming the joint (or the bus): `fault_conditions`."""
+        return fault_conditions(self._everyone, self._state_lock, self.bus, self.config, enabled=self._enabled, now=now)
 
     def _outside_limits(self, positions: np.ndarray, what: str) -> list[str]:
         if bool(np.all((positions >= self._lower) & (positions <= self._upper))):
@@ -695,7 +507,7 @@ class CanBackend(ServoBackend):
                 raw = a.raw_position if a.raw_position is not None else 0.0
                 raw = min(max(raw, a.ranges.position.lo), a.ranges.position.hi)  # kp = 0: the position has no effect
                 try:
-                    frames.append(self._command_frame(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0)))
+                    frames.append(command_frame(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0)))
                 except BackendError as exc:
                     refused.append(exc)
             self._send_batch(frames, FrameKind.COMMAND)
@@ -714,29 +526,12 @@ class CanBackend(ServoBackend):
         sent; `BackendError` if one cannot be."""
         raw = (self._direction * positions + self._offset).tolist()
         raw_velocity = (self._direction * velocities).tolist()
-        frames = [self._command_frame(a, MotorCommand(raw[a.index], raw_velocity[a.index], a.joint.kp_nm_per_rad,
+        frames = [command_frame(a, MotorCommand(raw[a.index], raw_velocity[a.index], a.joint.kp_nm_per_rad,
                                                       a.joint.kd_nms_per_rad, 0.0))
                   for a in self._actuators]
-        gripper = self._gripper_frame()
-        if gripper is not None:
-            frames.append(gripper)
+        if self._fingers is not None:
+            frames.append(self._fingers.frame())
         return frames
-
-    def _command_frame(self, a: Actuator, command: MotorCommand) -> OutFrame:
-        """`command` for `a` as a frame; `BackendError` (nothing sent) if the model cannot carry it."""
-        try:
-            if a.joint.protocol is Protocol.ROBSTRIDE:
-                frame = rs.control_frame(a.joint.can_id, command, a.ranges)
-                return OutFrame(a, frame.arbitration_id, frame.data, True)
-            return OutFrame(a, a.joint.can_id, mit.pack_command(command, a.ranges), False)
-        except ValueError as exc:  # a value the model cannot carry: never sent
-            raise BackendError(f"can backend: {a.label}: command refused: {exc}") from exc
-
-    def _send_rs(self, frame: rs.Frame, kind: FrameKind, a: Actuator) -> None:
-        self._send_batch([OutFrame(a, frame.arbitration_id, frame.data, True)], kind)
-
-    def _send_mit(self, a: Actuator, data: bytes, kind: FrameKind) -> None:
-        self._send_batch([OutFrame(a, a.joint.can_id, data, False)], kind)
 
     def _send_batch(self, frames: list[OutFrame], kind: FrameKind) -> None:
         """Send `frames` in order; each actuator now owes an answer (its RX timeout runs from the
@@ -751,11 +546,6 @@ class CanBackend(ServoBackend):
                     frame.actuator.unanswered_since = now
         # a refused send latches TX overrun
         bus.send_frames([(f.arbitration_id, f.data, f.extended) for f in frames], kind)
-
-
-def _confirms(read_back: float | None, written: float) -> bool:
-    """A float32 parameter read back as written (to float32 precision)."""
-    return read_back is not None and abs(read_back - written) <= 1e-5 * max(1.0, abs(written))
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config, *,
