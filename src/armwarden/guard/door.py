@@ -56,7 +56,7 @@ from armwarden.guard.actions import ControlActions, ControlTool
 from armwarden.guard.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
 from armwarden.guard.gates import GuardState
 from armwarden.guard.gripper import GripperFlow, GripperTool
-from armwarden.guard.planning import PlanningFlow, Previewer
+from armwarden.guard.planning import PlanningFlow, Previewer, stored_summary
 from armwarden.guard.readings import Readings
 from armwarden.guard.stopping import Stopper
 from armwarden.policy import Policy
@@ -203,10 +203,7 @@ class Guard:
         plan = self.plans.peek(plan_id, self.latch.generation, current_caller())
         if isinstance(plan, PlanRefusal):
             raise refuse(plan.code, plan.message)
-        return conversions.plan_summary(
-            list(plan.meta["violations"]), list(plan.meta["notes"]), self.backend.capabilities.wrench, report=plan.report,
-            plan_id=plan.plan_id, status=plan.status, requires_approval=plan.meta["requires_approval"],
-            duration_s=plan.trajectory.duration_s, expires_at=plan.expires_at_wall)
+        return stored_summary(plan, self.backend.capabilities.wrench)
 
     # ================================================================== execution
     async def precheck_execute(self, plan_id: object, can_elicit: bool) -> ServerDecision | Prompt:

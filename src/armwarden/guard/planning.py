@@ -24,6 +24,7 @@ import numpy as np
 
 from armwarden import __version__, conversions
 from armwarden.approval.decision import approval_required
+from armwarden.approval.plans import StoredPlan
 from armwarden.callcontext import current_call, current_caller
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.core.trajectory import JointTrajectory
@@ -44,6 +45,15 @@ REPLAY_FORMAT = 1
 Previewer = Callable[[RuntimeModel, JointTrajectory, EnvelopeReport], "bytes | None"]
 
 T = TypeVar("T")
+
+
+def stored_summary(plan: StoredPlan, force_monitoring: bool) -> PlanSummary:
+    """The summary of a stored plan: what its plan_* call answered, and what get_plan reads back
+    (from the facts the planning flow keeps with the plan)."""
+    return conversions.plan_summary(
+        list(plan.meta["violations"]), list(plan.meta["notes"]), force_monitoring, report=plan.report,
+        plan_id=plan.plan_id, status=plan.status, requires_approval=plan.meta["requires_approval"],
+        duration_s=plan.trajectory.duration_s, expires_at=plan.expires_at_wall)
 
 
 def plan_and_check(
@@ -257,6 +267,4 @@ class PlanningFlow:
                                 owner=current_caller(),
                                 meta={"kind": kind, "notes": tuple(notes), "velocity_scaling": outcome.velocity_scaling,
                                       "violations": tuple(violations), "requires_approval": needs})
-        return conversions.plan_summary(
-            violations, notes, monitoring, report=report, plan_id=stored.plan_id, status=status, requires_approval=needs,
-            duration_s=outcome.trajectory.duration_s, expires_at=stored.expires_at_wall), preview
+        return stored_summary(stored, monitoring), preview
