@@ -66,11 +66,13 @@ def resolve_collision_geometry(collision_geometry: str, description: str) -> Fit
         path = profile.file(profile.collision_geometry)
     else:
         profile = _builtin_profile(collision_geometry, "collision geometry")
-        if profile is not None and profile.collision_geometry is None:
+        if profile is None:
+            path = _readable_file(collision_geometry, "collision geometry")
+        elif profile.collision_geometry is None:
             raise RobotModelError(f"the built-in robot {profile.name!r} ships no fitted collision geometry; "
                                   f"use {COLLISION_AUTO} or {COLLISION_URDF}")
-        path = (profile.file(profile.collision_geometry) if profile is not None and profile.collision_geometry
-                else _readable_file(collision_geometry, "collision geometry"))
+        else:
+            path = profile.file(profile.collision_geometry)
     try:
         return load_fitted(path)
     except FittingError as exc:

@@ -150,8 +150,11 @@ def load_profile(name: str) -> RobotProfile:
 
 def bundled_policies() -> dict[str, Path]:
     """Every bundled policy by name, across the shipped robots."""
-    return {policy: load_profile(robot).file(file) for robot in builtin_robots()
-            for policy, file in load_profile(robot).policies.items()}
+    found: dict[str, Path] = {}
+    for robot in builtin_robots():
+        profile = load_profile(robot)
+        found |= {policy: profile.file(file) for policy, file in profile.policies.items()}
+    return found
 
 
 def builtin_profile(description: str) -> RobotProfile | None:

@@ -78,7 +78,8 @@ class ArmWardenServer:
         builder = ToolBuilder(guard)
         self.mcp = MCPServer(name, instructions=INSTRUCTIONS, version=__version__, tools=builder.build())
         self.tools = builder.registered
-        self._read_only = frozenset(builder.read_only)
+        #: registered tools that change nothing in the world (`read_only_hint`): their records are group-committed
+        self._read_only = frozenset(self.tools) & names(lambda spec: spec.hints.read_only)
         self._sessions = SessionNames()
         self._declared: dict[str, frozenset[str]] | None = None  # tool -> argument names, built on first call
         # Outside the SDK's request-state boundary: a forged, replayed or expired 2026-07-28 request

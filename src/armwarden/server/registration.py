@@ -21,7 +21,7 @@ from armwarden.core.errors import ConfigurationError, RefusalCode, SafetyRefusal
 from armwarden.guard import Guard
 from armwarden.policy import Policy
 from armwarden.server.calls import mark_body_ran, refused
-from armwarden.server.faces import GROUP_FACES, Face, FaceContext
+from armwarden.server.faces import GROUP_FACES, Face, FaceContext, Faces
 from armwarden.tools import TOOLS, Hints, ToolSpec
 
 logger = logging.getLogger(__name__)
@@ -47,8 +47,6 @@ class ToolBuilder:
         self.capabilities = guard.capabilities
         #: the names of the tools built, in order
         self.registered: list[str] = []
-        #: tools that change nothing in the world (`read_only_hint`): their audit records are group-committed
-        self.read_only: set[str] = set()
 
     def available(self, spec: ToolSpec) -> bool:
         """Does the tool exist on this server (its group enabled, its capability and policy section present)?"""
@@ -61,15 +59,13 @@ class ToolBuilder:
         """The SDK tools for every available record, each joined with its face."""
         context = FaceContext(self.guard, self.policy, self.capabilities, self.registered, self.answer)
         built: list[Tool] = []
-        faces: dict[str, Face] = {}
-        groups_built: set[str] = set()
+        faces: dict[str, Faces] = {}  # each group's, built once it has an available tool
         for spec in TOOLS:
             if not self.available(spec):
                 continue
-            if spec.group not in groups_built:
-                faces.update(GROUP_FACES[spec.group](context))
-                groups_built.add(spec.group)
-            face = faces.get(spec.name)
+            if spec.group not in faces:
+                faces[spec.group] = GROUP_FACES[spec.group](context)
+            face = faces[spec.group].get(spec.name)
             if face is None:
                 raise ConfigurationError(f"the tool {spec.name} has a record but no face in its group ({spec.group})")
             built.append(self._tool(spec, face))
@@ -89,8 +85,6 @@ class ToolBuilder:
         schema.clear()
         schema.update(inlined)
         self.registered.append(spec.name)
-        if spec.hints.read_only:
-            self.read_only.add(spec.name)
         return tool
 
     def _admitting(self, tool: str, function: Callable[..., Awaitable[CallToolResult]]) -> Callable[..., Awaitable[CallToolResult]]:
