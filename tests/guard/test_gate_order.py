@@ -4,10 +4,8 @@ call is answered as a tool's is (`ToolBuilder.answer`: the rate limit, then the 
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -22,12 +20,12 @@ from armwarden.guard.gripper import GripperFlow
 from armwarden.server.calls import ok
 from armwarden.server.registration import ToolBuilder
 from armwarden.tools import names
+from tests.guard.states import with_broken_log
 from tests.helpers import text_of
 from tests.server.harness import arm_harness, policy_with
 
 pytestmark = pytest.mark.anyio
 
-BROKEN_LOG = SimpleNamespace(unusable="audit log 'audit.jsonl' is unusable after a failed write: disk full")
 
 
 def refusal_code(result: CallToolResult) -> RefusalCode | None:
@@ -68,7 +66,7 @@ async def test_a_gripper_move_is_refused_by_its_first_broken_gate(tmp_path: Path
         if order.RATE_LIMIT in broken:
             state.admit("gripper_move")  # its one token this minute
         if order.AUDIT_WRITABLE in broken:
-            state = dataclasses.replace(state, audit=BROKEN_LOG)  # type: ignore[arg-type] - only `unusable` is read
+            state = with_broken_log(state)
         if order.NOT_ESTOPPED in broken:
             arm.guard.latch.latch("test", "estop")
         flow = GripperFlow(state)
@@ -95,7 +93,7 @@ async def test_a_control_action_is_refused_by_its_first_broken_gate(tmp_path: Pa
         if order.RATE_LIMIT in broken:
             state.admit("set_collision_thresholds")
         if order.AUDIT_WRITABLE in broken:
-            state = dataclasses.replace(state, audit=BROKEN_LOG)  # type: ignore[arg-type] - only `unusable` is read
+            state = with_broken_log(state)
         if order.NOT_ESTOPPED in broken:
             arm.guard.latch.latch("test", "estop")
         actions = ControlActions(state)

@@ -4,30 +4,20 @@ first gate in its order says no, with nothing moved."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.actions import ControlActions
-from armwarden.guard.gates import GuardState
 from armwarden.guard.gripper import GripperFlow
 from armwarden.guard.planning import PlanningFlow
 from armwarden.policy import RATE_LIMIT_EXEMPT_TOOLS
+from tests.guard.states import with_broken_log
 from tests.server.harness import arm_harness, policy_with
 
 pytestmark = pytest.mark.anyio
-
-#: an audit log whose last write failed: nothing may actuate (it could not be recorded)
-BROKEN_LOG = SimpleNamespace(unusable="audit log 'audit.jsonl' is unusable after a failed write: disk full")
-
-
-def with_broken_log(state: GuardState) -> GuardState:
-    return dataclasses.replace(state, audit=BROKEN_LOG)  # type: ignore[arg-type] - only `unusable` is read
-
 
 async def test_a_gripper_action_is_refused_for_the_log_before_the_latch_is_looked_at(tmp_path: Path) -> None:
     async with arm_harness(tmp_path) as arm:
