@@ -9,23 +9,20 @@ from __future__ import annotations
 
 from mcp.server.auth.middleware.auth_context import get_access_token
 
-from armwarden.tools import names, spec_of
+from armwarden.tools import spec_of
 from armwarden.transport.token_storage import ROLES
 from armwarden.transport.tokens import Principal
 
-__all__ = ["OBSERVER_TOOLS", "current_principal", "role_allows"]
-
-#: what an observer token may call: the introspect and perception groups, and whatever an observer
-#: needs to stay safe — stopping the robot and reading the safety status (`ToolSpec.observer_may_call`)
-OBSERVER_TOOLS = names(lambda spec: spec.observer_may_call)
+__all__ = ["current_principal", "role_allows"]
 
 
 def role_allows(role: str, tool: str) -> bool:
     """May `role` call `tool`?
 
     operator and agent: every tool (the policy decides which exist; an agent's token only cannot
-    sign in to the operator console). observer: `OBSERVER_TOOLS`. Unknown roles and, for
-    observers, unknown tools are refused.
+    sign in to the operator console). observer: the tools whose record says so
+    (`ToolSpec.observer_may_call`: the introspect and perception groups, and stopping the robot and
+    reading the safety status). Unknown roles and, for observers, unknown tools are refused.
     """
     if role in ("operator", "agent"):
         return True
