@@ -22,7 +22,8 @@ from pydantic import ValidationError
 from armwarden.backends.base import Backend
 from armwarden.backends.mujoco.backend import HOLD_ACCURACY_RAD, MujocoBackend, create_backend
 from armwarden.backends.mujoco.config import Config, ObjectConfig
-from armwarden.backends.mujoco.model import build_model, scene_for_policy
+from armwarden.backends.mujoco.model import build_model
+from armwarden.backends.mujoco.scene import scene_for_policy
 from armwarden.core.errors import BackendError
 from armwarden.policy import load_policy
 from armwarden.policy.loading import bundled_policy

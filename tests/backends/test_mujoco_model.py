@@ -16,19 +16,17 @@ import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platfo
 
 mujoco = pytest.importorskip("mujoco")
 
-from armwarden.backends.mujoco.model import (  # noqa: E402 - after the importorskip above
+from armwarden.backends.mujoco.gripper_model import capsule_contains  # noqa: E402 - after the importorskip above
+from armwarden.backends.mujoco.model import MujocoModel, build_model  # noqa: E402
+from armwarden.backends.mujoco.names import (  # noqa: E402
     ENVELOPE_PREFIX,
     FLANGE_SITE,
     FORCE_SENSOR,
     GRIPPER_ACTUATOR,
     TABLE_GEOM,
     TORQUE_SENSOR,
-    MujocoModel,
-    SceneObject,
-    build_model,
-    capsule_contains,
-    scene_for_policy,
 )
+from armwarden.backends.mujoco.scene import SceneObject, scene_for_policy  # noqa: E402
 from armwarden.policy import load_policy  # noqa: E402
 from armwarden.policy.loading import bundled_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402

@@ -10,8 +10,8 @@ import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platfo
 mujoco = pytest.importorskip("mujoco")
 
 from armwarden.backends.mujoco.backend import create_backend  # noqa: E402 - after the importorskip above
+from armwarden.backends.mujoco.camera_mounts import CameraSpec, profile_cameras  # noqa: E402
 from armwarden.backends.mujoco.config import CameraConfig, Config  # noqa: E402
-from armwarden.backends.mujoco.model import CameraSpec, profile_cameras  # noqa: E402
 from armwarden.core.errors import RobotModelError  # noqa: E402
 from armwarden.policy import Policy, bundled_policy, load_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402

@@ -9,7 +9,8 @@ import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platfo
 
 mujoco = pytest.importorskip("mujoco")
 
-from armwarden.backends.mujoco.model import build_model, scene_for_policy  # noqa: E402 - after the importorskip
+from armwarden.backends.mujoco.model import build_model  # noqa: E402 - after the importorskip
+from armwarden.backends.mujoco.scene import scene_for_policy  # noqa: E402
 from armwarden.policy import load_policy  # noqa: E402
 from armwarden.policy.loading import bundled_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402

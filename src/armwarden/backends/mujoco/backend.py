@@ -49,13 +49,10 @@ import numpy as np
 from armwarden.backends.base import Capabilities
 from armwarden.backends.mujoco.cameras import OffscreenCameras
 from armwarden.backends.mujoco.config import Config
-from armwarden.backends.mujoco.fingers import SimulatedFingers
+from armwarden.backends.mujoco.gripper import SimulatedFingers
 from armwarden.backends.mujoco.measurement import CellMeter
-from armwarden.backends.mujoco.model import (
-    MujocoModel,
-    build_model,
-    scene_for_policy,
-)
+from armwarden.backends.mujoco.model import MujocoModel, build_model
+from armwarden.backends.mujoco.scene import scene_for_policy
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
 from armwarden.backends.values import CameraImage, ExecutionResult, GripperResult, ProgressCallback
@@ -255,7 +252,7 @@ class MujocoBackend(ServoBackend):
         """Any thread (`Backend._stop_fingers`): see `SimulatedFingers.freeze`."""
         self.fingers.freeze()
 
-    # ================================================================ gripper (fingers.py)
+    # ================================================================ gripper (gripper.py)
     def _latest_gripper_state(self) -> GripperState:
         return self.fingers.state()
 

@@ -9,7 +9,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.mujoco.camera_mounts import CameraSpec
-from armwarden.backends.mujoco.model import SceneObject
+from armwarden.backends.mujoco.scene import SceneObject
 
 Vector3 = tuple[float, float, float]
 
