@@ -1,5 +1,6 @@
 """The MuJoCo cell's cameras are the robot profile's mounts; a user's URDF, which has no profile,
-must list its cameras in the backend config (refused otherwise, never the FR3's wrist body)."""
+must list its cameras in the backend config (refused otherwise, never the FR3's wrist body). The
+arm's drives (armature) are the profile's `actuators`; without them, the generic rule, logged."""
 
 from __future__ import annotations
 
@@ -12,9 +13,13 @@ mujoco = pytest.importorskip("mujoco")
 from armwarden.backends.mujoco.backend import create_backend  # noqa: E402 - after the importorskip above
 from armwarden.backends.mujoco.camera_mounts import CameraSpec, profile_cameras  # noqa: E402
 from armwarden.backends.mujoco.config import CameraConfig, Config  # noqa: E402
+from armwarden.backends.mujoco.gains import ArmGains, armature_from_profile, generic_armature  # noqa: E402
+from armwarden.backends.mujoco.model import build_model  # noqa: E402
+from armwarden.backends.mujoco.scene import scene_for_policy  # noqa: E402
 from armwarden.core.errors import RobotModelError  # noqa: E402
 from armwarden.policy import Policy, bundled_policy, load_policy  # noqa: E402
 from armwarden.robot import build_robot  # noqa: E402
+from armwarden.robot.model import resolve_description  # noqa: E402
 from armwarden.robots import load_profile  # noqa: E402
 
 FR3 = load_profile("fr3")
@@ -46,3 +51,42 @@ def test_a_user_urdf_gets_the_cameras_its_config_lists():
     top = CameraConfig(name="top", position_m=(0.3, 0.0, 2.0), target_m=(0.3, 0.0, 0.0), up=(1.0, 0.0, 0.0))
     backend = create_backend(build_robot(policy), policy, Config(cameras=(top,)))
     assert backend.capabilities.cameras == ("top",)
+
+
+def test_the_compiled_fr3_armature_is_the_profiles():
+    policy = load_policy(bundled_policy("fr3"))
+    backend = create_backend(build_robot(policy), policy, Config(cameras=()))
+    assert FR3.actuators is not None
+    armature = backend.cell.model.dof_armature[backend.cell.arm_dofs]
+    assert armature.tolist() == [FR3.actuators[joint].armature_kg_m2 for joint in policy.robot.joint_names]
+
+
+def test_a_robot_without_actuators_in_a_profile_gets_the_generic_rule_and_says_so(caplog):
+    policy = _user_urdf_policy()
+    with caplog.at_level("WARNING", logger="armwarden.backends.mujoco"):
+        backend = create_backend(build_robot(policy), policy, Config(cameras=()))
+    model = backend.cell.model
+    efforts = [float(model.jnt_actfrcrange[model.joint(joint).id][1]) for joint in policy.robot.joint_names]
+    armature = model.dof_armature[backend.cell.arm_dofs]
+    assert armature.tolist() == list(generic_armature(efforts))
+    messages = [record.getMessage() for record in caplog.records if "generic armature rule" in record.getMessage()]
+    assert len(messages) == 1, messages
+
+
+def test_profile_actuators_for_other_joints_than_the_policys_are_refused():
+    joints = ("fr3_joint1", "fr3_joint2", "fr3_joint3", "fr3_joint4", "fr3_joint5", "fr3_joint6", "extra_joint")
+    with pytest.raises(RobotModelError, match=r"no actuator for the arm joints extra_joint in the robot profile"):
+        armature_from_profile(FR3, joints)
+
+
+def test_a_robot_without_a_profile_has_no_profile_armature():
+    assert armature_from_profile(None, ("fr3_joint1",)) is None
+
+
+def test_an_armature_besides_whole_gains_is_refused():
+    policy = load_policy(bundled_policy("fr3"))
+    robot = build_robot(policy)
+    gains = ArmGains(kp=(100.0,) * 7, kv=(10.0,) * 7, armature=(0.1,) * 7)
+    with pytest.raises(RobotModelError, match=r"give the arm's armature or its whole gains, not both"):
+        build_model(resolve_description(policy.robot.description), robot, scene_for_policy(policy, cameras=()),
+                    armature=(0.2,) * 7, gains=gains)

@@ -96,6 +96,14 @@ class CameraMount(BaseModel):
     fovy_deg: float = Field(default=45.0, gt=0, lt=180, description="vertical field of view [deg]")
 
 
+class ActuatorEntry(BaseModel):
+    """One arm joint's drive as the MuJoCo backend simulates it."""
+
+    model_config = _STRICT
+    armature_kg_m2: float = Field(gt=0, description="the drive's rotor inertia reflected through its gearbox "
+                                                    "[kg·m²], added to the joint's inertia")
+
+
 class RobotProfile(BaseModel):
     """One robot's `profile.yaml`."""
 
@@ -116,6 +124,25 @@ class RobotProfile(BaseModel):
     controllers: ControllersProfile | None = Field(default=None, description="null: the backends' generic set")
     ros: RosProfile | None = Field(default=None, description="null: the ROS 2 names must be configured")
     cameras: tuple[CameraMount, ...] | None = Field(default=None, description="simulated cameras; null: none")
+    actuators: dict[ItemName, ActuatorEntry] | None = Field(
+        default=None, min_length=1, description="each arm joint's drive, as the MuJoCo backend simulates it; null: "
+                                                "its generic rule by drive size")
+
+    @model_validator(mode="after")
+    def _actuators_are_the_arms(self) -> RobotProfile:
+        """Every arm joint has its actuator and nothing else does (the arm: `ready_joint_positions`;
+        without it the MuJoCo backend checks them against the policy's joints)."""
+        if self.actuators is None or self.ready_joint_positions is None:
+            return self
+        arm = list(self.ready_joint_positions)
+        strangers = [joint for joint in self.actuators if joint not in arm]
+        if strangers:
+            raise ValueError(f"actuators name joints that are not the arm's: {', '.join(strangers)} "
+                             f"(the arm: {', '.join(arm)})")
+        missing = [joint for joint in arm if joint not in self.actuators]
+        if missing:
+            raise ValueError(f"actuators lack arm joints: {', '.join(missing)}")
+        return self
 
     def file(self, name: str) -> Path:
         """The path of a file of this profile's folder."""
@@ -162,6 +189,6 @@ def builtin_profile(description: str) -> RobotProfile | None:
     return load_profile(description[len(BUILTIN_PREFIX):]) if description.startswith(BUILTIN_PREFIX) else None
 
 
-__all__ = ["BUILTIN_PREFIX", "CameraMount", "ControllerEntry", "ControllersProfile", "RobotProfile", "RosProfile",
+__all__ = ["BUILTIN_PREFIX", "ActuatorEntry", "CameraMount", "ControllerEntry", "ControllersProfile", "RobotProfile", "RosProfile",
            "builtin_profile", "builtin_robots", "bundled_policies",
            "load_profile"]

@@ -49,6 +49,7 @@ import numpy as np
 from armwarden.backends.base import Capabilities
 from armwarden.backends.mujoco.cameras import OffscreenCameras
 from armwarden.backends.mujoco.config import Config
+from armwarden.backends.mujoco.gains import armature_from_profile
 from armwarden.backends.mujoco.gripper import SimulatedFingers
 from armwarden.backends.mujoco.measurement import CellMeter
 from armwarden.backends.mujoco.model import MujocoModel, build_model
@@ -61,6 +62,7 @@ from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel, resolve_description
+from armwarden.robots import builtin_profile
 
 if TYPE_CHECKING:
     from armwarden.policy import Policy
@@ -381,7 +383,9 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoB
         overrides["cameras"] = tuple(c.spec() for c in config.cameras)
     overrides["objects"] = tuple(o.spec() for o in config.objects)
     scene = scene_for_policy(policy, **overrides)
-    cell = build_model(resolve_description(policy.robot.description), robot, scene)
+    description = policy.robot.description
+    cell = build_model(resolve_description(description), robot, scene,
+                       armature=armature_from_profile(builtin_profile(description), robot.joint_names))
     return MujocoBackend(robot, cell, np.asarray(policy.robot.home_joint_positions, dtype=float),
                          speedup=config.speedup, start_tolerance_rad=policy.motion.start_tolerance_rad,
                          camera_size_px=(config.camera_width_px, config.camera_height_px))

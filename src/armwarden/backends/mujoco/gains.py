@@ -1,6 +1,7 @@
-"""The arm actuators' gains in the MuJoCo model: each joint's rotor inertia (armature) and the
-stiffness and damping of its position servo, sized from the arm's own joint-space inertia so that
-each joint, alone with its inertia, has the same closed-loop bandwidth and damping ratio.
+"""The arm actuators' gains in the MuJoCo model: each joint's rotor inertia (armature), from the
+robot profile's `actuators` (or a generic rule by drive size), and the stiffness and damping of its
+position servo, sized from the arm's own joint-space inertia so that each joint, alone with its
+inertia, has the same closed-loop bandwidth and damping ratio.
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -13,6 +14,9 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+
+from armwarden.core.errors import RobotModelError
+from armwarden.robots import RobotProfile
 
 
 @dataclass(frozen=True)
@@ -35,10 +39,24 @@ class ArmGains:
         return cls(tuple(map(float, kp)), tuple(map(float, kv)), tuple(map(float, armature)))
 
 
-def default_armature(efforts_nm: Sequence[float]) -> tuple[float, ...]:
-    """Reflected rotor inertia [kg·m²] by drive size: the FR3's large drives (effort ≥ 50 N·m)
-    0.1, its small ones 0.05. It also keeps the light distal joints stiff enough to simulate."""
+def generic_armature(efforts_nm: Sequence[float]) -> tuple[float, ...]:
+    """Reflected rotor inertia [kg·m²] by drive size, for a robot whose profile gives none: 0.1
+    for a drive of at least 50 N·m, else 0.05 (the FR3's drives, as the nearest known arm). It
+    also keeps light distal joints stiff enough to simulate at 1 kHz."""
     return tuple(0.1 if effort >= 50.0 else 0.05 for effort in efforts_nm)
+
+
+def armature_from_profile(profile: RobotProfile | None, joint_names: Sequence[str]) -> tuple[float, ...] | None:
+    """Each arm joint's armature [kg·m²] from the robot profile's `actuators`, in `joint_names`'
+    order; None without a profile or without that section (the generic rule then applies).
+    Refuses a profile that leaves out one of the arm's joints: a guessed drive is not a simulated one."""
+    if profile is None or profile.actuators is None:
+        return None
+    missing = [joint for joint in joint_names if joint not in profile.actuators]
+    if missing:
+        raise RobotModelError(f"no actuator for the arm joints {', '.join(missing)} in the robot profile "
+                              f"{profile.name!r} (it lists {', '.join(profile.actuators)})")
+    return tuple(profile.actuators[joint].armature_kg_m2 for joint in joint_names)
 
 
 def joint_inertia(model: mujoco.MjModel, arm_qpos: np.ndarray, arm_dofs: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -56,4 +74,4 @@ def joint_inertia(model: mujoco.MjModel, arm_qpos: np.ndarray, arm_dofs: np.ndar
     return diagonal
 
 
-__all__ = ["ArmGains", "default_armature", "joint_inertia"]
+__all__ = ["ArmGains", "armature_from_profile", "generic_armature", "joint_inertia"]

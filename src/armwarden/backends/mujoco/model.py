@@ -24,8 +24,9 @@ Nothing here reaches the network; meshes are not needed because the collision an
 are all primitives.
 
 Arm control: one position actuator per arm joint (force = kp·(ctrl − q) − kv·q̇), with joint torque
-limits from the URDF `effort`, gravity compensation counted against those limits, and gains sized
-from the arm's own joint-space inertia (`ArmGains.for_bandwidth`). `MujocoModel.arm_ctrl` turns a
+limits from the URDF `effort`, gravity compensation counted against those limits, each joint's
+rotor inertia (armature) from the robot profile's `actuators` (gains.py), and gains sized from the
+arm's own joint-space inertia (`ArmGains.for_bandwidth`). `MujocoModel.arm_ctrl` turns a
 sampled trajectory point (q, q̇) into the control that makes that actuator a PD law with velocity
 feed-forward, so tracking does not lag by kv·q̇/kp.
 """
@@ -35,6 +36,7 @@ feed-forward, so tracking does not lag by kv·q̇/kp.
 # pyright: reportAttributeAccessIssue=false
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +45,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
-from armwarden.backends.mujoco.gains import ArmGains, default_armature, joint_inertia
+from armwarden.backends.mujoco.gains import ArmGains, generic_armature, joint_inertia
 from armwarden.backends.mujoco.gripper_model import add_gripper, finger_joints
 from armwarden.backends.mujoco.names import (
     ENVELOPE_PREFIX,
@@ -57,6 +59,8 @@ from armwarden.backends.mujoco.scene import SceneSpec, add_cell
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import capsule_from_geometry
 from armwarden.robot.model import RobotModel
+
+logger = logging.getLogger(__name__)
 
 #: standard gravity [m/s²], also used to compensate the hand's weight in the wrench estimate
 GRAVITY_MPS2 = 9.81
@@ -279,11 +283,12 @@ class _Builder:
 
 
 
-def build_model(urdf_path: Path, robot: RobotModel, scene: SceneSpec, *, gains: ArmGains | None = None,
-                reference_q: np.ndarray | None = None) -> MujocoModel:
+def build_model(urdf_path: Path, robot: RobotModel, scene: SceneSpec, *, armature: Sequence[float] | None = None,
+                gains: ArmGains | None = None, reference_q: np.ndarray | None = None) -> MujocoModel:
     """Compile the cell for `robot` (loaded from `urdf_path`). Without `gains`, they are sized for
     a 60 rad/s, critically damped joint servo at `reference_q` (default: mid-range), each joint
-    alone with its inertia there."""
+    alone with its inertia there and its `armature` [kg·m²] (the robot profile's,
+    `armature_from_profile`; None: `generic_armature` by drive size, logged)."""
     builder = _Builder(urdf_path, robot, scene)
     builder.replace_collision_geometry()
     builder.configure_arm()
@@ -296,7 +301,14 @@ def build_model(urdf_path: Path, robot: RobotModel, scene: SceneSpec, *, gains: 
     flange_body = builder.add_flange_sensor()
     add_cell(builder.spec, scene, builder.world_from_base)
     builder.set_options()
-    armature = default_armature(efforts) if gains is None else gains.armature
+    if gains is not None:
+        if armature is not None:
+            raise RobotModelError("give the arm's armature or its whole gains, not both")
+        armature = gains.armature
+    elif armature is None:
+        armature = generic_armature(efforts)
+        logger.warning("the robot profile gives no actuators: the MuJoCo arm uses the generic armature rule by "
+                       "drive size (%s kg·m² for joints %s)", ", ".join(map(str, armature)), ", ".join(robot.joint_names))
     if len(armature) != len(robot.joint_names):
         raise RobotModelError(f"gains for {len(armature)} joints; the arm has {len(robot.joint_names)}")
     if gains is None:
