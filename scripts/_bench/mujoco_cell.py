@@ -51,7 +51,7 @@ class StillWatch:
 
     def _run(self) -> None:
         while not self._done:
-            sample = self.backend._measured
+            sample = self.backend.arm.measured
             after = self.armed_after
             if (after is not None and self.found is None and sample.stamp >= after
                     and float(np.max(np.abs(sample.velocities))) < STILL_RAD_S):
@@ -67,8 +67,8 @@ def braking_floor_s(backend: Any) -> float:
     """Shortest time the arm's torque limits can bring the measured joint speeds to zero [s]."""
     import mujoco
 
-    model, cell = backend._model, backend.cell
-    sample = backend._measured
+    model, cell = backend.arm.model, backend.cell
+    sample = backend.arm.measured
     probe = mujoco.MjData(model)
     probe.qpos[:] = sample.scene_qpos
     mujoco.mj_forward(model, probe)
@@ -108,8 +108,8 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                     Client(cell.server.mcp) as load_client:
                 # ---- calls on both backends, interleaved in blocks
                 series: dict[str, list[float]] = {"state_fake": [], "state_mujoco": [], "plan_fake": [], "plan_mujoco": []}
-                sim_start, wall_start, steps_start = backend._measured.sim_s, time.perf_counter(), backend.step_count
-                dropped_start = backend.dropped_steps
+                sim_start, wall_start, steps_start = backend.arm.measured.sim_s, time.perf_counter(), backend.arm.step_count
+                dropped_start = backend.arm.dropped_steps
                 for block in range(max(1, repeats // BLOCK)):
                     for _ in range(BLOCK):
                         series["state_fake"].append(await timed_ms(on_fake, "get_robot_state", {}))
@@ -119,9 +119,9 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                         series["plan_mujoco"].append(await timed_ms(on_cell, "plan_to_pose", pose(block + i)))
                 wall = time.perf_counter() - wall_start
                 out["calls"] = {name: percentiles(values) for name, values in series.items()}
-                out["rtf_while_serving"] = (backend._measured.sim_s - sim_start) / wall
-                out["steps_per_s"] = (backend.step_count - steps_start) / wall
-                out["dropped_steps"] = backend.dropped_steps - dropped_start
+                out["rtf_while_serving"] = (backend.arm.measured.sim_s - sim_start) / wall
+                out["steps_per_s"] = (backend.arm.step_count - steps_start) / wall
+                out["dropped_steps"] = backend.arm.dropped_steps - dropped_start
 
                 # ---- renders
                 renders: list[float] = []
@@ -147,7 +147,7 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
 
                 async with anyio.create_task_group() as group:
                     group.start_soon(keep_busy)
-                    sim_start, wall_start, dropped_start = backend._measured.sim_s, time.perf_counter(), backend.dropped_steps
+                    sim_start, wall_start, dropped_start = backend.arm.measured.sim_s, time.perf_counter(), backend.arm.dropped_steps
                     for cycle in range(cycles):
                         state = (await on_cell.call_tool("get_robot_state", {})).structured_content
                         q = state["joint_positions"]
@@ -166,9 +166,9 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                             motion.start_soon(execute)
                             while cell.guard.motion_status().progress < 0.4:  # noqa: ASYNC110 - polled: moved by the physics thread
                                 await anyio.sleep(0.002)
-                            speed_at_stop = float(np.max(np.abs(backend._measured.velocities)))
+                            speed_at_stop = float(np.max(np.abs(backend.arm.measured.velocities)))
                             floor_s = braking_floor_s(backend)
-                            sent_mono, sent_sim = time.monotonic(), backend._measured.sim_s
+                            sent_mono, sent_sim = time.monotonic(), backend.arm.measured.sim_s
                             watch.arm(sent_mono)
                             await on_cell.call_tool("estop", {"reason": "bench"})
                             call_done = time.monotonic()
@@ -187,8 +187,8 @@ def bench_mujoco(cycles: int = 20, repeats: int = 200) -> dict[str, Any]:
                         reset = await on_cell.call_tool("reset_estop", {})
                         assert not reset.is_error, reset.content
                     wall = time.perf_counter() - wall_start
-                    out["rtf_during_estops"] = (backend._measured.sim_s - sim_start) / wall
-                    out["dropped_steps_during_estops"] = backend.dropped_steps - dropped_start
+                    out["rtf_during_estops"] = (backend.arm.measured.sim_s - sim_start) / wall
+                    out["dropped_steps_during_estops"] = backend.arm.dropped_steps - dropped_start
                     loading = False
                 out["estops"] = {key: percentiles([s[key] for s in stops]) for key in stops[0]} if stops else {}
                 out["estops_missed"] = missed

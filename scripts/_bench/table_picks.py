@@ -479,7 +479,8 @@ async def run_grid(backend: str, cells: Sequence[tuple[float, float]], tmp: Path
                     break
             if stats is not None:
                 stats["daemons"] = attempt
-                stats["dropped_steps"] = stats.get("dropped_steps", 0) + int(getattr(runner.backend, "dropped_steps", 0))
+                physics = getattr(runner.backend, "arm", None)  # the MuJoCo backend's SimulatedArm
+                stats["dropped_steps"] = stats.get("dropped_steps", 0) + int(getattr(physics, "dropped_steps", 0))
     return runs
 
 

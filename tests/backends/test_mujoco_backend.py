@@ -119,10 +119,10 @@ def test_a_stop_brakes_the_arm_where_it_was_measured_not_where_it_was_commanded(
         await asyncio.sleep(0.5)
         measured = (await backend.read_joint_state()).positions.copy()  # no await between this and the stop
         backend.stop_now()
-        braking = backend._target
+        braking = backend.arm.target
         result = await task
         await asyncio.sleep(0.3)
-        return measured, braking, result, await backend.read_joint_state(), backend._target
+        return measured, braking, result, await backend.read_joint_state(), backend.arm.target
 
     measured, braking, result, later, holding = run_with_backend(scenario)
     assert result.reason == "stopped"
@@ -214,7 +214,7 @@ def published_position(backend: MujocoBackend, body: str) -> np.ndarray:
     thread is stepping: a read there can catch a value half computed)."""
     model = backend.cell.model
     address = model.jnt_qposadr[model.body(body).jntadr[0]]  # a free joint: x, y, z, then a quaternion
-    return np.array(backend._measured.scene_qpos[address:address + 3])
+    return np.array(backend.arm.measured.scene_qpos[address:address + 3])
 
 
 def hand_down_at(position, seed: np.ndarray) -> np.ndarray:
@@ -244,7 +244,7 @@ def test_a_grasped_box_is_held_by_friction_and_comes_along_when_the_arm_lifts(st
         q_now = (await backend.read_joint_state()).positions
         lifted = await backend.execute(straight_line(backend.joint_names, q_now, q_up, 1.0), stop_epoch=backend.stop_epoch)
         await asyncio.sleep(0.2)
-        return grasp, lifted, published_position(backend, "box")[2] - z_before, backend._measured.gripper_force_n
+        return grasp, lifted, published_position(backend, "box")[2] - z_before, backend.arm.measured.gripper_force_n
 
     def build_at_grasp() -> MujocoBackend:
         scene = scene_for_policy(POLICY, objects=(box.spec(),))
@@ -305,8 +305,8 @@ def test_a_home_outside_the_joint_limits_is_refused():
 # ---------------------------------------------------------------------------- found by review
 def _blow_up(backend: MujocoBackend, force: float) -> None:
     """A force on the hand that makes the next physics step unstable."""
-    hand = backend._model.body(backend.cell.flange_body).id
-    backend._data.xfrc_applied[hand, 0] = force
+    hand = backend.arm.model.body(backend.cell.flange_body).id
+    backend.arm.data.xfrc_applied[hand, 0] = force
 
 
 def test_an_unstable_step_is_a_divergence_never_a_reset_published_as_fresh_state() -> None:

@@ -99,7 +99,7 @@ async def test_a_move_down_into_the_table_is_aborted_by_the_force_monitor_from_p
             arm.client(elicitation=approve()) as client:
         cell = mujoco_of(arm)
         await move_tcp_to(client, BELOW_TABLE_X_M, 0.15)
-        cell.peak_robot_penetration_m = 0.0
+        cell.arm.peak_robot_penetration_m = 0.0
         summary = await plan(client, "plan_cartesian_path",
                              {"waypoints": [{"position": {"x": BELOW_TABLE_X_M, "y": 0.0, "z": -0.03}}], "velocity_scaling": 0.1})
         assert summary["status"] == "ok", summary
@@ -110,7 +110,7 @@ async def test_a_move_down_into_the_table_is_aborted_by_the_force_monitor_from_p
         await assert_still(arm, client)  # the arm comes to rest where the stop held it
         state = (await client.call_tool("get_robot_state", {})).structured_content
         assert state["tcp_pose"]["position"]["z"] > -0.03 + 0.02  # far short of the planned depth
-        assert cell.peak_robot_penetration_m < 0.005  # into the table by less than 5 mm
+        assert cell.arm.peak_robot_penetration_m < 0.005  # into the table by less than 5 mm
         forces = [r for r in calls(arm, "execute_plan") if (r["extra"] or {}).get("code") == "FORCE_LIMIT"]
         assert len(forces) == 1
 
