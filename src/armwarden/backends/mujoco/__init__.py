@@ -1,9 +1,10 @@
 """The MuJoCo backend: real physics behind the backend contract (`--backend mujoco`).
 
 `model` builds the cell from the same robot description as the Pinocchio model, with the
-envelope's capsules as collision geometry; `config` is its strict `Config`; `backend` is
-`MujocoBackend` and `create_backend`: physics on the servo thread, measured state, braking stops,
-the wrench, the gripper, offscreen cameras. See docs/backends/mujoco.md.
+envelope's capsules as collision geometry (its parts: `scene`, `gains`, `gripper_model`, `names`);
+`config` is its strict `Config`; `backend` is `MujocoBackend` and `create_backend`, composing the
+arm (`arm`: physics on the servo thread, braking stops), the fingers (`gripper`) and the offscreen
+cameras (`cameras`). See docs/backends/mujoco.md.
 
 Importing this package chooses MuJoCo's offscreen OpenGL platform when the user has not:
 `MUJOCO_GL=egl` (Mesa's EGL renders on CPU-only, headless machines). MuJoCo reads it once, when
