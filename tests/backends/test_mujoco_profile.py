@@ -53,12 +53,30 @@ def test_a_user_urdf_gets_the_cameras_its_config_lists():
     assert backend.capabilities.cameras == ("top",)
 
 
-def test_the_compiled_fr3_armature_is_the_profiles():
+def test_the_compiled_fr3_armature_is_the_profiles_not_the_generic_rules(caplog):
     policy = load_policy(bundled_policy("fr3"))
-    backend = create_backend(build_robot(policy), policy, Config(cameras=()))
+    with caplog.at_level("WARNING", logger="armwarden.backends.mujoco"):
+        backend = create_backend(build_robot(policy), policy, Config(cameras=()))
     assert FR3.actuators is not None
     armature = backend.cell.model.dof_armature[backend.cell.arm_dofs]
     assert armature.tolist() == [FR3.actuators[joint].armature_kg_m2 for joint in policy.robot.joint_names]
+    assert not [record for record in caplog.records if "generic armature rule" in record.getMessage()]
+
+
+def test_a_profiles_armature_is_what_the_model_compiles_and_sizes_its_gains_with():
+    policy = load_policy(bundled_policy("fr3"))
+    robot = build_robot(policy)
+    heavier = {joint: {"armature_kg_m2": 0.3 + 0.01 * index} for index, joint in enumerate(policy.robot.joint_names)}
+    profile = FR3.model_validate(FR3.model_dump() | {"actuators": heavier})
+    armature = armature_from_profile(profile, policy.robot.joint_names)
+    assert armature is not None and armature == tuple(0.3 + 0.01 * index for index in range(7))
+    scene = scene_for_policy(policy, cameras=())
+    cell = build_model(resolve_description(policy.robot.description), robot, scene, armature=armature)
+    assert cell.model.dof_armature[cell.arm_dofs].tolist() == list(armature)
+    assert cell.gains.armature == armature
+    generic = build_model(resolve_description(policy.robot.description), robot, scene)
+    # more rotor inertia on every joint: stiffer servos for the same bandwidth
+    assert all(heavy > light for heavy, light in zip(cell.gains.kp, generic.gains.kp, strict=True))
 
 
 def test_a_robot_without_actuators_in_a_profile_gets_the_generic_rule_and_says_so(caplog):
