@@ -22,6 +22,7 @@ from typing import TypeVar
 import anyio
 import numpy as np
 
+from armwarden.backends.arm_state import ArmEvent, ArmStateReporting
 from armwarden.backends.faults import FaultReporting
 from armwarden.backends.hooks import BackendHooks
 from armwarden.backends.values import PREEMPTED, CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
@@ -51,8 +52,8 @@ class Capabilities:
     transforms: bool = False
 
 
-class Backend(FaultReporting, WorkerSupervision, BackendHooks):
-    """Base class: lifecycle, deadlines, checks and logging; subclasses implement the `_hooks`."""
+class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks):
+    """Base class: lifecycle, deadlines, checks, the arm state and logging; subclasses implement the `_hooks`."""
 
     def __init__(self, joint_names: Sequence[str], *, start_tolerance_rad: float) -> None:
         if not (isinstance(start_tolerance_rad, (int, float)) and math.isfinite(start_tolerance_rad)
@@ -114,7 +115,6 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
             raise StoppedBeforeStart(f"{what} not started: a stop was issued after it was decided")
         return epoch
 
-    # ---------------------------------------------------------------- faults
     # ---------------------------------------------------------------- lifecycle
     @property
     def is_open(self) -> bool:
@@ -125,6 +125,8 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
             return
         await self._open()
         self._opened = True
+        if not self._closed:  # (a close before the open: it stays closed)
+            self._arm_event(ArmEvent.OPEN)
         try:
             self._start_watchdog()
         except BaseException:
@@ -137,6 +139,17 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
         if self._closed:
             return
         self._closed = True
+        try:
+            await self._stop_and_release()
+        finally:
+            self._arm_event(ArmEvent.CLOSE)
+        watchdog = self._watchdog
+        if watchdog is not None:  # (it reported nothing since `_closed`: see `_lose_worker`)
+            with anyio.CancelScope(shield=True):
+                await anyio.to_thread.run_sync(watchdog.stop)
+        logger.info("backend %s closed", self.name)
+
+    async def _stop_and_release(self) -> None:
         if self._opened:
             # shielded (close often runs in a cancelled task: SIGTERM, disconnect) and bounded (a
             # hung stop must not keep the backend from closing)
@@ -147,11 +160,6 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
                 logger.exception("backend %s: stop during close failed", self.name)
             with anyio.CancelScope(shield=True):
                 await self._close()
-        watchdog = self._watchdog
-        if watchdog is not None:  # (it reported nothing since `_closed`: see `_lose_worker`)
-            with anyio.CancelScope(shield=True):
-                await anyio.to_thread.run_sync(watchdog.stop)
-        logger.info("backend %s closed", self.name)
 
     def _require_open(self) -> None:
         if not self.is_open:
@@ -237,18 +245,7 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
 
     async def stop(self) -> None:
         """Stop arm and gripper now. Raises `BackendError` if the stop could not be issued."""
-        self._bump_stop_epoch()
-        if not self._opened or self._closed:
-            return
-        try:
-            with anyio.fail_after(self.stop_timeout_s):
-                await self._stop()
-        except TimeoutError as exc:
-            raise BackendTimeout(f"backend {self.name}: stop not confirmed within {self.stop_timeout_s} s") from exc
-        except BackendError:
-            raise
-        except Exception as exc:
-            raise BackendError(f"backend {self.name}: stop failed: {exc}") from exc
+        await self._stop_bounded(self._stop, "stop")
 
     def stop_now(self) -> None:
         """Stop arm and gripper from any thread, without the event loop; the arm is held when it
@@ -258,18 +255,21 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
     async def emergency_stop(self) -> None:
         """The e-stop's stop of arm and gripper (`armwarden.backends.hooks`, "Rules every backend follows"); like `stop`.
         Raises `BackendError` if the stop could not be issued."""
+        await self._stop_bounded(self._emergency_stop, "e-stop")
+
+    async def _stop_bounded(self, hook: Callable[[], Awaitable[None]], what: str) -> None:
         self._bump_stop_epoch()
         if not self._opened or self._closed:
             return
         try:
             with anyio.fail_after(self.stop_timeout_s):
-                await self._emergency_stop()
+                await hook()
         except TimeoutError as exc:
-            raise BackendTimeout(f"backend {self.name}: e-stop not confirmed within {self.stop_timeout_s} s") from exc
+            raise BackendTimeout(f"backend {self.name}: {what} not confirmed within {self.stop_timeout_s} s") from exc
         except BackendError:
             raise
         except Exception as exc:
-            raise BackendError(f"backend {self.name}: e-stop failed: {exc}") from exc
+            raise BackendError(f"backend {self.name}: {what} failed: {exc}") from exc
 
     def emergency_stop_now(self) -> None:
         """The e-stop's stop from any thread, without the event loop; like `stop_now`. Raises
@@ -355,6 +355,7 @@ class Backend(FaultReporting, WorkerSupervision, BackendHooks):
         self._require_capability(self.capabilities.error_recovery, "error recovery")
         self._admit(stop_epoch, "error recovery")
         await self._bounded("error recovery", self.error_recovery_timeout_s, self._error_recovery, actuating=True)
+        self._arm_event(ArmEvent.RECOVER)
 
     async def graph(self) -> dict[str, list[str]]:
         self._require_capability(self.capabilities.graph, "graph")

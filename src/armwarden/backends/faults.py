@@ -1,7 +1,8 @@
 """Faults a backend finds on its own thread, told to whoever listens (the Guard latches its e-stop).
 
 The backend handles a fault first — the arm stopped or damped, the stop epoch bumped — and then
-reports it with `_report_fault` from any thread. A fault found while nobody listens yet (between
+reports it with `_report_fault` from any thread, which latches the arm state `faulted` (until a
+recovery) and tells the listener. A fault found while nobody listens yet (between
 a servo thread's start and the Guard's building) is kept and told to the next listener, so none
 is lost.
 """
@@ -11,6 +12,8 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+
+from armwarden.backends.arm_state import ArmEvent, ArmState
 
 logger = logging.getLogger(__name__)
 
@@ -24,6 +27,8 @@ class FaultReporting:
 
     # provided by `Backend`
     name: str
+    _closed: bool
+    _arm_event: Callable[[ArmEvent], ArmState]
 
     def __init__(self) -> None:
         self._fault_listener: FaultListener | None = None
@@ -45,8 +50,10 @@ class FaultReporting:
                 self._tell(listener, reason)
 
     def _report_fault(self, reason: str) -> None:
-        """Any thread: the arm is already stopped or damped; tell the listener why (or keep it for
-        the next listener)."""
+        """Any thread: the arm is already stopped or damped; latch the arm state `faulted` and tell
+        the listener why (or keep it for the next listener)."""
+        if not self._closed:  # (a closed backend stays closed: it commands nothing)
+            self._arm_event(ArmEvent.FAULT)
         with self._fault_report_lock:
             listener = self._fault_listener
             if listener is None:

@@ -34,6 +34,7 @@ from typing import Any
 import anyio
 import numpy as np
 
+from armwarden.backends.arm_state import ArmEvent, ArmState
 from armwarden.backends.base import Backend
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
@@ -96,16 +97,32 @@ class ServoHooks:
     def servo_held(self, stamp: float) -> None:
         """Any thread, under the lock, once a stop's hold is commanded: when [s, monotonic]."""
 
+    def servo_following(self) -> None:
+        """Caller's thread, under the lock, as a trajectory is handed over; raising refuses it."""
+
+    def servo_finished(self) -> None:
+        """Servo thread, under the lock, once a trajectory's last setpoint is commanded."""
+
     def servo_failed(self, error: BaseException) -> None:
         """Servo thread: the loop died with `error` (called once, before executions are failed)."""
 
 
 class ServoBackend(Backend, ServoHooks):
-    """A backend whose arm a `ServoLoop` drives (the fake, MuJoCo, CAN): the loop's hold, commanded
-    by whichever thread stops, is when a stop took effect."""
+    """A backend a `ServoLoop` drives (fake, MuJoCo, CAN): its hold is when a stop took effect, and
+    hand-over, end and hold move the arm state. Its `_execute` hands over only once its own fault or
+    damping is cleared (CAN's reset), so a hand-over while damped or faulted is that recovery."""
 
     def servo_held(self, stamp: float) -> None:
         self._record_stop_stamp(stamp)
+        self._arm_event(ArmEvent.STOP)
+
+    def servo_following(self) -> None:
+        if self.arm_state in (ArmState.DAMPED, ArmState.FAULTED):
+            self._arm_event(ArmEvent.RECOVER)
+        self._arm_event(ArmEvent.EXECUTE)
+
+    def servo_finished(self) -> None:
+        self._arm_event(ArmEvent.FINISH)
 
 
 @dataclass(eq=False)
@@ -250,6 +267,7 @@ class ServoLoop:
                 raise BackendError(f"{self.name} is already executing a trajectory; one execution at a time")
             if preempted is not None and preempted():
                 return ExecutionResult(False, PREEMPTED, self._latest.positions.copy())
+            self.hooks.servo_following()
             self._pending = execution
         self._wake.set()
         reported = -1.0
@@ -373,18 +391,10 @@ class ServoLoop:
                 execution.fraction = fraction
                 if completed:
                     self._active = None
+                    self.hooks.servo_finished()
         if completed and execution is not None:
             settle_threadsafe(execution.loop, execution.future, ExecutionResult(True, "completed", positions.copy()))
 
 
-__all__ = [
-    "FIRST_TICK_TIMEOUT_S",
-    "IDLE_PERIOD_S",
-    "JOIN_TIMEOUT_S",
-    "PROGRESS_PERIOD_S",
-    "ServoHooks",
-    "ServoLoop",
-    "Setpoint",
-    "frozen",
-    "segment_velocity",
-]
+__all__ = ["FIRST_TICK_TIMEOUT_S", "IDLE_PERIOD_S", "JOIN_TIMEOUT_S", "PROGRESS_PERIOD_S", "ServoBackend",
+           "ServoHooks", "ServoLoop", "Setpoint", "frozen", "segment_velocity"]
