@@ -14,6 +14,8 @@ from starlette.responses import PlainTextResponse
 from starlette.types import Receive, Scope, Send
 
 from armwarden.audit import AuditLog
+from armwarden.backends.arm_state import ArmState
+from armwarden.backends.fake import FakeBackend
 from armwarden.backends.servo import ServoHooks, ServoLoop
 from armwarden.callcontext import CallRecord
 from armwarden.metrics import DaemonMetrics
@@ -21,7 +23,7 @@ from armwarden.safety.estop import EStopLatch
 from armwarden.transport.http import build_console_only_app
 from armwarden.transport.jsonrpc import RefusedRequest
 from armwarden.transport.tokens import TokenStore
-from tests.helpers import REPO
+from tests.helpers import REPO, run_opened
 
 
 def scraped(metrics: DaemonMetrics) -> dict[tuple[str, frozenset[tuple[str, str]]], float]:
@@ -128,6 +130,19 @@ def test_estops_are_read_from_the_latch_at_scrape_time() -> None:
     assert value(metrics, "armwarden_estop_latched") == 0
 
 
+def test_the_arm_state_is_read_from_the_backend_at_scrape_time() -> None:
+    backend = FakeBackend()
+    metrics = DaemonMetrics(EStopLatch(), backend)
+    assert value(metrics, "armwarden_arm_state", backend="fake", state="closed") == 1
+
+    async def opened(_backend: FakeBackend) -> dict[str, float]:
+        return {state.value: value(metrics, "armwarden_arm_state", backend="fake", state=state.value)
+                for state in ArmState}
+
+    assert run_opened(lambda: backend, opened) == {"closed": 0, "idle": 1, "moving": 0, "held": 0, "damped": 0,
+                                                   "faulted": 0}
+
+
 def test_every_audit_record_is_timed_to_the_disk(tmp_path: Path) -> None:
     metrics = DaemonMetrics()
     with AuditLog(tmp_path / "audit.jsonl", commit_window_s=0.02) as audit:
@@ -169,6 +184,7 @@ async def test_the_console_port_serves_metrics_behind_the_token_file(tmp_path: P
 def test_docs_name_every_metric_the_daemon_exposes() -> None:
     class ServoBackend:
         name = "fake"
+        arm_state = ArmState.IDLE
         servo = ServoLoop(ServoHooks(), [0.0] * 7, period_s=0.001)  # never started: its timing reads zero
 
     metrics = DaemonMetrics(EStopLatch(), ServoBackend())  # type: ignore[arg-type]

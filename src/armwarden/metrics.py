@@ -8,9 +8,10 @@ Why this shape:
   twice: every `tools/call` — refused before a tool body ran or by it, with its code, its
   approval and its latency — ends in the server middleware's `CallRecord`
   (`observe_call`); every audit record passes the audit writer thread (`observe_audit_write`).
-  E-stops (the latch's own tallies, `EStopLatch.tallies`) and servo-loop timing
-  (`ServoLoop.timing`, `TickTiming.totals`) are *read at scrape time* by a custom collector,
-  so the latch and the servo thread never call into metrics code at all.
+  E-stops (the latch's own tallies, `EStopLatch.tallies`), the backend's arm state
+  (`Backend.arm_state`) and servo-loop timing (`ServoLoop.timing`, `TickTiming.totals`) are
+  *read at scrape time* by a custom collector, so the latch, the backend and the servo thread
+  never call into metrics code at all.
 - **Metrics can never break or delay a safety path.** Every hook catches and logs its own
   exceptions (`_swallowed`), holds no lock of ours (prometheus_client's per-value locks are held
   for an addition), and does no I/O. A scrape reads the latch and tick timing under their
@@ -155,8 +156,9 @@ class DaemonMetrics:
 
 
 class SafetyStateCollector(Collector):
-    """Read at scrape time: the e-stop latch's tallies and the backend's servo-loop timing. Nothing
-    here runs on the latch's or the servo thread's path; a scrape takes their locks for a copy."""
+    """Read at scrape time: the e-stop latch's tallies, the backend's arm state and its servo-loop
+    timing. Nothing here runs on the latch's or the servo thread's path; a scrape takes their locks
+    for a copy (the arm state is one attribute read)."""
 
     def __init__(self, latch: EStopLatch | None, backend: Backend | None) -> None:
         self._latch = latch
@@ -165,9 +167,10 @@ class SafetyStateCollector(Collector):
     def collect(self) -> Iterator[Metric]:
         try:
             yield from self._estops()
+            yield from self._arm_state()
             yield from self._servo()
         except Exception:  # a scrape that cannot read the state says less, it never fails the daemon
-            logger.exception("metrics: reading the e-stop latch or the servo timing failed")
+            logger.exception("metrics: reading the e-stop latch, the arm state or the servo timing failed")
 
     def _estops(self) -> Iterator[Metric]:
         if self._latch is None:
@@ -182,6 +185,19 @@ class SafetyStateCollector(Collector):
                                   value=releases)
         yield GaugeMetricFamily("armwarden_estop_latched", "1 while the e-stop is latched, else 0.",
                                 value=1 if self._latch.is_latched else 0)
+
+    def _arm_state(self) -> Iterator[Metric]:
+        from armwarden.backends.arm_state import ArmState
+
+        state = getattr(self._backend, "arm_state", None)
+        if not isinstance(state, ArmState):
+            return
+        backend = str(getattr(self._backend, "name", "unknown"))
+        gauge = GaugeMetricFamily("armwarden_arm_state", "1 for the state the arm is in, 0 for the others.",
+                                  labels=["backend", "state"])
+        for each in ArmState:  # every state, always: a query needs no absent series
+            gauge.add_metric([backend, each.value], 1 if each is state else 0)
+        yield gauge
 
     def _servo(self) -> Iterator[Metric]:
         from armwarden.backends.servo import ServoLoop
