@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import sys
 import time
 
 import numpy as np
@@ -18,10 +19,14 @@ from armwarden.backends.arm_state import (
     ArmStateError,
     ArmStateMachine,
 )
+from armwarden.backends.can import robstride as rs
+from armwarden.backends.can.backend import CanBackend
 from armwarden.backends.fake import FakeBackend
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
+from armwarden.daemon.startup import SWITCH_INTERVAL_S
 from armwarden.robots import load_profile
+from tests.backends.can.test_can_backend import build as build_can_arm
 from tests.helpers import run_opened
 
 _READY = load_profile("fr3").ready_joint_positions or {}
@@ -37,7 +42,7 @@ def line(q_start: np.ndarray, q_goal: np.ndarray, duration_s: float) -> JointTra
     return JointTrajectory(JOINTS, times, np.outer(1 - alpha, q_start) + np.outer(alpha, q_goal))
 
 
-async def reaches(backend: FakeBackend, state: ArmState) -> ArmState:
+async def reaches(backend: FakeBackend | CanBackend, state: ArmState) -> ArmState:
     """Wait (generous deadline) until the backend reports `state`; return what it reports."""
     deadline = time.monotonic() + DEADLINE_S
     while backend.arm_state is not state:
@@ -156,3 +161,38 @@ def test_error_recovery_makes_a_held_arm_idle() -> None:
         return held, backend.arm_state
 
     assert run_opened(FakeBackend, scenario) == (ArmState.HELD, ArmState.IDLE)
+
+
+# ---------------------------------------------------------------------------- the CAN backend
+def test_a_can_fault_latches_faulted_until_the_execution_a_reset_admits_recovers_it() -> None:
+    """CAN recovers inside the execution the Guard admits after a human reset (`_recover`): the
+    hand-over to its servo loop is that recovery, and the arm moves again, then rests idle."""
+
+    async def scenario(arm: CanBackend) -> tuple[ArmState, ArmState, bool, ArmState]:
+        emulator = arm.emulator
+        assert emulator is not None
+        emulator.raise_fault(3, rs.FeedbackFault.OVER_CURRENT)
+        faulted = await reaches(arm, ArmState.FAULTED)
+        emulator.clear_faults(3)
+        deadline = time.monotonic() + DEADLINE_S
+        while arm._conditions(time.monotonic()):  # the cleared bit comes with the next feedback frames
+            assert time.monotonic() < deadline, "the fault did not clear"
+            await asyncio.sleep(0.01)
+        latched = arm.arm_state  # cleared on the bus, still latched: only the reset's execution recovers
+        while True:  # damping lets the arm drift: start from where it rests
+            q = (await arm.read_joint_state()).positions.copy()
+            await asyncio.sleep(0.05)
+            if np.max(np.abs((await arm.read_joint_state()).positions - q)) < 1e-3:
+                break
+            assert time.monotonic() < deadline, "the damped arm did not come to rest"
+        result = await arm.execute(line(q, q + 0.05, 0.3))
+        return faulted, latched, result.completed, arm.arm_state
+
+    switch_interval = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `armwarden serve` runs (tests/backends/can/conftest.py)
+    try:
+        faulted, latched, completed, after = run_opened(build_can_arm, scenario)
+    finally:
+        sys.setswitchinterval(switch_interval)
+    assert faulted is ArmState.FAULTED and latched is ArmState.FAULTED
+    assert completed and after is ArmState.IDLE
