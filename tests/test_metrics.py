@@ -15,7 +15,7 @@ from starlette.types import Receive, Scope, Send
 
 from armwarden.audit import AuditLog
 from armwarden.backends.arm_state import ArmState
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.backends.servo import ServoHooks, ServoLoop
 from armwarden.callcontext import CallRecord
 from armwarden.metrics import DaemonMetrics

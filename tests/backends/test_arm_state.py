@@ -21,7 +21,7 @@ from armwarden.backends.arm_state import (
 )
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.backend import CanBackend
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.daemon.startup import SWITCH_INTERVAL_S

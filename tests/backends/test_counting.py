@@ -9,7 +9,7 @@ import pytest
 
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import ACTUATING_METHODS, CountingBackend
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.core.errors import BackendError
 from armwarden.robots import load_profile
 from tests.backends.contract import BackendContract, straight_line

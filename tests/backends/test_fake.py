@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from armwarden.backends.base import Backend
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.backends.values import ControllerInfo
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory

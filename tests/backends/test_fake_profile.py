@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from armwarden.backends.fake import Config, FakeBackend, create_backend
+from armwarden.backends.fake import Config, create_backend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.policy import Policy, bundled_policy, load_policy
 from armwarden.robot.model import RobotModel
 from armwarden.robots import load_profile

@@ -11,7 +11,8 @@ import pytest
 
 from armwarden import backends
 from armwarden.backends import backend_names, create_backend, load_backend_config
-from armwarden.backends.fake import Config, FakeBackend
+from armwarden.backends.fake import Config
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.cli import main
 from armwarden.core.errors import BackendUnavailable, ConfigurationError
 from armwarden.policy import Policy

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.backends.watchdog import (
     MIN_STALL_DEADLINE_S,
     STALL_LIMIT_S,

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from armwarden.backends.can.backend import CanBackend
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.backends.servo import ServoLoop
 from tests.backends.can.test_can_backend import Spy
 from tests.backends.contract import straight_line

@@ -35,7 +35,7 @@ from armwarden.audit import OS_DISK, AuditLog, Disk, verify_file
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
 from armwarden.backends.fake import Config as FakeConfig
-from armwarden.backends.fake import FakeBackend
+from armwarden.backends.fake.backend import FakeBackend
 from armwarden.core.errors import BackendError
 from armwarden.daemon.startup import SWITCH_INTERVAL_S, freeze_long_lived_objects
 from armwarden.guard import Guard

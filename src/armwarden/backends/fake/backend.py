@@ -1,9 +1,8 @@
 """The fake backend: a kinematic arm and a parallel gripper, deterministic, no dependency beyond the core.
 
-The robot is the policy's (`robot.description`); a `builtin:<name>` robot's profile gives the
-defaults a bare `FakeBackend()` needs (joints, ready pose, frames) and the controllers and ROS graph
-it reports (armwarden.backends.fake_controllers); a user's URDF needs its joints, frames and home
-given (`create_backend` passes the policy's) and reports a generic controller set.
+`FakeBackend` composes the parts: the arm's joints, frames, home and kinematics (`arm.py`), the
+fingers (`gripper.py`), the cameras (`cameras.py`) and the simulated ros2_control set-up
+(`controllers.py`: the profile's controllers and ROS graph, a generic set for a user's URDF).
 
 The arm is kinematic and driven by a `ServoLoop` (armwarden.backends.servo) ticking every
 `control_period_s` (≤ 1 ms) on its own thread: each tick commands `trajectory.sample(elapsed ×
@@ -13,13 +12,12 @@ thread that issues it, before `stop()`/`stop_now()` returns, and no tick compute
 published after it. A kinematic arm has no inertia: it is still from that instant, which
 `last_stop_stamp` records (monotonic clock).
 
-Contact. With `table_height_m` set, the estimated wrench is a force of `stiffness × penetration`
-along +z, where penetration = max(0, table_height_m − tcp_z) and tcp_z comes from the servo
-thread's own `RobotModel` (Pinocchio data is not thread safe, so the loop side never shares it).
-The wrench is computed on the servo thread and stamped with that tick's monotonic time.
+Contact. With `table_height_m` set, the estimated wrench is the table's contact force
+(`arm.table_contact_force_n`) at the TCP the servo thread computes with its own model. The wrench
+is computed on the servo thread and stamped with that tick's monotonic time.
 
-The gripper (`fake_gripper.FakeFingers`) is a width model on the event loop, time-scaled, frozen
-by a stop from any thread. Cameras render a small top view with Pillow (none without it).
+The gripper (`gripper.FakeFingers`) is a width model on the event loop, time-scaled, frozen by a
+stop from any thread. Cameras render a small top view with Pillow (none without it).
 
 Fault injection for tests: `fail_stop` (stop raises and is not delivered), `freeze_wrench` (the
 wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that
@@ -38,21 +36,17 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING
 
 import anyio
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from armwarden.backends.base import Capabilities
-from armwarden.backends.fake_camera import (
-    CAMERA_HEIGHT_PX,
-    CAMERA_WIDTH_PX,
-    HAVE_PILLOW,
-    render_top_view,
-)
-from armwarden.backends.fake_controllers import FakeControllers
-from armwarden.backends.fake_gripper import GRIPPER_HOMING_SPEED_MPS, FakeFingers
+from armwarden.backends.fake.arm import ArmKinematics, arm_setup, require, require_positive, table_contact_force_n
+from armwarden.backends.fake.cameras import CAMERA_HEIGHT_PX, CAMERA_WIDTH_PX, HAVE_PILLOW, render_top_view
+from armwarden.backends.fake.config import Config
+from armwarden.backends.fake.controllers import FakeControllers
+from armwarden.backends.fake.gripper import GRIPPER_HOMING_SPEED_MPS, FakeFingers
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
@@ -68,20 +62,6 @@ if TYPE_CHECKING:
 
 
 logger = logging.getLogger(__name__)
-
-class Config(BaseModel):
-    """`--backend-config` for the fake backend (strict, like every config file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    speedup: float = Field(default=1.0, gt=0, le=1000, description="Time scaling of execution, no unit (2 = twice as fast).")
-    table_height_m: float | None = Field(
-        default=None, allow_inf_nan=False, description="Height [m] of a virtual table plane producing contact force; null: none."
-    )
-    table_stiffness_n_per_m: float = Field(
-        default=20000.0, gt=0, allow_inf_nan=False, description="Stiffness of the virtual table [N/m]."
-    )
-    wrench: bool = Field(default=True, description="Provide an external wrench estimate (boolean).")
-
 
 class FakeBackend(ServoBackend):
     """Kinematic arm and gripper driven by a servo loop (see the module docstring)."""
@@ -112,47 +92,20 @@ class FakeBackend(ServoBackend):
         start_tolerance_rad: float = 0.05,
     ) -> None:
         profile = builtin_profile(description)
-        ready = profile.ready_joint_positions if profile is not None else None
-        if joint_names is None:
-            joint_names = robot.joint_names if robot else _from_profile(
-                tuple(ready) if ready else None, "joint_names", description)
-        joint_names = tuple(joint_names)
-        super().__init__(joint_names, start_tolerance_rad=start_tolerance_rad)
-        base_frame = base_frame or (robot.base_frame if robot else _from_profile(
-            profile and profile.base_frame, "base_frame", description))
-        tcp_frame = tcp_frame or (robot.tcp_frame if robot else _from_profile(
-            profile and profile.tcp_frame, "tcp_frame", description))
-        _require(math.isfinite(speedup) and speedup > 0, f"speedup must be a positive number, got {speedup}")
-        _require(
+        arm = arm_setup(profile, description, robot, joint_names, base_frame, tcp_frame, home)
+        super().__init__(arm.joint_names, start_tolerance_rad=start_tolerance_rad)
+        require(math.isfinite(speedup) and speedup > 0, f"speedup must be a positive number, got {speedup}")
+        require(
             math.isfinite(control_period_s) and 0 < control_period_s <= 0.001,
             f"control_period_s must be in (0, 0.001] s, got {control_period_s}",
         )
-        _require(table_height_m is None or math.isfinite(table_height_m), f"table_height_m must be finite, got {table_height_m}")
-        _require(
-            math.isfinite(table_stiffness_n_per_m) and table_stiffness_n_per_m > 0,
-            f"table_stiffness_n_per_m must be positive, got {table_stiffness_n_per_m}",
-        )
-        _require(
-            math.isfinite(gripper_max_width_m) and gripper_max_width_m > 0,
-            f"gripper_max_width_m must be positive, got {gripper_max_width_m}",
-        )
-        _require(math.isfinite(stall_wrench_s) and stall_wrench_s >= 0, f"stall_wrench_s must be ≥ 0, got {stall_wrench_s}")
+        require(table_height_m is None or math.isfinite(table_height_m), f"table_height_m must be finite, got {table_height_m}")
+        require_positive(table_stiffness_n_per_m, "table_stiffness_n_per_m")
+        require_positive(gripper_max_width_m, "gripper_max_width_m")
+        require(math.isfinite(stall_wrench_s) and stall_wrench_s >= 0, f"stall_wrench_s must be ≥ 0, got {stall_wrench_s}")
 
-        # The thread's own kinematics (Pinocchio data is not thread safe); `robot` stays on the loop side.
-        self._model = RobotModel.from_description(description, joint_names, base_frame, tcp_frame)
-        self.robot = robot
-        if home is None:
-            home = _from_profile(tuple(ready.values()) if ready else None, "home", description)
-            _require(tuple(ready or ()) == joint_names, f"home: the ready pose of {description} is for the joints "
-                     f"{list(ready or ())}, not {list(joint_names)}; give home")
-        q_home = np.array(home, dtype=float)
-        _require(q_home.shape == (len(joint_names),), f"home needs {len(joint_names)} positions, got {q_home.shape}")
-        _require(bool(np.all(np.isfinite(q_home))), f"home must be finite, got {q_home.tolist()}")
-        _require(
-            self._model.within_limits(q_home),
-            f"home {q_home.tolist()} is outside the joint limits {self._model.lower.tolist()} .. {self._model.upper.tolist()}",
-        )
-
+        self.robot = robot  # the event loop's model; the servo thread computes with `arm.model`
+        self._kinematics = ArmKinematics(arm.model)
         self.control_period_s = float(control_period_s)
         self.table_height_m = table_height_m
         self.table_stiffness_n_per_m = float(table_stiffness_n_per_m)
@@ -171,7 +124,7 @@ class FakeBackend(ServoBackend):
         self.collision_thresholds: tuple[float, float] | None = None
         self.last_grasp_force_n: float | None = None
 
-        frames = robot.frame_names() if robot is not None else self._model.frame_names()
+        frames = robot.frame_names() if robot is not None else arm.model.frame_names()
         self._capabilities = Capabilities(
             wrench=bool(wrench),
             gripper=True,
@@ -185,12 +138,8 @@ class FakeBackend(ServoBackend):
         self._controllers = FakeControllers.for_profile(profile, controllers)
         self._camera_frames = dict.fromkeys(self._capabilities.cameras, 0)
 
-        # ---- the servo thread's kinematics cache (`_compute_tcp`), then the loop itself
-        self._tcp_q: np.ndarray | None = None
-        self._tcp_position = np.zeros(3)
-        now = time.monotonic()
-        self._wrench = (self._contact_force_n(self._compute_tcp(q_home)), now)
-        self.servo = ServoLoop(self, q_home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
+        self._wrench = (self._contact_force_n(self._compute_tcp(arm.home)), time.monotonic())
+        self.servo = ServoLoop(self, arm.home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
         self._loop: asyncio.AbstractEventLoop | None = None
 
         #: the fingers (their motions run on the event loop; a stop freezes them from any thread)
@@ -295,19 +244,14 @@ class FakeBackend(ServoBackend):
         self._worker_died("control", error)  # reported: the Guard latches and records it
 
     def _compute_tcp(self, q: np.ndarray) -> np.ndarray:
-        """TCP position in the base frame; forward kinematics only when q changed (thread side)."""
-        if self._tcp_q is None or not np.array_equal(q, self._tcp_q):
-            self._tcp_q = np.array(q, dtype=float)
-            self._tcp_position = frozen(self._model.tcp_pose(q).position)
-        return self._tcp_position
+        """TCP position in the base frame (servo thread side; a test replaces it to break the thread)."""
+        return self._kinematics.tcp_position(q)
 
     def _contact_force_n(self, tcp_position: np.ndarray) -> float:
-        if self.table_height_m is None:
-            return 0.0
-        penetration_m = max(0.0, self.table_height_m - float(tcp_position[2]))
-        return self.table_stiffness_n_per_m * penetration_m
+        """The table's force [N]; reads the attributes, which a test may change at run time."""
+        return table_contact_force_n(tcp_position, self.table_height_m, self.table_stiffness_n_per_m)
 
-    # ================================================================ gripper (fake_gripper.py)
+    # ================================================================ gripper (gripper.py)
     def _latest_gripper_state(self) -> GripperState:
         return self.fingers.state()
 
@@ -369,19 +313,6 @@ class FakeBackend(ServoBackend):
 
 
 _ZERO3 = frozen(np.zeros(3))
-_T = TypeVar("_T")
-
-
-def _from_profile(value: _T | None, what: str, description: str) -> _T:
-    """A default the robot's profile gives; refused (never guessed) when it gives none."""
-    if value is None:
-        raise ValueError(f"{what} must be given: the robot {description!r} has no profile that names it")
-    return value
-
-
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> FakeBackend:
@@ -395,6 +326,4 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config) -> FakeBac
     )
 
 
-FakeBackendConfig = Config  # the name the daemon used
-
-__all__ = ["Config", "FakeBackend", "FakeBackendConfig", "create_backend"]
+__all__ = ["FakeBackend", "create_backend"]
