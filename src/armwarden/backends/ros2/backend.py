@@ -34,7 +34,7 @@ finger state and wrench when those are configured, so reads right after open fin
 
 Threads: every callback runs on the bridge's executor thread, which owns the rclpy entities
 (`armwarden.backends.ros2.bridge`): the endpoints are made before it spins, a camera's
-subscription is made and destroyed on it (`armwarden.backends.ros2.camera`). Its death is a fault
+subscription is made and destroyed on it (`armwarden.backends.ros2.cameras`). Its death is a fault
 for good: the goal cancelled, the fault reported once (the Guard latches and records it), every
 later call but stop and close refused naming it. So is its hang (a callback that never returns):
 the backend's watchdog, on a thread of its own, finds the bridge's heartbeat stopped, and the goal
@@ -86,7 +86,7 @@ from armwarden.backends.base import Backend, Capabilities
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
-from armwarden.backends.ros2.camera import CameraFeed
+from armwarden.backends.ros2.cameras import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.runs import (
@@ -778,7 +778,7 @@ class Ros2Backend(Backend):
     # ================================================================ cameras
     async def _camera_snapshot(self, camera: str) -> CameraImage:
         """The next image on the camera's topic (subscribed only while snapshots wait, by the
-        executor thread: `armwarden.backends.ros2.camera`)."""
+        executor thread: `armwarden.backends.ros2.cameras`)."""
         spec = self.config.cameras[camera]
         try:
             msg = await self._cameras[camera].next_message(spec.timeout_s)
