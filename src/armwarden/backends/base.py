@@ -16,7 +16,6 @@ import logging
 import math
 import threading
 from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass, field
 from typing import TypeVar
 
 import anyio
@@ -25,6 +24,7 @@ import numpy as np
 from armwarden.backends.arm_state import ArmEvent, ArmStateReporting
 from armwarden.backends.faults import FaultReporting
 from armwarden.backends.hooks import BackendHooks
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED, CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.workers import WorkerSupervision
 from armwarden.core.errors import BackendError, BackendTimeout, StoppedBeforeStart
@@ -34,22 +34,6 @@ from armwarden.core.trajectory import JointTrajectory
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
-
-
-@dataclass(frozen=True)
-class Capabilities:
-    """What the backend can do; the server registers only tools the backend supports."""
-
-    wrench: bool = False
-    gripper: bool = False
-    cameras: tuple[str, ...] = ()
-    controllers: bool = False
-    collision_thresholds: bool = False
-    error_recovery: bool = False
-    graph: bool = False
-    frames: tuple[str, ...] = field(default_factory=tuple)
-    #: the backend looks up frames beyond the robot model (ROS tf): `lookup_transform`
-    transforms: bool = False
 
 
 class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks):
