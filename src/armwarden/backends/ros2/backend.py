@@ -88,6 +88,7 @@ from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.cameras import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
+from armwarden.backends.ros2.controllers import Ros2Controllers
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.runs import (
     Endpoints,
@@ -158,6 +159,7 @@ class Ros2Backend(Backend):
             resolved(gripper.finger_joints, "gripper.finger_joints"), gripper.max_age_s)
         self.transforms = TransformBuffer(config.tf.max_age_s) if config.tf.enabled else None
         self._endpoints = Endpoints()
+        self.controllers = Ros2Controllers(self.bridge, self._endpoints, config.controller_manager)
         self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
         self._run: GoalRun | TopicRun | None = None
         self._gripper_run: GripperRun | None = None
@@ -789,43 +791,14 @@ class Ros2Backend(Backend):
         return CameraImage(camera, width, height, png, time.monotonic())
 
     # ================================================================ controllers and recovery
-    async def _call(self, client: rclpy.client.Client | None, request: Any, what: str, timeout_s: float) -> Any:
-        assert client is not None
-        deadline = time.monotonic() + timeout_s
-        while not client.service_is_ready():
-            if time.monotonic() > deadline:
-                raise BackendError(f"the service {client.srv_name} is not available (waited {timeout_s:g} s)")
-            await anyio.sleep(POLL_S)
-        try:
-            return await self.bridge.result(client.call_async(request), max(0.0, deadline - time.monotonic()))
-        except TimeoutError:
-            raise BackendError(f"{what}: {client.srv_name} did not answer within {timeout_s:g} s") from None
-
     async def _list_controllers(self) -> list[ControllerInfo]:
-        response = await self._call(self._endpoints.list_controllers, ListControllers.Request(), "list controllers",
-                                    self.controllers_timeout_s)
-        return [ControllerInfo(c.name, c.type, c.state) for c in response.controller]
+        return await self.controllers.list(self.controllers_timeout_s)
 
     async def _switch_controllers(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
-        manager = self.config.controller_manager
-        assert manager is not None
-        refused = sorted({*activate, *deactivate} - set(manager.allowlist))
-        if refused:
-            allowed = ", ".join(manager.allowlist) or "none"
-            raise BackendError(f"controller(s) {', '.join(refused)} are not in the ros2 backend's allowlist "
-                               f"(allowed: {allowed}); nothing was switched")
-        request = SwitchController.Request(activate_controllers=list(activate), deactivate_controllers=list(deactivate),
-                                           strictness=SwitchController.Request.STRICT)
-        response = await self._call(self._endpoints.switch_controller, request, "switch controllers",
-                                    self.controllers_timeout_s)
-        if not response.ok:
-            raise BackendError(f"the controller manager refused the switch: {response.message or 'no reason given'}")
+        await self.controllers.switch(activate, deactivate, self.controllers_timeout_s)
 
     async def _error_recovery(self) -> None:
-        response = await self._call(self._endpoints.error_recovery, Trigger.Request(), "error recovery",
-                                    self.error_recovery_timeout_s)
-        if not response.success:
-            raise BackendError(f"error recovery failed: {response.message or 'no reason given'}")
+        await self.controllers.recover(self.error_recovery_timeout_s)
 
     # ================================================================ graph and frames
     async def _graph(self) -> dict[str, list[str]]:
