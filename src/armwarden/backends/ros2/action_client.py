@@ -12,9 +12,20 @@ while futures complete (their callbacks take the backend's motion lock and may s
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any
 
+import anyio
 import rclpy.action.client
+from action_msgs.msg import GoalStatus
+
+from armwarden.core.errors import BackendError
+
+#: how often a wait for an action server looks again [s]
+SERVER_POLL_S = 0.01
+#: action goal statuses by value, for messages
+STATUS_NAMES = {getattr(GoalStatus, name): name[len("STATUS_"):].lower() for name in dir(GoalStatus)
+                if name.startswith("STATUS_")}
 
 
 class ActionClient(rclpy.action.client.ActionClient):
@@ -42,4 +53,13 @@ class ActionClient(rclpy.action.client.ActionClient):
         await super().execute(taken_data)
 
 
-__all__ = ["ActionClient"]
+async def wait_for_server(action: rclpy.action.client.ActionClient, name: str, timeout_s: float) -> None:
+    """Wait (at most `timeout_s`) for `action`'s server, or `BackendError`: no goal is sent to nobody."""
+    deadline = time.monotonic() + timeout_s
+    while not action.server_is_ready():
+        if time.monotonic() > deadline:
+            raise BackendError(f"the action server {name} is not available (waited {timeout_s:g} s); nothing was sent")
+        await anyio.sleep(SERVER_POLL_S)
+
+
+__all__ = ["STATUS_NAMES", "ActionClient", "wait_for_server"]

@@ -57,7 +57,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 import threading
 import time
 from collections import deque
@@ -83,18 +82,17 @@ from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory as JointTrajectoryMsg
 
 from armwarden.backends.base import Backend, Capabilities
-from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
-from armwarden.backends.ros2.action_client import ActionClient
+from armwarden.backends.ros2.action_client import STATUS_NAMES, ActionClient, wait_for_server
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.cameras import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
 from armwarden.backends.ros2.controllers import Ros2Controllers
+from armwarden.backends.ros2.gripper import Ros2Gripper
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.runs import (
     Endpoints,
     Fault,
     GoalRun,
-    GripperRun,
     StopRecord,
     TopicRun,
     hold_message,
@@ -129,8 +127,6 @@ CANCELLED, ENDED, HELD = "the goal was cancelled", "the goal had ended", "a hold
 ERROR_CODES = {getattr(FollowJointTrajectory.Result, name): name for name in (
     "SUCCESSFUL", "INVALID_GOAL", "INVALID_JOINTS", "OLD_HEADER_TIMESTAMP", "PATH_TOLERANCE_VIOLATED",
     "GOAL_TOLERANCE_VIOLATED")}
-STATUS_NAMES = {getattr(GoalStatus, name): name[len("STATUS_"):].lower() for name in dir(GoalStatus)
-                if name.startswith("STATUS_")}
 
 
 class Ros2Backend(Backend):
@@ -162,10 +158,11 @@ class Ros2Backend(Backend):
         self.controllers = Ros2Controllers(self.bridge, self._endpoints, config.controller_manager)
         self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
         self._run: GoalRun | TopicRun | None = None
-        self._gripper_run: GripperRun | None = None
-        self._gripper_grasped = False
         #: the stops carried out, newest last (the benchmark reads e-stop -> cancel sent)
         self.stop_records: deque[StopRecord] = deque(maxlen=1000)
+        self.gripper = None if gripper is None or self.fingers is None else Ros2Gripper(
+            self.bridge, self._endpoints, gripper, self.fingers, self._motion_lock, self.stop_records,
+            self._gripper_stop_landed, lambda: self._gripper_epoch)
         self._server_seen = False  # the trajectory action server was seen at least once
         self._fault_lock = threading.Lock()
         self._fault_active = False  # a fault was reported and the cell has not been healthy since
@@ -388,20 +385,13 @@ class Ros2Backend(Backend):
             return await self._execute_action(self._endpoints.trajectory_action, trajectory, progress)
         return await self._execute_topic(trajectory, progress)
 
-    async def _wait_for_server(self, action: rclpy.action.client.ActionClient, name: str, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while not action.server_is_ready():
-            if time.monotonic() > deadline:
-                raise BackendError(f"the action server {name} is not available (waited {timeout_s:g} s); nothing was sent")
-            await anyio.sleep(POLL_S)
-        if action is self._endpoints.trajectory_action:
-            self._server_seen = True
 
     async def _execute_action(self, action: rclpy.action.client.ActionClient, trajectory: JointTrajectory,
                               progress: ProgressCallback) -> ExecutionResult:
         cfg = self.config.trajectory
         name = self.trajectory_interface
-        await self._wait_for_server(action, name, cfg.server_timeout_s)
+        await wait_for_server(action, name, cfg.server_timeout_s)
+        self._server_seen = True
         goal = FollowJointTrajectory.Goal(trajectory=trajectory_message(trajectory, self.ros_names))
         with self._motion_lock:  # the stops take it: a stop is either before the send or cancels it
             if self._stop_landed():
@@ -662,120 +652,25 @@ class Ros2Backend(Backend):
 
     # ================================================================ gripper
     def _stop_fingers(self) -> None:
-        """Any thread, never awaiting: cancel the gripper's goal in progress."""
-        with self._motion_lock:
-            run = self._gripper_run
-        if run is not None:
-            self._cancel_gripper(run)
-
-    def _cancel_gripper(self, run: GripperRun) -> None:
-        """Any thread: cancel `run`'s goal, once (a cancel before its acceptance is sent again then)."""
-        action = self._endpoints.gripper_action
-        if action is None or run.cancel_sent:
-            return
-        run.cancel_sent = True
-        handle = run.handle or rclpy.action.client.ClientGoalHandle(
-            action, run.goal_id, GripperCommand.Impl.SendGoalService.Response())
-        handle.cancel_goal_async()
-        self.stop_records.append(StopRecord("gripper cancel", time.monotonic()))
+        if self.gripper is not None:
+            self.gripper.stop()
 
     def _latest_gripper_state(self) -> GripperState:
-        assert self.fingers is not None
-        state = self.fingers.fresh()
-        moving = self._gripper_run is not None or bool(np.max(np.abs(state.velocities)) > 1e-3)
-        return GripperState(float(np.sum(state.positions)), self._gripper_grasped, moving, state.stamp)
-
-    def _check_gripper(self, width_m: float, speed_mps: float) -> None:
-        assert self.config.gripper is not None
-        check_gripper_width_speed(width_m, speed_mps, self.config.gripper.max_width_m)
+        assert self.gripper is not None
+        return self.gripper.state()
 
     async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        assert self.config.gripper is not None
-        self._check_gripper(width_m, speed_mps)
-        result, stopped = await self._gripper_goal(width_m, self.config.gripper.move_effort_n)
-        self._gripper_grasped = False
-        if stopped:
-            return GripperResult(False, result, False, "stopped")
-        return GripperResult(True, result, False, "")
+        assert self.gripper is not None
+        return await self.gripper.move(width_m, speed_mps)
 
     async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
                              epsilon_outer_m: float) -> GripperResult:
-        gripper = self.config.gripper
-        assert gripper is not None
-        self._check_gripper(width_m, speed_mps)
-        check_grasp_margins(epsilon_inner_m, epsilon_outer_m)
-        if not (math.isfinite(force_n) and 0 < force_n <= gripper.max_effort_n):
-            raise BackendError(f"gripper grasp force {force_n} N outside (0, {gripper.max_effort_n}] N")
-        self._gripper_grasped = False
-        width, stopped = await self._gripper_goal(width_m, force_n)
-        result = grasp_outcome(width_m, width, stopped, epsilon_inner_m, epsilon_outer_m)
-        self._gripper_grasped = result.is_grasped
-        return result
+        assert self.gripper is not None
+        return await self.gripper.grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
 
     async def _gripper_home(self) -> GripperResult:
-        assert self.config.gripper is not None
-        return await self._gripper_move(self.config.gripper.max_width_m, 0.05)
-
-    async def _gripper_goal(self, width_m: float, effort_n: float) -> tuple[float, bool]:
-        """Send one GripperCommand goal and wait for its result: (final gap [m], whether a stop ended it).
-        GripperCommand carries no speed: the gripper's own speed applies."""
-        action, gripper = self._endpoints.gripper_action, self.config.gripper
-        assert action is not None and gripper is not None
-        if self._gripper_run is not None:
-            raise BackendError("the gripper is already moving; one gripper action at a time")
-        await self._wait_for_server(action, resolved(gripper.action, "gripper.action"), gripper.server_timeout_s)
-        goal = GripperCommand.Goal()
-        goal.command.position, goal.command.max_effort = float(width_m), float(effort_n)
-        with self._motion_lock:
-            if self._gripper_stop_landed():
-                return self._measured_width(), True
-            run = GripperRun(new_goal_id(), self._gripper_epoch)
-            self._gripper_run = run
-            sending = action.send_goal_async(goal, goal_uuid=run.goal_id)
-        finished = False
-        try:
-            handle = await self.bridge.result(sending, gripper.server_timeout_s)
-            with self._motion_lock:
-                run.handle = handle
-                late = run.cancel_sent
-            if not handle.accepted:
-                finished = True
-                raise BackendError(f"the gripper goal was rejected by {gripper.action}")
-            if late:
-                run.cancel_sent = False
-                self._cancel_gripper(run)
-            response = await self.bridge.result(handle.get_result_async(), None)
-            finished = True
-            await self._finger_state_after(time.monotonic(), gripper.max_age_s)
-            if self._gripper_stop_landed() or response.status == GoalStatus.STATUS_CANCELED:
-                return float(response.result.position), True
-            if response.status != GoalStatus.STATUS_SUCCEEDED:
-                raise BackendError(f"the gripper goal ended {STATUS_NAMES.get(response.status, response.status)} "
-                                   f"at {gripper.action}")
-            return float(response.result.position), False
-        finally:
-            if not finished:
-                self._cancel_gripper(run)
-            with self._motion_lock:
-                if self._gripper_run is run:
-                    self._gripper_run = None
-
-    async def _finger_state_after(self, instant: float, timeout_s: float) -> None:
-        """Wait (at most `timeout_s`) for a finger state received after `instant`, so the gripper
-        state read after an action reflects where the action left the fingers, not a sample
-        from just before its last step."""
-        assert self.fingers is not None
-        deadline = instant + timeout_s
-        while time.monotonic() < deadline:
-            state = self.fingers.latest()
-            if state is not None and state.stamp > instant:
-                return
-            await asyncio.sleep(0.002)
-
-    def _measured_width(self) -> float:
-        assert self.fingers is not None
-        state = self.fingers.latest()
-        return float(np.sum(state.positions)) if state is not None else float("nan")
+        assert self.gripper is not None
+        return await self.gripper.home()
 
     # ================================================================ cameras
     async def _camera_snapshot(self, camera: str) -> CameraImage:
