@@ -85,6 +85,7 @@ class DampingWatch:
 
     def _listen(self, bus: Any, after: float) -> None:
         from armwarden.backends.can import robstride as rs
+        from armwarden.backends.can import robstride_device as rs_device
 
         try:
             while not self._stop.is_set():
@@ -97,7 +98,7 @@ class DampingWatch:
                 motor = msg.arbitration_id & 0xFF
                 if motor not in self._ranges:
                     continue  # not an actuator of this arm
-                command = rs.unpack_control(msg.arbitration_id, bytes(msg.data), self._ranges[motor])[1]
+                command = rs_device.unpack_control(msg.arbitration_id, bytes(msg.data), self._ranges[motor])[1]
                 if command.kp == 0.0 and command.kd > 0.0:
                     self.found = (msg.timestamp, arrived)
                     return
@@ -158,6 +159,8 @@ class BareLoop:
         import can
 
         from armwarden.backends.can import robstride as rs
+        from armwarden.backends.can import robstride_device as rs_device
+        from armwarden.backends.can import robstride_frames as rs_frames
         from armwarden.backends.can.command import MotorCommand
         from armwarden.backends.can.ranges import model_ranges
         from armwarden.backends.ticktiming import TickTiming
@@ -166,9 +169,9 @@ class BareLoop:
         ranges = model_ranges("RS03")
         command = MotorCommand(0.1, 0.0, 100.0, 2.0, 0.0)
         feedback = rs.Feedback(1, rs.MotorMode.RUN, rs.FeedbackFault(0), 0.1, 0.0, 0.0, 30.0)
-        frames = [rs.control_frame(motor, command, ranges) for motor in range(1, FLOOR_FRAMES + 1)]
+        frames = [rs_frames.control_frame(motor, command, ranges) for motor in range(1, FLOOR_FRAMES + 1)]
         self._commands = [can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=True) for f in frames]
-        reply = rs.feedback_frame(feedback, ranges, host_id=0xFD)
+        reply = rs_device.feedback_frame(feedback, ranges, host_id=0xFD)
         self._reply = can.Message(arbitration_id=reply.arbitration_id, data=reply.data, is_extended_id=True)
         self.period_s = 1.0 / rate_hz
         self.timing = TickTiming(self.period_s)

@@ -25,6 +25,8 @@ from armwarden.backends import parse_backend_config, realtime
 from armwarden.backends.base import Backend
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can import robstride_device as rs_device
+from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.backend import CanBackend, create_backend
 from armwarden.backends.can.bus import HealthFlag
 from armwarden.backends.can.command import MotorCommand
@@ -125,7 +127,7 @@ class Spy:
             motor, command = None, None
             if not msg.is_error_frame and msg.is_extended_id and rs.split_id(msg.arbitration_id).comm_type == rs.CommType.CONTROL:
                 motor = msg.arbitration_id & 0xFF
-                command = rs.unpack_control(msg.arbitration_id, bytes(msg.data), self._ranges[motor])[1]
+                command = rs_device.unpack_control(msg.arbitration_id, bytes(msg.data), self._ranges[motor])[1]
             elif (not msg.is_error_frame and not msg.is_extended_id and msg.arbitration_id in self._protocol
                   and len(msg.data) == 8 and mit.special_of(bytes(msg.data)) is None):
                 motor = msg.arbitration_id
@@ -313,7 +315,7 @@ def _feedback_from(motor: int, check: Callable[[rs.Feedback], bool]) -> Callable
         fields = rs.split_id(msg.arbitration_id)
         if fields.comm_type != rs.CommType.FEEDBACK or (fields.data2 & 0xFF) != motor or len(msg.data) != 8:
             return False
-        return check(rs.parse_feedback(msg.arbitration_id, bytes(msg.data), ranges, host_id=0xFD))
+        return check(rs_frames.parse_feedback(msg.arbitration_id, bytes(msg.data), ranges, host_id=0xFD))
 
     return predicate
 

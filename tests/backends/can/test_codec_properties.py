@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can import robstride_device as rs_device
+from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.mapping import decode, encode, lsb
@@ -60,8 +62,8 @@ def test_mit_command_round_trips_within_one_lsb(ranges: ModelRanges, data: st.Da
 @given(data=st.data(), motor_id=st.integers(0, 255))
 def test_robstride_control_round_trips_within_one_lsb(ranges: ModelRanges, data: st.DataObject, motor_id: int) -> None:
     command = data.draw(commands(ranges))
-    frame = rs.control_frame(motor_id, command, ranges)
-    received_id, received = rs.unpack_control(frame.arbitration_id, frame.data, ranges)
+    frame = rs_frames.control_frame(motor_id, command, ranges)
+    received_id, received = rs_device.unpack_control(frame.arbitration_id, frame.data, ranges)
     assert received_id == motor_id
     assert_within_one_lsb(command, received, ranges, RS_BITS)
 
@@ -89,8 +91,8 @@ def test_robstride_feedback_round_trips_within_one_lsb(ranges: ModelRanges, data
         data.draw(within(ranges.position)), data.draw(within(ranges.velocity)), data.draw(within(ranges.torque)),
         data.draw(st.integers(0, 6553)) / 10,
     )
-    frame = rs.feedback_frame(feedback, ranges, host_id=HOST)
-    parsed = rs.parse_feedback(frame.arbitration_id, frame.data, ranges, host_id=HOST)
+    frame = rs_device.feedback_frame(feedback, ranges, host_id=HOST)
+    parsed = rs_frames.parse_feedback(frame.arbitration_id, frame.data, ranges, host_id=HOST)
     assert (parsed.motor_id, parsed.mode, parsed.faults, parsed.temperature_c) == (
         feedback.motor_id, feedback.mode, feedback.faults, feedback.temperature_c
     )
@@ -111,7 +113,7 @@ def test_every_field_refuses_values_outside_its_range(ranges: ModelRanges, field
     ))
     values = {name: (getattr(ranges, name).lo + getattr(ranges, name).hi) / 2 for name in FIELDS}
     command = MotorCommand(**{**values, field: bad})
-    pack = mit.pack_command if ranges.protocol is Protocol.MIT else (lambda c, r: rs.control_frame(1, c, r))
+    pack = mit.pack_command if ranges.protocol is Protocol.MIT else (lambda c, r: rs_frames.control_frame(1, c, r))
     with pytest.raises(ValueError, match=field):
         pack(command, ranges)
 
@@ -127,18 +129,18 @@ def test_mapping_round_trips_within_one_lsb_on_any_range(bits: int, lo: float, w
 def _parsers() -> list[tuple[str, Callable[[int, bytes], object]]]:
     parsers: list[tuple[str, Callable[[int, bytes], object]]] = [
         ("split_id", lambda i, _d: rs.split_id(i)),
-        ("rs.parse_fault", lambda i, d: rs.parse_fault(i, d, host_id=HOST)),
-        ("rs.parse_parameter", lambda i, d: rs.parse_parameter(i, d, host_id=HOST)),
-        ("rs.parse_device_id", rs.parse_device_id),
-        ("rs.unpack_parameter_request", lambda _i, d: rs.unpack_parameter_request(d)),
+        ("rs_frames.parse_fault", lambda i, d: rs_frames.parse_fault(i, d, host_id=HOST)),
+        ("rs_frames.parse_parameter", lambda i, d: rs_frames.parse_parameter(i, d, host_id=HOST)),
+        ("rs_frames.parse_device_id", rs_frames.parse_device_id),
+        ("rs_device.unpack_parameter_request", lambda _i, d: rs_device.unpack_parameter_request(d)),
     ]
     for r in MODELS.values():
         if r.protocol is Protocol.MIT:
             parsers.append((f"mit.parse_reply[{r.model}]", lambda _i, d, r=r: mit.parse_reply(d, r, motor_id=1)))
             parsers.append((f"mit.unpack_command[{r.model}]", lambda _i, d, r=r: mit.unpack_command(d, r)))
         else:
-            parsers.append((f"rs.parse_feedback[{r.model}]", lambda i, d, r=r: rs.parse_feedback(i, d, r, host_id=HOST)))
-            parsers.append((f"rs.unpack_control[{r.model}]", lambda i, d, r=r: rs.unpack_control(i, d, r)))
+            parsers.append((f"rs_frames.parse_feedback[{r.model}]", lambda i, d, r=r: rs_frames.parse_feedback(i, d, r, host_id=HOST)))
+            parsers.append((f"rs_device.unpack_control[{r.model}]", lambda i, d, r=r: rs_device.unpack_control(i, d, r)))
     return parsers
 
 
@@ -169,5 +171,5 @@ def test_parameter_values_round_trip(parameter: rs.Parameter, data: st.DataObjec
         value: float = data.draw(st.floats(width=32, allow_nan=False, allow_infinity=False))
     else:
         value = data.draw(st.integers(0, 0xFF if parameter.type is rs.ParamType.U8 else 0xFFFFFFFF))
-    reply = rs.parameter_reply_frame(rs.ParameterValue(1, parameter, value), host_id=HOST)
-    assert rs.parse_parameter(reply.arbitration_id, reply.data, host_id=HOST).value == value
+    reply = rs_device.parameter_reply_frame(rs.ParameterValue(1, parameter, value), host_id=HOST)
+    assert rs_frames.parse_parameter(reply.arbitration_id, reply.data, host_id=HOST).value == value

@@ -10,6 +10,7 @@ import pytest
 
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.bus import BusConfig, CanBus, FrameKind, HealthFlag
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.emulator import DEFAULT_HOST_ID, ActuatorEmulator, ActuatorSpec
@@ -42,13 +43,13 @@ class Host:
                 return
             kind = rs.split_id(msg.arbitration_id).comm_type
             if kind == rs.CommType.FEEDBACK:
-                self.feedback.append(rs.parse_feedback(msg.arbitration_id, data, RS03, host_id=HOST))
+                self.feedback.append(rs_frames.parse_feedback(msg.arbitration_id, data, RS03, host_id=HOST))
             elif kind == rs.CommType.READ_PARAMETER:
-                self.parameters.append(rs.parse_parameter(msg.arbitration_id, data, host_id=HOST))
+                self.parameters.append(rs_frames.parse_parameter(msg.arbitration_id, data, host_id=HOST))
             elif kind == rs.CommType.GET_ID:
-                self.device_ids.append(rs.parse_device_id(msg.arbitration_id, data))
+                self.device_ids.append(rs_frames.parse_device_id(msg.arbitration_id, data))
             elif kind == rs.CommType.FAULT:
-                self.faults.append(rs.parse_fault(msg.arbitration_id, data, host_id=HOST))
+                self.faults.append(rs_frames.parse_fault(msg.arbitration_id, data, host_id=HOST))
 
     def count(self, what: Callable[[Host], Sequence[object]]) -> Callable[[], int]:
         """A counter of the replies `what` selects, for polling."""
@@ -117,26 +118,26 @@ def test_mit_actuator_converges_to_the_commanded_position(emulator: ActuatorEmul
 
 
 def test_robstride_actuator_converges_to_the_commanded_position(emulator: ActuatorEmulator, host: Host) -> None:
-    assert host.request_rs(rs.enable_frame(RS_ID, HOST)).mode is rs.MotorMode.RUN
+    assert host.request_rs(rs_frames.enable_frame(RS_ID, HOST)).mode is rs.MotorMode.RUN
     command = MotorCommand(position=-0.5, velocity=0.0, kp=30.0, kd=2.0, torque=0.0)
-    host.request_rs(rs.control_frame(RS_ID, command, RS03), FrameKind.COMMAND)
+    host.request_rs(rs_frames.control_frame(RS_ID, command, RS03), FrameKind.COMMAND)
     eventually(lambda: near(-0.5)(emulator.snapshot(RS_ID).position_rad), "the RobStride actuator reached -0.5 rad")
-    eventually(lambda: near(-0.5)(host.request_rs(rs.enable_frame(RS_ID, HOST)).position), "its feedback reports -0.5 rad")
+    eventually(lambda: near(-0.5)(host.request_rs(rs_frames.enable_frame(RS_ID, HOST)).position), "its feedback reports -0.5 rad")
 
 
 def test_gravity_load_leaves_the_steady_state_error_of_the_stiffness(channel: str) -> None:
     spec = ActuatorSpec(RS_ID, "RS03", gravity_torque_nm=6.0)
     with ActuatorEmulator(channel, [spec]) as emulator, Host(channel).bus as bus:
-        bus.send_frame(*_fields(rs.enable_frame(RS_ID, HOST)), extended=True, kind=FrameKind.MODE)
+        bus.send_frame(*_fields(rs_frames.enable_frame(RS_ID, HOST)), extended=True, kind=FrameKind.MODE)
         eventually(lambda: emulator.snapshot(RS_ID).enabled, "enabled")
         command = MotorCommand(position=0.0, velocity=0.0, kp=60.0, kd=3.0, torque=0.0)
-        bus.send_frame(*_fields(rs.control_frame(RS_ID, command, RS03)), extended=True, kind=FrameKind.COMMAND)
+        bus.send_frame(*_fields(rs_frames.control_frame(RS_ID, command, RS03)), extended=True, kind=FrameKind.COMMAND)
         eventually(lambda: near(-0.1, 0.01)(emulator.snapshot(RS_ID).position_rad), "sagged to -g/kp = -0.1 rad")
 
 
 def test_a_disabled_actuator_applies_no_torque(emulator: ActuatorEmulator, host: Host) -> None:
     command = MotorCommand(position=2.0, velocity=0.0, kp=50.0, kd=1.0, torque=5.0)
-    reply = host.request_rs(rs.control_frame(RS_ID, command, RS03), FrameKind.COMMAND)
+    reply = host.request_rs(rs_frames.control_frame(RS_ID, command, RS03), FrameKind.COMMAND)
     assert reply.mode is rs.MotorMode.RESET
     snapshot = emulator.snapshot(RS_ID)
     assert (snapshot.enabled, snapshot.torque_nm, snapshot.command.kp) == (False, 0.0, 0.0)
@@ -164,9 +165,9 @@ def test_can_timeout_written_by_the_host_stops_a_silent_hosts_motor(channel: str
     with ActuatorEmulator(channel, [spec]) as emulator:
         host = Host(channel)
         with host.bus:
-            host.request_rs(rs.write_parameter_frame(RS_ID, HOST, rs.CAN_TIMEOUT, rs.can_timeout_ticks(0.2)), FrameKind.PARAMETER)
-            host.request_rs(rs.enable_frame(RS_ID, HOST))
-            host.request_rs(rs.control_frame(RS_ID, MotorCommand(0.0, 0.0, 60.0, 3.0, 0.0), RS03), FrameKind.COMMAND)
+            host.request_rs(rs_frames.write_parameter_frame(RS_ID, HOST, rs.CAN_TIMEOUT, rs.can_timeout_ticks(0.2)), FrameKind.PARAMETER)
+            host.request_rs(rs_frames.enable_frame(RS_ID, HOST))
+            host.request_rs(rs_frames.control_frame(RS_ID, MotorCommand(0.0, 0.0, 60.0, 3.0, 0.0), RS03), FrameKind.COMMAND)
         # the host is gone: nothing more arrives
         eventually(lambda: emulator.snapshot(RS_ID).timeouts == 1, "the CAN timeout fired")
         snapshot = emulator.snapshot(RS_ID)
@@ -174,27 +175,27 @@ def test_can_timeout_written_by_the_host_stops_a_silent_hosts_motor(channel: str
 
 
 def test_can_timeout_is_readable_as_a_parameter(emulator: ActuatorEmulator, host: Host) -> None:
-    host.request_rs(rs.write_parameter_frame(RS_ID, HOST, rs.CAN_TIMEOUT, 4000), FrameKind.PARAMETER)
-    host.send_rs(rs.read_parameter_frame(RS_ID, HOST, rs.CAN_TIMEOUT), FrameKind.PARAMETER)
+    host.request_rs(rs_frames.write_parameter_frame(RS_ID, HOST, rs.CAN_TIMEOUT, 4000), FrameKind.PARAMETER)
+    host.send_rs(rs_frames.read_parameter_frame(RS_ID, HOST, rs.CAN_TIMEOUT), FrameKind.PARAMETER)
     eventually(host.has(lambda h: h.parameters), "the parameter was read")
     assert (host.parameters[0].parameter, host.parameters[0].value) == (rs.CAN_TIMEOUT, 4000)
 
 
 def test_mechanical_position_parameter_reports_the_position(emulator: ActuatorEmulator, host: Host) -> None:
-    host.send_rs(rs.read_parameter_frame(RS_ID, HOST, rs.MECH_POS), FrameKind.PARAMETER)
+    host.send_rs(rs_frames.read_parameter_frame(RS_ID, HOST, rs.MECH_POS), FrameKind.PARAMETER)
     eventually(host.has(lambda h: h.parameters), "the parameter was read")
     assert host.parameters[0].value == pytest.approx(0.5, abs=1e-3)
 
 
 def test_a_ping_is_answered_with_the_device_id(emulator: ActuatorEmulator, host: Host) -> None:
-    host.send_rs(rs.get_id_frame(RS_ID, HOST), FrameKind.QUERY)
+    host.send_rs(rs_frames.get_id_frame(RS_ID, HOST), FrameKind.QUERY)
     eventually(host.has(lambda h: h.device_ids), "the ping was answered")
     assert host.device_ids[0].motor_id == RS_ID
 
 
 def test_a_silenced_actuator_stops_replying(emulator: ActuatorEmulator, host: Host) -> None:
     emulator.silence(RS_ID)
-    host.send_rs(rs.enable_frame(RS_ID, HOST), FrameKind.MODE)
+    host.send_rs(rs_frames.enable_frame(RS_ID, HOST), FrameKind.MODE)
     host.request_mit(mit.Special.ENTER_MOTOR_MODE.value)  # served after the silent actuator's frame
     assert host.count(lambda h: h.feedback)() == 0
     assert emulator.snapshot(RS_ID).enabled  # it still obeys
@@ -202,12 +203,12 @@ def test_a_silenced_actuator_stops_replying(emulator: ActuatorEmulator, host: Ho
 
 def test_a_raised_fault_bit_appears_in_robstride_feedback(emulator: ActuatorEmulator, host: Host) -> None:
     emulator.raise_fault(RS_ID, rs.FeedbackFault.MAGNETIC_ENCODER)
-    assert host.request_rs(rs.enable_frame(RS_ID, HOST)).faults == rs.FeedbackFault.MAGNETIC_ENCODER
+    assert host.request_rs(rs_frames.enable_frame(RS_ID, HOST)).faults == rs.FeedbackFault.MAGNETIC_ENCODER
 
 
 def test_stop_with_clear_faults_clears_the_fault_bits(emulator: ActuatorEmulator, host: Host) -> None:
     emulator.raise_fault(RS_ID, rs.FeedbackFault.STALL_OVERLOAD)
-    assert host.request_rs(rs.stop_frame(RS_ID, HOST, clear_faults=True)).faults == rs.FeedbackFault(0)
+    assert host.request_rs(rs_frames.stop_frame(RS_ID, HOST, clear_faults=True)).faults == rs.FeedbackFault(0)
 
 
 def test_a_raised_error_code_appears_in_mit_replies(emulator: ActuatorEmulator, host: Host) -> None:
@@ -219,7 +220,7 @@ def test_an_overheated_actuator_reports_its_temperature(emulator: ActuatorEmulat
     emulator.overheat(MIT_ID, 95.0)
     emulator.overheat(RS_ID, 101.5)
     assert host.request_mit(mit.Special.ENTER_MOTOR_MODE.value).temperature_c == 95
-    assert host.request_rs(rs.enable_frame(RS_ID, HOST)).temperature_c == 101.5
+    assert host.request_rs(rs_frames.enable_frame(RS_ID, HOST)).temperature_c == 101.5
 
 
 def test_a_fault_frame_is_parsed_with_its_named_bits(emulator: ActuatorEmulator, host: Host) -> None:

@@ -17,6 +17,7 @@ import can
 
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.config import GripperConfig, JointConfig
 from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.ranges import ModelRanges
@@ -115,21 +116,21 @@ class ReplyDecoder:
     def _on_robstride(self, a: Actuator, comm_type: int, arbitration_id: int, data: bytes) -> None:
         host = self.host_id
         if comm_type == rs.CommType.FEEDBACK:
-            feedback = rs.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
+            feedback = rs_frames.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
             a.raw_position, a.raw_velocity = feedback.position, feedback.velocity
             a.reported_at = time.monotonic()
             a.temperature_c, a.mode = feedback.temperature_c, feedback.mode
             a.fault_bits = rs.flag_names(feedback.faults)
         elif comm_type == rs.CommType.FAULT:
-            report = rs.parse_fault(arbitration_id, data, host_id=host)
+            report = rs_frames.parse_fault(arbitration_id, data, host_id=host)
             names = rs.flag_names(report.faults) + ((f"0x{report.unknown_bits:X}",) if report.unknown_bits else ())
             if names:
                 a.fault_frames = tuple(dict.fromkeys(a.fault_frames + names))
         elif comm_type == rs.CommType.GET_ID:
-            rs.parse_device_id(arbitration_id, data)
+            rs_frames.parse_device_id(arbitration_id, data)
             a.pinged = True
         elif comm_type == rs.CommType.READ_PARAMETER:
-            value = rs.parse_parameter(arbitration_id, data, host_id=host)
+            value = rs_frames.parse_parameter(arbitration_id, data, host_id=host)
             a.parameters[value.parameter.index] = float(value.value)
         else:
             raise InvalidFrame(f"unexpected RobStride frame type {comm_type} from motor {a.joint.can_id}")

@@ -22,6 +22,7 @@ import numpy as np
 
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.actuators import Actuator, OutFrame
 from armwarden.backends.can.bus import FrameKind
 from armwarden.backends.can.command import MotorCommand
@@ -48,7 +49,7 @@ def command_frame(a: Actuator, command: MotorCommand) -> OutFrame:
     """`command` for `a` as a frame; `BackendError` (nothing sent) if the model cannot carry it."""
     try:
         if a.joint.protocol is Protocol.ROBSTRIDE:
-            return rs_frame(a, rs.control_frame(a.joint.can_id, command, a.ranges))
+            return rs_frame(a, rs_frames.control_frame(a.joint.can_id, command, a.ranges))
         return mit_frame(a, mit.pack_command(command, a.ranges))
     except ValueError as exc:  # a value the model cannot carry: never sent
         raise BackendError(f"can backend: {a.label}: command refused: {exc}") from exc
@@ -56,14 +57,14 @@ def command_frame(a: Actuator, command: MotorCommand) -> OutFrame:
 
 def enable_frame(a: Actuator, host_id: int) -> OutFrame:
     if a.joint.protocol is Protocol.ROBSTRIDE:
-        return rs_frame(a, rs.enable_frame(a.joint.can_id, host_id))
+        return rs_frame(a, rs_frames.enable_frame(a.joint.can_id, host_id))
     return mit_frame(a, mit.Special.ENTER_MOTOR_MODE.value)
 
 
 def disable_frame(a: Actuator, host_id: int) -> OutFrame:
     """Zero torque (RobStride: a stop frame; MIT: exit motor mode)."""
     if a.joint.protocol is Protocol.ROBSTRIDE:
-        return rs_frame(a, rs.stop_frame(a.joint.can_id, host_id))
+        return rs_frame(a, rs_frames.stop_frame(a.joint.can_id, host_id))
     return mit_frame(a, mit.Special.EXIT_MOTOR_MODE.value)
 
 
@@ -74,25 +75,25 @@ async def configure_actuators(everyone: Sequence[Actuator], config: Config, send
     # 1. ping (harmless: MIT exit-mode leaves the actuator disabled and answers with its state)
     for a in everyone:
         if a.joint.protocol is Protocol.ROBSTRIDE:
-            send([rs_frame(a, rs.get_id_frame(a.joint.can_id, host))], FrameKind.QUERY)
+            send([rs_frame(a, rs_frames.get_id_frame(a.joint.can_id, host))], FrameKind.QUERY)
         else:
             send([mit_frame(a, mit.Special.EXIT_MOTOR_MODE.value)], FrameKind.QUERY)
     await await_all(lambda a: a.pinged, "did not answer the ping")
     # 2. positions: a RobStride stop frame (disabled already) is answered with feedback
     for a in robstride:
-        send([rs_frame(a, rs.stop_frame(a.joint.can_id, host))], FrameKind.MODE)
+        send([rs_frame(a, rs_frames.stop_frame(a.joint.can_id, host))], FrameKind.MODE)
     await await_all(lambda a: a.raw_position is not None, "reported no position")
     # 3. actuator-side CAN timeout (RobStride 0x7028), written and read back
     ticks = rs.can_timeout_ticks(config.can_timeout_s)
     for a in robstride:
-        send([rs_frame(a, rs.write_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT, ticks))], FrameKind.PARAMETER)
-        send([rs_frame(a, rs.read_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT))], FrameKind.PARAMETER)
+        send([rs_frame(a, rs_frames.write_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT, ticks))], FrameKind.PARAMETER)
+        send([rs_frame(a, rs_frames.read_parameter_frame(a.joint.can_id, host, rs.CAN_TIMEOUT))], FrameKind.PARAMETER)
     await await_all(lambda a: a.joint.protocol is Protocol.MIT or a.parameters.get(rs.CAN_TIMEOUT.index) == ticks,
                     f"did not confirm canTimeout = {ticks} ticks ({config.can_timeout_s} s)")
     # 3b. RobStride: operation (MIT-style) control mode, or nothing is enabled; the torque limit
     # written (0x700B limit_torque) and read back
     for a in robstride:
-        send([rs_frame(a, rs.read_parameter_frame(a.joint.can_id, host, rs.RUN_MODE))], FrameKind.PARAMETER)
+        send([rs_frame(a, rs_frames.read_parameter_frame(a.joint.can_id, host, rs.RUN_MODE))], FrameKind.PARAMETER)
     await await_all(lambda a: a.joint.protocol is Protocol.MIT or rs.RUN_MODE.index in a.parameters,
                     "did not report run_mode (0x7005)")
     wrong = [f"{a.label} is in run_mode {_run_mode_name(a.parameters[rs.RUN_MODE.index])}"
@@ -100,9 +101,9 @@ async def configure_actuators(everyone: Sequence[Actuator], config: Config, send
     if wrong:
         raise BackendError(f"can backend: refusing to enable: {'; '.join(wrong)} (must be 0, operation/MIT mode)")
     for a in robstride:
-        send([rs_frame(a, rs.write_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE, a.joint.torque_limit_nm))],
+        send([rs_frame(a, rs_frames.write_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE, a.joint.torque_limit_nm))],
              FrameKind.PARAMETER)
-        send([rs_frame(a, rs.read_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE))], FrameKind.PARAMETER)
+        send([rs_frame(a, rs_frames.read_parameter_frame(a.joint.can_id, host, rs.LIMIT_TORQUE))], FrameKind.PARAMETER)
     await await_all(lambda a: a.joint.protocol is Protocol.MIT or _confirms(
         a.parameters.get(rs.LIMIT_TORQUE.index), a.joint.torque_limit_nm), "did not confirm its limit_torque (0x700B)")
 

@@ -37,6 +37,7 @@ import can
 
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
+from armwarden.backends.can import robstride_device as rs_device
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.ranges import ModelRanges, Protocol, Range, model_ranges
@@ -318,7 +319,7 @@ class ActuatorEmulator:
         """Send a RobStride type-21 fault frame from `can_id`."""
         with self._lock:
             host_id = self._actuator(can_id).host_id
-        frame = rs.fault_frame(rs.FaultReport(can_id, faults, 0, 0), host_id=host_id)
+        frame = rs_device.fault_frame(rs.FaultReport(can_id, faults, 0, 0), host_id=host_id)
         self._send(frame.arbitration_id, frame.data, extended=True)
 
     def emit_error_frame(self, class_bits: int = 0x40) -> None:
@@ -399,9 +400,9 @@ class ActuatorEmulator:
                 actuator.host_id = fields.data2 & 0xFF
             reply: rs.Frame | None
             if kind == rs.CommType.GET_ID:
-                reply = rs.device_id_reply_frame(fields.dest, actuator.spec.uid)
+                reply = rs_device.device_id_reply_frame(fields.dest, actuator.spec.uid)
             elif kind == rs.CommType.CONTROL:
-                _, command = rs.unpack_control(arbitration_id, data, actuator.ranges)
+                _, command = rs_device.unpack_control(arbitration_id, data, actuator.ranges)
                 if actuator.enabled:
                     actuator.command = command
                 reply = self._feedback(actuator)
@@ -417,11 +418,11 @@ class ActuatorEmulator:
                 actuator.zero_offset = actuator.position
                 reply = self._feedback(actuator)
             elif kind == rs.CommType.READ_PARAMETER:
-                parameter, _ = rs.unpack_parameter_request(data)
+                parameter, _ = rs_device.unpack_parameter_request(data)
                 value = rs.ParameterValue(fields.dest, parameter, self._read_parameter(actuator, parameter))
-                reply = rs.parameter_reply_frame(value, host_id=actuator.host_id)
+                reply = rs_device.parameter_reply_frame(value, host_id=actuator.host_id)
             elif kind == rs.CommType.WRITE_PARAMETER:
-                parameter, raw = rs.unpack_parameter_request(data)
+                parameter, raw = rs_device.unpack_parameter_request(data)
                 self._write_parameter(actuator, parameter, rs.decode_value(parameter, raw))
                 reply = self._feedback(actuator)
             elif kind == rs.CommType.ACTIVE_REPORT:
@@ -442,7 +443,7 @@ class ActuatorEmulator:
             velocity=_saturate(actuator.velocity, r.velocity), torque=_saturate(actuator.torque, r.torque),
             temperature_c=actuator.temperature_c,
         )
-        return rs.feedback_frame(feedback, r, host_id=actuator.host_id)
+        return rs_device.feedback_frame(feedback, r, host_id=actuator.host_id)
 
     @staticmethod
     def _read_parameter(actuator: _Actuator, parameter: rs.Parameter) -> float:
