@@ -12,7 +12,8 @@ import time
 import anyio
 import numpy as np
 
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED, ExecutionResult
 from armwarden.core.errors import BackendError
 from armwarden.core.state import JointState

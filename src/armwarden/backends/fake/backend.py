@@ -41,13 +41,13 @@ from typing import TYPE_CHECKING
 import anyio
 import numpy as np
 
-from armwarden.backends.base import Capabilities
 from armwarden.backends.fake.arm import ArmKinematics, arm_setup, require, require_positive, table_contact_force_n
 from armwarden.backends.fake.cameras import CAMERA_HEIGHT_PX, CAMERA_WIDTH_PX, HAVE_PILLOW, render_top_view
 from armwarden.backends.fake.config import Config
 from armwarden.backends.fake.controllers import FakeControllers
 from armwarden.backends.fake.gripper import GRIPPER_HOMING_SPEED_MPS, FakeFingers
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
