@@ -320,7 +320,7 @@ async def test_an_action_server_that_vanishes_while_idle_reports_one_fault_namin
         async with opened(config) as backend:
             faults: list[str] = []
             backend.set_fault_listener(faults.append)
-            await wait_for(lambda: backend._server_seen, "the spare server discovered")
+            await wait_for(lambda: backend.arm.server_seen, "the spare server discovered")
             spare.vanish()
             await wait_for(lambda: faults, "a fault report")
             await anyio.sleep(0.3)

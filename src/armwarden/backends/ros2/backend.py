@@ -6,19 +6,10 @@ naming the age (`get_robot_state` errors rather than lying). The wrench (`Wrench
 best-effort QoS) is stamped with the receipt time of its last *new* header stamp, so a frozen
 driver ages like a silent one and the Guard's force monitor aborts.
 
-Execution (`control_msgs/FollowJointTrajectory`): the goal is exactly the validated waypoints and
-their times (positions only: the controller interpolates linearly between them, as the envelope
-sampled them). The goal is sent under the motion lock the stops take, after a last look at the
-stop epoch: either a stop came first and nothing is sent, or the goal was sent and the stop
-cancels it (by goal id, before the server has even answered if need be; a goal accepted after a
-stop is cancelled again when its acceptance arrives). Rejection, an error code, no answer, no
-result within the trajectory's duration + `result_margin_s` (cancel, "controller timeout"), joint
-states that stop or an action server that vanishes mid-motion (cancel, fault) all end in
-`BackendError` naming the cause. Progress comes from the feedback's trajectory time.
-
-Fallback (`trajectory.topic`): the trajectory is published as `trajectory_msgs/JointTrajectory`;
-it has completed when its time is up and the joint states are at the goal; a stop publishes a
-one-point hold at the measured positions (Jazzy's controller rejects an empty trajectory).
+Parts it composes: the arm's motion, trajectory goals or the topic fallback and their stops
+(`arm.py`), the gripper (`gripper.py`), the controller manager and recovery calls
+(`controllers.py`) and the cameras (`cameras.py`); it keeps the state caches, the endpoints and
+the fault watch they share.
 
 Stops (`_stop_now`, any thread, never awaiting): cancel the running goal (or publish the hold),
 cancel the gripper's goal, and record when the cancel request was sent (`stop_records`). Faults
@@ -54,16 +45,13 @@ goal tolerances, or faster motions, needs larger values (see docs/backends/ros2.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import logging
 import threading
 import time
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import anyio
-import numpy as np
 import rclpy.action.client
 import rclpy.action.graph
 import rclpy.client
@@ -71,7 +59,6 @@ import rclpy.publisher
 import rclpy.qos
 import rclpy.subscription
 import rclpy.timer
-from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from controller_manager_msgs.srv import ListControllers, SwitchController
 from geometry_msgs.msg import WrenchStamped
@@ -82,7 +69,8 @@ from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory as JointTrajectoryMsg
 
 from armwarden.backends.base import Backend, Capabilities
-from armwarden.backends.ros2.action_client import STATUS_NAMES, ActionClient, wait_for_server
+from armwarden.backends.ros2.action_client import ActionClient
+from armwarden.backends.ros2.arm import POLL_S, Ros2Arm
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.cameras import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
@@ -92,16 +80,11 @@ from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.runs import (
     Endpoints,
     Fault,
-    GoalRun,
     StopRecord,
-    TopicRun,
-    hold_message,
-    new_goal_id,
-    trajectory_message,
 )
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache, nothing_heard
 from armwarden.backends.ros2.tf import TransformBuffer
-from armwarden.backends.values import PREEMPTED, CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
+from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, JointState, Transform, Wrench
@@ -113,20 +96,10 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-#: how often a waiting execution looks at the stop epoch, progress, health and deadlines [s]
-POLL_S = 0.01
 #: how often the idle watchdog looks at the joint states and the action server [s]
 WATCH_PERIOD_S = 0.05
-#: how long a stopped execution waits for the arm to come to rest [s]
-REST_TIMEOUT_S = 2.0
 #: an executor quiet this long [s] may hang: silence on its topics is not then blamed on the cell
 EXECUTOR_QUIET_S = 5 * HEARTBEAT_PERIOD_S
-#: what stopped the arm when a fault aborts an execution, for messages
-CANCELLED, ENDED, HELD = "the goal was cancelled", "the goal had ended", "a hold was sent"
-#: FollowJointTrajectory.Result error codes by value, for messages
-ERROR_CODES = {getattr(FollowJointTrajectory.Result, name): name for name in (
-    "SUCCESSFUL", "INVALID_GOAL", "INVALID_JOINTS", "OLD_HEADER_TIMESTAMP", "PATH_TOLERANCE_VIOLATED",
-    "GOAL_TOLERANCE_VIOLATED")}
 
 
 class Ros2Backend(Backend):
@@ -157,13 +130,15 @@ class Ros2Backend(Backend):
         self._endpoints = Endpoints()
         self.controllers = Ros2Controllers(self.bridge, self._endpoints, config.controller_manager)
         self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
-        self._run: GoalRun | TopicRun | None = None
         #: the stops carried out, newest last (the benchmark reads e-stop -> cancel sent)
         self.stop_records: deque[StopRecord] = deque(maxlen=1000)
         self.gripper = None if gripper is None or self.fingers is None else Ros2Gripper(
             self.bridge, self._endpoints, gripper, self.fingers, self._motion_lock, self.stop_records,
             self._gripper_stop_landed, lambda: self._gripper_epoch)
-        self._server_seen = False  # the trajectory action server was seen at least once
+        self.arm = Ros2Arm(self.bridge, self._endpoints, config.trajectory, self.joint_states, ros_names,
+                           self._motion_lock, self.stop_records, lambda: self.is_open, self._stop_landed,
+                           lambda: self._stop_epoch, self._abort_on_fault, self.goal_accuracy_rad,
+                           self.rest_speed_rad_s)
         self._fault_lock = threading.Lock()
         self._fault_active = False  # a fault was reported and the cell has not been healthy since
         self._last_fault: Fault | None = None  # the latest fault found (executions name it)
@@ -185,12 +160,6 @@ class Ros2Backend(Backend):
     @property
     def capabilities(self) -> Capabilities:
         return self._capabilities
-
-    @property
-    def trajectory_interface(self) -> str:
-        """The action or topic trajectories go to, for messages."""
-        trajectory = self.config.trajectory
-        return trajectory.action if trajectory.action is not None else f"topic {trajectory.topic}"
 
     # ================================================================ lifecycle
     async def _open(self) -> None:
@@ -300,8 +269,8 @@ class Ros2Backend(Backend):
         if action is not None:
             ready = action.server_is_ready()
             if ready:
-                self._server_seen = True
-            elif self._server_seen:
+                self.arm.server_seen = True
+            elif self.arm.server_seen:
                 return f"the trajectory action server {self.config.trajectory.action} vanished"
         return None
 
@@ -379,275 +348,16 @@ class Ros2Backend(Backend):
         if fault is not None and fault.epoch >= epoch:
             raise BackendError(f"execution aborted: {fault.problem}; {sent}")
 
-    # ================================================================ motion
+    # ================================================================ motion and stops
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
-        if self._endpoints.trajectory_action is not None:
-            return await self._execute_action(self._endpoints.trajectory_action, trajectory, progress)
-        return await self._execute_topic(trajectory, progress)
+        return await self.arm.execute(trajectory, progress, self._execution_epoch)
 
-
-    async def _execute_action(self, action: rclpy.action.client.ActionClient, trajectory: JointTrajectory,
-                              progress: ProgressCallback) -> ExecutionResult:
-        cfg = self.config.trajectory
-        name = self.trajectory_interface
-        await wait_for_server(action, name, cfg.server_timeout_s)
-        self._server_seen = True
-        goal = FollowJointTrajectory.Goal(trajectory=trajectory_message(trajectory, self.ros_names))
-        with self._motion_lock:  # the stops take it: a stop is either before the send or cancels it
-            if self._stop_landed():
-                return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
-            run = GoalRun(new_goal_id(), self._execution_epoch, trajectory.duration_s, time.monotonic())
-            self._run = run
-            sending = action.send_goal_async(goal, feedback_callback=run.on_feedback, goal_uuid=run.goal_id)
-        sending.add_done_callback(lambda future: self._on_goal_response(run, future))
-        try:
-            try:
-                handle = await self.bridge.result(sending, cfg.goal_response_timeout_s)
-            except TimeoutError:
-                raise BackendError(f"{name} did not answer the trajectory goal within "
-                                   f"{cfg.goal_response_timeout_s:g} s; a cancel was sent") from None
-            if not handle.accepted:
-                run.terminal = True
-                raise BackendError(f"the trajectory goal was rejected by {name} (nothing moved)")
-            return await self._follow_goal(run, handle, trajectory, progress)
-        finally:
-            if not run.terminal:  # error, timeout or cancellation of this task: the goal must not run on
-                self._cancel_goal(run)
-            with self._motion_lock:
-                if self._run is run:
-                    self._run = None
-
-    def _on_goal_response(self, run: GoalRun, future: Any) -> None:
-        """Executor thread: note the handle; a goal accepted after a stop is cancelled now."""
-        if future.exception() is not None:
-            return
-        handle = future.result()
-        with self._motion_lock:
-            run.handle = handle
-            stopped_meanwhile = run.cancel_sent or self._stop_epoch != run.epoch
-        if handle.accepted and stopped_meanwhile:
-            self._cancel_goal(run, again=True)
-
-    def _cancel_goal(self, run: GoalRun, *, again: bool = False) -> None:
-        """Any thread, without waiting: ask the server to cancel `run`'s goal (by id, so it works
-        before the goal was even answered). Sent once, plus once more on a late acceptance."""
-        action = self._endpoints.trajectory_action
-        if action is None or run.terminal or (run.cancel_sent and not again):
-            return
-        run.cancel_sent = True
-        handle = run.handle or rclpy.action.client.ClientGoalHandle(
-            action, run.goal_id, FollowJointTrajectory.Impl.SendGoalService.Response())
-        handle.cancel_goal_async()
-        self.stop_records.append(StopRecord("cancel", time.monotonic()))
-
-    async def _follow_goal(self, run: GoalRun, handle: rclpy.action.client.ClientGoalHandle,
-                           trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
-        """The goal was accepted: report progress until its result, a stop, a fault or the deadline."""
-        cfg = self.config.trajectory
-        name = self.trajectory_interface
-        deadline = time.monotonic() + trajectory.duration_s + cfg.result_margin_s
-        waiting = asyncio.ensure_future(self.bridge.result(handle.get_result_async(), None))
-        reported = 0.0
-        try:
-            while not waiting.done():
-                await asyncio.wait({waiting}, timeout=POLL_S)
-                if waiting.done():
-                    break
-                if self._stopped(run.epoch, CANCELLED):
-                    return await self._stopped_goal(run, waiting)
-                fraction = min(run.fraction(), 0.99)  # 1.0 only once completed
-                if fraction > reported:
-                    reported = fraction
-                    progress(fraction)
-                if time.monotonic() > deadline:
-                    self._cancel_goal(run)
-                    raise BackendError(f"controller timeout: no result from {name} within "
-                                       f"{trajectory.duration_s + cfg.result_margin_s:g} s (trajectory "
-                                       f"{trajectory.duration_s:g} s + margin {cfg.result_margin_s:g} s); the goal was cancelled")
-            if self._stopped(run.epoch, CANCELLED):  # the stop's cancel ended the goal
-                run.terminal = True
-                return await self._rest(run.epoch, CANCELLED)
-            response = waiting.result()
-        finally:
-            if not waiting.done():
-                waiting.cancel()
-        run.terminal = True
-        status, result = response.status, response.result
-        if status == GoalStatus.STATUS_SUCCEEDED and result.error_code == FollowJointTrajectory.Result.SUCCESSFUL:
-            settled = await self._settle(run.epoch, trajectory)
-            if settled.completed:
-                progress(1.0)
-            return settled
-        code = f"{ERROR_CODES.get(result.error_code, 'UNKNOWN')} ({result.error_code})"
-        if status == GoalStatus.STATUS_ABORTED:
-            raise BackendError(f"the trajectory was aborted by the controller ({name}): {code}: {result.error_string}")
-        raise BackendError(f"the trajectory goal ended {STATUS_NAMES.get(status, status)} at {name} without a stop "
-                           f"from here: {code}: {result.error_string}")
-
-    def _state_during(self, epoch: int, sent: str) -> JointState:
-        """Event loop: the fresh joint state during the execution decided under `epoch`; stale
-        joint states there are a fault, named as the watchdog names it (`_abort_on_fault`)."""
-        return self._measured_state_during(epoch, sent)[0]
-
-    def _measured_state_during(self, epoch: int, sent: str) -> tuple[JointState, float]:
-        """`_state_during`, with the sample's header stamp [s, the cell's clock]."""
-        try:
-            return self.joint_states.fresh_measured()
-        except BackendError:
-            self._abort_on_fault(epoch, sent)
-            raise
-
-    def _stopped(self, epoch: int, sent: str) -> bool:
-        """Event loop: whether the execution decided under `epoch` must end as stopped — a stop
-        landed, or the backend is closing (its stop does not bump the epoch). A fault found by
-        then, by the watchdog or by this look, raises instead (`_abort_on_fault`)."""
-        if not self.is_open:
-            return True
-        self._abort_on_fault(epoch, sent)
-        return self._stop_landed()
-
-    async def _stopped_goal(self, run: GoalRun, waiting: asyncio.Future[Any]) -> ExecutionResult:
-        """A stop cancelled the goal: wait (bounded) for its result, then for the arm to rest."""
-        self._cancel_goal(run)  # the stop sent it already; this only covers a stop that found no run
-        if self.is_open:
-            with contextlib.suppress(Exception):  # the result or its absence; a closing node fails it
-                await asyncio.wait_for(asyncio.shield(waiting), self.config.trajectory.goal_response_timeout_s)
-            run.terminal = run.terminal or waiting.done()
-        return await self._rest(run.epoch, CANCELLED)
-
-    async def _settle(self, epoch: int, trajectory: JointTrajectory) -> ExecutionResult:
-        """The controller reports success: the joint states must show the goal (within
-        `goal_accuracy_rad`) and rest, within `result_margin_s`."""
-        goal = trajectory.goal
-        deadline = time.monotonic() + self.config.trajectory.result_margin_s
-        while True:
-            if self._stopped(epoch, ENDED):
-                return await self._rest(epoch, ENDED)
-            state = self._state_during(epoch, ENDED)
-            error = float(np.max(np.abs(state.positions - goal)))
-            if error <= self.goal_accuracy_rad and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
-                return ExecutionResult(True, "completed", state.positions.copy())
-            if time.monotonic() > deadline:
-                return ExecutionResult(False, f"the controller reported success but the arm is {error:.4f} rad from the "
-                                       f"goal after {self.config.trajectory.result_margin_s:g} s", state.positions.copy())
-            await anyio.sleep(POLL_S)
-
-    async def _rest(self, epoch: int, sent: str, after: float | None = None, reason: str = "stopped",
-                    measured_after: float | None = None) -> ExecutionResult:
-        """Wait (bounded) until a joint state received after `after` (monotonic [s]; by default
-        now, when the stop has been sent: a sample from before it may show the arm still at its
-        start) and measured after `measured_after` (its header stamp [s, the cell's clock]; by
-        default after the latest sample now: a backlog our executor reads late arrives "now" but
-        was measured before the stop) shows the joints at rest; where they rest is the result. A
-        fault meanwhile aborts the execution decided under `epoch` (`sent`: what stopped the arm)."""
-        after = time.monotonic() if after is None else after
-        if measured_after is None:
-            measured_after = self.joint_states.latest_header_s()
-        deadline = time.monotonic() + REST_TIMEOUT_S
-        while True:
-            if not self.is_open:  # closed under the execution: the stop was sent; report where it was
-                latest = self.joint_states.latest()
-                if latest is not None:
-                    return ExecutionResult(False, reason, latest.positions.copy())
-            else:
-                self._abort_on_fault(epoch, sent)
-            state, measured = self._measured_state_during(epoch, sent)
-            resting = (state.stamp >= after and (measured_after is None or measured > measured_after)
-                       and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s)
-            if resting or time.monotonic() > deadline:
-                return ExecutionResult(False, reason, state.positions.copy())
-            await anyio.sleep(POLL_S)
-
-    # ---------------------------------------------------------------- topic fallback
-    async def _execute_topic(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
-        publisher = self._endpoints.trajectory_topic
-        assert publisher is not None
-        cfg = self.config.trajectory
-        name = self.trajectory_interface
-        if publisher.get_subscription_count() == 0:
-            await self._wait_for_subscriber(publisher, name, cfg.server_timeout_s)
-        message = trajectory_message(trajectory, self.ros_names)
-        with self._motion_lock:
-            if self._stop_landed():
-                return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
-            run = TopicRun(self._execution_epoch, trajectory.duration_s, time.monotonic(), trajectory)
-            self._run = run
-            publisher.publish(message)
-        try:
-            deadline = run.sent_at + trajectory.duration_s + cfg.result_margin_s
-            reported = 0.0
-            while True:
-                await anyio.sleep(POLL_S)
-                if self._stopped(run.epoch, HELD):
-                    self._hold(run)  # the stop sent it already; this covers a close, which does not bump the epoch
-                    hold_s = self.config.trajectory.hold_time_s
-                    held_at = run.held_at if run.held_at is not None else time.monotonic()
-                    measured = None if run.held_measured is None else run.held_measured + hold_s
-                    return await self._rest(run.epoch, HELD, held_at + hold_s, measured_after=measured)
-                elapsed = time.monotonic() - run.sent_at
-                if elapsed >= trajectory.duration_s:
-                    state = self._state_during(run.epoch, HELD)
-                    at_goal = float(np.max(np.abs(state.positions - trajectory.goal))) <= self.goal_accuracy_rad
-                    if at_goal and np.max(np.abs(state.velocities)) <= self.rest_speed_rad_s:
-                        progress(1.0)
-                        return ExecutionResult(True, "completed", state.positions.copy())
-                elif trajectory.duration_s > 0 and (fraction := min(0.99, elapsed / trajectory.duration_s)) > reported:
-                    reported = fraction
-                    progress(fraction)
-                if time.monotonic() > deadline:
-                    self._hold(run)
-                    raise BackendError(f"controller timeout: the joint states did not reach the goal within "
-                                       f"{trajectory.duration_s + cfg.result_margin_s:g} s of publishing on {name}; a hold was sent")
-        except BaseException:
-            self._hold(run)
-            raise
-        finally:
-            with self._motion_lock:
-                if self._run is run:
-                    self._run = None
-
-    async def _wait_for_subscriber(self, publisher: rclpy.publisher.Publisher, name: str, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while publisher.get_subscription_count() == 0:
-            if time.monotonic() > deadline:
-                raise BackendError(f"nothing subscribes to {name} (waited {timeout_s:g} s); nothing was sent")
-            await anyio.sleep(POLL_S)
-
-    def _hold(self, run: TopicRun) -> None:
-        """Any thread: publish a one-point hold (once per run) at the measured positions — or, when
-        the latest joint state is older than the hold's own time (the states stopped or lag), at
-        the published trajectory's setpoint for now, where the controller is driving the arm: a
-        hold at a stale measurement would drive a moving arm back to where it was, fast."""
-        publisher = self._endpoints.trajectory_topic
-        if publisher is None or run.held_at is not None:
-            return
-        hold_s = self.config.trajectory.hold_time_s
-        state, age = self.joint_states.latest_with_age()
-        if state is not None and age is not None and age <= hold_s:
-            positions = state.positions
-        elif run.trajectory is not None:
-            positions = run.trajectory.sample(time.monotonic() - run.sent_at)
-        elif state is not None:
-            positions = state.positions
-        else:
-            raise BackendError("cannot hold: no joint state to hold at")
-        publisher.publish(hold_message(positions, self.ros_names, hold_s))
-        run.held_at = time.monotonic()
-        run.held_measured = self.joint_states.latest_header_s()
-        self.stop_records.append(StopRecord("hold", run.held_at))
-
-    # ================================================================ stops
     async def _stop(self) -> None:
         self._stop_now()
 
     def _stop_now(self) -> None:
         """Any thread, never awaiting: cancel the running goal (or hold), cancel the gripper's goal."""
-        with self._motion_lock:
-            run = self._run
-        if isinstance(run, GoalRun):
-            self._cancel_goal(run)
-        elif isinstance(run, TopicRun):
-            self._hold(run)
+        self.arm.stop()
         self._stop_fingers()
 
     # ================================================================ gripper
@@ -733,4 +443,4 @@ def create_backend(robot: RobotModel, policy: Policy, config: Config) -> Ros2Bac
     return Ros2Backend(robot, config, ros_names, start_tolerance_rad=policy.motion.start_tolerance_rad)
 
 
-__all__ = ["ERROR_CODES", "Ros2Backend", "StopRecord", "create_backend", "hold_message", "trajectory_message"]
+__all__ = ["Ros2Backend", "create_backend"]
