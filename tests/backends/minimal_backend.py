@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import anyio
 import numpy as np
@@ -17,6 +19,10 @@ from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED, ExecutionResult
 from armwarden.core.errors import BackendError
 from armwarden.core.state import JointState
+
+if TYPE_CHECKING:
+    from armwarden.policy import Policy
+    from armwarden.robot.model import RobotModel
 
 STEP_S = 0.002  # how often the arm moves to the next sample [s]
 
@@ -82,3 +88,12 @@ class MinimalBackend(Backend):
             state = self._state
             self._state = JointState(self.joint_names, state.positions, np.zeros_like(state.positions), time.monotonic())
             self._record_stop_stamp(self._state.stamp)
+
+
+def build_for_tests(policy: Policy, robot: RobotModel, *, speedup: float, options: Mapping[str, Any]) -> MinimalBackend:
+    """How the test harness builds this backend: the `testing.py` convention (docs/add-a-backend.md),
+    here beside the backend, which no registry names. It has no options to take."""
+    if options:
+        raise TypeError(f"the minimal backend takes no options, got {sorted(options)}")
+    return MinimalBackend(robot.joint_names, policy.robot.home_joint_positions,
+                          start_tolerance_rad=policy.motion.start_tolerance_rad, speedup=speedup)

@@ -4,7 +4,9 @@
 does) on a backend — the fake by default, the tiny example backend ("minimal"), the MuJoCo
 simulation ("mujoco", 4× real time), emulated CAN actuators ("can", examples/can_sim.yaml) or
 ROS 2 ("ros2", examples/ros2_fr3.yaml against the fake FR3 cell `tests_ros.cell.Cell`, started
-in this process for each harness) — wrapped in a `CountingBackend` that counts every actuation
+in this process for each harness) — built by that backend's `build_for_tests` (its package's
+`testing` module, found through the backend registry; the minimal one's is in
+tests/backends/minimal_backend.py) and wrapped in a `CountingBackend` that counts every actuation
 command that reaches it: the proof that a refusal moved nothing. `ArmHarness.motions_below`
 counts it once more one layer further down (CAN motion frames, goals at the cell's action
 server). Tests talk to it only through `mcp.Client`, in either protocol mode.
@@ -20,6 +22,8 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import importlib
+import importlib.util
 import os
 import sys
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -30,11 +34,11 @@ import anyio
 import mcp_types as types
 from mcp import Client
 
-from armwarden.assembly import build_backend, build_guard
+from armwarden.assembly import build_guard
 from armwarden.audit import OS_DISK, AuditLog, Disk, verify_file
+from armwarden.backends import registered_backends
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
-from armwarden.backends.fake import Config as FakeConfig
 from armwarden.backends.fake.backend import FakeBackend
 from armwarden.core.errors import BackendError
 from armwarden.daemon.startup import SWITCH_INTERVAL_S, freeze_long_lived_objects
@@ -43,13 +47,17 @@ from armwarden.policy import Policy, apply_overrides, bundled_policy, load_polic
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from armwarden.robot import build_robot
 from armwarden.server.app import ArmWardenServer
-from tests.backends.minimal_backend import MinimalBackend
 from tests.helpers import text_of
 
 MODES = ("legacy", "2026-07-28")
 HOME_TCP_X = 0.3069  # the bundled policy's home pose puts the TCP at (0.3069, 0, 0.4869) m
-#: every backend the harness can build
-KNOWN_BACKENDS = ("fake", "minimal", "mujoco", "can", "ros2")
+#: the backends only the tests have (no registry names them): name -> the module of their `build_for_tests`
+TEST_ONLY_BACKENDS = {"minimal": "tests.backends.minimal_backend"}
+#: every backend the harness can build: the registry's (built-in or an entry point's, each with a
+#: `testing` module beside it) and the test-only ones
+KNOWN_BACKENDS = ("fake", *TEST_ONLY_BACKENDS, *(name for name in registered_backends() if name != "fake"))
+#: the backends a run without `BACKENDS_ENV` uses: every built-in one but ros2
+DEFAULT_BACKENDS = ("fake", "minimal", "mujoco", "can")
 #: the environment variable that chooses the backends of `BACKENDS` (module docstring)
 BACKENDS_ENV = "ARMWARDEN_HARNESS_BACKENDS"
 
@@ -60,7 +68,7 @@ def _chosen_backends() -> tuple[str, ...]:
     unknown = sorted(set(chosen) - set(KNOWN_BACKENDS))
     if unknown:
         raise ValueError(f"{BACKENDS_ENV} names unknown harness backends {unknown}; known: {', '.join(KNOWN_BACKENDS)}")
-    return chosen or tuple(name for name in KNOWN_BACKENDS if name != "ros2")
+    return chosen or DEFAULT_BACKENDS
 
 
 #: backends a scenario can run on: parametrise with `@pytest.mark.parametrize("backend", BACKENDS)`
@@ -72,10 +80,6 @@ SPEEDUP = {"fake": 10.0, "minimal": 10.0, "mujoco": 4.0, "can": 2.0, "ros2": 1.0
 #: process's heap is large) stalls their physics and makes the wrench stale, as it would in a
 #: daemon that did not freeze its long-lived objects
 REAL_TIME = ("mujoco", "can", "ros2")
-#: the emulated RobStride arm the "can" harness backend drives (on a virtual bus of its own)
-CAN_SIM = Path(__file__).resolve().parents[2] / "examples" / "can_sim.yaml"
-#: the ROS 2 wiring of a ros2_control FR3, whose names the fake cell's defaults mirror
-ROS2_FR3 = Path(__file__).resolve().parents[2] / "examples" / "ros2_fr3.yaml"
 
 ElicitationCallback = Callable[[Any, types.ElicitRequestParams], Awaitable[types.ElicitResult]]
 
@@ -171,49 +175,27 @@ class ArmHarness:
             yield client
 
 
-def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
-    """The backend `name` for `policy`. Fake options that are `Config` fields configure it; the
-    rest are its fault-injection attributes (`fail_stop=True`, `stall_wrench_s=0.3`, ...)."""
-    robot = build_robot(policy)
-    if name == "minimal":
-        if options:
-            raise TypeError(f"the minimal backend takes no options, got {sorted(options)}")
-        return MinimalBackend(robot.joint_names, policy.robot.home_joint_positions,
-                              start_tolerance_rad=policy.motion.start_tolerance_rad, speedup=SPEEDUP[name])
-    if name == "mujoco":
-        return build_backend("mujoco", policy, robot=robot, config={"speedup": SPEEDUP[name]} | options)
-    if name == "can":
-        import uuid
-
-        import yaml
-
-        document = yaml.safe_load(CAN_SIM.read_text())
-        document["bus"]["channel"] = f"armwarden-harness-{uuid.uuid4().hex}"  # virtual buses of one name share frames
-        document["simulate"]["speedup"] = SPEEDUP[name]
-        # the test process stalls its threads far longer than a daemon (planning, a large heap, 2 cores
-        # shared with other suites): watch for silence on a scale those stalls do not reach
-        document |= {"rx_timeout_s": 1.0, "can_timeout_s": 2.0}
-        return build_backend("can", policy, robot=robot, config=document | options)
-    if name == "ros2":
-        import yaml
-
-        document = yaml.safe_load(ROS2_FR3.read_text())
-        # the cell publishes from a thread of the test process, which stalls far longer than a daemon
-        # (planning, a large heap, 2 cores shared with other suites): ages on a scale those stalls do not reach
-        document["joint_states"]["max_age_s"] = 1.0
-        document["wrench"]["max_age_s"] = MAX_WRENCH_TIMEOUT_S
-        return build_backend("ros2", policy, robot=robot, config=document | options)
-    if name != "fake":
+def testing_module(name: str) -> str:
+    """The module holding backend `name`'s `build_for_tests`: the `testing` module of the package
+    its registered module is (or is in). Found without importing that backend (no rclpy, no
+    python-can until one is built)."""
+    if name in TEST_ONLY_BACKENDS:
+        return TEST_ONLY_BACKENDS[name]
+    backends = registered_backends()
+    if name not in backends:
         raise ValueError(f"unknown harness backend {name!r}; choose one of {KNOWN_BACKENDS}")
-    config = {key: value for key, value in options.items() if key in FakeConfig.model_fields}
-    fake = build_backend("fake", policy, robot=robot, config={"speedup": SPEEDUP[name]} | config)
-    assert isinstance(fake, FakeBackend)
-    for key, value in options.items():
-        if key not in config:
-            if not hasattr(fake, key):
-                raise TypeError(f"the fake backend has no option or attribute {key!r}")
-            setattr(fake, key, value)
-    return fake
+    module = backends[name]
+    spec = importlib.util.find_spec(module)  # imports the parent packages only
+    package = module if spec is not None and spec.submodule_search_locations is not None else module.rpartition(".")[0]
+    return f"{package}.testing"
+
+
+def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
+    """The backend `name` for `policy`, built by its `build_for_tests` with the harness's speedup;
+    `options` are what that function takes (the fake: `Config` fields and fault-injection
+    attributes such as `fail_stop=True`, `stall_wrench_s=0.3`)."""
+    testing = importlib.import_module(testing_module(name))
+    return testing.build_for_tests(policy, build_robot(policy), speedup=SPEEDUP.get(name, 1.0), options=options)
 
 
 def _policy_for(backend: str) -> Policy:
