@@ -41,8 +41,8 @@ from control_msgs.action import FollowJointTrajectory
 from armwarden.backends.ros2.action_client import STATUS_NAMES, wait_for_server
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import TrajectoryConfig
+from armwarden.backends.ros2.endpoints import Endpoints
 from armwarden.backends.ros2.runs import (
-    Endpoints,
     GoalRun,
     StopRecord,
     TopicRun,

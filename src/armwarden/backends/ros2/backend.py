@@ -59,26 +59,18 @@ import rclpy.publisher
 import rclpy.qos
 import rclpy.subscription
 import rclpy.timer
-from control_msgs.action import FollowJointTrajectory, GripperCommand
-from controller_manager_msgs.srv import ListControllers, SwitchController
-from geometry_msgs.msg import WrenchStamped
 from sensor_msgs.msg import CompressedImage, Image
-from sensor_msgs.msg import JointState as JointStateMsg
-from std_srvs.srv import Trigger
-from tf2_msgs.msg import TFMessage
-from trajectory_msgs.msg import JointTrajectory as JointTrajectoryMsg
 
 from armwarden.backends.base import Backend, Capabilities
-from armwarden.backends.ros2.action_client import ActionClient
 from armwarden.backends.ros2.arm import POLL_S, Ros2Arm
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.cameras import CameraFeed
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
 from armwarden.backends.ros2.controllers import Ros2Controllers
+from armwarden.backends.ros2.endpoints import Endpoints, Streams, create_endpoints
 from armwarden.backends.ros2.gripper import Ros2Gripper
 from armwarden.backends.ros2.images import png_from_compressed, png_from_image
 from armwarden.backends.ros2.runs import (
-    Endpoints,
     Fault,
     StopRecord,
 )
@@ -181,40 +173,8 @@ class Ros2Backend(Backend):
     def _create_endpoints(self) -> None:
         """The endpoints that live as long as the node, made before the executor spins (see
         `armwarden.backends.ros2.bridge`: the executor thread owns the entities)."""
-        node, group, cfg, e = self.bridge.node, self.bridge.group, self.config, self._endpoints
-        subscribe = e.subscriptions.append
-        subscribe(node.create_subscription(JointStateMsg, cfg.joint_states.topic, self.joint_states.accept, 10,
-                                           callback_group=group))
-        if self.wrench is not None:
-            best_effort = rclpy.qos.QoSProfile(depth=10, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
-            subscribe(node.create_subscription(WrenchStamped, self.wrench.topic, self.wrench.accept, best_effort,
-                                               callback_group=group))
-        if self.fingers is not None:
-            subscribe(node.create_subscription(JointStateMsg, self.fingers.topic, self.fingers.accept, 10,
-                                               callback_group=group))
-        if self.transforms is not None:
-            transforms = self.transforms
-            static = rclpy.qos.QoSProfile(depth=100, durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL,
-                                          reliability=rclpy.qos.ReliabilityPolicy.RELIABLE)
-            subscribe(node.create_subscription(TFMessage, "/tf", lambda m: transforms.accept(m, static=False), 100,
-                                               callback_group=group))
-            subscribe(node.create_subscription(TFMessage, "/tf_static", lambda m: transforms.accept(m, static=True),
-                                               static, callback_group=group))
-        if cfg.trajectory.action is not None:
-            e.trajectory_action = ActionClient(node, FollowJointTrajectory, cfg.trajectory.action, callback_group=group)
-        else:
-            assert cfg.trajectory.topic is not None
-            e.trajectory_topic = node.create_publisher(JointTrajectoryMsg, cfg.trajectory.topic, 10)
-        if cfg.gripper is not None:
-            e.gripper_action = ActionClient(node, GripperCommand, resolved(cfg.gripper.action, "gripper.action"),
-                                            callback_group=group)
-        if cfg.controller_manager is not None:
-            ns = cfg.controller_manager.namespace.rstrip("/")
-            e.list_controllers = node.create_client(ListControllers, f"{ns}/list_controllers", callback_group=group)
-            e.switch_controller = node.create_client(SwitchController, f"{ns}/switch_controller", callback_group=group)
-        if cfg.error_recovery is not None:
-            e.error_recovery = node.create_client(Trigger, cfg.error_recovery.service, callback_group=group)
-        e.watchdog = node.create_timer(WATCH_PERIOD_S, self._watch, callback_group=group)
+        create_endpoints(self._endpoints, self.bridge, self.config, Streams(self.joint_states, self.wrench, self.fingers,
+                         self.transforms), self._watch, WATCH_PERIOD_S)
 
     async def _wait_for_first_state(self) -> None:
         """Open ends once the arm's joint states (and the fingers' and the wrench, when configured)

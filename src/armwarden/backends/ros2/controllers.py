@@ -19,7 +19,7 @@ from std_srvs.srv import Trigger
 
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import ControllerManagerConfig
-from armwarden.backends.ros2.runs import Endpoints
+from armwarden.backends.ros2.endpoints import Endpoints
 from armwarden.backends.values import ControllerInfo
 from armwarden.core.errors import BackendError
 

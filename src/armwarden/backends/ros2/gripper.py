@@ -28,7 +28,8 @@ from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper
 from armwarden.backends.ros2.action_client import STATUS_NAMES, wait_for_server
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import GripperConfig, resolved
-from armwarden.backends.ros2.runs import Endpoints, GripperRun, StopRecord, new_goal_id
+from armwarden.backends.ros2.endpoints import Endpoints
+from armwarden.backends.ros2.runs import GripperRun, StopRecord, new_goal_id
 from armwarden.backends.ros2.state import JointStateCache
 from armwarden.backends.values import GripperResult
 from armwarden.core.errors import BackendError

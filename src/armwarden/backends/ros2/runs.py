@@ -1,5 +1,5 @@
 """What the ROS 2 backend sends and keeps track of: the trajectory and hold messages, one record
-per goal or published trajectory in flight, the stops it carried out and the rclpy entities it made.
+per goal or published trajectory in flight and the stops it carried out.
 
 The run records are written under the backend's motion lock (event loop, stopping threads) and by
 rclpy callbacks on the executor thread; see `armwarden.backends.ros2.backend`.
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -124,19 +124,5 @@ def new_goal_id() -> UUID:
     return UUID(uuid=list(uuid.uuid4().bytes))
 
 
-@dataclass
-class Endpoints:
-    """The rclpy entities the backend created (built in `_open`)."""
-
-    trajectory_action: rclpy.action.client.ActionClient | None = None
-    trajectory_topic: rclpy.publisher.Publisher | None = None
-    gripper_action: rclpy.action.client.ActionClient | None = None
-    list_controllers: rclpy.client.Client | None = None
-    switch_controller: rclpy.client.Client | None = None
-    error_recovery: rclpy.client.Client | None = None
-    watchdog: rclpy.timer.Timer | None = None
-    subscriptions: list[rclpy.subscription.Subscription] = field(default_factory=list)
-
-
-__all__ = ["Endpoints", "Fault", "GoalRun", "GripperRun", "StopRecord", "TopicRun", "hold_message", "new_goal_id",
+__all__ = ["Fault", "GoalRun", "GripperRun", "StopRecord", "TopicRun", "hold_message", "new_goal_id",
            "trajectory_message"]
