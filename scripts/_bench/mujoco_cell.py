@@ -67,7 +67,7 @@ def braking_floor_s(backend: Any) -> float:
     """Shortest time the arm's torque limits can bring the measured joint speeds to zero [s]."""
     import mujoco
 
-    model, cell = backend.arm.model, backend.cell
+    model, cell = backend.arm.model, backend.sim
     sample = backend.arm.measured
     probe = mujoco.MjData(model)
     probe.qpos[:] = sample.scene_qpos

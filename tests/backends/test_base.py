@@ -8,7 +8,9 @@ import asyncio
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
+from armwarden.backends.part_calls import finger_deadline_s
+from armwarden.backends.parts import Cameras, Cell, Graph, Gripper
 from armwarden.backends.values import CameraImage, ExecutionResult
 from armwarden.core.errors import BackendError, BackendTimeout
 from armwarden.core.state import GripperState, JointState
@@ -25,10 +27,6 @@ class _Probe(Backend):
         super().__init__(NAMES, start_tolerance_rad=0.01)
         self.published, self.hang_s, self.broken = published, hang_s, broken
         self.slow_reads = 0
-
-    @property
-    def capabilities(self) -> Capabilities:
-        return Capabilities()
 
     async def _open(self) -> None:
         pass
@@ -93,40 +91,48 @@ def test_reads_before_open_are_refused():
 
 
 # ---------------------------------------------------------------------------- optional-call deadlines
-class _SlowGripper(_Probe):
-    """A probe with a gripper whose move never finishes and whose stop is recorded."""
+class _SlowFingers(Gripper):
+    """A gripper whose move never finishes."""
 
-    def __init__(self) -> None:
-        super().__init__(published=JointState(NAMES, np.zeros(2), np.zeros(2), 0.0))
-        self.stops = 0
+    def __init__(self, published: GripperState | None = None) -> None:
+        self.published = published
 
-    @property
-    def capabilities(self) -> Capabilities:
-        return Capabilities(gripper=True, graph=True)
+    def state(self) -> GripperState:
+        if self.published is None:
+            raise BackendError("no gripper state published")
+        return self.published
 
-    async def _gripper_move(self, width_m: float, speed_mps: float):
+    async def move(self, width_m: float, speed_mps: float):
         await asyncio.sleep(3600)
+        raise AssertionError("never arrives")
 
-    async def _graph(self):
-        await asyncio.sleep(3600)
+    async def grasp(self, width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m):
+        raise AssertionError("not called")
 
-    async def _gripper_state(self) -> GripperState:
+    async def home(self):
+        raise AssertionError("not called")
+
+    def stop_now(self) -> None:
+        pass
+
+
+class _SlowGraph(Graph):
+    async def describe(self) -> dict[str, list[str]]:
         await asyncio.sleep(3600)
         raise AssertionError("never answers")
 
+
+class _SlowGripper(_Probe):
+    """A probe with a slow gripper and a slow graph whose stops are recorded."""
+
+    def __init__(self, published: GripperState | None = None) -> None:
+        super().__init__(published=JointState(NAMES, np.zeros(2), np.zeros(2), 0.0))
+        self.stops = 0
+        self.fingers, self.ros_graph = _SlowFingers(published), _SlowGraph()
+        self.cell = Cell(gripper=self.fingers, graph=self.ros_graph)
+
     async def _stop(self) -> None:
         self.stops += 1
-
-
-class _PublishingGripper(_SlowGripper):
-    """A gripper whose state is published (as every shipped backend's is): read without waiting."""
-
-    def __init__(self, published: GripperState) -> None:
-        super().__init__()
-        self.gripper_published = published
-
-    def _latest_gripper_state(self) -> GripperState:
-        return self.gripper_published
 
 
 def _call(backend: _Probe, call):
@@ -142,7 +148,7 @@ def _call(backend: _Probe, call):
 
 def test_an_actuating_call_past_its_deadline_is_a_backend_timeout_after_a_stop():
     backend = _SlowGripper()
-    backend.gripper_timeout_s, backend.gripper_travel_m = 0.05, 0.0
+    backend.fingers.timeout_s, backend.fingers.travel_m = 0.05, 0.0
     with pytest.raises(BackendTimeout, match=r"gripper move did not finish within 0\.05 s"):
         _call(backend, lambda b: b.gripper_move(0.01, 0.1))
     assert backend.stops == 2  # the one after the missed deadline, then the one of close()
@@ -150,63 +156,63 @@ def test_an_actuating_call_past_its_deadline_is_a_backend_timeout_after_a_stop()
 
 def test_a_reading_call_past_its_deadline_is_a_backend_timeout_without_a_stop():
     backend = _SlowGripper()
-    backend.graph_timeout_s = 0.05
+    backend.ros_graph.timeout_s = 0.05
     with pytest.raises(BackendTimeout, match="graph description"):
         _call(backend, lambda b: b.graph())
     assert backend.stops == 1  # only close()'s
 
 
-def test_a_gripper_state_read_past_its_deadline_is_a_backend_timeout():
-    backend = _SlowGripper()
-    backend.gripper_state_timeout_s = 0.05
-    with pytest.raises(BackendTimeout, match=r"gripper state read did not finish within 0\.05 s"):
-        _call(backend, lambda b: b.gripper_state())
-
-
-def test_a_published_gripper_state_is_returned_without_the_slow_read():
+def test_a_published_gripper_state_is_returned_as_is():
     published = GripperState(0.04, False, False, 3.0)
-    backend = _PublishingGripper(published)
-    backend.gripper_state_timeout_s = 0.05
-    assert _call(backend, lambda b: b.gripper_state()) is published
+    assert _call(_SlowGripper(published), lambda b: b.gripper_state()) is published
+
+
+def test_a_gripper_with_no_state_published_fails_the_read():
+    with pytest.raises(BackendError, match="no gripper state published"):
+        _call(_SlowGripper(), lambda b: b.gripper_state())
 
 
 def test_the_gripper_deadline_grows_with_the_travel_time_at_the_requested_speed():
-    backend = _SlowGripper()
-    backend.gripper_timeout_s, backend.gripper_travel_m = 5.0, 0.08
-    assert backend._gripper_deadline_s(0.01) == pytest.approx(13.0)
-    assert backend._gripper_deadline_s(float("nan")) == 5.0
+    assert finger_deadline_s(5.0, 0.08, 0.01) == pytest.approx(13.0)
+    assert finger_deadline_s(5.0, 0.08, float("nan")) == 5.0
 
 
-class _SlowCamera(_Probe):
-    """A probe whose camera takes `render_s` per frame, plus `setup_s` for its first."""
+class _SlowCameraPart(Cameras):
+    """A camera that takes `render_s` per frame, plus `setup_s` for its first."""
 
     def __init__(self, render_s: float, setup_s: float, setup_timeout_s: float) -> None:
-        super().__init__()
         self.render_s, self.setup_s, self.frames = render_s, setup_s, 0
-        self.camera_timeout_s, self.camera_setup_timeout_s = 0.2, setup_timeout_s
+        self.timeout_s, self.setup_timeout_s = 0.2, setup_timeout_s
 
     @property
-    def capabilities(self) -> Capabilities:
-        return Capabilities(cameras=("scene",))
+    def names(self) -> tuple[str, ...]:
+        return ("scene",)
 
-    async def _camera_snapshot(self, camera: str) -> CameraImage:
+    async def snapshot(self, camera: str) -> CameraImage:
         await asyncio.sleep(self.render_s + (self.setup_s if self.frames == 0 else 0.0))
         self.frames += 1
         return CameraImage(camera, 1, 1, b"", 0.0)
 
-    def _camera_set_up(self) -> bool:
+    def set_up(self) -> bool:
         return self.frames > 0
 
 
+class _SlowCamera(_Probe):
+    def __init__(self, render_s: float, setup_s: float, setup_timeout_s: float) -> None:
+        super().__init__()
+        self.camera = _SlowCameraPart(render_s, setup_s, setup_timeout_s)
+        self.cell = Cell(cameras=self.camera)
+
+
 def test_a_first_snapshot_may_take_the_one_time_setup_on_top_of_the_camera_deadline():
-    backend = _SlowCamera(render_s=0.0, setup_s=0.5, setup_timeout_s=60.0)  # setup alone: past camera_timeout_s
+    backend = _SlowCamera(render_s=0.0, setup_s=0.5, setup_timeout_s=60.0)  # setup alone: past the camera's timeout_s
 
     async def two_snapshots(b: Backend) -> None:
         await b.camera_snapshot("scene")
         await b.camera_snapshot("scene")
 
     _call(backend, two_snapshots)
-    assert backend.frames == 2
+    assert backend.camera.frames == 2
 
 
 def test_a_first_snapshot_past_the_setup_deadline_names_the_setup_and_later_ones_get_the_plain_deadline():
@@ -214,7 +220,7 @@ def test_a_first_snapshot_past_the_setup_deadline_names_the_setup_and_later_ones
                                              r"did not finish within 0\.5 s"):
         _call(_SlowCamera(render_s=0.0, setup_s=3600.0, setup_timeout_s=0.3), lambda b: b.camera_snapshot("scene"))
     backend = _SlowCamera(render_s=3600.0, setup_s=0.0, setup_timeout_s=60.0)
-    backend.frames = 1  # set up already: the plain deadline
+    backend.camera.frames = 1  # set up already: the plain deadline
     with pytest.raises(BackendTimeout, match=r"camera 'scene' snapshot did not finish within 0\.2 s"):
         _call(backend, lambda b: b.camera_snapshot("scene"))
 

@@ -62,8 +62,8 @@ def test_config_refuses_unknown_keys_and_non_finite_numbers():
 
 def test_config_table_height_moves_the_table():
     backend = build(table_top_z_m=0.1)
-    table = backend.cell.model.geom("table")
-    top = backend.cell.model.geom_pos[table.id][2] + backend.cell.model.geom_size[table.id][2]
+    table = backend.sim.model.geom("table")
+    top = backend.sim.model.geom_pos[table.id][2] + backend.sim.model.geom_size[table.id][2]
     assert top == pytest.approx(0.1)
 
 
@@ -212,7 +212,7 @@ def test_widths_forces_and_speeds_out_of_range_are_refused():
 def published_position(backend: MujocoBackend, body: str) -> np.ndarray:
     """Where a free body is [m] in the last published sample (never `_data`, which the physics
     thread is stepping: a read there can catch a value half computed)."""
-    model = backend.cell.model
+    model = backend.sim.model
     address = model.jnt_qposadr[model.body(body).jntadr[0]]  # a free joint: x, y, z, then a quaternion
     return np.array(backend.arm.measured.scene_qpos[address:address + 3])
 
@@ -289,14 +289,14 @@ def test_the_scene_camera_sees_the_simulated_arm_move():
 def test_the_example_scene_config_is_valid_and_puts_a_box_on_the_table():
     config = Config.model_validate(yaml.safe_load(EXAMPLE_SCENE.read_text()))
     backend = create_backend(ROBOT, POLICY, config)
-    model = backend.cell.model
+    model = backend.sim.model
     box = model.body("box").id
     assert [o.name for o in config.objects] == ["box"]
     assert model.body_mass[box] == pytest.approx(0.2)
 
 
 def test_a_home_outside_the_joint_limits_is_refused():
-    cell = build().cell
+    cell = build().sim
     outside = np.asarray(POLICY.robot.home_joint_positions, dtype=float) + np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
     with pytest.raises(BackendError, match="joint limits"):
         MujocoBackend(ROBOT, cell, outside)
@@ -305,7 +305,7 @@ def test_a_home_outside_the_joint_limits_is_refused():
 # ---------------------------------------------------------------------------- found by review
 def _blow_up(backend: MujocoBackend, force: float) -> None:
     """A force on the hand that makes the next physics step unstable."""
-    hand = backend.arm.model.body(backend.cell.flange_body).id
+    hand = backend.arm.model.body(backend.sim.flange_body).id
     backend.arm.data.xfrc_applied[hand, 0] = force
 
 

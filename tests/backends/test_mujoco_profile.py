@@ -58,7 +58,7 @@ def test_the_compiled_fr3_armature_is_the_profiles_not_the_generic_rules(caplog)
     with caplog.at_level("WARNING", logger="armwarden.backends.mujoco"):
         backend = create_backend(build_robot(policy), policy, Config(cameras=()))
     assert FR3.actuators is not None
-    armature = backend.cell.model.dof_armature[backend.cell.arm_dofs]
+    armature = backend.sim.model.dof_armature[backend.sim.arm_dofs]
     assert armature.tolist() == [FR3.actuators[joint].armature_kg_m2 for joint in policy.robot.joint_names]
     assert not [record for record in caplog.records if "generic armature rule" in record.getMessage()]
 
@@ -83,9 +83,9 @@ def test_a_robot_without_actuators_in_a_profile_gets_the_generic_rule_and_says_s
     policy = _user_urdf_policy()
     with caplog.at_level("WARNING", logger="armwarden.backends.mujoco"):
         backend = create_backend(build_robot(policy), policy, Config(cameras=()))
-    model = backend.cell.model
+    model = backend.sim.model
     efforts = [float(model.jnt_actfrcrange[model.joint(joint).id][1]) for joint in policy.robot.joint_names]
-    armature = model.dof_armature[backend.cell.arm_dofs]
+    armature = model.dof_armature[backend.sim.arm_dofs]
     assert armature.tolist() == list(generic_armature(efforts))
     messages = [record.getMessage() for record in caplog.records if "generic armature rule" in record.getMessage()]
     assert len(messages) == 1, messages

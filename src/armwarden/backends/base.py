@@ -11,7 +11,6 @@ for every backend, and `tests/backends/contract.py` (`BackendContract`) checks t
 
 from __future__ import annotations
 
-import abc
 import logging
 import math
 import threading
@@ -23,12 +22,14 @@ import numpy as np
 
 from armwarden.backends.arm_state import ArmEvent, ArmStateReporting
 from armwarden.backends.faults import FaultReporting
+from armwarden.backends.hook_parts import cell_from_hooks
 from armwarden.backends.hooks import BackendHooks
-from armwarden.backends.parts import Capabilities
-from armwarden.backends.values import PREEMPTED, CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
+from armwarden.backends.part_calls import PartCalls
+from armwarden.backends.parts import Capabilities, Cell
+from armwarden.backends.values import PREEMPTED, ExecutionResult, ProgressCallback
 from armwarden.backends.workers import WorkerSupervision
 from armwarden.core.errors import BackendError, BackendTimeout, StoppedBeforeStart
-from armwarden.core.state import GripperState, JointState, Transform, Wrench
+from armwarden.core.state import JointState
 from armwarden.core.trajectory import JointTrajectory
 
 logger = logging.getLogger(__name__)
@@ -36,7 +37,7 @@ logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
 
-class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks):
+class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, BackendHooks):
     """Base class: lifecycle, deadlines, checks, the arm state and logging; subclasses implement the `_hooks`."""
 
     def __init__(self, joint_names: Sequence[str], *, start_tolerance_rad: float) -> None:
@@ -55,6 +56,7 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks
         self._gripper_epoch = 0  # the stop epoch the running gripper action was decided under
         self._opened = False
         self._closed = False
+        self._cell: Cell | None = None
 
     @property
     def last_stop_stamp(self) -> float | None:
@@ -152,8 +154,21 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks
             raise BackendError(failure)
 
     @property
-    @abc.abstractmethod
-    def capabilities(self) -> Capabilities: ...
+    def cell(self) -> Cell:
+        """The cell's optional parts (`armwarden.backends.parts`); a backend sets it in its
+        constructor. One that declares `capabilities` flags instead gets parts calling its hooks."""
+        if self._cell is None:
+            self._cell = cell_from_hooks(self) if type(self).capabilities is not Backend.capabilities else Cell()
+        return self._cell
+
+    @cell.setter
+    def cell(self, cell: Cell) -> None:
+        self._cell = cell
+
+    @property
+    def capabilities(self) -> Capabilities:
+        """What the cell offers: read from its parts."""
+        return self.cell.capabilities
 
     # ---------------------------------------------------------------- state
     async def read_joint_state(self) -> JointState:
@@ -162,16 +177,6 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks
         if published is not None:
             return published
         return await self._bounded("joint state read", self.read_timeout_s, self._read_joint_state)
-
-    async def read_wrench(self) -> Wrench | None:
-        """The latest wrench estimate, or None if this backend has none."""
-        self._require_open()
-        if not self.capabilities.wrench:
-            return None
-        published = self._latest_wrench()
-        if published is not None:
-            return published
-        return await self._bounded("wrench read", self.read_timeout_s, self._read_wrench)
 
     # ---------------------------------------------------------------- motion
     async def execute(
@@ -270,99 +275,6 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, BackendHooks
             raise
         except Exception as exc:
             raise BackendError(f"backend {self.name}: {what} failed: {exc}") from exc
-
-    # ---------------------------------------------------------------- optional capabilities
-    async def gripper_state(self) -> GripperState | None:
-        self._require_open()
-        if not self.capabilities.gripper:
-            return None
-        published = self._latest_gripper_state()
-        if published is not None:
-            return published
-        return await self._bounded("gripper state read", self.gripper_state_timeout_s, self._gripper_state)
-
-    async def gripper_move(self, width_m: float, speed_mps: float, *, stop_epoch: int | None = None) -> GripperResult:
-        """Actuating calls take the `stop_epoch` their caller decided under, like `execute`."""
-        self._require_capability(self.capabilities.gripper, "gripper")
-        self._gripper_epoch = self._admit(stop_epoch, "gripper move")
-        return await self._bounded("gripper move", self._gripper_deadline_s(speed_mps),
-                                   lambda: self._gripper_move(width_m, speed_mps), actuating=True)
-
-    async def gripper_grasp(
-        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float,
-        *, stop_epoch: int | None = None,
-    ) -> GripperResult:
-        self._require_capability(self.capabilities.gripper, "gripper")
-        self._gripper_epoch = self._admit(stop_epoch, "gripper grasp")
-        return await self._bounded(
-            "gripper grasp", self._gripper_deadline_s(speed_mps),
-            lambda: self._gripper_grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m), actuating=True,
-        )
-
-    async def gripper_home(self, *, stop_epoch: int | None = None) -> GripperResult:
-        self._require_capability(self.capabilities.gripper, "gripper")
-        self._gripper_epoch = self._admit(stop_epoch, "gripper homing")
-        return await self._bounded("gripper homing", self.gripper_home_timeout_s, self._gripper_home, actuating=True)
-
-    async def camera_snapshot(self, camera: str) -> CameraImage:
-        self._require_capability(camera in self.capabilities.cameras, f"camera {camera!r}")
-        what, timeout_s = self._camera_deadline(camera)
-        return await self._bounded(what, timeout_s, lambda: self._camera_snapshot(camera))
-
-    def _camera_deadline(self, camera: str) -> tuple[str, float]:
-        """What a snapshot of `camera` is called in its timeout message, and its deadline [s]:
-        `camera_timeout_s`, plus `camera_setup_timeout_s` while `_camera_set_up` says the
-        one-time setup has not finished (a first frame may be far slower than the others)."""
-        if self.camera_setup_timeout_s > 0 and not self._camera_set_up():
-            return (f"camera {camera!r} snapshot (the first, which sets up rendering)",
-                    self.camera_timeout_s + self.camera_setup_timeout_s)
-        return f"camera {camera!r} snapshot", self.camera_timeout_s
-
-    async def list_controllers(self) -> list[ControllerInfo]:
-        self._require_capability(self.capabilities.controllers, "controllers")
-        return await self._bounded("controller listing", self.controllers_timeout_s, self._list_controllers)
-
-    async def switch_controllers(self, activate: Sequence[str], deactivate: Sequence[str], *,
-                                 stop_epoch: int | None = None) -> None:
-        self._require_capability(self.capabilities.controllers, "controllers")
-        self._admit(stop_epoch, "controller switch")
-        await self._bounded("controller switch", self.controllers_timeout_s,
-                            lambda: self._switch_controllers(tuple(activate), tuple(deactivate)), actuating=True)
-
-    async def set_collision_thresholds(self, force_n: float, torque_nm: float, *, stop_epoch: int | None = None) -> None:
-        self._require_capability(self.capabilities.collision_thresholds, "collision thresholds")
-        self._admit(stop_epoch, "collision threshold change")
-        await self._bounded("collision threshold change", self.thresholds_timeout_s,
-                            lambda: self._set_collision_thresholds(force_n, torque_nm), actuating=True)
-
-    async def error_recovery(self, *, stop_epoch: int | None = None) -> None:
-        self._require_capability(self.capabilities.error_recovery, "error recovery")
-        self._admit(stop_epoch, "error recovery")
-        await self._bounded("error recovery", self.error_recovery_timeout_s, self._error_recovery, actuating=True)
-        self._arm_event(ArmEvent.RECOVER)
-
-    async def graph(self) -> dict[str, list[str]]:
-        self._require_capability(self.capabilities.graph, "graph")
-        return await self._bounded("graph description", self.graph_timeout_s, self._graph)
-
-    async def lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
-        """Pose of `source_frame` in `target_frame` from the backend's frame tree (capability
-        `transforms`); `BackendError` if a frame is unknown, disconnected or stale."""
-        self._require_capability(self.capabilities.transforms, "transforms")
-        return await self._bounded("transform lookup", self.transform_timeout_s,
-                                   lambda: self._lookup_transform(target_frame, source_frame))
-
-    def _require_capability(self, present: bool, what: str) -> None:
-        self._require_open()
-        if not present:
-            raise BackendError(f"backend {self.name} has no {what}")
-
-    def _gripper_deadline_s(self, speed_mps: float) -> float:
-        """Deadline [s] of a gripper move/grasp at `speed_mps`: the full travel plus a fixed margin
-        (an invalid speed gets the margin alone; the backend refuses it)."""
-        if not (isinstance(speed_mps, (int, float)) and math.isfinite(speed_mps) and speed_mps > 0):
-            return self.gripper_timeout_s
-        return self.gripper_timeout_s + self.gripper_travel_m / speed_mps
 
     async def _bounded(self, what: str, timeout_s: float, call: Callable[[], Awaitable[T]], *, actuating: bool = False) -> T:
         """Await `call()` under a deadline; a miss is a `BackendTimeout` (after a stop if `actuating`)."""

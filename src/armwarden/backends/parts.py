@@ -16,6 +16,7 @@ A part's `stop_now`-style methods are called from any thread; everything else fr
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from armwarden.backends.values import CameraImage, ControllerInfo, GripperResult
@@ -88,6 +89,17 @@ class WrenchSensor(abc.ABC):
     async def read(self) -> Wrench | None:
         """The estimate, for a sensor that has none published yet (default: `latest`)."""
         return self.latest()
+
+
+class PublishedWrench(WrenchSensor):
+    """The estimate a backend's own thread publishes: `latest` reads it (and may raise
+    `BackendError` when its source has died)."""
+
+    def __init__(self, latest: Callable[[], Wrench | None]) -> None:
+        self._latest = latest
+
+    def latest(self) -> Wrench | None:
+        return self._latest()
 
 
 class Controllers(abc.ABC):

@@ -18,11 +18,11 @@ environment applies to the hand — at the TCP, in the base frame.
 
 Gripper: the finger actuator tracks a width ramp at the requested speed, its force capped by the
 grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
-the finger target where its ramp is (fingers on an object keep their grip; see `_stop_fingers`).
+the finger target where its ramp is (fingers on an object keep their grip; see `SimulatedFingers.stop_now`).
 
 Cameras render offscreen on their own thread from the last published configuration of every
 body (`OffscreenCameras`, mujoco/cameras.py); the first snapshot gets `camera_setup_timeout_s` on
-top of the usual deadline.
+top of the usual deadline (`SimulatedCameras`).
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -38,20 +38,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from armwarden.backends.base import Capabilities
 from armwarden.backends.mujoco.arm import SimulatedArm
-from armwarden.backends.mujoco.cameras import OffscreenCameras
+from armwarden.backends.mujoco.cameras import OffscreenCameras, SimulatedCameras
 from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.gains import armature_from_profile
 from armwarden.backends.mujoco.gripper import SimulatedFingers
 from armwarden.backends.mujoco.model import MujocoModel, build_model
 from armwarden.backends.mujoco.scene import scene_for_policy
+from armwarden.backends.parts import Cell, PublishedWrench
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint
 from armwarden.backends.settle import settle
-from armwarden.backends.values import CameraImage, ExecutionResult, GripperResult, ProgressCallback
+from armwarden.backends.values import ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
-from armwarden.core.state import GripperState, JointState, Wrench
+from armwarden.core.state import JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel, resolve_description
 from armwarden.robots import builtin_profile
@@ -74,10 +74,6 @@ SETTLE_TIMEOUT_S = 1.0
 #: how often the event loop looks at the published sample while waiting to settle [s]
 SETTLE_POLL_S = 0.002
 
-#: extra deadline [s] for the first camera snapshot, which creates the renderer and draws its first
-#: frame (1.2–1.5 s measured on a loaded 2-core machine with software EGL, vs 0.2–0.35 s after)
-RENDERER_SETUP_TIMEOUT_S = 15.0
-
 
 class MujocoBackend(ServoBackend):
     """The simulated arm (see the module docstring)."""
@@ -87,39 +83,36 @@ class MujocoBackend(ServoBackend):
     goal_accuracy_rad = SETTLE_POSITION_RAD
     hold_accuracy_rad = HOLD_ACCURACY_RAD
     rest_speed_rad_s = SETTLE_SPEED_RAD_S
-    camera_setup_timeout_s = RENDERER_SETUP_TIMEOUT_S
 
     def __init__(self, robot: RobotModel, cell: MujocoModel, home: np.ndarray, *, speedup: float = 1.0,
                  start_tolerance_rad: float = 0.05, camera_size_px: tuple[int, int] = (640, 480)) -> None:
         super().__init__(robot.joint_names, start_tolerance_rad=start_tolerance_rad)
         if tuple(cell.arm_joints) != tuple(robot.joint_names):
             raise BackendError(f"the MuJoCo model's arm joints {cell.arm_joints} are not the robot's {robot.joint_names}")
-        self.cell = cell
+        #: the compiled model and where its parts are
+        self.sim = cell
         model = cell.model
         home = np.asarray(home, dtype=float)
         if home.shape != (len(robot.joint_names),) or not np.all(np.isfinite(home)) or not robot.within_limits(home):
             raise BackendError(f"home {home.tolist()} is not a finite configuration within the joint limits")
         #: the physics and the arm's targets (the servo hooks delegate here)
         self.arm = SimulatedArm(cell, robot, home, lambda: self.fingers.target)
-        self._gripper = cell.gripper_actuator
+        actuator = cell.gripper_actuator
         #: the full opening [m] (the finger actuator's control range)
-        self.gripper_max_width_m = float(model.actuator_ctrlrange[self._gripper][1]) if self._gripper is not None else 0.0
-        self.gripper_travel_m = self.gripper_max_width_m
-        force_limit_n = float(model.actuator_forcerange[self._gripper][1]) if self._gripper is not None else 0.0
+        self.gripper_max_width_m = float(model.actuator_ctrlrange[actuator][1]) if actuator is not None else 0.0
+        force_limit_n = float(model.actuator_forcerange[actuator][1]) if actuator is not None else 0.0
         #: the fingers: what they track (read before every physics step) and the gripper actions
         self.fingers = SimulatedFingers(self.gripper_max_width_m, force_limit_n, lambda: self.arm.measured,
                                         self._gripper_stop_landed, lambda: self.servo.require_running())
-        self._cameras = OffscreenCameras(model, camera_size_px)
-        self._capabilities = Capabilities(wrench=True, gripper=self._gripper is not None, cameras=tuple(cell.cameras),
-                                          frames=tuple(robot.frame_names()))
+        self._renderer = OffscreenCameras(model, camera_size_px)
+        self.cell = Cell(gripper=self.fingers if actuator is not None else None,
+                         cameras=SimulatedCameras(self._renderer, tuple(cell.cameras), self._published_scene)
+                         if cell.cameras else None,
+                         wrench=PublishedWrench(self._published_wrench), frames=tuple(robot.frame_names()))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
                                name="mujoco backend")
 
     # ================================================================ lifecycle
-    @property
-    def capabilities(self) -> Capabilities:
-        return self._capabilities
-
     async def _open(self) -> None:
         self.arm.start(time.perf_counter())
         await self.servo.start("armwarden-mujoco-physics")
@@ -130,7 +123,7 @@ class MujocoBackend(ServoBackend):
 
     async def _close(self) -> None:
         await self.servo.shutdown()
-        await self._cameras.close()
+        await self._renderer.close()
 
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
@@ -141,13 +134,16 @@ class MujocoBackend(ServoBackend):
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
 
-    def _latest_wrench(self) -> Wrench:
+    def _published_wrench(self) -> Wrench:
         self.servo.require_running()
         sample = self.arm.measured
         return Wrench(sample.force, sample.torque, sample.stamp)
 
-    async def _read_wrench(self) -> Wrench:
-        return self._latest_wrench()
+    def _published_scene(self) -> tuple[np.ndarray, float]:
+        """Every body's configuration in the latest sample, and its stamp (what cameras render)."""
+        self.servo.require_running()
+        sample = self.arm.measured
+        return sample.scene_qpos, sample.stamp
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
@@ -184,33 +180,6 @@ class MujocoBackend(ServoBackend):
         self.servo.hold()
         self._stop_fingers()
         self.servo.require_running()  # held either way; a dead physics thread is still a failure
-
-    def _stop_fingers(self) -> None:
-        """Any thread (`Backend._stop_fingers`): see `SimulatedFingers.freeze`."""
-        self.fingers.freeze()
-
-    # ================================================================ gripper (gripper.py)
-    def _latest_gripper_state(self) -> GripperState:
-        return self.fingers.state()
-
-    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        return await self.fingers.move(width_m, speed_mps)
-
-    async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
-                             epsilon_outer_m: float) -> GripperResult:
-        return await self.fingers.grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
-
-    async def _gripper_home(self) -> GripperResult:
-        return await self.fingers.home()
-
-    # ================================================================ cameras
-    async def _camera_snapshot(self, camera: str) -> CameraImage:
-        self.servo.require_running()
-        sample = self.arm.measured
-        return await self._cameras.snapshot(camera, sample.scene_qpos, sample.stamp)
-
-    def _camera_set_up(self) -> bool:
-        return self._cameras.set_up
 
     # ================================================================ servo hooks
     def servo_prepare(self, setpoint: Setpoint) -> None:

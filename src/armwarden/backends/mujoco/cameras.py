@@ -4,7 +4,7 @@ One thread of their own owns the renderer (its GL context is current there), off
 thread, so rendering never holds up the physics. The renderer is made by the first snapshot, not
 at open (most sessions never look). That first frame (GL context, shaders, the model's meshes and
 textures uploaded) took 1.2–1.5 s with software EGL on a loaded 2-core machine, the next ones
-0.2–0.35 s: it is the one-time setup the backend's `camera_setup_timeout_s` allows for, and
+0.2–0.35 s: it is the one-time setup `SimulatedCameras.setup_timeout_s` allows for, and
 `set_up` says when it is done.
 """
 
@@ -17,13 +17,41 @@ import asyncio
 import io
 import os
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import mujoco
 import numpy as np
 
+from armwarden.backends.parts import Cameras
 from armwarden.backends.values import CameraImage
 from armwarden.core.errors import BackendError
+
+#: extra deadline [s] for the first camera snapshot, which creates the renderer and draws its first
+#: frame (1.2–1.5 s measured on a loaded 2-core machine with software EGL, vs 0.2–0.35 s after)
+RENDERER_SETUP_TIMEOUT_S = 15.0
+
+
+class SimulatedCameras(Cameras):
+    """The camera part of the MuJoCo cell: `scene()` (the latest published configuration of every
+    body and its stamp) rendered by `renderer`."""
+
+    setup_timeout_s = RENDERER_SETUP_TIMEOUT_S
+
+    def __init__(self, renderer: OffscreenCameras, names: tuple[str, ...],
+                 scene: Callable[[], tuple[np.ndarray, float]]) -> None:
+        self._renderer, self._names, self._scene = renderer, names, scene
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self._names
+
+    def set_up(self) -> bool:
+        return self._renderer.set_up
+
+    async def snapshot(self, camera: str) -> CameraImage:
+        qpos, stamp = self._scene()
+        return await self._renderer.snapshot(camera, qpos, stamp)
 
 
 class OffscreenCameras:

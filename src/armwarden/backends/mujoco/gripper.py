@@ -2,7 +2,7 @@
 tendon, its target a width ramp on simulated time, its force capped at the grasp's force.
 
 The physics thread reads `SimulatedFingers.target` before every step; gripper actions and stops
-replace it whole. A stop (`freeze`, any thread) freezes the target, not the measured width:
+replace it whole. A stop (`stop_now`, any thread) freezes the target, not the measured width:
 fingers closed on an object keep squeezing it with the grasp's force, so a stop never drops what
 the hand holds; free fingers stop within the servo's lag of their measured width.
 """
@@ -18,6 +18,7 @@ import numpy as np
 
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.mujoco.measurement import Measured
+from armwarden.backends.parts import Gripper
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.values import GripperResult
 from armwarden.core.errors import BackendError
@@ -42,12 +43,13 @@ class FingerTarget:
     force_n: float
 
 
-class SimulatedFingers:
-    """The gripper part of the MuJoCo backend (its `_gripper_*` hooks delegate here)."""
+class SimulatedFingers(Gripper):
+    """The gripper part of the MuJoCo cell."""
 
     def __init__(self, max_width_m: float, force_limit_n: float, sample: Callable[[], Measured],
                  stop_landed: Callable[[], bool], require_running: Callable[[], None]) -> None:
         self.max_width_m = max_width_m
+        self.travel_m = max_width_m
         self.force_limit_n = force_limit_n
         self._sample = sample  # the latest published sample
         self._stop_landed = stop_landed  # a stop came after the running gripper action was decided
@@ -58,7 +60,7 @@ class SimulatedFingers:
         self.busy = False  # a gripper action runs (event loop only)
         self.grasped = False
 
-    def freeze(self) -> None:
+    def stop_now(self) -> None:
         """Any thread: the finger ramp stops where it is from the next physics step on."""
         with self._lock:
             target, sim_s = self.target, self._sample().sim_s
