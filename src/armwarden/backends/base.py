@@ -158,7 +158,7 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
         """The cell's optional parts (`armwarden.backends.parts`); a backend sets it in its
         constructor. One that declares `capabilities` flags instead gets parts calling its hooks."""
         if self._cell is None:
-            self._cell = cell_from_hooks(self) if type(self).capabilities is not Backend.capabilities else Cell()
+            self._cell = cell_from_hooks(self, self.capabilities) if type(self).capabilities is not Backend.capabilities else Cell()
         return self._cell
 
     @cell.setter

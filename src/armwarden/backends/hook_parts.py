@@ -4,10 +4,10 @@ parts of its own, and this module goes with the last one."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
+from armwarden.backends.hooks import BackendHooks
 from armwarden.backends.parts import (
     Cameras,
+    Capabilities,
     Cell,
     CollisionThresholds,
     Controllers,
@@ -21,12 +21,9 @@ from armwarden.backends.values import CameraImage, ControllerInfo, GripperResult
 from armwarden.core.errors import BackendError
 from armwarden.core.state import GripperState, Transform, Wrench
 
-if TYPE_CHECKING:
-    from armwarden.backends.base import Backend
-
 
 class _HookGripper(Gripper):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend = backend
         self.timeout_s, self.travel_m = backend.gripper_timeout_s, backend.gripper_travel_m
         self.home_timeout_s = backend.gripper_home_timeout_s
@@ -52,7 +49,7 @@ class _HookGripper(Gripper):
 
 
 class _HookCameras(Cameras):
-    def __init__(self, backend: Backend, names: tuple[str, ...]) -> None:
+    def __init__(self, backend: BackendHooks, names: tuple[str, ...]) -> None:
         self._backend, self._names = backend, names
         self.timeout_s, self.setup_timeout_s = backend.camera_timeout_s, backend.camera_setup_timeout_s
 
@@ -68,7 +65,7 @@ class _HookCameras(Cameras):
 
 
 class _HookWrench(WrenchSensor):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend = backend
 
     def latest(self) -> Wrench | None:
@@ -79,7 +76,7 @@ class _HookWrench(WrenchSensor):
 
 
 class _HookControllers(Controllers):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend, self.timeout_s = backend, backend.controllers_timeout_s
 
     async def list(self) -> list[ControllerInfo]:
@@ -90,7 +87,7 @@ class _HookControllers(Controllers):
 
 
 class _HookThresholds(CollisionThresholds):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend, self.timeout_s = backend, backend.thresholds_timeout_s
 
     async def set(self, force_n: float, torque_nm: float) -> None:
@@ -98,7 +95,7 @@ class _HookThresholds(CollisionThresholds):
 
 
 class _HookRecovery(ErrorRecovery):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend, self.timeout_s = backend, backend.error_recovery_timeout_s
 
     async def recover(self) -> None:
@@ -106,7 +103,7 @@ class _HookRecovery(ErrorRecovery):
 
 
 class _HookGraph(Graph):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend, self.timeout_s = backend, backend.graph_timeout_s
 
     async def describe(self) -> dict[str, list[str]]:
@@ -114,16 +111,15 @@ class _HookGraph(Graph):
 
 
 class _HookFrames(FrameTree):
-    def __init__(self, backend: Backend) -> None:
+    def __init__(self, backend: BackendHooks) -> None:
         self._backend, self.timeout_s = backend, backend.transform_timeout_s
 
     async def lookup(self, target_frame: str, source_frame: str) -> Transform:
         return await self._backend._lookup_transform(target_frame, source_frame)
 
 
-def cell_from_hooks(backend: Backend) -> Cell:
+def cell_from_hooks(backend: BackendHooks, declared: Capabilities) -> Cell:
     """The cell a flag-declaring backend's `capabilities` describe, its parts calling its hooks."""
-    declared = backend.capabilities
     return Cell(
         gripper=_HookGripper(backend) if declared.gripper else None,
         cameras=_HookCameras(backend, tuple(declared.cameras)) if declared.cameras else None,
