@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from armwarden.backends.base import Capabilities
+from armwarden.backends.parts import Capabilities
 from armwarden.core.errors import BackendError
 from armwarden.guard.readings import Readings
 from tests_ros.backend_setup import POLICY, ROBOT, example_config, opened

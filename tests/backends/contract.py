@@ -31,7 +31,8 @@ import pytest
 
 from armwarden.assembly import build_guard
 from armwarden.audit import AuditLog
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED
 from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.core.trajectory import JointTrajectory

@@ -13,7 +13,8 @@ import threading
 import numpy as np
 import pytest
 
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED, ExecutionResult
 from armwarden.core.state import JointState
 from armwarden.core.trajectory import JointTrajectory

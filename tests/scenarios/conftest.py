@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from armwarden.backends.base import Capabilities
+from armwarden.backends.parts import Capabilities
 from armwarden.policy import Policy, bundled_policy, load_policy
 from tests.server.harness import BACKENDS, ArmHarness, arm_harness, policy_with
 

@@ -13,8 +13,9 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
 from armwarden.backends.faults import FaultListener
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.core.state import GripperState, JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory

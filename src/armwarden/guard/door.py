@@ -49,7 +49,8 @@ from armwarden.approval import prompts
 from armwarden.approval.board import PendingApprovals
 from armwarden.approval.decision import Prompt, ServerDecision, approval_required, client_decision
 from armwarden.approval.plans import PlanRefusal, PlanStore
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
+from armwarden.backends.parts import Capabilities
 from armwarden.callcontext import current_call, current_caller
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.actions import ControlActions, ControlTool

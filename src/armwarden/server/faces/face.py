@@ -14,7 +14,7 @@ from typing import Any
 
 from mcp_types import CallToolResult
 
-from armwarden.backends.base import Capabilities
+from armwarden.backends.parts import Capabilities
 from armwarden.guard import Guard
 from armwarden.policy import Policy
 
