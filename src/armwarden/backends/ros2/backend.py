@@ -74,7 +74,7 @@ from armwarden.backends.ros2.runs import (
     Fault,
     StopRecord,
 )
-from armwarden.backends.ros2.state import JointStateCache, WrenchCache, nothing_heard
+from armwarden.backends.ros2.state import JointStateCache, WrenchCache, wait_for_first_samples
 from armwarden.backends.ros2.tf import TransformBuffer
 from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
@@ -164,7 +164,9 @@ class Ros2Backend(Backend):
             if cache is not None:
                 cache.network = self.bridge.dds  # named when nothing arrives: most often another domain
         try:
-            await self._wait_for_first_state()
+            await wait_for_first_samples(self.joint_states, self.fingers, self.wrench,
+                                         self.config.joint_states.startup_timeout_s, self.bridge.dds,
+                                         self._require_spinning)
         except BaseException:
             with anyio.CancelScope(shield=True):
                 await anyio.to_thread.run_sync(self.bridge.close)
@@ -175,25 +177,6 @@ class Ros2Backend(Backend):
         `armwarden.backends.ros2.bridge`: the executor thread owns the entities)."""
         create_endpoints(self._endpoints, self.bridge, self.config, Streams(self.joint_states, self.wrench, self.fingers,
                          self.transforms), self._watch, WATCH_PERIOD_S)
-
-    async def _wait_for_first_state(self) -> None:
-        """Open ends once the arm's joint states (and the fingers' and the wrench, when configured)
-        have arrived: reads right after open must not find a stream not yet discovered."""
-        timeout_s = self.config.joint_states.startup_timeout_s
-        deadline = time.monotonic() + timeout_s
-        for cache in (self.joint_states, self.fingers):
-            while cache is not None and cache.latest() is None:
-                self._require_spinning()
-                if time.monotonic() > deadline:
-                    why = f" ({cache.last_drop})" if cache.dropped else ""
-                    raise BackendError(f"no joint state naming {', '.join(cache.ros_names)} arrived on "
-                                       f"{cache.topic} within {timeout_s:g} s{why}{nothing_heard(self.bridge.dds)}")
-                await anyio.sleep(POLL_S)
-        while self.wrench is not None and not self.wrench.received:
-            if time.monotonic() > deadline:
-                raise BackendError(f"no wrench arrived on {self.wrench.topic} within {timeout_s:g} s"
-                                   f"{nothing_heard(self.bridge.dds)}")
-            await anyio.sleep(POLL_S)
 
     async def _close(self) -> None:
         await anyio.to_thread.run_sync(self.bridge.close)

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import anyio
 import numpy as np
 
 from armwarden.backends.ros2.dds import DdsSettings
@@ -190,4 +191,29 @@ class WrenchCache:
         return wrench
 
 
-__all__ = ["JointStateCache", "WrenchCache", "header_seconds"]
+#: how often open looks again for the first samples [s]
+FIRST_SAMPLE_POLL_S = 0.01
+
+
+async def wait_for_first_samples(joint_states: JointStateCache, fingers: JointStateCache | None,
+                                 wrench: WrenchCache | None, timeout_s: float, network: DdsSettings | None,
+                                 require_spinning: Callable[[], None]) -> None:
+    """Open ends once the arm's joint states (and the fingers' and the wrench, when configured)
+    have arrived: reads right after open must not find a stream not yet discovered.
+    `require_spinning` raises when the executor died (nothing would arrive then)."""
+    deadline = time.monotonic() + timeout_s
+    for cache in (joint_states, fingers):
+        while cache is not None and cache.latest() is None:
+            require_spinning()
+            if time.monotonic() > deadline:
+                why = f" ({cache.last_drop})" if cache.dropped else ""
+                raise BackendError(f"no joint state naming {', '.join(cache.ros_names)} arrived on "
+                                   f"{cache.topic} within {timeout_s:g} s{why}{nothing_heard(network)}")
+            await anyio.sleep(FIRST_SAMPLE_POLL_S)
+    while wrench is not None and not wrench.received:
+        if time.monotonic() > deadline:
+            raise BackendError(f"no wrench arrived on {wrench.topic} within {timeout_s:g} s{nothing_heard(network)}")
+        await anyio.sleep(FIRST_SAMPLE_POLL_S)
+
+
+__all__ = ["JointStateCache", "WrenchCache", "header_seconds", "wait_for_first_samples"]
