@@ -4,7 +4,10 @@ One job per module: `config` (the strict `--backend-config`; no rclpy), `bridge`
 context, node and executor thread; rclpy futures awaited from asyncio), `state` (thread-safe
 caches of joint states and wrench with their receipt times), `images` (sensor_msgs images to
 PNG), `tf` (a small transform buffer), `runs` (the trajectory and hold messages, the records of
-goals in flight and of stops), `backend` (`Ros2Backend`). Importing this package does not
+goals in flight and of stops), `endpoints` (the node's long-lived rclpy entities), `arm`
+(trajectory goals, the topic fallback and their stops), `gripper` (GripperCommand),
+`controllers` (controller_manager and recovery calls), `cameras` (snapshots), `backend`
+(`Ros2Backend`, which composes them). Importing this package does not
 import rclpy: `create_backend` does, and turns a missing rclpy or control_msgs into
 `BackendUnavailable` with the install hint (exit 2 at start-up). See
 docs/backends/ros2.md.
