@@ -31,7 +31,8 @@ from armwarden.backends.can.backend import CanBackend, create_backend
 from armwarden.backends.can.bus import HealthFlag
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config
-from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
+from armwarden.backends.can.emulated_actuator import ActuatorSpec
+from armwarden.backends.can.emulator import ActuatorEmulator
 from armwarden.backends.can.ranges import model_ranges
 from armwarden.core.errors import BackendError, ConfigurationError
 from armwarden.policy import load_policy

@@ -13,7 +13,8 @@ from armwarden.backends.can import robstride as rs
 from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.bus import BusConfig, CanBus, FrameKind, HealthFlag
 from armwarden.backends.can.command import MotorCommand
-from armwarden.backends.can.emulator import DEFAULT_HOST_ID, ActuatorEmulator, ActuatorSpec
+from armwarden.backends.can.emulated_actuator import ActuatorSpec
+from armwarden.backends.can.emulator import DEFAULT_HOST_ID, ActuatorEmulator
 from armwarden.backends.can.ranges import model_ranges
 from tests.backends.can.polling import eventually, unique_channel
 

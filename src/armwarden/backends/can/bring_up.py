@@ -27,7 +27,8 @@ from armwarden.backends.can.actuators import Actuator, OutFrame
 from armwarden.backends.can.bus import FrameKind
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config
-from armwarden.backends.can.emulator import ActuatorEmulator, ActuatorSpec
+from armwarden.backends.can.emulated_actuator import ActuatorSpec
+from armwarden.backends.can.emulator import ActuatorEmulator
 from armwarden.backends.can.ranges import Protocol
 from armwarden.core.errors import BackendError
 

@@ -117,7 +117,7 @@ class GripperConfig(BaseModel):
 
 
 class SimulatedLoad(BaseModel):
-    """The load an emulated actuator drives (see `armwarden.backends.can.emulator`)."""
+    """The load an emulated actuator drives (see `armwarden.backends.can.emulated_actuator`)."""
 
     model_config = _STRICT
     inertia_kgm2: float = Field(default=0.02, gt=0, description="Reflected inertia [kg·m²].")

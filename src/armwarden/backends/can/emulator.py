@@ -1,21 +1,17 @@
-"""Simulated CAN actuators (MIT mode and RobStride) on a python-can bus, on their own thread.
+"""Emulated CAN actuators (MIT mode and RobStride) on a python-can bus, on their own thread.
 
-Each emulated actuator has simple rigid-body dynamics — inertia, viscous damping, an optional
-gravity load torque −gravity_torque_nm·cos(position) (a link that is horizontal at zero) — and
-applies the impedance law τ = kp·(p* − p) + kd·(v* − v) + τ_ff, clipped to its torque limit,
-while enabled. The state is integrated in fixed steps at an internal rate (semi-implicit Euler),
-lazily: an actuator is brought up to the present when a frame reaches it, when a test looks at
-it, and on a housekeeping pass every `HOUSEKEEPING_S` (which is when a silent host's CAN timeout
-is noticed). Simulated time follows wall-clock time; the thread does not wake at the
-integration rate, so the emulator costs the process's other threads (the servo loop it shares
-the interpreter with) little more than the frames themselves.
+This is the bus side: frames in, the protocol's answers out, fault injection. Each actuator's
+dynamics are its `EmulatedActuator` (see `emulated_actuator`), integrated lazily: an actuator is
+brought up to the present when a frame reaches it, when a test looks at it, and on a
+housekeeping pass every `HOUSEKEEPING_S` (which is when a silent host's CAN timeout is noticed).
+Simulated time follows wall-clock time; the thread does not wake at the integration rate, so the
+emulator costs the process's other threads (the servo loop it shares the interpreter with)
+little more than the frames themselves.
 
 Protocols as the notes describe them: an MIT actuator answers every frame addressed to it
 (specials included) with an 8-byte reply; a RobStride actuator answers types 1/3/4/6/18 with
 type-2 feedback, 17 with the parameter value, 0 with its id. The actuator-side CAN timeout
-(`can_timeout_s`, for RobStride also parameter 0x7028) is honoured: no frame addressed to the
-actuator for that long -> reset mode, disabled, zero torque. Reported positions wrap over the
-model's position range and reported velocity/torque saturate at its ranges, as hardware does.
+(`can_timeout_s`, for RobStride also parameter 0x7028) is honoured.
 
 `place_obstacle` puts rigid stops in an actuator's way (an object between the gripper's fingers).
 Fault injection (for tests and demos): `silence` (stop replying), `raise_fault`, `overheat`,
@@ -30,7 +26,6 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from types import TracebackType
 
 import can
@@ -38,167 +33,20 @@ import can
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can import robstride_device as rs_device
-from armwarden.backends.can.command import MotorCommand
+from armwarden.backends.can.emulated_actuator import ActuatorSnapshot, ActuatorSpec, EmulatedActuator
 from armwarden.backends.can.errors import InvalidFrame
-from armwarden.backends.can.ranges import ModelRanges, Protocol, Range, model_ranges
+from armwarden.backends.can.ranges import Protocol
 
 logger = logging.getLogger(__name__)
 
 #: internal integration rate [Hz]
 DEFAULT_RATE_HZ = 2000.0
-#: the most integration steps one catch-up may take after a stall (beyond: the backlog is dropped)
-MAX_CATCH_UP_STEPS = 400
 #: how often every actuator is brought up to the present even when no frame arrives [s]
 HOUSEKEEPING_S = 0.005
 #: the host id RobStride replies go to until a request names one
 DEFAULT_HOST_ID = 0xFD
 #: the standard id MIT replies are sent with (the motor id is in byte 0)
 DEFAULT_MIT_REPLY_ID = 0x000
-_ZERO_COMMAND = MotorCommand(0.0, 0.0, 0.0, 0.0, 0.0)
-
-
-@dataclass(frozen=True)
-class ActuatorSpec:
-    """One simulated actuator: its id and model, and the load it drives.
-
-    `inertia_kgm2` [kg·m²] > 0, `damping_nms_per_rad` [N·m·s/rad] ≥ 0, `gravity_torque_nm` [N·m]
-    (amplitude of the gravity load), `torque_limit_nm` [N·m] (default: the model's torque range),
-    `initial_position_rad`, `temperature_c` [°C], `can_timeout_s` [s] (0 = no watchdog).
-    """
-
-    can_id: int
-    model: str
-    inertia_kgm2: float = 0.02
-    damping_nms_per_rad: float = 0.05
-    gravity_torque_nm: float = 0.0
-    torque_limit_nm: float | None = None
-    initial_position_rad: float = 0.0
-    temperature_c: float = 30.0
-    can_timeout_s: float = 0.0
-    uid: bytes = field(default=bytes(8))
-
-    def __post_init__(self) -> None:
-        ranges = model_ranges(self.model)
-        limit = 0x7FF if ranges.protocol is Protocol.MIT else 0xFD
-        if not 1 <= self.can_id <= limit:
-            raise ValueError(f"can_id {self.can_id} is outside 1..{limit} for {ranges.protocol.value} actuators")
-        numbers = {
-            "inertia_kgm2": self.inertia_kgm2, "damping_nms_per_rad": self.damping_nms_per_rad,
-            "gravity_torque_nm": self.gravity_torque_nm, "initial_position_rad": self.initial_position_rad,
-            "temperature_c": self.temperature_c, "can_timeout_s": self.can_timeout_s,
-        }
-        for name, value in numbers.items():
-            if not math.isfinite(value):
-                raise ValueError(f"actuator {self.can_id}: {name} must be finite, got {value}")
-        if self.inertia_kgm2 <= 0 or self.damping_nms_per_rad < 0 or self.can_timeout_s < 0:
-            raise ValueError(f"actuator {self.can_id}: inertia must be > 0, damping and can_timeout_s ≥ 0")
-        if self.torque_limit_nm is not None and not (math.isfinite(self.torque_limit_nm) and self.torque_limit_nm > 0):
-            raise ValueError(f"actuator {self.can_id}: torque_limit_nm must be a positive number, got {self.torque_limit_nm}")
-        if not 0 <= self.temperature_c <= 255:
-            raise ValueError(f"actuator {self.can_id}: temperature_c must be in 0..255 °C, got {self.temperature_c}")
-        if len(self.uid) != 8:
-            raise ValueError(f"actuator {self.can_id}: uid must be 8 bytes")
-
-    @property
-    def ranges(self) -> ModelRanges:
-        return model_ranges(self.model)
-
-
-@dataclass(frozen=True)
-class ActuatorSnapshot:
-    """What an emulated actuator is doing (the test's view, not the bus's)."""
-
-    can_id: int
-    position_rad: float  # physical, continuous (before zeroing offsets and wrapping)
-    velocity_rad_s: float
-    torque_nm: float  # applied by the motor (0 while disabled)
-    enabled: bool
-    command: MotorCommand
-    temperature_c: float
-    timeouts: int  # how often the CAN timeout disabled it
-    frames_received: int
-    replies_sent: int
-
-
-class _Actuator:
-    """Mutable state of one emulated actuator (guarded by the emulator's lock)."""
-
-    def __init__(self, spec: ActuatorSpec, host_id: int, now: float) -> None:
-        self.spec = spec
-        self.ranges = spec.ranges
-        self.torque_limit = min(spec.torque_limit_nm or math.inf, self.ranges.torque.hi)
-        self.position = spec.initial_position_rad
-        self.velocity = 0.0
-        self.torque = 0.0
-        self.zero_offset = 0.0
-        self.enabled = False
-        self.command = _ZERO_COMMAND
-        self.temperature_c = spec.temperature_c
-        self.can_timeout_s = spec.can_timeout_s
-        self.run_mode = rs.RunMode.OPERATION
-        self.host_id = host_id
-        self.last_rx = now
-        self.sim_time = now  # the instant the state below describes
-        self.silent = False
-        self.stops = (-math.inf, math.inf)  # physical positions [rad] it cannot move beyond
-        self.mit_error = mit.MitError.NONE
-        self.rs_faults = rs.FeedbackFault(0)
-        self.timeouts = 0
-        self.frames_received = 0
-        self.replies_sent = 0
-
-    def set_enabled(self, enabled: bool) -> None:
-        self.enabled = enabled
-        self.command = _ZERO_COMMAND  # a stale command never acts after (re-)enabling
-
-    def advance(self, dt: float, now: float) -> None:
-        """Integrate in steps of `dt` up to `now` (monotonic); a backlog beyond
-        `MAX_CATCH_UP_STEPS` is dropped (the state jumps in time, as after a stalled thread)."""
-        t = self.sim_time
-        steps = 0
-        while t + dt <= now and steps < MAX_CATCH_UP_STEPS:
-            t += dt
-            self.step(dt, t)
-            steps += 1
-        self.sim_time = t if t + dt > now else now
-
-    def step(self, dt: float, now: float) -> None:
-        if self.enabled and self.can_timeout_s > 0 and now - self.last_rx > self.can_timeout_s:
-            self.set_enabled(False)
-            self.timeouts += 1
-            logger.info("emulated actuator %d: CAN timeout (%.3f s): reset mode", self.spec.can_id, self.can_timeout_s)
-        self.torque = 0.0
-        if self.enabled and self.run_mode == rs.RunMode.OPERATION:
-            c = self.command
-            tau = c.kp * (c.position - self.reported_continuous()) + c.kd * (c.velocity - self.velocity) + c.torque
-            self.torque = max(-self.torque_limit, min(self.torque_limit, tau))
-        load = self.spec.damping_nms_per_rad * self.velocity + self.spec.gravity_torque_nm * math.cos(self.position)
-        self.velocity += (self.torque - load) / self.spec.inertia_kgm2 * dt
-        self.position += self.velocity * dt
-        lo, hi = self.stops
-        if not lo <= self.position <= hi:  # a rigid obstacle (an object between the fingers)
-            self.position, self.velocity = min(max(self.position, lo), hi), 0.0
-
-    def reported_continuous(self) -> float:
-        return self.position - self.zero_offset
-
-    def reported_position(self) -> float:
-        r = self.ranges.position
-        return _wrap(self.reported_continuous(), r)
-
-    def snapshot(self) -> ActuatorSnapshot:
-        return ActuatorSnapshot(
-            self.spec.can_id, self.position, self.velocity, self.torque, self.enabled, self.command,
-            self.temperature_c, self.timeouts, self.frames_received, self.replies_sent,
-        )
-
-
-def _wrap(value: float, r: Range) -> float:
-    return (value - r.lo) % r.span + r.lo
-
-
-def _saturate(value: float, r: Range) -> float:
-    return max(r.lo, min(r.hi, value))
 
 
 class ActuatorEmulator:
@@ -211,13 +59,13 @@ class ActuatorEmulator:
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
         now = time.monotonic()
-        self._mit: dict[int, _Actuator] = {}
-        self._robstride: dict[int, _Actuator] = {}
+        self._mit: dict[int, EmulatedActuator] = {}
+        self._robstride: dict[int, EmulatedActuator] = {}
         for spec in actuators:
             if spec.can_id in self._mit or spec.can_id in self._robstride:
                 raise ValueError(f"two actuators with can_id {spec.can_id}")
             table = self._mit if spec.ranges.protocol is Protocol.MIT else self._robstride
-            table[spec.can_id] = _Actuator(spec, host_id, now)
+            table[spec.can_id] = EmulatedActuator(spec, host_id, now)
         self.channel = channel
         self.interface = interface
         self.dt = 1.0 / rate_hz
@@ -379,14 +227,13 @@ class ActuatorEmulator:
                 actuator.command = mit.unpack_command(data, actuator.ranges)
             if actuator.silent:
                 return []
-            r = actuator.ranges
             reply = mit.MitReply(
                 motor_id=arbitration_id & 0xFF, position=actuator.reported_position(),
-                velocity=_saturate(actuator.velocity, r.velocity), torque=_saturate(actuator.torque, r.torque),
+                velocity=actuator.reported_velocity(), torque=actuator.reported_torque(),
                 temperature_c=round(actuator.temperature_c), error=actuator.mit_error,
             )
             actuator.replies_sent += 1
-            return [(self.mit_reply_id, mit.pack_reply(reply, r), False)]
+            return [(self.mit_reply_id, mit.pack_reply(reply, actuator.ranges), False)]
 
     def _handle_robstride(self, arbitration_id: int, data: bytes) -> list[tuple[int, bytes, bool]] | None:
         fields = rs.split_id(arbitration_id)
@@ -435,18 +282,17 @@ class ActuatorEmulator:
             actuator.replies_sent += 1
             return [(reply.arbitration_id, reply.data, True)]
 
-    def _feedback(self, actuator: _Actuator) -> rs.Frame:
-        r = actuator.ranges
+    def _feedback(self, actuator: EmulatedActuator) -> rs.Frame:
         feedback = rs.Feedback(
             motor_id=actuator.spec.can_id, mode=rs.MotorMode.RUN if actuator.enabled else rs.MotorMode.RESET,
             faults=actuator.rs_faults, position=actuator.reported_position(),
-            velocity=_saturate(actuator.velocity, r.velocity), torque=_saturate(actuator.torque, r.torque),
+            velocity=actuator.reported_velocity(), torque=actuator.reported_torque(),
             temperature_c=actuator.temperature_c,
         )
-        return rs_device.feedback_frame(feedback, r, host_id=actuator.host_id)
+        return rs_device.feedback_frame(feedback, actuator.ranges, host_id=actuator.host_id)
 
     @staticmethod
-    def _read_parameter(actuator: _Actuator, parameter: rs.Parameter) -> float:
+    def _read_parameter(actuator: EmulatedActuator, parameter: rs.Parameter) -> float:
         values: dict[rs.Parameter, float] = {
             rs.RUN_MODE: int(actuator.run_mode),
             rs.LIMIT_TORQUE: actuator.torque_limit,
@@ -460,7 +306,7 @@ class ActuatorEmulator:
         return values[parameter]
 
     @staticmethod
-    def _write_parameter(actuator: _Actuator, parameter: rs.Parameter, value: float) -> None:
+    def _write_parameter(actuator: EmulatedActuator, parameter: rs.Parameter, value: float) -> None:
         if parameter == rs.CAN_TIMEOUT:
             actuator.can_timeout_s = rs.can_timeout_seconds(int(value))
         elif parameter == rs.RUN_MODE:
@@ -470,26 +316,26 @@ class ActuatorEmulator:
         # other parameters are read-only or not emulated: the write is acknowledged and ignored
 
     # ---------------------------------------------------------------- helpers
-    def _arrived(self, actuator: _Actuator) -> None:
+    def _arrived(self, actuator: EmulatedActuator) -> None:
         """A frame reached `actuator`: bring it to the present before the frame acts (its
         watchdog is judged on the time before this frame)."""
         actuator.advance(self.dt, time.monotonic())
 
-    def _received(self, actuator: _Actuator) -> None:
+    def _received(self, actuator: EmulatedActuator) -> None:
         """Count a frame `actuator` accepted: it feeds the watchdog from now on."""
         actuator.frames_received += 1
         actuator.last_rx = actuator.sim_time
 
-    def _all(self) -> list[_Actuator]:
+    def _all(self) -> list[EmulatedActuator]:
         return [*self._mit.values(), *self._robstride.values()]
 
-    def _current(self, can_id: int) -> _Actuator:
+    def _current(self, can_id: int) -> EmulatedActuator:
         """`_actuator`, brought up to the present (under the lock)."""
         actuator = self._actuator(can_id)
         actuator.advance(self.dt, time.monotonic())
         return actuator
 
-    def _actuator(self, can_id: int) -> _Actuator:
+    def _actuator(self, can_id: int) -> EmulatedActuator:
         actuator = self._mit.get(can_id) or self._robstride.get(can_id)
         if actuator is None:
             raise KeyError(f"no emulated actuator with can_id {can_id}")
@@ -504,4 +350,4 @@ class ActuatorEmulator:
         self._require_bus().send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=extended))
 
 
-__all__ = ["DEFAULT_HOST_ID", "DEFAULT_MIT_REPLY_ID", "DEFAULT_RATE_HZ", "ActuatorEmulator", "ActuatorSnapshot", "ActuatorSpec"]
+__all__ = ["DEFAULT_HOST_ID", "DEFAULT_MIT_REPLY_ID", "DEFAULT_RATE_HZ", "HOUSEKEEPING_S", "ActuatorEmulator"]
