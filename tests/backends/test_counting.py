@@ -59,10 +59,10 @@ async def test_every_actuating_call_is_counted_even_when_the_backend_refuses_it(
     assert counting.stops == 2
 
 
-async def test_it_forwards_capabilities_stop_stamp_and_backend_specific_attributes() -> None:
+async def test_it_forwards_the_cell_stop_stamp_and_backend_specific_attributes() -> None:
     fake = FakeBackend()
     counting = CountingBackend(fake)
-    assert counting.capabilities is fake.capabilities and counting.name == "fake"
+    assert counting.cell is fake.cell and counting.capabilities == fake.capabilities and counting.name == "fake"
     assert counting.start_tolerance_rad == fake.start_tolerance_rad
     await counting.open()
     try:

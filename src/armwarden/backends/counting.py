@@ -4,7 +4,7 @@ Evidence for "a refusal moves nothing": tests and `scripts/eval_safety.py` put i
 Guard and the real backend and assert that refused requests added no command. It is a real
 `Backend`: each public call is recorded (actuations by method name, stops by count) *before* it is
 forwarded unchanged, so a command the inner backend refuses still counts as one that reached it.
-Lifecycle, capabilities, `last_stop_stamp` and any other attribute are the inner backend's.
+Lifecycle, the cell (and so the capabilities), `last_stop_stamp` and any other attribute are the inner backend's.
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from typing import Any
 
 from armwarden.backends.base import Backend
 from armwarden.backends.faults import FaultListener
-from armwarden.backends.parts import Capabilities
+from armwarden.backends.parts import Cell
 from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
-from armwarden.core.state import GripperState, JointState, Wrench
+from armwarden.core.state import GripperState, JointState, Transform, Wrench
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.tools import TOOLS
 
@@ -55,8 +55,12 @@ class CountingBackend(Backend):
 
     # ---------------------------------------------------------------- lifecycle and state
     @property
-    def capabilities(self) -> Capabilities:
-        return self.inner.capabilities
+    def cell(self) -> Cell:
+        return self.inner.cell
+
+    @cell.setter
+    def cell(self, cell: Cell) -> None:
+        raise AttributeError("a counting backend's cell is the inner backend's")
 
     @property
     def is_open(self) -> bool:
@@ -161,6 +165,9 @@ class CountingBackend(Backend):
 
     async def graph(self) -> dict[str, list[str]]:
         return await self.inner.graph()
+
+    async def lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
+        return await self.inner.lookup_transform(target_frame, source_frame)
 
     # ---------------------------------------------------------------- hooks (the public calls above forward instead)
     async def _open(self) -> None:

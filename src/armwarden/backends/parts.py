@@ -16,6 +16,7 @@ A part's `stop_now`-style methods are called from any thread; everything else fr
 from __future__ import annotations
 
 import abc
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -191,8 +192,9 @@ class Cell:
     transforms: FrameTree | None = None
     frames: tuple[str, ...] = ()
 
-    @property
+    @functools.cached_property
     def capabilities(self) -> Capabilities:
+        """Read once: a cell's parts do not change once it is built."""
         return Capabilities(
             wrench=self.wrench is not None,
             gripper=self.gripper is not None,
