@@ -10,7 +10,9 @@ import pytest
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import ACTUATING_METHODS, CountingBackend
 from armwarden.backends.fake.backend import FakeBackend
+from armwarden.backends.parts import Cell, FrameTree
 from armwarden.core.errors import BackendError
+from armwarden.core.state import Transform
 from armwarden.robots import load_profile
 from tests.backends.contract import BackendContract, straight_line
 from tests.backends.minimal_backend import MinimalBackend
@@ -121,3 +123,21 @@ async def test_e_stops_are_counted_as_stops_and_as_e_stops_and_reach_the_inner_b
         await counting.close()
     assert (counting.stops, counting.emergency_stops) == (2, 2)
     assert inner.stop_epoch >= before + 2
+
+
+class _OneFrameTree(FrameTree):
+    async def lookup(self, target_frame: str, source_frame: str) -> Transform:
+        assert (target_frame, source_frame) == ("world", "camera")
+        return Transform(np.array([0.1, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]), 0.0)
+
+
+async def test_a_transform_lookup_reaches_the_inner_backend_s_frame_tree() -> None:
+    inner = MinimalBackend(FR3_JOINT_NAMES, FR3_READY, start_tolerance_rad=0.01)
+    inner.cell = Cell(transforms=_OneFrameTree())
+    counting = CountingBackend(inner)
+    await counting.open()
+    try:
+        transform = await counting.lookup_transform("world", "camera")
+    finally:
+        await counting.close()
+    assert transform.translation.tolist() == [0.1, 0.0, 0.0] and counting.actuations == []
