@@ -61,7 +61,8 @@ import rclpy.subscription
 import rclpy.timer
 from sensor_msgs.msg import CompressedImage, Image
 
-from armwarden.backends.base import Backend, Capabilities
+from armwarden.backends.base import Backend
+from armwarden.backends.parts import Capabilities
 from armwarden.backends.ros2.arm import POLL_S, Ros2Arm
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
 from armwarden.backends.ros2.cameras import CameraFeed
