@@ -210,7 +210,7 @@ class Ros2Arm:
 
     def _state_during(self, epoch: int, sent: str) -> JointState:
         """Event loop: the fresh joint state during the execution decided under `epoch`; stale
-        joint states there are a fault, named as the watchdog names it (`_abort_on_fault`)."""
+        joint states there are a fault, named as the watchdog names it (`abort_on_fault`)."""
         return self._measured_state_during(epoch, sent)[0]
 
     def _measured_state_during(self, epoch: int, sent: str) -> tuple[JointState, float]:
@@ -224,7 +224,7 @@ class Ros2Arm:
     def _stopped(self, epoch: int, sent: str) -> bool:
         """Event loop: whether the execution decided under `epoch` must end as stopped — a stop
         landed, or the backend is closing (its stop does not bump the epoch). A fault found by
-        then, by the watchdog or by this look, raises instead (`_abort_on_fault`)."""
+        then, by the watchdog or by this look, raises instead (`abort_on_fault`)."""
         if not self.is_open():
             return True
         self.abort_on_fault(epoch, sent)
