@@ -61,7 +61,7 @@ from armwarden.backends.can.bus import BusFactory, CanBus, FrameKind, open_inter
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import Config, GripperConfig, JointConfig, check_against_policy
 from armwarden.backends.can.emulator import ActuatorEmulator
-from armwarden.backends.can.fingers import GRIPPER_HOMING_SPEED_MPS, CanFingers
+from armwarden.backends.can.gripper import GRIPPER_HOMING_SPEED_MPS, CanFingers
 from armwarden.backends.can.health import fault_conditions
 from armwarden.backends.can.ranges import Protocol
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed

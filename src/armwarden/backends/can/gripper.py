@@ -1,17 +1,40 @@
-"""The CAN gripper's motion law: a ramp toward a target at a speed, its spring torque capped.
+"""The CAN gripper as a part of its own: the fingers' actuator, their motion law, action and hold.
 
-Pure functions and a small record, no I/O: the backend streams one impedance command per servo
-tick to the gripper actuator. The commanded position follows a ramp from where the fingers were
-to the target at the requested speed, but never further than `torque_cap / kp` from where the
-fingers are measured — so the actuator's spring, kp·(setpoint − measured), never pushes harder
-than the cap (a grasp's force, a move's torque limit) when the fingers are blocked by an object.
+The motion law (`ImpedanceFingerMotion`, `capped_setpoint`): the commanded position follows a ramp
+from where the fingers were to the target at the requested speed, but never further than
+`torque_cap / kp` from where the fingers are measured — so the actuator's spring,
+kp·(setpoint − measured), never pushes harder than the cap (a grasp's force, a move's torque
+limit) when the fingers are blocked by an object.
+
+The part (`CanFingers`): the backend's servo thread asks `frame` for one impedance command per
+tick (the ramp of the running action, or the hold, its spring capped); the event loop runs an
+action (`run`) and watches it end; any thread ends it (`stop`, on every stop and fault). One lock
+orders an action's start against a stop, so a stop that came first always wins.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
+from armwarden.backends.can.actuators import Actuator, OutFrame
+from armwarden.backends.can.command import MotorCommand
+from armwarden.backends.can.config import GripperConfig
 from armwarden.backends.ramp import Ramp
+from armwarden.backends.values import GripperResult
+from armwarden.core.errors import BackendError
+from armwarden.core.state import GripperState
+
+#: how often an action looks at the replies [s]
+POLL_S = 0.002
+#: fingers still this long short of their target are blocked (by an object) [s]
+BLOCKED_S = 0.05
+#: finger speed of `gripper_home` [m/s]
+GRIPPER_HOMING_SPEED_MPS = 0.05
 
 
 @dataclass
@@ -38,4 +61,111 @@ def capped_setpoint(wanted_rad: float, measured_rad: float, torque_cap_nm: float
     return measured_rad + min(max(wanted_rad - measured_rad, -reach), reach)
 
 
-__all__ = ["ImpedanceFingerMotion", "capped_setpoint"]
+class CanFingers:
+    """The gripper actuator's action and hold; its readings are guarded by the backend's state lock."""
+
+    def __init__(self, actuator: Actuator, config: GripperConfig, state_lock: threading.Lock,
+                 command_frame: Callable[[Actuator, MotorCommand], OutFrame]) -> None:
+        self.actuator = actuator
+        self.config = config
+        self._state_lock = state_lock
+        self._command_frame = command_frame
+        self._lock = threading.Lock()  # an action's start vs a stop from any thread
+        self.motion: ImpedanceFingerMotion | None = None
+        self.hold_rad = config.open_position_rad
+        self.grasped = False
+
+    def position(self) -> float:
+        """The measured gripper position [rad] (see `GripperConfig`)."""
+        return self.reading()[0]
+
+    def reading(self) -> tuple[float, float]:
+        """The measured gripper position [rad] and when it arrived (monotonic clock [s])."""
+        g, a = self.config, self.actuator
+        with self._state_lock:
+            raw, stamp = a.raw_position, a.reported_at
+        if raw is None or stamp is None:
+            raise BackendError(f"can backend: {a.label} reported no position")
+        return g.direction * (raw - g.homing_offset_rad), stamp
+
+    def stop(self) -> None:
+        """Any thread, on every stop and fault: end the action and hold where the fingers are."""
+        with self._lock:
+            self.motion = None
+            self.grasped = False
+            with contextlib.suppress(BackendError):  # no position yet: keep the previous hold
+                self.hold_rad = self.position()
+
+    def frame(self) -> OutFrame:
+        """Servo thread, under the servo lock: this tick's command to the gripper (not damping)."""
+        g = self.config
+        now = time.monotonic()
+        measured = self.position()
+        with self._lock:
+            motion = self.motion
+            if motion is None:
+                wanted, velocity, cap = self.hold_rad, 0.0, g.torque_limit_nm
+            else:
+                (wanted, velocity), cap = motion.setpoint(now), motion.torque_cap_nm
+        low, high = sorted((g.open_position_rad, g.closed_position_rad))
+        position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad), low), high)
+        return self._command_frame(self.actuator, MotorCommand(g.direction * position + g.homing_offset_rad,
+                                                               g.direction * velocity, g.kp_nm_per_rad,
+                                                               g.kd_nms_per_rad, 0.0))
+
+    def state(self) -> GripperState:
+        motion = self.motion
+        position, stamp = self.reading()  # stamped when it arrived, not when it is read
+        return GripperState(self.config.width_of(position), self.grasped, motion is not None and not motion.settled,
+                            stamp)
+
+    async def run(self, target_rad: float, speed_mps: float, torque_cap_nm: float, grasp: tuple[float, float] | None,
+                  *, rest_speed_rad_s: float, check: Callable[[], None], stop_landed: Callable[[], bool]) -> GripperResult:
+        """Stream a ramp to `target_rad` (torque capped) until the fingers are there or blocked; a
+        grasp (`grasp` = the accepted width band [m]) keeps squeezing if it holds something.
+        `check` raises on a fault; `stop_landed` says a stop came since the action was decided."""
+        g = self.config
+        start = self.position()
+        motion = ImpedanceFingerMotion(Ramp(start, target_rad, speed_mps / abs(g.width_per_rad_m), time.monotonic()),
+                                       torque_cap_nm, grasp is not None)
+        with self._lock:  # started atomically with the check: a stop that came first wins
+            if stop_landed():
+                return GripperResult(False, g.width_of(start), False, "stopped")
+            if self.motion is not None and not self.motion.settled:
+                raise BackendError("the gripper is already moving; one gripper action at a time")
+            self.motion, self.grasped = motion, False
+        rest = max(rest_speed_rad_s, 0.02)
+        still_since: float | None = None
+        while True:
+            await asyncio.sleep(POLL_S)
+            check()
+            position = self.position()
+            width = g.width_of(position)
+            if stop_landed() or self.motion is not motion:
+                return GripperResult(False, width, False, "stopped")
+            with self._state_lock:
+                speed = abs(self.actuator.raw_velocity)
+            now = time.monotonic()
+            still_since = (still_since or now) if speed <= rest else None
+            arrived = motion.ramp.done(now) and abs(position - target_rad) <= g.position_tolerance_rad and speed <= rest
+            blocked = still_since is not None and now - still_since >= BLOCKED_S and not arrived
+            if arrived or blocked:
+                break
+        if grasp is not None and grasp[0] <= width <= grasp[1]:
+            with self._lock:
+                if self.motion is motion:
+                    motion.settled = True  # keep squeezing at the capped torque
+                    self.grasped = True
+            return GripperResult(True, width, True, "")
+        with self._lock:
+            if self.motion is motion:
+                self.motion = None
+                self.hold_rad = target_rad if arrived else position
+        if grasp is not None:
+            return GripperResult(False, width, False, f"final width {width:.4f} m outside [{grasp[0]:.4f}, {grasp[1]:.4f}] m")
+        if blocked:
+            return GripperResult(False, width, False, f"blocked at {width:.4f} m")
+        return GripperResult(True, width, False, "")
+
+
+__all__ = ["BLOCKED_S", "GRIPPER_HOMING_SPEED_MPS", "CanFingers", "ImpedanceFingerMotion", "capped_setpoint"]
