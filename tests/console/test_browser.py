@@ -193,7 +193,9 @@ def test_a_failing_camera_shows_its_error_in_the_page(tmp_path: Path, browser: A
         raise BackendError(f"{camera}: lens cap on")
 
     with console(tmp_path) as session:
-        session.served.harness.fake._camera_snapshot = broken  # type: ignore[method-assign]
+        cameras = session.served.harness.fake.cell.cameras
+        assert cameras is not None
+        cameras.snapshot = broken  # type: ignore[method-assign]
         sign_in(browser, session.served, session.served.operator_token)
         browser.get(session.served.console + "/cameras")
         error = browser.find_element(By.CSS_SELECTOR, '[data-camera="wrist"] .camera-error')

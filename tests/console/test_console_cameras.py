@@ -86,7 +86,9 @@ async def test_a_failing_camera_shows_its_error_and_the_page_still_renders(tmp_p
         async def broken(camera: str) -> None:
             raise BackendError(f"{camera}: lens cap on")
 
-        served.harness.fake._camera_snapshot = broken  # type: ignore[method-assign]
+        cameras = served.harness.fake.cell.cameras
+        assert cameras is not None
+        cameras.snapshot = broken  # type: ignore[method-assign]
         await sign_in(http, served.operator_token)
         answer = await http.get("/console/cameras/wrist.png")
         page = await http.get("/console/cameras")
@@ -101,13 +103,15 @@ async def test_a_failing_camera_shows_its_error_and_the_page_still_renders(tmp_p
 def count_camera_reads(served: ServedConsole) -> list[str]:
     """The cameras the fake backend is asked for from now on, in order."""
     reads: list[str] = []
-    original = served.harness.fake._camera_snapshot
+    cameras = served.harness.fake.cell.cameras
+    assert cameras is not None
+    original = cameras.snapshot
 
     async def counted(camera: str):
         reads.append(camera)
         return await original(camera)
 
-    served.harness.fake._camera_snapshot = counted  # type: ignore[method-assign]
+    cameras.snapshot = counted  # type: ignore[method-assign]
     return reads
 
 

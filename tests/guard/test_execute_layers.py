@@ -108,7 +108,7 @@ async def test_a_wrench_that_disappears_while_a_human_decides_refuses_at_the_sta
     async with arm_harness(tmp_path, policy) as arm:
         async def lose_the_wrench_then_approve(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
             prompts.append(params.message)
-            monkeypatch.setattr(arm.fake, "_capabilities", dataclasses.replace(arm.fake.capabilities, wrench=False))
+            monkeypatch.setattr(arm.fake, "cell", dataclasses.replace(arm.fake.cell, wrench=None))
             return types.ElicitResult(action="accept", content={"approve": True, "operator": "alice"})
 
         prompts: list[str] = []

@@ -72,13 +72,15 @@ async def test_a_camera_read_with_the_perception_group_disabled_is_refused_by_th
     policy = policy_with(**{"tools.enabled": ["introspect", "motion", "gripper", "control", "safety"]})
     async with arm_harness(tmp_path, policy) as arm:
         reads: list[str] = []
-        original = arm.fake._camera_snapshot
+        cameras = arm.fake.cell.cameras
+        assert cameras is not None
+        original = cameras.snapshot
 
         async def counted(camera: str) -> Any:
             reads.append(camera)
             return await original(camera)
 
-        arm.fake._camera_snapshot = counted  # type: ignore[method-assign]
+        cameras.snapshot = counted  # type: ignore[method-assign]
         with pytest.raises(SafetyRefusal) as refused:
             await arm.guard.camera("scene")
 

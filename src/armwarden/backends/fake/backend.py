@@ -1,8 +1,10 @@
 """The fake backend: a kinematic arm and a parallel gripper, deterministic, no dependency beyond the core.
 
-`FakeBackend` composes the parts: the arm's joints, frames, home and kinematics (`arm.py`), the
-fingers (`gripper.py`), the cameras (`cameras.py`) and the simulated ros2_control set-up
-(`controllers.py`: the profile's controllers and ROS graph, a generic set for a user's URDF).
+`FakeBackend` drives the arm's joints, frames, home and kinematics (`arm.py`) and builds its cell of
+parts (armwarden.backends.parts): the fingers (`gripper.py`), the cameras (`cameras.py`), the
+simulated ros2_control set-up (`controllers.py`: the profile's controllers and ROS graph, a generic
+set for a user's URDF) and the contact parts (`contact.py`: wrench, collision thresholds, error
+recovery).
 
 The arm is kinematic and driven by a `ServoLoop` (armwarden.backends.servo) ticking every
 `control_period_s` (≤ 1 ms) on its own thread: each tick commands `trajectory.sample(elapsed ×
@@ -22,7 +24,9 @@ stop from any thread. Cameras render a small top view with Pillow (none without 
 Fault injection for tests: `fail_stop` (stop raises and is not delivered), `freeze_wrench` (the
 wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that
 long), `fault` (the robot is in an error state until `error_recovery`), `object_width_m` (the
-object between the fingers). All of them are plain attributes that can be changed at run time.
+object between the fingers). All of them are attributes that can be changed at run time; they
+live in `knobs` (`FakeKnobs`), shared with the parts, with the records `actuation_commands`,
+`collision_thresholds` and `last_grasp_force_n`.
 The control thread dies like any backend thread (`inject_worker_failure("control", ...)`): a
 latched fault, every later call refused; so does a control thread that hangs (no tick within its
 deadline, `inject_worker_hang`): the watchdog holds the arm from its own thread.
@@ -38,21 +42,21 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-import anyio
 import numpy as np
 
 from armwarden.backends.fake.arm import ArmKinematics, arm_setup, require, require_positive, table_contact_force_n
-from armwarden.backends.fake.cameras import CAMERA_HEIGHT_PX, CAMERA_WIDTH_PX, HAVE_PILLOW, render_top_view
+from armwarden.backends.fake.cameras import HAVE_PILLOW, FakeCameras, TopView
 from armwarden.backends.fake.config import Config
-from armwarden.backends.fake.controllers import FakeControllers
-from armwarden.backends.fake.gripper import GRIPPER_HOMING_SPEED_MPS, FakeFingers
-from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
-from armwarden.backends.parts import Capabilities
+from armwarden.backends.fake.contact import FakeRecovery, FakeThresholds, FakeWrench
+from armwarden.backends.fake.controllers import FakeControllerManager, FakeControllers, FakeGraph
+from armwarden.backends.fake.gripper import FakeFingers
+from armwarden.backends.fake.knobs import FakeKnobs, Knob
+from armwarden.backends.parts import Cell
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
-from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
+from armwarden.backends.values import ControllerInfo, ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
-from armwarden.core.state import GripperState, JointState, Wrench
+from armwarden.core.state import JointState, Wrench
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 from armwarden.robots import builtin_profile
@@ -68,6 +72,17 @@ class FakeBackend(ServoBackend):
 
     name = "fake"
     worker_threads = ("control",)  # the servo loop
+
+    # the test API (fault injections and records, module docstring): attributes of the shared `knobs`
+    fail_stop = Knob[bool]()
+    freeze_wrench = Knob[bool]()
+    stall_wrench_s = Knob[float]()
+    fault = Knob[bool]()
+    fault_reason = Knob[str]()
+    object_width_m = Knob[float | None]()
+    actuation_commands = Knob[int]()
+    collision_thresholds = Knob[tuple[float, float] | None]()
+    last_grasp_force_n = Knob[float | None]()
 
     def __init__(
         self,
@@ -110,46 +125,30 @@ class FakeBackend(ServoBackend):
         self.table_height_m = table_height_m
         self.table_stiffness_n_per_m = float(table_stiffness_n_per_m)
         self.gripper_max_width_m = float(gripper_max_width_m)
-        self.gripper_travel_m = self.gripper_max_width_m
-        self.fail_stop = fail_stop
-        self.freeze_wrench = freeze_wrench
-        self.stall_wrench_s = stall_wrench_s
-        #: the robot is in an error state (reflex); arm motion is refused until `error_recovery`
-        self.fault = False
-        self.fault_reason = ""
-        #: width of the object between the fingers [m]; None = exactly what the grasp asks for
-        self.object_width_m: float | None = None
-        #: every call that could move something (refused or not) increments this
-        self.actuation_commands = 0
-        self.collision_thresholds: tuple[float, float] | None = None
-        self.last_grasp_force_n: float | None = None
-
-        frames = robot.frame_names() if robot is not None else arm.model.frame_names()
-        self._capabilities = Capabilities(
-            wrench=bool(wrench),
-            gripper=True,
-            cameras=tuple(cameras) if HAVE_PILLOW else (),
-            controllers=True,
-            collision_thresholds=True,
-            error_recovery=True,
-            graph=True,
-            frames=tuple(frames),
-        )
+        #: the fault injections and records the parts share (the `Knob` attributes above)
+        self.knobs = FakeKnobs(fail_stop=fail_stop, freeze_wrench=freeze_wrench, stall_wrench_s=stall_wrench_s)
         self._controllers = FakeControllers.for_profile(profile, controllers)
-        self._camera_frames = dict.fromkeys(self._capabilities.cameras, 0)
 
         self._wrench = (self._contact_force_n(self._compute_tcp(arm.home)), time.monotonic())
         self.servo = ServoLoop(self, arm.home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
         self._loop: asyncio.AbstractEventLoop | None = None
 
         #: the fingers (their motions run on the event loop; a stop freezes them from any thread)
-        self.fingers = FakeFingers(self.gripper_max_width_m, lambda: self.speedup, self._gripper_stop_landed)
+        self.fingers = FakeFingers(self.gripper_max_width_m, lambda: self.speedup, self._gripper_stop_landed,
+                                   lambda: self._loop, self.knobs)
+        camera_names = tuple(cameras) if HAVE_PILLOW else ()
+        self.cell = Cell(
+            gripper=self.fingers,
+            cameras=FakeCameras(camera_names, self._top_view) if camera_names else None,
+            wrench=FakeWrench(self._wrench_sample, self.knobs) if wrench else None,
+            controllers=FakeControllerManager(self._controllers, lambda: self.servo.busy, self.knobs),
+            collision_thresholds=FakeThresholds(self.knobs),
+            error_recovery=FakeRecovery(self._require_running, self.knobs),
+            graph=FakeGraph(self._controllers, wrench=bool(wrench), cameras=camera_names),
+            frames=tuple(robot.frame_names() if robot is not None else arm.model.frame_names()),
+        )
 
     # ================================================================ lifecycle
-    @property
-    def capabilities(self) -> Capabilities:
-        return self._capabilities
-
     @property
     def speedup(self) -> float:
         """Time scaling of arm and gripper motion, no unit (2 = twice as fast)."""
@@ -189,20 +188,17 @@ class FakeBackend(ServoBackend):
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
 
-    def _latest_wrench(self) -> Wrench | None:
-        if self.stall_wrench_s > 0:
-            return None  # a stalled sensor: take the slow path below, under the read deadline
-        return self._wrench_sample()
-
-    async def _read_wrench(self) -> Wrench | None:
-        if self.stall_wrench_s > 0:
-            await anyio.sleep(self.stall_wrench_s)
-        return self._wrench_sample()
-
     def _wrench_sample(self) -> Wrench:
+        """The wrench the servo thread last published (`FakeWrench`)."""
         self._require_running()
         force_z, stamp = self._wrench
         return Wrench(np.array([0.0, 0.0, force_z]), _ZERO3, stamp)
+
+    def _top_view(self) -> TopView:
+        """What the cameras show (`FakeCameras`): the latest sample, the fingers, the table."""
+        setpoint = self.servo.latest
+        return TopView(setpoint.stamp, setpoint.extra[0], self.fingers.state().width_m, self._wrench[0],
+                       self.table_height_m)
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
@@ -250,66 +246,6 @@ class FakeBackend(ServoBackend):
     def _contact_force_n(self, tcp_position: np.ndarray) -> float:
         """The table's force [N]; reads the attributes, which a test may change at run time."""
         return table_contact_force_n(tcp_position, self.table_height_m, self.table_stiffness_n_per_m)
-
-    # ================================================================ gripper (gripper.py)
-    def _latest_gripper_state(self) -> GripperState:
-        return self.fingers.state()
-
-    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        self.actuation_commands += 1
-        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
-        return await self.fingers.move(width_m, speed_mps)
-
-    async def _gripper_grasp(
-        self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float
-    ) -> GripperResult:
-        self.actuation_commands += 1
-        check_gripper_width_speed(width_m, speed_mps, self.gripper_max_width_m)
-        check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
-        self.last_grasp_force_n = float(force_n)
-        return await self.fingers.grasp(width_m, speed_mps, epsilon_inner_m, epsilon_outer_m, self.object_width_m)
-
-    async def _gripper_home(self) -> GripperResult:
-        self.actuation_commands += 1
-        return await self.fingers.move(self.gripper_max_width_m, GRIPPER_HOMING_SPEED_MPS)
-
-    def _stop_fingers(self) -> None:
-        """Any thread: see `FakeFingers.freeze`."""
-        self.fingers.freeze(self._loop)
-
-    # ================================================================ cameras
-    async def _camera_snapshot(self, camera: str) -> CameraImage:
-        self._camera_frames[camera] += 1
-        frame = self._camera_frames[camera]
-        setpoint = self.servo.latest
-        stamp, tcp = setpoint.stamp, setpoint.extra[0]
-        width = self.fingers.state().width_m
-        force_z = self._wrench[0]
-        png = await anyio.to_thread.run_sync(render_top_view, camera, frame, tcp.copy(), width, force_z, self.table_height_m)
-        return CameraImage(camera, CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX, png, stamp)
-
-    # ================================================================ controllers, thresholds, recovery, graph
-    async def _list_controllers(self) -> list[ControllerInfo]:
-        return list(self._controllers.controllers.values())
-
-    async def _switch_controllers(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
-        self.actuation_commands += 1
-        self._controllers.switch(activate, deactivate, arm_busy=self.servo.busy)
-
-    async def _set_collision_thresholds(self, force_n: float, torque_nm: float) -> None:
-        self.actuation_commands += 1
-        if not (math.isfinite(force_n) and force_n > 0 and math.isfinite(torque_nm) and torque_nm > 0):
-            raise BackendError(f"collision thresholds must be finite and > 0, got {force_n} N, {torque_nm} N·m")
-        self.collision_thresholds = (float(force_n), float(torque_nm))
-
-    async def _error_recovery(self) -> None:
-        self.actuation_commands += 1
-        self._require_running()
-        self.fault = False
-        self.fault_reason = ""
-
-    async def _graph(self) -> dict[str, list[str]]:
-        return self._controllers.graph(wrench=self._capabilities.wrench, cameras=self._capabilities.cameras)
 
 
 _ZERO3 = frozen(np.zeros(3))

@@ -1,7 +1,8 @@
 """The fake backend's cameras: a deterministic top view of the table, the base and the TCP.
 
 Pillow is a core dependency; in a broken install without it `HAVE_PILLOW` is false and the fake
-declares no cameras (`armwarden serve` says so at start-up).
+declares no cameras (`armwarden serve` says so at start-up). `FakeCameras` is the cameras part of
+the fake cell: each snapshot renders what the backend last published (`TopView`) off the event loop.
 """
 
 from __future__ import annotations
@@ -9,8 +10,14 @@ from __future__ import annotations
 import importlib.util
 import io
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
+import anyio
 import numpy as np
+
+from armwarden.backends.parts import Cameras
+from armwarden.backends.values import CameraImage
 
 #: False only in a broken install (Pillow is a core dependency): the fake then has no cameras
 #: (imported where an image is drawn)
@@ -66,4 +73,37 @@ def render_top_view(
     return buffer.getvalue()
 
 
-__all__ = ["CAMERA_HEIGHT_PX", "CAMERA_WIDTH_PX", "HAVE_PILLOW", "render_top_view"]
+@dataclass(frozen=True)
+class TopView:
+    """What a top view shows: the published sample's stamp (monotonic) and TCP position [m], the
+    finger opening [m], the contact force [N] and the table's height [m] (None: no table)."""
+
+    stamp: float
+    tcp: np.ndarray
+    gripper_width_m: float
+    force_z_n: float
+    table_height_m: float | None
+
+
+class FakeCameras(Cameras):
+    """The cameras part of the fake cell: `names`, each with a frame counter drawn on its images."""
+
+    def __init__(self, names: tuple[str, ...], view: Callable[[], TopView]) -> None:
+        self._names = names
+        self._view = view  # what the backend last published
+        self._frames = dict.fromkeys(names, 0)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self._names
+
+    async def snapshot(self, camera: str) -> CameraImage:
+        self._frames[camera] += 1
+        frame = self._frames[camera]
+        view = self._view()
+        png = await anyio.to_thread.run_sync(render_top_view, camera, frame, view.tcp.copy(), view.gripper_width_m,
+                                             view.force_z_n, view.table_height_m)
+        return CameraImage(camera, CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX, png, view.stamp)
+
+
+__all__ = ["CAMERA_HEIGHT_PX", "CAMERA_WIDTH_PX", "HAVE_PILLOW", "FakeCameras", "TopView", "render_top_view"]

@@ -2,13 +2,18 @@
 ROS graph it reports, read from the robot profile (`controllers`, `ros`) of a `builtin:<name>`
 robot. A user's URDF has no profile: the fake then reports a generic set (one trajectory
 controller `arm_controller`, no driver-specific names), never another robot's names.
+
+`FakeControllers` is the set and its switching rules; the cell's parts are `FakeControllerManager`
+(listing and switching) and `FakeGraph` (the ROS graph such a cell would show).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from armwarden.backends.fake.knobs import FakeKnobs
+from armwarden.backends.parts import Controllers, Graph
 from armwarden.backends.values import ControllerInfo
 from armwarden.core.errors import BackendError
 from armwarden.robots import ControllerEntry, ControllersProfile, RobotProfile, RosProfile
@@ -84,4 +89,31 @@ class FakeControllers:
         }
 
 
-__all__ = ["GENERIC_CONTROLLERS", "GENERIC_ROS", "FakeControllers"]
+class FakeControllerManager(Controllers):
+    """The controllers part of the fake cell; a switch counts as an actuation before its checks."""
+
+    def __init__(self, controllers: FakeControllers, arm_busy: Callable[[], bool], knobs: FakeKnobs) -> None:
+        self._controllers = controllers
+        self._arm_busy = arm_busy  # a trajectory is executing
+        self._knobs = knobs
+
+    async def list(self) -> list[ControllerInfo]:
+        return list(self._controllers.controllers.values())
+
+    async def switch(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
+        self._knobs.count_actuation()
+        self._controllers.switch(activate, deactivate, arm_busy=self._arm_busy())
+
+
+class FakeGraph(Graph):
+    """The graph part of the fake cell: the nodes, topics, services and actions of its driver,
+    with the wrench topic and camera topics only for the parts the cell has."""
+
+    def __init__(self, controllers: FakeControllers, *, wrench: bool, cameras: tuple[str, ...]) -> None:
+        self._controllers, self._wrench, self._cameras = controllers, wrench, cameras
+
+    async def describe(self) -> dict[str, list[str]]:
+        return self._controllers.graph(wrench=self._wrench, cameras=self._cameras)
+
+
+__all__ = ["GENERIC_CONTROLLERS", "GENERIC_ROS", "FakeControllerManager", "FakeControllers", "FakeGraph"]

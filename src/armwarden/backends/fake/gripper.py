@@ -1,6 +1,6 @@
 """The fake backend's gripper: finger width as a function of time, frozen by a stop from any thread.
 
-The fingers move on the event loop (a gripper action awaits its ramp); a stop (`FakeFingers.freeze`)
+The fingers move on the event loop (a gripper action awaits its ramp); a stop (`FakeFingers.stop_now`)
 may come from any thread: it freezes the width at once, and the event loop ends the action's wait
 and books where the fingers stopped (at once on the loop, else at its next turn).
 """
@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 
 import anyio
 
-from armwarden.backends.gripper_checks import grasp_outcome
+from armwarden.backends.fake.knobs import FakeKnobs
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
+from armwarden.backends.parts import Gripper
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.values import GripperResult
 from armwarden.core.errors import BackendError
@@ -42,13 +44,18 @@ class FingerMotion:
         return self.ramp.position(now if halted_at is None else min(now, halted_at))
 
 
-class FakeFingers:
-    """Kinematic fingers opening 0..`max_width_m`: one motion at a time, frozen by a stop."""
+class FakeFingers(Gripper):
+    """The gripper part of the fake cell: kinematic fingers opening 0..`max_width_m`, one motion at
+    a time, frozen by a stop. Every action counts as an actuation (`FakeKnobs`) before its checks."""
 
-    def __init__(self, max_width_m: float, speedup: Callable[[], float], stop_landed: Callable[[], bool]) -> None:
+    def __init__(self, max_width_m: float, speedup: Callable[[], float], stop_landed: Callable[[], bool],
+                 loop: Callable[[], asyncio.AbstractEventLoop | None], knobs: FakeKnobs) -> None:
         self.max_width_m = max_width_m
+        self.travel_m = max_width_m
         self._speedup = speedup  # the backend's time scaling
         self._stop_landed = stop_landed  # a stop came after the running gripper action was decided
+        self._loop = loop  # the event loop the backend runs on (None before open)
+        self._knobs = knobs  # the object between the fingers; counts and records the actions
         self.width_m = max_width_m  # where the fingers rest (event loop only)
         self.grasped = False
         self.motion: FingerMotion | None = None
@@ -61,12 +68,19 @@ class FakeFingers:
         return GripperState(width, self.grasped, moving, time.monotonic())
 
     async def move(self, width_m: float, speed_mps: float) -> GripperResult:
-        width, stopped = await self._run(width_m, speed_mps)
-        return GripperResult(False, width, False, "stopped") if stopped else GripperResult(True, width, False, "")
+        self._knobs.count_actuation()
+        check_gripper_width_speed(width_m, speed_mps, self.max_width_m)
+        return await self._move(width_m, speed_mps)
 
-    async def grasp(self, width_m: float, speed_mps: float, epsilon_inner_m: float, epsilon_outer_m: float,
-                    object_width_m: float | None) -> GripperResult:
-        """Close on an object `object_width_m` wide (None: exactly the width asked for)."""
+    async def grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
+                    epsilon_outer_m: float) -> GripperResult:
+        """Close on the object between the fingers (`FakeKnobs.object_width_m`; None: exactly the
+        width asked for)."""
+        self._knobs.count_actuation()
+        check_gripper_width_speed(width_m, speed_mps, self.max_width_m)
+        check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
+        self._knobs.last_grasp_force_n = float(force_n)
+        object_width_m = self._knobs.object_width_m
         object_width = width_m if object_width_m is None else float(object_width_m)
         # the fingers close until they touch the object, or fully if it is not between them
         target = object_width if 0.0 <= object_width <= self.width_m else 0.0
@@ -74,6 +88,14 @@ class FakeFingers:
         result = grasp_outcome(width_m, width, stopped, epsilon_inner_m, epsilon_outer_m)
         self.grasped = result.is_grasped
         return result
+
+    async def home(self) -> GripperResult:
+        self._knobs.count_actuation()
+        return await self._move(self.max_width_m, GRIPPER_HOMING_SPEED_MPS)
+
+    async def _move(self, width_m: float, speed_mps: float) -> GripperResult:
+        width, stopped = await self._run(width_m, speed_mps)
+        return GripperResult(False, width, False, "stopped") if stopped else GripperResult(True, width, False, "")
 
     async def _run(self, target_m: float, speed_mps: float) -> tuple[float, bool]:
         """Move the fingers to `target_m`; returns (final width, whether a stop interrupted it)."""
@@ -99,9 +121,10 @@ class FakeFingers:
         interrupted = motion.halted_at is not None and not math.isclose(self.width_m, target_m, abs_tol=1e-9)
         return self.width_m, interrupted
 
-    def freeze(self, loop: asyncio.AbstractEventLoop | None) -> None:
-        """Any thread: the fingers freeze now (`halted_at`); the event loop `loop` ends the motion's
-        wait and books its width, at once when this runs on it, else at its next turn."""
+    def stop_now(self) -> None:
+        """Any thread: the fingers freeze now (`halted_at`); the backend's event loop ends the
+        motion's wait and books its width, at once when this runs on it, else at its next turn."""
+        loop = self._loop()
         with self._lock:  # the fingers are either not started yet (and will not be) or frozen here
             motion = self.motion
             froze = motion is not None and motion.halted_at is None
