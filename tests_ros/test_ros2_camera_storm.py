@@ -88,7 +88,8 @@ async def test_a_storm_of_snapshots_during_a_motion_leaves_the_executor_and_the_
 
 async def test_the_cameras_subscription_exists_only_while_snapshots_wait(cell: Cell) -> None:
     async with opened() as backend:
-        feed = backend._cameras["scene"]
+        assert backend.cameras is not None
+        feed = backend.cameras.feeds["scene"]
         node = backend.bridge.node
         before = len(list(node.subscriptions))
         images = await asyncio.gather(*(backend.camera_snapshot("scene") for _ in range(20)))

@@ -15,7 +15,7 @@ from PIL import Image
 from armwarden.backends.parts import Capabilities
 from armwarden.core.errors import BackendError
 from armwarden.guard.readings import Readings
-from tests_ros.backend_setup import POLICY, ROBOT, example_config, opened
+from tests_ros.backend_setup import POLICY, ROBOT, build_backend, example_config, example_document, opened
 from tests_ros.cell import Cell, CellConfig
 
 pytestmark = pytest.mark.anyio
@@ -160,6 +160,14 @@ async def test_an_unknown_frame_is_refused_listing_the_known_ones(cell: Cell) ->
     async with opened() as backend:
         with pytest.raises(BackendError, match=r"unknown frame 'moon'; frames on /tf and /tf_static: "):
             await backend.lookup_transform("moon", cell.robot.base_frame)
+
+
+# ---------------------------------------------------------------------------- the parts' deadlines
+def test_the_camera_and_gripper_parts_carry_the_deadlines_their_config_sets() -> None:
+    gripper = {**example_document()["gripper"], "max_width_m": 0.06}
+    cell = build_backend(example_config(cameras=CAMERAS, gripper=gripper)).cell
+    assert cell.cameras is not None and cell.cameras.timeout_s == pytest.approx(2.0 + 0.5)  # slowest wait + margin
+    assert cell.gripper is not None and cell.gripper.travel_m == 0.06  # a move may cross the full opening
 
 
 # ---------------------------------------------------------------------------- absent parts

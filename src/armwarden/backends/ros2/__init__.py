@@ -3,10 +3,11 @@
 One job per module: `config` (the strict `--backend-config`; no rclpy), `bridge` (a private rclpy
 context, node and executor thread; rclpy futures awaited from asyncio), `state` (thread-safe
 caches of joint states and wrench with their receipt times), `images` (sensor_msgs images to
-PNG), `tf` (a small transform buffer), `runs` (the trajectory and hold messages, the records of
-goals in flight and of stops), `endpoints` (the node's long-lived rclpy entities), `arm`
-(trajectory goals, the topic fallback and their stops), `gripper` (GripperCommand),
-`controllers` (controller_manager and recovery calls), `cameras` (snapshots), `backend`
+PNG), `tf` (a small transform buffer and the frame tree part), `runs` (the trajectory and hold
+messages, the records of goals in flight and of stops), `endpoints` (the node's long-lived rclpy
+entities), `arm` (trajectory goals, the topic fallback and their stops), and the cell's parts
+(`armwarden.backends.parts`): `gripper` (GripperCommand), `controllers` (controller_manager and
+recovery calls), `cameras` (snapshots), `graph` (the node's view of the ROS graph); `backend`
 (`Ros2Backend`, which composes them). Importing this package does not
 import rclpy: `create_backend` does, and turns a missing rclpy or control_msgs into
 `BackendUnavailable` with the install hint (exit 2 at start-up). See

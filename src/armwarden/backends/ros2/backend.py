@@ -7,9 +7,10 @@ best-effort QoS) is stamped with the receipt time of its last *new* header stamp
 driver ages like a silent one and the Guard's force monitor aborts.
 
 Parts it composes: the arm's motion, trajectory goals or the topic fallback and their stops
-(`arm.py`), the gripper (`gripper.py`), the controller manager and recovery calls
-(`controllers.py`) and the cameras (`cameras.py`); it keeps the state caches, the endpoints and
-the fault watch they share.
+(`arm.py`), and the cell's parts (`self.cell`, `armwarden.backends.parts`): the gripper
+(`gripper.py`), the cameras (`cameras.py`), the wrench topic's fresh sample, the controller
+manager and error recovery (`controllers.py`), the graph (`graph.py`) and the tf frame tree
+(`tf.py`); it keeps the state caches, the endpoints and the fault watch they share.
 
 Stops (`_stop_now`, any thread, never awaiting): cancel the running goal (or publish the hold),
 cancel the gripper's goal, and record when the cancel request was sent (`stop_records`). Faults
@@ -52,35 +53,24 @@ from collections import deque
 from typing import TYPE_CHECKING
 
 import anyio
-import rclpy.action.client
-import rclpy.action.graph
-import rclpy.client
-import rclpy.publisher
-import rclpy.qos
-import rclpy.subscription
-import rclpy.timer
-from sensor_msgs.msg import CompressedImage, Image
 
 from armwarden.backends.base import Backend
-from armwarden.backends.parts import Capabilities
+from armwarden.backends.parts import Cell, PublishedWrench
 from armwarden.backends.ros2.arm import POLL_S, Ros2Arm
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
-from armwarden.backends.ros2.cameras import CameraFeed
+from armwarden.backends.ros2.cameras import Ros2Cameras
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
-from armwarden.backends.ros2.controllers import Ros2Controllers
+from armwarden.backends.ros2.controllers import Ros2Controllers, Ros2ErrorRecovery, ServiceCalls
 from armwarden.backends.ros2.endpoints import Endpoints, Streams, create_endpoints
+from armwarden.backends.ros2.graph import Ros2Graph
 from armwarden.backends.ros2.gripper import Ros2Gripper
-from armwarden.backends.ros2.images import png_from_compressed, png_from_image
-from armwarden.backends.ros2.runs import (
-    Fault,
-    StopRecord,
-)
+from armwarden.backends.ros2.runs import Fault, StopRecord
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache, wait_for_first_samples
-from armwarden.backends.ros2.tf import TransformBuffer
-from armwarden.backends.values import CameraImage, ControllerInfo, ExecutionResult, GripperResult, ProgressCallback
+from armwarden.backends.ros2.tf import TfFrames, TransformBuffer
+from armwarden.backends.values import ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat, stall_deadline_s
 from armwarden.core.errors import BackendError
-from armwarden.core.state import GripperState, JointState, Transform, Wrench
+from armwarden.core.state import JointState
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.robot.model import RobotModel
 
@@ -121,13 +111,9 @@ class Ros2Backend(Backend):
             resolved(gripper.finger_joints, "gripper.finger_joints"), gripper.max_age_s)
         self.transforms = TransformBuffer(config.tf.max_age_s) if config.tf.enabled else None
         self._endpoints = Endpoints()
-        self.controllers = Ros2Controllers(self.bridge, self._endpoints, config.controller_manager)
         self._motion_lock = threading.Lock()  # sending a goal vs any stop, from any thread
         #: the stops carried out, newest last (the benchmark reads e-stop -> cancel sent)
         self.stop_records: deque[StopRecord] = deque(maxlen=1000)
-        self.gripper = None if gripper is None or self.fingers is None else Ros2Gripper(
-            self.bridge, self._endpoints, gripper, self.fingers, self._motion_lock, self.stop_records,
-            self._gripper_stop_landed, lambda: self._gripper_epoch)
         self.arm = Ros2Arm(self.bridge, self._endpoints, config.trajectory, self.joint_states, ros_names,
                            self._motion_lock, self.stop_records, lambda: self.is_open, self._stop_landed,
                            lambda: self._stop_epoch, self._abort_on_fault, self.goal_accuracy_rad,
@@ -135,30 +121,27 @@ class Ros2Backend(Backend):
         self._fault_lock = threading.Lock()
         self._fault_active = False  # a fault was reported and the cell has not been healthy since
         self._last_fault: Fault | None = None  # the latest fault found (executions name it)
-        if gripper is not None:
-            self.gripper_travel_m = gripper.max_width_m
-        if config.cameras:
-            self.camera_timeout_s = max(c.timeout_s for c in config.cameras.values()) + 0.5
-        self._cameras: dict[str, CameraFeed] = {}  # made at open, on the bridge that opens
-        self._capabilities = Capabilities(
-            wrench=config.wrench is not None,
-            gripper=gripper is not None,
-            cameras=tuple(config.cameras),
-            controllers=config.controller_manager is not None,
-            error_recovery=config.error_recovery is not None,
-            graph=True,
-            transforms=self.transforms is not None,
+        #: the camera part, typed (its feeds are made at open, on the bridge that opens)
+        self.cameras = Ros2Cameras(config.cameras, self._require_spinning) if config.cameras else None
+        services = ServiceCalls(self.bridge, self._endpoints)
+        wrench = self.wrench
+        self.cell = Cell(
+            gripper=None if gripper is None or self.fingers is None else Ros2Gripper(
+                self.bridge, self._endpoints, gripper, self.fingers, self._motion_lock, self.stop_records,
+                self._gripper_stop_landed, lambda: self._gripper_epoch),
+            cameras=self.cameras,
+            wrench=None if wrench is None else PublishedWrench(wrench.fresh),
+            controllers=None if config.controller_manager is None else Ros2Controllers(services,
+                                                                                        config.controller_manager),
+            error_recovery=None if config.error_recovery is None else Ros2ErrorRecovery(services),
+            graph=Ros2Graph(self.bridge),
+            transforms=None if self.transforms is None else TfFrames(self.transforms),
         )
-
-    @property
-    def capabilities(self) -> Capabilities:
-        return self._capabilities
 
     # ================================================================ lifecycle
     async def _open(self) -> None:
-        image_qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
-        self._cameras = {name: CameraFeed(self.bridge, spec.topic, CompressedImage if spec.kind == "compressed" else Image,
-                                          image_qos) for name, spec in self.config.cameras.items()}
+        if self.cameras is not None:
+            self.cameras.open(self.bridge)
         self.bridge.on_death = lambda error: self._worker_died("executor", error)
         await anyio.to_thread.run_sync(self.bridge.start, self._create_endpoints)  # made before it spins
         for cache in (self.joint_states, self.fingers, self.wrench):
@@ -191,12 +174,6 @@ class Ros2Backend(Backend):
 
     async def _read_joint_state(self) -> JointState:
         return self.joint_states.fresh()
-
-    def _latest_wrench(self) -> Wrench | None:
-        return None if self.wrench is None else self.wrench.fresh()
-
-    async def _read_wrench(self) -> Wrench | None:
-        return self._latest_wrench()
 
     # ================================================================ watchdog (executor thread)
     def _health_problem(self) -> str | None:
@@ -304,71 +281,7 @@ class Ros2Backend(Backend):
         self.arm.stop()
         self._stop_fingers()
 
-    # ================================================================ gripper
-    def _stop_fingers(self) -> None:
-        if self.gripper is not None:
-            self.gripper.stop()
-
-    def _latest_gripper_state(self) -> GripperState:
-        assert self.gripper is not None
-        return self.gripper.state()
-
-    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        assert self.gripper is not None
-        return await self.gripper.move(width_m, speed_mps)
-
-    async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
-                             epsilon_outer_m: float) -> GripperResult:
-        assert self.gripper is not None
-        return await self.gripper.grasp(width_m, force_n, speed_mps, epsilon_inner_m, epsilon_outer_m)
-
-    async def _gripper_home(self) -> GripperResult:
-        assert self.gripper is not None
-        return await self.gripper.home()
-
-    # ================================================================ cameras
-    async def _camera_snapshot(self, camera: str) -> CameraImage:
-        """The next image on the camera's topic (subscribed only while snapshots wait, by the
-        executor thread: `armwarden.backends.ros2.cameras`)."""
-        spec = self.config.cameras[camera]
-        try:
-            msg = await self._cameras[camera].next_message(spec.timeout_s)
-        except TimeoutError:
-            self._require_spinning()  # a dead executor is why, not the camera
-            raise BackendError(f"camera {camera!r}: no image on {spec.topic} within {spec.timeout_s:g} s") from None
-        width, height, png = png_from_compressed(msg) if spec.kind == "compressed" else png_from_image(msg)
-        return CameraImage(camera, width, height, png, time.monotonic())
-
-    # ================================================================ controllers and recovery
-    async def _list_controllers(self) -> list[ControllerInfo]:
-        return await self.controllers.list(self.controllers_timeout_s)
-
-    async def _switch_controllers(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
-        await self.controllers.switch(activate, deactivate, self.controllers_timeout_s)
-
-    async def _error_recovery(self) -> None:
-        await self.controllers.recover(self.error_recovery_timeout_s)
-
-    # ================================================================ graph and frames
-    async def _graph(self) -> dict[str, list[str]]:
-        node = self.bridge.node
-
-        def typed(pairs: list[tuple[str, list[str]]]) -> list[str]:
-            return [f"{name} [{', '.join(types)}]" for name, types in pairs if "/_action/" not in name]
-
-        nodes = [f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()]
-        return {
-            "nodes": nodes,
-            "topics": typed(node.get_topic_names_and_types()),
-            "services": typed(node.get_service_names_and_types()),
-            "actions": typed(rclpy.action.graph.get_action_names_and_types(node)),
-        }
-
-    async def _lookup_transform(self, target_frame: str, source_frame: str) -> Transform:
-        assert self.transforms is not None
-        reading = self.transforms.lookup(target_frame, source_frame)
-        return Transform(reading.translation, reading.rotation_xyzw, time.monotonic())
-
+    # ================================================================ frames
     def tf_frames(self) -> tuple[str, ...]:
         """Frames seen on /tf and /tf_static so far."""
         return () if self.transforms is None else self.transforms.frames()

@@ -1,5 +1,5 @@
-"""Camera snapshots over rclpy: the next image of a topic, with the subscription owned by the
-executor thread.
+"""The ROS 2 backend's camera part: each snapshot is the next image of the camera's topic, with the
+subscription owned by the executor thread.
 
 Why subscribe only while someone waits: every image on a subscribed topic is deserialised on the
 executor thread, the thread that also carries the joint states and the wrench, so a camera is
@@ -16,15 +16,26 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
+import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import rclpy.qos
 import rclpy.subscription
+from sensor_msgs.msg import CompressedImage, Image
 
+from armwarden.backends.parts import Cameras
 from armwarden.backends.ros2.bridge import RosBridge
+from armwarden.backends.ros2.config import CameraConfig
+from armwarden.backends.ros2.images import png_from_compressed, png_from_image
+from armwarden.backends.values import CameraImage
 from armwarden.core.errors import BackendError
 from armwarden.handoff import settle_threadsafe
+
+#: added to the slowest camera's own wait for a frame [s]: the snapshot's deadline covers the
+#: decoding and the hand-over after the frame arrived
+DEADLINE_MARGIN_S = 0.5
 
 
 @dataclass(eq=False)
@@ -116,4 +127,38 @@ class CameraFeed:
             settle_threadsafe(waiter.loop, waiter.future, msg, error)
 
 
-__all__ = ["CameraFeed"]
+class Ros2Cameras(Cameras):
+    """The camera part: the configured cameras by name, each fed by its topic. The feeds are made
+    at open (`open`), on the bridge that opens; `require_spinning` names a dead executor as the
+    cause when no image came."""
+
+    def __init__(self, specs: Mapping[str, CameraConfig], require_spinning: Callable[[], None]) -> None:
+        self.specs = dict(specs)
+        self.timeout_s = max(spec.timeout_s for spec in self.specs.values()) + DEADLINE_MARGIN_S
+        self._require_spinning = require_spinning
+        #: the feed of each camera, made at open (diagnostics and tests read `CameraFeed.subscribed`)
+        self.feeds: dict[str, CameraFeed] = {}
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.specs)
+
+    def open(self, bridge: RosBridge) -> None:
+        """Make each camera's feed on `bridge` (subscribed only while a snapshot waits)."""
+        qos = rclpy.qos.QoSProfile(depth=1, reliability=rclpy.qos.ReliabilityPolicy.BEST_EFFORT)
+        self.feeds = {name: CameraFeed(bridge, spec.topic, CompressedImage if spec.kind == "compressed" else Image, qos)
+                      for name, spec in self.specs.items()}
+
+    async def snapshot(self, camera: str) -> CameraImage:
+        """The next image on the camera's topic, as PNG."""
+        spec = self.specs[camera]
+        try:
+            msg = await self.feeds[camera].next_message(spec.timeout_s)
+        except TimeoutError:
+            self._require_spinning()  # a dead executor is why, not the camera
+            raise BackendError(f"camera {camera!r}: no image on {spec.topic} within {spec.timeout_s:g} s") from None
+        width, height, png = png_from_compressed(msg) if spec.kind == "compressed" else png_from_image(msg)
+        return CameraImage(camera, width, height, png, time.monotonic())
+
+
+__all__ = ["CameraFeed", "Ros2Cameras"]

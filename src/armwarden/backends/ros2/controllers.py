@@ -1,7 +1,8 @@
-"""The ROS 2 backend's service calls: controller_manager list/switch and the error-recovery Trigger.
+"""The ROS 2 backend's service parts: the controller manager (list/switch) and error recovery (a Trigger).
 
-Kept apart from motion because they share nothing with it but the bridge: a call waits (bounded)
-for its service, then for the answer on the executor thread (`RosBridge.result`). A switch names
+Kept apart from motion because they share nothing with it but the bridge: a call waits (bounded
+by the part's deadline) for its service, then for the answer on the executor thread
+(`RosBridge.result`). A switch names
 only allowlisted controllers; any other name is refused before a request is sent, so a client
 cannot deactivate the trajectory controller behind the Guard's back.
 """
@@ -17,6 +18,7 @@ import rclpy.client
 from controller_manager_msgs.srv import ListControllers, SwitchController
 from std_srvs.srv import Trigger
 
+from armwarden.backends.parts import Controllers, ErrorRecovery
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import ControllerManagerConfig
 from armwarden.backends.ros2.endpoints import Endpoints
@@ -28,12 +30,11 @@ SERVICE_POLL_S = 0.01
 
 
 @dataclass
-class Ros2Controllers:
-    """The service calls, through the backend's bridge and the clients it made at open."""
+class ServiceCalls:
+    """Service calls through the backend's bridge and the clients it made at open."""
 
     bridge: RosBridge
     endpoints: Endpoints
-    manager: ControllerManagerConfig | None
 
     async def call(self, client: rclpy.client.Client | None, request: Any, what: str, timeout_s: float) -> Any:
         """`request`'s answer, or `BackendError` naming the service that was not there or did not answer."""
@@ -48,15 +49,21 @@ class Ros2Controllers:
         except TimeoutError:
             raise BackendError(f"{what}: {client.srv_name} did not answer within {timeout_s:g} s") from None
 
-    async def list(self, timeout_s: float) -> list[ControllerInfo]:
-        response = await self.call(self.endpoints.list_controllers, ListControllers.Request(), "list controllers",
-                                   timeout_s)
+
+class Ros2Controllers(Controllers):
+    """The controller manager part: its list and switch services, the switch limited to `manager`'s allowlist."""
+
+    def __init__(self, services: ServiceCalls, manager: ControllerManagerConfig) -> None:
+        self._services, self._manager = services, manager
+
+    async def list(self) -> list[ControllerInfo]:
+        response = await self._services.call(self._services.endpoints.list_controllers, ListControllers.Request(),
+                                             "list controllers", self.timeout_s)
         return [ControllerInfo(c.name, c.type, c.state) for c in response.controller]
 
-    async def switch(self, activate: tuple[str, ...], deactivate: tuple[str, ...], timeout_s: float) -> None:
+    async def switch(self, activate: tuple[str, ...], deactivate: tuple[str, ...]) -> None:
         """A strict switch of allowlisted controllers; any other name refuses the whole switch."""
-        manager = self.manager
-        assert manager is not None
+        manager = self._manager
         refused = sorted({*activate, *deactivate} - set(manager.allowlist))
         if refused:
             allowed = ", ".join(manager.allowlist) or "none"
@@ -64,14 +71,23 @@ class Ros2Controllers:
                                f"(allowed: {allowed}); nothing was switched")
         request = SwitchController.Request(activate_controllers=list(activate), deactivate_controllers=list(deactivate),
                                            strictness=SwitchController.Request.STRICT)
-        response = await self.call(self.endpoints.switch_controller, request, "switch controllers", timeout_s)
+        response = await self._services.call(self._services.endpoints.switch_controller, request, "switch controllers",
+                                             self.timeout_s)
         if not response.ok:
             raise BackendError(f"the controller manager refused the switch: {response.message or 'no reason given'}")
 
-    async def recover(self, timeout_s: float) -> None:
-        response = await self.call(self.endpoints.error_recovery, Trigger.Request(), "error recovery", timeout_s)
+
+class Ros2ErrorRecovery(ErrorRecovery):
+    """The error recovery part: the arm driver's Trigger service that clears its latched error."""
+
+    def __init__(self, services: ServiceCalls) -> None:
+        self._services = services
+
+    async def recover(self) -> None:
+        response = await self._services.call(self._services.endpoints.error_recovery, Trigger.Request(),
+                                             "error recovery", self.timeout_s)
         if not response.success:
             raise BackendError(f"error recovery failed: {response.message or 'no reason given'}")
 
 
-__all__ = ["Ros2Controllers"]
+__all__ = ["Ros2Controllers", "Ros2ErrorRecovery", "ServiceCalls"]

@@ -5,7 +5,7 @@ GripperCommand carries no speed, so the gripper's own speed applies (the request
 checked). The goal is sent under the backend's motion lock, after a last look at the stop epoch:
 either a stop came first and nothing is sent, or the goal was sent and the stop cancels it by goal
 id (again once it is accepted, if the cancel went out before the server answered). A stop may
-come from any thread (`Ros2Gripper.stop` never awaits). After a result the action waits for a
+come from any thread (`Ros2Gripper.stop_now` never awaits). After a result the action waits for a
 finger state received after it, so the state read next is where the action left the fingers.
 """
 
@@ -25,6 +25,7 @@ from action_msgs.msg import GoalStatus
 from control_msgs.action import GripperCommand
 
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
+from armwarden.backends.parts import Gripper
 from armwarden.backends.ros2.action_client import STATUS_NAMES, wait_for_server
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import GripperConfig, resolved
@@ -40,9 +41,10 @@ HOMING_SPEED_MPS = 0.05
 
 
 @dataclass(eq=False)
-class Ros2Gripper:
+class Ros2Gripper(Gripper):
     """The gripper part. `motion_lock` and `stop_records` are the backend's (shared with the arm's
-    stops); `stop_landed` and `epoch` are the backend's gripper stop epoch (see `Backend`)."""
+    stops); `stop_landed` and `epoch` are the backend's gripper stop epoch (see `Backend`). A move
+    may need the full opening (`travel_m` is `max_width_m`)."""
 
     bridge: RosBridge
     endpoints: Endpoints
@@ -55,7 +57,10 @@ class Ros2Gripper:
     run: GripperRun | None = None
     grasped: bool = False
 
-    def stop(self) -> None:
+    def __post_init__(self) -> None:
+        self.travel_m = self.config.max_width_m
+
+    def stop_now(self) -> None:
         """Any thread, never awaiting: cancel the gripper's goal in progress."""
         with self.motion_lock:
             run = self.run

@@ -15,7 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from armwarden.backends.parts import FrameTree
 from armwarden.core.errors import BackendError
+from armwarden.core.state import Transform
 
 #: parent chains longer than this are refused (a cycle, or a malformed tree)
 MAX_DEPTH = 64
@@ -129,4 +131,16 @@ class TransformBuffer:
         return TransformReading(target, source, relative[:3, 3].copy(), _quaternion(relative[:3, :3]))
 
 
-__all__ = ["FrameTransform", "TransformBuffer", "TransformReading"]
+class TfFrames(FrameTree):
+    """The frame tree part: lookups in `buffer`, stamped when they are read (the buffer has
+    already refused a transform older than its `max_age_s`)."""
+
+    def __init__(self, buffer: TransformBuffer) -> None:
+        self.buffer = buffer
+
+    async def lookup(self, target_frame: str, source_frame: str) -> Transform:
+        reading = self.buffer.lookup(target_frame, source_frame)
+        return Transform(reading.translation, reading.rotation_xyzw, time.monotonic())
+
+
+__all__ = ["FrameTransform", "TfFrames", "TransformBuffer", "TransformReading"]
