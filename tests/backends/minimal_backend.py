@@ -1,7 +1,8 @@
 """The smallest backend that keeps the contract: a kinematic arm stepped on the event loop.
 
-Written from `armwarden.backends.base` alone (no thread, no gripper, no camera, no wrench), as
-the proof that a backend author need not read the fake. `BackendContract` runs against it.
+Written from `armwarden.backends.base` alone (no thread, and a cell with no parts: no gripper,
+no camera, no wrench), as the proof that a backend author need not read the fake.
+`BackendContract` runs against it.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import anyio
 import numpy as np
 
 from armwarden.backends.base import Backend
-from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED, ExecutionResult
 from armwarden.core.errors import BackendError
 from armwarden.core.state import JointState
@@ -37,10 +37,6 @@ class MinimalBackend(Backend):
         self._stops = 0  # bumped by every stop: a step computed before it is not published
         self._state = JointState(self.joint_names, np.array(home, dtype=float), np.zeros(len(home)), time.monotonic())
         self._busy = False
-
-    @property
-    def capabilities(self) -> Capabilities:
-        return Capabilities()
 
     async def _open(self) -> None:
         pass
