@@ -15,7 +15,12 @@ it has completed when its time is up and the joint states are at the goal; a sto
 one-point hold at the measured positions (Jazzy's controller rejects an empty trajectory).
 
 Stops (`Ros2Arm.stop`, any thread, never awaiting) cancel the running goal (or publish the hold)
-and record when the cancel request was sent (`stop_records`). Faults are the backend's: a running
+and record when the cancel request was sent (`stop_records`).
+
+Arm state (`armwarden.backends.arm_state`): the hand-over of a goal (or the publish) is EXECUTE,
+the end of a run no stop reached is FINISH, every stop is STOP, each reported under the motion
+lock, so a stop and the end of the run it stops are ordered (a stopped run stays held, never
+finished). A hand-over while faulted is that fault's recovery: the backend admitted the run. Faults are the backend's: a running
 execution asks it (`abort_on_fault`) at every look and ends naming the fault it recorded. Closing
 ends a running execution as "stopped", whatever answer the cell sends to the close's cancel.
 """
@@ -38,6 +43,7 @@ import rclpy.publisher
 from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory
 
+from armwarden.backends.arm_state import ArmEvent, ArmState
 from armwarden.backends.ros2.action_client import STATUS_NAMES, wait_for_server
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import TrajectoryConfig
@@ -72,7 +78,8 @@ ERROR_CODES = {getattr(FollowJointTrajectory.Result, name): name for name in (
 class Ros2Arm:
     """The arm part. `motion_lock` and `stop_records` are the backend's (shared with the gripper);
     `is_open`, `stop_landed`, `stop_epoch` and `abort_on_fault` are the backend's stop epoch and
-    fault watch; the accuracies are the backend's declared ones."""
+    fault watch; the accuracies are the backend's declared ones; `arm_state` and `arm_event` are
+    the backend's arm state."""
 
     bridge: RosBridge
     endpoints: Endpoints
@@ -87,6 +94,8 @@ class Ros2Arm:
     abort_on_fault: Callable[[int, str], None]
     goal_accuracy_rad: float
     rest_speed_rad_s: float
+    arm_state: Callable[[], ArmState]
+    arm_event: Callable[[ArmEvent], ArmState]
     run: GoalRun | TopicRun | None = None
     server_seen: bool = False  # the trajectory action server was seen at least once
 
@@ -102,9 +111,13 @@ class Ros2Arm:
         return await self._execute_topic(trajectory, progress, epoch)
 
     def stop(self) -> None:
-        """Any thread, never awaiting: cancel the running goal (or publish the hold)."""
+        """Any thread, never awaiting: cancel the running goal (or publish the hold). The arm is
+        held from here (STOP, under the lock; a cancel that cannot be sent raises: a failed stop)."""
         with self.motion_lock:
             run = self.run
+            if run is not None:
+                run.stopped = True
+            self.arm_event(ArmEvent.STOP)
         if isinstance(run, GoalRun):
             self._cancel_goal(run)
         elif isinstance(run, TopicRun):
@@ -120,6 +133,7 @@ class Ros2Arm:
         with self.motion_lock:  # the stops take it: a stop is either before the send or cancels it
             if self.stop_landed():
                 return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
+            self._handing_over()
             run = GoalRun(new_goal_id(), epoch, trajectory.duration_s, time.monotonic())
             self.run = run
             sending = action.send_goal_async(goal, feedback_callback=run.on_feedback, goal_uuid=run.goal_id)
@@ -137,9 +151,22 @@ class Ros2Arm:
         finally:
             if not run.terminal:  # error, timeout or cancellation of this task: the goal must not run on
                 self._cancel_goal(run)
-            with self.motion_lock:
-                if self.run is run:
-                    self.run = None
+            self._ended(run)
+
+    def _handing_over(self) -> None:
+        """Under the motion lock, as a run is handed over: the arm moves (after recovering a
+        fault the backend has admitted this run past)."""
+        if self.arm_state() in (ArmState.DAMPED, ArmState.FAULTED):
+            self.arm_event(ArmEvent.RECOVER)
+        self.arm_event(ArmEvent.EXECUTE)
+
+    def _ended(self, run: GoalRun | TopicRun) -> None:
+        """`run` is over: forget it, and unless a stop reached it (the arm is held), it finished."""
+        with self.motion_lock:
+            if self.run is run:
+                self.run = None
+            if not run.stopped:
+                self.arm_event(ArmEvent.FINISH)
 
     def _on_goal_response(self, run: GoalRun, future: Any) -> None:
         """Executor thread: note the handle; a goal accepted after a stop is cancelled now."""
@@ -295,6 +322,7 @@ class Ros2Arm:
         with self.motion_lock:
             if self.stop_landed():
                 return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
+            self._handing_over()
             run = TopicRun(epoch, trajectory.duration_s, time.monotonic(), trajectory)
             self.run = run
             publisher.publish(message)
@@ -327,9 +355,7 @@ class Ros2Arm:
             self._hold(run)
             raise
         finally:
-            with self.motion_lock:
-                if self.run is run:
-                    self.run = None
+            self._ended(run)
 
     async def _wait_for_subscriber(self, publisher: rclpy.publisher.Publisher, name: str, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s

@@ -117,7 +117,7 @@ class Ros2Backend(Backend):
         self.arm = Ros2Arm(self.bridge, self._endpoints, config.trajectory, self.joint_states, ros_names,
                            self._motion_lock, self.stop_records, lambda: self.is_open, self._stop_landed,
                            lambda: self._stop_epoch, self._abort_on_fault, self.goal_accuracy_rad,
-                           self.rest_speed_rad_s)
+                           self.rest_speed_rad_s, lambda: self.arm_state, self._arm_event)
         self._fault_lock = threading.Lock()
         self._fault_active = False  # a fault was reported and the cell has not been healthy since
         self._last_fault: Fault | None = None  # the latest fault found (executions name it)

@@ -76,6 +76,7 @@ class GoalRun:
     handle: rclpy.action.client.ClientGoalHandle | None = None
     cancel_sent: bool = False
     terminal: bool = False  # a result (any status) arrived
+    stopped: bool = False  # a stop reached it (under the motion lock): its end is no FINISH of the arm state
     feedback_s: float = 0.0  # the latest feedback's trajectory time [s]
 
     def on_feedback(self, message: Any) -> None:
@@ -110,6 +111,7 @@ class TopicRun:
     trajectory: JointTrajectory | None = None  # what was published: where the controller is told to be
     held_at: float | None = None  # when the stop's hold was published (monotonic [s])
     held_measured: float | None = None  # header stamp of the latest joint state then [s, the cell's clock]
+    stopped: bool = False  # a stop reached it (under the motion lock): its end is no FINISH of the arm state
 
 
 @dataclass
