@@ -12,6 +12,7 @@ import pytest
 
 from armwarden.backends import parse_backend_config
 from armwarden.backends.can.backend import CanBackend
+from armwarden.backends.can.gripper import CanFingers
 from armwarden.core.errors import BackendError
 from tests.backends.can.test_can_backend import MIT_SIM, Spy, _async_true, build, config_document
 from tests.backends.contract import wait_until
@@ -34,6 +35,11 @@ async def width(backend: CanBackend) -> float:
 def test_the_gripper_is_a_capability_only_when_configured():
     assert build().capabilities.gripper is True
     assert build(MIT_SIM).capabilities.gripper is False
+
+
+def test_the_cells_gripper_part_is_the_can_fingers_and_absent_without_a_gripper():
+    assert isinstance(build().cell.gripper, CanFingers)
+    assert build(MIT_SIM).cell.gripper is None
 
 
 def test_a_gripper_sharing_a_joints_can_id_is_refused():

@@ -1,8 +1,9 @@
 """The CAN backend: an arm of MIT-mode and RobStride actuators driven directly over python-can.
 
 `CanBackend` composes the parts: the actuators (`actuators.py`), the frames out
-(`command_stream.py`), the fingers (`gripper.py`), the bus (`bus.py`) and, when simulated, the
-emulator; the arm's servo thread, executions, stops and faults are `CanArm` (`arm.py`).
+(`command_stream.py`), the fingers (`gripper.py`, the cell's only optional part: `self.cell`), the
+bus (`bus.py`) and, when simulated, the emulator; the arm's servo thread, executions, stops and
+faults are `CanArm` (`arm.py`).
 
 Start-up (`_open`): the actuators pinged, read and configured (`bring_up`), refused on any fault
 condition or a joint outside the policy limits, and enabled only at the very end, when the servo
@@ -38,17 +39,14 @@ from armwarden.backends.can.bring_up import (
 )
 from armwarden.backends.can.bus import BusFactory, CanBus, FrameKind, open_interface
 from armwarden.backends.can.command_stream import CommandStream
-from armwarden.backends.can.config import Config, GripperConfig, JointConfig, check_against_policy
+from armwarden.backends.can.config import Config, JointConfig, check_against_policy
 from armwarden.backends.can.emulator import ActuatorEmulator
-from armwarden.backends.can.gripper import GRIPPER_HOMING_SPEED_MPS, CanFingers
+from armwarden.backends.can.gripper import CanFingers, FingerGuards
 from armwarden.backends.can.ranges import Protocol
-from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
-from armwarden.backends.parts import Capabilities
+from armwarden.backends.parts import Cell
 from armwarden.backends.servo import ServoLoop
-from armwarden.backends.values import GripperResult
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
-from armwarden.core.state import GripperState
 from armwarden.robot.model import RobotModel
 
 if TYPE_CHECKING:
@@ -80,7 +78,9 @@ class CanBackend(CanArm):
         state_lock = threading.Lock()
         #: the gripper (the servo thread streams it; the event loop starts and watches its actions)
         fingers = None if gripper_actuator is None or gripper is None else CanFingers(
-            gripper_actuator, gripper, state_lock, command_frame)
+            gripper_actuator, gripper, state_lock, command_frame,
+            FingerGuards(ready=self._fingers_may_move, check=self._raise_if_faulted,
+                         stop_landed=self._gripper_stop_landed, rest_speed_rad_s=lambda: self.rest_speed_rad_s))
         direction = np.array([j.direction for j in joints], dtype=float)
         offset = np.array([j.homing_offset_rad for j in joints], dtype=float)
         lower_limits = np.asarray(tuple(lower), dtype=float)
@@ -98,14 +98,9 @@ class CanBackend(CanArm):
         self._bus_factory = bus_factory
         self.emulator: ActuatorEmulator | None = None
         self._replies = ReplyDecoder(self._robstride, self._mit, state_lock, config.host_id, config.mit_reply_id)
-        if gripper is not None:
-            self.gripper_travel_m = gripper.max_width_m
+        self.cell = Cell(gripper=fingers)
 
     # ================================================================ lifecycle
-    @property
-    def capabilities(self) -> Capabilities:
-        return Capabilities(gripper=self.config.gripper is not None)
-
     async def _open(self) -> None:
         try:
             await self._start_up()
@@ -207,57 +202,12 @@ class CanBackend(CanArm):
         }
 
     # ================================================================ gripper (the `CanFingers` part)
-    def _require_fingers(self) -> CanFingers:
-        if self._fingers is None:
-            raise BackendError("can backend has no gripper")
-        return self._fingers
-
-    def _stop_fingers(self) -> None:
-        """Any thread, on every stop and fault (`Backend._stop_fingers`): end the gripper's action
-        and hold where it is."""
-        if self._fingers is not None:
-            self._fingers.stop()
-
-    def _latest_gripper_state(self) -> GripperState:
-        return self._require_fingers().state()
-
-    def _check_gripper_width_speed(self, width_m: float, speed_mps: float) -> GripperConfig:
-        g = self._require_fingers().config
-        check_gripper_width_speed(width_m, speed_mps, g.max_width_m)
-        return g
-
-    async def _gripper_move(self, width_m: float, speed_mps: float) -> GripperResult:
-        g = self._check_gripper_width_speed(width_m, speed_mps)
-        return await self._gripper_run(g.position_of(width_m), speed_mps, g.torque_limit_nm, grasp=None)
-
-    async def _gripper_grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
-                             epsilon_outer_m: float) -> GripperResult:
-        g = self._check_gripper_width_speed(width_m, speed_mps)
-        check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
-        torque = force_n * abs(g.width_per_rad_m)  # virtual work: F·dw = τ·dθ
-        if torque > g.torque_limit_nm:
-            raise BackendError(f"gripper grasp: {force_n} N needs {torque:.2f} N·m, above the gripper actuator's "
-                               f"torque limit {g.torque_limit_nm} N·m (refused)")
-        # close to the inner edge of the band: an object of the expected width blocks the fingers
-        # first and is squeezed with (at most) the force
-        return await self._gripper_run(g.position_of(max(0.0, width_m - epsilon_inner_m)), speed_mps, torque,
-                                       grasp=(width_m - epsilon_inner_m, width_m + epsilon_outer_m))
-
-    async def _gripper_home(self) -> GripperResult:
-        g = self._require_fingers().config
-        return await self._gripper_run(g.open_position_rad, GRIPPER_HOMING_SPEED_MPS, g.torque_limit_nm, grasp=None)
-
-    async def _gripper_run(self, target_rad: float, speed_mps: float, torque_cap_nm: float,
-                           grasp: tuple[float, float] | None) -> GripperResult:
-        """An action of the fingers (`CanFingers.run`), refused while faulted or damped."""
-        fingers = self._require_fingers()
-        servo = self._require_servo()
-        servo.require_running()
+    def _fingers_may_move(self) -> None:
+        """A gripper action starts only with the servo loop running, no fault and no damping."""
+        self._require_servo().require_running()
         self._raise_if_faulted()
         if self._stream.damping:
             raise BackendError("can backend: the actuators are damped (e-stop or fault); the gripper does not move")
-        return await fingers.run(target_rad, speed_mps, torque_cap_nm, grasp, rest_speed_rad_s=self.rest_speed_rad_s,
-                                 check=self._raise_if_faulted, stop_landed=self._gripper_stop_landed)
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config, *,

@@ -6,10 +6,13 @@ from where the fingers were to the target at the requested speed, but never furt
 kp·(setpoint − measured), never pushes harder than the cap (a grasp's force, a move's torque
 limit) when the fingers are blocked by an object.
 
-The part (`CanFingers`): the backend's servo thread asks `frame` for one impedance command per
-tick (the ramp of the running action, or the hold, its spring capped); the event loop runs an
-action (`run`) and watches it end; any thread ends it (`stop`, on every stop and fault). One lock
-orders an action's start against a stop, so a stop that came first always wins.
+The part (`CanFingers`, the cell's `Gripper`): the backend's servo thread asks `frame` for one
+impedance command per tick (the ramp of the running action, or the hold, its spring capped); the
+event loop runs an action (`move`, `grasp`, `home`: the width and speed checked first) and watches
+it end; any thread ends it (`stop_now`, on every stop and fault). One lock orders an action's start
+against a stop, so a stop that came first always wins. What the arm decides — its servo loop
+alive, no fault, not damped, no stop since the action was decided — the backend hands in as
+`FingerGuards`.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from dataclasses import dataclass
 from armwarden.backends.can.actuators import Actuator, OutFrame
 from armwarden.backends.can.command import MotorCommand
 from armwarden.backends.can.config import GripperConfig
+from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed
+from armwarden.backends.parts import Gripper
 from armwarden.backends.ramp import Ramp
 from armwarden.backends.values import GripperResult
 from armwarden.core.errors import BackendError
@@ -61,15 +66,31 @@ def capped_setpoint(wanted_rad: float, measured_rad: float, torque_cap_nm: float
     return measured_rad + min(max(wanted_rad - measured_rad, -reach), reach)
 
 
-class CanFingers:
+@dataclass(frozen=True)
+class FingerGuards:
+    """What the arm says about a gripper action (the fingers move only with the arm's consent)."""
+
+    #: raises `BackendError` unless an action may start: the servo loop runs, no fault, not damped
+    ready: Callable[[], None]
+    #: raises `BackendError` on a fault while the action runs
+    check: Callable[[], None]
+    #: a stop came since the running action was decided
+    stop_landed: Callable[[], bool]
+    #: the fingers' actuator counts as still below this speed [rad/s] (the arm's honest resolution)
+    rest_speed_rad_s: Callable[[], float]
+
+
+class CanFingers(Gripper):
     """The gripper actuator's action and hold; its readings are guarded by the backend's state lock."""
 
     def __init__(self, actuator: Actuator, config: GripperConfig, state_lock: threading.Lock,
-                 command_frame: Callable[[Actuator, MotorCommand], OutFrame]) -> None:
+                 command_frame: Callable[[Actuator, MotorCommand], OutFrame], guards: FingerGuards) -> None:
         self.actuator = actuator
         self.config = config
+        self.travel_m = config.max_width_m
         self._state_lock = state_lock
         self._command_frame = command_frame
+        self._guards = guards
         self._lock = threading.Lock()  # an action's start vs a stop from any thread
         self.motion: ImpedanceFingerMotion | None = None
         self.hold_rad = config.open_position_rad
@@ -88,7 +109,7 @@ class CanFingers:
             raise BackendError(f"can backend: {a.label} reported no position")
         return g.direction * (raw - g.homing_offset_rad), stamp
 
-    def stop(self) -> None:
+    def stop_now(self) -> None:
         """Any thread, on every stop and fault: end the action and hold where the fingers are."""
         with self._lock:
             self.motion = None
@@ -119,11 +140,37 @@ class CanFingers:
         return GripperState(self.config.width_of(position), self.grasped, motion is not None and not motion.settled,
                             stamp)
 
-    async def run(self, target_rad: float, speed_mps: float, torque_cap_nm: float, grasp: tuple[float, float] | None,
-                  *, rest_speed_rad_s: float, check: Callable[[], None], stop_landed: Callable[[], bool]) -> GripperResult:
+    async def move(self, width_m: float, speed_mps: float) -> GripperResult:
+        g = self.config
+        check_gripper_width_speed(width_m, speed_mps, g.max_width_m)
+        return await self._run(g.position_of(width_m), speed_mps, g.torque_limit_nm, grasp=None)
+
+    async def grasp(self, width_m: float, force_n: float, speed_mps: float, epsilon_inner_m: float,
+                    epsilon_outer_m: float) -> GripperResult:
+        g = self.config
+        check_gripper_width_speed(width_m, speed_mps, g.max_width_m)
+        check_grasp_margins(epsilon_inner_m, epsilon_outer_m, force_n)
+        torque = force_n * abs(g.width_per_rad_m)  # virtual work: F·dw = τ·dθ
+        if torque > g.torque_limit_nm:
+            raise BackendError(f"gripper grasp: {force_n} N needs {torque:.2f} N·m, above the gripper actuator's "
+                               f"torque limit {g.torque_limit_nm} N·m (refused)")
+        # close to the inner edge of the band: an object of the expected width blocks the fingers
+        # first and is squeezed with (at most) the force
+        return await self._run(g.position_of(max(0.0, width_m - epsilon_inner_m)), speed_mps, torque,
+                               grasp=(width_m - epsilon_inner_m, width_m + epsilon_outer_m))
+
+    async def home(self) -> GripperResult:
+        g = self.config
+        return await self._run(g.open_position_rad, GRIPPER_HOMING_SPEED_MPS, g.torque_limit_nm, grasp=None)
+
+    async def _run(self, target_rad: float, speed_mps: float, torque_cap_nm: float,
+                   grasp: tuple[float, float] | None) -> GripperResult:
         """Stream a ramp to `target_rad` (torque capped) until the fingers are there or blocked; a
         grasp (`grasp` = the accepted width band [m]) keeps squeezing if it holds something.
-        `check` raises on a fault; `stop_landed` says a stop came since the action was decided."""
+        Refused unless the arm's guards let it start; a fault while it runs raises."""
+        guards = self._guards
+        guards.ready()
+        check, stop_landed = guards.check, guards.stop_landed
         g = self.config
         start = self.position()
         motion = ImpedanceFingerMotion(Ramp(start, target_rad, speed_mps / abs(g.width_per_rad_m), time.monotonic()),
@@ -134,7 +181,7 @@ class CanFingers:
             if self.motion is not None and not self.motion.settled:
                 raise BackendError("the gripper is already moving; one gripper action at a time")
             self.motion, self.grasped = motion, False
-        rest = max(rest_speed_rad_s, 0.02)
+        rest = max(guards.rest_speed_rad_s(), 0.02)
         still_since: float | None = None
         while True:
             await asyncio.sleep(POLL_S)
@@ -168,4 +215,5 @@ class CanFingers:
         return GripperResult(True, width, False, "")
 
 
-__all__ = ["BLOCKED_S", "GRIPPER_HOMING_SPEED_MPS", "CanFingers", "ImpedanceFingerMotion", "capped_setpoint"]
+__all__ = ["BLOCKED_S", "GRIPPER_HOMING_SPEED_MPS", "CanFingers", "FingerGuards", "ImpedanceFingerMotion",
+           "capped_setpoint"]
