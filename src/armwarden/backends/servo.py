@@ -34,7 +34,7 @@ from typing import Any
 import anyio
 import numpy as np
 
-from armwarden.backends.arm_state import ArmEvent, ArmState
+from armwarden.backends.arm_state import ArmEvent
 from armwarden.backends.base import Backend
 from armwarden.backends.realtime import make_current_thread_realtime
 from armwarden.backends.ticktiming import TickTiming
@@ -109,16 +109,15 @@ class ServoHooks:
 
 class ServoBackend(Backend, ServoHooks):
     """A backend a `ServoLoop` drives (fake, MuJoCo, CAN): its hold is when a stop took effect, and
-    hand-over, end and hold move the arm state. Its `_execute` hands over only once its own fault or
-    damping is cleared (CAN's reset), so a hand-over while damped or faulted is that recovery."""
+    hand-over, end and hold move the arm state. A backend that damps reports its own recovery
+    before the hand-over (CAN's `_recover`): a hand-over while damped or faulted is refused by the
+    arm state, never taken as a recovery."""
 
     def servo_held(self, stamp: float) -> None:
         self._record_stop_stamp(stamp)
         self._arm_event(ArmEvent.STOP)
 
     def servo_following(self) -> None:
-        if self.arm_state in (ArmState.DAMPED, ArmState.FAULTED):
-            self._arm_event(ArmEvent.RECOVER)
         self._arm_event(ArmEvent.EXECUTE)
 
     def servo_finished(self) -> None:

@@ -29,6 +29,13 @@ CAN timeout disables them.
 (`emergency_stop` / `emergency_stop_now`: the `estop` tool, the stop channel, SIGUSR1) damps every
 joint like a fault — from the calling thread at once, then every tick — until the next admitted
 execution, which recovers to a hold at the measured position first.
+
+The arm state (`armwarden.backends.arm_state`) is reported where the flags change: `damped` where
+damping begins (an e-stop, a fault before it is reported `faulted`, a setpoint the frames out
+refuse), `recover` where `_recover` clears them. The flags (`fault`, `_estopped`,
+`CommandStream.damping`) stay what the servo thread reads rather than derive from the state: the
+state is `closed` while the servo loop already runs during start-up (damping there must still
+damp), and a refused setpoint damps a tick before it is a fault, which `_recover` must not clear.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from armwarden.backends.arm_state import ArmEvent
 from armwarden.backends.can.actuators import Actuator
 from armwarden.backends.can.bus import CanBus
 from armwarden.backends.can.command_stream import CommandStream
@@ -190,6 +198,7 @@ class CanArm(ServoBackend):
             self.fault = None
             self._stream.damping, self._stream.limit_violation = False, None
             self._estopped = False
+            self._arm_event(ArmEvent.RECOVER)
         logger.warning("can backend: damping ended after a reset; holding again")
 
     # ================================================================ stops
@@ -213,6 +222,7 @@ class CanArm(ServoBackend):
         with self._fault_lock:  # against `_recover` leaving damping at the same moment
             self._estopped = self._stream.damping = True
             servo.hold()  # the running execution ends "stopped"; the hold is sent as damping
+            self._arm_event(ArmEvent.DAMP)
         servo.require_running()
 
     def _require_servo(self) -> ServoLoop:
@@ -272,6 +282,7 @@ class CanArm(ServoBackend):
         self._bump_stop_epoch()
         self._stop_fingers()
         self._require_servo().hold()  # damping frames now, and the running execution ends
+        self._arm_event(ArmEvent.DAMP)
         self._report_fault(f"can backend fault: {self.fault}")
 
     def _conditions(self, now: float) -> list[str]:

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import anyio
 import numpy as np
 
+from armwarden.backends.arm_state import ArmEvent
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.actuators import Actuator, ReplyDecoder
@@ -86,7 +87,8 @@ class CanBackend(CanArm):
         lower_limits = np.asarray(tuple(lower), dtype=float)
         upper_limits = np.asarray(tuple(upper), dtype=float)
         stream = CommandStream(robot.joint_names, actuators, everyone, fingers, direction=direction, offset=offset,
-                               lower=lower_limits, upper=upper_limits, state_lock=state_lock, bus=lambda: self.bus)
+                               lower=lower_limits, upper=upper_limits, state_lock=state_lock, bus=lambda: self.bus,
+                               on_damping=lambda: self._arm_event(ArmEvent.DAMP))
         super().__init__(robot.joint_names, config, actuators, everyone, stream, state_lock=state_lock,
                          direction=direction, offset=offset, start_tolerance_rad=start_tolerance_rad)
         self._lower, self._upper = lower_limits, upper_limits

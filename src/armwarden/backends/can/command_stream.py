@@ -30,7 +30,8 @@ class CommandStream:
 
     def __init__(self, joint_names: Sequence[str], actuators: list[Actuator], everyone: list[Actuator],
                  fingers: CanFingers | None, *, direction: np.ndarray, offset: np.ndarray, lower: np.ndarray,
-                 upper: np.ndarray, state_lock: threading.Lock, bus: Callable[[], CanBus | None]) -> None:
+                 upper: np.ndarray, state_lock: threading.Lock, bus: Callable[[], CanBus | None],
+                 on_damping: Callable[[], object]) -> None:
         self._joint_names = tuple(joint_names)
         self._actuators = actuators  # the arm's
         self._everyone = everyone  # the arm's, then the gripper's: damping covers all
@@ -39,6 +40,7 @@ class CommandStream:
         self._lower, self._upper = lower, upper
         self._state_lock = state_lock
         self._bus = bus
+        self._on_damping = on_damping  # told (under the servo lock) when a refused setpoint starts damping
         #: damping frames from this tick on (a fault, an e-stop, a setpoint refused)
         self.damping = False
         #: why a setpoint was refused (never sent); the next tick makes it a fault
@@ -66,12 +68,14 @@ class CommandStream:
             if bad:  # never sent: damp instead, and the next tick turns it into a fault
                 self.limit_violation = bad[0]
                 self.damping = True
+                self._on_damping()
         if not self.damping:
             try:
                 frames = self._following_frames(positions, velocities)
             except BackendError as exc:  # a value the model cannot carry (a velocity beyond its field):
                 self.limit_violation = str(exc)  # never sent; damp as for a position past a limit
                 self.damping = True
+                self._on_damping()
         if self.damping:  # every actuator that can be damped is, whatever another one refuses
             frames, refused = self._damping_frames()
             self.send_batch(frames, FrameKind.COMMAND)
