@@ -2,7 +2,8 @@
 
 The base class `Backend` owns what is common — the open/closed lifecycle, deadlines, logging,
 trajectory checks and the stop semantics — and calls small `_hooks` that each backend implements
-(template methods, as python-can's `BusABC.recv` calls `_recv_internal`). Backends only talk to
+(template methods, as python-can's `BusABC.recv` calls `_recv_internal`) for the arm, and the
+parts of its cell (`armwarden.backends.parts`, called from `part_calls`) for the rest. Backends only talk to
 hardware or simulation: they never decide whether a motion is allowed; the Guard is the only
 caller. What a backend writes and the rules it keeps are the docstring of
 `armwarden.backends.hooks` (next to the hooks themselves); this class enforces what it can of them
@@ -22,7 +23,6 @@ import numpy as np
 
 from armwarden.backends.arm_state import ArmEvent, ArmStateReporting
 from armwarden.backends.faults import FaultReporting
-from armwarden.backends.hook_parts import cell_from_hooks
 from armwarden.backends.hooks import BackendHooks
 from armwarden.backends.part_calls import PartCalls
 from armwarden.backends.parts import Capabilities, Cell
@@ -56,7 +56,7 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
         self._gripper_epoch = 0  # the stop epoch the running gripper action was decided under
         self._opened = False
         self._closed = False
-        self._cell: Cell | None = None
+        self._cell = Cell()
 
     @property
     def last_stop_stamp(self) -> float | None:
@@ -89,7 +89,7 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
         return self._stop_epoch != self._execution_epoch
 
     def _gripper_stop_landed(self) -> bool:
-        """Like `_stop_landed`, for the running gripper action (gripper hooks check it under the
+        """Like `_stop_landed`, for the running gripper action (gripper parts check it under the
         lock their stop takes when they start the fingers)."""
         return self._stop_epoch != self._gripper_epoch
 
@@ -156,9 +156,7 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
     @property
     def cell(self) -> Cell:
         """The cell's optional parts (`armwarden.backends.parts`); a backend sets it in its
-        constructor. One that declares `capabilities` flags instead gets parts calling its hooks."""
-        if self._cell is None:
-            self._cell = cell_from_hooks(self, self.capabilities) if type(self).capabilities is not Backend.capabilities else Cell()
+        constructor (default: an arm with no parts)."""
         return self._cell
 
     @cell.setter

@@ -21,8 +21,8 @@ grasp force (a grasp closes fully: the object stops the fingers, friction holds 
 the finger target where its ramp is (fingers on an object keep their grip; see `SimulatedFingers.stop_now`).
 
 Cameras render offscreen on their own thread from the last published configuration of every
-body (`OffscreenCameras`, mujoco/cameras.py); the first snapshot gets `camera_setup_timeout_s` on
-top of the usual deadline (`SimulatedCameras`).
+body (`OffscreenCameras`, mujoco/cameras.py); the first snapshot gets the camera part's
+`setup_timeout_s` on top of the usual deadline (`SimulatedCameras`).
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
