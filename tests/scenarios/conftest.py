@@ -4,7 +4,7 @@
 whole suite. `arm` is the daemon on that backend behind the SDK client (`arm_harness`), with the
 bundled policy adapted to what the backend declares and changed by the test's
 `@pytest.mark.policy(**{"dotted.path": value})`. A scenario that needs an optional capability says
-so with `@pytest.mark.needs("gripper")` and is skipped only on a backend that does not declare it
+so with `@pytest.mark.needs("gripper")` and is skipped only on a backend whose cell lacks that part
 — never by backend name.
 """
 
@@ -62,7 +62,7 @@ def capabilities(backend: str, capabilities_of: Callable[[str], Capabilities], r
     for marker in request.node.iter_markers("needs"):
         for name in marker.args:
             if not getattr(declared, name):
-                pytest.skip(f"the {backend} backend does not declare capabilities.{name}")
+                pytest.skip(f"the {backend} backend's cell has no {name} part")
     return declared
 
 
