@@ -26,30 +26,19 @@ from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.daemon.startup import SWITCH_INTERVAL_S
 from armwarden.robots import load_profile
+from tests.backends.arm_states import DEADLINE_S, reaches
 from tests.backends.can.test_can_backend import build as build_can_arm
 from tests.helpers import run_opened
 
 _READY = load_profile("fr3").ready_joint_positions or {}
 JOINTS, Q_READY = tuple(_READY), np.array(tuple(_READY.values()))
 Q_REACH = Q_READY + np.array([0.3, 0.2, 0.0, 0.2, 0.0, 0.0, 0.3])
-#: generous: a loaded 2-core machine may take long to schedule the servo thread
-DEADLINE_S = 10.0
 
 
 def line(q_start: np.ndarray, q_goal: np.ndarray, duration_s: float) -> JointTrajectory:
     times = np.linspace(0.0, duration_s, max(2, round(duration_s / 0.01) + 1))
     alpha = times / duration_s
     return JointTrajectory(JOINTS, times, np.outer(1 - alpha, q_start) + np.outer(alpha, q_goal))
-
-
-async def reaches(backend: FakeBackend | CanBackend, state: ArmState) -> ArmState:
-    """Wait (generous deadline) until the backend reports `state`; return what it reports."""
-    deadline = time.monotonic() + DEADLINE_S
-    while backend.arm_state is not state:
-        if time.monotonic() > deadline:
-            break
-        await asyncio.sleep(0.002)
-    return backend.arm_state
 
 
 # ---------------------------------------------------------------------------- the table

@@ -13,12 +13,11 @@ import pytest
 from armwarden.backends.arm_state import ArmEvent, ArmState
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.backend import CanBackend
+from tests.backends.arm_states import DEADLINE_S, reaches
 from tests.backends.can.test_can_backend import POLICY
 from tests.backends.contract import straight_line
 
 pytestmark = pytest.mark.anyio
-#: generous: a loaded 2-core machine may take long to schedule the servo thread
-DEADLINE_S = 10.0
 
 
 class Events:
@@ -37,16 +36,6 @@ class Events:
 
     def events(self) -> list[ArmEvent]:
         return [event for event, _ in self.seen]
-
-
-async def reaches(backend: CanBackend, state: ArmState) -> ArmState:
-    """Wait (generous deadline) until the backend reports `state`; return what it reports."""
-    deadline = time.monotonic() + DEADLINE_S
-    while backend.arm_state is not state:
-        if time.monotonic() > deadline:
-            break
-        await asyncio.sleep(0.002)
-    return backend.arm_state
 
 
 async def at_rest(backend: CanBackend) -> np.ndarray:
