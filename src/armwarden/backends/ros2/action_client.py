@@ -53,6 +53,14 @@ class ActionClient(rclpy.action.client.ActionClient):
         await super().execute(taken_data)
 
 
+def cancel_goal(action: rclpy.action.client.ActionClient, handle: rclpy.action.client.ClientGoalHandle | None,
+                goal_id: Any, response_type: type) -> None:
+    """Any thread, without waiting: ask `action`'s server to cancel the goal `goal_id`, through
+    its `handle` once accepted, by id before (so a cancel works before the goal was answered)."""
+    goal = handle or rclpy.action.client.ClientGoalHandle(action, goal_id, response_type())
+    goal.cancel_goal_async()
+
+
 async def wait_for_server(action: rclpy.action.client.ActionClient, name: str, timeout_s: float) -> None:
     """Wait (at most `timeout_s`) for `action`'s server, or `BackendError`: no goal is sent to nobody."""
     deadline = time.monotonic() + timeout_s

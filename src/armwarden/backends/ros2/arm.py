@@ -44,7 +44,7 @@ from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory
 
 from armwarden.backends.arm_state import ArmEvent, ArmState
-from armwarden.backends.ros2.action_client import STATUS_NAMES, wait_for_server
+from armwarden.backends.ros2.action_client import STATUS_NAMES, cancel_goal, wait_for_server
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import TrajectoryConfig
 from armwarden.backends.ros2.endpoints import Endpoints
@@ -186,9 +186,7 @@ class Ros2Arm:
         if action is None or run.terminal or (run.cancel_sent and not again):
             return
         run.cancel_sent = True
-        handle = run.handle or rclpy.action.client.ClientGoalHandle(
-            action, run.goal_id, FollowJointTrajectory.Impl.SendGoalService.Response())
-        handle.cancel_goal_async()
+        cancel_goal(action, run.handle, run.goal_id, FollowJointTrajectory.Impl.SendGoalService.Response)
         self.stop_records.append(StopRecord("cancel", time.monotonic()))
 
     async def _follow_goal(self, run: GoalRun, handle: rclpy.action.client.ClientGoalHandle,

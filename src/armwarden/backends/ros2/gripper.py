@@ -20,13 +20,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy.action.client
 from action_msgs.msg import GoalStatus
 from control_msgs.action import GripperCommand
 
 from armwarden.backends.gripper_checks import check_grasp_margins, check_gripper_width_speed, grasp_outcome
 from armwarden.backends.parts import Gripper
-from armwarden.backends.ros2.action_client import STATUS_NAMES, wait_for_server
+from armwarden.backends.ros2.action_client import STATUS_NAMES, cancel_goal, wait_for_server
 from armwarden.backends.ros2.bridge import RosBridge
 from armwarden.backends.ros2.config import GripperConfig, resolved
 from armwarden.backends.ros2.endpoints import Endpoints
@@ -73,9 +72,7 @@ class Ros2Gripper(Gripper):
         if action is None or run.cancel_sent:
             return
         run.cancel_sent = True
-        handle = run.handle or rclpy.action.client.ClientGoalHandle(
-            action, run.goal_id, GripperCommand.Impl.SendGoalService.Response())
-        handle.cancel_goal_async()
+        cancel_goal(action, run.handle, run.goal_id, GripperCommand.Impl.SendGoalService.Response)
         self.stop_records.append(StopRecord("gripper cancel", time.monotonic()))
 
     def state(self) -> GripperState:
