@@ -243,9 +243,9 @@ def bench_executors(seconds: float = 10.0) -> dict[str, Any]:
     import rclpy.executors
 
     sys.path.insert(0, str(ROOT))  # tests_ros
-    from tests_ros.backend_setup import build_backend
+    from tests_ros.backend_setup import POLICY, ROBOT, example_config
 
-    from armwarden.backends.ros2.bridge import RosBridge
+    from armwarden.backends.ros2.backend import create_backend
 
     kinds = {
         "single-threaded (the backend's)": rclpy.executors.SingleThreadedExecutor,
@@ -253,8 +253,7 @@ def bench_executors(seconds: float = 10.0) -> dict[str, Any]:
     }
 
     async def receive(factory: Any) -> dict[str, Any]:
-        backend = build_backend()
-        backend.bridge = RosBridge(backend.config.node_name, backend.config.domain_id, factory)
+        backend = create_backend(ROBOT, POLICY, example_config(), executor_factory=factory)
         await backend.open()
         try:
             gaps: list[float] = []

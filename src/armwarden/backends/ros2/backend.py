@@ -57,7 +57,7 @@ import anyio
 from armwarden.backends.base import Backend
 from armwarden.backends.parts import Cell, PublishedWrench
 from armwarden.backends.ros2.arm import POLL_S, Ros2Arm
-from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, RosBridge
+from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, ExecutorFactory, RosBridge
 from armwarden.backends.ros2.cameras import Ros2Cameras
 from armwarden.backends.ros2.config import Config, check_against_policy, resolve_robot_names, resolved
 from armwarden.backends.ros2.controllers import Ros2Controllers, Ros2ErrorRecovery, ServiceCalls
@@ -95,11 +95,13 @@ class Ros2Backend(Backend):
     rest_speed_rad_s = 1e-3
 
     def __init__(self, robot: RobotModel, config: Config, ros_names: tuple[str, ...], *,
-                 start_tolerance_rad: float) -> None:
+                 start_tolerance_rad: float, executor_factory: ExecutorFactory | None = None) -> None:
         super().__init__(robot.joint_names, start_tolerance_rad=start_tolerance_rad)
         self.config = config
         self.ros_names = ros_names
-        self.bridge = RosBridge(config.node_name, config.domain_id)
+        # another executor only to measure it (scripts/bench.py ros2): every part is built on this bridge
+        self.bridge = (RosBridge(config.node_name, config.domain_id) if executor_factory is None
+                       else RosBridge(config.node_name, config.domain_id, executor_factory))
         self.joint_states = JointStateCache(config.joint_states.topic, robot.joint_names, ros_names,
                                             config.joint_states.max_age_s)
         self.wrench = None if config.wrench is None else WrenchCache(
@@ -293,11 +295,14 @@ class Ros2Backend(Backend):
         return self.stop_records[-1].stamp if self.stop_records else None
 
 
-def create_backend(robot: RobotModel, policy: Policy, config: Config) -> Ros2Backend:
-    """Registry factory: the ROS 2 backend for `policy`'s joints, named as `config` says."""
+def create_backend(robot: RobotModel, policy: Policy, config: Config, *,
+                   executor_factory: ExecutorFactory | None = None) -> Ros2Backend:
+    """Registry factory: the ROS 2 backend for `policy`'s joints, named as `config` says
+    (`executor_factory`: another rclpy executor, for the bench that compares them)."""
     config = resolve_robot_names(config, policy.robot.description)
     ros_names = check_against_policy(config, tuple(policy.robot.joint_names))
-    return Ros2Backend(robot, config, ros_names, start_tolerance_rad=policy.motion.start_tolerance_rad)
+    return Ros2Backend(robot, config, ros_names, start_tolerance_rad=policy.motion.start_tolerance_rad,
+                       executor_factory=executor_factory)
 
 
 __all__ = ["Ros2Backend", "create_backend"]
