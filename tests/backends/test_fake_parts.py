@@ -3,6 +3,8 @@ no capability flags, no optional hooks, each part with its own deadlines."""
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 
 from armwarden.backends.base import Backend
@@ -16,8 +18,11 @@ from armwarden.backends.parts import (
     Gripper,
     WrenchSensor,
 )
+from armwarden.core.errors import BackendError
 
-#: the optional hooks a backend on parts no longer has (hooks.py keeps defaults for the transition)
+pytestmark = pytest.mark.anyio
+
+#: the optional hooks of before the cell of parts, which no backend has any more
 OPTIONAL_HOOKS = ("_latest_wrench", "_read_wrench", "_latest_gripper_state", "_gripper_move", "_gripper_grasp",
                   "_gripper_home", "_stop_fingers", "_camera_snapshot", "_camera_set_up", "_list_controllers",
                   "_switch_controllers", "_set_collision_thresholds", "_error_recovery", "_graph")
@@ -48,3 +53,23 @@ def test_a_fake_without_wrench_has_no_wrench_sensor_part() -> None:
     backend = FakeBackend(wrench=False)
     assert backend.cell.wrench is None
     assert not backend.capabilities.wrench
+
+
+async def test_a_stop_whose_arm_hold_fails_still_stops_the_fingers() -> None:
+    backend = FakeBackend(speedup=1.0)
+    await backend.open()
+    try:
+        move = asyncio.create_task(backend.gripper_move(0.0, 0.01))  # 8 s of travel: still moving at the stop
+        await asyncio.sleep(0.05)
+
+        def broken_hold() -> None:
+            raise RuntimeError("injected: the hold could not be commanded")
+
+        backend.servo.hold = broken_hold  # type: ignore[method-assign]
+        with pytest.raises(BackendError, match="the hold could not be commanded"):
+            backend.stop_now()
+        result = await asyncio.wait_for(move, 5.0)
+    finally:
+        del backend.servo.hold
+        await backend.close()
+    assert not result.success and result.detail == "stopped"

@@ -211,18 +211,16 @@ class FakeBackend(ServoBackend):
         return await self.servo.run(trajectory, progress, hold_on_exit=not self.fail_stop, preempted=self._stop_landed)
 
     async def _stop(self) -> None:
-        if self.fail_stop:  # neither the arm nor the gripper hears this stop
-            raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
-        self.servo.hold()
-        self._stop_fingers()
-        self._require_running()  # held either way; a dead control thread is still reported as a failure
+        self._stop_now()
 
     def _stop_now(self) -> None:
-        if self.fail_stop:
+        if self.fail_stop:  # neither the arm nor the gripper hears this stop
             raise BackendError("injected fault: the stop command was not delivered (fail_stop=True)")
-        self.servo.hold()
-        self._stop_fingers()
-        self._require_running()
+        try:
+            self.servo.hold()
+        finally:  # the fingers stop even if the arm's hold failed
+            self._stop_fingers()
+        self._require_running()  # held either way; a dead control thread is still reported as a failure
 
     # ================================================================ servo hooks (servo thread)
     def servo_prepare(self, setpoint: Setpoint) -> tuple[np.ndarray, float]:

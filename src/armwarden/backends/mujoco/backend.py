@@ -177,8 +177,10 @@ class MujocoBackend(ServoBackend):
         self._stop_now()
 
     def _stop_now(self) -> None:
-        self.servo.hold()
-        self._stop_fingers()
+        try:
+            self.servo.hold()
+        finally:  # the fingers stop even if the arm's hold failed
+            self._stop_fingers()
         self.servo.require_running()  # held either way; a dead physics thread is still a failure
 
     # ================================================================ servo hooks

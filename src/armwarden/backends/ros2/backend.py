@@ -280,8 +280,10 @@ class Ros2Backend(Backend):
 
     def _stop_now(self) -> None:
         """Any thread, never awaiting: cancel the running goal (or hold), cancel the gripper's goal."""
-        self.arm.stop()
-        self._stop_fingers()
+        try:
+            self.arm.stop()
+        finally:  # the gripper's goal is cancelled even if the arm's cancel or hold failed
+            self._stop_fingers()
 
     # ================================================================ frames
     def tf_frames(self) -> tuple[str, ...]:
