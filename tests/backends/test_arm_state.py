@@ -28,6 +28,7 @@ from armwarden.daemon.startup import SWITCH_INTERVAL_S
 from armwarden.robots import load_profile
 from tests.backends.arm_states import DEADLINE_S, reaches
 from tests.backends.can.test_can_backend import build as build_can_arm
+from tests.backends.minimal_backend import MinimalBackend
 from tests.helpers import run_opened
 
 _READY = load_profile("fr3").ready_joint_positions or {}
@@ -150,6 +151,32 @@ def test_error_recovery_makes_a_held_arm_idle() -> None:
         return held, backend.arm_state
 
     assert run_opened(FakeBackend, scenario) == (ArmState.HELD, ArmState.IDLE)
+
+
+# ---------------------------------------------------------------------------- a backend that reports nothing itself
+def _minimal() -> MinimalBackend:
+    """A backend written from the guide alone: no arm event of its own (`reports_motion_events`)."""
+    return MinimalBackend(JOINTS, tuple(Q_READY), start_tolerance_rad=0.01, speedup=1.0)
+
+
+def test_a_backend_that_reports_no_events_itself_is_moving_then_idle() -> None:
+    async def scenario(backend: MinimalBackend) -> tuple[ArmState, bool, ArmState]:
+        task = asyncio.create_task(backend.execute(line(Q_READY, Q_REACH, 1.0)))
+        during = await reaches(backend, ArmState.MOVING)
+        result = await task
+        return during, result.completed, backend.arm_state
+
+    assert run_opened(_minimal, scenario) == (ArmState.MOVING, True, ArmState.IDLE)
+
+
+def test_a_stop_of_a_backend_that_reports_no_events_itself_holds_it() -> None:
+    async def scenario(backend: MinimalBackend) -> tuple[str, ArmState]:
+        task = asyncio.create_task(backend.execute(line(Q_READY, Q_REACH, 30.0)))
+        assert await reaches(backend, ArmState.MOVING) is ArmState.MOVING
+        backend.stop_now()
+        return (await task).reason, backend.arm_state
+
+    assert run_opened(_minimal, scenario) == ("stopped", ArmState.HELD)
 
 
 # ---------------------------------------------------------------------------- the CAN backend

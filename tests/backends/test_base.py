@@ -10,7 +10,7 @@ import pytest
 
 from armwarden.backends.base import Backend
 from armwarden.backends.part_calls import finger_deadline_s
-from armwarden.backends.parts import Cameras, Cell, Graph, Gripper
+from armwarden.backends.parts import Cameras, Capabilities, Cell, Graph, Gripper
 from armwarden.backends.values import CameraImage, ExecutionResult
 from armwarden.core.errors import BackendError, BackendTimeout
 from armwarden.core.state import GripperState, JointState
@@ -232,3 +232,12 @@ def test_a_missing_capability_is_refused_before_anything_is_sent():
 
 def test_a_backend_timeout_is_also_a_timeout_error():
     assert issubclass(BackendTimeout, TimeoutError) and issubclass(BackendTimeout, BackendError)
+
+
+def test_a_backend_class_that_declares_capabilities_beside_its_cell_is_refused():
+    with pytest.raises(TypeError, match=r"defines `capabilities`: build its parts into `self\.cell`"):
+
+        class _Declaring(_Probe):
+            @property
+            def capabilities(self) -> Capabilities:  # the flags of before the cell: tools whose calls fail
+                return Capabilities(gripper=True)

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from armwarden.backends.base import Backend
-from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED, ExecutionResult
 from armwarden.core.state import JointState
 from armwarden.core.trajectory import JointTrajectory
@@ -32,10 +31,6 @@ class _Unguarded(Backend):
         super().__init__(NAMES, start_tolerance_rad=0.01)
         self.positions = np.zeros(2)
         self.handed_over = 0
-
-    @property
-    def capabilities(self) -> Capabilities:
-        return Capabilities()
 
     async def _open(self) -> None:
         pass

@@ -18,7 +18,7 @@ import enum
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from types import MappingProxyType
 
 from armwarden.core.errors import BackendError
@@ -142,10 +142,27 @@ class ArmStateMachine:
             raise ArmStateError(message)
         return after
 
+    def apply_if(self, event: ArmEvent, when: Collection[ArmState]) -> ArmState:
+        """Move by `event` only while the state is one of `when`, atomically (a stop from another
+        thread may have moved it since the caller looked); return the state after."""
+        with self._lock:
+            before = self._state
+            if before not in when:
+                return before
+            after = TRANSITIONS.get((before, event))
+            if after is None:  # a caller's `when` beyond the table: a bug, as in `apply`
+                raise ArmStateError(f"{self._name}: internal error: arm event {event.value!r} is not allowed in "
+                                    f"state {before.value!r}")
+            if after is not before:
+                self._state, self._changed_at = after, self._clock()
+            return after
+
 
 class ArmStateReporting:
-    """The arm state of a backend (a part of `Backend`): the base class and `ServoBackend` report
-    its events, so every backend built on them shows it without code of its own."""
+    """The arm state of a backend (a part of `Backend`). A backend whose loop or action client
+    hands trajectories over under the lock its stop takes reports its own motion events
+    (`reports_motion_events`: `ServoBackend`, the ROS 2 backend); for every other backend `Backend`
+    reports them around `_execute` and the stop hooks, so it shows the state without code of its own."""
 
     # provided by `Backend`
     name: str
@@ -167,6 +184,10 @@ class ArmStateReporting:
     def _arm_event(self, event: ArmEvent) -> ArmState:
         """Report `event` (any thread); `ArmStateError` if the table forbids it."""
         return self._arm.apply(event)
+
+    def _arm_event_if(self, event: ArmEvent, *when: ArmState) -> ArmState:
+        """Report `event` only while the state is one of `when` (`ArmStateMachine.apply_if`)."""
+        return self._arm.apply_if(event, when)
 
 
 __all__ = ["ALWAYS_ALLOWED", "TRANSITIONS", "ArmEvent", "ArmState", "ArmStateError", "ArmStateMachine",

@@ -21,7 +21,7 @@ from typing import TypeVar
 import anyio
 import numpy as np
 
-from armwarden.backends.arm_state import ArmEvent, ArmStateReporting
+from armwarden.backends.arm_state import ArmEvent, ArmState, ArmStateReporting
 from armwarden.backends.faults import FaultReporting
 from armwarden.backends.hooks import BackendHooks
 from armwarden.backends.part_calls import PartCalls
@@ -39,6 +39,14 @@ T = TypeVar("T")
 
 class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, BackendHooks):
     """Base class: lifecycle, deadlines, checks, the arm state and logging; subclasses implement the `_hooks`."""
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        """A backend says what its cell has by its parts; a `capabilities` of its own (the flags of
+        before the cell) would offer tools whose calls then fail, so a class defining one is refused."""
+        super().__init_subclass__(**kwargs)
+        if "capabilities" in vars(cls):
+            raise TypeError(f"{cls.__qualname__} defines `capabilities`: build its parts into `self.cell` "
+                            "instead (docs/add-a-backend.md)")
 
     def __init__(self, joint_names: Sequence[str], *, start_tolerance_rad: float) -> None:
         if not (isinstance(start_tolerance_rad, (int, float)) and math.isfinite(start_tolerance_rad)
@@ -192,9 +200,13 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
             await self._check_start(trajectory)
             if self._stop_landed():
                 return ExecutionResult(False, PREEMPTED, (await self.read_joint_state()).positions.copy())
+            if not self.reports_motion_events:
+                self._report_execute()
             result = await self._execute(trajectory, progress or (lambda _fraction: None))
             if (failure := self.worker_failure) is not None:  # its stop ended the run: a fault, not a stop
                 raise BackendError(f"execution aborted: {failure}")
+            if not self.reports_motion_events:  # (a stop from another thread may have held it already)
+                self._arm_event_if(ArmEvent.FINISH if result.completed else ArmEvent.STOP, ArmState.MOVING)
             return result
         except BaseException:
             with anyio.CancelScope(shield=True):
@@ -203,6 +215,12 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
                 except BackendError:  # keep the original exception: the caller stops again and latches
                     logger.exception("backend %s: stop after an interrupted execution failed", self.name)
             raise
+
+    def _report_execute(self) -> None:
+        """The arm moves. After a fault or damping the Guard executes only once a human reset the
+        e-stop: for a backend that does not report its own recovery, that reset is the recovery."""
+        self._arm_event_if(ArmEvent.RECOVER, ArmState.DAMPED, ArmState.FAULTED)
+        self._arm_event(ArmEvent.EXECUTE)
 
     def check_trajectory(self, trajectory: JointTrajectory) -> None:
         """Refuse (`BackendError`) a trajectory this backend cannot run as given: other joints, a
@@ -251,12 +269,18 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
         try:
             with anyio.fail_after(self.stop_timeout_s):
                 await hook()
+            self._report_stop()
         except TimeoutError as exc:
             raise BackendTimeout(f"backend {self.name}: {what} not confirmed within {self.stop_timeout_s} s") from exc
         except BackendError:
             raise
         except Exception as exc:
             raise BackendError(f"backend {self.name}: {what} failed: {exc}") from exc
+
+    def _report_stop(self) -> None:
+        """A stop hook returned: the arm is held (damped drives stay damped: see the table)."""
+        if not self.reports_motion_events:
+            self._arm_event(ArmEvent.STOP)
 
     def emergency_stop_now(self) -> None:
         """The e-stop's stop from any thread, without the event loop; like `stop_now`. Raises
@@ -269,6 +293,7 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
             return
         try:
             hook()
+            self._report_stop()
         except BackendError:
             raise
         except Exception as exc:

@@ -99,6 +99,10 @@ class BackendHooks(abc.ABC):
     stop_timeout_s: float = 0.5
     #: deadline for state/wrench reads [s]
     read_timeout_s: float = 0.5
+    #: whether the backend reports the arm's motion events itself (`armwarden.backends.arm_state`:
+    #: EXECUTE at the hand-over, FINISH, STOP, under the lock its stop takes, as a servo loop or an
+    #: action client can); if not, `Backend` reports them around `_execute` and the stop hooks
+    reports_motion_events: bool = False
 
     @abc.abstractmethod
     async def _open(self) -> None: ...

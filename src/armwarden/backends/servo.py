@@ -109,9 +109,10 @@ class ServoHooks:
 
 class ServoBackend(Backend, ServoHooks):
     """A backend a `ServoLoop` drives (fake, MuJoCo, CAN): its hold is when a stop took effect, and
-    hand-over, end and hold move the arm state. A backend that damps reports its own recovery
-    before the hand-over (CAN's `_recover`): a hand-over while damped or faulted is refused by the
-    arm state, never taken as a recovery."""
+    hand-over, end and hold move the arm state, under the loop's lock. A backend that damps reports
+    its own recovery before the hand-over (CAN's `_recover`): a hand-over while damped or faulted
+    is refused by the arm state, never taken as a recovery."""
+    reports_motion_events = True
 
     def servo_held(self, stamp: float) -> None:
         self._record_stop_stamp(stamp)

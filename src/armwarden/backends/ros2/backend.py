@@ -90,6 +90,7 @@ class Ros2Backend(Backend):
 
     name = "ros2"
     worker_threads = ("executor",)  # rclpy's executor: every subscription, action and service callback
+    reports_motion_events = True  # the arm reports them under its motion lock (arm.py)
     goal_accuracy_rad = 1e-3
     hold_accuracy_rad = 2e-3
     rest_speed_rad_s = 1e-3
