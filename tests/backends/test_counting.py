@@ -7,6 +7,7 @@ import threading
 import numpy as np
 import pytest
 
+from armwarden.backends.arm_state import ArmState
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import ACTUATING_METHODS, CountingBackend
 from armwarden.backends.fake.backend import FakeBackend
@@ -141,3 +142,17 @@ async def test_a_transform_lookup_reaches_the_inner_backend_s_frame_tree() -> No
     finally:
         await counting.close()
     assert transform.translation.tolist() == [0.1, 0.0, 0.0] and counting.actuations == []
+
+
+async def test_the_arm_state_read_through_the_wrapper_is_the_inner_backend_s() -> None:
+    inner = FakeBackend(speedup=10.0)
+    counting = CountingBackend(inner)
+    await counting.open()
+    try:
+        opened = counting.arm_state
+        await counting.stop()
+        held = counting.arm_state
+    finally:
+        await counting.close()
+    assert (opened, held) == (ArmState.IDLE, ArmState.HELD)
+    assert counting.arm_state is inner.arm_state and counting.arm_state_since == inner.arm_state_since

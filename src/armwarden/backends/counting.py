@@ -4,7 +4,7 @@ Evidence for "a refusal moves nothing": tests and `scripts/eval_safety.py` put i
 Guard and the real backend and assert that refused requests added no command. It is a real
 `Backend`: each public call is recorded (actuations by method name, stops by count) *before* it is
 forwarded unchanged, so a command the inner backend refuses still counts as one that reached it.
-Lifecycle, the cell (and so the capabilities), `last_stop_stamp` and any other attribute are the inner backend's.
+Lifecycle, the cell (and so the capabilities), the arm state, `last_stop_stamp` and any other attribute are the inner backend's.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from armwarden.backends.arm_state import ArmState
 from armwarden.backends.base import Backend
 from armwarden.backends.faults import FaultListener
 from armwarden.backends.parts import Cell
@@ -61,6 +62,14 @@ class CountingBackend(Backend):
     @cell.setter
     def cell(self, cell: Cell) -> None:
         raise AttributeError("a counting backend's cell is the inner backend's")
+
+    @property
+    def arm_state(self) -> ArmState:
+        return self.inner.arm_state
+
+    @property
+    def arm_state_since(self) -> float:
+        return self.inner.arm_state_since
 
     @property
     def is_open(self) -> bool:
