@@ -70,4 +70,4 @@ async def wait_for_server(action: rclpy.action.client.ActionClient, name: str, t
         await anyio.sleep(SERVER_POLL_S)
 
 
-__all__ = ["STATUS_NAMES", "ActionClient", "wait_for_server"]
+__all__ = ["STATUS_NAMES", "ActionClient", "cancel_goal", "wait_for_server"]
