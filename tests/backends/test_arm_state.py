@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from armwarden.backends.arm_state import (
     ArmStateError,
     ArmStateMachine,
 )
+from armwarden.backends.base import Backend
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.backend import CanBackend
 from armwarden.backends.fake.backend import FakeBackend
@@ -106,26 +108,37 @@ def test_a_new_backend_is_closed_and_an_opened_one_idle() -> None:
     assert run_opened(lambda: backend, scenario) is ArmState.IDLE
 
 
-def test_an_execution_is_moving_until_it_completes_then_idle() -> None:
-    async def scenario(backend: FakeBackend) -> tuple[ArmState, bool, ArmState]:
+def _minimal() -> MinimalBackend:
+    """A backend written from the guide alone: no arm event of its own (`reports_motion_events`)."""
+    return MinimalBackend(JOINTS, tuple(Q_READY), start_tolerance_rad=0.01, speedup=1.0)
+
+
+#: a servo backend that reports its own motion events, and one whose events the base class reports
+BUILDS = pytest.mark.parametrize("build", [FakeBackend, _minimal], ids=["servo", "plain"])
+
+
+@BUILDS
+def test_an_execution_is_moving_until_it_completes_then_idle(build: Callable[[], Backend]) -> None:
+    async def scenario(backend: Backend) -> tuple[ArmState, bool, ArmState]:
         task = asyncio.create_task(backend.execute(line(Q_READY, Q_REACH, 1.0)))
         during = await reaches(backend, ArmState.MOVING)
         result = await task
         return during, result.completed, backend.arm_state
 
-    during, completed, after = run_opened(FakeBackend, scenario)
+    during, completed, after = run_opened(build, scenario)
     assert during is ArmState.MOVING
     assert completed and after is ArmState.IDLE
 
 
-def test_a_stop_mid_motion_holds_the_arm() -> None:
-    async def scenario(backend: FakeBackend) -> tuple[str, ArmState]:
+@BUILDS
+def test_a_stop_mid_motion_holds_the_arm(build: Callable[[], Backend]) -> None:
+    async def scenario(backend: Backend) -> tuple[str, ArmState]:
         task = asyncio.create_task(backend.execute(line(Q_READY, Q_REACH, 30.0)))
         assert await reaches(backend, ArmState.MOVING) is ArmState.MOVING
         backend.stop_now()  # (from this thread, as the e-stop channel does)
         return (await task).reason, backend.arm_state
 
-    reason, state = run_opened(FakeBackend, scenario)
+    reason, state = run_opened(build, scenario)
     assert reason == "stopped" and state is ArmState.HELD
 
 
@@ -151,32 +164,6 @@ def test_error_recovery_makes_a_held_arm_idle() -> None:
         return held, backend.arm_state
 
     assert run_opened(FakeBackend, scenario) == (ArmState.HELD, ArmState.IDLE)
-
-
-# ---------------------------------------------------------------------------- a backend that reports nothing itself
-def _minimal() -> MinimalBackend:
-    """A backend written from the guide alone: no arm event of its own (`reports_motion_events`)."""
-    return MinimalBackend(JOINTS, tuple(Q_READY), start_tolerance_rad=0.01, speedup=1.0)
-
-
-def test_a_backend_that_reports_no_events_itself_is_moving_then_idle() -> None:
-    async def scenario(backend: MinimalBackend) -> tuple[ArmState, bool, ArmState]:
-        task = asyncio.create_task(backend.execute(line(Q_READY, Q_REACH, 1.0)))
-        during = await reaches(backend, ArmState.MOVING)
-        result = await task
-        return during, result.completed, backend.arm_state
-
-    assert run_opened(_minimal, scenario) == (ArmState.MOVING, True, ArmState.IDLE)
-
-
-def test_a_stop_of_a_backend_that_reports_no_events_itself_holds_it() -> None:
-    async def scenario(backend: MinimalBackend) -> tuple[str, ArmState]:
-        task = asyncio.create_task(backend.execute(line(Q_READY, Q_REACH, 30.0)))
-        assert await reaches(backend, ArmState.MOVING) is ArmState.MOVING
-        backend.stop_now()
-        return (await task).reason, backend.arm_state
-
-    assert run_opened(_minimal, scenario) == ("stopped", ArmState.HELD)
 
 
 # ---------------------------------------------------------------------------- the CAN backend
