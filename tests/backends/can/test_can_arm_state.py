@@ -13,6 +13,7 @@ import pytest
 from armwarden.backends.arm_state import ArmEvent, ArmState
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can.backend import CanBackend
+from armwarden.core.errors import BackendError
 from tests.backends.arm_states import DEADLINE_S, reaches
 from tests.backends.can.test_can_backend import POLICY
 from tests.backends.contract import straight_line
@@ -110,3 +111,17 @@ async def test_a_hold_the_frames_out_refuse_damps_the_arm_before_the_fault(arm: 
     assert (ArmEvent.DAMP, ArmState.DAMPED) in events.seen
     assert events.events().index(ArmEvent.DAMP) < events.events().index(ArmEvent.FAULT)
     assert arm.fault is not None and "outside the policy limits" in arm.fault
+
+
+async def test_an_execution_while_the_frames_out_damp_is_refused_by_name(arm: CanBackend):
+    """The tick after a refused setpoint damps before the fault latches: an execution handed over
+    then is refused naming the damping (not as an internal arm-state error) and sends no motion."""
+    q = (await arm.read_joint_state()).positions
+    frames_before = arm.motion_frames
+    with arm._fault_lock:  # the frames out's damping and its report, as between refusal and fault
+        arm._stream.damping = True
+        arm._arm_event(ArmEvent.DAMP)
+    with pytest.raises(BackendError, match="damping after a setpoint outside the policy limits"):
+        await arm.execute(straight_line(arm.joint_names, q, q + 0.05, 0.5))
+    assert arm.motion_frames == frames_before
+    assert arm.arm_state is ArmState.DAMPED  # the refusal's stop does not stiffen damped drives

@@ -152,6 +152,9 @@ class CanArm(ServoBackend):
         servo.require_running()
         if self.fault is not None or self._estopped:
             self._recover()
+        if self._stream.damping:  # a setpoint the frames out refused damps a tick before the fault latches
+            raise BackendError("can backend: the actuators are damping after a setpoint outside the policy "
+                               "limits; motion refused (a fault follows)")
         self._tracking_peak_rad = 0.0
         self._following = None
         self._stream.moved_this_execution = False
