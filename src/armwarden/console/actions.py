@@ -60,6 +60,21 @@ class Actions:
             return self._answer_estop(request, session, None, f"the stop may NOT have been issued: {exc}")
         return self._answer_estop(request, session, event, None)
 
+    async def _approver(self, request: Request, to_do: str, action: str,
+                        observers_cannot: str) -> tuple[Session, dict[str, str]] | Response:
+        """The session and form of an operator who may approve, checked in this order: signed in
+        (else 401 "sign in to `to_do`"), the form's CSRF token, not an observer (else 403 "`action`
+        refused: ..."); a refusal is the audited response to return."""
+        session = self.core.session_of(request)
+        if session is None:
+            return await self.core.refuse(request, None, 401, f"sign in to {to_do}")
+        form = await self.core.form_of(request)
+        if not self.core.csrf_ok(request, form, session):
+            return await self.core.refuse(request, session, 403, f"{action} refused: CSRF token missing or wrong")
+        if not session.can_approve:
+            return await self.core.refuse(request, session, 403, f"{action} refused: observers cannot {observers_cannot}")
+        return session, form
+
     def _answer_estop(self, request: Request, session: Session | None, event: int | None, error: str | None) -> Response:
         """JSON for the page's script; a browser without script: signed in, the Safety page with
         the session's flash; otherwise this answer's own page (nothing a link could repeat)."""
@@ -76,14 +91,10 @@ class Actions:
         """Release the e-stop: an operator types the number of the event shown; a newer latch refuses.
         So does a release by the token whose MCP call latched a held e-stop or asked to release it
         (`PendingApprovals.self_release`), unless `approval.allow_self_approval`."""
-        session = self.core.session_of(request)
-        if session is None:
-            return await self.core.refuse(request, None, 401, "sign in to release the e-stop")
-        form = await self.core.form_of(request)
-        if not self.core.csrf_ok(request, form, session):
-            return await self.core.refuse(request, session, 403, "release refused: CSRF token missing or wrong")
-        if not session.can_approve:
-            return await self.core.refuse(request, session, 403, "release refused: observers cannot release the e-stop")
+        signed_in = await self._approver(request, "release the e-stop", "release", "release the e-stop")
+        if isinstance(signed_in, Response):
+            return signed_in
+        session, form = signed_in
         typed = form.get("event", "").strip().lstrip("#")
         own = self.core.guard.approvals.self_release(session.name, (e.number for e in self.core.guard.latch.held_events))
         if own is not None and not self.core.guard.policy.approval.allow_self_approval:
@@ -107,14 +118,10 @@ class Actions:
 
     async def answer(self, request: Request) -> Response:
         """Approve or decline one request, once; the waiting tool call proceeds from this record."""
-        session = self.core.session_of(request)
-        if session is None:
-            return await self.core.refuse(request, None, 401, "sign in to answer approval requests")
-        form = await self.core.form_of(request)
-        if not self.core.csrf_ok(request, form, session):
-            return await self.core.refuse(request, session, 403, "answer refused: CSRF token missing or wrong")
-        if not session.can_approve:
-            return await self.core.refuse(request, session, 403, "answer refused: observers cannot approve")
+        signed_in = await self._approver(request, "answer approval requests", "answer", "approve")
+        if isinstance(signed_in, Response):
+            return signed_in
+        session, form = signed_in
         if not self.core.settings.answer_approvals:
             return await self.core.refuse(request, session, 403, "answer refused: the policy's approval channel is "
                                           "'form' (answer in the MCP client)")
