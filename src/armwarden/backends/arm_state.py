@@ -131,31 +131,24 @@ class ArmStateMachine:
 
     def apply(self, event: ArmEvent) -> ArmState:
         """Move by `event` and return the new state; `ArmStateError` (logged) if the table forbids it."""
-        with self._lock:
-            before = self._state
-            after = TRANSITIONS.get((before, event))
-            if after is not None and after is not before:
-                self._state, self._changed_at = after, self._clock()
-        if after is None:
-            message = f"{self._name}: internal error: arm event {event.value!r} is not allowed in state {before.value!r}"
-            logger.error(message)
-            raise ArmStateError(message)
-        return after
+        return self.apply_if(event, ArmState)
 
     def apply_if(self, event: ArmEvent, when: Collection[ArmState]) -> ArmState:
         """Move by `event` only while the state is one of `when`, atomically (a stop from another
-        thread may have moved it since the caller looked); return the state after."""
+        thread may have moved it since the caller looked); return the state after. `ArmStateError`
+        (logged) if the table forbids `event` in a state of `when`."""
         with self._lock:
             before = self._state
             if before not in when:
                 return before
             after = TRANSITIONS.get((before, event))
-            if after is None:  # a caller's `when` beyond the table: a bug, as in `apply`
-                raise ArmStateError(f"{self._name}: internal error: arm event {event.value!r} is not allowed in "
-                                    f"state {before.value!r}")
-            if after is not before:
+            if after is not None and after is not before:
                 self._state, self._changed_at = after, self._clock()
-            return after
+        if after is None:  # logged outside the lock: stops report under the servo lock
+            message = f"{self._name}: internal error: arm event {event.value!r} is not allowed in state {before.value!r}"
+            logger.error(message)
+            raise ArmStateError(message)
+        return after
 
 
 class ArmStateReporting:
