@@ -35,7 +35,6 @@ deadline, `inject_worker_hang`): the watchdog holds the arm from its own thread.
 from __future__ import annotations
 
 import asyncio
-import logging
 import math
 import threading
 import time
@@ -64,8 +63,6 @@ from armwarden.robots import builtin_profile
 if TYPE_CHECKING:
     from armwarden.policy import Policy
 
-
-logger = logging.getLogger(__name__)
 
 class FakeBackend(ServoBackend):
     """Kinematic arm and gripper driven by a servo loop (see the module docstring)."""
