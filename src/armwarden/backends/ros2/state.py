@@ -60,7 +60,6 @@ class JointStateCache:
         self._clock = clock
         self._lock = threading.Lock()
         self._sample: _Sample | None = None
-        self._arrived = threading.Event()
         #: messages not taken, and why the last one was not (for the stale message)
         self.dropped = 0
         self.last_drop: str = ""
@@ -95,7 +94,6 @@ class JointStateCache:
             stamp = max(now, previous.state.stamp) if previous is not None else now
             state = JointState(self.joint_names, _frozen(positions), _frozen(velocities), stamp)
             self._sample = _Sample(state, header_s)
-        self._arrived.set()
 
     def _drop(self, why: str) -> None:
         self.dropped += 1
@@ -134,10 +132,6 @@ class JointStateCache:
             why = f"; {self.dropped} message(s) not used, the last because {self.last_drop}" if self.dropped else ""
             raise BackendError(f"joint states on {self.topic} are {age:.2f} s old (limit {self.max_age_s:g} s){why}")
         return sample.state, sample.header_s
-
-    def wait_first(self, timeout_s: float) -> bool:
-        """Block until a complete sample arrived (any thread but the executor's)."""
-        return self._arrived.wait(timeout_s)
 
 
 class WrenchCache:
