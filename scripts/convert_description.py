@@ -53,12 +53,14 @@ class Recipe:
     """rad, for joints the source leaves unlimited (continuous)"""
     frozen: tuple[str, ...] = ()
     """joints made fixed at 0 (a closed linkage URDF cannot express)"""
+    mesh_suffix: str | None = None
+    """the manufacturer's file suffix for the source's collision meshes (e.g. `.STL`), if it differs"""
     notes: tuple[str, ...] = ()
 
 
 _TWO_PI = 2.0 * math.pi
 _UR_SPEED = math.pi  # UR5e datasheet: every joint 180 deg/s
-_GEN3_LARGE, _GEN3_SMALL = math.radians(80.0), math.radians(70.0)  # Kinova Gen3 user guide: max joint speed
+_GEN3_LARGE, _GEN3_SMALL = math.radians(80.0), math.radians(70.0)  # Kinova's ros2_kortex URDF: max joint speed
 _XARM_SPEED = math.pi  # UFACTORY xArm7 datasheet: max joint speed 180 deg/s
 _STS3215_SPEED = math.radians(60.0) / 0.222  # Feetech STS3215 datasheet: 0.222 s/60 deg no load
 
@@ -78,7 +80,11 @@ RECIPES: dict[str, Recipe] = {
         tcp_rpy=(math.pi, 0.0, 0.0),
         velocity={"joint_1": _GEN3_LARGE, "joint_2": _GEN3_LARGE, "joint_3": _GEN3_LARGE, "joint_4": _GEN3_LARGE,
                   "joint_5": _GEN3_SMALL, "joint_6": _GEN3_SMALL, "joint_7": _GEN3_SMALL},
-        # joints 1, 3, 5, 7 turn without end; we bound them to one turn either way
+        # ros2_kortex's URDF (kortex_description/arms/gen3/7dof/urdf/gen3_macro.xacro): continuous torque
+        effort={"joint_1": 39.0, "joint_2": 39.0, "joint_3": 39.0, "joint_4": 39.0,
+                "joint_5": 9.0, "joint_6": 9.0, "joint_7": 9.0},
+        mesh_suffix=".STL",
+        # joints 1, 3, 5, 7 turn without end; one turn either way, as ros2_kortex with an external cable
         ranges=dict.fromkeys(("joint_1", "joint_3", "joint_5", "joint_7"), (-_TWO_PI, _TWO_PI)),
     ),
     "xarm7": Recipe(
@@ -128,7 +134,10 @@ def load_source(path: Path, recipe: Recipe) -> tuple[mujoco.MjModel, list[MeshRe
             continue
         if geom.contype or geom.conaffinity:
             body = geom.parent.name
-            meshes.append(MeshRef(body, files[geom.meshname], np.array(geom.pos, float), np.array(geom.quat, float)))
+            file = files[geom.meshname]
+            if recipe.mesh_suffix:
+                file = str(Path(file).with_suffix(recipe.mesh_suffix))
+            meshes.append(MeshRef(body, file, np.array(geom.pos, float), np.array(geom.quat, float)))
         spec.delete(geom)
     for mesh in list(spec.meshes):
         spec.delete(mesh)
