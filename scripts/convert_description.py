@@ -54,6 +54,8 @@ class Recipe:
     frozen: tuple[str, ...] = ()
     """joints made fixed at 0 (a closed linkage URDF cannot express)"""
     mesh_suffix: str | None = None
+    mesh_names: dict[str, str] = field(default_factory=dict)
+    """the manufacturer's file for a source mesh file whose name differs beyond the suffix"""
     """the manufacturer's file suffix for the source's collision meshes (e.g. `.STL`), if it differs"""
     notes: tuple[str, ...] = ()
 
@@ -91,6 +93,8 @@ RECIPES: dict[str, Recipe] = {
         name="xarm7", title="UFACTORY xArm7 with the xArm Gripper",
         tcp_parent="xarm_gripper_base_link", tcp_name="link_tcp", tcp_xyz=(0.0, 0.0, 0.172), tcp_rpy=(0.0, 0.0, 0.0),
         velocity={f"joint{index}": _XARM_SPEED for index in range(1, 8)},
+        mesh_suffix=".STL", mesh_names={"end_tool.stl": "link7.STL"},
+        # the gripper's six-bar linkage (a closed chain in the source) is held open: fixed links at 0
         frozen=("left_driver_joint", "left_finger_joint", "left_inner_knuckle_joint",
                 "right_driver_joint", "right_finger_joint", "right_inner_knuckle_joint"),
     ),
@@ -135,7 +139,9 @@ def load_source(path: Path, recipe: Recipe) -> tuple[mujoco.MjModel, list[MeshRe
         if geom.contype or geom.conaffinity:
             body = geom.parent.name
             file = files[geom.meshname]
-            if recipe.mesh_suffix:
+            if file in recipe.mesh_names:
+                file = recipe.mesh_names[file]
+            elif recipe.mesh_suffix:
                 file = str(Path(file).with_suffix(recipe.mesh_suffix))
             meshes.append(MeshRef(body, file, np.array(geom.pos, float), np.array(geom.quat, float)))
         spec.delete(geom)
