@@ -107,13 +107,15 @@ RECIPES: dict[str, Recipe] = {
     ),
     "piper": Recipe(
         name="piper", title="AgileX PiPER with its parallel gripper",
-        # between the fingers' pads: the fingers' joint origin on link 6's axis (0.13503 m), pads ~0.0 beyond
-        tcp_parent="link6", tcp_name="tcp", tcp_xyz=(0.0, 0.0, 0.13503), tcp_rpy=(0.0, 0.0, 0.0),
-        velocity={"joint1": math.radians(180.0), "joint2": math.radians(195.0), "joint3": math.radians(180.0),
-                  "joint4": math.radians(225.0), "joint5": math.radians(225.0), "joint6": math.radians(225.0),
-                  "joint7": 0.1, "joint8": 0.1},
-        effort={"joint1": 30.0, "joint2": 30.0, "joint3": 30.0, "joint4": 10.0, "joint5": 10.0, "joint6": 10.0,
-                "joint7": 10.0, "joint8": 10.0},
+        # on link 6's axis at the middle of the finger pads (the source's finger boxes span 0.080-0.140 m)
+        tcp_parent="link6", tcp_name="tcp", tcp_xyz=(0.0, 0.0, 0.11003), tcp_rpy=(0.0, 0.0, 0.0),
+        # piper_sdk: joint speed limit 3.0 rad/s, MIT-mode torque limit 8 N·m, gripper effort 0-5
+        velocity={**dict.fromkeys((f"joint{index}" for index in range(1, 7)), 3.0), "joint7": 0.1, "joint8": 0.1},
+        effort={**dict.fromkeys((f"joint{index}" for index in range(1, 7)), 8.0), "joint7": 5.0, "joint8": 5.0},
+        # the narrower of the source's range and piper_sdk's joint limits; the fingers: the small gripper's
+        # 70 mm stroke (piper_sdk), each finger opening outwards from closed (the source lets them cross)
+        ranges={"joint1": (-2.6179, 2.6179), "joint4": (-1.745, 1.745), "joint6": (-2.09439, 2.09439),
+                "joint7": (0.0, 0.035), "joint8": (-0.035, 0.0)},
     ),
 }
 

@@ -50,7 +50,7 @@ def _mujoco(arm: str) -> mujoco.MjModel:
 
 
 def test_arms_are_found() -> None:
-    assert {"ur5e", "gen3", "xarm7", "so101"} <= set(ARMS)
+    assert {"ur5e", "gen3", "xarm7", "so101", "piper"} <= set(ARMS)
 
 
 @pytest.mark.parametrize("arm", ARMS)
