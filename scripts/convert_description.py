@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -339,7 +340,7 @@ def header_text(recipe: Recipe, source: Path) -> str:
         "body dropped: the root link is the base frame); inertials as the source's; velocity limits from",
         "the manufacturer's datasheet; no visuals; collision: the source's primitives (a capsule as a",
         "cylinder and two spheres) and package:// references to its collision meshes, which are not",
-        f"shipped (armwarden init --mesh-path DIR finds {recipe.name}_description/meshes/ in DIR).",
+        f"shipped (armwarden init finds {recipe.name}_description/meshes/ under a mesh path it is given).",
         f"TCP: {recipe.tcp_name}, fixed on {recipe.tcp_parent}.",
         *recipe.notes,
     ])
@@ -356,6 +357,7 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or ROBOTS / recipe.name / "description.urdf"
     source, meshes = load_source(args.source, recipe)
     urdf = render(source, meshes, recipe, header_text(recipe, args.source))
+    ET.fromstring(urdf)  # well-formed for strict parsers too (no "--" in a comment), not only Pinocchio's
     error = fk_disagreement(source, urdf, recipe)
     joints = moving_joints(source, recipe)
     print(f"{recipe.name}: {len(joints)} joints, {len(meshes)} collision meshes referenced; TCP agreement "

@@ -6,6 +6,7 @@ its ready pose is inside them, and its SOURCES.md names a licence."""
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from importlib import resources
 from pathlib import Path
 
@@ -51,6 +52,12 @@ def _mujoco(arm: str) -> mujoco.MjModel:
 
 def test_arms_are_found() -> None:
     assert {"ur5e", "gen3", "xarm7", "so101", "piper"} <= set(ARMS)
+
+
+@pytest.mark.parametrize("arm", ARMS)
+def test_description_is_well_formed_xml(arm: str) -> None:
+    """Strict parsers (ElementTree, ROS tools) read it too, not only the lenient ones of Pinocchio and MuJoCo."""
+    assert ET.parse(ROBOTS / arm / "description.urdf").getroot().tag == "robot"
 
 
 @pytest.mark.parametrize("arm", ARMS)
