@@ -65,7 +65,7 @@ _TWO_PI = 2.0 * math.pi
 _UR_SPEED = math.pi  # UR5e datasheet: every joint 180 deg/s
 _GEN3_LARGE, _GEN3_SMALL = math.radians(80.0), math.radians(70.0)  # Kinova's ros2_kortex URDF: max joint speed
 _XARM_SPEED = math.pi  # UFACTORY xArm7 datasheet: max joint speed 180 deg/s
-_STS3215_SPEED = math.radians(60.0) / 0.222  # Feetech STS3215 datasheet: 0.222 s/60 deg no load
+_STS3215_SPEED = math.radians(60.0) / 0.222  # Feetech STS3215 no-load speed as published (0.222 s/60 deg, 7.4 V)
 
 RECIPES: dict[str, Recipe] = {
     "ur5e": Recipe(
