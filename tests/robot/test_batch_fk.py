@@ -54,7 +54,7 @@ def _assert_equal_to_pinocchio(model: pin.Model, fk: BatchFK, qs: np.ndarray, ba
 
 # ---------------------------------------------------------------------------------------- the FR3
 def test_fr3_collision_frames_and_tcp_equal_pinocchio_on_random_configurations(robot: RobotModel) -> None:
-    carrying = list(dict.fromkeys(robot.model.frames[obj.parentFrame].name for obj in robot.geometry.geometryObjects))
+    carrying = list(dict.fromkeys(capsule.link for capsule in robot.capsules))  # the fitted bodies' links
     assert len(carrying) >= 8  # links 0–7 and the hand at least: the check covers the arm, not one link
     fk = BatchFK.from_model(robot.model, [*carrying, robot.tcp_frame])
     _assert_equal_to_pinocchio(robot.model, fk, _random_configurations(robot.model, N_CONFIGURATIONS, seed=25))

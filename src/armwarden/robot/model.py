@@ -19,6 +19,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.capsules import checked_capsules, moving_links, neighbour_rule_pairs, urdf_capsules
+from armwarden.robot.description_files import load_description
 from armwarden.robot.fitted_bodies import fitted_capsules, fitted_pairs
 from armwarden.robot.fitted_file import FittedGeometry, FittingError, load_fitted
 from armwarden.robots import BUILTIN_PREFIX, RobotProfile, load_profile
@@ -107,13 +108,11 @@ class RobotModel:
         check_links: Sequence[str] | None = None,
         fitted: FittedGeometry | None = None,
     ) -> None:
-        try:
-            full_model = pin.buildModelFromUrdf(str(urdf_path))
-            full_geometry = pin.buildGeomFromUrdf(
-                full_model, str(urdf_path), pin.GeometryType.COLLISION, package_dirs=[str(urdf_path.parent)]
-            )
-        except Exception as exc:  # pinocchio raises ValueError/RuntimeError with parser text
-            raise RobotModelError(f"cannot load robot description {urdf_path}: {exc}") from exc
+        # with fitted capsules the description's own collision shapes are never read: a policy with
+        # fitted geometry needs no manufacturer's meshes at run time
+        description = load_description(urdf_path, with_collision=fitted is None)
+        full_model = description.model
+        full_geometry = description.collision if description.collision is not None else pin.GeometryModel()
 
         names = list(full_model.names)
         unknown = [name for name in joint_names if name not in names]

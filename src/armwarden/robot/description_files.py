@@ -1,0 +1,127 @@
+"""Loading an arm's description, URDF or MJCF, with its collision meshes found where the user keeps them.
+
+Both formats go through Pinocchio (the kinematics ArmWarden computes with); MuJoCo loads the same
+file for simulation. Mesh references are resolved before Pinocchio reads them, so a missing file is
+named with its link and every place that was tried: a URDF's `package://pkg/path` is looked for
+as `DIR/pkg/path` and `DIR/path` in each search directory (the description's folder first, then
+the user's `--mesh-path`s), a relative path beside the description and then in each search
+directory. xacro is the user's step (`xacro arm.urdf.xacro > arm.urdf`): a xacro file is refused
+saying so. `description_chain.py` finds the arm in the loaded model.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+
+from armwarden.core.errors import RobotModelError
+
+#: the largest description read [bytes]; a description is kilobytes, never this
+MAX_DESCRIPTION_BYTES = 16 * 1024 * 1024
+
+
+@dataclass(frozen=True)
+class Description:
+    """A loaded description: the full model (every joint, gripper ones too) and, when asked for,
+    its collision geometry with every mesh read."""
+
+    path: Path
+    kind: Literal["urdf", "mjcf"]
+    model: pin.Model
+    collision: pin.GeometryModel | None
+    mesh_paths: tuple[Path, ...]
+    #: joints that copy another joint (URDF `<mimic>`): never driven on their own
+    mimic_joints: tuple[str, ...] = ()
+
+
+def _read_root(path: Path) -> ET.Element:
+    try:
+        if path.stat().st_size > MAX_DESCRIPTION_BYTES:
+            raise RobotModelError(f"robot description {path} is larger than {MAX_DESCRIPTION_BYTES} bytes")
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RobotModelError(f"cannot read robot description {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise RobotModelError(f"robot description {path} is not UTF-8 text: {exc}") from exc
+    if path.name.endswith(".xacro") or "xmlns:xacro" in text or "<xacro:" in text:
+        raise RobotModelError(f"{path} is a xacro file: expand it first (`xacro {path.name} > {path.stem}.urdf`) and "
+                              "give the URDF")
+    try:
+        return ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise RobotModelError(f"robot description {path} is not well-formed XML: {exc}") from exc
+
+
+def _candidates(filename: str, description: Path, search: Sequence[Path]) -> list[Path]:
+    """Where a mesh reference may be, in the order tried."""
+    if filename.startswith("package://"):
+        package, _, rest = filename[len("package://"):].partition("/")
+        return [place for directory in search for place in (directory / package / rest, directory / rest)]
+    if filename.startswith("file://"):
+        return [Path(filename[len("file://"):])]
+    relative = Path(filename)
+    if relative.is_absolute():
+        return [relative]
+    return [description.parent / relative, *(directory / relative for directory in search)]
+
+
+def _resolved_urdf(root: ET.Element, path: Path, search: Sequence[Path]) -> str:
+    """The URDF text with every collision mesh reference replaced by the file found for it."""
+    missing = []
+    for link in root.iter("link"):
+        for mesh in link.findall("collision/geometry/mesh"):
+            filename = mesh.get("filename", "")
+            tried = _candidates(filename, path, search)
+            found = next((place for place in tried if place.is_file()), None)
+            if found is None:
+                missing.append(f"link {link.get('name')!r}: {filename} (tried {', '.join(str(p) for p in tried)})")
+            else:
+                mesh.set("filename", str(found.resolve()))
+    if missing:
+        raise RobotModelError(f"{len(missing)} collision mesh(es) of {path} not found; give the folder that holds them "
+                              "with --mesh-path (package://NAME/... is looked for as DIR/NAME/... and DIR/...): "
+                              + "; ".join(missing))
+    return ET.tostring(root, encoding="unicode")
+
+
+def _mimic_joints(root: ET.Element) -> tuple[str, ...]:
+    return tuple(str(joint.get("name")) for joint in root.iter("joint") if joint.find("mimic") is not None)
+
+
+def load_description(path: Path, mesh_paths: Sequence[Path] = (), *, with_collision: bool = True) -> Description:
+    """The description at `path` (URDF or MJCF, told apart by its root element), its collision
+    geometry read when `with_collision`. `RobotModelError` says what is wrong and what to do."""
+    path = Path(path)
+    root = _read_root(path)
+    search = (path.parent, *(Path(p) for p in mesh_paths))
+    if root.tag == "robot":
+        kind: Literal["urdf", "mjcf"] = "urdf"
+    elif root.tag == "mujoco":
+        kind = "mjcf"
+    else:
+        raise RobotModelError(f"{path} is neither a URDF (<robot>) nor an MJCF (<mujoco>) file: its root is <{root.tag}>")
+    try:
+        model = pin.buildModelFromUrdf(str(path)) if kind == "urdf" else pin.buildModelFromMJCF(str(path))
+    except Exception as exc:  # the parsers raise ValueError/RuntimeError with their own text
+        raise RobotModelError(f"cannot load robot description {path}: {exc}") from exc
+    collision = None
+    if with_collision:
+        try:
+            if kind == "urdf":
+                collision = pin.buildGeomFromUrdfString(model, _resolved_urdf(root, path, search), pin.GeometryType.COLLISION)
+            else:
+                collision = pin.buildGeomFromMJCF(model, str(path), pin.GeometryType.COLLISION)
+        except RobotModelError:
+            raise
+        except Exception as exc:
+            raise RobotModelError(f"cannot read the collision geometry of {path}: {exc}") from exc
+    return Description(path, kind, model, collision, tuple(Path(p) for p in mesh_paths),
+                       _mimic_joints(root) if kind == "urdf" else ())
+
+
+__all__ = ["MAX_DESCRIPTION_BYTES", "Description", "load_description"]
