@@ -1,4 +1,4 @@
-"""`armwarden` command line: serve, check-policy, audit verify|tail|replay, tokens add|list|revoke.
+"""`armwarden` command line: serve, init, check-policy, audit verify|tail|replay, tokens add|list|revoke.
 
 Exit status 2 means "refused to start / invalid input" (bad policy, unavailable backend,
 unopenable audit log, unsafe bind); 1 means a check failed (e.g. a broken audit chain).
@@ -19,6 +19,7 @@ from armwarden.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.backends import backend_names, backends_help
 from armwarden.core.errors import ArmWardenError, PolicyError
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
+from armwarden.onboarding.command import add_init_arguments, init_command
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
 from armwarden.snapshot_cli import add_snapshot_arguments, snapshot_command
 from armwarden.stopchannel.client import add_estop_arguments, estop_command
@@ -66,6 +67,9 @@ def _build_parser() -> argparse.ArgumentParser:
         "estop", help="e-stop a running daemon through its stop channel (--url) or SIGUSR1 (--pid)"))
     add_snapshot_arguments(commands.add_parser(
         "snapshot", help="write one camera picture of a running daemon (its camera_snapshot tool) to a file"))
+
+    add_init_arguments(commands.add_parser(
+        "init", help="write a checked policy, fitted collision geometry and a picture for any URDF or MJCF arm"))
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")
@@ -165,6 +169,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "check-policy":
             return check_policy_command(args.policy)
+        if args.command == "init":
+            return init_command(args)
         if args.command == "audit":
             from armwarden import audit
 
