@@ -145,7 +145,8 @@ def write_random_arm(directory: Path, seed: int, n_joints: int | None = None, *,
 
 def write_mjcf_twin(arm: GeneratedArm, directory: Path) -> Path:
     """The same arm as MJCF, as MuJoCo converts the URDF (meshes copied beside it). MuJoCo writes
-    6 significant digits, so the twin's kinematics agree with the URDF's to about 1e-6 m."""
+    6 significant digits, so the twin's kinematics agree with the URDF's to about 1e-6 m. The arm's
+    meshes must be relative (MuJoCo does not resolve package:// URIs)."""
     import shutil
 
     import mujoco
