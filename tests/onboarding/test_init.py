@@ -111,3 +111,20 @@ def test_the_policy_needs_no_meshes_at_run_time(tmp_path: Path) -> None:
     robot = RobotModel.from_description(str(run.arm.urdf), run.arm.joint_names, "base_link", "tool0",
                                         collision_geometry=str(run.options.fitted_path))
     assert robot.fitted is not None and len(robot.capsules) >= 4
+
+
+def test_reusing_the_fitted_file_writes_the_same_policy_without_fitting(six_joint_arm: InitRun, tmp_path: Path) -> None:
+    first = six_joint_arm.options
+    shutil.copytree(first.description.parent, tmp_path / "arm")
+    again = InitOptions(description=tmp_path / "arm" / first.description.name, output=tmp_path / "policy" / "arm.yaml",
+                        fit=QUICK_FIT, fitted=first.fitted_path)
+    run_init(again)
+    assert again.output.read_bytes() == first.output.read_bytes()
+    assert again.fitted_path.read_bytes() == first.fitted_path.read_bytes()
+
+
+def test_a_fitted_file_made_for_another_description_is_refused(six_joint_arm: InitRun, tmp_path: Path) -> None:
+    other = write_random_arm(tmp_path / "other", seed=21, n_joints=6)
+    with pytest.raises(RobotModelError, match="fitted to another description"):
+        run_init(InitOptions(description=other.urdf, output=tmp_path / "p.yaml", fitted=six_joint_arm.options.fitted_path))
+    assert not (tmp_path / "p.yaml").exists()

@@ -29,13 +29,18 @@ def add_init_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="the robot's name in the policy (default: the description's)")
     parser.add_argument("--max-bodies", type=int, default=FitSettings.max_bodies,
                         help="capsules tried per link part (fewer: faster, fatter)")
+    parser.add_argument("--fitted", type=Path, default=None, metavar="FILE",
+                        help="reuse fitted geometry init made before for this same description (no fitting, no meshes)")
+    parser.add_argument("--builtin", default=None, metavar="NAME",
+                        help="for a robot folder shipped with ArmWarden (src/armwarden/robots/NAME): the policy names "
+                             "its description and fitted geometry builtin:NAME")
 
 
 def init_command(args: argparse.Namespace) -> int:
     joints = tuple(j.strip() for j in args.joints.split(",") if j.strip()) if args.joints else None
     options = InitOptions(description=args.description, output=args.output, base_frame=args.base_frame,
                           tcp_frame=args.tcp_frame, joints=joints, mesh_paths=tuple(args.mesh_path), name=args.name,
-                          fit=FitSettings(max_bodies=args.max_bodies))
+                          fit=FitSettings(max_bodies=args.max_bodies), builtin=args.builtin, fitted=args.fitted)
     try:
         result = run_init(options, progress=lambda line: print(f"init: {line}", file=sys.stderr, flush=True))
     except PolicyError as exc:  # the generated policy failed its own check: a bug or an arm it cannot serve

@@ -27,8 +27,8 @@ from armwarden.policy.fields import MAX_COORDINATE_M
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import build_robot
 from armwarden.robot.description_chain import Chain, infer_chain
-from armwarden.robot.description_files import load_description
-from armwarden.robot.fitted_file import render_fitted
+from armwarden.robot.description_files import Description, load_description
+from armwarden.robot.fitted_file import load_fitted, render_fitted
 from armwarden.robot.link_meshes import link_meshes
 from armwarden.safety.envelope import Envelope
 from armwarden.safety.limits import EnvelopeLimits
@@ -46,6 +46,10 @@ class InitOptions:
     mesh_paths: tuple[Path, ...] = ()
     name: str | None = None
     fit: FitSettings = field(default_factory=FitSettings)
+    #: a robot folder shipped with ArmWarden: the policy names its files `builtin:<builtin>`
+    builtin: str | None = None
+    #: fitted geometry made before for this very description (its SHA-256 checked): not fitted again
+    fitted: Path | None = None
 
     @property
     def fitted_path(self) -> Path:
@@ -85,7 +89,8 @@ def _robot_name(model: pin.Model, description: Path) -> str:
 
 
 def remake_command(options: InitOptions) -> list[str]:
-    """The command that remakes these files, paths relative to the policy's folder (the header's)."""
+    """The command that remakes these files, paths relative to the policy's folder (the header's).
+    `--fitted` is left out: it reuses what this command makes."""
     folder = options.output.parent
     command = ["armwarden", "init", _relative(options.description, folder), "--output", options.output.name]
     for flag, value in (("--base-frame", options.base_frame), ("--tcp-frame", options.tcp_frame),
@@ -93,10 +98,12 @@ def remake_command(options: InitOptions) -> list[str]:
         if value:
             command += [flag, value]
     for path in options.mesh_paths:
-        command += ["--mesh-path", _relative(path, folder)]
+        command += ["--mesh-path", str(path)]  # as given: where the meshes were is the user's business
     defaults = FitSettings()
     if options.fit.max_bodies != defaults.max_bodies:
         command += ["--max-bodies", str(options.fit.max_bodies)]
+    if options.builtin:
+        command += ["--builtin", options.builtin]
     return command
 
 
@@ -119,33 +126,48 @@ def _fingers(model: pin.Model, chain: Chain) -> tuple[GripperDraft | None, list[
     return GripperDraft(tuple(model.names[j] for j in prismatic), width), notes
 
 
+def _fitted_text(options: InitOptions, description: Description, name: str, progress: Callable[[str], None]) -> str:
+    """The fitted file: fitted now, or the one given (`options.fitted`) when it was made for this description."""
+    digest = hashlib.sha256(options.description.read_bytes()).hexdigest()
+    if options.fitted is not None:
+        made = load_fitted(options.fitted)
+        if made.source.get("sha256") != digest:
+            raise RobotModelError(f"{options.fitted} was fitted to another description (SHA-256 "
+                                  f"{made.source.get('sha256', 'not recorded')}, {options.description} is {digest}): "
+                                  "run init without --fitted")
+        return options.fitted.read_text(encoding="utf-8")
+    meshes = link_meshes(description)
+    if not meshes:
+        raise RobotModelError(f"{options.description} has no collision geometry to fit: add <collision> shapes or "
+                              "meshes to its links (give --mesh-path for package:// meshes)")
+    geometry = fit_arm(description.model, meshes, robot=name, settings=options.fit, progress=progress,
+                       source={"description": _relative(options.description, options.output.parent), "sha256": digest})
+    return render_fitted(geometry, fitted_header(name, options.description.name, options.fit, remake_command(options)))
+
+
 def run_init(options: InitOptions, progress: Callable[[str], None] = lambda _: None) -> InitResult:
     """Generate, check and write the policy, its fitted geometry and the picture (see the package doc)."""
-    description = load_description(options.description, options.mesh_paths)
+    description = load_description(options.description, options.mesh_paths, with_collision=options.fitted is None)
     chain = infer_chain(description.model, base_frame=options.base_frame, tcp_frame=options.tcp_frame,
                         joints=options.joints, mimic_joints=description.mimic_joints)
     progress(f"arm: {len(chain.joint_names)} joints {', '.join(chain.joint_names)}; base {chain.base_frame}, "
              f"TCP {chain.tcp_frame}")
     joints = joint_limits(description.model, chain.joint_names)
-    meshes = link_meshes(description)
-    if not meshes:
-        raise RobotModelError(f"{options.description} has no collision geometry to fit: add <collision> shapes or "
-                              "meshes to its links (give --mesh-path for package:// meshes)")
     name = options.name or _robot_name(description.model, options.description)
-    digest = hashlib.sha256(options.description.read_bytes()).hexdigest()
+    fitted_text = _fitted_text(options, description, name, progress)
     command = remake_command(options)
-    geometry = fit_arm(description.model, meshes, robot=name, settings=options.fit, progress=progress,
-                       source={"description": _relative(options.description, options.output.parent), "sha256": digest})
-    fitted_text = render_fitted(geometry, fitted_header(name, options.description.name, options.fit, command))
     gripper, notes = _fingers(description.model, chain)
     lower, upper = np.array([j.min for j in joints]), np.array([j.max for j in joints])
     far = MAX_COORDINATE_M
     provisional = Workspace((-far, -far, -far), (far, far, far), 0.0, False)  # until the reach is known
     draft = PolicyDraft(
-        name=name, description=_scalar(_relative(options.description, options.output.parent)),
-        collision_geometry=_scalar(options.fitted_path.name), source_label=options.description.name,
+        name=name, source_label=options.description.name,
+        description=_scalar(_relative(options.description, options.output.parent)),
+        collision_geometry=_scalar(options.fitted_path.name),
         base_frame=chain.base_frame, tcp_frame=chain.tcp_frame, joints=joints, home=(lower + upper) / 2.0,
         workspace=provisional, gripper=gripper, command=command)
+    if options.builtin:  # a shipped robot folder: its profile names the description and the fitted file
+        draft = replace(draft, description=f"builtin:{options.builtin}", collision_geometry=f"builtin:{options.builtin}")
     with tempfile.TemporaryDirectory(prefix="armwarden-init-") as scratch:  # nothing is written until all is checked
         scratch_fitted = Path(scratch) / options.fitted_path.name
         scratch_fitted.write_text(fitted_text, encoding="utf-8")
