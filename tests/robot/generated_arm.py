@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import struct
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -144,8 +145,8 @@ def write_random_arm(directory: Path, seed: int, n_joints: int | None = None, *,
 
 
 def write_mjcf_twin(arm: GeneratedArm, directory: Path) -> Path:
-    """The same arm as MJCF, as MuJoCo converts the URDF (meshes copied beside it). MuJoCo writes
-    6 significant digits, so the twin's kinematics agree with the URDF's to about 1e-6 m. The arm's
+    """The same arm as MJCF, as MuJoCo converts the URDF (meshes copied beside it). Body placements
+    are the URDF's at full precision, so the twin's kinematics equal the URDF's to ~1e-15 m. The arm's
     meshes must be relative (MuJoCo does not resolve package:// URIs)."""
     import shutil
 
@@ -161,5 +162,26 @@ def write_mjcf_twin(arm: GeneratedArm, directory: Path) -> Path:
     for mesh in sorted(source.glob("*.stl")) if source.is_dir() else ():
         shutil.copyfile(mesh, meshes / mesh.name)
     path = directory / "arm.xml"
-    path.write_text(spec.to_xml(), encoding="utf-8")
+    path.write_text(_exact_placements(spec.to_xml(), arm.urdf), encoding="utf-8")
     return path
+
+
+def _exact_placements(mjcf: str, urdf: Path) -> str:
+    """The MJCF with each body's placement written at full precision from the URDF's joint origins
+    (MuJoCo writes 6 significant digits, so its rpy → quaternion would move the TCP by ~1e-6 m)."""
+    import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+
+    origins = {}
+    for joint in ET.parse(urdf).getroot().iter("joint"):
+        child, origin = joint.find("child"), joint.find("origin")
+        if child is not None and origin is not None:
+            rpy = [float(v) for v in origin.get("rpy", "0 0 0").split()]
+            xyzw = pin.Quaternion(pin.rpy.rpyToMatrix(*rpy)).coeffs()
+            origins[child.get("link")] = (origin.get("xyz", "0 0 0"),
+                                          " ".join(repr(float(v)) for v in (xyzw[3], xyzw[0], xyzw[1], xyzw[2])))
+    root = ET.fromstring(mjcf)
+    for body in root.iter("body"):
+        if body.get("name") in origins:
+            body.set("pos", origins[body.get("name")][0])
+            body.set("quat", origins[body.get("name")][1])
+    return ET.tostring(root, encoding="unicode")

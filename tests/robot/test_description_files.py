@@ -1,12 +1,12 @@
 """Loading any arm's description: URDF and MJCF, meshes found through package:// URIs and search
 paths (or named when missing), xacro refused with the instruction, the arm chain inferred or
-checked, and each link's collision surface placed where Pinocchio places it."""
+checked, and RobotModel loading through it."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
-import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import pytest
@@ -14,17 +14,17 @@ import pytest
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.description_chain import infer_chain
 from armwarden.robot.description_files import load_description
-from armwarden.robot.fitting_mesh import winding_numbers
-from armwarden.robot.link_meshes import link_meshes, shape_mesh
+from armwarden.robot.fitted_file import FittedBody, FittedGeometry, LinkFit
+from armwarden.robot.model import RobotModel
 from tests.robot.generated_arm import GeneratedArm, write_mjcf_twin, write_random_arm
 
 
-def tcp_positions(model: pin.Model, tcp: str, qs: np.ndarray) -> np.ndarray:
+def tcp_placements(model: pin.Model, tcp: str, qs: np.ndarray) -> np.ndarray:
     data, frame = model.createData(), model.getFrameId(tcp)
     out = []
     for q in qs:
         pin.framesForwardKinematics(model, data, q)
-        out.append(data.oMf[frame].translation.copy())
+        out.append(data.oMf[frame].homogeneous.copy())
     return np.array(out)
 
 
@@ -50,14 +50,33 @@ def test_an_mjcf_twin_loads_with_the_same_arm_and_kinematics(tmp_path: Path) -> 
     assert twin.kind == "mjcf"
     assert infer_chain(twin.model).joint_names == arm.joint_names
     qs = np.random.default_rng(1).uniform(-1.0, 1.0, size=(50, len(arm.joint_names)))
-    # MuJoCo writes 6 significant digits
-    assert np.allclose(tcp_positions(twin.model, "tool0", qs), tcp_positions(urdf.model, "tool0", qs), atol=1e-5)
-    assert set(link_meshes(twin)) == set(link_meshes(urdf))
+    difference = tcp_placements(twin.model, "tool0", qs) - tcp_placements(urdf.model, "tool0", qs)
+    assert np.abs(difference).max() < 1e-9
 
 
 def test_package_meshes_are_found_through_the_mesh_path(tmp_path: Path) -> None:
     arm = write_random_arm(tmp_path, seed=2, n_joints=5, package_uris=True)
-    assert load_description(arm.urdf, (arm.mesh_dir,)).collision is not None
+    collision = load_description(arm.urdf, (arm.mesh_dir,)).collision
+    assert collision is not None and collision.ngeoms == 6
+
+
+def test_package_meshes_beside_the_description_need_no_mesh_path(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=2, n_joints=5, package_uris=True)
+    shutil.move(arm.mesh_dir / "generated_arm", arm.urdf.parent / "generated_arm")
+    collision = load_description(arm.urdf).collision
+    assert collision is not None and collision.ngeoms == 6
+
+
+def test_relative_meshes_are_found_beside_the_description_or_on_the_mesh_path(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path / "arm", seed=2, n_joints=5)
+    assert load_description(arm.urdf).collision is not None
+    moved = tmp_path / "elsewhere" / "arm.urdf"
+    moved.parent.mkdir()
+    shutil.move(arm.urdf, moved)
+    with pytest.raises(RobotModelError, match="not found"):
+        load_description(moved)
+    collision = load_description(moved, (arm.mesh_dir,)).collision
+    assert collision is not None and collision.ngeoms == 6
 
 
 def test_a_missing_mesh_is_named_with_its_link_and_every_place_tried(tmp_path: Path) -> None:
@@ -103,6 +122,33 @@ def test_two_frames_at_the_end_of_the_arm_are_named_and_one_can_be_chosen(tmp_pa
     assert infer_chain(model, tcp_frame="camera").tcp_frame == "camera"
 
 
+def test_two_equal_branches_are_named_as_candidates(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4)
+    text = arm.urdf.read_text(encoding="utf-8")
+    branch = "".join(
+        f'<joint name="b{i}" type="revolute"><parent link="{parent}"/><child link="b{i}_link"/>'
+        f'<origin xyz="0 0.1 0" rpy="0 0 0"/><axis xyz="0 1 0"/><limit lower="-1" upper="1" velocity="1" effort="1"/>'
+        f'</joint><link name="b{i}_link"/>' for i, parent in ((1, "base_link"), (2, "b1_link"), (3, "b2_link"), (4, "b3_link")))
+    arm.urdf.write_text(text.replace("</robot>", branch + "</robot>"), encoding="utf-8")
+    with pytest.raises(RobotModelError, match=r"2 revolute chains of 4 joints, ending at b4, joint4.*--joints"):
+        infer_chain(load_description(arm.urdf).model)
+
+
+def test_unknown_joint_and_frame_names_are_listed_with_the_valid_ones(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4)
+    model = load_description(arm.urdf).model
+    with pytest.raises(RobotModelError, match=r"unknown joint\(s\) joint9; the description's joints: joint1, joint2"):
+        infer_chain(model, joints=["joint1", "joint2", "joint3", "joint9"])
+    with pytest.raises(RobotModelError, match=r"TCP frame 'flange' is unknown; .*tool0"):
+        infer_chain(model, tcp_frame="flange")
+
+
+def test_a_base_frame_that_moves_is_refused(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4)
+    with pytest.raises(RobotModelError, match="moves with a joint"):
+        infer_chain(load_description(arm.urdf).model, base_frame="link2")
+
+
 def test_joints_out_of_kinematic_order_are_refused(tmp_path: Path) -> None:
     arm = write_random_arm(tmp_path, seed=3, n_joints=5)
     model = load_description(arm.urdf).model
@@ -117,35 +163,28 @@ def test_an_arm_of_three_joints_is_refused_naming_the_count(tmp_path: Path) -> N
         infer_chain(model, joints=["joint1", "joint2", "joint3"])
 
 
-def test_each_link_surface_sits_where_pinocchio_places_the_geometry(tmp_path: Path) -> None:
-    arm = write_random_arm(tmp_path, seed=4, n_joints=6, gripper=True)
-    description = load_description(arm.urdf)
-    model, geometry = description.model, description.collision
-    assert geometry is not None
-    meshes = link_meshes(description)
-    data, geometry_data = model.createData(), pin.GeometryData(geometry)
-    q = pin.randomConfiguration(model)
-    pin.framesForwardKinematics(model, data, q)
-    pin.updateGeometryPlacements(model, data, geometry, geometry_data)
-    for index, obj in enumerate(geometry.geometryObjects):
-        link = model.frames[obj.parentFrame].name
-        shape = shape_mesh(link, obj.geometry, "")
-        expected = shape.vertices @ geometry_data.oMg[index].rotation.T + geometry_data.oMg[index].translation
-        placed = meshes[link].vertices @ data.oMf[obj.parentFrame].rotation.T + data.oMf[obj.parentFrame].translation
-        distances = np.min(np.linalg.norm(expected[:, None, :] - placed[None, :, :], axis=2), axis=1)
-        assert distances.max() < 1e-12, link
+def _one_capsule_per_link(model: pin.Model) -> FittedGeometry:
+    """Stand-in fitted geometry: a capsule along each moving link (its fit is not under test)."""
+    links = {}
+    for frame in model.frames:
+        if frame.type == pin.FrameType.BODY and frame.name.startswith("link"):
+            body = FittedBody(f"{frame.name}_0", (0.0, 0.0, 0.0), (0.0, 0.0, 0.05), 0.04)
+            links[frame.name] = LinkFit(frame.name, "test", (body,), 0, 0, 0.0, (0.0,))
+    limits = {name: (float(model.lowerPositionLimit[model.idx_qs[j]]), float(model.upperPositionLimit[model.idx_qs[j]]))
+              for j, name in enumerate(model.names) if j > 0}
+    return FittedGeometry("generated", {}, 0.0, links, joint_limits=limits)
 
 
-@pytest.mark.parametrize(("shape", "surface"), [
-    (coal.Sphere(0.05), lambda u: 0.05 * u),
-    (coal.Capsule(0.04, 0.1), lambda u: 0.04 * u + np.where(u[:, 2:3] > 0, [0.0, 0.0, 0.05], [0.0, 0.0, -0.05])),
-    (coal.Ellipsoid(0.02, 0.05, 0.08), lambda u: u * [0.02, 0.05, 0.08]),
-    (coal.Cylinder(0.03, 0.2), lambda u: np.column_stack([0.03 * u[:, :2] / np.linalg.norm(u[:, :2], axis=1, keepdims=True),
-                                                          0.1 * u[:, 2]])),
-], ids=["sphere", "capsule", "ellipsoid", "cylinder"])
-def test_a_round_primitive_becomes_a_polytope_that_encloses_it(shape: object, surface) -> None:
-    units = np.random.default_rng(5).normal(size=(4000, 3))
-    units /= np.linalg.norm(units, axis=1, keepdims=True)
-    mesh = shape_mesh("link", shape, "primitive")
-    inside = winding_numbers(surface(units), mesh.vertices, mesh.triangles)
-    assert np.all(inside > 0.5)  # every point of the true surface is inside (the polytope is closed and outward)
+def test_a_robot_with_fitted_geometry_loads_a_urdf_whose_meshes_are_gone(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=12, n_joints=4)
+    fitted = _one_capsule_per_link(load_description(arm.urdf).model)
+    shutil.rmtree(arm.urdf.parent / "meshes")
+    robot = RobotModel(arm.urdf, arm.joint_names, arm.base_frame, arm.tcp_frame, fitted=fitted)
+    assert robot.fitted is fitted and robot.model.nq == 4
+
+
+def test_a_robot_loads_from_an_mjcf_description(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path / "urdf", seed=13, n_joints=5)
+    twin = write_mjcf_twin(arm, tmp_path / "mjcf")
+    robot = RobotModel(twin, arm.joint_names, arm.base_frame, arm.tcp_frame)
+    assert robot.model.nq == 5 and robot.capsules
