@@ -188,3 +188,41 @@ def test_a_robot_loads_from_an_mjcf_description(tmp_path: Path) -> None:
     twin = write_mjcf_twin(arm, tmp_path / "mjcf")
     robot = RobotModel(twin, arm.joint_names, arm.base_frame, arm.tcp_frame)
     assert robot.model.nq == 5 and robot.capsules
+
+
+@pytest.mark.parametrize("kind", ["floating", "planar"])
+def test_a_urdf_joint_that_is_not_revolute_or_prismatic_is_refused(tmp_path: Path, kind: str) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4)
+    text = arm.urdf.read_text(encoding="utf-8").replace('name="joint2" type="revolute"', f'name="joint2" type="{kind}"')
+    arm.urdf.write_text(text, encoding="utf-8")
+    with pytest.raises(RobotModelError, match=rf"does not support: joint2 \({kind}\)"):
+        load_description(arm.urdf)
+
+
+def test_an_mjcf_ball_joint_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "arm.xml"
+    path.write_text("<mujoco><worldbody><body name='base'><body name='l1'><joint name='shoulder' type='ball'/>"
+                    "<geom size='0.1'/></body></body></worldbody></mujoco>", encoding="utf-8")
+    with pytest.raises(RobotModelError, match=r"shoulder \(spherical\)"):
+        load_description(path)
+
+
+def test_a_parse_error_carries_the_parsers_text(tmp_path: Path) -> None:
+    path = tmp_path / "arm.urdf"
+    path.write_text("<robot name='a'><link name='l'></robot>", encoding="utf-8")
+    with pytest.raises(RobotModelError, match=r"not well-formed XML: mismatched tag: line 1"):
+        load_description(path)
+
+
+def test_chosen_joints_that_leave_out_a_joint_below_them_are_refused(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=5)
+    model = load_description(arm.urdf).model
+    with pytest.raises(RobotModelError, match=r"joint\(s\) joint1 move the arm's base"):
+        infer_chain(model, joints=["joint2", "joint3", "joint4", "joint5"])
+
+
+def test_a_prismatic_finger_chosen_as_an_arm_joint_is_refused(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4, gripper=True)
+    model = load_description(arm.urdf).model
+    with pytest.raises(RobotModelError, match="finger_joint1 is not revolute"):
+        infer_chain(model, joints=[*arm.joint_names, "finger_joint1"])

@@ -10,29 +10,92 @@ import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import pytest
 
+from armwarden.core.errors import RobotModelError
 from armwarden.robot.description_files import load_description
-from armwarden.robot.fitting_mesh import winding_numbers
+from armwarden.robot.fitting_mesh import load_mesh, winding_numbers
 from armwarden.robot.link_meshes import link_meshes, shape_mesh
 from tests.robot.generated_arm import write_random_arm
 
 
-def test_each_link_surface_sits_where_pinocchio_places_the_geometry(tmp_path: Path) -> None:
+def _placed(points: np.ndarray, placement: pin.SE3) -> np.ndarray:
+    return points @ placement.rotation.T + placement.translation
+
+
+def _nearest(points: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    return np.min(np.linalg.norm(points[:, None, :] - cloud[None, :, :], axis=2), axis=1)
+
+
+def test_each_link_surface_sits_where_pinocchio_places_the_mesh_files(tmp_path: Path) -> None:
     arm = write_random_arm(tmp_path, seed=4, n_joints=6, gripper=True)
     description = load_description(arm.urdf)
     model, geometry = description.model, description.collision
     assert geometry is not None
     meshes = link_meshes(description)
     data, geometry_data = model.createData(), pin.GeometryData(geometry)
-    q = pin.randomConfiguration(model)
-    pin.framesForwardKinematics(model, data, q)
+    pin.framesForwardKinematics(model, data, pin.randomConfiguration(model))
     pin.updateGeometryPlacements(model, data, geometry, geometry_data)
+    on_links: dict[str, list[np.ndarray]] = {}
     for index, obj in enumerate(geometry.geometryObjects):
         link = model.frames[obj.parentFrame].name
-        shape = shape_mesh(link, obj.geometry, "")
-        expected = shape.vertices @ geometry_data.oMg[index].rotation.T + geometry_data.oMg[index].translation
-        placed = meshes[link].vertices @ data.oMf[obj.parentFrame].rotation.T + data.oMf[obj.parentFrame].translation
-        distances = np.min(np.linalg.norm(expected[:, None, :] - placed[None, :, :], axis=2), axis=1)
-        assert distances.max() < 1e-12, link
+        path = Path(obj.meshPath)
+        from_file = load_mesh(link, path.read_bytes(), "stl", path.name).vertices * obj.meshScale
+        expected = _placed(from_file, geometry_data.oMg[index])
+        placed = _placed(meshes[link].vertices, data.oMf[obj.parentFrame])
+        assert _nearest(expected, placed).max() < 1e-12, link
+        on_links.setdefault(link, []).append(expected)
+    assert set(meshes) == set(on_links) and len(meshes) == 6 + 1 + 2 + 1  # links, hand, fingers, base
+    for link, mesh in meshes.items():  # and nothing else: every surface vertex comes from a file
+        placed = _placed(mesh.vertices, data.oMf[model.getFrameId(link, pin.FrameType.BODY)])
+        assert _nearest(placed, np.vstack(on_links[link])).max() < 1e-12, link
+
+
+def test_a_mesh_scale_is_applied(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=4, n_joints=4)
+    plain = link_meshes(load_description(arm.urdf))["link2"]
+    text = arm.urdf.read_text(encoding="utf-8").replace('meshes/link2.stl"/>', 'meshes/link2.stl" scale="2 3 0.5"/>')
+    arm.urdf.write_text(text, encoding="utf-8")
+    scaled = link_meshes(load_description(arm.urdf))["link2"]
+    assert np.allclose(np.ptp(scaled.vertices, axis=0), np.ptp(plain.vertices, axis=0) * [2.0, 3.0, 0.5], atol=1e-12)
+
+
+def test_a_link_without_collision_geometry_has_no_surface(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=4, n_joints=4)
+    assert "tool0" not in link_meshes(load_description(arm.urdf))
+
+
+def test_a_description_loaded_without_collision_is_refused(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=4, n_joints=4)
+    with pytest.raises(RobotModelError, match="without its collision geometry"):
+        link_meshes(load_description(arm.urdf, with_collision=False))
+
+
+def test_the_same_description_gives_the_same_arrays(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=4, n_joints=5, gripper=True)
+    first, second = link_meshes(load_description(arm.urdf)), link_meshes(load_description(arm.urdf))
+    assert all(np.array_equal(first[k].vertices, second[k].vertices) and np.array_equal(first[k].triangles, second[k].triangles)
+               and np.array_equal(first[k].components, second[k].components) for k in first)
+
+
+def _edges_shared_twice(triangles: np.ndarray) -> bool:
+    edges = np.sort(np.vstack([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return bool(np.all(counts == 2))
+
+
+@pytest.mark.parametrize(("shape", "half_extent"), [
+    (coal.Box(0.1, 0.2, 0.3), (0.05, 0.1, 0.15)),
+    (coal.Sphere(0.05), (0.05, 0.05, 0.05)),
+    (coal.Capsule(0.04, 0.1), (0.04, 0.04, 0.09)),
+    (coal.Ellipsoid(0.02, 0.05, 0.08), (0.02, 0.05, 0.08)),
+    (coal.Cylinder(0.03, 0.2), (0.03, 0.03, 0.1)),
+], ids=["box", "sphere", "capsule", "ellipsoid", "cylinder"])
+def test_a_primitive_becomes_a_closed_mesh_with_the_primitives_bounds(shape: object, half_extent: tuple) -> None:
+    mesh = shape_mesh("link", shape, "primitive")
+    assert _edges_shared_twice(mesh.triangles)
+    upper = mesh.vertices.max(axis=0)
+    # enclosing polytopes stand out by at most the sagitta of their facets (24 around, 12 bands: < 4 %)
+    assert np.all(upper >= np.asarray(half_extent) - 1e-12) and np.all(upper <= np.asarray(half_extent) * 1.04)
+    assert np.allclose(mesh.vertices.min(axis=0), -upper, atol=1e-12)
 
 
 @pytest.mark.parametrize(("shape", "surface"), [

@@ -75,6 +75,13 @@ def _checked_joints(model: pin.Model, joints: Sequence[str]) -> list[int]:
         order = [model.names[j] for j in path if j in ids]
         raise RobotModelError(f"the joints {', '.join(joints)} are not one chain in kinematic order"
                               + (f" (in order: {', '.join(order)})" if len(order) == len(ids) else ""))
+    between = [model.names[j] for j in path if j not in ids]
+    if between:  # locked at zero, it would move the real arm's base while the checks think it fixed
+        raise RobotModelError(f"joint(s) {', '.join(between)} move the arm's base but are not among --joints; "
+                              "the arm's joints are every joint from its fixed base to its TCP")
+    for j in ids:
+        if not _is_revolute(model, j):
+            raise RobotModelError(f"joint {model.names[j]} is not revolute; ArmWarden's arm joints are revolute")
     return ids
 
 

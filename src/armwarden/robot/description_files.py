@@ -93,6 +93,21 @@ def _mimic_joints(root: ET.Element) -> tuple[str, ...]:
     return tuple(str(joint.get("name")) for joint in root.iter("joint") if joint.find("mimic") is not None)
 
 
+#: joints ArmWarden cannot drive or bound: a free-floating or planar base, a ball joint
+UNSUPPORTED_JOINTS = {"JointModelFreeFlyer": "floating", "JointModelPlanar": "planar", "JointModelSpherical": "spherical",
+                      "JointModelSphericalZYX": "spherical"}
+
+
+def _refuse_free_joints(model: pin.Model, path: Path) -> None:
+    """A fixed-base arm of revolute joints (and prismatic fingers) only: the checks bound every
+    joint by one position interval, which a floating, planar or ball joint does not have."""
+    bad = [f"{model.names[j]} ({UNSUPPORTED_JOINTS[model.joints[j].shortname()]})" for j in range(1, model.njoints)
+           if model.joints[j].shortname() in UNSUPPORTED_JOINTS]
+    if bad:
+        raise RobotModelError(f"robot description {path} has joints ArmWarden does not support: {', '.join(bad)}; "
+                              "an arm is fixed to the world and moves by revolute joints (fingers may be prismatic)")
+
+
 def load_description(path: Path, mesh_paths: Sequence[Path] = (), *, with_collision: bool = True) -> Description:
     """The description at `path` (URDF or MJCF, told apart by its root element), its collision
     geometry read when `with_collision`. `RobotModelError` says what is wrong and what to do."""
@@ -109,6 +124,7 @@ def load_description(path: Path, mesh_paths: Sequence[Path] = (), *, with_collis
         model = pin.buildModelFromUrdf(str(path)) if kind == "urdf" else pin.buildModelFromMJCF(str(path))
     except Exception as exc:  # the parsers raise ValueError/RuntimeError with their own text
         raise RobotModelError(f"cannot load robot description {path}: {exc}") from exc
+    _refuse_free_joints(model, path)
     collision = None
     if with_collision:
         try:
@@ -124,4 +140,4 @@ def load_description(path: Path, mesh_paths: Sequence[Path] = (), *, with_collis
                        _mimic_joints(root) if kind == "urdf" else ())
 
 
-__all__ = ["MAX_DESCRIPTION_BYTES", "Description", "load_description"]
+__all__ = ["MAX_DESCRIPTION_BYTES", "UNSUPPORTED_JOINTS", "Description", "load_description"]
