@@ -40,10 +40,13 @@ def test_fr3_cameras_are_the_profiles_mounts():
     )
 
 
-def test_a_user_urdf_without_configured_cameras_is_refused():
+def test_a_user_urdf_without_configured_cameras_gets_a_scene_camera_in_front_of_its_workspace():
     policy = _user_urdf_policy()
-    with pytest.raises(RobotModelError, match=r"has no profile naming its camera mounts: list them"):
-        create_backend(build_robot(policy), policy, Config())
+    backend = create_backend(build_robot(policy), policy, Config())
+    assert backend.capabilities.cameras == ("scene",)
+    (camera,) = scene_for_policy(policy).cameras
+    assert camera.body is None and camera.position_m[0] > policy.workspace.box.max[0]
+    assert policy.workspace.box.min[2] < camera.target_m[2] < camera.position_m[2]
 
 
 def test_a_user_urdf_gets_the_cameras_its_config_lists():

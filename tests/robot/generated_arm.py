@@ -126,11 +126,13 @@ def write_random_arm(directory: Path, seed: int, n_joints: int | None = None, *,
         parts.append(f'<link name="hand">{_inertial(0.4, 0.03, 0.04)}'
                      f'{collision("hand.stl", box((0.04, 0.12, 0.04), (0.0, 0.0, 0.02)))}</link>')
         for k, (side, mimic) in enumerate((("1", ""), ("-1", '<mimic joint="finger_joint1"/>'))):
+            # closed, the two fingers' inner faces meet in the plane y = 0 of the hand
+            inner = 0.0075 if side == "1" else -0.0075
             parts.append(f'<joint name="finger_joint{k + 1}" type="prismatic"><parent link="hand"/>'
                          f'<child link="finger{k + 1}"/><origin xyz="0 0 0.04" rpy="0 0 0"/><axis xyz="0 {side} 0"/>'
                          f'<limit lower="0" upper="0.04" velocity="0.1" effort="20"/>{mimic}</joint>')
             parts.append(f'<link name="finger{k + 1}">{_inertial(0.05, 0.01, 0.05)}'
-                         f'{collision(f"finger{k + 1}.stl", box((0.02, 0.015, 0.05), (0.0, 0.0, 0.025)))}</link>')
+                         f'{collision(f"finger{k + 1}.stl", box((0.02, 0.015, 0.05), (0.0, inner, 0.025)))}</link>')
         gripper_joints = ("finger_joint1",)
         parent, offset = "hand", 0.04 + tool
     else:

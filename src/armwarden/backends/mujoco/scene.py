@@ -66,12 +66,13 @@ class SceneSpec:
 def scene_for_policy(policy: Policy, **overrides: Any) -> SceneSpec:
     """The cell the policy describes: the table top is the workspace floor and covers the workspace
     box's footprint; the finger force limit is the policy's grasp force cap; the cameras are the
-    robot profile's (`profile_cameras`). `overrides` replace any other `SceneSpec` field."""
+    robot profile's, or one in front of the workspace for an arm without a profile
+    (`profile_cameras`). `overrides` replace any other `SceneSpec` field."""
     box = policy.workspace.box
     cameras = overrides.get("cameras")
     scene = SceneSpec(table_top_z_m=float(box.min[2]),
                       table_xy_m=(float(box.min[0]), float(box.min[1]), float(box.max[0]), float(box.max[1])),
-                      cameras=profile_cameras(policy.robot.description) if cameras is None else cameras)
+                      cameras=profile_cameras(policy.robot.description, box.min, box.max) if cameras is None else cameras)
     if policy.gripper is not None:
         scene = replace(scene, gripper_force_limit_n=float(policy.gripper.max_grasp_force_n))
     return replace(scene, **overrides)

@@ -1,0 +1,48 @@
+"""An arm the project has never seen, from `armwarden init` straight into the MuJoCo backend: it
+serves with a scene camera of its own, and a planned move executes in the physics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("armwarden.backends.mujoco")  # it chooses the OpenGL platform before mujoco loads
+
+from armwarden.policy import load_policy
+from tests.helpers import text_of
+from tests.onboarding.conftest import init_arm
+from tests.server.harness import approve, arm_harness
+
+pytestmark = pytest.mark.anyio
+
+
+@pytest.fixture
+def anyio_backend() -> str:
+    return "asyncio"
+
+
+@pytest.mark.parametrize("gripper", [False, True], ids=["arm", "arm with fingers"])
+async def test_a_generated_arm_serves_in_mujoco_and_executes_a_planned_move(tmp_path: Path, gripper: bool) -> None:
+    run = init_arm(tmp_path, seed=40 + gripper, n_joints=6, gripper=gripper)
+    policy = load_policy(run.options.output)
+    home = np.array(policy.robot.home_joint_positions)
+    goal = home.copy()
+    goal[0] += 0.15
+    async with arm_harness(tmp_path, policy, backend="mujoco") as arm, arm.client("legacy", approve()) as client:
+        state = (await client.call_tool("get_robot_state", {})).structured_content
+        assert state["joint_positions"] == pytest.approx(home.tolist(), abs=5e-3)
+        image = await client.call_tool("camera_snapshot", {"camera": "scene"})
+        assert not image.is_error, text_of(image)
+        plan = await client.call_tool("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+        assert plan.structured_content["status"] == "ok", plan.structured_content
+        done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
+        assert not done.is_error and done.structured_content["status"] == "succeeded", text_of(done)
+        after = (await client.call_tool("get_robot_state", {})).structured_content
+        assert after["joint_positions"] == pytest.approx(goal.tolist(), abs=5e-3)
+        if gripper:  # the fingers are found from the description, not by any robot's names
+            moved = await client.call_tool("gripper_move", {"width_m": 0.03})
+            assert not moved.is_error, text_of(moved)
+            width = (await client.call_tool("get_robot_state", {})).structured_content["gripper"]["width_m"]
+            assert width == pytest.approx(0.03, abs=2e-3)
