@@ -226,3 +226,19 @@ def test_a_prismatic_finger_chosen_as_an_arm_joint_is_refused(tmp_path: Path) ->
     model = load_description(arm.urdf).model
     with pytest.raises(RobotModelError, match="finger_joint1 is not revolute"):
         infer_chain(model, joints=[*arm.joint_names, "finger_joint1"])
+
+
+def test_an_mjcf_twin_with_a_gripper_has_the_same_arm_and_gripper_joints(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path / "urdf", seed=14, n_joints=5, gripper=True)
+    twin = load_description(write_mjcf_twin(arm, tmp_path / "mjcf"))
+    chain = infer_chain(twin.model, mimic_joints=twin.mimic_joints)
+    assert (chain.joint_names, chain.gripper_joints, chain.tcp_frame) == (arm.joint_names, arm.gripper_joints, "tool0")
+
+
+def test_a_missing_mjcf_mesh_is_named_with_its_body_and_the_place_tried(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path / "urdf", seed=15, n_joints=4)
+    twin = write_mjcf_twin(arm, tmp_path / "mjcf")
+    (tmp_path / "mjcf" / "meshes" / "link3.stl").unlink()
+    with pytest.raises(RobotModelError, match=r"mesh 'link3' of 'link3': meshes/link3.stl \(tried .*mjcf/meshes/link3.stl\)"):
+        load_description(twin)
+    assert load_description(twin, with_collision=False).model.nq == 4

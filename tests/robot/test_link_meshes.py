@@ -111,3 +111,11 @@ def test_a_round_primitive_becomes_a_polytope_that_encloses_it(shape: object, su
     mesh = shape_mesh("link", shape, "primitive")
     inside = winding_numbers(surface(units), mesh.vertices, mesh.triangles)
     assert np.all(inside > 0.5)  # every point of the true surface is inside (the polytope is closed and outward)
+
+
+def test_an_mjcf_floor_is_not_a_link_surface(tmp_path: Path) -> None:
+    path = tmp_path / "arm.xml"
+    path.write_text("<mujoco><worldbody><geom name='floor' type='plane' size='1 1 0.1'/><body name='base'>"
+                    "<geom type='box' size='.1 .1 .1'/><body name='l1'><joint name='j1' type='hinge'/>"
+                    "<geom type='capsule' size='0.05 0.1'/></body></body></worldbody></mujoco>", encoding="utf-8")
+    assert sorted(link_meshes(load_description(path))) == ["base", "l1"]

@@ -90,7 +90,37 @@ def _resolved_urdf(root: ET.Element, path: Path, search: Sequence[Path]) -> str:
 
 
 def _mimic_joints(root: ET.Element) -> tuple[str, ...]:
+    """Joints that follow another: URDF `<mimic>`, MJCF `<equality><joint joint1=...>` (joint1 follows joint2)."""
+    if root.tag == "mujoco":
+        pairs = (joint for equality in root.iter("equality") for joint in equality.findall("joint"))
+        return tuple(dict.fromkeys(str(joint.get("joint1")) for joint in pairs if joint.get("joint1")))
     return tuple(str(joint.get("name")) for joint in root.iter("joint") if joint.find("mimic") is not None)
+
+
+def _check_mjcf_meshes(root: ET.Element, path: Path) -> None:
+    """Name every MJCF mesh file that is missing (Pinocchio would stop at the first, naming only the file).
+    MJCF meshes are found through `<compiler meshdir>` (or `assetdir`), relative to the file."""
+    compiler = root.find("compiler")
+    meshdir = "" if compiler is None else compiler.get("meshdir", compiler.get("assetdir", ""))
+    users: dict[str, list[str]] = {}
+    for body in root.iter("body"):
+        for geom in body.findall("geom"):
+            if geom.get("mesh"):
+                users.setdefault(str(geom.get("mesh")), []).append(str(body.get("name")))
+    missing = []
+    for mesh in root.iter("mesh"):
+        filename = mesh.get("file")
+        if not filename:
+            continue
+        place = Path(filename) if Path(filename).is_absolute() else path.parent / meshdir / filename
+        if not place.is_file():
+            name = mesh.get("name") or Path(filename).stem
+            bodies = ", ".join(repr(b) for b in users.get(name, [])) or "no body"
+            missing.append(f"mesh {name!r} of {bodies}: {filename} (tried {place})")
+    if missing:
+        raise RobotModelError(f"{len(missing)} mesh file(s) of {path} not found; an MJCF file finds its meshes "
+                              "through <compiler meshdir=...> relative to itself (--mesh-path applies to URDFs): "
+                              + "; ".join(missing))
 
 
 #: joints ArmWarden cannot drive or bound: a free-floating or planar base, a ball joint
@@ -131,13 +161,14 @@ def load_description(path: Path, mesh_paths: Sequence[Path] = (), *, with_collis
             if kind == "urdf":
                 collision = pin.buildGeomFromUrdfString(model, _resolved_urdf(root, path, search), pin.GeometryType.COLLISION)
             else:
+                _check_mjcf_meshes(root, path)
                 collision = pin.buildGeomFromMJCF(model, str(path), pin.GeometryType.COLLISION)
         except RobotModelError:
             raise
         except Exception as exc:
             raise RobotModelError(f"cannot read the collision geometry of {path}: {exc}") from exc
     return Description(path, kind, model, collision, tuple(Path(p) for p in mesh_paths),
-                       _mimic_joints(root) if kind == "urdf" else ())
+                       _mimic_joints(root))
 
 
 __all__ = ["MAX_DESCRIPTION_BYTES", "UNSUPPORTED_JOINTS", "Description", "load_description"]

@@ -134,6 +134,8 @@ def link_meshes(description: Description) -> dict[str, LinkMesh]:
     parts: dict[str, list[LinkMesh]] = {}
     for obj in description.collision.geometryObjects:
         frame = model.frames[obj.parentFrame]
+        if isinstance(obj.geometry, (coal.Halfspace, coal.Plane)) and obj.parentFrame == 0:
+            continue  # an MJCF floor: the world's, not a link's
         if frame.type != pin.FrameType.BODY:
             raise RobotModelError(f"collision shape {obj.name!r} is not attached to a link (frame {frame.name!r})")
         in_link = frame.placement.inverse() * obj.placement  # both relative to the parent joint
