@@ -99,6 +99,21 @@ def test_a_xacro_file_is_refused_with_the_command_that_expands_it(tmp_path: Path
         load_description(path)
 
 
+def test_a_xacro_macro_in_a_urdf_named_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "arm.urdf"
+    path.write_text('<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="a"><xacro:property name="l" value="1"/>'
+                    '<link name="base"/></robot>', encoding="utf-8")
+    with pytest.raises(RobotModelError, match=r"xacro arm.urdf > arm.expanded.urdf"):
+        load_description(path)
+
+
+def test_an_expanded_urdf_that_keeps_the_xacro_namespace_loads(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4)
+    text = arm.urdf.read_text(encoding="utf-8").replace("<robot ", '<robot xmlns:xacro="http://www.ros.org/wiki/xacro" ')
+    arm.urdf.write_text(text, encoding="utf-8")
+    assert load_description(arm.urdf).model.nq == 4
+
+
 def test_a_file_that_is_neither_urdf_nor_mjcf_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "arm.sdf"
     path.write_text("<sdf version='1.7'/>", encoding="utf-8")

@@ -23,6 +23,7 @@ from armwarden.core.errors import RobotModelError
 
 #: the largest description read [bytes]; a description is kilobytes, never this
 MAX_DESCRIPTION_BYTES = 16 * 1024 * 1024
+XACRO_NAMESPACE = "{http://www.ros.org/wiki/xacro}"
 
 
 @dataclass(frozen=True)
@@ -48,13 +49,25 @@ def _read_root(path: Path) -> ET.Element:
         raise RobotModelError(f"cannot read robot description {path}: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise RobotModelError(f"robot description {path} is not UTF-8 text: {exc}") from exc
-    if path.name.endswith(".xacro") or "xmlns:xacro" in text or "<xacro:" in text:
-        raise RobotModelError(f"{path} is a xacro file: expand it first (`xacro {path.name} > {path.stem}.urdf`) and "
-                              "give the URDF")
+    expanded = path.stem if path.stem.endswith(".urdf") else f"{path.stem}.urdf"
+    if expanded == path.name:  # never tell anyone to overwrite the file being read
+        expanded = f"{path.stem}.expanded.urdf"
+    xacro = RobotModelError(f"{path} is a xacro file: expand it first (`xacro {path.name} > {expanded}`) and "
+                            "give the URDF")
+    if path.name.endswith(".xacro"):
+        raise xacro
     try:
-        return ET.fromstring(text)
+        root = ET.fromstring(text)
     except ET.ParseError as exc:
+        if "<xacro:" in text:  # xacro elements without the namespace declared
+            raise xacro from exc
         raise RobotModelError(f"robot description {path} is not well-formed XML: {exc}") from exc
+    # expanded URDFs often keep the xmlns:xacro declaration: what counts is a xacro element or a
+    # ${...}/$(...) substitution left in
+    for element in root.iter():
+        if element.tag.startswith(XACRO_NAMESPACE) or any("${" in v or "$(" in v for v in element.attrib.values()):
+            raise xacro
+    return root
 
 
 def _candidates(filename: str, description: Path, search: Sequence[Path]) -> list[Path]:
