@@ -158,6 +158,12 @@ def test_unknown_joint_and_frame_names_are_listed_with_the_valid_ones(tmp_path: 
         infer_chain(model, tcp_frame="flange")
 
 
+def test_a_tcp_frame_before_the_arms_last_joint_is_refused(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=4)
+    with pytest.raises(RobotModelError, match=r"'link2' is not rigidly attached after .* joint4; frames that are: .*tool0"):
+        infer_chain(load_description(arm.urdf).model, tcp_frame="link2")
+
+
 def test_a_base_frame_that_moves_is_refused(tmp_path: Path) -> None:
     arm = write_random_arm(tmp_path, seed=3, n_joints=4)
     with pytest.raises(RobotModelError, match="moves with a joint"):

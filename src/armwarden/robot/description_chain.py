@@ -100,8 +100,9 @@ def _root_link(model: pin.Model, first_joint: int) -> str:
     return root
 
 
-def _tcp_candidates(model: pin.Model, last_joint: int) -> list[str]:
-    """The frames rigidly on the last joint's link that nothing else rigid hangs from."""
+def _tcp_candidates(model: pin.Model, last_joint: int, *, leaves: bool = True) -> list[str]:
+    """The frames rigidly on the last joint's link that nothing else rigid hangs from (all of them
+    when not `leaves`)."""
     kinds = (pin.FrameType.BODY, pin.FrameType.OP_FRAME)
     on_link = [i for i, f in enumerate(model.frames) if f.type in kinds and f.parentJoint == last_joint]
     ancestors: set[int] = set()
@@ -110,7 +111,7 @@ def _tcp_candidates(model: pin.Model, last_joint: int) -> list[str]:
         while parent != 0 and model.frames[parent].parentJoint == last_joint:
             ancestors.add(parent)
             parent = model.frames[parent].parentFrame
-    return [model.frames[i].name for i in on_link if i not in ancestors]
+    return [model.frames[i].name for i in on_link if not leaves or i not in ancestors]
 
 
 def infer_chain(model: pin.Model, *, base_frame: str | None = None, tcp_frame: str | None = None,
@@ -136,6 +137,9 @@ def infer_chain(model: pin.Model, *, base_frame: str | None = None, tcp_frame: s
         tcp_frame = candidates[0]
     elif tcp_frame not in frames:
         raise RobotModelError(f"TCP frame {tcp_frame!r} is unknown; the description's frames: {', '.join(frames)}")
+    elif model.frames[model.getFrameId(tcp_frame)].parentJoint != ids[-1]:
+        raise RobotModelError(f"TCP frame {tcp_frame!r} is not rigidly attached after the arm's last joint "
+                              f"{names[-1]}; frames that are: {', '.join(_tcp_candidates(model, ids[-1], leaves=False))}")
     gripper = tuple(model.names[j] for j in range(1, model.njoints)
                     if j not in ids and model.names[j] not in mimic_joints)
     return Chain(base_frame, tcp_frame, names, gripper)
