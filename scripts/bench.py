@@ -998,6 +998,15 @@ def _report_ros2(r: dict[str, Any]) -> None:
     module.report_executors(r["executors"])
 
 
+def bench_arms() -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("arms").bench_arms()
+
+
+def _report_arms(r: dict[str, Any]) -> None:
+    importlib.import_module("arms").report_arms(r)
+
+
 def run_meta(argv: list[str]) -> dict[str, Any]:
     """Where and on what a run measured (commit, uncommitted changes, machine, load), written beside
     the figures by `--json` so that a committed raw result says by itself what it is."""
@@ -1036,6 +1045,7 @@ SECTIONS = {
     "ros2": (bench_ros2, _report_ros2),
     "planner": (bench_planner, _report_planner),
     "table": (bench_table, _report_table),
+    "arms": (bench_arms, _report_arms),
 }
 #: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
 #: minutes: ask for them by name; ros2 needs the ROS venv)
