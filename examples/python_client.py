@@ -37,6 +37,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--http", metavar="URL", help="connect to a running daemon, e.g. http://127.0.0.1:8765/mcp")
     parser.add_argument("--token", metavar="T", help="bearer token for --http (from `armwarden tokens add`)")
     parser.add_argument("--policy", help="policy for the stdio daemon (default: the bundled FR3 policy)")
+    parser.add_argument("--backend", default="fake", help="backend of the stdio daemon: fake (default) or mujoco")
     parser.add_argument("--audit-log", default="armwarden-audit.jsonl", help="audit log of the stdio daemon")
     parser.add_argument("--yes", action="store_true", help="approve every prompt without asking (scripted use)")
     parser.add_argument("--delta", type=float, default=0.2, help="wrist rotation to plan [rad] (default 0.2)")
@@ -78,7 +79,7 @@ async def connect(args: argparse.Namespace, approver: TerminalApprover) -> Async
                                 elicitation_callback=approver) as client:
             yield client
         return
-    command = [sys.executable, "-m", "armwarden.cli", "serve", "--backend", "fake", "--audit-log", args.audit_log,
+    command = [sys.executable, "-m", "armwarden.cli", "serve", "--backend", args.backend, "--audit-log", args.audit_log,
                "--log-level", "WARNING"]
     if args.policy:
         command += ["--policy", args.policy]
