@@ -123,18 +123,27 @@ def test_a_file_that_is_neither_urdf_nor_mjcf_is_refused(tmp_path: Path) -> None
 
 def _with_second_tool(arm: GeneratedArm) -> Path:
     text = arm.urdf.read_text(encoding="utf-8").replace("</robot>", (
-        '<joint name="camera_joint" type="fixed"><parent link="link5"/><child link="camera"/>'
-        '<origin xyz="0 0.05 0" rpy="0 0 0"/></joint><link name="camera"/></robot>'))
+        '<joint name="tcp_joint" type="fixed"><parent link="link5"/><child link="tcp"/>'
+        '<origin xyz="0 0.05 0" rpy="0 0 0"/></joint><link name="tcp"/></robot>'))
     arm.urdf.write_text(text, encoding="utf-8")
     return arm.urdf
 
 
-def test_two_frames_at_the_end_of_the_arm_are_named_and_one_can_be_chosen(tmp_path: Path) -> None:
+def test_two_tool_frames_at_the_end_of_the_arm_are_named_and_one_can_be_chosen(tmp_path: Path) -> None:
     arm = write_random_arm(tmp_path, seed=3, n_joints=5)
     model = load_description(_with_second_tool(arm)).model
-    with pytest.raises(RobotModelError, match=r"ambiguous: camera, tool0 .*--tcp-frame"):
+    with pytest.raises(RobotModelError, match=r"ambiguous: tcp, tool0 .*--tcp-frame"):
         infer_chain(model)
-    assert infer_chain(model, tcp_frame="camera").tcp_frame == "camera"
+    assert infer_chain(model, tcp_frame="tcp").tcp_frame == "tcp"
+
+
+def test_of_several_frames_at_the_end_the_one_named_as_a_tool_point_is_the_tcp(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path, seed=3, n_joints=5)
+    text = arm.urdf.read_text(encoding="utf-8").replace("</robot>", (
+        '<joint name="knuckle_joint" type="fixed"><parent link="link5"/><child link="left_knuckle"/>'
+        '<origin xyz="0 0.05 0" rpy="0 0 0"/></joint><link name="left_knuckle"/></robot>'))
+    arm.urdf.write_text(text, encoding="utf-8")
+    assert infer_chain(load_description(arm.urdf).model).tcp_frame == "tool0"
 
 
 def test_two_equal_branches_are_named_as_candidates(tmp_path: Path) -> None:

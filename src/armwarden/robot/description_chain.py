@@ -4,7 +4,8 @@
 candidates and the flag that picks one. The arm is the longest chain of revolute joints from the
 root (joints named for a finger, gripper, jaw or claw and joints that mimic another are never arm
 joints); its base is the root link; its TCP the one frame rigidly attached at the chain's far end
-(e.g. a `tool0`). Every other independent joint (fingers, a jaw) is a gripper joint.
+(e.g. a `tool0`), or of several there, the one named as a tool point (tcp, tool, ee, eef,
+end_effector). Every other independent joint (fingers, a jaw) is a gripper joint.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from armwarden.core.errors import RobotModelError
 MIN_ARM_JOINTS, MAX_ARM_JOINTS = 4, 7
 #: names that say a joint moves a gripper, not the arm
 GRIPPER_NAME = re.compile(r"finger|gripper|jaw|claw", re.IGNORECASE)
+#: names that say a frame is the tool point, preferred when several frames end the arm
+TCP_NAME = re.compile(r"tcp|tool|end_?effector|(^|_)eef?($|_)", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,9 @@ def infer_chain(model: pin.Model, *, base_frame: str | None = None, tcp_frame: s
         raise RobotModelError(f"base frame {base_frame!r} moves with a joint; the base must be fixed to the world")
     if tcp_frame is None:
         candidates = _tcp_candidates(model, ids[-1])
+        named = [c for c in candidates if TCP_NAME.search(c)]
+        if len(candidates) > 1 and len(named) == 1:  # e.g. xArm's link_tcp beside its fixed finger links
+            candidates = named
         if len(candidates) != 1:
             raise RobotModelError(f"the TCP frame is ambiguous: {', '.join(candidates)} are all at the end of the arm; "
                                   "choose one with --tcp-frame")
@@ -145,4 +151,4 @@ def infer_chain(model: pin.Model, *, base_frame: str | None = None, tcp_frame: s
     return Chain(base_frame, tcp_frame, names, gripper)
 
 
-__all__ = ["GRIPPER_NAME", "MAX_ARM_JOINTS", "MIN_ARM_JOINTS", "Chain", "infer_chain"]
+__all__ = ["GRIPPER_NAME", "MAX_ARM_JOINTS", "MIN_ARM_JOINTS", "TCP_NAME", "Chain", "infer_chain"]
