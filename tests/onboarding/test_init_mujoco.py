@@ -1,5 +1,5 @@
-"""An arm the project has never seen, from `armwarden init` straight into the MuJoCo backend: it
-serves with a scene camera of its own, and a planned move executes in the physics."""
+"""An arm the project has never seen, URDF or MJCF, from `armwarden init` straight into the MuJoCo
+backend: it serves with a scene camera of its own, and a planned move executes in the physics."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ import pytest
 
 pytest.importorskip("armwarden.backends.mujoco")  # it chooses the OpenGL platform before mujoco loads
 
-from armwarden.policy import load_policy
+from armwarden.onboarding import InitOptions, run_init
+from armwarden.policy import Policy, load_policy
 from tests.helpers import text_of
-from tests.onboarding.conftest import init_arm
+from tests.onboarding.conftest import QUICK_FIT, init_arm
+from tests.robot.generated_arm import write_mjcf_twin, write_random_arm
 from tests.server.harness import approve, arm_harness
 
 pytestmark = pytest.mark.anyio
@@ -26,7 +28,19 @@ def anyio_backend() -> str:
 @pytest.mark.parametrize("gripper", [False, True], ids=["arm", "arm with fingers"])
 async def test_a_generated_arm_serves_in_mujoco_and_executes_a_planned_move(tmp_path: Path, gripper: bool) -> None:
     run = init_arm(tmp_path, seed=40 + gripper, n_joints=6, gripper=gripper)
-    policy = load_policy(run.options.output)
+    await plan_and_execute(load_policy(run.options.output), tmp_path, gripper=gripper)
+
+
+async def test_an_mjcf_arm_serves_in_mujoco_and_executes_a_planned_move(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path / "urdf", seed=43, n_joints=5)
+    options = InitOptions(description=write_mjcf_twin(arm, tmp_path / "mjcf"), output=tmp_path / "policy" / "arm.yaml",
+                          fit=QUICK_FIT)
+    run_init(options)
+    await plan_and_execute(load_policy(options.output), tmp_path, gripper=False)
+
+
+async def plan_and_execute(policy: Policy, tmp_path: Path, *, gripper: bool) -> None:
+    """Home as the policy says, a camera picture, a planned move executed in the physics, and the fingers."""
     home = np.array(policy.robot.home_joint_positions)
     goal = home.copy()
     goal[0] += 0.15
