@@ -12,9 +12,12 @@ import pytest
 from armwarden.cli import main
 from armwarden.core.errors import RobotModelError
 from armwarden.onboarding import InitOptions, run_init
+from armwarden.onboarding.fitted import FitSettings, finger_links, fit_links
 from armwarden.onboarding.home import stationary
 from armwarden.policy import load_policy
+from armwarden.robot.description_files import load_description
 from armwarden.robot.fitted_file import load_fitted
+from armwarden.robot.link_meshes import link_meshes
 from armwarden.robot.model import RobotModel
 from tests.onboarding.conftest import QUICK_FIT, InitRun, init_arm
 from tests.robot.generated_arm import write_random_arm
@@ -128,3 +131,13 @@ def test_a_fitted_file_made_for_another_description_is_refused(six_joint_arm: In
     with pytest.raises(RobotModelError, match="fitted to another description"):
         run_init(InitOptions(description=other.urdf, output=tmp_path / "p.yaml", fitted=six_joint_arm.options.fitted_path))
     assert not (tmp_path / "p.yaml").exists()
+
+
+def test_a_finger_gets_one_capsule_per_part_so_it_lies_along_the_closing_plane(tmp_path: Path) -> None:
+    arm = write_random_arm(tmp_path / "arm", seed=11, n_joints=5, gripper=True)
+    description = load_description(arm.urdf)
+    fingers = finger_links(description.model, arm.joint_names)
+    assert fingers == {"finger1", "finger2"}
+    finger = {"finger1": link_meshes(description)["finger1"]}
+    assert len(fit_links(finger, FitSettings())["finger1"].bodies) > 1  # free, the fit would split it
+    assert len(fit_links(finger, FitSettings(), fingers=fingers)["finger1"].bodies) == 1

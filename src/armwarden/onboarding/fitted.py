@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -40,24 +40,35 @@ def vertices_digest(mesh: LinkMesh) -> str:
 
 
 def fit_links(meshes: Mapping[str, LinkMesh], settings: FitSettings,
-              progress: Callable[[str], None] = lambda _: None) -> dict[str, LinkFit]:
-    """Every link's capsules, in the order given (the description's)."""
+              progress: Callable[[str], None] = lambda _: None, fingers: Collection[str] = ()) -> dict[str, LinkFit]:
+    """Every link's capsules, in the order given (the description's). A finger gets one capsule per
+    part: its segment then runs along the part, parallel to the plane the fingers meet in, so a
+    simulated grasp surface fits inside it on that plane (the MuJoCo backend refuses a finger
+    capsule that crosses the plane at an angle)."""
     options = FitOptions(margin_m=settings.margin_m, max_bodies=settings.max_bodies)
     fits = {}
     for link, mesh in meshes.items():
-        fit = fit_link(mesh, options)
+        fit = fit_link(mesh, replace(options, max_bodies=1) if link in fingers else options)
         fits[link] = replace(fit, vertices_sha256=vertices_digest(mesh))
         progress(f"{link}: {len(fit.bodies)} capsule(s), worst over-approximation "
                  f"{fit.worst_over_approximation_m * 1e3:.1f} mm")
     return fits
 
 
+def finger_links(model: pin.Model, arm_joints: Collection[str]) -> set[str]:
+    """The links a prismatic joint beside the arm's moves: the fingers."""
+    fingers = {j for j in range(1, model.njoints)
+               if model.names[j] not in arm_joints and "JointModelP" in model.joints[j].shortname()}
+    return {f.name for f in model.frames if f.type == pin.FrameType.BODY and f.parentJoint in fingers}
+
+
 def fit_arm(model: pin.Model, meshes: Mapping[str, LinkMesh], *, robot: str, source: Mapping[str, str],
-            settings: FitSettings, progress: Callable[[str], None] = lambda _: None) -> FittedGeometry:
+            settings: FitSettings, progress: Callable[[str], None] = lambda _: None,
+            arm_joints: Collection[str] = ()) -> FittedGeometry:
     """The fitted geometry of `model`'s links from `meshes`, with the pair analysis over `model`'s
     joint limits (every joint, fingers too)."""
     geometry = FittedGeometry(robot=robot, source=dict(source), margin_m=settings.margin_m,
-                              links=fit_links(meshes, settings, progress))
+                              links=fit_links(meshes, settings, progress, finger_links(model, arm_joints)))
     analysis = analyse_pairs(model, place_bodies(model, geometry), PairOptions(max_boxes=settings.pair_boxes))
     decided: dict[str, int] = {}
     for verdict in analysis.verdicts:
@@ -76,11 +87,11 @@ def fitted_header(robot: str, description: str, settings: FitSettings, command: 
         "",
         "Each body is a capsule in its link's frame [m]: segment p0-p1 swept by a ball of `radius`.",
         f"Every collision triangle of the link lies inside its capsules with margin_m = {settings.margin_m:g} m to spare",
-        f"(at most {settings.max_bodies} capsule(s) per part). worst_over_approximation_m: the largest distance",
+        f"(at most {settings.max_bodies} capsule(s) per part, one on a finger). worst_over_approximation_m: the largest distance",
         "from the fitted surface to the collision geometry. vertices_sha256: SHA-256 of the link's unique",
         "vertices (float32 little-endian, sorted). pairs: each pair of bodies on different links is checked",
         "(included) or excluded with its proof over joint_limits: apart, overlapping, or adjacent.",
     ]
 
 
-__all__ = ["FitSettings", "fit_arm", "fit_links", "fitted_header", "vertices_digest"]
+__all__ = ["FitSettings", "finger_links", "fit_arm", "fit_links", "fitted_header", "vertices_digest"]

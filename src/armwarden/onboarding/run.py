@@ -126,7 +126,8 @@ def _fingers(model: pin.Model, chain: Chain) -> tuple[GripperDraft | None, list[
     return GripperDraft(tuple(model.names[j] for j in prismatic), width), notes
 
 
-def _fitted_text(options: InitOptions, description: Description, name: str, progress: Callable[[str], None]) -> str:
+def _fitted_text(options: InitOptions, description: Description, name: str, arm_joints: tuple[str, ...],
+                 progress: Callable[[str], None]) -> str:
     """The fitted file: fitted now, or the one given (`options.fitted`) when it was made for this description."""
     digest = hashlib.sha256(options.description.read_bytes()).hexdigest()
     if options.fitted is not None:
@@ -141,7 +142,8 @@ def _fitted_text(options: InitOptions, description: Description, name: str, prog
         raise RobotModelError(f"{options.description} has no collision geometry to fit: add <collision> shapes or "
                               "meshes to its links (give --mesh-path for package:// meshes)")
     geometry = fit_arm(description.model, meshes, robot=name, settings=options.fit, progress=progress,
-                       source={"description": _relative(options.description, options.output.parent), "sha256": digest})
+                       source={"description": _relative(options.description, options.output.parent), "sha256": digest},
+                       arm_joints=arm_joints)
     return render_fitted(geometry, fitted_header(name, options.description.name, options.fit, remake_command(options)))
 
 
@@ -154,7 +156,7 @@ def run_init(options: InitOptions, progress: Callable[[str], None] = lambda _: N
              f"TCP {chain.tcp_frame}")
     joints = joint_limits(description.model, chain.joint_names)
     name = options.name or _robot_name(description.model, options.description)
-    fitted_text = _fitted_text(options, description, name, progress)
+    fitted_text = _fitted_text(options, description, name, chain.joint_names, progress)
     command = remake_command(options)
     gripper, notes = _fingers(description.model, chain)
     lower, upper = np.array([j.min for j in joints]), np.array([j.max for j in joints])
