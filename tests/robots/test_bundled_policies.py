@@ -12,10 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from armwarden.core.errors import RobotModelError
 from armwarden.onboarding import InitOptions, run_init
-from armwarden.onboarding.fitted import FitSettings
+from armwarden.onboarding.fitted import FitSettings, vertices_digest
 from armwarden.policy import load_policy
 from armwarden.preflight import RuntimeModel, load_runtime_model
+from armwarden.robot.description_files import load_description
+from armwarden.robot.link_meshes import link_meshes
 from armwarden.robots import builtin_robots, load_profile
 from armwarden.safety.envelope import Envelope
 from tests.helpers import text_of
@@ -99,3 +102,20 @@ async def test_the_bundled_policy_serves_in_mujoco_and_executes_a_planned_move(a
         assert not done.is_error and done.structured_content["status"] == "succeeded", text_of(done)
         after = (await client.call_tool("get_robot_state", {})).structured_content
         assert after["joint_positions"] == pytest.approx(goal.tolist(), abs=5e-3)
+
+
+def test_the_fitted_file_holds_todays_link_surfaces(bundled: tuple[str, RuntimeModel]) -> None:
+    """Every link surface the fit was made for (its recorded digest) is the one the description
+    gives today, so the committed capsules are what init would fit now (the fit itself is minutes)."""
+    arm, runtime = bundled
+    profile = load_profile(arm)
+    try:
+        description = load_description(profile.file(profile.description))
+    except RobotModelError as exc:  # a description whose meshes are not shipped: checked where they are
+        pytest.skip(f"{arm}: its collision meshes are not here ({exc})")
+    fitted = runtime.robot.fitted
+    assert fitted is not None
+    surfaces = link_meshes(description)
+    assert set(surfaces) == set(fitted.links)
+    for link, fit in fitted.links.items():
+        assert vertices_digest(surfaces[link]) == fit.vertices_sha256, link
