@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("armwarden.backends.mujoco")  # it chooses the OpenGL platform before mujoco loads
@@ -14,6 +13,7 @@ from armwarden.onboarding import InitOptions, run_init
 from armwarden.policy import Policy, load_policy
 from tests.helpers import text_of
 from tests.onboarding.conftest import QUICK_FIT, init_arm
+from tests.onboarding.moves import nudged_home, plan_and_execute
 from tests.robot.generated_arm import write_mjcf_twin, write_random_arm
 from tests.server.harness import approve, arm_harness
 
@@ -28,7 +28,7 @@ def anyio_backend() -> str:
 @pytest.mark.parametrize("gripper", [False, True], ids=["arm", "arm with fingers"])
 async def test_a_generated_arm_serves_in_mujoco_and_executes_a_planned_move(tmp_path: Path, gripper: bool) -> None:
     run = init_arm(tmp_path, seed=40 + gripper, n_joints=6, gripper=gripper)
-    await plan_and_execute(load_policy(run.options.output), tmp_path, gripper=gripper)
+    await serve_in_mujoco(load_policy(run.options.output), tmp_path, gripper=gripper)
 
 
 async def test_an_mjcf_arm_serves_in_mujoco_and_executes_a_planned_move(tmp_path: Path) -> None:
@@ -36,25 +36,18 @@ async def test_an_mjcf_arm_serves_in_mujoco_and_executes_a_planned_move(tmp_path
     options = InitOptions(description=write_mjcf_twin(arm, tmp_path / "mjcf"), output=tmp_path / "policy" / "arm.yaml",
                           fit=QUICK_FIT)
     run_init(options)
-    await plan_and_execute(load_policy(options.output), tmp_path, gripper=False)
+    await serve_in_mujoco(load_policy(options.output), tmp_path, gripper=False)
 
 
-async def plan_and_execute(policy: Policy, tmp_path: Path, *, gripper: bool) -> None:
+async def serve_in_mujoco(policy: Policy, tmp_path: Path, *, gripper: bool) -> None:
     """Home as the policy says, a camera picture, a planned move executed in the physics, and the fingers."""
-    home = np.array(policy.robot.home_joint_positions)
-    goal = home.copy()
-    goal[0] += 0.15
+    home = policy.robot.home_joint_positions
     async with arm_harness(tmp_path, policy, backend="mujoco") as arm, arm.client("legacy", approve()) as client:
         state = (await client.call_tool("get_robot_state", {})).structured_content
-        assert state["joint_positions"] == pytest.approx(home.tolist(), abs=5e-3)
+        assert state["joint_positions"] == pytest.approx(list(home), abs=5e-3)
         image = await client.call_tool("camera_snapshot", {"camera": "scene"})
         assert not image.is_error, text_of(image)
-        plan = await client.call_tool("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
-        assert plan.structured_content["status"] == "ok", plan.structured_content
-        done = await client.call_tool("execute_plan", {"plan_id": plan.structured_content["plan_id"]})
-        assert not done.is_error and done.structured_content["status"] == "succeeded", text_of(done)
-        after = (await client.call_tool("get_robot_state", {})).structured_content
-        assert after["joint_positions"] == pytest.approx(goal.tolist(), abs=5e-3)
+        await plan_and_execute(client, nudged_home(home), tolerance_rad=5e-3)
         if gripper:  # the fingers are found from the description, not by any robot's names
             moved = await client.call_tool("gripper_move", {"width_m": 0.03})
             assert not moved.is_error, text_of(moved)
