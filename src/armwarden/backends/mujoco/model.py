@@ -132,6 +132,8 @@ class _Builder:
         URDF collision primitive."""
         for geom in list(self.spec.geoms):
             self.spec.delete(geom)
+        for mesh in list(self.spec.meshes):  # unused now; their files need not exist (the fitted capsules stand in)
+            self.spec.delete(mesh)
         fitted = self.robot.fitted
         if fitted is not None:
             for link, fit in fitted.links.items():
