@@ -16,6 +16,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 import yaml
 
 from armwarden.core.errors import RobotModelError
+from armwarden.onboarding.checks import refuse_mjcf_misread, refuse_overwriting, refuse_stale_fit, refuse_uncovered_links
 from armwarden.onboarding.fitted import FitSettings, fit_arm, fitted_header
 from armwarden.onboarding.home import choose_home
 from armwarden.onboarding.limits import joint_limits
@@ -127,8 +128,9 @@ def _fingers(model: pin.Model, chain: Chain) -> tuple[GripperDraft | None, list[
 
 
 def _fitted_text(options: InitOptions, description: Description, name: str, arm_joints: tuple[str, ...],
-                 progress: Callable[[str], None]) -> str:
-    """The fitted file: fitted now, or the one given (`options.fitted`) when it was made for this description."""
+                 progress: Callable[[str], None], notes: list[str]) -> str:
+    """The fitted file: fitted now, or the one given (`options.fitted`) when it was made for this
+    description and, where its meshes are here, for today's link surfaces."""
     digest = hashlib.sha256(options.description.read_bytes()).hexdigest()
     if options.fitted is not None:
         made = load_fitted(options.fitted)
@@ -136,8 +138,16 @@ def _fitted_text(options: InitOptions, description: Description, name: str, arm_
             raise RobotModelError(f"{options.fitted} was fitted to another description (SHA-256 "
                                   f"{made.source.get('sha256', 'not recorded')}, {options.description} is {digest}): "
                                   "run init without --fitted")
+        try:
+            surfaces = link_meshes(load_description(options.description, options.mesh_paths))
+        except RobotModelError as exc:  # meshes not here: the description's digest is all that can be checked
+            notes.append(f"--fitted: the link surfaces could not be re-checked against {options.fitted} ({exc})")
+        else:
+            refuse_stale_fit(made, surfaces)
         return options.fitted.read_text(encoding="utf-8")
+    refuse_uncovered_links(description)
     meshes = link_meshes(description)
+    refuse_mjcf_misread(description, meshes)
     if not meshes:
         raise RobotModelError(f"{options.description} has no collision geometry to fit: add <collision> shapes or "
                               "meshes to its links (give --mesh-path for package:// meshes)")
@@ -149,6 +159,7 @@ def _fitted_text(options: InitOptions, description: Description, name: str, arm_
 
 def run_init(options: InitOptions, progress: Callable[[str], None] = lambda _: None) -> InitResult:
     """Generate, check and write the policy, its fitted geometry and the picture (see the package doc)."""
+    refuse_overwriting(options.description, (options.output, options.fitted_path, options.picture_path))
     description = load_description(options.description, options.mesh_paths, with_collision=options.fitted is None)
     chain = infer_chain(description.model, base_frame=options.base_frame, tcp_frame=options.tcp_frame,
                         joints=options.joints, mimic_joints=description.mimic_joints)
@@ -156,9 +167,11 @@ def run_init(options: InitOptions, progress: Callable[[str], None] = lambda _: N
              f"TCP {chain.tcp_frame}")
     joints = joint_limits(description.model, chain.joint_names)
     name = options.name or _robot_name(description.model, options.description)
-    fitted_text = _fitted_text(options, description, name, chain.joint_names, progress)
+    notes: list[str] = []
+    fitted_text = _fitted_text(options, description, name, chain.joint_names, progress, notes)
     command = remake_command(options)
-    gripper, notes = _fingers(description.model, chain)
+    gripper, finger_notes = _fingers(description.model, chain)
+    notes += finger_notes
     lower, upper = np.array([j.min for j in joints]), np.array([j.max for j in joints])
     far = MAX_COORDINATE_M
     provisional = Workspace((-far, -far, -far), (far, far, far), 0.0, False)  # until the reach is known

@@ -3,9 +3,9 @@
 `armwarden init` infers them where the description leaves one answer and otherwise names the
 candidates and the flag that picks one. The arm is the longest chain of revolute joints from the
 root (joints named for a finger, gripper, jaw or claw and joints that mimic another are never arm
-joints); its base is the root link; its TCP the one frame rigidly attached at the chain's far end
-(e.g. a `tool0`), or of several there, the one named as a tool point (tcp, tool, ee, eef,
-end_effector). Every other independent joint (fingers, a jaw) is a gripper joint.
+joints); its base is the link its first joint is mounted on (not a `world` root below it); its
+TCP the one frame rigidly attached at the chain's far end (e.g. a `tool0`), or of several there,
+the one named as a tool point (tcp, tool, ee, eef, end_effector). Every other independent joint (fingers, a jaw) is a gripper joint.
 """
 
 from __future__ import annotations
@@ -89,18 +89,16 @@ def _checked_joints(model: pin.Model, joints: Sequence[str]) -> list[int]:
 
 
 def _root_link(model: pin.Model, first_joint: int) -> str:
+    """The link the arm's first joint is mounted on: in a cell description (`world` → a fixed joint
+    0.8 m up → `link0`) that is `link0`, whose plane is the table the arm stands on, not the floor."""
     frame = model.frames[model.getFrameId(model.names[first_joint], pin.FrameType.JOINT)]
-    root = None
-    while frame.parentFrame != 0 or root is None:
+    while True:
         parent = model.frames[frame.parentFrame]
-        if parent.type == pin.FrameType.BODY:
-            root = parent.name
+        if parent.type == pin.FrameType.BODY and parent.name != "universe":
+            return parent.name
         if frame.parentFrame == 0:
-            break
+            raise RobotModelError("the description has no link before its first arm joint; give --base-frame")
         frame = parent
-    if root is None:
-        raise RobotModelError("the description has no root link before its first arm joint; give --base-frame")
-    return root
 
 
 def _tcp_candidates(model: pin.Model, last_joint: int, *, leaves: bool = True) -> list[str]:
