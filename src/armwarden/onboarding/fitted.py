@@ -55,10 +55,15 @@ def fit_links(meshes: Mapping[str, LinkMesh], settings: FitSettings,
     return fits
 
 
+def finger_joints(model: pin.Model, arm_joints: Collection[str]) -> list[int]:
+    """The prismatic joints beside the arm's: the fingers (their ids, in description order)."""
+    return [j for j in range(1, model.njoints)
+            if model.names[j] not in arm_joints and "JointModelP" in model.joints[j].shortname()]
+
+
 def finger_links(model: pin.Model, arm_joints: Collection[str]) -> set[str]:
-    """The links a prismatic joint beside the arm's moves: the fingers."""
-    fingers = {j for j in range(1, model.njoints)
-               if model.names[j] not in arm_joints and "JointModelP" in model.joints[j].shortname()}
+    """The links the fingers' joints move."""
+    fingers = set(finger_joints(model, arm_joints))
     return {f.name for f in model.frames if f.type == pin.FrameType.BODY and f.parentJoint in fingers}
 
 
@@ -94,4 +99,4 @@ def fitted_header(robot: str, description: str, settings: FitSettings, command: 
     ]
 
 
-__all__ = ["FitSettings", "finger_links", "fit_arm", "fit_links", "fitted_header", "vertices_digest"]
+__all__ = ["FitSettings", "finger_joints", "finger_links", "fit_arm", "fit_links", "fitted_header", "vertices_digest"]

@@ -17,13 +17,14 @@ import yaml
 
 from armwarden.core.errors import RobotModelError
 from armwarden.onboarding.checks import refuse_mjcf_misread, refuse_overwriting, refuse_stale_fit, refuse_uncovered_links
-from armwarden.onboarding.fitted import FitSettings, fit_arm, fitted_header
+from armwarden.onboarding.fitted import FitSettings, finger_joints, fit_arm, fitted_header
 from armwarden.onboarding.home import choose_home
 from armwarden.onboarding.limits import joint_limits
 from armwarden.onboarding.picture import home_picture
 from armwarden.onboarding.policy_text import LINK_PADDING_M, GripperDraft, PolicyDraft, render_policy
 from armwarden.onboarding.reach import Workspace, derive_workspace
 from armwarden.policy import Policy, load_policy, parse_policy
+from armwarden.policy.devices import MAX_GRIPPER_WIDTH_M
 from armwarden.policy.fields import MAX_COORDINATE_M
 from armwarden.preflight import RuntimeModel, load_runtime_model
 from armwarden.robot import build_robot
@@ -111,19 +112,15 @@ def remake_command(options: InitOptions) -> list[str]:
 def _fingers(model: pin.Model, chain: Chain) -> tuple[GripperDraft | None, list[str]]:
     """Prismatic joints besides the arm's are fingers: the opening is their summed travel. A revolute
     jaw has no width the gripper tools could command: no gripper section, and a note says so."""
-    prismatic, other = [], []
-    for jid in range(1, model.njoints):
-        name = model.names[jid]
-        if name in chain.joint_names:
-            continue
-        (prismatic if "JointModelP" in model.joints[jid].shortname() else other).append(jid)
+    prismatic = finger_joints(model, chain.joint_names)
+    other = [j for j in range(1, model.njoints) if model.names[j] not in chain.joint_names and j not in prismatic]
     notes = [f"joint {model.names[j]} is not an arm joint and not a prismatic finger: held at 0, no gripper tools "
              "for it" for j in other]
     if not prismatic:
         return None, notes
     travel = sum(float(model.upperPositionLimit[model.joints[j].idx_q] - model.lowerPositionLimit[model.joints[j].idx_q])
                  for j in prismatic)
-    width = round(min(travel, 0.5), 6)
+    width = round(min(travel, MAX_GRIPPER_WIDTH_M), 6)
     return GripperDraft(tuple(model.names[j] for j in prismatic), width), notes
 
 
