@@ -165,6 +165,8 @@ class Capabilities:
     """What the cell offers, as the server and the Guard ask it: derived from `Cell`, never declared."""
 
     wrench: bool = False
+    #: the arm's joint states carry measured joint torques (`JointState.efforts`)
+    joint_torques: bool = False
     gripper: bool = False
     cameras: tuple[str, ...] = ()
     controllers: bool = False
@@ -179,8 +181,8 @@ class Capabilities:
 
 @dataclass(frozen=True)
 class Cell:
-    """The optional parts of one robot cell (absent: None) and the robot-model frames its
-    backend reports poses of."""
+    """The optional parts of one robot cell (absent: None), the robot-model frames its backend
+    reports poses of, and whether its joint states carry measured torques."""
 
     gripper: Gripper | None = None
     cameras: Cameras | None = None
@@ -191,12 +193,15 @@ class Cell:
     graph: Graph | None = None
     transforms: FrameTree | None = None
     frames: tuple[str, ...] = ()
+    #: every joint state the backend publishes carries measured joint torques (`JointState.efforts`)
+    joint_torques: bool = False
 
     @functools.cached_property
     def capabilities(self) -> Capabilities:
         """Read once: a cell's parts do not change once it is built."""
         return Capabilities(
             wrench=self.wrench is not None,
+            joint_torques=self.joint_torques,
             gripper=self.gripper is not None,
             cameras=self.cameras.names if self.cameras is not None else (),
             controllers=self.controllers is not None,

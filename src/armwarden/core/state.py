@@ -10,12 +10,18 @@ import numpy as np
 
 @dataclass(frozen=True)
 class JointState:
-    """Measured joint positions [rad] and velocities [rad/s]; `stamp` on the monotonic clock [s]."""
+    """Measured joint positions [rad] and velocities [rad/s]; `stamp` on the monotonic clock [s].
+
+    `efforts`: the joint torques [N·m] the actuators measured (a motor's torque or current), in the
+    joint's positive direction, gravity included — what Pinocchio calls τ in
+    M(q)q̈ + C(q, q̇)q̇ + g(q) = τ + τ_ext. None when the arm does not measure them; measured in the
+    same sample as the positions (one stamp for both)."""
 
     names: tuple[str, ...]
     positions: np.ndarray
     velocities: np.ndarray
     stamp: float
+    efforts: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
