@@ -2,9 +2,11 @@
 
 State: `sensor_msgs/JointState` name-matched to the policy's joints (config `joints` maps names
 that differ), judged fresh by receipt time; older than `joint_states.max_age_s` and reads refuse,
-naming the age (`get_robot_state` errors rather than lying). The wrench (`WrenchStamped`,
-best-effort QoS) is stamped with the receipt time of its last *new* header stamp, so a frozen
-driver ages like a silent one and the Guard's force monitor aborts.
+naming the age (`get_robot_state` errors rather than lying). With `joint_states.efforts` the
+message's `effort` is the measured joint torque, carried in the same `JointState` (one sample,
+one stamp, so it ages exactly as the positions do) and declared as the cell's `joint_torques`.
+The wrench (`WrenchStamped`, best-effort QoS) is stamped with the receipt time of its last *new*
+header stamp, so a frozen driver ages like a silent one and the Guard's force monitor aborts.
 
 Parts it composes: the arm's motion, trajectory goals or the topic fallback and their stops
 (`arm.py`), and the cell's parts (`self.cell`, `armwarden.backends.parts`): the gripper
@@ -104,7 +106,7 @@ class Ros2Backend(Backend):
         self.bridge = (RosBridge(config.node_name, config.domain_id) if executor_factory is None
                        else RosBridge(config.node_name, config.domain_id, executor_factory))
         self.joint_states = JointStateCache(config.joint_states.topic, robot.joint_names, ros_names,
-                                            config.joint_states.max_age_s)
+                                            config.joint_states.max_age_s, efforts=config.joint_states.efforts)
         self.wrench = None if config.wrench is None else WrenchCache(
             config.wrench.topic, config.wrench.max_age_s, config.wrench.frame_id)
         gripper = config.gripper
@@ -139,6 +141,7 @@ class Ros2Backend(Backend):
             error_recovery=None if config.error_recovery is None else Ros2ErrorRecovery(services),
             graph=Ros2Graph(self.bridge),
             transforms=None if self.transforms is None else TfFrames(self.transforms),
+            joint_torques=config.joint_states.efforts,
         )
 
     # ================================================================ lifecycle

@@ -31,7 +31,9 @@ RosName = Annotated[str, Field(min_length=1, max_length=256, pattern=r"^[~/A-Za-
 
 
 class JointStatesConfig(BaseModel):
-    """The `sensor_msgs/JointState` topic the arm's state comes from."""
+    """The `sensor_msgs/JointState` topic the arm's state comes from, and whether its `effort`
+    field is the measured joint torque (franka_ros2 and most ros2_control drivers publish it;
+    an arm that fills it with zeros or nothing must not declare it)."""
 
     model_config = _STRICT
     topic: RosName = Field(default="/joint_states", description="JointState topic.")
@@ -40,6 +42,11 @@ class JointStatesConfig(BaseModel):
     startup_timeout_s: float = Field(default=10.0, gt=0, le=120,
                                      description="How long `open` waits for the first complete joint state "
                                                  "(and finger state and wrench, when configured) [s].")
+    efforts: bool = Field(default=False,
+                          description="The arm's JointState messages carry the joint torques its actuators measure "
+                                      "in `effort` [N·m, gravity included]: the backend declares joint torques and "
+                                      "every joint state carries them (a joint without an entry, or a NaN, "
+                                      "reads NaN); false: `effort` is ignored.")
 
 
 class WrenchConfig(BaseModel):

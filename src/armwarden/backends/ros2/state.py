@@ -47,12 +47,23 @@ def nothing_heard(network: DdsSettings | None) -> str:
     return "" if network is None else f" (this node: {network.describe()}; {network.how_to_agree()})"
 
 
+def _efforts(msg, index: dict[str, int], ros_names: Sequence[str]) -> np.ndarray:
+    """The measured joint torques of `msg` for `ros_names`, by name: NaN for a joint without an
+    entry (an empty or short `effort`), a NaN passed on as it is. Never zero, never an older
+    value: the force monitor fails closed on NaN, and a made-up torque would hide a contact."""
+    effort = msg.effort
+    return np.array([float(effort[i]) if (i := index[name]) < len(effort) else np.nan for name in ros_names],
+                    dtype=float)
+
+
 class JointStateCache:
-    """The latest complete joint state, mapped by name to the policy's joint order."""
+    """The latest complete joint state, mapped by name to the policy's joint order; with
+    `efforts`, the measured joint torques of the same message too (see `_efforts`)."""
 
     def __init__(self, topic: str, joint_names: Sequence[str], ros_names: Sequence[str], max_age_s: float,
-                 clock: Clock = time.monotonic, *, network: DdsSettings | None = None) -> None:
+                 clock: Clock = time.monotonic, *, network: DdsSettings | None = None, efforts: bool = False) -> None:
         self.topic = topic
+        self.efforts = efforts
         self.network = network  # named when nothing came: most often the other side is on another domain
         self.joint_names = tuple(joint_names)
         self.ros_names = tuple(ros_names)
@@ -92,7 +103,8 @@ class JointStateCache:
                 dt = now - previous.state.stamp if previous is not None else 0.0
                 velocities = (positions - previous.state.positions) / dt if previous is not None and dt > 0 else np.zeros_like(positions)
             stamp = max(now, previous.state.stamp) if previous is not None else now
-            state = JointState(self.joint_names, _frozen(positions), _frozen(velocities), stamp)
+            efforts = _frozen(_efforts(msg, index, self.ros_names)) if self.efforts else None
+            state = JointState(self.joint_names, _frozen(positions), _frozen(velocities), stamp, efforts)
             self._sample = _Sample(state, header_s)
 
     def _drop(self, why: str) -> None:
