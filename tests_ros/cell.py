@@ -6,8 +6,15 @@ optional virtual table, a FollowJointTrajectory action server that interpolates 
 time, a GripperCommand action server, the controller_manager list/switch services, a camera image
 that changes with the joint state and a static transform base → camera.
 
-Tests steer it (reject, abort or hang goals, stop a topic, freeze a stamp, die mid-motion) and read
-its counters (goals received and accepted: refused scenarios must show zero). It also offers what
+Tests steer it (reject, abort or hang goals, stop a topic, freeze a stamp, die mid-motion, push on
+the arm) and read its counters (goals received and accepted: refused scenarios must show zero).
+
+Its joint states carry the joint torques a torque-sensing arm measures in `effort` [N·m]: the FR3
+model's inverse dynamics of the published motion, `rnea(q, q̇, q̈)` with q̈ the change of the
+published velocities since the previous joint state (so at rest g(q)), minus Jᵀ F for a contact
+force F: the virtual table's at the TCP, and a test's `push(link, force, point)` until
+`release_push()` (`tests_ros.cell_dynamics`); plus seeded Gaussian noise (`torque_noise_nm`).
+`CellConfig(efforts=False)` sends an empty `effort`, as an arm without torque sensing does. It also offers what
 the backend's optional parts use: the finger joint states of the gripper, a JointTrajectory topic
 (the controller's topic interface, the backend's fallback), the same camera picture as a PNG
 CompressedImage, and a std_srvs/Trigger error-recovery service.
@@ -31,7 +38,8 @@ import sys
 import threading
 import time
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -56,6 +64,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from armwarden.backends.ros2.dds import dds_settings
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.robot import RobotModel, build_robot
+from tests_ros.cell_dynamics import ArmDynamics, Contact, Vector3
 
 STATE_PERIOD_S = 0.01  # joint states and the trajectory interpolation run at 100 Hz
 CAMERA_PERIOD_S = 0.1
@@ -101,6 +110,10 @@ class CellConfig:
     table_stiffness_n_per_m: float = 2000.0
     initial_positions: tuple[float, ...] | None = None  # default: the policy's home pose
     initial_gripper_width_m: float = 0.08
+    # Joint torques in the joint states' `effort` (see the module docstring); False: an empty `effort`.
+    efforts: bool = True
+    torque_noise_nm: float = 0.0  # standard deviation of Gaussian noise on every effort [N·m]
+    torque_noise_seed: int = 0
     controllers: tuple[tuple[str, str], ...] = (
         ("joint_state_broadcaster", "active"),
         ("fr3_arm_controller", "active"),
@@ -136,6 +149,7 @@ class _Switches:
     joint_states_paused: bool = False
     wrench_stopped: bool = False
     wrench_stamp_frozen: bool = False
+    push: Contact | None = None  # a test's contact force on the arm, until released
     dead: bool = False
     frozen_stamp: TimeMsg = field(default_factory=TimeMsg)
 
@@ -195,6 +209,9 @@ class Cell:
         self._joint_publish_lock = threading.Lock()
         self._last_joint_stamp: TimeMsg | None = None  # header stamp of the last joint state sent
         self._wrench_publish_lock = threading.Lock()  # likewise for the wrench's switches
+        # the clock thread's own Pinocchio Data: the effort of every joint state and the table's contact
+        self._dynamics = ArmDynamics(self.robot, self.config.torque_noise_nm, self.config.torque_noise_seed)
+        self._previous_motion: tuple[float, np.ndarray] | None = None  # (monotonic time, velocities) last published
         self._positions = np.array(home, dtype=float)
         self._velocities = np.zeros(len(self.joint_names))
         self._gripper_width = self.config.initial_gripper_width_m
@@ -357,6 +374,31 @@ class Cell:
             self._switches.frozen_stamp = self._now()
             return self._switches.frozen_stamp
 
+    def push(self, link: str, force_base: Vector3, point_in_link: Vector3 = (0.0, 0.0, 0.0)) -> None:
+        """Push on the arm from now until `release_push` (a newer push replaces it): a force
+        [N, base frame] at a point [m, in `link`'s own frame; default its origin] of one of the
+        robot model's frames (e.g. ``fr3_link5``, the forearm). The efforts change by −Jᵀ F (J: the
+        point's linear Jacobian); positions, velocities and the wrench topic do not (a position-
+        controlled arm holds its path; the F/T sensor sits beyond the forearm). When it returns,
+        every joint state sent afterwards carries it (`last_joint_state_stamp`: the last one before)."""
+        contact = self._dynamics.contact(link, force_base, point_in_link)
+        with self._joint_publish_lock, self._lock:
+            self._switches.push = contact
+
+    def release_push(self) -> None:
+        """End the push: every joint state sent after this returns is without it."""
+        with self._joint_publish_lock, self._lock:
+            self._switches.push = None
+
+    @contextmanager
+    def pushing(self, link: str, force_base: Vector3, point_in_link: Vector3 = (0.0, 0.0, 0.0)) -> Iterator[None]:
+        """`push` for the duration of a with block."""
+        self.push(link, force_base, point_in_link)
+        try:
+            yield
+        finally:
+            self.release_push()
+
     def die(self) -> None:
         """The cell goes silent: no topic, no feedback, no result, no service answer. When it
         returns, the last joint state has been sent (`last_joint_state_stamp`)."""
@@ -376,20 +418,36 @@ class Cell:
         assert self._node is not None
         return self._node.get_clock().now().to_msg()
 
+    def _efforts(self, positions: np.ndarray, velocities: np.ndarray, push: Contact | None) -> list[float]:
+        """Clock thread: what the joints measure now (see the module docstring); [] without efforts."""
+        now = time.monotonic()
+        previous, self._previous_motion = self._previous_motion, (now, velocities)
+        if not self.config.efforts:
+            return []
+        dt = now - previous[0] if previous is not None else 0.0
+        accelerations = (velocities - previous[1]) / dt if previous is not None and dt > 0.0 else np.zeros_like(velocities)
+        contacts = [] if push is None else [push]
+        table = self._contact_force(positions)
+        if table > 0.0:
+            contacts.append(self._dynamics.tcp_contact((0.0, 0.0, table)))
+        return self._dynamics.efforts(positions, velocities, accelerations, contacts).tolist()
+
     def _publish_joint_state(self) -> None:
         with self._joint_publish_lock:
             with self._lock:
                 if self._switches.dead or self._switches.joint_states_paused:
                     return
-                positions, velocities = self._positions.tolist(), self._velocities.tolist()
+                positions, velocities = self._positions.copy(), self._velocities.copy()
+                push = self._switches.push
                 half_width = self._gripper_width / 2
+            efforts = self._efforts(positions, velocities, push)
             stamp = self._now()
             msg = JointState()
             msg.header.stamp = stamp
             msg.name = list(self.joint_names)
-            msg.position = positions
-            msg.velocity = velocities
-            msg.effort = [0.0] * len(positions)
+            msg.position = positions.tolist()
+            msg.velocity = velocities.tolist()
+            msg.effort = efforts
             self._joint_pub.publish(msg)
             fingers = JointState()
             fingers.header.stamp = stamp
@@ -404,7 +462,7 @@ class Cell:
         height = self.config.table_height_m
         if height is None:
             return 0.0
-        depth = height - float(self.robot.tcp_pose(positions).position[2])
+        depth = height - float(self._dynamics.tcp_position(positions)[2])  # the clock thread's own Data
         return self.config.table_stiffness_n_per_m * depth if depth > 0.0 else 0.0
 
     def _publish_wrench(self) -> None:
@@ -668,13 +726,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Run the fake FR3 cell (domain from ROS_DOMAIN_ID).")
     parser.add_argument("--table-height", type=float, default=None, help="virtual table plane z [m] in the base frame")
     parser.add_argument("--goal-mode", choices=[m.value for m in GoalMode], default=GoalMode.ACCEPT.value)
+    parser.add_argument("--torque-noise", type=float, default=0.0,
+                        help="standard deviation [N·m] of Gaussian noise on the joint states' efforts")
+    parser.add_argument("--torque-noise-seed", type=int, default=0, help="seed of that noise")
     args = parser.parse_args(argv)
     # the daemon's own defaults (domain 0, LOCALHOST), so that both meet with nothing set
     dds = dds_settings(None, os.environ)
     dds.apply(os.environ)
     os.environ["ROS_DOMAIN_ID"] = str(dds.domain_id)
     print(f"fake FR3 cell: {dds.describe()}; start the daemon with the same", file=sys.stderr, flush=True)
-    config = CellConfig(table_height_m=args.table_height, goal_mode=GoalMode(args.goal_mode))
+    config = CellConfig(table_height_m=args.table_height, goal_mode=GoalMode(args.goal_mode),
+                        torque_noise_nm=args.torque_noise, torque_noise_seed=args.torque_noise_seed)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
