@@ -172,8 +172,9 @@ def test_the_camera_and_gripper_parts_carry_the_deadlines_their_config_sets() ->
 
 # ---------------------------------------------------------------------------- absent parts
 async def test_without_optional_sections_no_optional_capability_is_declared(cell: Cell) -> None:
+    joint_states = {**example_document()["joint_states"], "efforts": False}
     config = example_config(wrench=None, gripper=None, controller_manager=None, error_recovery=None, cameras={},
-                            tf={"enabled": False})
+                            tf={"enabled": False}, joint_states=joint_states)
     async with opened(config) as backend:
         assert backend.capabilities == Capabilities(graph=True)
         assert await backend.read_wrench() is None and await backend.gripper_state() is None
