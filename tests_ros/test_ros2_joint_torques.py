@@ -147,8 +147,8 @@ def test_the_cells_efforts_in_motion_are_the_models_inverse_dynamics(client: Ros
     names = list(client.wait_latest("joint_states").name)
     start = np.array(client.positions())
     target = start.copy()
-    target[0] += 0.8  # one segment at 1.6 rad/s of joint 1: Coriolis and centrifugal torques show
-    result = client.send_goal(client.trajectory_goal(names, [target.tolist()], [0.5])).get_result_async()
+    target[0] += 1.2  # one segment at 1.2 rad/s of joint 1: Coriolis and centrifugal torques show
+    result = client.send_goal(client.trajectory_goal(names, [target.tolist()], [1.0])).get_result_async()
     moving: dict[float, JointStateMsg] = {}
     deadline = time.monotonic() + DEADLINE_S
     while not result.done() and time.monotonic() < deadline:
@@ -164,7 +164,7 @@ def test_the_cells_efforts_in_motion_are_the_models_inverse_dynamics(client: Ros
         if np.allclose(effort, inverse_dynamics, atol=EXACT_NM, rtol=0):
             steady.append(np.max(np.abs(inverse_dynamics - gravity(q))))
     assert len(steady) >= 3, f"{len(moving)} moving samples, {len(steady)} of them rnea(q, q̇, 0)"
-    assert min(steady) > 1e-3  # the motion's own torques, beyond gravity
+    assert min(steady) > 1e-2, min(steady)  # the motion's own torques, beyond gravity
 
 
 #: the home pose's TCP is 0.487 m above the base: a table 1 cm higher presses on it with 20 N
