@@ -62,7 +62,8 @@ class Setpoint:
 
     `positions` [rad], `velocities` [rad/s], `stamp` on the monotonic clock [s]; `following`: a
     sample of a running trajectory (not a hold); `extra` is what `ServoHooks.servo_prepare`
-    computed for it (e.g. the TCP position), kept with the sample.
+    computed for it (e.g. the TCP position), kept with the sample; `accelerations` [rad/s²]: the
+    trajectory's (`segment_acceleration`) while following, None (zero) otherwise.
     """
 
     positions: np.ndarray
@@ -70,6 +71,7 @@ class Setpoint:
     stamp: float
     following: bool = False
     extra: Any = None
+    accelerations: np.ndarray | None = None
 
 
 class ServoHooks:
@@ -146,6 +148,34 @@ def segment_velocity(trajectory: JointTrajectory, t: float) -> np.ndarray:
     if span <= 0:
         return np.zeros(trajectory.positions.shape[1])
     return (trajectory.positions[k + 1] - trajectory.positions[k]) / span
+
+
+def segment_acceleration(trajectory: JointTrajectory, t: float) -> np.ndarray:
+    """Joint acceleration [rad/s²] of the commanded motion at time `t` [s].
+
+    A piecewise-linear path accelerates only in impulses at its waypoints, which no motor
+    delivers and a sampled torque reading would see as spikes or miss. Each velocity step is
+    spread instead between the midpoints of the segments on either side of it (from rest at the
+    start, to rest at the end): the velocity through those midpoints is then piecewise linear and
+    integrates the acceleration to exactly the segment velocities (`segment_velocity`)."""
+    times, positions = trajectory.times, trajectory.positions
+    zero = np.zeros(positions.shape[1])
+    if t <= 0.0 or len(times) < 2 or t >= times[-1]:
+        return zero
+    last = len(times) - 2  # the last segment
+
+    def knot(j: int) -> tuple[float, np.ndarray]:
+        """(time, velocity) where the spread velocity equals segment j's (rest beyond the ends)."""
+        if j < 0:
+            return 0.0, zero
+        if j > last:
+            return float(times[-1]), zero
+        span = times[j + 1] - times[j]
+        return float(times[j] + times[j + 1]) / 2, (positions[j + 1] - positions[j]) / span if span > 0 else zero
+
+    k = int(np.searchsorted(times, t, side="right")) - 1
+    (t0, v0), (t1, v1) = (knot(k - 1), knot(k)) if t < knot(k)[0] else (knot(k), knot(k + 1))
+    return (v1 - v0) / (t1 - t0) if t1 > t0 else zero
 
 
 def frozen(array: Any) -> np.ndarray:
@@ -296,7 +326,8 @@ class ServoLoop:
             self._stop_seq += 1
             stopped = [e for e in (self._active, self._pending) if e is not None]
             self._active = self._pending = None
-            setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic(), following=False)
+            setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic(), following=False,
+                               accelerations=None)
             try:
                 setpoint = replace(setpoint, positions=frozen(self.hooks.servo_hold_positions(setpoint.positions)))
                 self.hooks.servo_hold(setpoint)
@@ -366,6 +397,7 @@ class ServoLoop:
         self.tick_count += 1
 
         positions, velocities, completed, fraction = held.positions, self._still, False, 0.0
+        accelerations: np.ndarray | None = None
         if execution is not None:
             if execution.start_time is None:
                 execution.start_time = now
@@ -376,8 +408,9 @@ class ServoLoop:
                 positions, completed, fraction = frozen(trajectory.goal), True, 1.0
             else:
                 positions, velocities = frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t))
+                accelerations = frozen(segment_acceleration(trajectory, t))
                 fraction = t / duration
-        setpoint = Setpoint(positions, velocities, stamp, following=execution is not None)
+        setpoint = Setpoint(positions, velocities, stamp, following=execution is not None, accelerations=accelerations)
         extra = self.hooks.servo_prepare(setpoint)
         if extra is not None:  # (dataclasses.replace costs microseconds a tick; most hooks return None)
             setpoint = replace(setpoint, extra=extra)
@@ -397,4 +430,4 @@ class ServoLoop:
 
 
 __all__ = ["FIRST_TICK_TIMEOUT_S", "IDLE_PERIOD_S", "JOIN_TIMEOUT_S", "PROGRESS_PERIOD_S", "ServoBackend",
-           "ServoHooks", "ServoLoop", "Setpoint", "frozen", "segment_velocity"]
+           "ServoHooks", "ServoLoop", "Setpoint", "frozen", "segment_acceleration", "segment_velocity"]

@@ -14,6 +14,12 @@ thread that issues it, before `stop()`/`stop_now()` returns, and no tick compute
 published after it. A kinematic arm has no inertia: it is still from that instant, which
 `last_stop_stamp` records (monotonic clock).
 
+Joint torques (`efforts.py`): every published joint state carries the torques [N·m] the motors
+would measure for the commanded motion — the model's inverse dynamics of the setpoint, gravity
+included, less the external torque of a test's push (`push` / `release_push`), with optional
+seeded Gaussian noise (`joint_torque_noise_nm`); `joint_torques=False` leaves them out (None).
+Computed on the servo thread for each sample, like the wrench.
+
 Contact. With `table_height_m` set, the estimated wrench is the table's contact force
 (`arm.table_contact_force_n`) at the TCP the servo thread computes with its own model. The wrench
 is computed on the servo thread and stamped with that tick's monotonic time.
@@ -22,7 +28,8 @@ The gripper (`gripper.FakeFingers`) is a width model on the event loop, time-sca
 stop from any thread. Cameras render a small top view with Pillow (none without it).
 
 Fault injection for tests: `fail_stop` (stop raises and is not delivered), `freeze_wrench` (the
-wrench stops updating, so its stamp stops advancing), `stall_wrench_s` (wrench reads take that
+wrench stops updating, so its stamp stops advancing), `freeze_joint_torques` (the joint states'
+torques repeat their last values while positions move on), `nan_joint_torques` (they read NaN), `stall_wrench_s` (wrench reads take that
 long), `fault` (the robot is in an error state until `error_recovery`), `object_width_m` (the
 object between the fingers). All of them are attributes that can be changed at run time; they
 live in `knobs` (`FakeKnobs`), shared with the parts, with the records `actuation_commands`,
@@ -48,6 +55,7 @@ from armwarden.backends.fake.cameras import HAVE_PILLOW, FakeCameras, TopView
 from armwarden.backends.fake.config import Config
 from armwarden.backends.fake.contact import FakeRecovery, FakeThresholds, FakeWrench
 from armwarden.backends.fake.controllers import FakeControllerManager, FakeControllers, FakeGraph
+from armwarden.backends.fake.efforts import Efforts, JointTorques
 from armwarden.backends.fake.gripper import FakeFingers
 from armwarden.backends.fake.knobs import FakeKnobs, Knob
 from armwarden.backends.parts import Cell
@@ -73,6 +81,8 @@ class FakeBackend(ServoBackend):
     # the test API (fault injections and records, module docstring): attributes of the shared `knobs`
     fail_stop = Knob[bool]()
     freeze_wrench = Knob[bool]()
+    freeze_joint_torques = Knob[bool]()
+    nan_joint_torques = Knob[bool]()
     stall_wrench_s = Knob[float]()
     fault = Knob[bool]()
     fault_reason = Knob[str]()
@@ -102,6 +112,9 @@ class FakeBackend(ServoBackend):
         freeze_wrench: bool = False,
         stall_wrench_s: float = 0.0,
         start_tolerance_rad: float = 0.05,
+        joint_torques: bool = True,
+        joint_torque_noise_nm: float = 0.0,
+        joint_torque_noise_seed: int = 0,
     ) -> None:
         profile = builtin_profile(description)
         arm = arm_setup(profile, description, robot, joint_names, base_frame, tcp_frame, home)
@@ -118,6 +131,9 @@ class FakeBackend(ServoBackend):
 
         self.robot = robot  # the event loop's model; the servo thread computes with `arm.model`
         self._kinematics = ArmKinematics(arm.model)
+        #: the servo thread's joint torques (None: the fake does not measure them)
+        self.joint_torques = JointTorques(arm.model, joint_torque_noise_nm, joint_torque_noise_seed) if joint_torques else None
+        self._last_efforts: Efforts | None = None  # what the servo thread last computed (freeze_joint_torques)
         self.control_period_s = float(control_period_s)
         self.table_height_m = table_height_m
         self.table_stiffness_n_per_m = float(table_stiffness_n_per_m)
@@ -143,6 +159,7 @@ class FakeBackend(ServoBackend):
             error_recovery=FakeRecovery(self._require_running, self.knobs),
             graph=FakeGraph(self._controllers, wrench=bool(wrench), cameras=camera_names),
             frames=tuple(robot.frame_names() if robot is not None else arm.model.frame_names()),
+            joint_torques=joint_torques,
         )
 
     # ================================================================ lifecycle
@@ -180,7 +197,9 @@ class FakeBackend(ServoBackend):
     def _latest_joint_state(self) -> JointState:
         self._require_running()
         setpoint = self.servo.latest  # read-only arrays, replaced whole by each tick
-        return JointState(self.joint_names, setpoint.positions, setpoint.velocities, setpoint.stamp)
+        efforts: Efforts | None = setpoint.extra[2]
+        return JointState(self.joint_names, setpoint.positions, setpoint.velocities, setpoint.stamp,
+                          efforts.published(setpoint) if efforts is not None else None)
 
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
@@ -196,6 +215,21 @@ class FakeBackend(ServoBackend):
         setpoint = self.servo.latest
         return TopView(setpoint.stamp, setpoint.extra[0], self.fingers.state().width_m, self._wrench[0],
                        self.table_height_m)
+
+    # ================================================================ pushing on the arm (tests)
+    def push(self, frame: str, force_base: Sequence[float], point_in_frame: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """Push on the arm from the next sample on, until `release_push`: a force `force_base` [N]
+        (base frame) at `point_in_frame` [m] of the model frame `frame` (a link). The measured
+        joint torques drop by Jᵀ F; the arm itself, kinematic, does not yield."""
+        torques = self.joint_torques
+        if torques is None:
+            raise BackendError("this fake measures no joint torques (joint_torques=False)")
+        torques.push = torques.make_push(frame, force_base, point_in_frame)
+
+    def release_push(self) -> None:
+        """Nothing pushes on the arm any more (from the next sample on)."""
+        if self.joint_torques is not None:
+            self.joint_torques.push = None
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
@@ -220,11 +254,24 @@ class FakeBackend(ServoBackend):
         self._require_running()  # held either way; a dead control thread is still reported as a failure
 
     # ================================================================ servo hooks (servo thread)
-    def servo_prepare(self, setpoint: Setpoint) -> tuple[np.ndarray, float]:
-        """The TCP position and the contact force [N] at the setpoint (forward kinematics)."""
+    def servo_prepare(self, setpoint: Setpoint) -> tuple[np.ndarray, float, Efforts | None]:
+        """The TCP position, the contact force [N] and the joint torques at the setpoint."""
         self._worker_checkpoint("control")
         tcp = self._compute_tcp(setpoint.positions)
-        return tcp, self._contact_force_n(tcp)
+        return tcp, self._contact_force_n(tcp), self._efforts(setpoint)
+
+    def _efforts(self, setpoint: Setpoint) -> Efforts | None:
+        """The joint torques of `setpoint`, as the fault injections leave them (servo thread)."""
+        if self.joint_torques is None:
+            return None
+        if self.freeze_joint_torques and self._last_efforts is not None:
+            stuck = self._last_efforts.moving  # a stuck reading: the same values, whatever the arm does
+            return Efforts(stuck, stuck)
+        efforts = self.joint_torques.compute(setpoint)
+        if self.nan_joint_torques:
+            efforts = Efforts(_nan_like(efforts.moving), _nan_like(efforts.still))
+        self._last_efforts = efforts
+        return efforts
 
     def servo_command(self, setpoint: Setpoint) -> None:
         if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
@@ -244,6 +291,10 @@ class FakeBackend(ServoBackend):
 
 
 _ZERO3 = frozen(np.zeros(3))
+
+
+def _nan_like(values: np.ndarray) -> np.ndarray:
+    return frozen(np.full(values.shape, np.nan))
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> FakeBackend:

@@ -17,6 +17,14 @@ class Config(BaseModel):
         default=20000.0, gt=0, allow_inf_nan=False, description="Stiffness of the virtual table [N/m]."
     )
     wrench: bool = Field(default=True, description="Provide an external wrench estimate (boolean).")
+    joint_torques: bool = Field(
+        default=True, description="Joint states carry measured joint torques, the model's own (boolean)."
+    )
+    joint_torque_noise_nm: float = Field(
+        default=0.0, ge=0, le=100, allow_inf_nan=False,
+        description="Standard deviation [N·m] of Gaussian noise on the measured joint torques (0: none).",
+    )
+    joint_torque_noise_seed: int = Field(default=0, description="Seed of that noise (runs repeat exactly).")
 
 
 __all__ = ["Config"]

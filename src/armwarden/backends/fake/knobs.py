@@ -21,6 +21,10 @@ class FakeKnobs:
     fail_stop: bool = False
     #: the wrench stops updating, so its stamp stops advancing
     freeze_wrench: bool = False
+    #: the joint states' measured torques repeat their last values (a stuck reading)
+    freeze_joint_torques: bool = False
+    #: the joint states' measured torques read NaN
+    nan_joint_torques: bool = False
     #: wrench reads take this long [s]
     stall_wrench_s: float = 0.0
     #: the robot is in an error state (reflex); arm motion is refused until `error_recovery`

@@ -1,0 +1,213 @@
+"""The fake backend's measured joint torques: the model's own inverse dynamics of the commanded
+motion, a test's push, noise and fault injections (issue 28).
+
+The fake computes with the same robot model as the test, so its conformance tolerance is
+numerical (1e-9 N·m): any larger difference is a wiring error (sign, frame, joint order).
+"""
+
+from __future__ import annotations
+
+import time
+
+import anyio
+import numpy as np
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+import pytest
+
+from armwarden.backends.fake.backend import FakeBackend
+from armwarden.backends.fake.config import Config
+from armwarden.backends.servo import segment_acceleration, segment_velocity
+from armwarden.core.errors import BackendError
+from armwarden.core.state import JointState
+from armwarden.core.trajectory import JointTrajectory
+from armwarden.robot.model import RobotModel
+from tests.backends.joint_torque_conformance import Load, check_gravity_at_rest, check_push, gravity, settled_state
+from tests.backends.test_fake import FR3_JOINT_NAMES, Q_REACH, Q_READY, straight_line
+from tests.helpers import run_opened
+
+#: the fake's model is the test's: only rounding separates them
+NUMERICAL_NM = 1e-9
+
+
+@pytest.fixture(scope="module")
+def fr3() -> RobotModel:
+    return RobotModel.from_description("builtin:fr3", FR3_JOINT_NAMES, "fr3_link0", "fr3_hand_tcp")
+
+
+def run(scenario, **options):
+    return run_opened(lambda: FakeBackend(**options), scenario)
+
+
+def test_a_still_fake_arm_measures_the_gravity_of_its_pose(fr3: RobotModel) -> None:
+    async def scenario(backend: FakeBackend) -> None:
+        state = await check_gravity_at_rest(backend, fr3, NUMERICAL_NM)
+        assert state.positions.tolist() == Q_READY.tolist()
+
+    run(scenario)
+
+
+def test_a_push_on_the_forearm_changes_the_fake_torques_by_minus_j_transpose_f(fr3: RobotModel) -> None:
+    async def scenario(backend: FakeBackend) -> None:
+        force, point = (0.0, 30.0, -10.0), (0.05, 0.0, 0.1)
+        load = Load("fr3_link4", force, point_in_frame=point, release=backend.release_push,
+                    apply=lambda: backend.push("fr3_link4", force, point))
+        await check_push(backend, fr3, load, NUMERICAL_NM)
+
+    run(scenario)
+
+
+def test_a_push_at_a_point_off_the_frame_origin_adds_its_lever(fr3: RobotModel) -> None:
+    """The same force at a point 17 cm from the frame's origin: the torque differs by the lever's moment."""
+    async def scenario(backend: FakeBackend) -> None:
+        backend.push("fr3_link5", (20.0, 0.0, 0.0))
+        at_origin = await settled_state(backend, after_stamp=_now())
+        backend.push("fr3_link5", (20.0, 0.0, 0.0), (0.1, 0.1, 0.1))
+        off_origin = await settled_state(backend, after_stamp=_now())
+        assert at_origin.efforts is not None and off_origin.efforts is not None
+        assert np.abs(off_origin.efforts - at_origin.efforts).max() > 0.5
+
+    run(scenario)
+
+
+def test_the_fake_measures_the_inverse_dynamics_of_the_commanded_motion(fr3: RobotModel) -> None:
+    """Mid-motion, every published sample reads rnea(q, q̇, q̈) of its own setpoint."""
+    trajectory = straight_line(Q_READY, Q_REACH, 1.0, dt_s=0.25)  # q̈ ≠ 0 in the first and last 0.125 s
+
+    async def scenario(backend: FakeBackend) -> None:
+        data = fr3.model.createData()
+        checked = accelerating = 0  # samples checked, and those of them with q̈ ≠ 0
+
+        async def watch() -> None:
+            nonlocal checked, accelerating
+            while True:
+                setpoint = backend.servo.latest
+                state = await backend.read_joint_state()
+                if setpoint.following and state.stamp == setpoint.stamp and setpoint.accelerations is not None:
+                    expected = pin.rnea(fr3.model, data, setpoint.positions, setpoint.velocities, setpoint.accelerations)
+                    assert state.efforts is not None
+                    np.testing.assert_allclose(state.efforts, expected, rtol=0, atol=NUMERICAL_NM)
+                    checked += 1
+                    accelerating += bool(setpoint.accelerations.any())
+                await _sleep()
+
+        async with anyio.create_task_group() as group:
+            group.start_soon(watch)
+            result = await backend.execute(trajectory)
+            group.cancel_scope.cancel()
+            assert result.completed
+        assert checked > 0 and accelerating > 0
+        final = await settled_state(backend)
+        assert final.efforts is not None
+        np.testing.assert_allclose(final.efforts, gravity(fr3, Q_REACH), rtol=0, atol=NUMERICAL_NM)
+
+    run(scenario)
+
+
+def test_a_stopped_fake_arm_reads_the_gravity_of_its_pose_from_the_hold_on(fr3: RobotModel) -> None:
+    trajectory = straight_line(Q_READY, Q_REACH, 4.0)
+
+    async def scenario(backend: FakeBackend) -> None:
+        state: JointState | None = None
+        async with anyio.create_task_group() as group:
+            group.start_soon(backend.execute, trajectory)
+            while not (backend.servo.latest.following and backend.servo.latest.velocities.any()):
+                await _sleep()
+            await backend.stop()
+            state = await backend.read_joint_state()
+        assert state is not None and state.efforts is not None and not state.velocities.any()
+        np.testing.assert_allclose(state.efforts, gravity(fr3, state.positions), rtol=0, atol=NUMERICAL_NM)
+
+    run(scenario)
+
+
+def test_segment_acceleration_spreads_each_velocity_step_between_segment_midpoints() -> None:
+    trajectory = JointTrajectory(("a",), np.array([0.0, 1.0, 2.0]), np.array([[0.0], [1.0], [3.0]]))
+    # from rest to 1 rad/s by the first midpoint (0.5 s), to 2 rad/s by the second (1.5 s), to rest at 2 s
+    assert segment_acceleration(trajectory, 0.25).tolist() == [2.0]
+    assert segment_acceleration(trajectory, 1.0).tolist() == [1.0]
+    assert segment_acceleration(trajectory, 1.75).tolist() == [-4.0]
+    assert segment_acceleration(trajectory, 2.0).tolist() == [0.0]
+    # integrated, it is each segment's velocity at that segment's midpoint
+    times = np.linspace(0.0, 1.5, 150001)
+    velocity = np.trapezoid([segment_acceleration(trajectory, t)[0] for t in times], times)
+    assert velocity == pytest.approx(segment_velocity(trajectory, 1.25)[0], abs=1e-3)
+
+
+def test_fake_torque_noise_is_seeded_and_has_the_asked_spread(fr3: RobotModel) -> None:
+    def samples(seed: int) -> np.ndarray:
+        backend = FakeBackend(joint_torque_noise_nm=0.5, joint_torque_noise_seed=seed)
+        setpoint = backend.servo.latest
+        return np.array([backend.joint_torques.compute(setpoint).still for _ in range(400)])  # type: ignore[union-attr]
+
+    first, again, other = samples(1), samples(1), samples(2)
+    assert np.array_equal(first, again) and not np.array_equal(first, other)
+    deviation = first - gravity(fr3, Q_READY)
+    assert abs(float(deviation.mean())) < 0.1 and 0.4 < float(deviation.std()) < 0.6
+
+
+def test_a_fake_without_joint_torques_publishes_none_and_refuses_a_push() -> None:
+    async def scenario(backend: FakeBackend) -> None:
+        assert not backend.capabilities.joint_torques
+        assert (await backend.read_joint_state()).efforts is None
+        with pytest.raises(BackendError, match="no joint torques"):
+            backend.push("fr3_link4", (0.0, 10.0, 0.0))
+
+    run(scenario, joint_torques=False)
+
+
+def test_nan_joint_torques_are_published_as_nan_with_the_sample_stamp() -> None:
+    async def scenario(backend: FakeBackend) -> None:
+        before = await backend.read_joint_state()
+        backend.nan_joint_torques = True
+        state = await _state_after(backend, _now())
+        assert state.efforts is not None and np.all(np.isnan(state.efforts))
+        # the rest of the sample is as it was: finite positions, a fresh stamp of its own
+        assert state.positions.tolist() == before.positions.tolist() and state.stamp > before.stamp
+
+    run(scenario)
+
+
+def test_frozen_joint_torques_repeat_while_the_arm_moves_on() -> None:
+    async def scenario(backend: FakeBackend) -> None:
+        stuck = (await settled_state(backend)).efforts
+        backend.freeze_joint_torques = True
+        result = await backend.execute(straight_line(Q_READY, Q_REACH, 0.3))
+        state = await _state_after(backend, _now())
+        assert result.completed and state.efforts is not None and stuck is not None
+        assert state.positions.tolist() == Q_REACH.tolist()
+        assert state.efforts.tolist() == stuck.tolist()
+
+    run(scenario)
+
+
+def test_a_push_on_an_unknown_frame_or_with_a_non_finite_force_is_refused() -> None:
+    backend = FakeBackend()
+    with pytest.raises(Exception, match="unknown frame"):
+        backend.push("no_such_link", (0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="finite"):
+        backend.push("fr3_link4", (0.0, float("nan"), 1.0))
+    assert backend.joint_torques is not None and backend.joint_torques.push is None
+
+
+def test_the_fake_config_switches_joint_torques_and_their_noise() -> None:
+    assert Config().joint_torques and Config().joint_torque_noise_nm == 0.0
+    with pytest.raises(ValueError):
+        Config(joint_torque_noise_nm=-1.0)
+
+
+def _now() -> float:
+    return time.monotonic()
+
+
+async def _sleep() -> None:
+    await anyio.sleep(0.001)
+
+
+async def _state_after(backend: FakeBackend, stamp: float) -> JointState:
+    deadline = time.monotonic() + 10.0
+    while True:
+        state = await backend.read_joint_state()
+        if state.stamp > stamp:
+            return state
+        assert time.monotonic() < deadline, "no new sample"
+        await _sleep()
