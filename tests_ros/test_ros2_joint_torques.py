@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 import anyio
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 import pytest
 from sensor_msgs.msg import JointState as JointStateMsg
+from tests.backends.joint_torque_conformance import Load, check_gravity_at_rest, check_push
 
 from armwarden.backends.ros2.backend import Ros2Backend
 from armwarden.backends.ros2.state import header_seconds
@@ -67,12 +68,31 @@ def push_torques(q: np.ndarray, frame: str, force_base: np.ndarray) -> np.ndarra
     return -jac[:3].T @ force_base
 
 
-async def state_sent_after(backend: Ros2Backend, cell: Cell) -> JointState:
-    """The backend's joint state from a message the cell sent after this call began."""
+def received_after_now(backend: Ros2Backend, cell: Cell) -> Callable[[], bool]:
+    """A probe: whether the backend holds a joint state the cell sent after this call (the cell
+    sends every state after a push returns with the push)."""
     sent = cell.last_joint_state_stamp()
     after = -math.inf if sent is None else header_seconds(sent)
-    deadline = time.monotonic() + DEADLINE_S
-    while (seen := backend.joint_states.latest_header_s()) is None or seen <= after:
+
+    def received() -> bool:
+        seen = backend.joint_states.latest_header_s()
+        return seen is not None and seen > after
+
+    return received
+
+
+def wait_until_received(backend: Ros2Backend, cell: Cell) -> None:
+    """Block (the backend's executor thread takes the states in) until `received_after_now`."""
+    received, deadline = received_after_now(backend, cell), time.monotonic() + DEADLINE_S
+    while not received():
+        assert time.monotonic() < deadline, "no newer joint state reached the backend"
+        time.sleep(0.005)
+
+
+async def state_sent_after(backend: Ros2Backend, cell: Cell) -> JointState:
+    """The backend's joint state from a message the cell sent after this call began."""
+    received, deadline = received_after_now(backend, cell), time.monotonic() + DEADLINE_S
+    while not received():
         assert time.monotonic() < deadline, "no newer joint state reached the backend"
         await anyio.sleep(0.005)
     return await backend.read_joint_state()
@@ -140,6 +160,25 @@ async def test_undeclared_efforts_are_none_and_no_joint_torques_are_declared(cel
     async with opened(backend_config(efforts=False)) as backend:
         assert (await backend.read_joint_state()).efforts is None
         assert not backend.capabilities.joint_torques
+
+
+# ---------------------------------------------------------------------------- the shared conformance checks
+async def test_the_ros2_backend_passes_the_gravity_conformance_check(declared: Ros2Backend) -> None:
+    await check_gravity_at_rest(declared, ROBOT, EXACT_NM)
+
+
+async def test_the_ros2_backend_passes_the_push_conformance_check(declared: Ros2Backend, cell: Cell) -> None:
+    force, point = (0.0, 30.0, -10.0), (0.05, 0.0, 0.1)
+
+    def apply() -> None:
+        cell.push(FOREARM, force, point)
+        wait_until_received(declared, cell)  # a state sent before the push may still be on its way
+
+    def release() -> None:
+        cell.release_push()
+        wait_until_received(declared, cell)
+
+    await check_push(declared, ROBOT, Load(FOREARM, force, apply, release, point), EXACT_NM)
 
 
 # ---------------------------------------------------------------------------- the cell
