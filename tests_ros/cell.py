@@ -10,10 +10,14 @@ Tests steer it (reject, abort or hang goals, stop a topic, freeze a stamp, die m
 the arm) and read its counters (goals received and accepted: refused scenarios must show zero).
 
 Its joint states carry the joint torques a torque-sensing arm measures in `effort` [N·m]: the FR3
-model's inverse dynamics of the published motion, `rnea(q, q̇, q̈)` with q̈ the change of the
-published velocities since the previous joint state (so at rest g(q)), minus Jᵀ F for a contact
-force F: the virtual table's at the TCP, and a test's `push(link, force, point)` until
-`release_push()` (`tests_ros.cell_dynamics`); plus seeded Gaussian noise (`torque_noise_nm`).
+model's inverse dynamics of the published motion, `rnea(q, q̇, q̈)` (so at rest g(q)), minus Jᵀ F
+for a contact force F: the virtual table's at the TCP, and a test's `push(link, force, point)`
+until `release_push()` (`tests_ros.cell_dynamics`); plus seeded Gaussian noise
+(`torque_noise_nm`). The cell follows a trajectory piecewise linearly (its published velocity is
+the segment's), so q̈ is `_acceleration`'s: each velocity step spread between the middles of the
+segments beside it, as the fake backend's servo does, rather than an impulse no motor delivers
+and a sampled reading would see as a spike or miss; a cancel stops the cell at once, with no
+deceleration torque.
 `CellConfig(efforts=False)` sends an empty `effort`, as an arm without torque sensing does. It also offers what
 the backend's optional parts use: the finger joint states of the gripper, a JointTrajectory topic
 (the controller's topic interface, the backend's fallback), the same camera picture as a PNG
@@ -177,6 +181,28 @@ def _sample(points: Sequence[tuple[float, np.ndarray]], t: float) -> tuple[np.nd
     return points[-1][1].copy(), np.zeros_like(points[-1][1])
 
 
+def _acceleration(points: Sequence[tuple[float, np.ndarray]], t: float) -> np.ndarray:
+    """q̈ [rad/s²] at time t along piecewise-linear points: each velocity step (from rest at the
+    start, to rest at the end) spread linearly between the middles of the segments beside it, so
+    the acceleration integrates to exactly the segment velocities `_sample` publishes."""
+    zero = np.zeros_like(points[0][1])
+    if t <= points[0][0] or t >= points[-1][0]:
+        return zero
+
+    def knot(j: int) -> tuple[float, np.ndarray]:
+        """(time, velocity) where the spread velocity equals segment j's (rest beyond the ends)."""
+        if j < 0:
+            return points[0][0], zero
+        if j >= len(points) - 1:
+            return points[-1][0], zero
+        (t0, q0), (t1, q1) = points[j], points[j + 1]
+        return (t0 + t1) / 2, (q1 - q0) / (t1 - t0) if t1 > t0 else zero
+
+    k = max(j for j, (tj, _) in enumerate(points[:-1]) if tj <= t)  # the segment t is on
+    (t0, v0), (t1, v1) = (knot(k - 1), knot(k)) if t < knot(k)[0] else (knot(k), knot(k + 1))
+    return (v1 - v0) / (t1 - t0) if t1 > t0 else zero
+
+
 def _seconds(duration) -> float:
     return float(duration.sec) + float(duration.nanosec) * 1e-9
 
@@ -211,9 +237,9 @@ class Cell:
         self._wrench_publish_lock = threading.Lock()  # likewise for the wrench's switches
         # the clock thread's own Pinocchio Data: the effort of every joint state and the table's contact
         self._dynamics = ArmDynamics(self.robot, self.config.torque_noise_nm, self.config.torque_noise_seed)
-        self._previous_motion: tuple[float, np.ndarray] | None = None  # (monotonic time, velocities) last published
         self._positions = np.array(home, dtype=float)
         self._velocities = np.zeros(len(self.joint_names))
+        self._accelerations = np.zeros(len(self.joint_names))  # of the measured torque (`_acceleration`)
         self._gripper_width = self.config.initial_gripper_width_m
         self._mode = self.config.goal_mode
         self._controllers = dict(self.config.controllers)
@@ -418,14 +444,11 @@ class Cell:
         assert self._node is not None
         return self._node.get_clock().now().to_msg()
 
-    def _efforts(self, positions: np.ndarray, velocities: np.ndarray, push: Contact | None) -> list[float]:
+    def _efforts(self, positions: np.ndarray, velocities: np.ndarray, accelerations: np.ndarray,
+                 push: Contact | None) -> list[float]:
         """Clock thread: what the joints measure now (see the module docstring); [] without efforts."""
-        now = time.monotonic()
-        previous, self._previous_motion = self._previous_motion, (now, velocities)
         if not self.config.efforts:
             return []
-        dt = now - previous[0] if previous is not None else 0.0
-        accelerations = (velocities - previous[1]) / dt if previous is not None and dt > 0.0 else np.zeros_like(velocities)
         contacts = [] if push is None else [push]
         table = self._contact_force(positions)
         if table > 0.0:
@@ -438,9 +461,10 @@ class Cell:
                 if self._switches.dead or self._switches.joint_states_paused:
                     return
                 positions, velocities = self._positions.copy(), self._velocities.copy()
+                accelerations = self._accelerations.copy()
                 push = self._switches.push
                 half_width = self._gripper_width / 2
-            efforts = self._efforts(positions, velocities, push)
+            efforts = self._efforts(positions, velocities, accelerations, push)
             stamp = self._now()
             msg = JointState()
             msg.header.stamp = stamp
@@ -566,6 +590,7 @@ class Cell:
     def _finish(self, goal_handle: ServerGoalHandle, outcome: str, code: int, text: str) -> FollowJointTrajectory.Result:
         with self._lock:
             self._velocities[:] = 0.0
+            self._accelerations[:] = 0.0
             if outcome == "succeed":
                 self._counters.goals_succeeded += 1
             elif outcome == "abort":
@@ -607,6 +632,7 @@ class Cell:
             with self._lock:
                 self._positions[:] = desired
                 self._velocities[:] = velocity if elapsed < end else 0.0
+                self._accelerations[:] = _acceleration(points, elapsed)
             self._publish_feedback(goal_handle, desired, velocity)
             if elapsed >= end:
                 return self._finish(goal_handle, "succeed", Result.SUCCESSFUL, "")
@@ -652,6 +678,7 @@ class Cell:
             desired, velocity = _sample(points, min(elapsed, end))
             self._positions[:] = desired
             self._velocities[:] = velocity if elapsed < end else 0.0
+            self._accelerations[:] = _acceleration(points, elapsed)
             if elapsed >= end:
                 self._topic_points = None
 

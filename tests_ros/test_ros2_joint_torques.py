@@ -8,6 +8,7 @@ The expected torques are computed here from the policy's robot model with Pinocc
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import AsyncIterator, Callable
@@ -23,7 +24,7 @@ from armwarden.backends.ros2.backend import Ros2Backend
 from armwarden.backends.ros2.state import header_seconds
 from armwarden.core.state import JointState
 from tests_ros.backend_setup import ROBOT, example_config, example_document, opened
-from tests_ros.cell import Cell, CellConfig
+from tests_ros.cell import Cell, CellConfig, _acceleration
 from tests_ros.client import DISCOVERY_TIMEOUT_S, RosClient
 
 pytestmark = pytest.mark.anyio
@@ -183,11 +184,14 @@ async def test_the_ros2_backend_passes_the_push_conformance_check(declared: Ros2
 
 # ---------------------------------------------------------------------------- the cell
 def test_the_cells_efforts_in_motion_are_the_models_inverse_dynamics(client: RosClient) -> None:
+    """One segment from rest to rest: the cell publishes the segment's velocity and measures the
+    torque of a motion that reaches it at the segment's middle and stops at its end (q̈ = ±2v/T)."""
     names = list(client.wait_latest("joint_states").name)
     start = np.array(client.positions())
+    reach, duration = 1.2, 1.0  # joint 1 at 1.2 rad/s: Coriolis and centrifugal torques show
     target = start.copy()
-    target[0] += 1.2  # one segment at 1.2 rad/s of joint 1: Coriolis and centrifugal torques show
-    result = client.send_goal(client.trajectory_goal(names, [target.tolist()], [1.0])).get_result_async()
+    target[0] += reach
+    result = client.send_goal(client.trajectory_goal(names, [target.tolist()], [duration])).get_result_async()
     moving: dict[float, JointStateMsg] = {}
     deadline = time.monotonic() + DEADLINE_S
     while not result.done() and time.monotonic() < deadline:
@@ -196,14 +200,31 @@ def test_the_cells_efforts_in_motion_are_the_models_inverse_dynamics(client: Ros
             moving[header_seconds(msg.header.stamp)] = msg
         time.sleep(0.002)
     data = ROBOT.model.createData()
-    steady = []  # samples mid-segment: q̈ = 0, so τ = rnea(q, q̇, 0)
+    halves: dict[float, list[float]] = {1.0: [], -1.0: []}  # speeding up, slowing down: τ beyond gravity
     for msg in moving.values():
         q, qd, effort = (np.array(v, dtype=float) for v in (msg.position, msg.velocity, msg.effort))
-        inverse_dynamics = np.array(pin.rnea(ROBOT.model, data, q, qd, np.zeros_like(q)))
-        if np.allclose(effort, inverse_dynamics, atol=EXACT_NM, rtol=0):
-            steady.append(np.max(np.abs(inverse_dynamics - gravity(q))))
-    assert len(steady) >= 3, f"{len(moving)} moving samples, {len(steady)} of them rnea(q, q̇, 0)"
-    assert min(steady) > 1e-2, min(steady)  # the motion's own torques, beyond gravity
+        fraction = (q[0] - start[0]) / reach  # of the way, = of the time: the segment is linear
+        if abs(fraction - 0.5) < 0.05:
+            continue  # the acceleration changes sign at the middle
+        sign = 1.0 if fraction < 0.5 else -1.0
+        qdd = np.zeros_like(q)
+        qdd[0] = sign * 2.0 * reach / duration**2
+        np.testing.assert_allclose(effort, pin.rnea(ROBOT.model, data, q, qd, qdd), atol=EXACT_NM, rtol=0)
+        halves[sign].append(float(np.max(np.abs(effort - gravity(q)))))
+    assert len(halves[1.0]) >= 3 and len(halves[-1.0]) >= 3, f"{len(moving)} moving samples"
+    assert min(halves[1.0] + halves[-1.0]) > 0.1  # the motion's own torques, well beyond gravity's
+
+
+def test_the_cells_acceleration_integrates_to_each_segments_velocity_and_back_to_rest() -> None:
+    points = [(0.0, np.array([0.0, 0.0])), (0.4, np.array([0.2, -0.1])), (0.6, np.array([0.5, -0.1])),
+              (1.2, np.array([0.5, 0.2]))]
+    times = np.linspace(0.0, 1.2, 24_001)
+    step = times[1] - times[0]
+    velocity = np.cumsum([_acceleration(points, t) for t in times], axis=0) * step  # from rest
+    for (t0, q0), (t1, q1) in itertools.pairwise(points):
+        middle = round((t0 + t1) / 2 / step)
+        np.testing.assert_allclose(velocity[middle], (q1 - q0) / (t1 - t0), atol=5e-3)
+    np.testing.assert_allclose(velocity[-1], 0.0, atol=5e-3)
 
 
 #: the home pose's TCP is 0.487 m above the base: a table 1 cm higher presses on it with 20 N
