@@ -16,6 +16,9 @@ at the joint torque limits) until every joint is still, then position servos tha
 stopped. It never pulls the arm back to where it was last told to be, nor to where the stop found it.
 
 What is published (`measured`) is what the simulation measures after a step, never what was commanded.
+
+A test pushes on the arm (`push`): a force at a point of a body, applied through `xfrc_applied`
+from the next physics step on, re-aimed every step as the body turns, until it is released.
 """
 
 # mujoco ships compiled pybind11 modules without type stubs (see model.py)
@@ -50,6 +53,15 @@ BRAKE_RELEASE_RAD_S = 1e-4
 #: simulated time [s] after which the brake is released into a hold whatever the speed (a brake
 #: never stays on: the position hold is what keeps a stopped arm where it is)
 BRAKE_LIMIT_S = 0.3
+
+
+@dataclass(frozen=True)
+class Push:
+    """A force `force_world` [N] (world frame) at `point_in_body` [m] of the MuJoCo body `body_id`."""
+
+    body_id: int
+    force_world: np.ndarray
+    point_in_body: np.ndarray
 
 
 @dataclass
@@ -108,6 +120,9 @@ class SimulatedArm:
         #: physics steps run so far, and steps skipped because the thread fell too far behind
         self.step_count = 0
         self.dropped_steps = 0
+        #: a test's push on the arm (None: none); replaced whole, read before every physics step
+        self.push: Push | None = None
+        self._pushed_body: int | None = None  # the body whose `xfrc_applied` the push wrote (physics thread)
 
     @property
     def started(self) -> bool:
@@ -159,6 +174,7 @@ class SimulatedArm:
                 fingers = self._finger_target()
                 data.ctrl[gripper] = fingers.ramp.position(data.time)
                 model.actuator_forcerange[gripper] = (-fingers.force_n, fingers.force_n)
+            self._apply_push(self.push)
             mujoco.mj_step(model, data)
         self.step_count += steps
         unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
@@ -169,6 +185,21 @@ class SimulatedArm:
         if setpoint.following:  # the physics has reached this sample's time: how far off is the arm?
             error = float(np.max(np.abs(self.measured.positions - setpoint.positions)))
             self.tracking_peak_rad = max(self.tracking_peak_rad, error)
+
+    def _apply_push(self, push: Push | None) -> None:
+        """Physics thread: the push as a wrench at the body's centre of mass (`xfrc_applied`), its
+        moment about it from where the point is now; a released push leaves nothing behind."""
+        data = self.data
+        if self._pushed_body is not None and (push is None or push.body_id != self._pushed_body):
+            data.xfrc_applied[self._pushed_body] = 0.0
+            self._pushed_body = None
+        if push is None:
+            return
+        body = push.body_id
+        point = data.xpos[body] + data.xmat[body].reshape(3, 3) @ push.point_in_body
+        data.xfrc_applied[body, :3] = push.force_world
+        data.xfrc_applied[body, 3:] = np.cross(point - data.xipos[body], push.force_world)
+        self._pushed_body = body
 
     def command(self, setpoint: Setpoint) -> None:
         """Track a trajectory sample; while idle, keep whatever hold (or brake) is in force — it,
@@ -203,4 +234,4 @@ def _log_mujoco_warning(text: str) -> None:
     logger.warning("mujoco: %s", text.strip())
 
 
-__all__ = ["BRAKE_DAMPING_FACTOR", "ArmTarget", "SimulatedArm"]
+__all__ = ["BRAKE_DAMPING_FACTOR", "ArmTarget", "Push", "SimulatedArm"]

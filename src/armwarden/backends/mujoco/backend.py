@@ -7,14 +7,24 @@ braking on a stop; the fingers (`SimulatedFingers`, mujoco/gripper.py); the came
 servo hooks, and when an execution has settled.
 
 What is published is what the simulation measures, never what was commanded: joint positions and
-velocities (`qpos`/`qvel`) and the external wrench, stamped (monotonic clock) after the step that
-produced them. A stop brakes the arm (mujoco/arm.py) and never pulls it back to where it was last
+velocities (`qpos`/`qvel`), joint torques and the external wrench, stamped (monotonic clock) after
+the step that produced them. A stop brakes the arm (mujoco/arm.py) and never pulls it back to where it was last
 told to be, nor to where the stop found it; a stopped execution reports where the arm came to rest.
 
 Wrench: the flange force/torque sensor measures what the hand's subtree exerts on the arm. At
 rest that is the hand's own weight (and its moment); the estimate subtracts it, computed from the
 subtree's mass and centre of mass at the current pose, and reports the rest — the force the
 environment applies to the hand — at the TCP, in the base frame.
+
+Joint torques (`JointState.efforts`): the arm actuators' generalized forces, `qfrc_actuator` —
+the position servo's torque plus the gravity compensation, which the arm joints' `actgravcomp`
+routes through the actuators (counted against their torque limits) as a real motor supplies it;
+nothing lands in `qfrc_passive` (the model has no joint springs, damping or passive gravity
+compensation on the arm). They are the torques applied over the step that ends at the sample. At
+rest, nothing touching the arm, they equal Pinocchio's g(q) to rounding; the armature (rotor
+inertia, `gains.armature_from_profile`) shows in them as it would on a real drive. A test pushes
+on the arm with `push` / `release_push` (a force at a point of a body, mujoco/arm.py); a `fixed`
+scene object is an obstacle welded to the world.
 
 Gripper: the finger actuator tracks a width ramp at the requested speed, its force capped by the
 grasp force (a grasp closes fully: the object stops the fingers, friction holds it). A stop freezes
@@ -33,12 +43,14 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import mujoco
 import numpy as np
 
-from armwarden.backends.mujoco.arm import SimulatedArm
+from armwarden.backends.mujoco.arm import Push, SimulatedArm
 from armwarden.backends.mujoco.cameras import OffscreenCameras, SimulatedCameras
 from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.gains import armature_from_profile
@@ -46,7 +58,7 @@ from armwarden.backends.mujoco.gripper import SimulatedFingers
 from armwarden.backends.mujoco.model import MujocoModel, build_model
 from armwarden.backends.mujoco.scene import scene_for_policy
 from armwarden.backends.parts import Cell, PublishedWrench
-from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint
+from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
 from armwarden.backends.values import ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
@@ -91,6 +103,7 @@ class MujocoBackend(ServoBackend):
             raise BackendError(f"the MuJoCo model's arm joints {cell.arm_joints} are not the robot's {robot.joint_names}")
         #: the compiled model and where its parts are
         self.sim = cell
+        self._robot = robot
         model = cell.model
         home = np.asarray(home, dtype=float)
         if home.shape != (len(robot.joint_names),) or not np.all(np.isfinite(home)) or not robot.within_limits(home):
@@ -108,7 +121,8 @@ class MujocoBackend(ServoBackend):
         self.cell = Cell(gripper=self.fingers if actuator is not None else None,
                          cameras=SimulatedCameras(self._renderer, tuple(cell.cameras), self._published_scene)
                          if cell.cameras else None,
-                         wrench=PublishedWrench(self._published_wrench), frames=tuple(robot.frame_names()))
+                         wrench=PublishedWrench(self._published_wrench), frames=tuple(robot.frame_names()),
+                         joint_torques=True)
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
                                name="mujoco backend")
 
@@ -129,7 +143,7 @@ class MujocoBackend(ServoBackend):
     def _latest_joint_state(self) -> JointState:
         self.servo.require_running()
         sample = self.arm.measured
-        return JointState(self.joint_names, sample.positions, sample.velocities, sample.stamp)
+        return JointState(self.joint_names, sample.positions, sample.velocities, sample.stamp, sample.efforts)
 
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
@@ -144,6 +158,26 @@ class MujocoBackend(ServoBackend):
         self.servo.require_running()
         sample = self.arm.measured
         return sample.scene_qpos, sample.stamp
+
+    # ================================================================ pushing on the arm (tests)
+    def push(self, body: str, force_base: Sequence[float], point_in_body: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """Push on the arm from the next physics step on, until `release_push`: a force
+        `force_base` [N] (the policy's base frame) at `point_in_body` [m] of the MuJoCo body `body`
+        (a link: its frame is the URDF link's)."""
+        model = self.sim.model
+        force = np.array(force_base, dtype=float)
+        point = np.array(point_in_body, dtype=float)
+        if force.shape != (3,) or point.shape != (3,) or not (np.all(np.isfinite(force)) and np.all(np.isfinite(point))):
+            raise ValueError(f"a push needs a finite 3-vector force and point, got {force.tolist()} at {point.tolist()}")
+        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
+        if body_id < 0:
+            raise ValueError(f"MuJoCo has no body {body!r}")
+        world_from_base = self.arm.data.xmat[model.body(self._robot.base_frame).id].reshape(3, 3)  # welded: constant
+        self.arm.push = Push(body_id, frozen(world_from_base @ force), frozen(point))
+
+    def release_push(self) -> None:
+        """Nothing pushes on the arm any more (from the next physics step on)."""
+        self.arm.push = None
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:

@@ -30,7 +30,7 @@ class CameraConfig(BaseModel):
 
 
 class ObjectConfig(BaseModel):
-    """A loose rigid object on the table: a box, or an upright cylinder."""
+    """A rigid object in the cell, loose or fixed: a box, or an upright cylinder."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     name: str = Field(min_length=1, description="Body name of the object.")
@@ -40,9 +40,11 @@ class ObjectConfig(BaseModel):
     mass_kg: float = Field(gt=0, description="Mass [kg].")
     yaw_rad: float = Field(default=0.0, description="Rotation about the vertical [rad].")
     friction: float = Field(default=1.0, gt=0, description="Sliding friction coefficient, no unit.")
+    fixed: bool = Field(default=False, description="Welded to the world (an obstacle that never moves); false: loose.")
 
     def spec(self) -> SceneObject:
-        return SceneObject(self.name, self.shape, self.position_m, self.size_m, self.mass_kg, self.yaw_rad, self.friction)
+        return SceneObject(self.name, self.shape, self.position_m, self.size_m, self.mass_kg, self.yaw_rad, self.friction,
+                           fixed=self.fixed)
 
 
 class Config(BaseModel):
@@ -61,7 +63,7 @@ class Config(BaseModel):
     )
     camera_width_px: int = Field(default=640, ge=16, le=1280, description="Rendered image width [px].")
     camera_height_px: int = Field(default=480, ge=16, le=960, description="Rendered image height [px].")
-    objects: tuple[ObjectConfig, ...] = Field(default=(), description="Loose objects in the cell.")
+    objects: tuple[ObjectConfig, ...] = Field(default=(), description="Objects in the cell (loose, or fixed).")
 
 
 __all__ = ["CameraConfig", "Config", "ObjectConfig", "Vector3"]

@@ -1,5 +1,5 @@
-"""What one step of the simulated cell publishes: joint positions and velocities, the external
-wrench at the TCP (the hand's weight taken out), the fingers' width, speed and squeeze, every
+"""What one step of the simulated cell publishes: joint positions, velocities and torques, the
+external wrench at the TCP (the hand's weight taken out), the fingers' width, speed and squeeze, every
 body's configuration for rendering, and how deep the robot overlaps anything.
 
 Read on the physics thread right after a step and published whole (`Measured`, read-only
@@ -29,6 +29,9 @@ class Measured:
 
     positions: np.ndarray
     velocities: np.ndarray
+    #: the arm actuators' joint torques [N·m] (`qfrc_actuator`: the servo's force and, with
+    #: `actgravcomp`, the gravity compensation a real motor supplies too)
+    efforts: np.ndarray
     force: np.ndarray  # external force on the hand at the TCP, base frame [N]
     torque: np.ndarray  # external torque about the TCP, base frame [N·m]
     gripper_width_m: float
@@ -77,6 +80,7 @@ class CellMeter:
         return Measured(
             positions=frozen(data.qpos[cell.arm_qpos]),
             velocities=frozen(data.qvel[cell.arm_dofs]),
+            efforts=frozen(data.qfrc_actuator[cell.arm_dofs]),
             force=frozen(base_rotation @ force),
             torque=frozen(base_rotation @ torque_tcp),
             gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),

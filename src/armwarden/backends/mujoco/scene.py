@@ -27,7 +27,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class SceneObject:
-    """A loose rigid object in the cell (a free body): a box or an upright cylinder.
+    """A rigid object in the cell: a box or an upright cylinder, loose (a free body) or `fixed`
+    (welded to the world: an obstacle nothing moves, e.g. one the policy does not know of).
 
     `position_m` is its centre in the base frame, `yaw_rad` its rotation about the vertical;
     `size_m` the box's full (x, y, z) extents or the cylinder's (diameter, —, height)."""
@@ -40,6 +41,7 @@ class SceneObject:
     yaw_rad: float = 0.0
     friction: float = 1.0
     rgba: tuple[float, float, float, float] = (0.85, 0.2, 0.15, 1.0)
+    fixed: bool = False
 
 
 @dataclass(frozen=True)
@@ -125,7 +127,8 @@ class _Cell:
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, rotation.reshape(-1))
         body = self.spec.worldbody.add_body(name=item.name, pos=self._to_world(item.position_m), quat=quat)
-        body.add_freejoint(name=item.name)
+        if not item.fixed:
+            body.add_freejoint(name=item.name)
         if item.shape == "box":
             shape, size = mujoco.mjtGeom.mjGEOM_BOX, [v / 2.0 for v in item.size_m]
         else:

@@ -1,0 +1,137 @@
+"""The MuJoCo backend's measured joint torques (issue 28): the arm actuators' forces, gravity
+compensation included, checked for sign and units against gravity and a known push; a fixed
+scene object the arm can run into.
+
+Tolerances. At rest MuJoCo's gravity compensation equals Pinocchio's g(q) to rounding (both use
+the URDF's inertias; measured 4e-15 N·m). Under a push the arm yields to the servo's stiffness
+and rings down; a reading counts once the arm is settled (< 2e-3 rad/s), when what is left of
+the ringing (inertia and servo damping) measured 6e-3 N·m against −Jᵀ F: 0.05 N·m leaves room
+for a loaded machine's coarser sampling and stays far below the 1.7–5 N·m the push exerts.
+"""
+
+from __future__ import annotations
+
+import time
+
+import anyio
+import numpy as np
+import pytest
+
+import armwarden.backends.mujoco  # noqa: F401 - chooses the offscreen GL platform before mujoco loads
+
+pytest.importorskip("mujoco")
+
+from armwarden.backends.mujoco.backend import MujocoBackend, create_backend
+from armwarden.backends.mujoco.config import Config, ObjectConfig
+from armwarden.policy import load_policy
+from armwarden.policy.loading import bundled_policy
+from armwarden.robot import build_robot
+from tests.backends.contract import straight_line
+from tests.backends.joint_torque_conformance import Load, check_gravity_at_rest, check_push
+from tests.helpers import run_opened
+
+POLICY = load_policy(bundled_policy("fr3"))
+ROBOT = build_robot(POLICY)
+#: see the module docstring
+TOLERANCE_NM = 0.05
+
+
+def run(scenario, **config):
+    return run_opened(lambda: create_backend(ROBOT, POLICY, Config(**config)), scenario)
+
+
+def test_a_still_simulated_arm_measures_the_gravity_of_its_pose() -> None:
+    async def scenario(backend: MujocoBackend) -> None:
+        assert backend.capabilities.joint_torques
+        await check_gravity_at_rest(backend, ROBOT, TOLERANCE_NM)
+
+    run(scenario)
+
+
+def test_a_push_on_the_simulated_forearm_changes_its_torques_by_minus_j_transpose_f() -> None:
+    async def scenario(backend: MujocoBackend) -> None:
+        force, point = (0.0, 30.0, -10.0), (0.05, 0.0, 0.1)
+        load = Load("fr3_link4", force, point_in_frame=point, release=backend.release_push,
+                    apply=lambda: backend.push("fr3_link4", force, point))
+        await check_push(backend, ROBOT, load, TOLERANCE_NM)
+
+    run(scenario)
+
+
+def test_a_released_push_leaves_no_force_on_the_arm() -> None:
+    async def scenario(backend: MujocoBackend) -> None:
+        link = backend.sim.model.body("fr3_link5").id
+        backend.push("fr3_link5", (15.0, 0.0, 0.0))
+        await _until(lambda: bool(backend.arm.data.xfrc_applied[link].any()))
+        backend.release_push()
+        await _until(lambda: not backend.arm.data.xfrc_applied[link].any())
+
+    run(scenario)
+
+
+def test_a_push_on_an_unknown_body_or_with_a_non_finite_force_is_refused() -> None:
+    backend = create_backend(ROBOT, POLICY, Config())
+    with pytest.raises(ValueError, match="no body"):
+        backend.push("no_such_link", (0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="finite"):
+        backend.push("fr3_link4", (0.0, float("inf"), 1.0))
+    assert backend.arm.push is None
+
+
+def test_every_published_state_carries_finite_efforts_of_its_own_sample_while_moving() -> None:
+    """Mid-motion the efforts change with the motion and come with each sample's own stamp."""
+    home = np.asarray(POLICY.robot.home_joint_positions, dtype=float)
+    goal = home + np.array([0.3, 0.2, 0.0, 0.2, 0.0, 0.0, 0.0])
+
+    async def scenario(backend: MujocoBackend) -> None:
+        seen: dict[float, np.ndarray] = {}
+
+        async def watch() -> None:
+            while True:
+                state = await backend.read_joint_state()
+                sample = backend.arm.measured
+                if sample.stamp == state.stamp:  # the same sample: its efforts, not another's
+                    assert state.efforts is sample.efforts
+                assert state.efforts is not None and np.all(np.isfinite(state.efforts))
+                seen[state.stamp] = state.efforts
+                await anyio.sleep(0.002)
+
+        async with anyio.create_task_group() as group:
+            group.start_soon(watch)
+            result = await backend.execute(straight_line(ROBOT.joint_names, home, goal, 1.0))
+            group.cancel_scope.cancel()
+            assert result.completed
+        assert len({tuple(e.tolist()) for e in seen.values()}) > 10
+
+    run(scenario, speedup=2.0)
+
+
+def test_a_fixed_object_stays_where_it_is_put_while_a_loose_one_falls() -> None:
+    """A box the policy does not know can be put in the arm's path: welded, not free."""
+    objects = [ObjectConfig(name=name, shape="box", position_m=(0.3, y, 0.6), size_m=(0.1, 0.1, 0.1), mass_kg=1.0,
+                            fixed=name == "wall") for name, y in (("wall", -0.6), ("loose", 0.6))]
+
+    async def scenario(backend: MujocoBackend) -> None:
+        model = backend.sim.model
+        wall, loose = model.body("wall").id, model.body("loose").id
+        assert model.body_jntnum[wall] == 0 and model.body_jntnum[loose] == 1
+        start = backend.arm.measured.sim_s
+        await _until(lambda: backend.arm.measured.sim_s > start + 0.2)
+        data = backend.arm.data
+        np.testing.assert_allclose(data.xpos[wall], model.body_pos[wall], atol=1e-12)
+        assert data.xpos[loose][2] < model.body_pos[loose][2] - 0.1
+
+    run(scenario, objects=objects)
+
+
+def test_the_object_config_is_loose_unless_fixed() -> None:
+    box = ObjectConfig(name="box", shape="box", position_m=(0.5, 0.0, 0.05), size_m=(0.1, 0.1, 0.1), mass_kg=1.0)
+    assert not box.fixed and not box.spec().fixed
+    assert ObjectConfig.model_validate(box.model_dump() | {"fixed": True}).spec().fixed
+
+
+async def _until(condition, timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        await anyio.sleep(0.002)
