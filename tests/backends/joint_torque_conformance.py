@@ -67,16 +67,18 @@ def push_torque(robot: RobotModel, q: np.ndarray, load: Load) -> np.ndarray:
     return -(linear.T @ force_world)
 
 
-async def settled_state(backend: Backend, after_stamp: float = -np.inf, timeout_s: float = 20.0) -> JointState:
-    """The first sample newer than `after_stamp` that ends `STILL_READS` still reads in a row,
-    each carrying finite efforts."""
+async def settled_state(backend: Backend, after_stamp: float = -np.inf, timeout_s: float = 20.0,
+                        still_rad_s: float = STILL_RAD_S) -> JointState:
+    """The first sample newer than `after_stamp` that ends `STILL_READS` still reads in a row
+    (no joint faster than `still_rad_s` [rad/s]: a coarse velocity encoding needs more), each
+    carrying finite efforts."""
     deadline = time.monotonic() + timeout_s
     still = 0
     while True:
         state = await backend.read_joint_state()
         assert state.efforts is not None, "a backend that declares joint torques published a state without them"
         fresh = state.stamp > after_stamp
-        if fresh and float(np.max(np.abs(state.velocities))) < STILL_RAD_S and np.all(np.isfinite(state.efforts)):
+        if fresh and float(np.max(np.abs(state.velocities))) < still_rad_s and np.all(np.isfinite(state.efforts)):
             still += 1
             if still >= STILL_READS:
                 return state

@@ -34,6 +34,8 @@ class Actuator:
     unwrapper: mit.PositionUnwrapper | None
     raw_position: float | None = None
     raw_velocity: float = 0.0
+    #: the torque [N·m] its last feedback reported (RobStride type 2, MIT reply); None: none yet
+    raw_torque: float | None = None
     reported_at: float | None = None  # monotonic time its last position arrived
     temperature_c: float | None = None
     fault_bits: tuple[str, ...] = ()  # reported in the latest feedback (current)
@@ -105,6 +107,7 @@ class ReplyDecoder:
             assert a.unwrapper is not None
             a.raw_position = a.unwrapper.update(reply.position)
             a.raw_velocity = reply.velocity
+            a.raw_torque = reply.torque
             a.reported_at = time.monotonic()
             if reply.temperature_c is not None:
                 a.temperature_c = float(reply.temperature_c)
@@ -118,6 +121,7 @@ class ReplyDecoder:
         if comm_type == rs.CommType.FEEDBACK:
             feedback = rs_frames.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
             a.raw_position, a.raw_velocity = feedback.position, feedback.velocity
+            a.raw_torque = feedback.torque
             a.reported_at = time.monotonic()
             a.temperature_c, a.mode = feedback.temperature_c, feedback.mode
             a.fault_bits = rs.flag_names(feedback.faults)

@@ -12,7 +12,9 @@ health; then, under the servo lock, `servo_command` sends one impedance command 
 tracking gains) while holding, or kp = 0, kd > 0 while damping. It never sends a position outside
 the policy's joint limits: such a setpoint is not sent but turned into a fault. What is published
 is what the actuators measured, stamped with the time of the oldest reply it contains (silent
-actuators make it age; the Guard refuses it).
+actuators make it age; the Guard refuses it): positions, velocities and the joint torques their
+feedback reports (`JointState.efforts`: direction · raw torque, NaN for an actuator whose replies
+carried none yet — passed on, never replaced by zero or an older value).
 
 Health, every tick (`health.fault_conditions`): RX timeouts, fault bits and frames, over-temperature,
 invalid frames, an actuator out of run mode, the bus's latched flags. ANY fault: damping frames on
@@ -141,10 +143,11 @@ class CanArm(ServoBackend):
         with self._state_lock:
             raw = np.array([a.raw_position if a.raw_position is not None else np.nan for a in self._actuators])
             raw_velocity = np.array([a.raw_velocity for a in self._actuators])
+            raw_torque = np.array([a.raw_torque if a.raw_torque is not None else np.nan for a in self._actuators])
             replies = [a.reported_at for a in self._actuators]
         stamp = 0.0 if None in replies else min(r for r in replies if r is not None)
         self._published = JointState(self.joint_names, frozen(self._direction * (raw - self._offset)),
-                                     frozen(self._direction * raw_velocity), stamp)
+                                     frozen(self._direction * raw_velocity), stamp, frozen(self._direction * raw_torque))
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:

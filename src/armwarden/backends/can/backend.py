@@ -9,7 +9,8 @@ Start-up (`_open`): the actuators pinged, read and configured (`bring_up`), refu
 condition or a joint outside the policy limits, and enabled only at the very end, when the servo
 loop is about to hold them. A missing reply refuses to open (the daemon exits 2).
 
-Calibration: joint = direction·(raw − homing_offset_rad); velocity and torque: direction only.
+Calibration: joint = direction·(raw − homing_offset_rad); velocity and torque: direction only
+(the published joint torques, `JointState.efforts`, are direction · the feedback's torque).
 Zeroing and id/baud changes are maintenance operations: no code path here sends them.
 See docs/backends/can.md.
 """
@@ -100,7 +101,7 @@ class CanBackend(CanArm):
         self._bus_factory = bus_factory
         self.emulator: ActuatorEmulator | None = None
         self._replies = ReplyDecoder(self._robstride, self._mit, state_lock, config.host_id, config.mit_reply_id)
-        self.cell = Cell(gripper=fingers)
+        self.cell = Cell(gripper=fingers, joint_torques=True)  # every feedback frame reports the torque
 
     # ================================================================ lifecycle
     async def _open(self) -> None:
