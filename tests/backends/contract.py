@@ -213,6 +213,21 @@ class BackendContract:
         else:
             assert wrench is not None and np.isfinite(wrench.stamp) and wrench.stamp <= time.monotonic()
 
+    async def test_states_carry_joint_torques_exactly_when_the_cell_declares_them(self, backend: Backend) -> None:
+        """Declared: every state, at rest and moving, has one effort per joint (NaN passes as it
+        is; sign and units: tests/backends/joint_torque_conformance.py). Not declared: None."""
+        declared = backend.capabilities.joint_torques
+        states = [await backend.read_joint_state()]
+        async with self.executing(backend, await self.motion(backend, self.long_motion_s)):
+            states.append(await backend.read_joint_state())
+            await backend.stop()
+        states.append(await backend.read_joint_state())
+        for state in states:
+            if declared:
+                assert state.efforts is not None and state.efforts.shape == (len(backend.joint_names),)
+            else:
+                assert state.efforts is None
+
     # ------------------------------------------------------------------ execution
     async def test_execute_ends_exactly_at_the_goal_and_leaves_the_trajectory_unchanged(self, backend: Backend) -> None:
         trajectory = await self.motion(backend, self.short_motion_s)
