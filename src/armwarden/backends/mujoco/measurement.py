@@ -32,6 +32,10 @@ class Measured:
     #: the arm actuators' joint torques [N·m] (`qfrc_actuator`: the servo's force and, with
     #: `actgravcomp`, the gravity compensation a real motor supplies too)
     efforts: np.ndarray
+    #: the true external joint torques [N·m] on the arm (τ_ext of M q̈ + C q̇ + g = τ + τ_ext): contacts,
+    #: joint limits and a test's push (`qfrc_constraint` and `xfrc_applied`). What a contact
+    #: observer estimates: for tests and benchmarks, never published to the Guard
+    external_efforts: np.ndarray
     force: np.ndarray  # external force on the hand at the TCP, base frame [N]
     torque: np.ndarray  # external torque about the TCP, base frame [N·m]
     gripper_width_m: float
@@ -81,6 +85,7 @@ class CellMeter:
             positions=frozen(data.qpos[cell.arm_qpos]),
             velocities=frozen(data.qvel[cell.arm_dofs]),
             efforts=frozen(data.qfrc_actuator[cell.arm_dofs]),
+            external_efforts=frozen(self._external(data)[cell.arm_dofs]),
             force=frozen(base_rotation @ force),
             torque=frozen(base_rotation @ torque_tcp),
             gripper_width_m=float(np.sum(data.qpos[cell.finger_qpos])),
@@ -91,6 +96,17 @@ class CellMeter:
             robot_penetration_m=self._robot_penetration_m(data),
             stamp=time.monotonic(),
         )
+
+    def _external(self, data: mujoco.MjData) -> np.ndarray:
+        """Generalized forces [N·m] of everything outside the actuators, gravity and inertia:
+        constraints (contacts, limits) and the bodies' applied wrenches (at their centres of mass,
+        as MuJoCo applies them), over the step that ends at the sample."""
+        external = data.qfrc_constraint.copy()
+        applied = data.xfrc_applied
+        for body in np.flatnonzero(np.any(applied != 0.0, axis=1)):
+            mujoco.mj_applyFT(self._cell.model, data, applied[body, :3].copy(), applied[body, 3:].copy(),
+                              data.xipos[body].copy(), int(body), external)
+        return external
 
     def _robot_penetration_m(self, data: mujoco.MjData) -> float:
         """How deep the deepest contact involving a robot geom overlaps [m] (0: none)."""
