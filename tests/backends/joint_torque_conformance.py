@@ -9,7 +9,8 @@ arm, efforts == g(q); a force F pushing at a point whose linear Jacobian is J ch
 - `check_push(backend, robot, load, tolerance_nm)`: a known push (`Load`: the force, where, and
   the backend's own way to apply and release it) changes the still arm's reading by −Jᵀ F.
 
-Both read settled samples (the arm still over several consecutive reads) and compare each with
+Both read settled samples (the arm still over several consecutive reads; `still_rad_s` for a
+backend whose velocity encoding is coarse, e.g. CAN's `rest_speed_rad_s`) and compare each with
 the model at that sample's own positions, so an arm that yields under the push is judged at the
 pose it yielded to. The tolerance is the backend's to justify (its test says why).
 """
@@ -88,10 +89,11 @@ async def settled_state(backend: Backend, after_stamp: float = -np.inf, timeout_
         await anyio.sleep(READ_PERIOD_S)
 
 
-async def check_gravity_at_rest(backend: Backend, robot: RobotModel, tolerance_nm: float) -> JointState:
+async def check_gravity_at_rest(backend: Backend, robot: RobotModel, tolerance_nm: float,
+                                still_rad_s: float = STILL_RAD_S) -> JointState:
     """A still arm, nothing touching it, measures g(q) within `tolerance_nm` per joint."""
     assert backend.capabilities.joint_torques
-    state = await settled_state(backend)
+    state = await settled_state(backend, still_rad_s=still_rad_s)
     assert state.efforts is not None
     expected = gravity(robot, state.positions)
     assert np.abs(expected).max() > 5 * tolerance_nm, "pick a pose where gravity loads the arm well above the tolerance"
@@ -99,15 +101,16 @@ async def check_gravity_at_rest(backend: Backend, robot: RobotModel, tolerance_n
     return state
 
 
-async def check_push(backend: Backend, robot: RobotModel, load: Load, tolerance_nm: float) -> np.ndarray:
+async def check_push(backend: Backend, robot: RobotModel, load: Load, tolerance_nm: float,
+                     still_rad_s: float = STILL_RAD_S) -> np.ndarray:
     """A known push changes a still arm's measured torques by −Jᵀ F within `tolerance_nm`;
     released, they come back to g(q). Returns the measured change."""
     assert backend.capabilities.joint_torques
-    before = await settled_state(backend)
+    before = await settled_state(backend, still_rad_s=still_rad_s)
     assert before.efforts is not None
     load.apply()
     try:
-        pushed = await settled_state(backend, after_stamp=time.monotonic())
+        pushed = await settled_state(backend, after_stamp=time.monotonic(), still_rad_s=still_rad_s)
     finally:
         load.release()
     assert pushed.efforts is not None
@@ -116,7 +119,7 @@ async def check_push(backend: Backend, robot: RobotModel, load: Load, tolerance_
     # each reading less the gravity of its own pose: the arm may have yielded to the push
     change = (pushed.efforts - gravity(robot, pushed.positions)) - (before.efforts - gravity(robot, before.positions))
     np.testing.assert_allclose(change, expected, rtol=0, atol=tolerance_nm)
-    after = await settled_state(backend, after_stamp=time.monotonic())
+    after = await settled_state(backend, after_stamp=time.monotonic(), still_rad_s=still_rad_s)
     assert after.efforts is not None
     np.testing.assert_allclose(after.efforts, gravity(robot, after.positions), rtol=0,
                                atol=tolerance_nm + float(np.abs(before.efforts - gravity(robot, before.positions)).max()))
