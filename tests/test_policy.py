@@ -180,6 +180,8 @@ def _sections(path: str) -> list[tuple[str, Any, str]]:
 
 
 JOINT = f"robot.joint_limits.{FIRST_JOINT}"
+#: the bundled policy's per-joint external-torque limits
+TORQUE_LIMITS = {f"fr3_joint{i}": 5.0 for i in range(1, 8)}
 KEEP_OUT = "workspace.keep_out[0]"
 
 BAD_VALUES: list[tuple[str, Any, str]] = [
@@ -247,6 +249,20 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *_floats("force.monitor_rate_hz", 0, -200, 5001, 9.9, 0.001),
     *_bools("force.require_wrench"),
     *_floats("force.wrench_timeout_s", 0, -0.1, 0.51, 2.5),
+    *[("force.source", value, "force.source") for value in ("both", "SENSOR", 1, None, True)],
+    *_sections("force.joint_torques"),
+    *[("force.joint_torques.max_external_torque_nm", value, "force.joint_torques.max_external_torque_nm")
+      for value in ("10", [10.0], None)],
+    *[("force.joint_torques.max_external_torque_nm", {**TORQUE_LIMITS, FIRST_JOINT: value},
+       f"force.joint_torques.max_external_torque_nm.{FIRST_JOINT}") for value in (0, -1.0, 100.5, NAN, INF, "5", True)],
+    *[(f"force.joint_torques.{name}", value, f"force.joint_torques.{name}")
+      for name in ("friction_coulomb_nm", "friction_viscous_nms") for value in ("1", [1.0], None)],
+    *[(f"force.joint_torques.{name}", {FIRST_JOINT: value}, f"force.joint_torques.{name}.{FIRST_JOINT}")
+      for name in ("friction_coulomb_nm", "friction_viscous_nms") for value in (-0.1, 50.5, NAN, "1", True)],
+    *_floats("force.joint_torques.observer_gain_per_s", 0, 4.9, 501),
+    *_floats("force.joint_torques.payload_kg", -0.1, 50.1),
+    *_vectors("force.joint_torques.payload_com_m"),
+    ("force.joint_torques.payload_com_m", [0.0, 0.0, 0.6], "force.joint_torques.payload_com_m[2]"),
     *_sections("gripper"),
     *_floats("gripper.min_width_m", -0.01),
     *_floats("gripper.max_width_m", 0, -0.08, 0.51),
@@ -370,6 +386,7 @@ def test_field_defaults_match_the_documented_values() -> None:
     assert (motion.check_resolution_rad, motion.sweep_resolution_m, motion.soft_joint_step_rad) == (0.02, 0.01, None)
     assert motion.planning_time_s == 0.5
     assert (force.monitor_rate_hz, force.require_wrench, force.wrench_timeout_s) == (200, True, 0.1)
+    assert (force.source, force.joint_torques) == ("auto", None)
     assert (ws.link_padding_m, ws.check_links, ws.self_collision) == (0.01, None, True)
 
 
@@ -385,6 +402,7 @@ MAPPING_LOCATIONS = [
     KEEP_OUT,
     "motion",
     "force",
+    "force.joint_torques",
     "gripper",
     "controllers",
     "perception",

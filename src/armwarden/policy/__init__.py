@@ -39,6 +39,7 @@ from armwarden.policy.constants import (
 from armwarden.policy.devices import ControllersConfig, GripperConfig, PerceptionConfig
 from armwarden.policy.digest import policy_digest
 from armwarden.policy.fields import FrozenMap
+from armwarden.policy.joint_torques import JointTorqueConfig
 from armwarden.policy.loading import apply_overrides, bundled_policy, load_policy, parse_policy
 from armwarden.policy.messages import format_path, validation_errors
 from armwarden.policy.models import Policy
@@ -61,6 +62,7 @@ __all__ = [
     "FrozenMap",
     "GripperConfig",
     "JointLimits",
+    "JointTorqueConfig",
     "KeepOutZone",
     "MotionConfig",
     "PerceptionConfig",

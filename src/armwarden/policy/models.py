@@ -51,6 +51,7 @@ class Policy(BaseModel):
                 self._gripper_section_when_gripper_enabled(),
                 self._limit_margin_leaves_room(),
                 self._outside_envelope_approval_has_something_to_ask_about(),
+                self._joint_torque_limits_cover_joints(),
             ]
         )
         return self
@@ -82,6 +83,13 @@ class Policy(BaseModel):
                 "(soft_joint_step_rad is null and joint_limit_margin_rad is 0), so it would never ask: set one "
                 "of them, or write mode: never if that is what you mean"
             )
+
+    def _joint_torque_limits_cover_joints(self) -> Iterator[Violation]:
+        """A driven joint without an external-torque limit would be unwatched; an unknown name is a typo."""
+        section = self.force.joint_torques
+        if section is not None:
+            for path, message in section.coverage_violations(self.robot.joint_names):
+                yield ("force", "joint_torques", *path), message
 
     @property
     def enabled_tools(self) -> tuple[str, ...]:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field, model_validator
 
 from armwarden.policy.constants import DEFAULT_SCALING
 from armwarden.policy.fields import MODEL_CONFIG, StrictBool, Violation, enforce, finite
+from armwarden.policy.joint_torques import JointTorqueConfig
 
 #: Largest hard cap on one joint's travel per plan [rad]: half a turn. A larger cap lets one
 #: plan swing a joint through most of its range without any human seeing it first.
@@ -170,7 +171,10 @@ MAX_WRENCH_TIMEOUT_S = 0.5
 
 
 class ForceConfig(BaseModel):
-    """Contact-force monitoring while a trajectory runs. Over the limit: stop and latch the e-stop."""
+    """Contact monitoring while a trajectory runs. Over a limit: stop and latch the e-stop.
+
+    The contact is measured by a force/torque sensor at the tool, or estimated from the joint
+    torques the motors measure (`joint_torques`); `source` says which."""
 
     model_config = MODEL_CONFIG
 
@@ -199,13 +203,32 @@ class ForceConfig(BaseModel):
         gt=0,
         le=MAX_WRENCH_TIMEOUT_S,
         default=0.1,
-        description=f"Oldest acceptable wrench sample [s], in (0, {MAX_WRENCH_TIMEOUT_S:g}]; older aborts the motion.",
+        description=f"Oldest acceptable wrench sample [s], in (0, {MAX_WRENCH_TIMEOUT_S:g}]; older aborts the motion. "
+        "With source joint_torques: the oldest acceptable joint state.",
+    )
+    source: Literal["auto", "sensor", "joint_torques"] = Field(
+        default="auto",
+        description="What measures the contact (no unit): `sensor` (the backend's force/torque sensor or its own "
+        "wrench estimate), `joint_torques` (the observer over the torques the motors measure; needs the "
+        "joint_torques section), or `auto` (the sensor where the backend has one, else the joint torques where it "
+        "measures them and the section is given). Neither: NO_WRENCH.",
+    )
+    joint_torques: JointTorqueConfig | None = Field(
+        default=None,
+        description="Contact limits on the external joint torques estimated from measured joint torques "
+        "(N·m per joint), the friction the estimate allows for, and the payload; required by source joint_torques.",
     )
 
     @model_validator(mode="after")
     def _rules(self) -> ForceConfig:
-        enforce([self._monitor_period_within_wrench_timeout()])
+        enforce([self._monitor_period_within_wrench_timeout(), self._joint_torque_source_has_limits()])
         return self
+
+    def _joint_torque_source_has_limits(self) -> Iterator[Violation]:
+        """Joint torques without limits would estimate the contact and stop at nothing."""
+        if self.source == "joint_torques" and self.joint_torques is None:
+            yield ("joint_torques",), ("source joint_torques needs the joint_torques section (max_external_torque_nm "
+                                       "per joint); `armwarden calibrate-contact` recommends values")
 
     def _monitor_period_within_wrench_timeout(self) -> Iterator[Violation]:
         """Between two polls nothing is checked: a period longer than the staleness timeout hides contact.
