@@ -216,7 +216,8 @@ class EnvelopeModel(_Result):
     checked_links: list[str]
     self_collision: bool
     motion: dict[str, float | None]
-    force: dict[str, float | bool]
+    #: the policy's force section: limits, rate, source (a string) and the joint-torque limits (an object or null)
+    force: dict[str, float | bool | str | dict[str, Any] | None]
     gripper: dict[str, float] | None
     controllers_allowlist: list[str]
     cameras: list[str]

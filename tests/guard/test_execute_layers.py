@@ -104,7 +104,7 @@ async def test_a_stop_after_the_last_checks_is_refused_by_the_guard_before_the_h
 async def test_a_wrench_that_disappears_while_a_human_decides_refuses_at_the_start(tmp_path, monkeypatch) -> None:
     """The pre-check saw a wrench and asked the human; while they decided the wrench estimate went
     away. The force monitor's run-time check refuses NO_WRENCH, and nothing moves."""
-    policy = policy_with(**{"approval.mode": "always"})
+    policy = policy_with(**{"approval.mode": "always", "force.source": "sensor"})
     async with arm_harness(tmp_path, policy) as arm:
         async def lose_the_wrench_then_approve(context: Any, params: types.ElicitRequestParams) -> types.ElicitResult:
             prompts.append(params.message)

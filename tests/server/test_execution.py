@@ -137,7 +137,8 @@ async def test_a_wrench_that_is_already_stalled_refuses_execution_before_anythin
 @pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
 async def test_no_wrench_at_all_is_refused_when_the_policy_requires_one(tmp_path, mode) -> None:
-    async with arm_harness(tmp_path, wrench=False) as arm, arm.client(mode, approve()) as client:
+    policy = policy_with(**{"force.source": "sensor"})  # the fake's joint torques would serve `auto`
+    async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client(mode, approve()) as client:
         summary = await plan_down(client, z=0.40)
         assert summary["force_monitoring"] is False
         assert any("execute_plan will refuse" in note for note in summary["notes"])
@@ -149,7 +150,7 @@ async def test_no_wrench_at_all_is_refused_when_the_policy_requires_one(tmp_path
 @pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
 async def test_no_wrench_at_all_runs_when_the_policy_allows_it_and_says_force_is_not_enforced(tmp_path, mode) -> None:
-    policy = policy_with(**{"force.require_wrench": False, "approval.mode": "always"})
+    policy = policy_with(**{"force.require_wrench": False, "approval.mode": "always", "force.source": "sensor"})
     prompts = approve()
     async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client(mode, prompts) as client:
         result = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": 0.40}})

@@ -54,7 +54,7 @@ from armwarden.backends.parts import Capabilities
 from armwarden.callcontext import current_call, current_caller
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.guard.actions import ControlActions, ControlTool
-from armwarden.guard.execution import NO_WRENCH_MESSAGE, Execution, MotionRunner, ProgressReporter
+from armwarden.guard.execution import Execution, MotionRunner, ProgressReporter, contact_source, no_contact_message
 from armwarden.guard.gates import GuardState
 from armwarden.guard.gripper import GripperFlow, GripperTool
 from armwarden.guard.planning import PlanningFlow, Previewer, stored_summary
@@ -99,7 +99,7 @@ class Guard:
         backend.set_fault_listener(self._backend_fault)  # faults a backend finds on its own thread
         self.runner = MotionRunner(backend, policy, self.latch, clock=clock, audit=audit,
                                    emergency_stop=self.emergency_stop, stop_for=self.stopper.stop_for,
-                                   record=self._record)
+                                   record=self._record, robot=state_robot)
         self.planning_flow = PlanningFlow(self.state, previewer)
         self._execution: Execution | None = None
         self.actions = ControlActions(self.state)
@@ -204,7 +204,7 @@ class Guard:
         plan = self.plans.peek(plan_id, self.latch.generation, current_caller())
         if isinstance(plan, PlanRefusal):
             raise refuse(plan.code, plan.message)
-        return stored_summary(plan, self.backend.capabilities.wrench)
+        return stored_summary(plan, contact_source(self.policy, self.backend) is not None)
 
     # ================================================================== execution
     async def precheck_execute(self, plan_id: object, can_elicit: bool) -> ServerDecision | Prompt:
@@ -225,13 +225,14 @@ class Guard:
             return ServerDecision.refusal(exc)
         if (stale := self.plans.check_start(plan, state.positions)) is not None:
             return ServerDecision.refused(stale.code, stale.message)
-        if not self.backend.capabilities.wrench and self.policy.force.require_wrench:
-            return ServerDecision.refused(RefusalCode.NO_WRENCH, NO_WRENCH_MESSAGE)
+        monitored = contact_source(self.policy, self.backend) is not None
+        if not monitored and self.policy.force.require_wrench:
+            return ServerDecision.refused(RefusalCode.NO_WRENCH, no_contact_message(self.policy, self.backend))
         required = approval_required(self.policy, "execute", bool(plan.report.soft))
         decision = client_decision(self.policy, "execute_plan", required, can_elicit)
         if decision is not None:
             return decision
-        prompt = prompts.execute_prompt(self.policy, plan, self.backend.name, self.backend.capabilities.wrench, self.dry_run)
+        prompt = prompts.execute_prompt(self.policy, plan, self.backend.name, monitored, self.dry_run)
         call = current_call()  # the requester: its token may not approve in the console (safety.pending)
         self.approvals.offer(plan, prompt.message, self.latch.generation, self.stopper.generation,  # idempotent: the console shows it
                              requester=None if call is None else call.principal)

@@ -1,8 +1,9 @@
 """Running one checked, approved plan on the backend: the only place a trajectory is handed over.
 
 The Guard decides *whether* a plan may run (admission, ordering, the execution slot); this
-module *runs* it: it arms the force monitor (refusing to move without a usable wrench, or from
-a contact already over twice the limit), writes `execution_started` to the audit log before the
+module *runs* it: it arms the force monitor on the policy's contact source (`contact_source`: a
+force/torque sensor, or the observer over the motors' measured joint torques), refusing to move
+without a usable reading, or from a contact already over twice the limit, writes `execution_started` to the audit log before the
 arm moves (a crash mid-motion still leaves a trace), then executes while the monitor watches and
 progress streams, and ends every path with the arm stopped or the e-stop latched:
 
@@ -37,6 +38,8 @@ from armwarden.backends.values import ExecutionResult
 from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
 from armwarden.results import ExecutionReport
+from armwarden.robot.model import RobotModel
+from armwarden.safety.contact_source import ContactSource, JointTorqueContact, choose_contact_source, observer_for
 from armwarden.safety.estop import EStopEvent, EStopLatch
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
 
@@ -49,13 +52,33 @@ EStop = Callable[..., Awaitable[Any]]
 StopFor = Callable[[str], Awaitable["EStopEvent | None"]]
 
 #: force monitor findings about the contact itself; the others say the wrench is not usable
-CONTACT_KINDS = ("force_limit", "torque_limit")
+CONTACT_KINDS = ("force_limit", "torque_limit", "joint_torque_limit")
 #: the e-stop source of a wrench that could not be used (no force was measured: not "force_monitor")
 WRENCH_LOST_SOURCE = "wrench_lost"
 NO_WRENCH_MESSAGE = (
     "this backend provides no wrench estimate, so the contact force limit cannot be enforced, and the "
     "policy requires it (force.require_wrench: true); nothing was moved"
 )
+
+
+def contact_source(policy: Policy, backend: Backend) -> ContactSource | None:
+    """What the force monitor reads for `policy` on `backend` (None: nothing; see `choose_contact_source`)."""
+    capabilities = backend.capabilities
+    return choose_contact_source(policy.force.source, capabilities.wrench, capabilities.joint_torques,
+                                 policy.force.joint_torques is not None)
+
+
+def no_contact_message(policy: Policy, backend: Backend) -> str:
+    """Why no contact can be monitored on `backend`, for the NO_WRENCH refusal."""
+    force, capabilities = policy.force, backend.capabilities
+    if force.source == "sensor" or (not capabilities.joint_torques and force.joint_torques is None):
+        return NO_WRENCH_MESSAGE
+    if not capabilities.joint_torques:
+        missing = f"backend {backend.name} measures no joint torques"
+    else:
+        missing = "the policy sets no external joint-torque limits (force.joint_torques)"
+    return (f"{missing}, so contact cannot be monitored (force.source: {force.source}), and the policy requires it "
+            "(force.require_wrench: true); nothing was moved")
 
 
 @dataclass
@@ -75,9 +98,13 @@ class MotionRunner:
     """Arms the force monitor, then runs a trajectory to its end, a stop or an e-stop."""
 
     def __init__(self, backend: Backend, policy: Policy, latch: EStopLatch, *, clock: Callable[[], float], audit: Any,
-                 emergency_stop: EStop, stop_for: StopFor, record: Callable[[ExecutionReport], ExecutionReport]) -> None:
+                 emergency_stop: EStop, stop_for: StopFor, record: Callable[[ExecutionReport], ExecutionReport],
+                 robot: RobotModel | None = None) -> None:
         self.backend = backend
         self.latch = latch
+        self.policy = policy
+        #: the loaded robot model the joint-torque observer copies (None: no observer can be built)
+        self.robot = robot
         self.require_wrench = policy.force.require_wrench
         self.force_limits = ForceLimits.from_policy(policy)
         self.audit = audit
@@ -87,25 +114,37 @@ class MotionRunner:
         self._record = record
         #: force/torque thresholds carried between executions while resting above a limit (see force.py)
         self._contact_ceiling: tuple[float | None, float | None] = (None, None)
+        self._joint_ceiling: tuple[float | None, ...] | None = None
 
     # ------------------------------------------------------------------ before moving
+    def _reader(self, source: ContactSource) -> Callable[[], Awaitable[Any]]:
+        """The monitor's read: the sensor's wrench, or a fresh observer over the joint states."""
+        if source == "sensor":
+            return self.backend.read_wrench
+        if self.robot is None:
+            raise SafetyRefusal(RefusalCode.NO_WRENCH, "contact from joint torques needs the robot model, and this "
+                                "Guard was built without one; nothing was moved")
+        observer = observer_for(self.policy, self.robot)  # one per execution: no state carried across motions
+        return JointTorqueContact(self.backend.read_joint_state, observer, self.policy.robot.joint_names).read
+
     async def force_monitor(self) -> ForceMonitor | None:
         """A monitor with a fresh baseline, or None when the policy allows moving without one."""
-        if not self.backend.capabilities.wrench:
+        source = contact_source(self.policy, self.backend)
+        if source is None:
             if self.require_wrench:
-                raise SafetyRefusal(RefusalCode.NO_WRENCH, NO_WRENCH_MESSAGE)
+                raise SafetyRefusal(RefusalCode.NO_WRENCH, no_contact_message(self.policy, self.backend))
             return None
-        monitor = ForceMonitor(self.force_limits, self.backend.read_wrench, clock=self._clock,
-                               carried_ceiling=self._contact_ceiling)
+        monitor = ForceMonitor(self.force_limits, self._reader(source), clock=self._clock,
+                               carried_ceiling=self._contact_ceiling, carried_joint_ceiling=self._joint_ceiling)
         baseline = await monitor.baseline()
         if isinstance(baseline, ForceViolation):
             raise SafetyRefusal(RefusalCode.NO_WRENCH, f"the wrench estimate cannot be used right now ({baseline.detail}); "
                                 "refusing to move")
         if monitor.baseline_excessive:
-            raise SafetyRefusal(RefusalCode.IN_CONTACT, f"the arm already presses with {baseline.force_norm_n:.1f} N / "
-                                f"{baseline.torque_norm_nm:.2f} N·m, more than twice the limit; a human must relieve the "
-                                "contact before anything moves")
+            raise SafetyRefusal(RefusalCode.IN_CONTACT, f"the arm already presses with {_pressing(monitor)}, more than "
+                                "twice the limit; a human must relieve the contact before anything moves")
         self._contact_ceiling = monitor.contact_ceiling  # kept until a baseline is back under the limit
+        self._joint_ceiling = monitor.joint_contact_ceiling
         return monitor
 
     async def audit_start(self, plan: StoredPlan, approval: Approval) -> None:
@@ -249,6 +288,16 @@ class MotionRunner:
             outcome, what = ("stop_failed", "the stop FAILED (e-stop latched)") if stop_failed else ("stopped", "the arm was stopped")
             await self.audit.append_async("execution_interrupted", tool="execute_plan", outcome=outcome,
                                           detail=f"plan {plan_id}: the call was cancelled; {what}")
+
+
+def _pressing(monitor: ForceMonitor) -> str:
+    """The baseline contact, as the IN_CONTACT refusal names it."""
+    baseline = monitor.baseline_wrench
+    assert baseline is not None
+    joints = getattr(baseline, "external_torques_nm", None)
+    if joints is not None:
+        return "external joint torques of " + ", ".join(f"{abs(float(t)):.1f}" for t in joints) + " N·m"
+    return f"{baseline.force_norm_n:.1f} N / {baseline.torque_norm_nm:.2f} N·m"
 
 
 def _largest_error(positions: np.ndarray, goal: np.ndarray) -> float | None:

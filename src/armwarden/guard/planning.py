@@ -28,6 +28,7 @@ from armwarden.approval.plans import StoredPlan
 from armwarden.callcontext import current_call, current_caller
 from armwarden.core.errors import RefusalCode, SafetyRefusal
 from armwarden.core.trajectory import JointTrajectory
+from armwarden.guard.execution import contact_source
 from armwarden.guard.gates import GuardState
 from armwarden.planning.around import request_seed
 from armwarden.planning.planners import PlanOutcome, PoseTarget
@@ -258,7 +259,7 @@ class PlanningFlow:
         hard = [v for v in violations if v.is_hard]
         if violations:
             state.last_violation = hard[0] if hard else violations[0]
-        monitoring = state.backend.capabilities.wrench
+        monitoring = contact_source(state.policy, state.backend) is not None
         notes = conversions.plan_notes(outcome.notes, monitoring, state.policy.force.require_wrench, state.dry_run)
         if outcome.trajectory is None or report is None:
             return conversions.plan_summary(violations, notes, monitoring), preview

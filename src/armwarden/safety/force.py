@@ -20,6 +20,11 @@ first such motion over to the next ones (`carried_ceiling`) until a baseline is 
 limit, so a series of small motions cannot ratchet the force up 1 N at a time. A baseline more
 than `BASELINE_CAP_FACTOR` times the limit is not moved from at all (`baseline_excessive`).
 
+Without a force/torque sensor the readings are `ContactEstimate`s from the joint-torque observer
+(`contact_source`): each also carries the external torque per joint, which is held against the
+policy's per-joint limits with the same baseline rule (allowance `JOINT_TORQUE_RISE_ALLOWANCE_NM`),
+and its TCP wrench is held against the force and torque limits only while it is well conditioned.
+
 One monitor per execution. The monitor never stops the robot itself: `on_violation` (the Guard)
 does. The clock is injected so tests never sleep for timing.
 """
@@ -37,9 +42,11 @@ import numpy as np
 
 from armwarden.core.errors import ConfigurationError
 from armwarden.core.state import Wrench
+from armwarden.safety.contact_source import ContactEstimate
 
 __all__ = [
     "FORCE_RISE_ALLOWANCE_N",
+    "JOINT_TORQUE_RISE_ALLOWANCE_NM",
     "TORQUE_RISE_ALLOWANCE_NM",
     "ForceLimits",
     "ForceMonitor",
@@ -51,11 +58,14 @@ __all__ = [
 FORCE_RISE_ALLOWANCE_N = 1.0
 #: with a baseline above the torque limit, the largest allowed rise above the baseline [N·m]
 TORQUE_RISE_ALLOWANCE_NM = 0.2
+#: with a joint's baseline external torque above its limit, the largest allowed rise [N·m]
+JOINT_TORQUE_RISE_ALLOWANCE_NM = 0.5
 #: a baseline above this multiple of a limit is not moved from (a human must relieve the contact)
 BASELINE_CAP_FACTOR = 2.0
 
 ViolationKind = Literal[
-    "force_limit", "torque_limit", "wrench_missing", "wrench_timeout", "wrench_frozen", "wrench_stale", "wrench_invalid"
+    "force_limit", "torque_limit", "joint_torque_limit",
+    "wrench_missing", "wrench_timeout", "wrench_frozen", "wrench_stale", "wrench_invalid",
 ]
 
 
@@ -69,12 +79,14 @@ class ForceLimits:
     wrench_timeout_s: float = 0.1
     #: whether execution needs a wrench at all (the Guard's decision; the monitor always fails closed)
     require_wrench: bool = True
+    #: per-joint limits on the external torque a joint-torque estimate reports [N·m] (None: no such limits)
+    max_external_torque_nm: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("max_force_n", "max_torque_nm", "monitor_rate_hz", "wrench_timeout_s"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ConfigurationError(f"force limit {name} must be a positive finite number, got {value!r}")
+            _require_positive(name, getattr(self, name))
+        for index, value in enumerate(self.max_external_torque_nm or ()):
+            _require_positive(f"max_external_torque_nm[{index}]", value)
 
     @classmethod
     def from_policy(cls, policy) -> ForceLimits:
@@ -85,6 +97,8 @@ class ForceLimits:
             monitor_rate_hz=force.monitor_rate_hz,
             wrench_timeout_s=force.wrench_timeout_s,
             require_wrench=force.require_wrench,
+            max_external_torque_nm=None if force.joint_torques is None else force.joint_torques.per_joint(
+                "max_external_torque_nm", tuple(policy.robot.joint_names)),
         )
 
     @property
@@ -92,19 +106,31 @@ class ForceLimits:
         return 1.0 / self.monitor_rate_hz
 
 
+def _require_positive(name: str, value: object) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ConfigurationError(f"force limit {name} must be a positive finite number, got {value!r}")
+
+
 @dataclass(frozen=True)
 class ForceViolation:
-    """Why the motion must stop; forces are None when no usable sample was read."""
+    """Why the motion must stop; forces are None when no usable sample was read. A joint-torque
+    estimate also gives the external torque per joint [N·m]."""
 
     kind: ViolationKind
     detail: str
     force_n: float | None
     torque_nm: float | None
     at_mono: float
+    external_torques_nm: tuple[float, ...] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data for the audit log and the e-stop event."""
-        return asdict(self)
+        """Plain data for the audit log and the e-stop event (the joint torques only where estimated)."""
+        data = asdict(self)
+        if self.external_torques_nm is None:
+            del data["external_torques_nm"]
+        else:
+            data["external_torques_nm"] = list(self.external_torques_nm)
+        return data
 
 
 def _finite_vector(value: object) -> np.ndarray | None:
@@ -125,15 +151,19 @@ class ForceMonitor:
         read_wrench: Callable[[], Awaitable[Wrench | None]],
         clock: Callable[[], float] = time.monotonic,
         carried_ceiling: tuple[float | None, float | None] = (None, None),
+        carried_joint_ceiling: tuple[float | None, ...] | None = None,
     ) -> None:
         self.limits = limits
         self.carried_ceiling = carried_ceiling
+        self.carried_joint_ceiling = carried_joint_ceiling
         self._read_wrench = read_wrench
         self._clock = clock
         self.baseline_wrench: Wrench | None = None
         #: largest force / torque norm seen in a valid sample (baseline included), for the report
         self.max_observed_force_n = 0.0
         self.max_observed_torque_nm = 0.0
+        #: largest |external torque| per joint seen in a valid joint-torque estimate (None: not one yet)
+        self.max_observed_external_torques_nm: np.ndarray | None = None
         self.samples = 0
         self._last_stamp: float | None = None
         self._stamp_advanced_mono = 0.0
@@ -150,6 +180,35 @@ class ForceMonitor:
         """The torque norm [N·m] above which the motion stops (the limit, or baseline + allowance)."""
         return self._threshold(self.limits.max_torque_nm, self._baseline_norms()[1], TORQUE_RISE_ALLOWANCE_NM,
                                self.carried_ceiling[1])
+
+    @property
+    def joint_torque_thresholds_nm(self) -> tuple[float, ...] | None:
+        """Per joint, the external torque [N·m] above which the motion stops (the limit, or the
+        baseline + allowance where the baseline is above it); None without per-joint limits."""
+        limits = self.limits.max_external_torque_nm
+        if limits is None:
+            return None
+        baseline = self._baseline_joint_torques()
+        carried = self.carried_joint_ceiling or (None,) * len(limits)
+        return tuple(self._threshold(limit, None if baseline is None else float(baseline[j]),
+                                     JOINT_TORQUE_RISE_ALLOWANCE_NM, carried[j] if j < len(carried) else None)
+                     for j, limit in enumerate(limits))
+
+    @property
+    def joint_contact_ceiling(self) -> tuple[float | None, ...] | None:
+        """The per-joint thresholds to carry into the next execution (as `contact_ceiling`)."""
+        limits, thresholds = self.limits.max_external_torque_nm, self.joint_torque_thresholds_nm
+        baseline = self._baseline_joint_torques()
+        if limits is None or thresholds is None or baseline is None:
+            return None
+        return tuple(thresholds[j] if baseline[j] > limit else None for j, limit in enumerate(limits))
+
+    def _baseline_joint_torques(self) -> np.ndarray | None:
+        """|external torque| per joint at the baseline (None: not a joint-torque estimate)."""
+        baseline = self.baseline_wrench
+        if not isinstance(baseline, ContactEstimate):
+            return None
+        return np.abs(np.asarray(baseline.external_torques_nm, dtype=float))
 
     @staticmethod
     def _threshold(limit: float, baseline: float | None, allowance: float, carried: float | None) -> float:
@@ -169,13 +228,19 @@ class ForceMonitor:
     def baseline_excessive(self) -> bool:
         """The baseline is more than `BASELINE_CAP_FACTOR` times a limit: do not move from here."""
         force, torque = self._baseline_norms()
+        joints, joint_limits = self._baseline_joint_torques(), self.limits.max_external_torque_nm
         return (force is not None and force > BASELINE_CAP_FACTOR * self.limits.max_force_n) or (
-            torque is not None and torque > BASELINE_CAP_FACTOR * self.limits.max_torque_nm)
+            torque is not None and torque > BASELINE_CAP_FACTOR * self.limits.max_torque_nm) or (
+            joints is not None and joint_limits is not None
+            and bool(np.any(joints > BASELINE_CAP_FACTOR * np.asarray(joint_limits))))
 
     def _baseline_norms(self) -> tuple[float | None, float | None]:
-        if self.baseline_wrench is None:
+        """The baseline's force and torque norms (None: no baseline, or an estimate whose TCP
+        wrench is too poorly conditioned to be held against the limits)."""
+        baseline = self.baseline_wrench
+        if baseline is None or (isinstance(baseline, ContactEstimate) and not baseline.wrench_trusted):
             return None, None
-        return self.baseline_wrench.force_norm_n, self.baseline_wrench.torque_norm_nm
+        return baseline.force_norm_n, baseline.torque_norm_nm
 
     # ------------------------------------------------------------------ reading
     async def baseline(self) -> Wrench | ForceViolation:
@@ -223,10 +288,18 @@ class ForceMonitor:
         stamp = getattr(wrench, "stamp", None)
         if force is None or torque is None or not isinstance(stamp, (int, float)) or not math.isfinite(stamp):
             return self._violation("wrench_invalid", "wrench has non-finite or malformed force, torque or stamp")
+        if isinstance(wrench, ContactEstimate):
+            joints = np.abs(np.asarray(wrench.external_torques_nm, dtype=float)).reshape(-1)
+            expected = self.limits.max_external_torque_nm
+            if not np.all(np.isfinite(joints)) or (expected is not None and joints.shape != (len(expected),)):
+                return self._violation("wrench_invalid", "the joint-torque estimate has non-finite or missing joints")
+            peak = self.max_observed_external_torques_nm
+            self.max_observed_external_torques_nm = joints if peak is None else np.maximum(peak, joints)
         force_n, torque_nm = float(np.linalg.norm(force)), float(np.linalg.norm(torque))
         self.samples += 1
-        self.max_observed_force_n = max(self.max_observed_force_n, force_n)
-        self.max_observed_torque_nm = max(self.max_observed_torque_nm, torque_nm)
+        if not isinstance(wrench, ContactEstimate) or wrench.wrench_trusted:
+            self.max_observed_force_n = max(self.max_observed_force_n, force_n)
+            self.max_observed_torque_nm = max(self.max_observed_torque_nm, torque_nm)
         if self._last_stamp is None or stamp > self._last_stamp:
             self._last_stamp, self._stamp_advanced_mono = float(stamp), now
         elif now - self._stamp_advanced_mono > timeout_s:
@@ -243,6 +316,10 @@ class ForceMonitor:
         return wrench
 
     def _check_limits(self, wrench: Wrench) -> ForceViolation | None:
+        if isinstance(wrench, ContactEstimate):
+            found = self._check_joint_torques(wrench)
+            if found is not None or not wrench.wrench_trusted:
+                return found
         force_n, torque_nm = wrench.force_norm_n, wrench.torque_norm_nm
         force_max, torque_max = self.force_threshold_n, self.torque_threshold_nm
         if force_n > force_max:
@@ -257,6 +334,26 @@ class ForceMonitor:
             )
         return None
 
+    def _check_joint_torques(self, estimate: ContactEstimate) -> ForceViolation | None:
+        thresholds = self.joint_torque_thresholds_nm
+        if thresholds is None:
+            return None
+        torques = np.asarray(estimate.external_torques_nm, dtype=float)
+        over = [j for j, threshold in enumerate(thresholds) if abs(torques[j]) > threshold]
+        if not over:
+            return None
+        j = max(over, key=lambda k: abs(torques[k]) / thresholds[k])
+        limit = self.limits.max_external_torque_nm[j]  # type: ignore[index]  # thresholds imply limits
+        bound = (f"the limit of {limit:g} N·m" if thresholds[j] == limit else
+                 f"{thresholds[j]:.2f} N·m (baseline above the {limit:g} N·m limit, plus "
+                 f"{JOINT_TORQUE_RISE_ALLOWANCE_NM:g} N·m)")
+        return self._violation(
+            "joint_torque_limit",
+            f"external torque at joint {j + 1} estimated from the motors' torques is {abs(torques[j]):.2f} N·m, "
+            f"over {bound}", estimate.force_norm_n if estimate.wrench_trusted else None,
+            estimate.torque_norm_nm if estimate.wrench_trusted else None,
+            tuple(float(t) for t in torques))
+
     def _describe(self, threshold: float, which: str) -> str:
         if which == "force":
             limit, unit, allowance = self.limits.max_force_n, "N", FORCE_RISE_ALLOWANCE_N
@@ -267,6 +364,7 @@ class ForceMonitor:
         return f"{threshold:.2f} {unit} (baseline above the {limit:g} {unit} limit, plus {allowance:g} {unit})"
 
     def _violation(
-        self, kind: ViolationKind, detail: str, force_n: float | None = None, torque_nm: float | None = None
+        self, kind: ViolationKind, detail: str, force_n: float | None = None, torque_nm: float | None = None,
+        external_torques_nm: tuple[float, ...] | None = None,
     ) -> ForceViolation:
-        return ForceViolation(kind, detail, force_n, torque_nm, self._clock())
+        return ForceViolation(kind, detail, force_n, torque_nm, self._clock(), external_torques_nm)

@@ -1,0 +1,116 @@
+"""Where the force monitor's contact reading comes from: a force/torque sensor, or the observer
+over the joint torques the motors measure.
+
+`choose_contact_source` decides once, from the policy and what the backend offers;
+`JointTorqueContact` turns joint states into readings the monitor checks exactly like a sensor's
+(present, finite, fresh, advancing stamp) plus the per-joint external torques it limits. A joint
+state without measured torques, or with a non-finite value, is passed on as an unusable reading
+and never fed to the observer: the monitor fails closed on it, and the observer's state stays
+what the last good sample made it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from armwarden.core.errors import BackendError
+from armwarden.core.state import JointState, Wrench
+from armwarden.safety.contact_observer import ContactObserver, ObserverSettings
+
+if TYPE_CHECKING:
+    from armwarden.policy import Policy
+    from armwarden.robot.model import RobotModel
+
+__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "observer_for"]
+
+ContactSource = Literal["sensor", "joint_torques"]
+
+#: the TCP wrench estimate is checked against the force/torque limits only while the TCP Jacobian's
+#: condition number is at most this: beyond it a small torque error is a large force error, and
+#: the per-joint limits (always checked) are the reliable test
+MAX_WRENCH_CONDITION = 100.0
+
+
+@dataclass(frozen=True)
+class ContactEstimate(Wrench):
+    """A wrench at the TCP estimated from joint torques, with the per-joint external torques it
+    came from [N·m] and the TCP Jacobian's condition number (see `TcpWrenchEstimate`)."""
+
+    external_torques_nm: np.ndarray
+    condition: float
+
+    @property
+    def wrench_trusted(self) -> bool:
+        """Whether the TCP wrench is well enough conditioned to hold against the force limits."""
+        return self.condition <= MAX_WRENCH_CONDITION
+
+
+def choose_contact_source(source: str, has_sensor: bool, measures_torques: bool,
+                          has_torque_limits: bool) -> ContactSource | None:
+    """The source the monitor reads for a policy's `force.source`, or None when there is none.
+
+    `auto`: the sensor where the backend has one, else the joint torques where it measures them
+    and the policy limits them."""
+    if source == "sensor":
+        return "sensor" if has_sensor else None
+    torques = measures_torques and has_torque_limits
+    if source == "joint_torques":
+        return "joint_torques" if torques else None
+    if has_sensor:
+        return "sensor"
+    return "joint_torques" if torques else None
+
+
+def observer_for(policy: Policy, robot_model: RobotModel) -> ContactObserver:
+    """The observer for `policy`'s `force.joint_torques` section on the loaded robot model."""
+    section = policy.force.joint_torques
+    if section is None:
+        raise ValueError("the policy has no force.joint_torques section")
+    names = tuple(policy.robot.joint_names)
+    settings = ObserverSettings(
+        gain_per_s=section.observer_gain_per_s,
+        coulomb_nm=section.per_joint("friction_coulomb_nm", names),
+        viscous_nms=section.per_joint("friction_viscous_nms", names),
+        payload_kg=section.payload_kg,
+        payload_com_m=tuple(section.payload_com_m),  # type: ignore[arg-type]
+    )
+    return ContactObserver(robot_model.model, robot_model.tcp_frame, robot_model.base_frame, settings)
+
+
+class JointTorqueContact:
+    """Readings for the force monitor from joint states and one observer (one per execution)."""
+
+    def __init__(self, read_joint_state: Callable[[], Awaitable[JointState]], observer: ContactObserver,
+                 joint_names: Sequence[str]) -> None:
+        self._read_joint_state = read_joint_state
+        self.observer = observer
+        self._joint_names = tuple(joint_names)
+        self._last: ContactEstimate | None = None
+
+    async def read(self) -> Wrench | None:
+        """The latest estimate (BackendError when the state carries no torques at all)."""
+        state = await self._read_joint_state()
+        if tuple(state.names) != self._joint_names:
+            raise BackendError(f"the joint state names {list(state.names)}, not the policy's joints")
+        if state.efforts is None:
+            raise BackendError("the joint state carries no measured joint torques")
+        q, v, tau = (np.asarray(x, dtype=float) for x in (state.positions, state.velocities, state.efforts))
+        if not all(np.all(np.isfinite(x)) for x in (q, v, tau)) or not np.isfinite(state.stamp):
+            return _unusable(state.stamp, len(self._joint_names))
+        last = self._last
+        if last is not None and state.stamp <= last.stamp:  # the same sample again: same reading
+            return last
+        residual = self.observer.update(q, v, tau, state.stamp)
+        wrench = self.observer.tcp_wrench(q, residual)
+        self._last = ContactEstimate(wrench.force_n, wrench.torque_nm, float(state.stamp), residual, wrench.condition)
+        return self._last
+
+
+def _unusable(stamp: float, joints: int) -> ContactEstimate:
+    """A reading the monitor refuses as not finite (`wrench_invalid`)."""
+    nan = np.full(3, np.nan)
+    return ContactEstimate(nan, nan, float(stamp), np.full(joints, np.nan), np.inf)

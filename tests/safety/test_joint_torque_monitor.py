@@ -1,0 +1,211 @@
+"""The force monitor reading contact from the motors' joint torques: per-joint limits, the baseline
+rule, and failing closed on a torque stream that is missing, NaN, frozen or stale — exactly as on a
+wrench sensor's stream."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import anyio
+import numpy as np
+import pinocchio as pin  # pyright: ignore[reportMissingImports]
+import pytest
+
+from armwarden.core.state import JointState
+from armwarden.robot.model import RobotModel
+from armwarden.safety.contact_observer import ContactObserver, ObserverSettings
+from armwarden.safety.contact_source import JointTorqueContact, choose_contact_source
+from armwarden.safety.force import JOINT_TORQUE_RISE_ALLOWANCE_NM, ForceLimits, ForceMonitor, ForceViolation
+from tests.helpers import FakeClock
+
+JOINT_LIMITS = (10.0, 10.0, 8.0, 8.0, 5.0, 5.0, 4.0)
+#: the force/torque limits at their largest: these tests are about the joints (one test lowers them)
+LIMITS = ForceLimits(max_force_n=150.0, max_torque_nm=30.0, monitor_rate_hz=1000.0, wrench_timeout_s=0.05,
+                     max_external_torque_nm=JOINT_LIMITS)
+DT_S = 0.005
+
+
+class TorqueScript:
+    """Joint states of an arm held still at `q`: each read advances the fake clock by `DT_S` and
+    reports efforts g(q) − (the scripted external torque), stamped now; or a ready-made item
+    (a JointState, an exception to raise). After the script the last entry repeats."""
+
+    def __init__(self, robot: RobotModel, q: np.ndarray, clock: FakeClock, script: Sequence[object]) -> None:
+        self.robot, self.q, self.clock, self.reads = robot, q, clock, 0
+        self.script: list[object] = list(script)
+        self.gravity = pin.computeGeneralizedGravity(robot.model, robot.model.createData(), q).copy()
+
+    def state(self, efforts: np.ndarray | None, stamp: float | None = None) -> JointState:
+        return JointState(tuple(self.robot.joint_names), self.q, np.zeros(7), self.clock.now if stamp is None else stamp,
+                          efforts)
+
+    async def __call__(self) -> JointState:
+        item = self.script[min(self.reads, len(self.script) - 1)]
+        self.reads += 1
+        self.clock.now += DT_S
+        if isinstance(item, BaseException):
+            raise item
+        if isinstance(item, JointState):
+            return item
+        external = np.asarray(item, dtype=float)
+        return self.state(self.gravity - external)  # the motors hold less where something pushes
+
+
+def joint_monitor(robot: RobotModel, q: np.ndarray, script: Sequence[object],
+                  carried: tuple[float | None, ...] | None = None,
+                  limits: ForceLimits = LIMITS) -> tuple[ForceMonitor, TorqueScript]:
+    clock = FakeClock(10.0)
+    source = TorqueScript(robot, q, clock, script)
+    observer = ContactObserver(robot.model, robot.tcp_frame, robot.base_frame,
+                               ObserverSettings(50.0, (0.0,) * 7, (0.0,) * 7))
+    contact = JointTorqueContact(source, observer, robot.joint_names)
+    return ForceMonitor(limits, contact.read, clock=clock, carried_joint_ceiling=carried), source
+
+
+def external(joint: int, torque_nm: float) -> np.ndarray:
+    values = np.zeros(7)
+    values[joint] = torque_nm
+    return values
+
+
+async def run_until_violation(mon: ForceMonitor) -> ForceViolation:
+    with anyio.fail_after(5):  # a safety net for the test itself, never reached when correct
+        return await mon.run()
+
+
+@pytest.mark.anyio
+async def test_an_external_torque_over_a_joints_limit_stops_the_motion(robot: RobotModel, ready: np.ndarray) -> None:
+    mon, _ = joint_monitor(robot, ready, [external(1, 0.0)] * 3 + [external(1, 40.0)])
+    assert not isinstance(await mon.baseline(), ForceViolation)
+    violation = await run_until_violation(mon)
+    assert violation.kind == "joint_torque_limit"
+    assert "joint 2" in violation.detail and "limit of 10 N·m" in violation.detail
+    assert violation.external_torques_nm is not None and violation.external_torques_nm[1] > 10.0
+    assert violation.to_dict()["external_torques_nm"][1] == pytest.approx(violation.external_torques_nm[1])
+
+
+@pytest.mark.anyio
+async def test_torques_under_every_limit_do_not_stop(robot: RobotModel, ready: np.ndarray) -> None:
+    under = np.array(JOINT_LIMITS) * 0.8 * np.array([1, -1, 1, -1, 1, -1, 1])
+    mon, _ = joint_monitor(robot, ready, [under])
+    await mon.baseline()
+    for _ in range(50):
+        assert await mon.check_once() is None
+    assert mon.max_observed_external_torques_nm is not None
+    np.testing.assert_allclose(mon.max_observed_external_torques_nm, np.abs(under), atol=1e-6)
+
+
+@pytest.mark.anyio
+async def test_a_joint_state_without_measured_torques_fails_closed(robot: RobotModel, ready: np.ndarray) -> None:
+    clock = FakeClock(10.0)
+    source = TorqueScript(robot, ready, clock, [])
+    source.script = [source.state(None)]
+    mon = ForceMonitor(LIMITS, JointTorqueContact(source, mon_observer(robot), robot.joint_names).read, clock=clock)
+    found = await mon.baseline()
+    assert isinstance(found, ForceViolation) and found.kind == "wrench_missing"
+    assert "no measured joint torques" in found.detail
+
+
+def mon_observer(robot: RobotModel) -> ContactObserver:
+    return ContactObserver(robot.model, robot.tcp_frame, robot.base_frame, ObserverSettings(50.0, (0.0,) * 7, (0.0,) * 7))
+
+
+@pytest.mark.anyio
+async def test_a_nan_torque_mid_motion_fails_closed_as_an_invalid_reading(robot: RobotModel,
+                                                                          ready: np.ndarray) -> None:
+    mon, source = joint_monitor(robot, ready, [external(0, 0.0)] * 3)
+    await mon.baseline()
+    assert await mon.check_once() is None
+    efforts = source.gravity.copy()
+    efforts[3] = np.nan
+    source.script = [source.state(efforts, stamp=source.clock.now + DT_S)]
+    source.reads = 0
+    violation = await mon.check_once()
+    assert violation is not None and violation.kind == "wrench_invalid"
+
+
+@pytest.mark.anyio
+async def test_a_torque_stream_whose_stamp_stops_advancing_fails_closed_as_frozen(robot: RobotModel,
+                                                                                  ready: np.ndarray) -> None:
+    clock = FakeClock(10.0)
+    source = TorqueScript(robot, ready, clock, [])
+    frozen = source.state(source.gravity, stamp=10.0)
+    source.script = [frozen]
+    mon = ForceMonitor(LIMITS, JointTorqueContact(source, mon_observer(robot), robot.joint_names).read, clock=clock)
+    await mon.baseline()
+    violation = await run_until_violation(mon)
+    assert violation.kind in ("wrench_frozen", "wrench_stale")
+    assert clock.now - 10.0 > LIMITS.wrench_timeout_s
+
+
+@pytest.mark.anyio
+async def test_an_old_joint_state_fails_closed_as_stale(robot: RobotModel, ready: np.ndarray) -> None:
+    clock = FakeClock(10.0)
+    source = TorqueScript(robot, ready, clock, [])
+    source.script = [source.state(source.gravity, stamp=9.0)]  # a second old when first read
+    mon = ForceMonitor(LIMITS, JointTorqueContact(source, mon_observer(robot), robot.joint_names).read, clock=clock)
+    found = await mon.baseline()
+    assert isinstance(found, ForceViolation) and found.kind == "wrench_stale"
+
+
+@pytest.mark.anyio
+async def test_resting_above_a_joint_limit_allows_moving_away_but_not_pressing_harder(
+        robot: RobotModel, ready: np.ndarray) -> None:
+    resting = external(1, 12.0)  # over joint 2's 10 N·m, under twice it
+    mon, source = joint_monitor(robot, ready, [resting])
+    await mon.baseline()
+    assert not mon.baseline_excessive
+    thresholds = mon.joint_torque_thresholds_nm
+    assert thresholds is not None and thresholds[1] == pytest.approx(12.0 + JOINT_TORQUE_RISE_ALLOWANCE_NM, abs=1e-6)
+    assert thresholds[0] == JOINT_LIMITS[0]
+    source.script = [external(1, 12.0 + 2 * JOINT_TORQUE_RISE_ALLOWANCE_NM)]
+    source.reads = 0
+    violation = await run_until_violation(mon)
+    assert violation.kind == "joint_torque_limit" and "baseline above the 10 N·m limit" in violation.detail
+    ceiling = mon.joint_contact_ceiling
+    assert ceiling is not None and ceiling[1] == pytest.approx(thresholds[1]) and ceiling[0] is None
+
+
+@pytest.mark.anyio
+async def test_a_carried_joint_ceiling_keeps_small_motions_from_ratcheting_up(robot: RobotModel,
+                                                                              ready: np.ndarray) -> None:
+    carried = (None, 12.5, None, None, None, None, None)
+    mon, _ = joint_monitor(robot, ready, [external(1, 12.4)], carried=carried)
+    await mon.baseline()
+    thresholds = mon.joint_torque_thresholds_nm
+    assert thresholds is not None and thresholds[1] == pytest.approx(12.5)
+
+
+@pytest.mark.anyio
+async def test_a_baseline_over_twice_a_joint_limit_is_not_moved_from(robot: RobotModel, ready: np.ndarray) -> None:
+    mon, _ = joint_monitor(robot, ready, [external(4, 10.5)])  # joint 5: limit 5 N·m
+    await mon.baseline()
+    assert mon.baseline_excessive
+
+
+@pytest.mark.anyio
+async def test_a_force_at_the_tcp_is_held_against_the_force_limit(robot: RobotModel, ready: np.ndarray) -> None:
+    data = robot.model.createData()
+    tcp = robot.model.getFrameId(robot.tcp_frame)
+    jacobian = pin.computeFrameJacobian(robot.model, data, ready, tcp, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    push = jacobian.T @ np.array([0.0, 0.0, -15.0, 0.0, 0.0, 0.0])  # 15 N down at the TCP
+    assert np.all(np.abs(push) < np.array(JOINT_LIMITS))  # under every joint's limit: only the wrench catches it
+    limits = ForceLimits(max_force_n=12.0, max_torque_nm=10.0, monitor_rate_hz=1000.0, wrench_timeout_s=0.05,
+                         max_external_torque_nm=JOINT_LIMITS)
+    mon, _ = joint_monitor(robot, ready, [np.zeros(7)] * 2 + [push], limits=limits)
+    await mon.baseline()
+    violation = await run_until_violation(mon)
+    assert violation.kind == "force_limit" and 12.0 < (violation.force_n or 0.0) <= 15.0
+
+
+def test_auto_prefers_the_sensor_and_falls_back_to_joint_torques() -> None:
+    assert choose_contact_source("auto", True, True, True) == "sensor"
+    assert choose_contact_source("auto", False, True, True) == "joint_torques"
+    assert choose_contact_source("auto", False, True, False) is None  # torques, but no limits for them
+    assert choose_contact_source("auto", False, False, True) is None
+
+
+def test_an_explicit_source_is_used_only_where_the_backend_has_it() -> None:
+    assert choose_contact_source("sensor", False, True, True) is None
+    assert choose_contact_source("joint_torques", True, True, True) == "joint_torques"
+    assert choose_contact_source("joint_torques", True, False, True) is None
