@@ -167,6 +167,8 @@ class Capabilities:
     wrench: bool = False
     #: the arm's joint states carry measured joint torques (`JointState.efforts`)
     joint_torques: bool = False
+    #: simulated seconds per wall-clock second (1: real time; a simulator may run faster)
+    time_scale: float = 1.0
     gripper: bool = False
     cameras: tuple[str, ...] = ()
     controllers: bool = False
@@ -195,6 +197,10 @@ class Cell:
     frames: tuple[str, ...] = ()
     #: every joint state the backend publishes carries measured joint torques (`JointState.efforts`)
     joint_torques: bool = False
+    #: how many simulated seconds pass per wall-clock second: stamps are wall-clock (monotonic)
+    #: while velocities are per simulated second, so whatever integrates states over their stamps
+    #: (the contact observer) scales the intervals by this; 1 for hardware
+    time_scale: float = 1.0
 
     @functools.cached_property
     def capabilities(self) -> Capabilities:
@@ -202,6 +208,7 @@ class Cell:
         return Capabilities(
             wrench=self.wrench is not None,
             joint_torques=self.joint_torques,
+            time_scale=self.time_scale,
             gripper=self.gripper is not None,
             cameras=self.cameras.names if self.cameras is not None else (),
             controllers=self.controllers is not None,

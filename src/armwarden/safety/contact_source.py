@@ -85,10 +85,14 @@ class JointTorqueContact:
     """Readings for the force monitor from joint states and one observer (one per execution)."""
 
     def __init__(self, read_joint_state: Callable[[], Awaitable[JointState]], observer: ContactObserver,
-                 joint_names: Sequence[str]) -> None:
+                 joint_names: Sequence[str], time_scale: float = 1.0) -> None:
+        if not (np.isfinite(time_scale) and time_scale > 0):
+            raise ValueError(f"time_scale must be a positive number, got {time_scale}")
         self._read_joint_state = read_joint_state
         self.observer = observer
         self._joint_names = tuple(joint_names)
+        #: simulated seconds per stamp second (a simulator run faster than real time; 1 on hardware)
+        self._time_scale = float(time_scale)
         self._last: ContactEstimate | None = None
 
     async def read(self) -> Wrench | None:
@@ -104,7 +108,7 @@ class JointTorqueContact:
         last = self._last
         if last is not None and state.stamp <= last.stamp:  # the same sample again: same reading
             return last
-        residual = self.observer.update(q, v, tau, state.stamp)
+        residual = self.observer.update(q, v, tau, state.stamp * self._time_scale)
         wrench = self.observer.tcp_wrench(q, residual)
         self._last = ContactEstimate(wrench.force_n, wrench.torque_nm, float(state.stamp), residual, wrench.condition)
         return self._last

@@ -122,7 +122,7 @@ class MujocoBackend(ServoBackend):
                          cameras=SimulatedCameras(self._renderer, tuple(cell.cameras), self._published_scene)
                          if cell.cameras else None,
                          wrench=PublishedWrench(self._published_wrench), frames=tuple(robot.frame_names()),
-                         joint_torques=True)
+                         joint_torques=True, time_scale=float(speedup))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
                                name="mujoco backend")
 
