@@ -62,8 +62,10 @@ class Setpoint:
 
     `positions` [rad], `velocities` [rad/s], `stamp` on the monotonic clock [s]; `following`: a
     sample of a running trajectory (not a hold); `extra` is what `ServoHooks.servo_prepare`
-    computed for it (e.g. the TCP position), kept with the sample; `accelerations` [rad/s²]: the
-    trajectory's (`segment_acceleration`) while following, None (zero) otherwise.
+    computed for it (e.g. the TCP position), kept with the sample; `spread`: the trajectory's
+    motion as a physical arm would follow it (`spread_motion`) while following, None otherwise
+    (a simulated arm's measured velocity and torque; the command's velocity is `velocities`, the
+    exact slope of the linear segment the position is on).
     """
 
     positions: np.ndarray
@@ -71,7 +73,7 @@ class Setpoint:
     stamp: float
     following: bool = False
     extra: Any = None
-    accelerations: np.ndarray | None = None
+    spread: SpreadMotion | None = None
 
 
 class ServoHooks:
@@ -150,18 +152,28 @@ def segment_velocity(trajectory: JointTrajectory, t: float) -> np.ndarray:
     return (trajectory.positions[k + 1] - trajectory.positions[k]) / span
 
 
-def segment_acceleration(trajectory: JointTrajectory, t: float) -> np.ndarray:
-    """Joint acceleration [rad/s²] of the commanded motion at time `t` [s].
+@dataclass(frozen=True)
+class SpreadMotion:
+    """The trajectory's velocity [rad/s] and acceleration [rad/s²] with each waypoint's velocity
+    step spread between the midpoints of the segments on either side of it (`spread_motion`)."""
 
-    A piecewise-linear path accelerates only in impulses at its waypoints, which no motor
-    delivers and a sampled torque reading would see as spikes or miss. Each velocity step is
-    spread instead between the midpoints of the segments on either side of it (from rest at the
-    start, to rest at the end): the velocity through those midpoints is then piecewise linear and
-    integrates the acceleration to exactly the segment velocities (`segment_velocity`)."""
+    velocities: np.ndarray
+    accelerations: np.ndarray
+
+
+def spread_motion(trajectory: JointTrajectory, t: float) -> SpreadMotion:
+    """The motion of a physical arm that follows the trajectory smoothly, at time `t` [s].
+
+    A piecewise-linear path changes velocity only in impulses at its waypoints, which no motor
+    delivers and which a sampled torque reading would see as spikes, or miss (a momentum
+    observer then sees momentum jump with no torque behind it). Spread instead: the velocity is
+    piecewise linear through each segment's velocity at the segment's midpoint (from rest at the
+    start, to rest at the end), never outside the velocities of the segments around it, and the
+    acceleration is its slope, so each integrates exactly to the other."""
     times, positions = trajectory.times, trajectory.positions
     zero = np.zeros(positions.shape[1])
     if t <= 0.0 or len(times) < 2 or t >= times[-1]:
-        return zero
+        return SpreadMotion(zero, zero)
     last = len(times) - 2  # the last segment
 
     def knot(j: int) -> tuple[float, np.ndarray]:
@@ -175,7 +187,10 @@ def segment_acceleration(trajectory: JointTrajectory, t: float) -> np.ndarray:
 
     k = int(np.searchsorted(times, t, side="right")) - 1
     (t0, v0), (t1, v1) = (knot(k - 1), knot(k)) if t < knot(k)[0] else (knot(k), knot(k + 1))
-    return (v1 - v0) / (t1 - t0) if t1 > t0 else zero
+    if t1 <= t0:
+        return SpreadMotion(v0, zero)
+    slope = (v1 - v0) / (t1 - t0)
+    return SpreadMotion(v0 + slope * (t - t0), slope)
 
 
 def frozen(array: Any) -> np.ndarray:
@@ -327,7 +342,7 @@ class ServoLoop:
             stopped = [e for e in (self._active, self._pending) if e is not None]
             self._active = self._pending = None
             setpoint = replace(self._latest, velocities=self._still, stamp=time.monotonic(), following=False,
-                               accelerations=None)
+                               spread=None)
             try:
                 setpoint = replace(setpoint, positions=frozen(self.hooks.servo_hold_positions(setpoint.positions)))
                 self.hooks.servo_hold(setpoint)
@@ -397,7 +412,7 @@ class ServoLoop:
         self.tick_count += 1
 
         positions, velocities, completed, fraction = held.positions, self._still, False, 0.0
-        accelerations: np.ndarray | None = None
+        spread: SpreadMotion | None = None
         if execution is not None:
             if execution.start_time is None:
                 execution.start_time = now
@@ -408,9 +423,10 @@ class ServoLoop:
                 positions, completed, fraction = frozen(trajectory.goal), True, 1.0
             else:
                 positions, velocities = frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t))
-                accelerations = frozen(segment_acceleration(trajectory, t))
+                motion = spread_motion(trajectory, t)
+                spread = SpreadMotion(frozen(motion.velocities), frozen(motion.accelerations))
                 fraction = t / duration
-        setpoint = Setpoint(positions, velocities, stamp, following=execution is not None, accelerations=accelerations)
+        setpoint = Setpoint(positions, velocities, stamp, following=execution is not None, spread=spread)
         extra = self.hooks.servo_prepare(setpoint)
         if extra is not None:  # (dataclasses.replace costs microseconds a tick; most hooks return None)
             setpoint = replace(setpoint, extra=extra)
@@ -430,4 +446,4 @@ class ServoLoop:
 
 
 __all__ = ["FIRST_TICK_TIMEOUT_S", "IDLE_PERIOD_S", "JOIN_TIMEOUT_S", "PROGRESS_PERIOD_S", "ServoBackend",
-           "ServoHooks", "ServoLoop", "Setpoint", "frozen", "segment_acceleration", "segment_velocity"]
+           "ServoHooks", "ServoLoop", "Setpoint", "SpreadMotion", "frozen", "segment_velocity", "spread_motion"]

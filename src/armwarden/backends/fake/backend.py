@@ -160,6 +160,7 @@ class FakeBackend(ServoBackend):
             graph=FakeGraph(self._controllers, wrench=bool(wrench), cameras=camera_names),
             frames=tuple(robot.frame_names() if robot is not None else arm.model.frame_names()),
             joint_torques=joint_torques,
+            time_scale=float(speedup),
         )
 
     # ================================================================ lifecycle
@@ -198,7 +199,11 @@ class FakeBackend(ServoBackend):
         self._require_running()
         setpoint = self.servo.latest  # read-only arrays, replaced whole by each tick
         efforts: Efforts | None = setpoint.extra[2]
-        return JointState(self.joint_names, setpoint.positions, setpoint.velocities, setpoint.stamp,
+        # following, the arm moves as a physical one would follow the path (`spread_motion`): the
+        # velocity its measured torques belong to, never outside the segments' velocities
+        spread = setpoint.spread
+        velocities = spread.velocities if setpoint.following and spread is not None else setpoint.velocities
+        return JointState(self.joint_names, setpoint.positions, velocities, setpoint.stamp,
                           efforts.published(setpoint) if efforts is not None else None)
 
     async def _read_joint_state(self) -> JointState:

@@ -2,8 +2,10 @@
 
 A kinematic arm follows its setpoint exactly, so the torque its motors deliver is the robot
 model's inverse dynamics of that motion, τ = rnea(q, q̇, q̈) = M(q)q̈ + C(q, q̇)q̇ + g(q) (at rest
-g(q)), less what the environment does for them: a test's push, a force F at a point of a link,
-adds the external torque Jᵀ F, so the motors measure τ − Jᵀ F (J the point's linear Jacobian).
+g(q)), with q̇ and q̈ the trajectory's spread motion (`servo.spread_motion`, which the fake also
+publishes as its measured velocity: momentum and torque then agree, as an observer expects),
+less what the environment does for them: a test's push, a force F at a point of a link, adds
+the external torque Jᵀ F, so the motors measure τ − Jᵀ F (J the point's linear Jacobian).
 Optional seeded Gaussian noise [N·m] stands for the sensor's. The sign and units are
 `JointState.efforts`' (armwarden.core.state).
 
@@ -77,9 +79,9 @@ class JointTorques:
         model, data = self._model, self._data
         q = setpoint.positions
         still = pin.computeGeneralizedGravity(model, data, q).copy()
-        if setpoint.following:
-            qdd = setpoint.accelerations if setpoint.accelerations is not None else np.zeros_like(q)
-            moving = pin.rnea(model, data, q, setpoint.velocities, qdd).copy()
+        spread = setpoint.spread
+        if setpoint.following and spread is not None:
+            moving = pin.rnea(model, data, q, spread.velocities, spread.accelerations).copy()
         else:
             moving = still
         push = self.push
