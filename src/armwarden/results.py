@@ -91,6 +91,9 @@ class ExecutionReport(_Result):
     approval: ApprovalInfo
     duration_s: float = Field(description="Time spent moving [s]")
     max_observed_force_n: float | None
+    max_external_torques_nm: list[float] | None = Field(
+        default=None, description="Per joint, the largest external torque estimated from the motors' torques while it "
+        "ran [N·m]; null when the contact was measured by a sensor (or not at all)")
     final_joint_error_rad: float | None = Field(
         default=None, description="Largest distance of a joint from the plan's goal where the arm ended [rad]; "
         "null if the backend reported no end position")

@@ -57,6 +57,7 @@ async def test_an_arm_without_a_sensor_is_monitored_through_its_joint_torques(tm
         report = done.structured_content
         assert report["status"] == "succeeded"
         assert report["max_observed_force_n"] < 5.0  # nothing touched it: the estimate stays near zero
+        assert len(report["max_external_torques_nm"]) == 7 and max(report["max_external_torques_nm"]) < 2.0
 
 
 async def test_a_push_on_the_forearm_mid_motion_stops_the_arm_and_latches_the_estop(tmp_path) -> None:

@@ -222,10 +222,13 @@ class MotionRunner:
                                 "is latched, a human must inspect the robot and approve reset_estop") from fault
         duration = self._clock() - execution.started
         max_force = None if monitor is None else monitor.max_observed_force_n
+        peaks = None if monitor is None else monitor.max_observed_external_torques_nm
+        max_torques = None if peaks is None else [round(float(t), 4) for t in peaks]
         if violation is not None:
             self._record(ExecutionReport(
                 plan_id=plan.plan_id, status="aborted", approval=approval.info(), duration_s=duration,
-                max_observed_force_n=max_force, detail=f"force monitor: {violation.detail}",
+                max_observed_force_n=max_force, max_external_torques_nm=max_torques,
+                detail=f"force monitor: {violation.detail}",
             ))
             event = self.latch.current_event
             what = violation.detail if violation.kind in CONTACT_KINDS else (
@@ -244,6 +247,7 @@ class MotionRunner:
             approval=approval.info(),
             duration_s=duration,
             max_observed_force_n=max_force,
+            max_external_torques_nm=max_torques,
             final_joint_error_rad=None if result is None else _largest_error(result.final_positions, plan.trajectory.goal),
             max_tracking_error_rad=None if result is None else result.max_tracking_error_rad,
             detail=("completed" if completed else f"stopped before the goal: {result.reason if result else 'no result'}")
