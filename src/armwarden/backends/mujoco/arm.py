@@ -152,6 +152,7 @@ class SimulatedArm:
         # one — the simulated controller keeps its rate whatever the host's scheduling
         ramp = self.target if self.target.following and setpoint.following and steps > 1 else None
         gripper = cell.gripper_actuator
+        velocities_before: np.ndarray | None = None
         for step in range(steps):
             target = self.target
             if target.braking:
@@ -175,12 +176,13 @@ class SimulatedArm:
                 data.ctrl[gripper] = fingers.ramp.position(data.time)
                 model.actuator_forcerange[gripper] = (-fingers.force_n, fingers.force_n)
             self._apply_push(self.push)
+            velocities_before = data.qvel[cell.arm_dofs].copy()  # the measured torques need the last step's
             mujoco.mj_step(model, data)
         self.step_count += steps
         unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
         if unstable or not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
             raise BackendError("the simulation diverged (" + ("unstable accelerations" if unstable else "non-finite state") + ")")
-        self.measured = self._meter.measure(self.data)
+        self.measured = self._meter.measure(self.data, velocities_before)
         self.peak_robot_penetration_m = max(self.peak_robot_penetration_m, self.measured.robot_penetration_m)
         if setpoint.following:  # the physics has reached this sample's time: how far off is the arm?
             error = float(np.max(np.abs(self.measured.positions - setpoint.positions)))

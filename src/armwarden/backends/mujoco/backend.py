@@ -20,7 +20,8 @@ Joint torques (`JointState.efforts`): the arm actuators' generalized forces, `qf
 the position servo's torque plus the gravity compensation, which the arm joints' `actgravcomp`
 routes through the actuators (counted against their torque limits) as a real motor supplies it;
 nothing lands in `qfrc_passive` (the model has no joint springs, damping or passive gravity
-compensation on the arm). They are the torques applied over the step that ends at the sample. At
+compensation on the arm). They are the torques applied over the step that ends at the sample,
+the servo's damping taken at the step's end velocity as the implicit integrator applies it. At
 rest, nothing touching the arm, they equal Pinocchio's g(q) to rounding; the armature (rotor
 inertia, `gains.armature_from_profile`) shows in them as it would on a real drive. A test pushes
 on the arm with `push` / `release_push` (a force at a point of a body, mujoco/arm.py); a `fixed`

@@ -62,9 +62,12 @@ class CellMeter:
         #: geoms that belong to the robot (the arm's kinematic tree under the world)
         self._robot_geom = model.body_rootid[model.geom_bodyid] == model.body_rootid[self._base_body]
         self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
+        self._implicit = int(model.opt.integrator) in (int(mujoco.mjtIntegrator.mjINT_IMPLICIT),
+                                                       int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
 
-    def measure(self, data: mujoco.MjData) -> Measured:
-        """The sample the data holds after a step (servo thread)."""
+    def measure(self, data: mujoco.MjData, velocities_before: np.ndarray | None = None) -> Measured:
+        """The sample the data holds after a step (servo thread); `velocities_before`: the arm's
+        joint velocities before that step (None: no step ran)."""
         cell = self._cell
         site_rotation = data.site_xmat[self._flange_site].reshape(3, 3)
         site_position = data.site_xpos[self._flange_site]
@@ -84,7 +87,7 @@ class CellMeter:
         return Measured(
             positions=frozen(data.qpos[cell.arm_qpos]),
             velocities=frozen(data.qvel[cell.arm_dofs]),
-            efforts=frozen(data.qfrc_actuator[cell.arm_dofs]),
+            efforts=frozen(self._applied_actuator_torques(data, velocities_before)),
             external_efforts=frozen(self._external(data)[cell.arm_dofs]),
             force=frozen(base_rotation @ force),
             torque=frozen(base_rotation @ torque_tcp),
@@ -96,6 +99,18 @@ class CellMeter:
             robot_penetration_m=self._robot_penetration_m(data),
             stamp=time.monotonic(),
         )
+
+    def _applied_actuator_torques(self, data: mujoco.MjData, velocities_before: np.ndarray | None) -> np.ndarray:
+        """The arm actuators' torques [N·m] the last step applied. `qfrc_actuator` evaluates the
+        servo's damping −kv·q̇ at the step's starting velocity; the implicit integrators apply it at
+        the step's end velocity (M + h·kv)·Δq̇ = h·f, so kv·Δq̇ more or less than `qfrc_actuator`
+        reaches the arm: without this, an observer saw 1–2 N·m of phantom contact mid-motion (as
+        much as h·kv = 0.29 kg·m² of extra inertia on joint 2)."""
+        cell = self._cell
+        torques = data.qfrc_actuator[cell.arm_dofs].copy()
+        if self._implicit and velocities_before is not None:  # position actuators, gear 1: ∂f/∂q̇ = biasprm[2] = −kv
+            torques += cell.model.actuator_biasprm[cell.arm_actuators, 2] * (data.qvel[cell.arm_dofs] - velocities_before)
+        return torques
 
     def _external(self, data: mujoco.MjData) -> np.ndarray:
         """Generalized forces [N·m] of everything outside the actuators, gravity and inertia:
