@@ -176,7 +176,7 @@ class SimulatedArm:
                 data.ctrl[gripper] = fingers.ramp.position(data.time)
                 model.actuator_forcerange[gripper] = (-fingers.force_n, fingers.force_n)
             self._apply_push(self.push)
-            velocities_before = data.qvel[cell.arm_dofs].copy()  # the measured torques need the last step's
+            velocities_before = data.qvel.copy()  # the measured torques need the last step's
             mujoco.mj_step(model, data)
         self.step_count += steps
         unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0

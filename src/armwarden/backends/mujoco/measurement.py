@@ -64,10 +64,11 @@ class CellMeter:
         self._hand_weight_n = float(model.body_subtreemass[self._flange_body]) * GRAVITY_MPS2
         self._implicit = int(model.opt.integrator) in (int(mujoco.mjtIntegrator.mjINT_IMPLICIT),
                                                        int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
+        self._damping = np.zeros((model.nv, model.nv))  # ∂(actuator + passive force)/∂q̇ of the last step, dense
 
     def measure(self, data: mujoco.MjData, velocities_before: np.ndarray | None = None) -> Measured:
-        """The sample the data holds after a step (servo thread); `velocities_before`: the arm's
-        joint velocities before that step (None: no step ran)."""
+        """The sample the data holds after a step (servo thread); `velocities_before`: every
+        joint velocity (`qvel`) before that step (None: no step ran)."""
         cell = self._cell
         site_rotation = data.site_xmat[self._flange_site].reshape(3, 3)
         site_position = data.site_xpos[self._flange_site]
@@ -102,14 +103,17 @@ class CellMeter:
 
     def _applied_actuator_torques(self, data: mujoco.MjData, velocities_before: np.ndarray | None) -> np.ndarray:
         """The arm actuators' torques [N·m] the last step applied. `qfrc_actuator` evaluates the
-        servo's damping −kv·q̇ at the step's starting velocity; the implicit integrators apply it at
-        the step's end velocity (M + h·kv)·Δq̇ = h·f, so kv·Δq̇ more or less than `qfrc_actuator`
-        reaches the arm: without this, an observer saw 1–2 N·m of phantom contact mid-motion (as
-        much as h·kv = 0.29 kg·m² of extra inertia on joint 2)."""
+        servo's damping −kv·q̇ at the step's starting velocity; the implicit integrators solve
+        (M − h·∂f/∂q̇)·Δq̇ = h·f, so the arm receives f + (∂f/∂q̇)·Δq̇: the damping at the step's end
+        velocity (∂f/∂q̇ is MuJoCo's own `qDeriv`, which leaves out a torque clamped at its limit).
+        Without this an observer saw 1.4 N·m of phantom contact mid-motion (h·kv = 0.29 kg·m² of
+        extra inertia on joint 2) and 4.6 N·m in a brake."""
         cell = self._cell
         torques = data.qfrc_actuator[cell.arm_dofs].copy()
-        if self._implicit and velocities_before is not None:  # position actuators, gear 1: ∂f/∂q̇ = biasprm[2] = −kv
-            torques += cell.model.actuator_biasprm[cell.arm_actuators, 2] * (data.qvel[cell.arm_dofs] - velocities_before)
+        if self._implicit and velocities_before is not None:
+            model = cell.model
+            mujoco.mju_sparse2dense(self._damping, data.qDeriv, model.D_rownnz, model.D_rowadr, model.D_colind)
+            torques += self._damping[cell.arm_dofs] @ (data.qvel - velocities_before)
         return torques
 
     def _external(self, data: mujoco.MjData) -> np.ndarray:
