@@ -256,9 +256,11 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *[("force.joint_torques.max_external_torque_nm", {**TORQUE_LIMITS, FIRST_JOINT: value},
        f"force.joint_torques.max_external_torque_nm.{FIRST_JOINT}") for value in (0, -1.0, 100.5, NAN, INF, "5", True)],
     *[(f"force.joint_torques.{name}", value, f"force.joint_torques.{name}")
-      for name in ("friction_coulomb_nm", "friction_viscous_nms") for value in ("1", [1.0], None)],
+      for name in ("friction_coulomb_nm", "friction_viscous_nms", "rotor_inertia_kgm2") for value in ("1", [1.0], None)],
     *[(f"force.joint_torques.{name}", {FIRST_JOINT: value}, f"force.joint_torques.{name}.{FIRST_JOINT}")
       for name in ("friction_coulomb_nm", "friction_viscous_nms") for value in (-0.1, 50.5, NAN, "1", True)],
+    *[("force.joint_torques.rotor_inertia_kgm2", {FIRST_JOINT: value},
+       f"force.joint_torques.rotor_inertia_kgm2.{FIRST_JOINT}") for value in (-0.1, 5.5, NAN, "1", True)],
     *_floats("force.joint_torques.observer_gain_per_s", 0, 4.9, 501),
     *_floats("force.joint_torques.payload_kg", -0.1, 50.1),
     *_vectors("force.joint_torques.payload_com_m"),

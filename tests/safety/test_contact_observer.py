@@ -196,3 +196,21 @@ def test_friction_for_the_wrong_number_of_joints_is_refused(robot: RobotModel) -
     with pytest.raises(ConfigurationError, match="one per joint"):
         ContactObserver(robot.model, robot.tcp_frame, robot.base_frame,
                         ObserverSettings(GAIN, (0.0,) * 6, (0.0,) * 6))
+
+
+def test_the_rotor_inertia_the_policy_declares_is_not_a_contact(robot: RobotModel, ready: np.ndarray) -> None:
+    rotors = np.array([0.1, 0.1, 0.1, 0.1, 0.05, 0.05, 0.05])
+    with_rotors = pin.Model(robot.model)
+    with_rotors.armature = rotors
+    unaware = ContactObserver(robot.model, robot.tcp_frame, robot.base_frame, settings(7))
+    aware = ContactObserver(robot.model, robot.tcp_frame, robot.base_frame, settings(7, rotor_inertia_kgm2=tuple(rotors)))
+    arm = SimulatedArm(with_rotors, ready.copy(), np.zeros(7))
+    residuals_unaware, residuals_aware = [], []
+    while arm.t < 1.0:
+        assert arm.tau is not None
+        residuals_unaware.append(unaware.update(arm.q, arm.v, arm.tau, arm.t))
+        residuals_aware.append(aware.update(arm.q, arm.v, arm.tau, arm.t))
+        for _ in range(10):
+            arm.step()
+    assert max(np.abs(r).max() for r in residuals_unaware) > 0.1  # accelerating the rotors is not free
+    assert max(np.abs(r).max() for r in residuals_aware) < 0.05

@@ -31,6 +31,8 @@ from armwarden.policy.fields import (
 MAX_EXTERNAL_TORQUE_NM = 100.0
 #: Largest friction allowance per joint [N·m] (Coulomb) and [N·m·s/rad] (viscous).
 MAX_FRICTION_NM = 50.0
+#: Largest rotor inertia reflected at a joint [kg·m²] (an FR3 shoulder drive: about 0.1).
+MAX_ROTOR_INERTIA_KGM2 = 5.0
 #: Observer bandwidth bounds [1/s]: below 5 a contact takes more than 0.2 s to show; above 500
 #: the estimate is mostly measurement noise (and needs a far faster sample rate than any bus gives).
 MIN_OBSERVER_GAIN, MAX_OBSERVER_GAIN = 5.0, 500.0
@@ -70,6 +72,12 @@ class JointTorqueConfig(BaseModel):
         default_factory=FrozenMap,
         description=f"Viscous friction per joint [N·m·s/rad], in [0, {MAX_FRICTION_NM:g}]; a joint not listed has none.",
     )
+    rotor_inertia_kgm2: PerJoint = Field(
+        default_factory=FrozenMap,
+        description=f"Rotor inertia reflected at each joint through its gearbox (armature) [kg·m²], in "
+        f"[0, {MAX_ROTOR_INERTIA_KGM2:g}]; the motors spend torque accelerating it, which is not a contact. "
+        "A joint not listed has none.",
+    )
     observer_gain_per_s: float = finite(
         ge=MIN_OBSERVER_GAIN, le=MAX_OBSERVER_GAIN, default=50.0,
         description=f"Observer bandwidth K [1/s], in [{MIN_OBSERVER_GAIN:g}, {MAX_OBSERVER_GAIN:g}]: a step of "
@@ -94,7 +102,8 @@ class JointTorqueConfig(BaseModel):
     def _values_in_range(self) -> Iterator[Violation]:
         for field, low, high, low_open in (("max_external_torque_nm", 0.0, MAX_EXTERNAL_TORQUE_NM, True),
                                            ("friction_coulomb_nm", 0.0, MAX_FRICTION_NM, False),
-                                           ("friction_viscous_nms", 0.0, MAX_FRICTION_NM, False)):
+                                           ("friction_viscous_nms", 0.0, MAX_FRICTION_NM, False),
+                                           ("rotor_inertia_kgm2", 0.0, MAX_ROTOR_INERTIA_KGM2, False)):
             for name, message in _each_within(getattr(self, field), low, high, low_open):
                 yield (field, name), message
 
@@ -112,7 +121,7 @@ class JointTorqueConfig(BaseModel):
             parts = ([f"no limit for joint(s) {missing}"] if missing else []) + (
                 [f"limit given for joint(s) not in robot.joint_names {extra}"] if extra else [])
             yield ("max_external_torque_nm",), "must cover exactly robot.joint_names: " + "; ".join(parts)
-        for field in ("friction_coulomb_nm", "friction_viscous_nms"):
+        for field in ("friction_coulomb_nm", "friction_viscous_nms", "rotor_inertia_kgm2"):
             unknown = [name for name in getattr(self, field) if name not in joint_names]
             if unknown:
                 yield (field,), f"names joint(s) not in robot.joint_names: {unknown}"

@@ -13,6 +13,8 @@ With the arm's momentum p = M(q)q̇, the dynamics M q̈ + C q̇ + g + τ_f = τ 
 monitor polls on an event loop, so intervals are irregular, and a forward-Euler step would be
 unstable once Kh > 2.
 
+The rotor inertia reflected at each joint (armature) is in the mass matrix: a drive spends
+torque accelerating its rotor, and without it every acceleration would read as a contact.
 τ_f, the joint friction the policy allows for, is Coulomb (smoothed through tanh so a joint at
 rest is not flipped between ±c by velocity noise) plus viscous. A payload the policy declares is
 added to the model as a point mass at the TCP, so its weight is not a contact.
@@ -51,13 +53,16 @@ class ObserverSettings:
     viscous_nms: tuple[float, ...]
     payload_kg: float = 0.0
     payload_com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: rotor inertia reflected at each joint [kg·m²] (empty: none)
+    rotor_inertia_kgm2: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        numbers = (self.gain_per_s, *self.coulomb_nm, *self.viscous_nms, self.payload_kg, *self.payload_com_m)
+        numbers = (self.gain_per_s, *self.coulomb_nm, *self.viscous_nms, self.payload_kg, *self.payload_com_m,
+                   *self.rotor_inertia_kgm2)
         if not all(math.isfinite(v) for v in numbers) or self.gain_per_s <= 0 or self.payload_kg < 0:
             raise ConfigurationError(f"invalid observer settings: {self}")
-        if min(self.coulomb_nm + self.viscous_nms, default=0.0) < 0:
-            raise ConfigurationError("friction allowances must not be negative")
+        if min(self.coulomb_nm + self.viscous_nms + self.rotor_inertia_kgm2, default=0.0) < 0:
+            raise ConfigurationError("friction allowances and rotor inertias must not be negative")
 
 
 @dataclass(frozen=True)
@@ -80,7 +85,11 @@ class ContactObserver:
         nv = model.nv
         if len(settings.coulomb_nm) != nv or len(settings.viscous_nms) != nv:
             raise ConfigurationError(f"friction allowances need {nv} values per model (one per joint)")
-        self.model = pin.Model(model)  # our own copy: the payload is added to it
+        if settings.rotor_inertia_kgm2 and len(settings.rotor_inertia_kgm2) != nv:
+            raise ConfigurationError(f"rotor inertias need {nv} values (one per joint)")
+        self.model = pin.Model(model)  # our own copy: the payload and the rotors are added to it
+        if settings.rotor_inertia_kgm2:  # Pinocchio adds the armature to the mass matrix's diagonal
+            self.model.armature = np.asarray(settings.rotor_inertia_kgm2, dtype=float)
         self._tcp = self.model.getFrameId(tcp_frame)
         if self._tcp >= len(self.model.frames):
             raise ConfigurationError(f"the robot model has no frame {tcp_frame!r}")

@@ -77,6 +77,7 @@ def observer_for(policy: Policy, robot_model: RobotModel) -> ContactObserver:
         viscous_nms=section.per_joint("friction_viscous_nms", names),
         payload_kg=section.payload_kg,
         payload_com_m=tuple(section.payload_com_m),  # type: ignore[arg-type]
+        rotor_inertia_kgm2=section.per_joint("rotor_inertia_kgm2", names),
     )
     return ContactObserver(robot_model.model, robot_model.tcp_frame, robot_model.base_frame, settings)
 
