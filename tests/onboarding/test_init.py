@@ -60,6 +60,17 @@ def test_the_workspace_holds_the_whole_reach_with_the_table_as_its_floor(six_joi
     assert workspace.table_z_m == 0.0
 
 
+def test_every_joint_gets_a_provisional_contact_limit_from_its_effort_limit(six_joint_arm: InitRun) -> None:
+    """An arm without a force/torque sensor is monitored from its motors' torques out of the box."""
+    policy = six_joint_arm.result.runtime.policy
+    section = policy.force.joint_torques
+    assert section is not None and tuple(section.max_external_torque_nm) == policy.robot.joint_names
+    model = six_joint_arm.result.runtime.robot.model
+    for name, limit in section.max_external_torque_nm.items():
+        effort = float(model.effortLimit[model.joints[model.getJointId(name)].idx_v])
+        assert limit == pytest.approx(min(30.0, max(2.0, 0.15 * effort)), abs=0.05)
+
+
 def test_a_picture_of_the_arm_at_home_is_written(six_joint_arm: InitRun) -> None:
     picture = six_joint_arm.result.picture_path
     assert picture is not None and picture.read_bytes().startswith(b"\x89PNG\r\n\x1a\n")

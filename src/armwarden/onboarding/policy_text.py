@@ -48,6 +48,19 @@ class PolicyDraft:
         return tuple(j.name for j in self.joints)
 
 
+#: provisional external-torque limit per joint, as a share of its effort limit [N·m], and bounds
+CONTACT_SHARE_OF_EFFORT = 0.15
+MIN_CONTACT_LIMIT_NM, MAX_CONTACT_LIMIT_NM, UNKNOWN_EFFORT_LIMIT_NM = 2.0, 30.0, 5.0
+
+
+def contact_limit_nm(effort_nm: float | None) -> float:
+    """A provisional per-joint contact limit [N·m]: 15 % of the joint's effort limit, within
+    [2, 30] N·m (Franka's own defaults sit at 10–20 N·m on 87 N·m drives); 5 N·m when unknown."""
+    if effort_nm is None:
+        return UNKNOWN_EFFORT_LIMIT_NM
+    return round(min(MAX_CONTACT_LIMIT_NM, max(MIN_CONTACT_LIMIT_NM, CONTACT_SHARE_OF_EFFORT * effort_nm)), 1)
+
+
 def number(value: float) -> str:
     """A value as the file writes it: at most 6 decimals, no negative zero."""
     rounded = round(float(value), 6)
@@ -136,6 +149,19 @@ def render_policy(draft: PolicyDraft) -> str:
         "  monitor_rate_hz: 200",
         "  require_wrench: true               # no wrench signal: execution refused (fail closed)",
         "  wrench_timeout_s: 0.1",
+        "  source: auto                       # a force/torque sensor where there is one, else the motors' torques",
+        "  joint_torques:",
+        "    # REVIEW: without a sensor, contact is estimated from the torques the motors measure; over a",
+        "    # joint's limit: stop, latch the e-stop. Provisional limits from the description's effort limits;",
+        "    # run `armwarden calibrate-contact` on the arm for limits measured against its own noise.",
+        "    max_external_torque_nm:",
+        *[f"      {j.name}: {number(contact_limit_nm(j.effort_nm))}" + ("" if j.effort_nm is not None
+          else "   # REVIEW: the description gives no effort limit") for j in draft.joints],
+        "    friction_coulomb_nm: {}          # calibrate-contact fits these",
+        "    friction_viscous_nms: {}",
+        "    rotor_inertia_kgm2: {}           # REVIEW: each drive's reflected rotor inertia (datasheet)",
+        "    observer_gain_per_s: 50",
+        "    payload_kg: 0.0",
         "",
     ]
     if draft.gripper is not None:
