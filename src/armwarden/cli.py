@@ -17,6 +17,7 @@ from pathlib import Path
 from armwarden import __version__
 from armwarden.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.backends import backend_names, backends_help
+from armwarden.calibration.command import add_calibrate_arguments, calibrate_command
 from armwarden.core.errors import ArmWardenError, PolicyError
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
 from armwarden.onboarding.command import add_init_arguments, init_command
@@ -70,6 +71,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
     add_init_arguments(commands.add_parser(
         "init", help="write a checked policy, fitted collision geometry and a picture for any URDF or MJCF arm"))
+    add_calibrate_arguments(commands.add_parser(
+        "calibrate-contact", help="run safe approved motions, record the joint-torque observer's residuals and "
+        "recommend per-joint contact limits"))
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")
@@ -171,6 +175,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return check_policy_command(args.policy)
         if args.command == "init":
             return init_command(args)
+        if args.command == "calibrate-contact":
+            return calibrate_command(args)
         if args.command == "audit":
             from armwarden import audit
 

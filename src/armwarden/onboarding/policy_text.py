@@ -13,6 +13,7 @@ import numpy as np
 
 from armwarden.onboarding.limits import DEFAULT_MAX_ACCELERATION, DEFAULT_MAX_VELOCITY, DraftJoint
 from armwarden.onboarding.reach import Workspace
+from armwarden.policy.joint_torques import provisional_limit_nm
 
 #: the tool groups a generated policy enables (`gripper` too when the arm has fingers)
 BASE_GROUPS = ("introspect", "perception", "motion", "control", "safety")
@@ -46,19 +47,6 @@ class PolicyDraft:
 
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.joints)
-
-
-#: provisional external-torque limit per joint, as a share of its effort limit [N·m], and bounds
-CONTACT_SHARE_OF_EFFORT = 0.15
-MIN_CONTACT_LIMIT_NM, MAX_CONTACT_LIMIT_NM, UNKNOWN_EFFORT_LIMIT_NM = 2.0, 30.0, 5.0
-
-
-def contact_limit_nm(effort_nm: float | None) -> float:
-    """A provisional per-joint contact limit [N·m]: 15 % of the joint's effort limit, within
-    [2, 30] N·m (Franka's own defaults sit at 10–20 N·m on 87 N·m drives); 5 N·m when unknown."""
-    if effort_nm is None:
-        return UNKNOWN_EFFORT_LIMIT_NM
-    return round(min(MAX_CONTACT_LIMIT_NM, max(MIN_CONTACT_LIMIT_NM, CONTACT_SHARE_OF_EFFORT * effort_nm)), 1)
 
 
 def number(value: float) -> str:
@@ -155,7 +143,7 @@ def render_policy(draft: PolicyDraft) -> str:
         "    # joint's limit: stop, latch the e-stop. Provisional limits from the description's effort limits;",
         "    # run `armwarden calibrate-contact` on the arm for limits measured against its own noise.",
         "    max_external_torque_nm:",
-        *[f"      {j.name}: {number(contact_limit_nm(j.effort_nm))}" + ("" if j.effort_nm is not None
+        *[f"      {j.name}: {number(provisional_limit_nm(j.effort_nm))}" + ("" if j.effort_nm is not None
           else "   # REVIEW: the description gives no effort limit") for j in draft.joints],
         "    friction_coulomb_nm: {}          # calibrate-contact fits these",
         "    friction_viscous_nms: {}",

@@ -41,6 +41,20 @@ MAX_PAYLOAD_KG = 50.0
 #: Furthest payload centre of mass from the TCP [m].
 MAX_PAYLOAD_OFFSET_M = 0.5
 
+#: provisional external-torque limit per joint, as a share of its effort limit, and its bounds [N·m]
+CONTACT_SHARE_OF_EFFORT = 0.15
+MIN_PROVISIONAL_LIMIT_NM, MAX_PROVISIONAL_LIMIT_NM, UNKNOWN_EFFORT_LIMIT_NM = 2.0, 30.0, 5.0
+
+
+def provisional_limit_nm(effort_nm: float | None) -> float:
+    """A provisional external-torque limit [N·m] for a joint before it is calibrated: 15 % of its
+    effort limit, within [2, 30] N·m (Franka's own defaults sit at 10–20 N·m on 87 N·m drives);
+    5 N·m when the effort limit is unknown."""
+    if effort_nm is None or not effort_nm > 0:
+        return UNKNOWN_EFFORT_LIMIT_NM
+    return round(min(MAX_PROVISIONAL_LIMIT_NM, max(MIN_PROVISIONAL_LIMIT_NM, CONTACT_SHARE_OF_EFFORT * effort_nm)), 1)
+
+
 PerJoint = Annotated[Mapping[Name, FiniteFloat], AfterValidator(freeze_map), WrapSerializer(serialize_map)]
 PayloadOffset = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_PAYLOAD_OFFSET_M,
                                        le=MAX_PAYLOAD_OFFSET_M)]
@@ -54,8 +68,9 @@ def _each_within(values: Mapping[str, float], low: float, high: float, low_open:
 
 
 class JointTorqueConfig(BaseModel):
-    """External-torque limits per joint, the friction the observer allows for, its bandwidth and
-    the payload the arm carries (its weight is not a contact)."""
+    """External-torque limits per joint, the friction and rotor inertia the observer allows for,
+    its bandwidth and the payload the arm carries (its weight is not a contact). How to choose the
+    limits, and `armwarden calibrate-contact`, which measures them: docs/contact.md."""
 
     model_config = MODEL_CONFIG
 

@@ -1,0 +1,210 @@
+"""Running a contact calibration: safe motions through the whole server, the observer recorded.
+
+Every motion goes the way any client's does — `plan_to_joints`, the envelope's checks,
+approval, `execute_plan` with the force monitor on — through the official MCP client in-process,
+so the Guard enforces the policy and the audit log records each call. The human approved the
+calibration as a whole before it started; that approval answers each motion's question, under the
+operator's name. Only plans the envelope passes outright (`ok`) run; one it rejects or would
+ask about is skipped.
+
+Beside the Guard's own monitor a second observer over the same joint states records the residual
+per joint and the joint velocities at the monitor's rate, with no friction allowance, so the fit
+starts from what the arm really reads. A stop, an e-stop or a contact ends the calibration:
+nothing more moves, and the result says why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+import numpy as np
+from mcp import Client
+from mcp import types as mcp_types
+
+from armwarden.assembly import build_backend, build_guard
+from armwarden.audit import AuditLog
+from armwarden.backends.base import Backend
+from armwarden.calibration.friction_fit import DEFAULT_MARGIN, JointRecommendation, recommend
+from armwarden.core.state import JointState
+from armwarden.policy import Policy, parse_policy
+from armwarden.policy.joint_torques import provisional_limit_nm
+from armwarden.robot.model import RobotModel
+from armwarden.safety.contact_observer import ContactObserver
+from armwarden.safety.contact_source import JointTorqueContact, observer_for
+from armwarden.server.app import ArmWardenServer
+
+__all__ = ["CalibrationOptions", "CalibrationResult", "calibration_policy", "run_calibration"]
+
+#: each joint's goal is drawn within ± this of home [rad] (and inside the limits and their margin)
+GOAL_SPREAD_RAD = 0.4
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    policy: Policy
+    backend: str
+    backend_config: Path | None = None
+    motions: int = 30
+    seed: int = 0
+    margin: float = DEFAULT_MARGIN
+    operator: str = "calibration"
+    audit_log: Path = Path("armwarden-calibration-audit.jsonl")
+    #: backend options for tests (instead of a --backend-config file)
+    backend_options: dict[str, Any] | None = None
+
+
+@dataclass
+class CalibrationResult:
+    """What ran and what it recommends; `stopped` says why the calibration ended early (None: it ran)."""
+
+    planned: int = 0
+    executed: int = 0
+    skipped: list[str] = field(default_factory=list)
+    stopped: str | None = None
+    recommendations: list[JointRecommendation] = field(default_factory=list)
+    section: dict[str, Any] = field(default_factory=dict)
+
+
+def calibration_policy(policy: Policy, robot: RobotModel) -> Policy:
+    """`policy` monitoring contact from joint torques (the calibration's subject); a policy without
+    limits for them gets provisional ones from the joints' effort limits."""
+    document = policy.model_dump(mode="json")
+    force = document["force"]
+    force["source"] = "joint_torques"
+    if force.get("joint_torques") is None:
+        model = robot.model
+        force["joint_torques"] = {"max_external_torque_nm": {
+            name: provisional_limit_nm(float(model.effortLimit[model.joints[model.getJointId(name)].idx_v]))
+            for name in policy.robot.joint_names}}
+    return parse_policy(document, source="calibration")
+
+
+def _goals(policy: Policy, count: int, seed: int) -> list[list[float]]:
+    rng = np.random.default_rng(seed)
+    home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+    margin = policy.motion.joint_limit_margin_rad + 0.05
+    lower = np.array([lim.min for lim in policy.robot.joint_limits.values()]) + margin
+    upper = np.array([lim.max for lim in policy.robot.joint_limits.values()]) - margin
+    return [np.clip(home + rng.uniform(-GOAL_SPREAD_RAD, GOAL_SPREAD_RAD, size=home.shape), lower, upper).tolist()
+            for _ in range(count)]
+
+
+class _Recorder:
+    """The calibration's own observer over the joint states, sampled at the monitor's rate: each
+    residual with the velocities of the very state it came from."""
+
+    def __init__(self, backend: Backend, observer: ContactObserver, policy: Policy) -> None:
+        self._backend = backend
+        self._state: JointState | None = None
+        self._contact = JointTorqueContact(self._read_state, observer, policy.robot.joint_names,
+                                           backend.capabilities.time_scale)
+        self._period_s = 1.0 / policy.force.monitor_rate_hz
+        self.velocities: list[np.ndarray] = []
+        self.residuals: list[np.ndarray] = []
+        self._last_stamp = -math.inf
+
+    async def _read_state(self) -> JointState:
+        self._state = await self._backend.read_joint_state()
+        return self._state
+
+    async def run(self) -> None:
+        while True:
+            reading = await self._contact.read()
+            torques = getattr(reading, "external_torques_nm", None)
+            state = self._state
+            if (reading is not None and torques is not None and state is not None and reading.stamp > self._last_stamp
+                    and np.all(np.isfinite(torques))):
+                self._last_stamp = reading.stamp
+                self.velocities.append(np.asarray(state.velocities, dtype=float))
+                self.residuals.append(np.asarray(torques, dtype=float))
+            await anyio.sleep(self._period_s)
+
+
+def _without_friction(observer: ContactObserver, robot: RobotModel, policy: Policy) -> ContactObserver:
+    settings = dataclasses.replace(observer.settings, coulomb_nm=(0.0,) * robot.nq, viscous_nms=(0.0,) * robot.nq)
+    return ContactObserver(robot.model, robot.tcp_frame, robot.base_frame, settings)
+
+
+def _text(result: mcp_types.CallToolResult) -> str:
+    return " ".join(getattr(block, "text", "") for block in result.content)
+
+
+async def run_calibration(options: CalibrationOptions, progress: Callable[[str], None] = lambda _: None,
+                          ) -> CalibrationResult:
+    """Run the motions, then fit; see the module docstring."""
+    from armwarden.robot import build_robot
+
+    robot = build_robot(options.policy)
+    policy = calibration_policy(options.policy, robot)
+    if policy.dry_run:
+        raise ValueError("the policy is a dry run: nothing would move, so there is nothing to calibrate")
+    backend = build_backend(options.backend, policy, robot=robot, config=options.backend_options,
+                            config_path=options.backend_config)
+    result = CalibrationResult()
+    audit = AuditLog(options.audit_log)
+    try:
+        await backend.open()
+        try:
+            if not backend.capabilities.joint_torques:
+                raise ValueError(f"backend {backend.name} measures no joint torques: there is nothing to calibrate")
+            guard = build_guard(policy, backend, audit, robot=robot)
+            server = ArmWardenServer(guard)
+            recorder = _Recorder(backend, _without_friction(observer_for(policy, robot), robot, policy), policy)
+
+            async def approve(context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
+                return mcp_types.ElicitResult(action="accept", content={"approve": True, "operator": options.operator})
+
+            await audit.append_async("calibration_started", operator=options.operator, outcome="approved",
+                                     detail=f"calibrate-contact: {options.motions} motions (seed {options.seed}) and "
+                                            "back home, approved once on the terminal")
+            async with Client(server.mcp, mode="legacy", elicitation_callback=approve) as client, \
+                    anyio.create_task_group() as group:
+                group.start_soon(recorder.run)
+                scaling = {"velocity_scaling": policy.motion.max_velocity_scaling,
+                           "acceleration_scaling": policy.motion.max_acceleration_scaling}
+                goals = _goals(policy, options.motions, options.seed) + [list(policy.robot.home_joint_positions)]
+                for index, goal in enumerate(goals):
+                    planned = await client.call_tool("plan_to_joints", {"joint_positions": goal, "preview": False,
+                                                                          **scaling})
+                    summary = planned.structured_content or {}
+                    result.planned += 1
+                    if planned.is_error or summary.get("status") != "ok":
+                        result.skipped.append(f"motion {index + 1}: {summary.get('status') or _text(planned)}")
+                        continue
+                    done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+                    if done.is_error or (done.structured_content or {}).get("status") != "succeeded":
+                        result.stopped = f"motion {index + 1}: {_text(done) or done.structured_content}"
+                        break
+                    result.executed += 1
+                    progress(f"motion {index + 1}/{len(goals)} done")
+                group.cancel_scope.cancel()
+            await audit.append_async("calibration_finished", operator=options.operator,
+                                     outcome="stopped" if result.stopped else "ok",
+                                     detail=result.stopped or f"{result.executed} motions ran, "
+                                            f"{len(result.skipped)} skipped")
+        finally:
+            await backend.close()
+    finally:
+        audit.close()
+    if result.stopped is None and recorder.residuals:
+        result.recommendations = recommend(policy.robot.joint_names, np.array(recorder.velocities),
+                                           np.array(recorder.residuals), options.margin)
+        result.section = _section(policy, result.recommendations)
+    return result
+
+
+def _section(policy: Policy, found: list[JointRecommendation]) -> dict[str, Any]:
+    """The `force.joint_torques` section with the recommendations (the rest as the policy had it)."""
+    current = policy.force.joint_torques
+    assert current is not None
+    section = current.model_dump(mode="json")
+    section["max_external_torque_nm"] = {r.name: r.limit_nm for r in found}
+    section["friction_coulomb_nm"] = {r.name: r.coulomb_nm for r in found if r.coulomb_nm > 0}
+    section["friction_viscous_nms"] = {r.name: r.viscous_nms for r in found if r.viscous_nms > 0}
+    return section
