@@ -87,7 +87,7 @@ def test_a_human_who_does_not_type_yes_moves_nothing(tmp_path: Path) -> None:
 def test_a_contact_during_calibration_ends_it_and_recommends_nothing(tmp_path: Path,
                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     built: list[Any] = []
-    build = calibration_run.build_backend
+    build = calibration_run.build_backend  # pyright: ignore[reportPrivateImportUsage] - the name the run looks up
 
     def keep(*args: Any, **kwargs: Any) -> Any:
         built.append(build(*args, **kwargs))
