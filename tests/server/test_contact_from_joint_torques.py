@@ -109,3 +109,35 @@ async def test_a_policy_without_joint_torque_limits_refuses_an_arm_without_a_sen
 
         assert result.is_error and "[NO_WRENCH]" in text_of(result)
         assert arm.actuations == []
+
+
+async def test_torques_that_read_nan_before_the_motion_refuse_it_and_nothing_moves(tmp_path) -> None:
+    async with arm_harness(tmp_path, wrench=False) as arm, arm.client("legacy", approve()) as client:
+        summary = await plan_down(client)
+        arm.fake.nan_joint_torques = True
+
+        result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+        assert result.is_error and "[NO_WRENCH]" in text_of(result), text_of(result)
+        assert arm.fake.actuation_commands == 0
+
+
+async def test_torques_that_turn_nan_mid_motion_stop_the_arm_as_a_lost_wrench_does(tmp_path) -> None:
+    async with arm_harness(tmp_path, wrench=False) as arm, arm.client("legacy", approve()) as client:
+        summary = await plan_down(client)
+        fake = arm.fake
+        execute = fake.execute
+
+        async def execute_then_lose_torques(trajectory: Any, progress: Callable[[float], None], **kwargs: Any) -> Any:
+            def on_progress(done: float) -> None:
+                if done >= 0.3:
+                    fake.nan_joint_torques = True
+                progress(done)
+            return await execute(trajectory, on_progress, **kwargs)
+
+        fake.execute = execute_then_lose_torques  # type: ignore[method-assign]
+        result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+        assert result.is_error and "[FORCE_LIMIT]" in text_of(result), text_of(result)
+        event = arm.guard.latch.current_event
+        assert event is not None and event.source == "wrench_lost"  # no contact was measured: none is latched
