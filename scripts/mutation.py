@@ -108,7 +108,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "the arm is still where the plan starts"),
     # ------------------------------------------------------------------ the flows
     Mutant("runner-require-wrench", "guard/execution.py",
-           "raise SafetyRefusal(RefusalCode.NO_WRENCH, NO_WRENCH_MESSAGE)", "pass",
+           "raise SafetyRefusal(RefusalCode.NO_WRENCH, no_contact_message(self.policy, self.backend))", "pass",
            (f"{EXECUTE_LAYERS}::test_a_wrench_that_disappears_while_a_human_decides_refuses_at_the_start",),
            "no wrench at run time: refused when the policy requires one"),
     Mutant("runner-in-contact", "guard/execution.py",
@@ -187,6 +187,14 @@ MUTANTS: tuple[Mutant, ...] = (
            "elif now - self._stamp_advanced_mono > timeout_s:", "elif False:",
            ("tests/safety/test_force.py",),
            "a wrench whose stamp stops advancing fails closed"),
+    Mutant("force-joint-torque-limit", "safety/force.py",
+           "over = [j for j, threshold in enumerate(thresholds) if abs(torques[j]) > threshold]", "over = []",
+           ("tests/safety/test_joint_torque_monitor.py",),
+           "an external joint torque over its limit stops the motion"),
+    Mutant("contact-nan-torques", "safety/contact_source.py",
+           "return _unusable(state.stamp, len(self._joint_names))", "pass",
+           ("tests/safety/test_joint_torque_monitor.py",),
+           "NaN joint torques are an unusable reading, never fed to the observer"),
     # ------------------------------------------------------------------ policy bounds
     Mutant("checks-grasp-force", "safety/checks.py",
            "if force_n is not None and not (0.0 < force_n <= cfg.max_grasp_force_n):", "if False:",

@@ -14,7 +14,7 @@ import pytest
 from armwarden.core.state import JointState
 from armwarden.robot.model import RobotModel
 from armwarden.safety.contact_observer import ContactObserver, ObserverSettings
-from armwarden.safety.contact_source import JointTorqueContact, choose_contact_source
+from armwarden.safety.contact_source import ContactEstimate, JointTorqueContact, choose_contact_source
 from armwarden.safety.force import JOINT_TORQUE_RISE_ALLOWANCE_NM, ForceLimits, ForceMonitor, ForceViolation
 from tests.helpers import FakeClock
 
@@ -209,3 +209,20 @@ def test_an_explicit_source_is_used_only_where_the_backend_has_it() -> None:
     assert choose_contact_source("sensor", False, True, True) is None
     assert choose_contact_source("joint_torques", True, True, True) == "joint_torques"
     assert choose_contact_source("joint_torques", True, False, True) is None
+
+
+@pytest.mark.anyio
+async def test_a_nan_sample_is_never_fed_to_the_observer(robot: RobotModel, ready: np.ndarray) -> None:
+    """After a NaN sample the next good one reads clean: the observer's state was not poisoned."""
+    clock = FakeClock(10.0)
+    source = TorqueScript(robot, ready, clock, [])
+    nan = source.gravity.copy()
+    nan[2] = np.nan
+    source.script = [source.state(source.gravity, stamp=10.005), source.state(nan, stamp=10.010),
+                     source.state(source.gravity, stamp=10.015)]
+    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names)
+    first, unusable, after = await contact.read(), await contact.read(), await contact.read()
+    assert isinstance(first, ContactEstimate) and isinstance(unusable, ContactEstimate)
+    assert isinstance(after, ContactEstimate)
+    assert not np.all(np.isfinite(unusable.force))
+    assert np.all(np.isfinite(after.force)) and np.allclose(after.external_torques_nm, 0.0, atol=1e-6)
