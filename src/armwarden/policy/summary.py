@@ -76,6 +76,10 @@ def summarize_policy(policy: Policy) -> str:
         f"Force: ≤ {force.max_contact_force_n:g} N, ≤ {force.max_contact_torque_nm:g} N·m, "
         f"monitored at {force.monitor_rate_hz:g} Hz, wrench older than {force.wrench_timeout_s:g} s aborts; "
         + ("wrench REQUIRED" if force.require_wrench else "wrench NOT required (force may be unenforced)"),
+        f"  contact measured by: {force.source}; "
+        + ("no joint-torque limits (an arm without a sensor is not monitored)" if force.joint_torques is None else
+           "external joint torque ≤ " + ", ".join(f"{v:g}" for v in force.joint_torques.max_external_torque_nm.values())
+           + f" N·m (observer {force.joint_torques.observer_gain_per_s:g}/s, payload {force.joint_torques.payload_kg:g} kg)"),
     ]
     if policy.gripper is None:
         lines.append("Gripper: none")
