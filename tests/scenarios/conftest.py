@@ -74,9 +74,11 @@ def goal_tolerance_rad(arm: ArmHarness) -> float:
 
 
 def scenario_policy(capabilities: Capabilities, overrides: dict[str, Any]) -> Policy:
-    """The bundled FR3 policy for a backend with `capabilities`: without a wrench estimate the
-    motion runs unmonitored (as the harness does for such a backend), then the test's overrides."""
-    return policy_with(**{"force.require_wrench": capabilities.wrench, **overrides})
+    """The bundled FR3 policy for a backend with `capabilities`: with neither a wrench estimate nor
+    measured joint torques the motion runs unmonitored (as the harness does for such a backend),
+    then the test's overrides."""
+    monitored = capabilities.wrench or capabilities.joint_torques
+    return policy_with(**{"force.require_wrench": monitored, **overrides})
 
 
 @pytest.fixture

@@ -169,6 +169,21 @@ class ArmHarness:
             return self.cell.counters().goals_received
         return getattr(self.inner, "moving_executions", None)
 
+    def push(self, link: str, force_base: tuple[float, float, float]) -> None:
+        """Push on the arm with `force_base` [N] (base frame) at the origin of `link`, from the next
+        sample on until `release_push`: whatever simulates the arm pushes (the ROS cell, the CAN
+        emulator, or the simulated backend itself)."""
+        self._pusher().push(link, force_base)
+
+    def release_push(self) -> None:
+        self._pusher().release_push()
+
+    def _pusher(self) -> Any:
+        for candidate in (self.cell, getattr(self.inner, "emulator", None), self.inner):
+            if candidate is not None and callable(getattr(candidate, "push", None)):
+                return candidate
+        raise AssertionError(f"nothing simulates a push on the {self.inner.name} backend")
+
     @contextlib.asynccontextmanager
     async def client(self, mode: str = "legacy", elicitation: ElicitationCallback | None = None) -> AsyncIterator[Client]:
         async with Client(self.server.mcp, mode=mode, elicitation_callback=elicitation) as client:
@@ -199,8 +214,9 @@ def _backend(name: str, policy: Policy, options: dict[str, Any]) -> Backend:
 
 
 def _policy_for(backend: str) -> Policy:
-    """The bundled policy, adapted to what `backend` has: without a wrench estimate, execution
-    runs without force enforcement (the gripper and camera tools are simply not registered)."""
+    """The bundled policy, adapted to what `backend` has: with neither a wrench estimate nor
+    measured joint torques (the minimal backend; CAN, whose emulator's torques are not the arm's),
+    execution runs without force enforcement (the gripper and camera tools are simply not registered)."""
     if backend in ("minimal", "can"):
         return policy_with(**{"force.require_wrench": False})
     return load_policy(bundled_policy("fr3"))

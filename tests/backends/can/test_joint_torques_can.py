@@ -33,7 +33,7 @@ LOADS = {"fr3_joint1": 5.0, "fr3_joint2": 4.0}
 
 
 def loaded(path: Path) -> CanBackend:
-    document = config_document(path)
+    document = config_document(path, joint_torques=True)
     for joint, load in LOADS.items():
         document["simulate"]["loads"][joint]["gravity_torque_nm"] = load
     config = parse_backend_config("can", document)
@@ -68,7 +68,7 @@ def test_a_joint_held_against_a_known_load_reads_it_with_the_calibration_sign(pa
 def test_an_actuator_whose_replies_carried_no_torque_reads_nan_and_the_stamp_keeps_its_rule() -> None:
     """NaN is passed on as it is (the monitor fails closed on it), never zero or an older value;
     the state's stamp is still its oldest reply's."""
-    backend = build(ROBSTRIDE_SIM)
+    backend = build(ROBSTRIDE_SIM, joint_torques=True)
     actuators = backend._actuators
     now = time.monotonic()
     with backend._state_lock:
@@ -85,8 +85,18 @@ def test_an_actuator_whose_replies_carried_no_torque_reads_nan_and_the_stamp_kee
 
 
 def test_before_any_reply_the_state_has_nan_torques_and_stamp_zero() -> None:
-    backend = build(ROBSTRIDE_SIM)
+    backend = build(ROBSTRIDE_SIM, joint_torques=True)
     backend._publish()
     state = backend._published
     assert state is not None and state.efforts is not None
     assert np.all(np.isnan(state.efforts)) and state.stamp == 0.0
+
+
+def test_feedback_torques_are_not_the_joints_until_the_config_says_so() -> None:
+    """The emulator's actuators move their own loads, not the arm: by default their torques are
+    not offered as the arm's, and contact is not estimated from them."""
+    backend = build(ROBSTRIDE_SIM)
+    assert not backend.capabilities.joint_torques
+    backend._publish()
+    state = backend._published
+    assert state is not None and state.efforts is None

@@ -146,8 +146,9 @@ class CanArm(ServoBackend):
             raw_torque = np.array([a.raw_torque if a.raw_torque is not None else np.nan for a in self._actuators])
             replies = [a.reported_at for a in self._actuators]
         stamp = 0.0 if None in replies else min(r for r in replies if r is not None)
+        efforts = frozen(self._direction * raw_torque) if self.config.joint_torques else None
         self._published = JointState(self.joint_names, frozen(self._direction * (raw - self._offset)),
-                                     frozen(self._direction * raw_velocity), stamp, frozen(self._direction * raw_torque))
+                                     frozen(self._direction * raw_velocity), stamp, efforts)
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:

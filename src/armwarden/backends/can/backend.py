@@ -101,8 +101,9 @@ class CanBackend(CanArm):
         self._bus_factory = bus_factory
         self.emulator: ActuatorEmulator | None = None
         self._replies = ReplyDecoder(self._robstride, self._mit, state_lock, config.host_id, config.mit_reply_id)
-        # every feedback frame reports the torque; an emulated bus may run faster than real time
-        self.cell = Cell(gripper=fingers, joint_torques=True, time_scale=float(self._speedup))
+        # every feedback frame reports the torque, published as the joints' when the config says it is
+        # the arm's (`joint_torques`); an emulated bus may run faster than real time
+        self.cell = Cell(gripper=fingers, joint_torques=config.joint_torques, time_scale=float(self._speedup))
 
     # ================================================================ lifecycle
     async def _open(self) -> None:

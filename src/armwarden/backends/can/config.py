@@ -163,6 +163,12 @@ class Config(BaseModel):
     joints: tuple[JointConfig, ...] = Field(min_length=1, description="One actuator per policy joint.")
     gripper: GripperConfig | None = Field(default=None, description="The gripper's actuator; null: no gripper.")
     simulate: Simulation | None = Field(default=None, description="Emulate the actuators (no hardware); null: real bus.")
+    joint_torques: bool = Field(
+        default=False, strict=True,
+        description="Publish each actuator's feedback torque (through the joint's direction) as the joint's measured "
+        "torque, so the policy can watch contact from it (force.joint_torques). Set it once the arm at rest reads its "
+        "gravity torques g(q) (docs/contact.md). Leave it false under `simulate`: the emulator moves each actuator's "
+        "own load, not the arm's coupled dynamics, so its torques are not the arm's.")
 
     @model_validator(mode="after")
     def _unique(self) -> Config:
