@@ -226,3 +226,53 @@ async def test_a_nan_sample_is_never_fed_to_the_observer(robot: RobotModel, read
     assert isinstance(after, ContactEstimate)
     assert not np.all(np.isfinite(unusable.force))
     assert np.all(np.isfinite(after.force)) and np.allclose(after.external_torques_nm, 0.0, atol=1e-6)
+
+
+def moving_state(source: TorqueScript, stamp: float, speed: float) -> JointState:
+    """The arm at `q` moving at `speed` rad/s on every joint, its motors holding gravity only (a
+    momentum jump no torque explains, as a stalled poll sees an acceleration it slept through)."""
+    return JointState(tuple(source.robot.joint_names), source.q, np.full(7, speed), stamp, source.gravity)
+
+
+@pytest.mark.anyio
+async def test_an_interval_too_long_to_integrate_is_skipped_not_read_as_contact(robot: RobotModel,
+                                                                                ready: np.ndarray) -> None:
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    source.script = [source.state(source.gravity, stamp=10.0), moving_state(source, 10.0 + 0.05, 0.5)]
+    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names)
+    await contact.read()
+    after_stall = await contact.read()
+    assert isinstance(after_stall, ContactEstimate)
+    assert np.allclose(after_stall.external_torques_nm, 0.0, atol=1e-6) and contact.unobserved_s == pytest.approx(0.05)
+
+
+@pytest.mark.anyio
+async def test_the_same_jump_inside_a_short_interval_is_read_as_contact(robot: RobotModel, ready: np.ndarray) -> None:
+    """(The rule above skips only what cannot be integrated: a jump 5 ms apart is a contact.)"""
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    source.script = [source.state(source.gravity, stamp=10.0), moving_state(source, 10.005, 0.5)]
+    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names)
+    await contact.read()
+    reading = await contact.read()
+    assert isinstance(reading, ContactEstimate) and np.max(np.abs(reading.external_torques_nm)) > 10.0
+
+
+@pytest.mark.anyio
+async def test_a_moving_arm_the_observer_cannot_integrate_for_long_fails_closed(robot: RobotModel,
+                                                                               ready: np.ndarray) -> None:
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    source.script = [moving_state(source, 10.0 + 0.04 * k, 0.5) for k in range(5)]
+    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names, max_unobserved_s=0.1)
+    readings = [await contact.read() for _ in range(5)]
+    assert all(np.all(np.isfinite(r.force)) for r in readings[:3] if r is not None)
+    last = readings[-1]
+    assert last is not None and not np.all(np.isfinite(last.force))  # unusable: the monitor stops the arm
+
+
+@pytest.mark.anyio
+async def test_long_intervals_at_rest_are_not_unobserved_time(robot: RobotModel, ready: np.ndarray) -> None:
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    source.script = [source.state(source.gravity, stamp=10.0 + 0.5 * k) for k in range(6)]
+    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names, max_unobserved_s=0.1)
+    readings = [await contact.read() for _ in range(6)]
+    assert all(r is not None and np.all(np.isfinite(r.force)) for r in readings)

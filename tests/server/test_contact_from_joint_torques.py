@@ -12,7 +12,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports]
 import pytest
 
 from tests.helpers import records_of, text_of
-from tests.server.harness import HOME_TCP_X, ArmHarness, approve, arm_harness, policy_with
+from tests.server.harness import HOME_TCP_X, ArmHarness, approve, arm_harness, policy_with, wait_until
 
 pytestmark = pytest.mark.anyio
 
@@ -115,6 +115,11 @@ async def test_torques_that_read_nan_before_the_motion_refuse_it_and_nothing_mov
     async with arm_harness(tmp_path, wrench=False) as arm, arm.client("legacy", approve()) as client:
         summary = await plan_down(client)
         arm.fake.nan_joint_torques = True
+        def nan_published() -> bool:
+            efforts = arm.fake._latest_joint_state().efforts
+            return efforts is not None and bool(np.isnan(efforts).any())
+
+        await wait_until(nan_published, what="a published state with NaN torques")
 
         result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
 

@@ -126,7 +126,7 @@ class MotionRunner:
                                 "Guard was built without one; nothing was moved")
         observer = observer_for(self.policy, self.robot)  # one per execution: no state carried across motions
         return JointTorqueContact(self.backend.read_joint_state, observer, self.policy.robot.joint_names,
-                                  self.backend.capabilities.time_scale).read
+                                  self.backend.capabilities.time_scale, self.policy.force.wrench_timeout_s).read
 
     async def force_monitor(self) -> ForceMonitor | None:
         """A monitor with a fresh baseline, or None when the policy allows moving without one."""

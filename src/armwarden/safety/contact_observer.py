@@ -157,6 +157,23 @@ class ContactObserver:
         self._residual, self._momentum, self._beta, self._stamp = residual, momentum, beta, float(stamp)
         return residual.copy()
 
+    def rebase(self, positions: np.ndarray, velocities: np.ndarray, torques: np.ndarray, stamp: float) -> np.ndarray:
+        """Take this sample as the next interval's start without updating the residual: for an
+        interval too long for its torques to be integrated from its two ends (see
+        `JointTorqueContact`). Returns the residual, unchanged."""
+        if self._residual is None:
+            return self.update(positions, velocities, torques, stamp)
+        q, v = np.asarray(positions, dtype=float), np.asarray(velocities, dtype=float)
+        model, data = self.model, self.data
+        mass = pin.crba(model, data, q)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        coriolis = pin.computeCoriolisMatrix(model, data, q, v)
+        gravity = pin.computeGeneralizedGravity(model, data, q)
+        self._momentum = mass @ v
+        self._beta = np.asarray(torques, dtype=float) + coriolis.T @ v - gravity - self.friction(v)
+        self._stamp = float(stamp)
+        return self._residual.copy()
+
     def tcp_wrench(self, positions: np.ndarray, external_torques: np.ndarray) -> TcpWrenchEstimate:
         """The TCP wrench that best explains `external_torques` at `positions`."""
         return tcp_wrench_from_joint_torques(self.model, self.data, self._tcp, self._base_from_world,

@@ -82,11 +82,26 @@ def observer_for(policy: Policy, robot_model: RobotModel) -> ContactObserver:
     return ContactObserver(robot_model.model, robot_model.tcp_frame, robot_model.base_frame, settings)
 
 
+#: the longest sample interval [s, on the stamps' clock] whose torques the observer integrates from
+#: its two ends; a longer one (an event loop that stalled) is skipped, not trusted: the torques may
+#: have risen and fallen inside it, and the trapezoid would read that as a contact (28 N·m once in
+#: MuJoCo at the largest scaling, with nothing touching)
+MAX_INTEGRATED_INTERVAL_S = 0.02
+#: joint speed [rad/s] under which a sample counts as an arm at rest (a skipped interval between two
+#: of them misses nothing: no momentum changed)
+REST_SPEED_RAD_S = 0.01
+
+
 class JointTorqueContact:
-    """Readings for the force monitor from joint states and one observer (one per execution)."""
+    """Readings for the force monitor from joint states and one observer (one per execution).
+
+    A sample interval longer than `MAX_INTEGRATED_INTERVAL_S` is skipped (`ContactObserver.rebase`):
+    the estimate holds and the next interval starts from that sample. Skipped time that adds up
+    to more than `max_unobserved_s` while the arm moved, without an integrated interval between, is a
+    lost reading (fail closed): an observer that cannot integrate cannot see a contact."""
 
     def __init__(self, read_joint_state: Callable[[], Awaitable[JointState]], observer: ContactObserver,
-                 joint_names: Sequence[str], time_scale: float = 1.0) -> None:
+                 joint_names: Sequence[str], time_scale: float = 1.0, max_unobserved_s: float = 0.1) -> None:
         if not (np.isfinite(time_scale) and time_scale > 0):
             raise ValueError(f"time_scale must be a positive number, got {time_scale}")
         self._read_joint_state = read_joint_state
@@ -94,6 +109,10 @@ class JointTorqueContact:
         self._joint_names = tuple(joint_names)
         #: simulated seconds per stamp second (a simulator run faster than real time; 1 on hardware)
         self._time_scale = float(time_scale)
+        self._max_unobserved_s = float(max_unobserved_s)
+        #: stamp time skipped while the arm moved, since the last integrated interval [s]
+        self.unobserved_s = 0.0
+        self._moving = False
         self._last: ContactEstimate | None = None
 
     async def read(self) -> Wrench | None:
@@ -109,7 +128,17 @@ class JointTorqueContact:
         last = self._last
         if last is not None and state.stamp <= last.stamp:  # the same sample again: same reading
             return last
-        residual = self.observer.update(q, v, tau, state.stamp * self._time_scale)
+        interval = state.stamp - last.stamp if last is not None else 0.0
+        if last is not None and interval > MAX_INTEGRATED_INTERVAL_S:
+            if self._moving or bool(np.any(np.abs(v) > REST_SPEED_RAD_S)):  # an arm at rest at both ends: nothing missed
+                self.unobserved_s += interval
+            if self.unobserved_s > self._max_unobserved_s:
+                return _unusable(state.stamp, len(self._joint_names))
+            residual = self.observer.rebase(q, v, tau, state.stamp * self._time_scale)
+        else:
+            self.unobserved_s = 0.0
+            residual = self.observer.update(q, v, tau, state.stamp * self._time_scale)
+        self._moving = bool(np.any(np.abs(v) > REST_SPEED_RAD_S))
         wrench = self.observer.tcp_wrench(q, residual)
         self._last = ContactEstimate(wrench.force_n, wrench.torque_nm, float(state.stamp), residual, wrench.condition)
         return self._last
