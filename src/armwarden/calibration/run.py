@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,7 +104,7 @@ class _Recorder:
         self._backend = backend
         self._state: JointState | None = None
         self._contact = JointTorqueContact(self._read_state, observer, policy.robot.joint_names,
-                                           backend.capabilities.time_scale)
+                                           backend.capabilities.time_scale, max_unobserved_s=math.inf)
         self._period_s = 1.0 / policy.force.monitor_rate_hz
         self.velocities: list[np.ndarray] = []
         self.residuals: list[np.ndarray] = []
@@ -133,6 +134,25 @@ def _without_friction(observer: ContactObserver, robot: RobotModel, policy: Poli
 
 def _text(result: mcp_types.CallToolResult) -> str:
     return " ".join(getattr(block, "text", "") for block in result.content)
+
+
+#: how long a call refused by the policy's rate limits is retried before the calibration gives up [s]
+RATE_LIMIT_PATIENCE_S = 120.0
+
+
+async def _call(client: Client, tool: str, arguments: dict[str, Any]) -> mcp_types.CallToolResult:
+    """`tool`, retried while the policy's rate limit refuses it (the calibration keeps to the limits
+    every client does; it waits the time the refusal names)."""
+    waited = 0.0
+    while True:
+        result = await client.call_tool(tool, arguments)
+        text = _text(result)
+        if not (result.is_error and "[RATE_LIMITED]" in text) or waited > RATE_LIMIT_PATIENCE_S:
+            return result
+        match = re.search(r"retry in ([0-9.]+) s", text)
+        pause = min(10.0, float(match.group(1)) if match else 1.0) + 0.05
+        await anyio.sleep(pause)
+        waited += pause
 
 
 async def run_calibration(options: CalibrationOptions, progress: Callable[[str], None] = lambda _: None,
@@ -170,14 +190,14 @@ async def run_calibration(options: CalibrationOptions, progress: Callable[[str],
                            "acceleration_scaling": policy.motion.max_acceleration_scaling}
                 goals = _goals(policy, options.motions, options.seed) + [list(policy.robot.home_joint_positions)]
                 for index, goal in enumerate(goals):
-                    planned = await client.call_tool("plan_to_joints", {"joint_positions": goal, "preview": False,
-                                                                          **scaling})
+                    planned = await _call(client, "plan_to_joints", {"joint_positions": goal, "preview": False,
+                                                                      **scaling})
                     summary = planned.structured_content or {}
                     result.planned += 1
                     if planned.is_error or summary.get("status") != "ok":
                         result.skipped.append(f"motion {index + 1}: {summary.get('status') or _text(planned)}")
                         continue
-                    done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+                    done = await _call(client, "execute_plan", {"plan_id": summary["plan_id"]})
                     if done.is_error or (done.structured_content or {}).get("status") != "succeeded":
                         result.stopped = f"motion {index + 1}: {_text(done) or done.structured_content}"
                         break
