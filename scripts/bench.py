@@ -6,6 +6,7 @@
     python scripts/bench.py flood           # the review's flood, fake then ROS 2: about 8 min of a loaded machine
     python scripts/bench.py flood-mix       # the heavier mixed flood: about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
+    python scripts/bench.py contact         # contact from joint torques on MuJoCo (about 10 min; --quick: 1 min)
     python scripts/bench.py can --can-seconds 10  # the CAN servo loop (default 60 s per rate: opt-in)
     .venv-ros/bin/python scripts/bench.py ros2    # the ROS 2 backend against the fake cell (opt-in: ROS venv)
     python scripts/bench.py --json out.json # also write the raw figures, with the run's commit and machine
@@ -51,6 +52,15 @@ Sections
   → every joint below 1e-3 rad/s (wall and simulated, beside the torque-limited braking floor),
   640×480 render time, and get_robot_state / plan_to_pose against the fake in the same run
   (`scripts/_bench/mujoco_cell.py`).
+- contact (opt-in: about 10 minutes at speedup 1; `--quick` a smoke run): contact detection from
+  joint torques on the MuJoCo FR3 with the bundled policy at `force.source: joint_torques`, the
+  Guard's ForceMonitor + JointTorqueContact + observer at the policy's monitor rate around
+  `backend.execute` (`scripts/_bench/contact.py`): contact onset with a box the policy does not know
+  → e-stop commanded, p50/p95 (target p95 <= 20 ms) and the peak contact force; the smallest TCP
+  push (random direction, 0.3 s mid-motion, at the policy's maximum scaling) detected in >= 95 %
+  of trials (goal <= 15 N) and the per-joint RMS error against MuJoCo's true external torques;
+  false alarms over 200 random safe motions with payloads 0 and 1 kg (target 0) and the peak
+  estimate per joint, with the per-joint limits those peaks support.
 - planner: the detour planner beside the straight-line planner, in one process, through the same
   `plan_and_check` the Guard runs (`scripts/_bench/planner_scenes.py`): a scene set (open bin in
   front, shelf, behind a wall-like zone, near the robot's own body) and the near-obstacle set (a
@@ -1007,6 +1017,15 @@ def _report_arms(r: dict[str, Any]) -> None:
     importlib.import_module("arms").report_arms(r)
 
 
+def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[str, Any]:
+    """Contact from joint torques on the FR3 in MuJoCo (stop latency, false alarms, detection)."""
+    return importlib.import_module("contact").bench_contact(quick=quick, limits_file=limits_file)
+
+
+def _report_contact(r: dict[str, Any]) -> None:
+    importlib.import_module("contact").report_contact(r)
+
+
 def run_meta(argv: list[str]) -> dict[str, Any]:
     """Where and on what a run measured (commit, uncommitted changes, machine, load), written beside
     the figures by `--json` so that a committed raw result says by itself what it is."""
@@ -1046,6 +1065,7 @@ SECTIONS = {
     "planner": (bench_planner, _report_planner),
     "table": (bench_table, _report_table),
     "arms": (bench_arms, _report_arms),
+    "contact": (bench_contact, _report_contact),
 }
 #: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
 #: minutes: ask for them by name; ros2 needs the ROS venv)
@@ -1079,6 +1099,9 @@ def main() -> int:
     parser.add_argument("--can-seconds", type=float, default=None,
                         help="can only: seconds per control rate (default 60, or $ARMWARDEN_BENCH_CAN_SECONDS)")
     parser.add_argument("--ros2-runs", type=int, default=100, help="ros2 only: execute + e-stop runs (default 100)")
+    parser.add_argument("--quick", action="store_true", help="contact only: a few trials of each figure (a smoke run)")
+    parser.add_argument("--contact-limits", default=None, metavar="FILE",
+                        help="contact only: the joint_torques section calibrate-contact wrote, instead of the bundled limits")
     args = parser.parse_args()
     chosen = args.sections or list(DEFAULT_SECTIONS)
     unknown = [name for name in chosen if name not in SECTIONS]
@@ -1096,6 +1119,8 @@ def main() -> int:
             results[name] = run(seconds=args.can_seconds or float(os.environ.get("ARMWARDEN_BENCH_CAN_SECONDS", "60")))
         elif name == "ros2":
             results[name] = run(runs=args.ros2_runs)
+        elif name == "contact":
+            results[name] = run(quick=args.quick, limits_file=args.contact_limits)
         else:
             results[name] = run()
         report(results[name])

@@ -1,0 +1,507 @@
+"""`python scripts/bench.py contact`: contact detection from joint torques on the MuJoCo FR3.
+
+The Guard's own pieces — `ForceMonitor` over `JointTorqueContact` with the observer
+`observer_for` builds from the bundled policy (`force.source: joint_torques`), polled at the
+policy's monitor rate like `ForceMonitor.run` — around `backend.execute` at speedup 1, so the
+observer sees the real, irregular sample intervals. The Guard path itself is covered by tests
+(tests/server/test_contact_mujoco.py); this measures. Every motion is planned and checked by the
+envelope (`plan_and_check`) at the policy's maximum velocity and acceleration scaling. Seeded.
+
+1. Stop latency: the hand moves down into a box welded to the world that the policy does not
+   know. Contact onset (the first physics sample in which a robot geom overlaps the box, seen
+   by a hook on the physics thread's measurement) → the stop commanded (the instant the
+   monitor's violation handler calls the backend's e-stop), p50/p95; the peak contact force
+   per trial (|Measured.force|, the hand's F/T reading, from onset until the arm is at rest).
+2. Detection threshold: random motions; mid-motion a force F pushes at the TCP in a random
+   direction for `PUSH_S`: detected (a violation while it pushes, or within one monitor period
+   of its release) or not, per F; the smallest F detected in ≥ 95 % of trials; and per joint the
+   RMS error of the estimate against the true external torque (`Measured.external_efforts`)
+   over the pushes, all samples and once the observer has settled (`SETTLED_AFTER_S` in).
+3. False alarms: random safe motions with nothing touching the arm, payload 0 and 1 kg (the
+   kilogram declared in `force.joint_torques.payload_kg` and carried at the TCP body of the
+   MuJoCo model): violations, and per joint the peak |estimate| (the margin to each limit).
+"""
+
+# mujoco ships compiled modules without type stubs (see src/armwarden/backends/mujoco/model.py)
+# pyright: reportAttributeAccessIssue=false
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from bench_common import bench_policy, percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
+
+SEED = 28
+#: the box the policy does not know: top height [m], full size [m] (centred under the home TCP)
+BOX_TOP_Z_M = 0.36
+BOX_SIZE_M = (0.12, 0.12, 0.10)
+HOME_TCP_X_M = 0.3069
+#: how deep below the box top the latency trials aim the TCP [m] (the plan would end inside it)
+AIM_BELOW_TOP_M = 0.11
+#: TCP forces [N] scanned for the detection threshold
+FORCES_N = (5.0, 7.5, 10.0, 12.5, 15.0, 20.0, 25.0, 30.0)
+PUSH_S = 0.3
+#: the observer's first-order lag: an estimate this long after a push began counts as settled
+SETTLED_AFTER_S = 0.06
+#: random goals: each joint within this of home [rad] (kept inside the joint limits)
+GOAL_SPREAD_RAD = 0.35
+DETECTED_SHARE = 0.95
+PAYLOAD_KG = 1.0
+#: an arm slower than this counts as at rest after a stop [rad/s]
+REST_RAD_S = 1e-3
+
+
+@dataclass
+class SampleHook:
+    """Sees every physics sample on the physics thread (`install_hook`): while armed, the first
+    sample in which a robot geom touches one of `obstacle_geoms`, and from then on the peak
+    contact force between them (MuJoCo's own contact forces, summed as a vector) and the peak
+    |Measured.force| (the hand's F/T reading, inertia of a braking hand included)."""
+
+    robot_geoms: np.ndarray
+    obstacle_geoms: np.ndarray
+    onset_stamp: float | None = None
+    peak_contact_n: float = 0.0
+    peak_sensor_n: float = 0.0
+    armed: bool = False
+
+    def seen(self, model: Any, data: Any, sample: Any) -> None:
+        if not self.armed or not self.obstacle_geoms.any():
+            return
+        import mujoco
+
+        total = np.zeros(3)
+        touching = False
+        wrench = np.zeros(6)
+        for i in range(data.ncon):
+            contact = data.contact[i]
+            g1, g2 = int(contact.geom1), int(contact.geom2)
+            if not ((self.robot_geoms[g1] and self.obstacle_geoms[g2]) or (self.robot_geoms[g2] and self.obstacle_geoms[g1])):
+                continue
+            touching = touching or contact.dist <= 0.0
+            mujoco.mj_contactForce(model, data, i, wrench)
+            total += np.asarray(contact.frame).reshape(3, 3).T @ wrench[:3]
+        if self.onset_stamp is None and touching:
+            self.onset_stamp = sample.stamp
+        if self.onset_stamp is not None:
+            self.peak_contact_n = max(self.peak_contact_n, float(np.linalg.norm(total)))
+            self.peak_sensor_n = max(self.peak_sensor_n, float(np.linalg.norm(sample.force)))
+
+    def arm(self) -> None:
+        self.onset_stamp, self.peak_contact_n, self.peak_sensor_n, self.armed = None, 0.0, 0.0, True
+
+
+def install_hook(backend: Any, base_body: str, obstacle_body: str) -> SampleHook:
+    """A `SampleHook` on `backend`'s measurement (the physics thread calls it after every step)."""
+    model = backend.sim.model
+    base = model.body(base_body).id
+    robot = model.body_rootid[model.geom_bodyid] == model.body_rootid[base]
+    obstacle = model.geom_bodyid == model.body(obstacle_body).id
+    hook = SampleHook(robot, obstacle)
+    meter = backend.arm._meter  # a benchmark's probe into the physics thread
+    measure = meter.measure
+
+    def measured(data: Any, *args: Any, **kwargs: Any) -> Any:
+        sample = measure(data, *args, **kwargs)
+        hook.seen(model, data, sample)
+        return sample
+
+    meter.measure = measured
+    return hook
+
+
+def add_payload(backend: Any, tcp_body: str, mass_kg: float) -> None:
+    """A point mass at the TCP body of the compiled model, before the physics starts (the hand
+    carries it; the servos' gravity compensation counts it like every arm body)."""
+    import mujoco
+
+    model = backend.sim.model
+    body = model.body(tcp_body).id
+    model.body_mass[body] = mass_kg
+    model.body_ipos[body] = 0.0
+    model.body_inertia[body] = 1e-6  # a point mass: the least MuJoCo integrates well
+    model.body_gravcomp[body] = 1.0
+    mujoco.mj_setConst(model, mujoco.MjData(model))  # subtree masses and the rest derived from masses
+
+
+@dataclass
+class Run:
+    """One monitored execution: the first violation (and when the handler ran), the estimates."""
+
+    violation: Any = None
+    stop_stamp: float | None = None
+    completed: bool = False
+    peaks: np.ndarray | None = None
+    #: (stamp, estimated external torques, true external torques, the TCP force estimate where it
+    #: is trusted else NaN) per monitor sample
+    samples: list[tuple[float, np.ndarray, np.ndarray, float]] = field(default_factory=list)
+
+
+class Bench:
+    """One MuJoCo cell (speedup 1) with the policy's planner, envelope and contact monitor."""
+
+    def __init__(self, policy: Any, backend: Any, runtime: Any, rng: np.random.Generator) -> None:
+        self.policy, self.backend, self.runtime, self.rng = policy, backend, runtime, rng
+        self.names = tuple(policy.robot.joint_names)
+        self.home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+        self.scaling = {"velocity_scaling": policy.motion.max_velocity_scaling,
+                        "acceleration_scaling": policy.motion.max_acceleration_scaling}
+        self.refused = 0
+
+    def here(self) -> np.ndarray:
+        return np.asarray(self.backend.arm.measured.positions, dtype=float).copy()
+
+    def plan_joints(self, goal: np.ndarray) -> Any:
+        """The checked trajectory from here to `goal`, or None (refused by planner or envelope)."""
+        from armwarden.guard.planning import plan_and_check
+
+        outcome, report = plan_and_check(self.runtime, "joints", self.here(),
+                                         {"joint_positions": goal.tolist(), **self.scaling})
+        if outcome.trajectory is None or report is None or any(v.is_hard for v in report.violations):
+            self.refused += 1
+            return None
+        return outcome.trajectory
+
+    def plan_tcp(self, position: tuple[float, float, float]) -> Any:
+        from armwarden.guard.planning import plan_and_check
+        from armwarden.planning.planners import PoseTarget
+
+        target = PoseTarget(np.asarray(position, dtype=float), self.backend_tcp_rotation())
+        outcome, _report = plan_and_check(self.runtime, "pose", self.here(), {"target": target, **self.scaling})
+        if outcome.trajectory is None:  # the box is unknown to the envelope: its verdict is not asked
+            raise RuntimeError(f"no plan to {position}: {[v.detail for v in outcome.violations]}")
+        return outcome.trajectory
+
+    def backend_tcp_rotation(self) -> np.ndarray:
+        return self.runtime.robot.tcp_pose(self.home).rotation
+
+    def random_goal(self) -> np.ndarray:
+        robot = self.runtime.robot
+        margin = self.policy.motion.joint_limit_margin_rad + 0.02
+        goal = self.home + self.rng.uniform(-GOAL_SPREAD_RAD, GOAL_SPREAD_RAD, len(self.names))
+        return np.clip(goal, robot.lower + margin, robot.upper - margin)
+
+    def random_motion(self, min_duration_s: float = 0.0) -> Any:
+        """A checked motion from here to a random goal near home at the policy's maximum scaling."""
+        while True:
+            trajectory = self.plan_joints(self.random_goal())
+            if trajectory is not None and trajectory.duration_s >= min_duration_s:
+                return trajectory
+
+    def monitor(self, run: Run) -> Any:
+        """A fresh monitor built as the Guard builds one for `force.source: joint_torques`
+        (`MotionRunner._reader`: whatever observer and reading rules it applies, this measures);
+        its reads are recorded beside the true external torques of the same physics sample."""
+        from types import SimpleNamespace
+
+        from armwarden.core.state import JointState
+        from armwarden.guard.execution import MotionRunner
+        from armwarden.safety.force import ForceMonitor
+
+        arm = self.backend.arm
+        latest: list[Any] = [None]
+
+        async def read_joint_state() -> JointState:
+            sample = arm.measured  # the sample the backend's own read gives, kept for its truth
+            latest[0] = sample
+            return JointState(self.names, sample.positions, sample.velocities, sample.stamp, sample.efforts)
+
+        seen_by_guard = SimpleNamespace(read_joint_state=read_joint_state, capabilities=self.backend.capabilities)
+        runner = MotionRunner(seen_by_guard, self.policy, None, clock=time.monotonic, audit=None,  # type: ignore[arg-type]
+                              emergency_stop=None, stop_for=None, record=None, robot=self.runtime.robot)  # type: ignore[arg-type]
+        contact_read = runner._reader("joint_torques")  # the Guard's own wiring, measured
+
+        async def read() -> Any:
+            estimate = await contact_read()
+            torques = getattr(estimate, "external_torques_nm", None)
+            if torques is not None and latest[0] is not None:
+                force = estimate.force_norm_n if estimate.wrench_trusted else math.nan  # type: ignore[union-attr]
+                run.samples.append((float(latest[0].stamp), np.asarray(torques, dtype=float).copy(),
+                                    np.asarray(latest[0].external_efforts, dtype=float).copy(), force))
+            return estimate
+
+        return ForceMonitor(runner.force_limits, read)
+
+    async def execute(self, trajectory: Any, *, stop_on_violation: bool,
+                      during: Callable[[], Coroutine[Any, Any, None]] | None = None) -> Run:
+        """`trajectory` with the monitor polling beside it (baseline first, one last check after,
+        as the Guard does); the first violation stops the arm when `stop_on_violation`."""
+        import anyio
+
+        run = Run()
+        monitor = self.monitor(run)
+        baseline = await monitor.baseline()
+        from armwarden.safety.force import ForceViolation
+
+        if isinstance(baseline, ForceViolation):
+            raise RuntimeError(f"no usable baseline: {baseline.detail}")
+
+        async def found(violation: Any) -> None:
+            if run.violation is None:
+                run.violation = violation
+                if stop_on_violation:
+                    run.stop_stamp = time.monotonic()  # the instant the handler calls the e-stop
+                    await self.backend.emergency_stop()
+
+        async def poll() -> None:  # `ForceMonitor.run`, carrying on past a violation to see the peaks
+            while True:
+                violation = await monitor.check_once()
+                if violation is not None:
+                    await found(violation)
+                    if stop_on_violation:
+                        return
+                await anyio.sleep(monitor.limits.period_s)
+
+        result = None
+        async with anyio.create_task_group() as group:
+            group.start_soon(poll)
+            if during is not None:
+                group.start_soon(during)
+            result = await self.backend.execute(trajectory)
+            group.cancel_scope.cancel()
+        if run.violation is None and (final := await monitor.check_once()) is not None:
+            await found(final)
+        run.completed = result is not None and result.completed
+        run.peaks = monitor.max_observed_external_torques_nm
+        return run
+
+    async def wait_at_rest(self, timeout_s: float = 3.0) -> None:
+        import anyio
+
+        deadline = time.monotonic() + timeout_s
+        while float(np.max(np.abs(self.backend.arm.measured.velocities))) >= REST_RAD_S and time.monotonic() < deadline:  # noqa: ASYNC110 - published by the physics thread
+            await anyio.sleep(0.005)
+
+    async def move_plain(self, trajectory: Any) -> None:
+        result = await self.backend.execute(trajectory)
+        if not result.completed:
+            raise RuntimeError(f"an unmonitored move did not complete: {result.reason}")
+
+
+async def open_bench(payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator) -> Bench:
+    from armwarden.backends import create_backend
+    from armwarden.preflight import load_runtime_model
+
+    policy = bench_policy(**{"force.source": "joint_torques", "force.joint_torques.payload_kg": payload_kg})
+    runtime = load_runtime_model(policy)
+    backend = create_backend("mujoco", runtime.robot, policy, {"speedup": 1.0, "objects": objects})
+    if payload_kg > 0:
+        add_payload(backend, runtime.robot.tcp_frame, payload_kg)
+    await backend.open()
+    return Bench(policy, backend, runtime, rng)
+
+
+# ---------------------------------------------------------------------------------------- 1
+async def stop_latency(trials: int, rng: np.random.Generator) -> dict[str, Any]:
+    box = {"name": "unknown_box", "shape": "box", "position_m": [HOME_TCP_X_M, 0.0, BOX_TOP_Z_M - BOX_SIZE_M[2] / 2],
+           "size_m": list(BOX_SIZE_M), "mass_kg": 1.0, "fixed": True}
+    bench = await open_bench(0.0, [box], rng)
+    hook = install_hook(bench.backend, bench.runtime.robot.base_frame, box["name"])
+    latencies: list[float] = []
+    contact_n: list[float] = []
+    sensor_n: list[float] = []
+    kinds: list[str] = []
+    unstopped = 0
+    try:
+        for _ in range(trials):
+            x = HOME_TCP_X_M + float(rng.uniform(-0.03, 0.03))
+            y = float(rng.uniform(-0.03, 0.03))
+            above = float(rng.uniform(0.42, 0.50))
+            await bench.move_plain(bench.plan_tcp((x, y, above)))
+            hook.arm()
+            run = await bench.execute(bench.plan_tcp((x, y, BOX_TOP_Z_M - AIM_BELOW_TOP_M)), stop_on_violation=True)
+            await bench.wait_at_rest()
+            hook.armed = False
+            if run.stop_stamp is None or hook.onset_stamp is None:
+                unstopped += 1
+            else:
+                latencies.append((run.stop_stamp - hook.onset_stamp) * 1e3)
+                contact_n.append(hook.peak_contact_n)
+                sensor_n.append(hook.peak_sensor_n)
+                kinds.append(run.violation.kind)
+            await bench.move_plain(bench.plan_tcp((x, y, above)))  # back up, off the box
+    finally:
+        await bench.backend.close()
+    return {"trials": trials, "not_stopped": unstopped, "latency_ms": percentiles(latencies),
+            "peak_contact_force_n": percentiles(contact_n), "peak_hand_ft_n": percentiles(sensor_n),
+            "kinds": {k: kinds.count(k) for k in sorted(set(kinds))}}
+
+
+# ---------------------------------------------------------------------------------------- 2
+async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Generator) -> dict[str, Any]:
+    import anyio
+
+    bench = await open_bench(0.0, [], rng)
+    per_force: dict[str, dict[str, Any]] = {}
+    #: per trial: the force, and in its window the peak |estimate| per joint and the peak trusted TCP force
+    trials_seen: list[dict[str, Any]] = []
+    errors_all: list[np.ndarray] = []
+    errors_settled: list[np.ndarray] = []
+    try:
+        period = bench.policy.force.monitor_rate_hz ** -1
+        for force in forces_n:
+            detected = early = 0
+            for _ in range(trials):
+                trajectory = bench.random_motion(min_duration_s=PUSH_S + 0.4)
+                direction = rng.normal(size=3)
+                direction /= np.linalg.norm(direction)
+                window: list[float] = []
+                start_s = (trajectory.duration_s - PUSH_S) / 2
+
+                async def push(direction: np.ndarray = direction, window: list[float] = window,
+                               start_s: float = start_s, force: float = force) -> None:
+                    await anyio.sleep(start_s)
+                    bench.backend.push(bench.runtime.robot.tcp_frame, (force * direction).tolist())
+                    window.append(time.monotonic())
+                    try:
+                        await anyio.sleep(PUSH_S)
+                    finally:
+                        bench.backend.release_push()
+                        window.append(time.monotonic())
+
+                run = await bench.execute(trajectory, stop_on_violation=False, during=push)
+                if len(window) < 2:
+                    raise RuntimeError("the motion ended before its push did")
+                began, ended = window
+                if run.violation is not None:
+                    at = run.violation.at_mono
+                    if at < began:
+                        early += 1
+                    elif at <= ended + period:
+                        detected += 1
+                joint_peak, wrench_peak = np.zeros(len(bench.names)), 0.0
+                for stamp, estimate, truth, tcp_force in run.samples:
+                    if began <= stamp <= ended + period:
+                        joint_peak = np.maximum(joint_peak, np.abs(estimate))
+                        wrench_peak = wrench_peak if math.isnan(tcp_force) else max(wrench_peak, tcp_force)
+                    if began + 0.002 <= stamp <= ended:  # the push acts from the step after `began`
+                        errors_all.append(estimate - truth)
+                        if stamp >= began + SETTLED_AFTER_S:
+                            errors_settled.append(estimate - truth)
+                trials_seen.append({"force_n": force, "joint_peak_nm": joint_peak.tolist(), "wrench_peak_n": wrench_peak})
+            per_force[f"{force:g}"] = {"trials": trials, "detected": detected, "share": detected / trials,
+                                       "violations_before_push": early}
+    finally:
+        await bench.backend.close()
+    threshold = next((float(f) for f in sorted(forces_n) if per_force[f"{f:g}"]["share"] >= DETECTED_SHARE), None)
+
+    def rms(rows: list[np.ndarray]) -> list[float]:
+        return [float(x) for x in np.sqrt(np.mean(np.square(np.asarray(rows)), axis=0))] if rows else []
+
+    return {"per_force": per_force, "threshold_n": threshold, "rms_error_nm": rms(errors_all),
+            "rms_error_settled_nm": rms(errors_settled), "push_samples": len(errors_all), "refused_goals": bench.refused,
+            "trials": trials_seen, "max_force_n": bench.policy.force.max_contact_force_n}
+
+
+def suggested_limits(false_alarm_runs: list[dict[str, Any]]) -> list[float]:
+    """Per joint, a limit with room over the largest |estimate| any false-alarm run saw: 1.5× it
+    and at least 1 N·m over it, rounded up to 0.5 N·m."""
+    peaks = np.max([row["peak_estimate_nm"] for row in false_alarm_runs], axis=0)
+    return [math.ceil(2 * max(1.5 * p, p + 1.0)) / 2 for p in peaks]
+
+
+def threshold_with(detection: dict[str, Any], limits: list[float]) -> dict[str, Any]:
+    """The detection shares per force had the per-joint limits been `limits` (the TCP force limit
+    as it is), from the estimates each push trial recorded: what those limits would catch."""
+    shares: dict[str, float] = {}
+    for trial in detection["trials"]:
+        caught = (any(p > lim for p, lim in zip(trial["joint_peak_nm"], limits, strict=True))
+                  or trial["wrench_peak_n"] > detection["max_force_n"])
+        key = f"{trial['force_n']:g}"
+        shares.setdefault(key, 0.0)
+        shares[key] += caught / detection["per_force"][key]["trials"]
+    threshold = next((float(f) for f, share in sorted(shares.items(), key=lambda item: float(item[0]))
+                      if share >= DETECTED_SHARE), None)
+    return {"limits_nm": limits, "shares": shares, "threshold_n": threshold}
+
+
+# ---------------------------------------------------------------------------------------- 3
+async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator) -> dict[str, Any]:
+    bench = await open_bench(payload_kg, [], rng)
+    violations: list[dict[str, Any]] = []
+    peaks = np.zeros(len(bench.names))
+    per_motion: list[np.ndarray] = []  # each motion's peak |estimate| per joint
+    try:
+        for _ in range(motions):
+            run = await bench.execute(bench.random_motion(), stop_on_violation=False)
+            if run.violation is not None:
+                violations.append({"kind": run.violation.kind, "detail": run.violation.detail})
+            if run.peaks is not None:
+                peaks = np.maximum(peaks, run.peaks)
+                per_motion.append(np.asarray(run.peaks, dtype=float))
+    finally:
+        await bench.backend.close()
+    limits = bench.policy.force.joint_torques.per_joint("max_external_torque_nm", bench.names)
+    return {"motions": motions, "payload_kg": payload_kg, "violations": len(violations), "examples": violations[:5],
+            "peak_estimate_nm": [float(p) for p in peaks],
+            "peak_estimate_p99_nm": [float(p) for p in np.percentile(per_motion, 99, axis=0)] if per_motion else [],
+            "peak_estimate_p50_nm": [float(p) for p in np.percentile(per_motion, 50, axis=0)] if per_motion else [],
+            "limits_nm": [float(v) for v in limits],
+            "refused_goals": bench.refused}
+
+
+def bench_contact(quick: bool = False) -> dict[str, Any]:
+    """All three figures from one run (`quick`: a handful of trials each, to see it work)."""
+    import anyio
+
+    latency_trials, detect_trials, motions = (3, 3, 10) if quick else (20, 20, 200)
+    forces = (10.0, 30.0) if quick else FORCES_N
+
+    async def main() -> dict[str, Any]:
+        rng = np.random.default_rng(SEED)
+        out: dict[str, Any] = {"quick": quick, "seed": SEED}
+        started = time.monotonic()
+        out["latency"] = await stop_latency(latency_trials, rng)
+        out["detection"] = await detection(forces, detect_trials, rng)
+        out["false_alarms"] = [await false_alarms(motions, 0.0, rng), await false_alarms(motions, PAYLOAD_KG, rng)]
+        limits = suggested_limits(out["false_alarms"])
+        out["with_suggested_limits"] = threshold_with(out["detection"], limits)
+        out["wall_s"] = time.monotonic() - started
+        return out
+
+    return anyio.run(main)
+
+
+def report_contact(r: dict[str, Any]) -> None:
+    def fmt(values: list[float]) -> str:
+        return " / ".join(f"{v:.2f}" for v in values)
+
+    latency = r["latency"]
+    ms, force, ft = latency["latency_ms"], latency["peak_contact_force_n"], latency["peak_hand_ft_n"]
+    print("\n== contact from joint torques (MuJoCo FR3, speedup 1, bundled policy, force.source: joint_torques)")
+    print(f"stop latency, contact onset -> e-stop commanded: p50 {ms['p50']:.1f} ms, p95 {ms['p95']:.1f} ms, "
+          f"max {ms['max']:.1f} ms over {ms['n']} of {latency['trials']} trials (target p95 <= 20 ms: "
+          f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; by {latency['kinds']}")
+    print(f"peak contact force (MuJoCo's robot-box contact forces) per trial: p50 {force['p50']:.1f} N, "
+          f"max {force['max']:.1f} N; the hand's F/T reading (braking inertia included): p50 {ft['p50']:.1f} N, "
+          f"max {ft['max']:.1f} N")
+    detection = r["detection"]
+    for f, row in detection["per_force"].items():
+        print(f"  TCP push {f:>5} N for {PUSH_S:g} s mid-motion: detected {row['detected']}/{row['trials']} "
+              f"({row['share']:.0%}); violations before the push {row['violations_before_push']}")
+    threshold = detection["threshold_n"]
+    print(f"detection threshold (>= {DETECTED_SHARE:.0%} detected): "
+          f"{'none of the forces' if threshold is None else f'{threshold:g} N'} (goal <= 15 N: "
+          f"{'met' if threshold is not None and threshold <= 15 else 'MISSED'})")
+    print(f"RMS error estimate - true external torque per joint during pushes [N·m]: {fmt(detection['rms_error_nm'])}"
+          f"; settled ({SETTLED_AFTER_S * 1e3:g} ms in): {fmt(detection['rms_error_settled_nm'])} "
+          f"({detection['push_samples']} samples)")
+    for row in r["false_alarms"]:
+        margin = [limit - peak for limit, peak in zip(row["limits_nm"], row["peak_estimate_nm"], strict=True)]
+        print(f"false alarms, payload {row['payload_kg']:g} kg: {row['violations']} in {row['motions']} motions "
+              f"(target 0: {'met' if row['violations'] == 0 else 'MISSED'}); peak |estimate| per joint "
+              f"{fmt(row['peak_estimate_nm'])} N·m (per motion p50 {fmt(row['peak_estimate_p50_nm'])}, p99 "
+              f"{fmt(row['peak_estimate_p99_nm'])}), margin to the limits {fmt(margin)} N·m")
+        for example in row["examples"]:
+            print(f"    {example['kind']}: {example['detail']}")
+    suggested = r["with_suggested_limits"]
+    shares = ", ".join(f"{f} N {share:.0%}" for f, share in suggested["shares"].items())
+    at = suggested["threshold_n"]
+    print(f"limits the false-alarm margins support (1.5x the peak, >= 1 N·m over it): {fmt(suggested['limits_nm'])} N·m; "
+          f"with them the same pushes are detected: {shares}; threshold {'none of the forces' if at is None else f'{at:g} N'}")
+    print(f"wall time {r['wall_s']:.0f} s" + (" (quick)" if r["quick"] else ""))

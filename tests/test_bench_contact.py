@@ -1,0 +1,102 @@
+"""The contact benchmark's code paths (scripts/_bench/contact.py) with one or two trials each, on
+the real MuJoCo cell: the hand driven into the box the policy does not know is stopped after the
+contact's onset, a push at the TCP is recorded beside the true external torques, a payload the
+policy declares is no contact; and the pure parts (limits from false-alarm peaks, what they would
+detect, the report). Nothing about timing is asserted: the figures are the benchmark's to report.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+BENCH_DIR = Path(__file__).resolve().parents[1] / "scripts" / "_bench"
+
+
+def load_contact() -> ModuleType:
+    sys.path.insert(0, str(BENCH_DIR))  # contact.py imports bench_common as scripts/bench.py arranges
+    spec = importlib.util.spec_from_file_location("contact_bench", BENCH_DIR / "contact.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("contact_bench", module)  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+CONTACT = load_contact()
+
+
+@pytest.mark.anyio
+async def test_moving_into_the_unknown_box_is_stopped_after_the_contact_onset() -> None:
+    result = await CONTACT.stop_latency(1, np.random.default_rng(0))
+
+    assert result["not_stopped"] == 0 and result["latency_ms"]["n"] == 1
+    assert result["latency_ms"]["p50"] >= 0.0  # the stop followed the touch: no false alarm on the way down
+    assert result["peak_contact_force_n"]["max"] > 0.0
+    assert set(result["kinds"]) <= {"joint_torque_limit", "force_limit", "torque_limit"}
+
+
+@pytest.mark.anyio
+async def test_a_push_at_the_tcp_is_recorded_beside_the_true_external_torques() -> None:
+    result = await CONTACT.detection((30.0,), 1, np.random.default_rng(1))
+
+    (trial,) = result["trials"]
+    assert result["push_samples"] > 0
+    assert len(result["rms_error_nm"]) == 7 and all(math.isfinite(e) for e in result["rms_error_nm"])
+    assert max(trial["joint_peak_nm"]) > 1.0  # 30 N at the TCP shows on some joint
+    assert result["per_force"]["30"]["trials"] == 1
+
+
+@pytest.mark.anyio
+async def test_a_declared_payload_carried_by_the_hand_is_not_a_contact() -> None:
+    result = await CONTACT.false_alarms(2, 1.0, np.random.default_rng(2))
+
+    assert result["violations"] == 0, result["examples"]
+    assert len(result["peak_estimate_nm"]) == 7 and result["payload_kg"] == 1.0
+
+
+def test_suggested_limits_leave_room_over_every_false_alarm_peak() -> None:
+    runs = [{"peak_estimate_nm": [1.0, 4.0, 0.1]}, {"peak_estimate_nm": [2.0, 3.0, 0.2]}]
+
+    assert CONTACT.suggested_limits(runs) == [3.0, 6.0, 1.5]  # 1.5x, at least +1 N·m, up to 0.5 N·m
+
+
+def test_the_threshold_with_other_limits_is_the_smallest_force_caught_often_enough() -> None:
+    trials = [{"force_n": 20.0, "joint_peak_nm": [3.0], "wrench_peak_n": 5.0},
+              {"force_n": 10.0, "joint_peak_nm": [1.0], "wrench_peak_n": 5.0},
+              {"force_n": 30.0, "joint_peak_nm": [0.5], "wrench_peak_n": 31.0}]
+    detection = {"trials": trials, "max_force_n": 30.0,
+                 "per_force": {"10": {"trials": 1}, "20": {"trials": 1}, "30": {"trials": 1}}}
+
+    found = CONTACT.threshold_with(detection, [2.0])
+
+    assert found["shares"] == {"20": 1.0, "10": 0.0, "30": 1.0} and found["threshold_n"] == 20.0
+
+
+def test_the_report_names_every_figure(capsys: pytest.CaptureFixture[str]) -> None:
+    figures = {"n": 1, "p50": 5.0, "p95": 6.0, "max": 7.0}
+    result = {
+        "quick": True, "wall_s": 1.0,
+        "latency": {"trials": 1, "not_stopped": 0, "latency_ms": figures, "peak_contact_force_n": figures,
+                    "peak_hand_ft_n": figures, "kinds": {"joint_torque_limit": 1}},
+        "detection": {"per_force": {"30": {"trials": 1, "detected": 1, "share": 1.0, "violations_before_push": 0}},
+                      "threshold_n": 30.0, "rms_error_nm": [0.1] * 7, "rms_error_settled_nm": [0.05] * 7,
+                      "push_samples": 10},
+        "false_alarms": [{"payload_kg": 0.0, "motions": 2, "violations": 0, "examples": [],
+                          "peak_estimate_nm": [1.0] * 7, "peak_estimate_p50_nm": [0.5] * 7,
+                          "peak_estimate_p99_nm": [0.9] * 7, "limits_nm": [10.0] * 7}],
+        "with_suggested_limits": {"limits_nm": [2.5] * 7, "shares": {"30": 1.0}, "threshold_n": 30.0},
+    }
+
+    CONTACT.report_contact(result)
+
+    out = capsys.readouterr().out
+    for figure in ("stop latency", "peak contact force", "detection threshold", "RMS error", "false alarms, payload 0 kg",
+                   "limits the false-alarm margins support"):
+        assert figure in out
