@@ -100,3 +100,23 @@ def test_the_report_names_every_figure(capsys: pytest.CaptureFixture[str]) -> No
     for figure in ("stop latency", "peak contact force", "detection threshold", "RMS error", "false alarms, payload 0 kg",
                    "limits the false-alarm margins support"):
         assert figure in out
+
+
+def test_a_limits_file_from_calibrate_contact_replaces_the_bundled_section(tmp_path: Path) -> None:
+    limits = tmp_path / "limits.yaml"
+    joints = {f"fr3_joint{j}": 6.0 for j in range(1, 8)}
+    limits.write_text(f"force:\n  joint_torques:\n    max_external_torque_nm: {joints}\n")
+
+    overrides = CONTACT.joint_torques_section(str(limits))
+    policy = CONTACT.bench_policy(**{"force.source": "joint_torques", **overrides})
+
+    assert dict(policy.force.joint_torques.max_external_torque_nm) == joints
+    assert CONTACT.joint_torques_section(None) == {}
+
+
+def test_a_limits_file_without_the_section_is_refused(tmp_path: Path) -> None:
+    limits = tmp_path / "limits.yaml"
+    limits.write_text("force:\n  max_contact_force_n: 30\n")
+
+    with pytest.raises(ValueError, match=r"no force\.joint_torques section"):
+        CONTACT.joint_torques_section(str(limits))

@@ -283,11 +283,32 @@ class Bench:
             raise RuntimeError(f"an unmonitored move did not complete: {result.reason}")
 
 
-async def open_bench(payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator) -> Bench:
+def joint_torques_section(limits_file: str | None) -> dict[str, Any]:
+    """Policy overrides for `force.joint_torques`: none (the bundled section), or the section in
+    `limits_file` (what `armwarden calibrate-contact` writes: the section alone, under
+    `joint_torques:`, or under `force: joint_torques:`)."""
+    if limits_file is None:
+        return {}
+    import yaml
+
+    with open(limits_file, encoding="utf-8") as handle:
+        document = yaml.safe_load(handle)
+    if isinstance(document, dict) and isinstance(document.get("force"), dict):
+        document = document["force"]
+    if isinstance(document, dict) and isinstance(document.get("joint_torques"), dict):
+        document = document["joint_torques"]
+    if not isinstance(document, dict) or "max_external_torque_nm" not in document:
+        raise ValueError(f"{limits_file} holds no force.joint_torques section")
+    return {"force.joint_torques": document}
+
+
+async def open_bench(payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator,
+                     section: dict[str, Any] | None = None) -> Bench:
     from armwarden.backends import create_backend
     from armwarden.preflight import load_runtime_model
 
-    policy = bench_policy(**{"force.source": "joint_torques", "force.joint_torques.payload_kg": payload_kg})
+    policy = bench_policy(**{"force.source": "joint_torques", **(section or {}),
+                             "force.joint_torques.payload_kg": payload_kg})
     runtime = load_runtime_model(policy)
     backend = create_backend("mujoco", runtime.robot, policy, {"speedup": 1.0, "objects": objects})
     if payload_kg > 0:
@@ -297,10 +318,10 @@ async def open_bench(payload_kg: float, objects: list[dict[str, Any]], rng: np.r
 
 
 # ---------------------------------------------------------------------------------------- 1
-async def stop_latency(trials: int, rng: np.random.Generator) -> dict[str, Any]:
+async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str, Any] | None = None) -> dict[str, Any]:
     box = {"name": "unknown_box", "shape": "box", "position_m": [HOME_TCP_X_M, 0.0, BOX_TOP_Z_M - BOX_SIZE_M[2] / 2],
            "size_m": list(BOX_SIZE_M), "mass_kg": 1.0, "fixed": True}
-    bench = await open_bench(0.0, [box], rng)
+    bench = await open_bench(0.0, [box], rng, section)
     hook = install_hook(bench.backend, bench.runtime.robot.base_frame, box["name"])
     latencies: list[float] = []
     contact_n: list[float] = []
@@ -333,10 +354,11 @@ async def stop_latency(trials: int, rng: np.random.Generator) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------------- 2
-async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Generator) -> dict[str, Any]:
+async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Generator,
+                    section: dict[str, Any] | None = None) -> dict[str, Any]:
     import anyio
 
-    bench = await open_bench(0.0, [], rng)
+    bench = await open_bench(0.0, [], rng, section)
     per_force: dict[str, dict[str, Any]] = {}
     #: per trial: the force, and in its window the peak |estimate| per joint and the peak trusted TCP force
     trials_seen: list[dict[str, Any]] = []
@@ -421,8 +443,9 @@ def threshold_with(detection: dict[str, Any], limits: list[float]) -> dict[str, 
 
 
 # ---------------------------------------------------------------------------------------- 3
-async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator) -> dict[str, Any]:
-    bench = await open_bench(payload_kg, [], rng)
+async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator,
+                       section: dict[str, Any] | None = None) -> dict[str, Any]:
+    bench = await open_bench(payload_kg, [], rng, section)
     violations: list[dict[str, Any]] = []
     peaks = np.zeros(len(bench.names))
     per_motion: list[np.ndarray] = []  # each motion's peak |estimate| per joint
@@ -445,20 +468,24 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
             "refused_goals": bench.refused}
 
 
-def bench_contact(quick: bool = False) -> dict[str, Any]:
-    """All three figures from one run (`quick`: a handful of trials each, to see it work)."""
+def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[str, Any]:
+    """All three figures from one run (`quick`: a handful of trials each, to see it work;
+    `limits_file`: the `force.joint_torques` section calibrate-contact wrote, else the bundled one)."""
     import anyio
+
+    section = joint_torques_section(limits_file)
 
     latency_trials, detect_trials, motions = (3, 3, 10) if quick else (20, 20, 200)
     forces = (10.0, 30.0) if quick else FORCES_N
 
     async def main() -> dict[str, Any]:
         rng = np.random.default_rng(SEED)
-        out: dict[str, Any] = {"quick": quick, "seed": SEED}
+        out: dict[str, Any] = {"quick": quick, "seed": SEED, "limits_file": limits_file}
         started = time.monotonic()
-        out["latency"] = await stop_latency(latency_trials, rng)
-        out["detection"] = await detection(forces, detect_trials, rng)
-        out["false_alarms"] = [await false_alarms(motions, 0.0, rng), await false_alarms(motions, PAYLOAD_KG, rng)]
+        out["latency"] = await stop_latency(latency_trials, rng, section)
+        out["detection"] = await detection(forces, detect_trials, rng, section)
+        out["false_alarms"] = [await false_alarms(motions, 0.0, rng, section),
+                               await false_alarms(motions, PAYLOAD_KG, rng, section)]
         limits = suggested_limits(out["false_alarms"])
         out["with_suggested_limits"] = threshold_with(out["detection"], limits)
         out["wall_s"] = time.monotonic() - started
@@ -473,7 +500,8 @@ def report_contact(r: dict[str, Any]) -> None:
 
     latency = r["latency"]
     ms, force, ft = latency["latency_ms"], latency["peak_contact_force_n"], latency["peak_hand_ft_n"]
-    print("\n== contact from joint torques (MuJoCo FR3, speedup 1, bundled policy, force.source: joint_torques)")
+    section = r.get("limits_file") or "the bundled policy's"
+    print(f"\n== contact from joint torques (MuJoCo FR3, speedup 1, force.source: joint_torques, {section} limits)")
     print(f"stop latency, contact onset -> e-stop commanded: p50 {ms['p50']:.1f} ms, p95 {ms['p95']:.1f} ms, "
           f"max {ms['max']:.1f} ms over {ms['n']} of {latency['trials']} trials (target p95 <= 20 ms: "
           f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; by {latency['kinds']}")
