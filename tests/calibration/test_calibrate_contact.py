@@ -1,21 +1,29 @@
 """`armwarden calibrate-contact` end to end on the fake arm: the motions go through the Guard and
-are audited, the recommended section loads into the policy, a run without approval moves nothing,
-and a contact during the calibration ends it."""
+are audited, the recommended section pasted into the policy passes check-policy, the limits keep
+the margin over what was seen, a run without approval moves nothing, and a contact or an e-stop
+during the calibration ends it (exit 1, nothing recommended)."""
 
 from __future__ import annotations
 
 import argparse
 import io
+import os
+import signal
 from pathlib import Path
 from typing import Any
 
+import anyio
 import pytest
 import yaml
 
 from armwarden.audit.verify import verify_file
 from armwarden.calibration import run as calibration_run
 from armwarden.calibration.command import EXIT_OK, EXIT_REFUSED, EXIT_STOPPED, add_calibrate_arguments, calibrate_command
-from armwarden.policy import bundled_policy, load_policy, parse_policy
+from armwarden.calibration.friction_fit import MIN_LIMIT_NM
+from armwarden.calibration.run import CalibrationOptions, run_calibration
+from armwarden.cli import check_policy_command
+from armwarden.daemon import startup
+from armwarden.policy import bundled_policy, load_policy
 from tests.helpers import records_of
 
 MOTIONS = 3
@@ -39,84 +47,163 @@ class Terminal(io.StringIO):
         return True
 
 
-def test_a_calibration_writes_a_section_the_policy_accepts(tmp_path: Path) -> None:
-    assert calibrate_command(arguments(tmp_path, "--yes"), stderr=io.StringIO()) == EXIT_OK
-    section = yaml.safe_load((tmp_path / "section.yaml").read_text())["joint_torques"]
-    document = yaml.safe_load(bundled_policy("fr3").read_text())
-    document["force"]["joint_torques"] = section
-    policy = parse_policy(document, base_dir=bundled_policy("fr3").parent)
-    limits = policy.force.joint_torques
-    assert limits is not None and tuple(limits.max_external_torque_nm) == policy.robot.joint_names
+def pasted(policy_text: str, section_text: str) -> str:
+    """`policy_text` with its `force.joint_torques` block replaced by `section_text`, indented under
+    `force:` as the section's own comment tells the user to paste it."""
+    lines = policy_text.splitlines()
+    start = lines.index("  joint_torques:")
+    end = next(i for i in range(start + 1, len(lines)) if not lines[i].startswith("    "))
+    return "\n".join([*lines[:start], *("  " + line for line in section_text.splitlines()), *lines[end:]]) + "\n"
 
 
-def test_every_calibration_motion_went_through_the_guard_and_is_audited(tmp_path: Path) -> None:
-    calibrate_command(arguments(tmp_path, "--yes"), stderr=io.StringIO())
-    records = records_of(tmp_path / "audit.jsonl")
-    executed = [r for r in records if r["event"] == "tool_call" and r["tool"] == "execute_plan" and r["outcome"] == "ok"]
-    assert len(executed) == MOTIONS + 1  # and back home
-    started = [r for r in records if r["event"] == "calibration_started"]
-    assert started and started[0]["operator"] == "alice"  # who approved it, before anything moved
-    assert records.index(started[0]) < records.index(executed[0])
-    assert records[-1]["event"] == "calibration_finished" and records[-1]["outcome"] == "ok"
-    assert verify_file(tmp_path / "audit.jsonl").ok
+def executed_ok(audit: Path) -> list[dict[str, Any]]:
+    return [r for r in records_of(audit) if r["event"] == "tool_call" and r["tool"] == "execute_plan"
+            and r["outcome"] == "ok"]
 
 
-def test_the_recommended_limits_exceed_what_was_seen_by_the_margin(tmp_path: Path) -> None:
-    stderr = io.StringIO()
-    calibrate_command(arguments(tmp_path, "--yes", "--margin", "3"), stderr=stderr)
-    text = (tmp_path / "section.yaml").read_text()
-    assert "margin 3" in text
-    for line in text.splitlines():
-        if "->" in line and "x margin" in line:
-            margin = float(line.split("(")[1].split("x margin")[0])
-            assert margin >= 3.0 - 0.01
-
-
-def test_without_a_terminal_or_yes_nothing_moves(tmp_path: Path) -> None:
-    stderr = io.StringIO()
-    assert calibrate_command(arguments(tmp_path), stdin=NotATerminal(), stderr=stderr) == EXIT_REFUSED
-    assert "nothing moved" in stderr.getvalue()
-    assert not (tmp_path / "audit.jsonl").exists() and not (tmp_path / "section.yaml").exists()
-
-
-def test_a_human_who_does_not_type_yes_moves_nothing(tmp_path: Path) -> None:
-    assert calibrate_command(arguments(tmp_path), stdin=Terminal("no\n"), stderr=io.StringIO()) == EXIT_REFUSED
-    assert not (tmp_path / "audit.jsonl").exists()
-
-
-def test_a_contact_during_calibration_ends_it_and_recommends_nothing(tmp_path: Path,
-                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+def backends_built(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """Every backend the calibration builds (through the daemon's start-up, as `serve`), kept."""
     built: list[Any] = []
-    build = calibration_run.build_backend  # pyright: ignore[reportPrivateImportUsage] - the name the run looks up
+    build = startup.build_backend  # pyright: ignore[reportPrivateImportUsage] - the name start-up looks up
 
     def keep(*args: Any, **kwargs: Any) -> Any:
         built.append(build(*args, **kwargs))
         return built[-1]
 
+    monkeypatch.setattr(startup, "build_backend", keep)
+    return built
+
+
+def with_progress(monkeypatch: pytest.MonkeyPatch, progress: Any) -> None:
+    """Run the command's calibration with `progress` called after each motion."""
+    real_run = calibration_run.run_calibration
+
+    async def run(options: Any, **_: Any) -> Any:
+        return await real_run(options, progress=progress)
+
+    monkeypatch.setattr("armwarden.calibration.command.run_calibration", run)
+
+
+def test_the_recommended_section_pasted_into_the_policy_passes_check_policy(tmp_path: Path,
+                                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    assert calibrate_command(arguments(tmp_path, "--yes"), stderr=io.StringIO()) == EXIT_OK
+    section_text = (tmp_path / "section.yaml").read_text()
+    policy_path = tmp_path / "calibrated.yaml"
+    policy_path.write_text(pasted(bundled_policy("fr3").read_text(), section_text))
+
+    assert check_policy_command(str(policy_path)) == 0, capsys.readouterr().out
+    limits = load_policy(policy_path).force.joint_torques
+    recommended = yaml.safe_load(section_text)["joint_torques"]["max_external_torque_nm"]
+    assert limits is not None and dict(limits.max_external_torque_nm) == recommended
+    assert tuple(recommended) == load_policy(policy_path).robot.joint_names
+
+
+def test_every_calibration_motion_went_through_the_guard_and_is_audited(tmp_path: Path) -> None:
+    assert calibrate_command(arguments(tmp_path, "--yes"), stderr=io.StringIO()) == EXIT_OK
+    records = records_of(tmp_path / "audit.jsonl")
+    executed = executed_ok(tmp_path / "audit.jsonl")
+    assert len(executed) == MOTIONS + 1  # and back home
+    # each monitored from the joint torques: the peak external torque of every joint is in its record
+    assert all(len(r["extra"]["result"]["max_external_torques_nm"]) == 7 for r in executed)
+    started = [r for r in records if r["event"] == "calibration_started"]
+    assert started and started[0]["operator"] == "alice"  # who approved it, before anything moved
+    assert records.index(started[0]) < records.index(executed[0])
+    finished = [r for r in records if r["event"] == "calibration_finished"]
+    assert finished and finished[0]["outcome"] == "ok"
+    assert verify_file(tmp_path / "audit.jsonl").ok
+
+
+def test_the_recommended_limits_exceed_what_was_seen_by_the_margin(tmp_path: Path) -> None:
+    options = CalibrationOptions(policy=load_policy(bundled_policy("fr3")), backend="fake", motions=MOTIONS,
+                                 margin=3.0, audit_log=tmp_path / "audit.jsonl")
+    result = anyio.run(run_calibration, options)
+
+    assert result.stopped is None and result.recommendations
+    for joint in result.recommendations:
+        assert joint.samples > 100
+        assert joint.limit_nm >= max(MIN_LIMIT_NM, 3.0 * joint.peak_after_friction_nm)
+        assert joint.limit_nm <= max(MIN_LIMIT_NM, 3.0 * joint.peak_after_friction_nm) + 0.01
+        assert joint.margin >= 3.0
+        assert result.section["max_external_torque_nm"][joint.name] == joint.limit_nm
+
+
+def test_the_summary_on_stderr_gives_each_joints_residual_limit_and_margin(tmp_path: Path) -> None:
+    stderr = io.StringIO()
+    assert calibrate_command(arguments(tmp_path, "--yes"), stderr=stderr) == EXIT_OK
+    section = yaml.safe_load((tmp_path / "section.yaml").read_text())["joint_torques"]
+    summary = stderr.getvalue().split("false-alarm margin\n")[1]  # after the table's header
+    rows = {line.split()[0]: line.split() for line in summary.splitlines() if line.startswith("  fr3_joint")}
+    assert set(rows) == set(section["max_external_torque_nm"])
+    for name, row in rows.items():
+        residual, limit, margin = float(row[1]), float(row[3]), row[4]
+        assert limit == section["max_external_torque_nm"][name]
+        assert margin == "inf" or float(margin.rstrip("x")) >= 2.0
+        assert limit > residual
+
+
+def test_without_a_terminal_or_yes_nothing_moves(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    built = backends_built(monkeypatch)
+    stderr = io.StringIO()
+    assert calibrate_command(arguments(tmp_path), stdin=NotATerminal(), stderr=stderr) == EXIT_REFUSED
+    assert "nothing moved" in stderr.getvalue()
+    assert built == []  # no backend was even built
+    assert not (tmp_path / "audit.jsonl").exists() and not (tmp_path / "section.yaml").exists()
+
+
+def test_the_terminal_prompt_lists_the_motions_joint_ranges_and_speeds(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    built = backends_built(monkeypatch)
+    stderr = io.StringIO()
+    assert calibrate_command(arguments(tmp_path), stdin=Terminal("no\n"), stderr=stderr) == EXIT_REFUSED
+    prompt = stderr.getvalue()
+    assert f"through {MOTIONS} seeded random motions" in prompt and "Type yes to start" in prompt
+    assert all(f"  fr3_joint{j}: " in prompt for j in range(1, 8)) and "rad/s" in prompt
+    assert built == [] and not (tmp_path / "audit.jsonl").exists()
+
+
+def test_a_contact_during_calibration_ends_it_and_recommends_nothing(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    built = backends_built(monkeypatch)
+
     def push_after_the_first_motion(line: str) -> None:
         if line.startswith("motion 1/"):
             built[0].push("fr3_link5", (0.0, 0.0, 60.0))  # over twice joint 4's limit: nothing may move
 
-    monkeypatch.setattr(calibration_run, "build_backend", keep)
-    real_run = calibration_run.run_calibration
-
-    async def with_push(options: Any, progress: Any = None) -> Any:
-        return await real_run(options, progress=push_after_the_first_motion)
-
-    monkeypatch.setattr("armwarden.calibration.command.run_calibration", with_push)
+    with_progress(monkeypatch, push_after_the_first_motion)
     stderr = io.StringIO()
     assert calibrate_command(arguments(tmp_path, "--yes"), stderr=stderr) == EXIT_STOPPED
-    assert "nothing more moved" in stderr.getvalue() and "IN_CONTACT" in stderr.getvalue()
+    said = stderr.getvalue().splitlines()[-1]
+    # refused before motion 2 moved (IN_CONTACT), or stopped by the monitor as it began (FORCE_LIMIT)
+    assert "nothing more moved" in said and ("[IN_CONTACT]" in said or "[FORCE_LIMIT]" in said), said
     assert not (tmp_path / "section.yaml").exists()
-    executed = [r for r in records_of(tmp_path / "audit.jsonl") if r["event"] == "tool_call"
-                and r["tool"] == "execute_plan" and r["outcome"] == "ok"]
-    assert len(executed) == 1
+    assert len(executed_ok(tmp_path / "audit.jsonl")) == 1
+    finished = [r for r in records_of(tmp_path / "audit.jsonl") if r["event"] == "calibration_finished"]
+    assert finished[0]["outcome"] == "stopped" and finished[0]["detail"] in said
+
+
+@pytest.mark.parametrize("signum", [signal.SIGUSR1, signal.SIGINT], ids=["SIGUSR1", "Ctrl-C"])
+def test_an_estop_during_calibration_ends_it_and_recommends_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                    signum: int) -> None:
+    def signal_after_the_first_motion(line: str) -> None:
+        if line.startswith("motion 1/"):
+            os.kill(os.getpid(), signum)
+
+    with_progress(monkeypatch, signal_after_the_first_motion)
+    stderr = io.StringIO()
+    assert calibrate_command(arguments(tmp_path, "--yes"), stderr=stderr) == EXIT_STOPPED
+    assert "nothing more moved" in stderr.getvalue()
+    assert not (tmp_path / "section.yaml").exists()
+    records = records_of(tmp_path / "audit.jsonl")
+    assert len(executed_ok(tmp_path / "audit.jsonl")) == 1
+    assert [r["event"] for r in records].count("estop") == 1
+    finished = [r for r in records if r["event"] == "calibration_finished"]
+    assert finished[0]["outcome"] == "stopped"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers are given back
 
 
 def test_a_policy_without_joint_torque_limits_is_calibrated_under_provisional_ones(tmp_path: Path) -> None:
     document = yaml.safe_load(bundled_policy("fr3").read_text())
     del document["force"]["joint_torques"]
-    document["robot"]["description"] = "builtin:fr3"
     path = tmp_path / "bare.yaml"
     path.write_text(yaml.safe_dump(document))
     assert load_policy(path).force.joint_torques is None

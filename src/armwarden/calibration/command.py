@@ -1,9 +1,11 @@
 """The `armwarden calibrate-contact` subcommand: what it asks the human, what it prints and writes.
 
-On a terminal it lists what will move and waits for `yes`; `--yes` answers for simulation and
-CI; with neither (no terminal) it refuses and nothing moves. The recommended section goes to
-`--output` or stdout as YAML, the per-joint summary to stderr. The user's policy file is never
-edited: they paste the section after reading it.
+On a terminal it lists what will move (how many motions, each joint's range, its top speed and
+acceleration) and waits for `yes`; `--yes` answers for simulation and CI; with neither (no
+terminal) it refuses (exit 2) and nothing moves. The recommended section goes to `--output` or
+stdout as YAML, the per-joint summary (residual seen, limit, false-alarm margin) to stderr. The
+user's policy file is never edited: they paste the section after reading it. A stop, an e-stop,
+a contact or a refusal during the motions ends the calibration with nothing recommended (exit 1).
 """
 
 from __future__ import annotations
@@ -16,14 +18,20 @@ from pathlib import Path
 from typing import TextIO
 
 import anyio
+import numpy as np
 import yaml
 
-from armwarden.calibration.friction_fit import DEFAULT_MARGIN
-from armwarden.calibration.run import CalibrationOptions, CalibrationResult, run_calibration
+from armwarden.audit import AuditWriteError
+from armwarden.calibration.friction_fit import DEFAULT_MARGIN, MIN_LIMIT_NM, JointRecommendation
+from armwarden.calibration.run import CalibrationOptions, CalibrationResult, calibration_goals, run_calibration
 from armwarden.core.errors import ArmWardenError
 from armwarden.policy import Policy, load_policy
+from armwarden.policy.joint_torques import MAX_EXTERNAL_TORQUE_NM
 
 EXIT_OK, EXIT_STOPPED, EXIT_REFUSED = 0, 1, 2
+
+__all__ = ["EXIT_OK", "EXIT_REFUSED", "EXIT_STOPPED", "add_calibrate_arguments", "calibrate_command",
+           "render_section", "render_summary"]
 
 
 def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,42 +43,82 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
                         help=f"recommended limit = margin × the largest residual seen (default {DEFAULT_MARGIN:g})")
     parser.add_argument("--output", type=Path, default=None, help="write the recommended section here (default: stdout)")
-    parser.add_argument("--audit-log", type=Path, default=Path("armwarden-calibration-audit.jsonl"),
-                        help="where every motion is recorded")
+    parser.add_argument("--audit-log", type=Path, default=Path("armwarden-audit.jsonl"),
+                        help="append-only audit log (JSONL) every motion is recorded in, as serve's")
     parser.add_argument("--operator", default=None, help="who approves the calibration (default: the login name)")
     parser.add_argument("--yes", action="store_true", help="approve without asking (simulation, CI)")
 
 
-def _what_moves(policy: Policy, args: argparse.Namespace) -> str:
+def what_moves(policy: Policy, args: argparse.Namespace) -> str:
+    """What the human approves: the backend, the number of motions, each joint's range over all the
+    goals (home among them) and its top speed and acceleration at the policy's largest scalings."""
     motion = policy.motion
-    return (f"calibrate-contact will move the arm ({policy.robot.name}, backend {args.backend}) through "
-            f"{args.motions} random motions within ±0.4 rad of home and back home, at "
-            f"{motion.max_velocity_scaling:g} of the joints' velocity and {motion.max_acceleration_scaling:g} of their "
-            "acceleration limits, every one checked by the envelope and monitored for contact. Keep the cell clear "
-            "and the e-stop in reach.")
+    goals = np.array(calibration_goals(policy, args.motions, args.seed))
+    lines = [f"calibrate-contact will move the arm ({policy.robot.name}, backend {args.backend}) through "
+             f"{args.motions} seeded random motions (seed {args.seed}) and back home, each planned and checked by "
+             "the envelope, monitored for contact and audited, at the policy's largest scalings "
+             f"({motion.max_velocity_scaling:g} of each joint's velocity, {motion.max_acceleration_scaling:g} of its "
+             "acceleration limit):"]
+    for j, (name, limit) in enumerate(policy.robot.joint_limits.items()):
+        lines.append(f"  {name}: {goals[:, j].min():+.2f} .. {goals[:, j].max():+.2f} rad, up to "
+                     f"{limit.max_velocity * motion.max_velocity_scaling:.2f} rad/s and "
+                     f"{limit.max_acceleration * motion.max_acceleration_scaling:.2f} rad/s²")
+    lines.append("Keep the cell clear and the e-stop in reach; Ctrl-C or SIGUSR1 latches the e-stop and ends it.")
+    return "\n".join(lines)
 
 
 def _approved(policy: Policy, args: argparse.Namespace, stdin: TextIO, stderr: TextIO) -> bool:
-    print(_what_moves(policy, args), file=stderr)
+    print(what_moves(policy, args), file=stderr)
     if args.yes:
         return True
     if not stdin.isatty():
         print("armwarden calibrate-contact: no terminal to ask on and no --yes: nothing moved", file=stderr)
         return False
     print("Type yes to start: ", end="", file=stderr, flush=True)
-    return stdin.readline().strip().lower() == "yes"
+    try:
+        answer = stdin.readline()
+    except KeyboardInterrupt:
+        answer = ""
+    if answer.strip().lower() != "yes":
+        print("armwarden calibrate-contact: not approved: nothing moved", file=stderr)
+        return False
+    return True
+
+
+def _margin_text(r: JointRecommendation) -> str:
+    return "no residual" if math.isinf(r.margin) else f"{r.margin:.1f}x margin"
 
 
 def render_section(result: CalibrationResult, args: argparse.Namespace) -> str:
     """The recommended `force.joint_torques` section, commented, ready to paste under `force:`."""
     lines = [f"# force.joint_torques recommended by `armwarden calibrate-contact` ({result.executed} motions, "
-             f"seed {args.seed}, margin {args.margin:g}).",
+             f"seed {args.seed}, margin {args.margin:g}). Paste it under `force:` in the policy (indented),",
+             "# replacing the joint_torques there, then run `armwarden check-policy`.",
              "# Per joint: largest residual seen with nothing touching the arm -> after the fitted friction -> limit.",
              *[f"#   {r.name}: {r.peak_residual_nm:.2f} -> {r.peak_after_friction_nm:.2f} -> {r.limit_nm:g} N·m "
-               f"({'no residual' if math.isinf(r.margin) else f'{r.margin:.1f}x margin'}, {r.samples} samples)"
-               for r in result.recommendations],
+               f"({_margin_text(r)}, {r.samples} samples)" for r in result.recommendations],
              yaml.safe_dump({"joint_torques": result.section}, sort_keys=False, default_flow_style=False).rstrip()]
     return "\n".join(lines) + "\n"
+
+
+def render_summary(result: CalibrationResult, margin: float) -> str:
+    """The per-joint summary for stderr: what was seen, the limit, the false-alarm margin it gives,
+    and a warning where the limit could not keep the requested margin (the format's cap)."""
+    width = max(len(r.name) for r in result.recommendations)
+    lines = [f"calibrate-contact: {result.executed} motions, {len(result.skipped)} skipped, "
+             f"{result.recommendations[0].samples} samples per joint",
+             f"  {'joint':<{width}}  residual  after friction  limit [N·m]  false-alarm margin"]
+    for r in result.recommendations:
+        margin_text = "inf" if math.isinf(r.margin) else f"{r.margin:.1f}x"
+        note = ""
+        if r.limit_nm < margin * r.peak_after_friction_nm:
+            note = (f"   WARNING: capped at {MAX_EXTERNAL_TORQUE_NM:g} N·m, below {margin:g}x; look for the "
+                    "cause (payload, friction, model) before using it")
+        elif r.limit_nm == MIN_LIMIT_NM and margin * r.peak_after_friction_nm < MIN_LIMIT_NM:
+            note = f"   (the {MIN_LIMIT_NM:g} N·m floor)"
+        lines.append(f"  {r.name:<{width}}  {r.peak_residual_nm:8.2f}  {r.peak_after_friction_nm:14.2f}  "
+                     f"{r.limit_nm:11g}  {margin_text:>18}{note}")
+    return "\n".join(lines)
 
 
 def calibrate_command(args: argparse.Namespace, stdin: TextIO = sys.stdin, stderr: TextIO = sys.stderr) -> int:
@@ -90,12 +138,15 @@ def calibrate_command(args: argparse.Namespace, stdin: TextIO = sys.stdin, stder
     try:
         result = anyio.run(lambda: run_calibration(
             options, progress=lambda line: print(f"calibrate-contact: {line}", file=stderr, flush=True)))
+    except AuditWriteError as exc:
+        print(f"armwarden calibrate-contact: {exc}", file=stderr)
+        return EXIT_STOPPED
     except (ArmWardenError, ValueError) as exc:
-        print(f"armwarden calibrate-contact: {exc}; nothing more moved", file=stderr)
+        print(f"armwarden calibrate-contact: {exc}; nothing moved", file=stderr)
         return EXIT_REFUSED
     if result.stopped is not None:
         print(f"armwarden calibrate-contact: stopped at {result.stopped}; nothing more moved and nothing is "
-              "recommended", file=stderr)
+              f"recommended (audit log: {args.audit_log})", file=stderr)
         return EXIT_STOPPED
     if not result.recommendations:
         print("armwarden calibrate-contact: no usable samples were recorded", file=stderr)
@@ -103,12 +154,11 @@ def calibrate_command(args: argparse.Namespace, stdin: TextIO = sys.stdin, stder
     text = render_section(result, args)
     if args.output is not None:
         args.output.write_text(text, encoding="utf-8")
-        print(f"calibrate-contact: wrote {args.output}", file=stderr)
     else:
         sys.stdout.write(text)
     for skipped in result.skipped:
         print(f"calibrate-contact: skipped {skipped}", file=stderr)
+    print(render_summary(result, args.margin), file=stderr)
+    if args.output is not None:
+        print(f"calibrate-contact: wrote {args.output}", file=stderr)
     return EXIT_OK
-
-
-__all__ = ["add_calibrate_arguments", "calibrate_command"]

@@ -90,7 +90,8 @@ def recommend(joint_names: Sequence[str], velocities: np.ndarray, residuals: np.
         coulomb, viscous = fit_friction(v[:, j], r[:, j])
         left = r[:, j] + coulomb * np.tanh(v[:, j] / COULOMB_SMOOTHING_RAD_S) + viscous * v[:, j]
         peak_before, peak_after = float(np.max(np.abs(r[:, j]))), float(np.max(np.abs(left)))
-        limit = round(min(MAX_EXTERNAL_TORQUE_NM, max(MIN_LIMIT_NM, margin * peak_after)), 2)
+        # rounded up to 0.01 N·m: rounding must never take the limit below margin × what was seen
+        limit = min(MAX_EXTERNAL_TORQUE_NM, max(MIN_LIMIT_NM, math.ceil(round(margin * peak_after * 100, 6)) / 100))
         found.append(JointRecommendation(name, int(v.shape[0]), peak_before, round(coulomb, 3), round(viscous, 3),
                                          peak_after, limit, limit / peak_after if peak_after > 0 else math.inf))
     return found
