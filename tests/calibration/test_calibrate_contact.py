@@ -211,3 +211,33 @@ def test_a_policy_without_joint_torque_limits_is_calibrated_under_provisional_on
     args.policy = path
     assert calibrate_command(args, stderr=io.StringIO()) == EXIT_OK
     assert "max_external_torque_nm" in (tmp_path / "section.yaml").read_text()
+
+
+def policy_file(tmp_path: Path, section: str, **changes: Any) -> Path:
+    """The bundled FR3 policy with `changes` to one of its sections, written to a file."""
+    document = yaml.safe_load(bundled_policy("fr3").read_text())
+    document[section].update(changes)
+    path = tmp_path / "policy.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+def test_where_the_policy_asks_for_every_motion_the_calibrations_approval_answers(tmp_path: Path) -> None:
+    args = arguments(tmp_path, "--yes")
+    args.policy = policy_file(tmp_path, "approval", mode="always")
+    assert calibrate_command(args, stderr=io.StringIO()) == EXIT_OK
+    executed = executed_ok(tmp_path / "audit.jsonl")
+    assert len(executed) == MOTIONS + 1
+    assert all(r["extra"]["approval"]["via"] == "elicitation" and r["extra"]["approval"]["operator"] == "alice"
+               for r in executed)
+
+
+def test_a_calibration_in_which_no_motion_ran_recommends_nothing(tmp_path: Path) -> None:
+    args = arguments(tmp_path, "--yes")
+    args.policy = policy_file(tmp_path, "motion", soft_joint_step_rad=0.01)  # every motion needs its own look
+    stderr = io.StringIO()
+    assert calibrate_command(args, stderr=stderr) == EXIT_STOPPED
+    said = stderr.getvalue()
+    assert "no motion ran" in said and all(f"skipped motion {i}: needs_approval" in said for i in range(1, MOTIONS + 1))
+    assert len(executed_ok(tmp_path / "audit.jsonl")) <= 1  # at most the return home, from home
+    assert not (tmp_path / "section.yaml").exists()

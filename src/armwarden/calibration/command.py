@@ -106,6 +106,7 @@ def render_summary(result: CalibrationResult, margin: float) -> str:
     and a warning where the limit could not keep the requested margin (the format's cap)."""
     width = max(len(r.name) for r in result.recommendations)
     lines = [f"calibrate-contact: {result.executed} motions, {len(result.skipped)} skipped, "
+             f"{'back home' if result.returned_home else 'NOT back home'}, "
              f"{result.recommendations[0].samples} samples per joint",
              f"  {'joint':<{width}}  residual  after friction  limit [N·m]  false-alarm margin"]
     for r in result.recommendations:
@@ -118,6 +119,9 @@ def render_summary(result: CalibrationResult, margin: float) -> str:
             note = f"   (the {MIN_LIMIT_NM:g} N·m floor)"
         lines.append(f"  {r.name:<{width}}  {r.peak_residual_nm:8.2f}  {r.peak_after_friction_nm:14.2f}  "
                      f"{r.limit_nm:11g}  {margin_text:>18}{note}")
+    if len(result.skipped) > result.executed:
+        lines.append(f"calibrate-contact: WARNING: {len(result.skipped)} of {result.planned} motions were skipped: the "
+                     "limits rest on few motions; look at why, or run more (--motions, another --seed)")
     return "\n".join(lines)
 
 
@@ -148,16 +152,17 @@ def calibrate_command(args: argparse.Namespace, stdin: TextIO = sys.stdin, stder
         print(f"armwarden calibrate-contact: stopped at {result.stopped}; nothing more moved and nothing is "
               f"recommended (audit log: {args.audit_log})", file=stderr)
         return EXIT_STOPPED
-    if not result.recommendations:
-        print("armwarden calibrate-contact: no usable samples were recorded", file=stderr)
+    for skipped in result.skipped:
+        print(f"calibrate-contact: skipped {skipped}", file=stderr)
+    if result.executed == 0 or not result.recommendations:
+        print("armwarden calibrate-contact: no motion ran, so nothing is recommended (the skipped motions say why)",
+              file=stderr)
         return EXIT_STOPPED
     text = render_section(result, args)
     if args.output is not None:
         args.output.write_text(text, encoding="utf-8")
     else:
         sys.stdout.write(text)
-    for skipped in result.skipped:
-        print(f"calibrate-contact: skipped {skipped}", file=stderr)
     print(render_summary(result, args.margin), file=stderr)
     if args.output is not None:
         print(f"calibrate-contact: wrote {args.output}", file=stderr)

@@ -77,7 +77,9 @@ class CalibrationResult:
     """What ran and what it recommends; `stopped` says why the calibration ended early (None: it ran)."""
 
     planned: int = 0
+    #: the random motions that ran (the return home not counted: it may not move at all)
     executed: int = 0
+    returned_home: bool = False
     skipped: list[str] = field(default_factory=list)
     stopped: str | None = None
     recommendations: list[JointRecommendation] = field(default_factory=list)
@@ -226,18 +228,27 @@ async def run_calibration(options: CalibrationOptions, progress: Callable[[str],
                     await assembly.audit.append_async(
                         "calibration_finished", principal=PRINCIPAL, operator=options.operator,
                         outcome="stopped" if result.stopped else "ok",
-                        detail=result.stopped or f"{result.executed} motions ran, {len(result.skipped)} skipped")
+                        detail=result.stopped or f"{result.executed} motions ran, {len(result.skipped)} skipped, "
+                               f"{'back home' if result.returned_home else 'not back home'}")
             except AuditWriteError as exc:
                 lost = f"calibration_finished: {exc}"
             lost = await close_assembly(assembly, why) or lost
         sys.setswitchinterval(switch_interval)
         if lost is not None:
             raise AuditWriteError(f"the final audit record could not be written: {lost}")
-    if result.stopped is None and recorder is not None and recorder.residuals:
+    if result.stopped is None and result.executed and recorder is not None and recorder.residuals:
         result.recommendations = recommend(policy.robot.joint_names, np.array(recorder.velocities),
                                            np.array(recorder.residuals), options.margin)
         result.section = _section(policy, result.recommendations)
     return result
+
+
+def _runs(summary: dict[str, Any]) -> bool:
+    """Whether a plan is one the calibration's approval covers: the envelope passed it outright, or
+    it asks only because the policy asks for every motion (`approval.mode: always`). A plan with a
+    finding (a soft violation a human should weigh on its own) is skipped."""
+    return summary.get("status") == "ok" or (summary.get("status") == "needs_approval"
+                                             and not summary.get("violations"))
 
 
 async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenServer, guard: Guard,
@@ -264,14 +275,21 @@ async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenSe
             if planned.is_error:  # a refusal (an e-stop, a stale state, ...), not the envelope's verdict
                 result.stopped = f"motion {index + 1}: {_text(planned)}"
                 break
-            if summary.get("status") != "ok":
-                result.skipped.append(f"motion {index + 1}: {summary.get('status')}")
+            if not _runs(summary):
+                found = "; ".join(f"{v.get('code')}: {v.get('detail')}" for v in summary.get("violations") or [])
+                result.skipped.append(f"motion {index + 1}: {summary.get('status')}" + (f" ({found})" if found else ""))
                 continue
+            if summary.get("force_monitoring") is not True:  # a calibration nothing watches is no calibration
+                result.stopped = f"motion {index + 1}: the plan would run without contact monitoring"
+                break
             done = await _call(client, "execute_plan", {"plan_id": summary["plan_id"]})
             if done.is_error or (done.structured_content or {}).get("status") != "succeeded":
                 result.stopped = f"motion {index + 1}: {_text(done) or done.structured_content}"
                 break
-            result.executed += 1
+            if index < len(goals) - 1:
+                result.executed += 1
+            else:
+                result.returned_home = True
             progress(f"motion {index + 1}/{len(goals)} done")
         group.cancel_scope.cancel()
 
