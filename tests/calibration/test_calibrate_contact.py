@@ -131,7 +131,7 @@ def test_the_summary_on_stderr_gives_each_joints_residual_limit_and_margin(tmp_p
     stderr = io.StringIO()
     assert calibrate_command(arguments(tmp_path, "--yes"), stderr=stderr) == EXIT_OK
     section = yaml.safe_load((tmp_path / "section.yaml").read_text())["joint_torques"]
-    summary = stderr.getvalue().split("false-alarm margin\n")[1]  # after the table's header
+    summary = stderr.getvalue().split("monitor peak\n")[1]  # after the table's header
     rows = {line.split()[0]: line.split() for line in summary.splitlines() if line.startswith("  fr3_joint")}
     assert set(rows) == set(section["max_external_torque_nm"])
     for name, row in rows.items():

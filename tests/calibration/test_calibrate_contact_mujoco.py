@@ -38,7 +38,7 @@ def test_a_short_calibration_in_mujoco_recommends_limits_the_policy_accepts(tmp_
     assert len(executed_ok(tmp_path / "audit.jsonl")) == MOTIONS + 1 and verify_file(tmp_path / "audit.jsonl").ok
     section_text = (tmp_path / "section.yaml").read_text()
     limits = yaml.safe_load(section_text)["joint_torques"]["max_external_torque_nm"]
-    summary = stderr.getvalue().split("false-alarm margin\n")[1]
+    summary = stderr.getvalue().split("monitor peak\n")[1]
     for line in summary.splitlines():
         if line.startswith("  fr3_joint"):
             name, residual, after_friction, limit = line.split()[:4]

@@ -103,13 +103,15 @@ def render_section(result: CalibrationResult, args: argparse.Namespace) -> str:
 
 def render_summary(result: CalibrationResult, margin: float) -> str:
     """The per-joint summary for stderr: what was seen, the limit, the false-alarm margin it gives,
+    the Guard's own monitor's peak beside it (with the policy's friction allowance, as a cross-check),
     and a warning where the limit could not keep the requested margin (the format's cap)."""
     width = max(len(r.name) for r in result.recommendations)
     lines = [f"calibrate-contact: {result.executed} motions, {len(result.skipped)} skipped, "
              f"{'back home' if result.returned_home else 'NOT back home'}, "
              f"{result.recommendations[0].samples} samples per joint",
-             f"  {'joint':<{width}}  residual  after friction  limit [N·m]  false-alarm margin"]
-    for r in result.recommendations:
+             f"  {'joint':<{width}}  residual  after friction  limit [N·m]  false-alarm margin  monitor peak"]
+    monitor = result.monitor_peaks_nm or [math.nan] * len(result.recommendations)
+    for r, seen in zip(result.recommendations, monitor, strict=True):
         margin_text = "inf" if math.isinf(r.margin) else f"{r.margin:.1f}x"
         note = ""
         if r.limit_nm < margin * r.peak_after_friction_nm:
@@ -118,7 +120,7 @@ def render_summary(result: CalibrationResult, margin: float) -> str:
         elif r.limit_nm == MIN_LIMIT_NM and margin * r.peak_after_friction_nm < MIN_LIMIT_NM:
             note = f"   (the {MIN_LIMIT_NM:g} N·m floor)"
         lines.append(f"  {r.name:<{width}}  {r.peak_residual_nm:8.2f}  {r.peak_after_friction_nm:14.2f}  "
-                     f"{r.limit_nm:11g}  {margin_text:>18}{note}")
+                     f"{r.limit_nm:11g}  {margin_text:>18}  {seen:12.2f}{note}")
     if len(result.skipped) > result.executed:
         lines.append(f"calibrate-contact: WARNING: {len(result.skipped)} of {result.planned} motions were skipped: the "
                      "limits rest on few motions; look at why, or run more (--motions, another --seed)")

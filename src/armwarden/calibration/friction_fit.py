@@ -27,7 +27,10 @@ __all__ = ["DEFAULT_MARGIN", "MIN_LIMIT_NM", "JointRecommendation", "fit_frictio
 
 #: recommended limit = margin × the largest residual left after friction
 DEFAULT_MARGIN = 2.0
-#: no limit below this [N·m]: under it a torque sensor's noise and quantisation alone stop motions
+#: no limit below this [N·m]. Calibration sees only the poses and speeds it ran: friction that rises
+#: as a cold drive warms up, cable drag, a pose its motions missed would stop a limit at the noise
+#: level (a wrist joint reads ~0.1-0.3 N·m in MuJoCo). 1 N·m stays under the smallest provisional
+#: limit (2 N·m) and far under Franka's own lowest defaults (10-20 N·m).
 MIN_LIMIT_NM = 1.0
 #: joint speed [rad/s] above which a sample says something about friction
 MOVING_RAD_S = 0.05
@@ -39,7 +42,7 @@ class JointRecommendation:
 
     name: str
     samples: int
-    peak_residual_nm: float  # largest |residual| with the policy's friction allowance
+    peak_residual_nm: float  # largest |residual| with no friction allowed for
     coulomb_nm: float
     viscous_nms: float
     peak_after_friction_nm: float  # largest |residual| once the fitted friction is allowed for

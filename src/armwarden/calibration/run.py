@@ -80,6 +80,9 @@ class CalibrationResult:
     #: the random motions that ran (the return home not counted: it may not move at all)
     executed: int = 0
     returned_home: bool = False
+    #: per joint, the largest external torque the Guard's own monitor estimated in any motion (with
+    #: the policy's friction allowance) [N·m]; a cross-check of the recorder's residuals
+    monitor_peaks_nm: list[float] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     stopped: str | None = None
     recommendations: list[JointRecommendation] = field(default_factory=list)
@@ -286,6 +289,9 @@ async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenSe
             if done.is_error or (done.structured_content or {}).get("status") != "succeeded":
                 result.stopped = f"motion {index + 1}: {_text(done) or done.structured_content}"
                 break
+            peaks = (done.structured_content or {}).get("max_external_torques_nm") or []
+            result.monitor_peaks_nm = [max(pair) for pair in zip(result.monitor_peaks_nm or [0.0] * len(peaks), peaks,
+                                                                 strict=True)]
             if index < len(goals) - 1:
                 result.executed += 1
             else:
