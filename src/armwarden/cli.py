@@ -17,7 +17,7 @@ from pathlib import Path
 from armwarden import __version__
 from armwarden.audit import DEFAULT_COMMIT_WINDOW_S
 from armwarden.backends import backend_names, backends_help
-from armwarden.calibration.command import add_calibrate_arguments, calibrate_command
+from armwarden.calibration.arguments import add_calibrate_arguments
 from armwarden.core.errors import ArmWardenError, PolicyError
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
 from armwarden.onboarding.command import add_init_arguments, init_command
@@ -176,6 +176,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "init":
             return init_command(args)
         if args.command == "calibrate-contact":
+            from armwarden.calibration.command import calibrate_command  # the daemon and Pinocchio: only here
+
             return calibrate_command(args)
         if args.command == "audit":
             from armwarden import audit

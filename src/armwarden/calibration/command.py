@@ -14,7 +14,6 @@ import argparse
 import getpass
 import math
 import sys
-from pathlib import Path
 from typing import TextIO
 
 import anyio
@@ -22,7 +21,8 @@ import numpy as np
 import yaml
 
 from armwarden.audit import AuditWriteError
-from armwarden.calibration.friction_fit import DEFAULT_MARGIN, MIN_LIMIT_NM, JointRecommendation
+from armwarden.calibration.arguments import add_calibrate_arguments
+from armwarden.calibration.friction_fit import MIN_LIMIT_NM, JointRecommendation
 from armwarden.calibration.run import CalibrationOptions, CalibrationResult, calibration_goals, run_calibration
 from armwarden.core.errors import ArmWardenError
 from armwarden.policy import Policy, load_policy
@@ -32,21 +32,6 @@ EXIT_OK, EXIT_STOPPED, EXIT_REFUSED = 0, 1, 2
 
 __all__ = ["EXIT_OK", "EXIT_REFUSED", "EXIT_STOPPED", "add_calibrate_arguments", "calibrate_command",
            "render_section", "render_summary"]
-
-
-def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--policy", type=Path, required=True, help="the policy the arm is served with")
-    parser.add_argument("--backend", required=True, help="the backend the arm is driven by (fake, mujoco, can, ros2)")
-    parser.add_argument("--backend-config", type=Path, default=None, help="the backend's --backend-config file")
-    parser.add_argument("--motions", type=int, default=30, help="how many random safe motions (default 30)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the motions' goals (the same seed: the same motions)")
-    parser.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
-                        help=f"recommended limit = margin × the largest residual seen (default {DEFAULT_MARGIN:g})")
-    parser.add_argument("--output", type=Path, default=None, help="write the recommended section here (default: stdout)")
-    parser.add_argument("--audit-log", type=Path, default=Path("armwarden-audit.jsonl"),
-                        help="append-only audit log (JSONL) every motion is recorded in, as serve's")
-    parser.add_argument("--operator", default=None, help="who approves the calibration (default: the login name)")
-    parser.add_argument("--yes", action="store_true", help="approve without asking (simulation, CI)")
 
 
 def what_moves(policy: Policy, args: argparse.Namespace) -> str:

@@ -20,13 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from armwarden.calibration.arguments import DEFAULT_MARGIN
 from armwarden.policy.joint_torques import MAX_EXTERNAL_TORQUE_NM, MAX_FRICTION_NM
 from armwarden.safety.contact_observer import COULOMB_SMOOTHING_RAD_S
 
 __all__ = ["DEFAULT_MARGIN", "MIN_LIMIT_NM", "JointRecommendation", "fit_friction", "recommend"]
 
-#: recommended limit = margin × the largest residual left after friction
-DEFAULT_MARGIN = 2.0
 #: no limit below this [N·m]. Calibration sees only the poses and speeds it ran: friction that rises
 #: as a cold drive warms up, cable drag, a pose its motions missed would stop a limit at the noise
 #: level (a wrist joint reads ~0.1-0.3 N·m in MuJoCo). 1 N·m stays under the smallest provisional
