@@ -15,7 +15,7 @@ from armwarden.audit.verify import verify_file
 from armwarden.calibration.command import EXIT_OK, add_calibrate_arguments, calibrate_command
 from armwarden.cli import check_policy_command
 from armwarden.policy import bundled_policy, load_policy
-from tests.calibration.test_calibrate_contact import executed_ok, pasted
+from tests.calibration.test_calibrate_contact import executed_ok, pasted, policy_file
 
 pytest.importorskip("mujoco")
 
@@ -28,7 +28,7 @@ def test_a_short_calibration_in_mujoco_recommends_limits_the_policy_accepts(tmp_
     config.write_text(yaml.safe_dump({"speedup": 2.0, "objects": []}))
     parser = argparse.ArgumentParser()
     add_calibrate_arguments(parser)
-    args = parser.parse_args(["--policy", str(bundled_policy("fr3")), "--backend", "mujoco", "--backend-config",
+    args = parser.parse_args(["--policy", str(policy_file(tmp_path)), "--backend", "mujoco", "--backend-config",
                               str(config), "--motions", str(MOTIONS), "--seed", "7", "--yes",
                               "--output", str(tmp_path / "section.yaml"), "--audit-log", str(tmp_path / "audit.jsonl")])
     stderr = io.StringIO()

@@ -69,3 +69,13 @@ def test_a_joint_that_read_nothing_at_all_has_an_infinite_margin() -> None:
 def test_a_margin_below_one_is_refused() -> None:
     with pytest.raises(ValueError, match="margin"):
         recommend(["a"], np.zeros((2, 1)), np.zeros((2, 1)), margin=0.5)
+
+
+def test_what_an_observer_with_the_fitted_friction_really_read_raises_the_limit() -> None:
+    v = np.linspace(-1.0, 1.0, 200).reshape(-1, 1)
+    residual = -friction(v, 1.0, 0.0) + 0.2 * np.sin(40 * v)  # friction the fit removes, and 0.2 N·m left
+    estimated = recommend(["a"], v, residual)[0]
+    replayed = recommend(["a"], v, residual, peaks_after_friction_nm=[0.9])[0]  # its low-pass left more
+    assert estimated.peak_after_friction_nm < 0.3 and estimated.limit_nm == MIN_LIMIT_NM
+    assert replayed.peak_after_friction_nm == 0.9 and replayed.limit_nm == pytest.approx(1.8)
+    assert recommend(["a"], v, residual, peaks_after_friction_nm=[0.1])[0] == estimated  # never lowers it

@@ -106,6 +106,14 @@ def render_summary(result: CalibrationResult, margin: float) -> str:
             note = f"   (the {MIN_LIMIT_NM:g} N·m floor)"
         lines.append(f"  {r.name:<{width}}  {r.peak_residual_nm:8.2f}  {r.peak_after_friction_nm:14.2f}  "
                      f"{r.limit_nm:11g}  {margin_text:>18}  {seen:12.2f}{note}")
+    if result.monitor_peaks_nm and not np.allclose(result.replayed_peaks_nm, result.monitor_peaks_nm, atol=1e-3):
+        lines.append("calibrate-contact: WARNING: the recorded samples do not reproduce the Guard monitor's peaks "
+                     f"(replayed {np.round(result.replayed_peaks_nm, 2).tolist()}): trust the monitor's column")
+    force_margin = result.max_contact_force_n / result.peak_force_n if result.peak_force_n > 0 else math.inf
+    lines.append(f"calibrate-contact: the TCP force estimate peaked at {result.peak_force_n:.1f} N with the fitted "
+                 f"friction (max_contact_force_n {result.max_contact_force_n:g} N: {force_margin:.1f}x)"
+                 + ("" if force_margin >= margin else f"; WARNING: under {margin:g}x, the force limit may stop "
+                    "motions that touch nothing"))
     if len(result.skipped) > result.executed:
         lines.append(f"calibrate-contact: WARNING: {len(result.skipped)} of {result.planned} motions were skipped: the "
                      "limits rest on few motions; look at why, or run more (--motions, another --seed)")

@@ -24,7 +24,7 @@ from armwarden.calibration.arguments import DEFAULT_MARGIN
 from armwarden.policy.joint_torques import MAX_EXTERNAL_TORQUE_NM, MAX_FRICTION_NM
 from armwarden.safety.contact_observer import COULOMB_SMOOTHING_RAD_S
 
-__all__ = ["DEFAULT_MARGIN", "MIN_LIMIT_NM", "JointRecommendation", "fit_friction", "recommend"]
+__all__ = ["DEFAULT_MARGIN", "MIN_LIMIT_NM", "JointRecommendation", "fit_friction", "limit_for", "recommend"]
 
 #: no limit below this [N·m]. Calibration sees only the poses and speeds it ran: friction that rises
 #: as a cold drive warms up, cable drag, a pose its motions missed would stop a limit at the noise
@@ -77,10 +77,20 @@ def fit_friction(velocities: np.ndarray, residuals: np.ndarray) -> tuple[float, 
     return min(best[0], MAX_FRICTION_NM), min(best[1], MAX_FRICTION_NM)
 
 
+def limit_for(peak_nm: float, margin: float) -> float:
+    """The limit [N·m] for a joint whose residual peaked at `peak_nm`: margin × the peak, rounded up
+    to 0.01 N·m (rounding must never take it below margin × the peak), within the floor and the cap."""
+    return min(MAX_EXTERNAL_TORQUE_NM, max(MIN_LIMIT_NM, math.ceil(round(margin * peak_nm * 100, 6)) / 100))
+
+
 def recommend(joint_names: Sequence[str], velocities: np.ndarray, residuals: np.ndarray,
-              margin: float = DEFAULT_MARGIN) -> list[JointRecommendation]:
+              margin: float = DEFAULT_MARGIN, peaks_after_friction_nm: Sequence[float] | None = None,
+              ) -> list[JointRecommendation]:
     """Per joint: fitted friction and the recommended limit, from samples (rows) of joint
-    velocities and residuals [N·m] recorded with nothing touching the arm."""
+    velocities and residuals [N·m] recorded with nothing touching the arm and no friction allowed
+    for. What is left once the fitted friction is allowed for is estimated from the samples
+    (r + friction(v)); `peaks_after_friction_nm`, what an observer with that friction really read
+    on the same states (its low-pass included), raises it where it is larger."""
     if not (math.isfinite(margin) and margin >= 1.0):
         raise ValueError(f"the margin must be at least 1, got {margin}")
     v = np.asarray(velocities, dtype=float)
@@ -92,8 +102,9 @@ def recommend(joint_names: Sequence[str], velocities: np.ndarray, residuals: np.
         coulomb, viscous = fit_friction(v[:, j], r[:, j])
         left = r[:, j] + coulomb * np.tanh(v[:, j] / COULOMB_SMOOTHING_RAD_S) + viscous * v[:, j]
         peak_before, peak_after = float(np.max(np.abs(r[:, j]))), float(np.max(np.abs(left)))
-        # rounded up to 0.01 N·m: rounding must never take the limit below margin × what was seen
-        limit = min(MAX_EXTERNAL_TORQUE_NM, max(MIN_LIMIT_NM, math.ceil(round(margin * peak_after * 100, 6)) / 100))
+        if peaks_after_friction_nm is not None:
+            peak_after = max(peak_after, float(peaks_after_friction_nm[j]))
+        limit = limit_for(peak_after, margin)
         found.append(JointRecommendation(name, int(v.shape[0]), peak_before, round(coulomb, 3), round(viscous, 3),
                                          peak_after, limit, limit / peak_after if peak_after > 0 else math.inf))
     return found

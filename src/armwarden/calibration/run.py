@@ -8,11 +8,14 @@ enforces the policy and the audit log records each call. The human approved the 
 whole before it started; that approval answers each motion's question, under the operator's name.
 Only plans the envelope passes outright (`ok`) run; one it rejects or would ask about is skipped.
 
-Beside the Guard's own monitor a second observer over the same joint states records the residual
-per joint and the joint velocities at the monitor's rate, with no friction allowance, so the fit
-starts from what the arm really reads. A stop, an e-stop (SIGUSR1, or Ctrl-C / SIGTERM, each of
-which latches it on its own thread as SIGUSR1 does for `serve`), a contact or a refusal ends the
-calibration: nothing more moves, and the result says why.
+The Guard drives the backend through a `RecordingBackend`, which keeps every joint state the
+contact monitor reads during each motion. Afterwards those very samples are replayed through
+observers of the same construction (`recording.replay`): with no friction allowance, so the fit
+starts from what the arm really reads; with the policy's, to cross-check the monitor's own peaks;
+and with the fitted friction, to see what a monitor with the recommended section would have read.
+A stop, an e-stop (SIGUSR1, or Ctrl-C / SIGTERM, each of which latches it on its own thread as
+SIGUSR1 does for `serve`), a contact or a refusal ends the calibration: nothing more moves, and
+the result says why.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import math
 import re
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,9 +37,8 @@ from mcp import Client
 from mcp import types as mcp_types
 
 from armwarden.audit import AuditWriteError
-from armwarden.backends.base import Backend
-from armwarden.calibration.friction_fit import DEFAULT_MARGIN, JointRecommendation, recommend
-from armwarden.core.state import JointState
+from armwarden.calibration.friction_fit import DEFAULT_MARGIN, JointRecommendation, fit_friction, recommend
+from armwarden.calibration.recording import RecordingBackend, Replay, replay
 from armwarden.daemon.shutdown import close_assembly
 from armwarden.daemon.startup import SWITCH_INTERVAL_S, assemble, freeze_long_lived_objects, open_assembly
 from armwarden.guard import Guard
@@ -45,7 +47,7 @@ from armwarden.policy.joint_torques import provisional_limit_nm
 from armwarden.robot import build_robot
 from armwarden.robot.model import RobotModel
 from armwarden.safety.contact_observer import ContactObserver
-from armwarden.safety.contact_source import JointTorqueContact, observer_for
+from armwarden.safety.contact_source import observer_for
 from armwarden.server.app import ArmWardenServer
 from armwarden.stopchannel.external import ExternalStops
 from armwarden.stopchannel.signals import SignalStop
@@ -81,8 +83,13 @@ class CalibrationResult:
     executed: int = 0
     returned_home: bool = False
     #: per joint, the largest external torque the Guard's own monitor estimated in any motion (with
-    #: the policy's friction allowance) [N·m]; a cross-check of the recorder's residuals
+    #: the policy's friction allowance) [N·m], as its execution results report it
     monitor_peaks_nm: list[float] = field(default_factory=list)
+    #: ... and the same, replayed from the recorded samples: the two match when the samples are the monitor's
+    replayed_peaks_nm: list[float] = field(default_factory=list)
+    #: the largest trusted TCP force estimate with the fitted friction allowed for [N], and its limit
+    peak_force_n: float = 0.0
+    max_contact_force_n: float = math.inf
     skipped: list[str] = field(default_factory=list)
     stopped: str | None = None
     recommendations: list[JointRecommendation] = field(default_factory=list)
@@ -116,39 +123,10 @@ def calibration_goals(policy: Policy, count: int, seed: int) -> list[list[float]
     return [*goals, home.tolist()]
 
 
-class _Recorder:
-    """The calibration's own observer over the joint states, sampled at the monitor's rate: each
-    residual with the velocities of the very state it came from."""
-
-    def __init__(self, backend: Backend, observer: ContactObserver, policy: Policy) -> None:
-        self._backend = backend
-        self._state: JointState | None = None
-        self._contact = JointTorqueContact(self._read_state, observer, policy.robot.joint_names,
-                                           backend.capabilities.time_scale, max_unobserved_s=math.inf)
-        self._period_s = 1.0 / policy.force.monitor_rate_hz
-        self.velocities: list[np.ndarray] = []
-        self.residuals: list[np.ndarray] = []
-        self._last_stamp = -math.inf
-
-    async def _read_state(self) -> JointState:
-        self._state = await self._backend.read_joint_state()
-        return self._state
-
-    async def run(self) -> None:
-        while True:
-            reading = await self._contact.read()
-            torques = getattr(reading, "external_torques_nm", None)
-            state = self._state
-            if (reading is not None and torques is not None and state is not None and reading.stamp > self._last_stamp
-                    and np.all(np.isfinite(torques))):
-                self._last_stamp = reading.stamp
-                self.velocities.append(np.asarray(state.velocities, dtype=float))
-                self.residuals.append(np.asarray(torques, dtype=float))
-            await anyio.sleep(self._period_s)
-
-
-def _without_friction(observer: ContactObserver, robot: RobotModel) -> ContactObserver:
-    settings = dataclasses.replace(observer.settings, coulomb_nm=(0.0,) * robot.nq, viscous_nms=(0.0,) * robot.nq)
+def _with_friction(observer: ContactObserver, robot: RobotModel, coulomb_nm: Sequence[float],
+                   viscous_nms: Sequence[float]) -> ContactObserver:
+    """A fresh observer like `observer`, allowing for this friction instead of its own."""
+    settings = dataclasses.replace(observer.settings, coulomb_nm=tuple(coulomb_nm), viscous_nms=tuple(viscous_nms))
     return ContactObserver(robot.model, robot.tcp_frame, robot.base_frame, settings)
 
 
@@ -195,14 +173,16 @@ async def run_calibration(options: CalibrationOptions, progress: Callable[[str],
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # as `serve`: planning never holds a stop up for long
     freeze_long_lived_objects()  # as `serve`: no long collection stalls the monitor or a simulator's clock
     result = CalibrationResult()
-    recorder: _Recorder | None = None
     started = False
+    recording: RecordingBackend | None = None
     try:
         backend, guard, audit = assembly.backend, assembly.guard, assembly.audit
+        # the reader the Guard's contact monitor builds for each execution reads through the runner's
+        # backend, and nothing else there reads joint states: wrapped, it keeps the monitor's samples
+        recording = RecordingBackend(guard.runner.backend)
+        guard.runner.backend = recording
         if not backend.capabilities.joint_torques:
             raise ValueError(f"backend {backend.name} measures no joint torques: there is nothing to calibrate")
-        recorder = _Recorder(backend, _without_friction(observer_for(policy, parts.state_robot), parts.state_robot),
-                             policy)
         external = ExternalStops(guard.stopper, audit, asyncio.get_running_loop())
         stops = [SignalStop(external.latch_and_stop_for("signal"), on_event=external.record, signum=signum).start()
                  for signum in STOP_SIGNALS]
@@ -214,7 +194,7 @@ async def run_calibration(options: CalibrationOptions, progress: Callable[[str],
                        "once on the terminal",
                 extra={"backend": options.backend, "policy_digest": policy_digest(policy), "margin": options.margin})
             started = True
-            await _move(options, policy, assembly.server, guard, recorder, goals, result, progress)
+            await _move(options, policy, assembly.server, guard, recording, goals, result, progress)
         except Exception as exc:
             if not started:
                 raise
@@ -239,11 +219,34 @@ async def run_calibration(options: CalibrationOptions, progress: Callable[[str],
         sys.setswitchinterval(switch_interval)
         if lost is not None:
             raise AuditWriteError(f"the final audit record could not be written: {lost}")
-    if result.stopped is None and result.executed and recorder is not None and recorder.residuals:
-        result.recommendations = recommend(policy.robot.joint_names, np.array(recorder.velocities),
-                                           np.array(recorder.residuals), options.margin)
-        result.section = _section(policy, result.recommendations)
+    if result.stopped is None and result.executed and recording is not None and recording.states:
+        await _recommend(options, policy, parts.state_robot, recording, result)
     return result
+
+
+async def _recommend(options: CalibrationOptions, policy: Policy, robot: RobotModel, recording: RecordingBackend,
+                     result: CalibrationResult) -> None:
+    """Replay the monitor's samples, fit friction, and recommend (see the module docstring)."""
+    names, time_scale = policy.robot.joint_names, recording.capabilities.time_scale
+    guards = observer_for(policy, robot)
+    zeros = (0.0,) * len(names)
+
+    async def replay_all(coulomb: Sequence[float], viscous: Sequence[float]) -> list[Replay]:
+        return [await replay(states, _with_friction(guards, robot, coulomb, viscous), names, time_scale)
+                for states in recording.states.values()]
+
+    policy_friction = await replay_all(guards.settings.coulomb_nm, guards.settings.viscous_nms)
+    result.replayed_peaks_nm = np.max([r.peaks_nm for r in policy_friction], axis=0).tolist()
+    free = await replay_all(zeros, zeros)
+    velocities = np.concatenate([r.velocities for r in free])
+    residuals = np.concatenate([r.residuals for r in free])
+    fits = [fit_friction(velocities[:, j], residuals[:, j]) for j in range(len(names))]
+    fitted = await replay_all([c for c, _ in fits], [b for _, b in fits])
+    result.recommendations = recommend(names, velocities, residuals, options.margin,
+                                       peaks_after_friction_nm=np.max([r.peaks_nm for r in fitted], axis=0).tolist())
+    result.peak_force_n = max(r.peak_force_n for r in fitted)
+    result.max_contact_force_n = policy.force.max_contact_force_n
+    result.section = _section(policy, result.recommendations)
 
 
 def _runs(summary: dict[str, Any]) -> bool:
@@ -255,16 +258,14 @@ def _runs(summary: dict[str, Any]) -> bool:
 
 
 async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenServer, guard: Guard,
-                recorder: _Recorder, goals: list[list[float]], result: CalibrationResult,
+                recording: RecordingBackend, goals: list[list[float]], result: CalibrationResult,
                 progress: Callable[[str], None]) -> None:
-    """The motions through the MCP client, recorded; the first stop or refusal ends them."""
+    """The motions through the MCP client, each one's samples recorded; the first stop or refusal ends them."""
 
     async def approve(context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
         return mcp_types.ElicitResult(action="accept", content={"approve": True, "operator": options.operator})
 
-    async with Client(server.mcp, mode="legacy", elicitation_callback=approve) as client, \
-            anyio.create_task_group() as group:
-        group.start_soon(recorder.run)
+    async with Client(server.mcp, mode="legacy", elicitation_callback=approve) as client:
         scaling = {"velocity_scaling": policy.motion.max_velocity_scaling,
                    "acceleration_scaling": policy.motion.max_acceleration_scaling}
         for index, goal in enumerate(goals):
@@ -285,7 +286,11 @@ async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenSe
             if summary.get("force_monitoring") is not True:  # a calibration nothing watches is no calibration
                 result.stopped = f"motion {index + 1}: the plan would run without contact monitoring"
                 break
-            done = await _call(client, "execute_plan", {"plan_id": summary["plan_id"]})
+            recording.motion = index
+            try:
+                done = await _call(client, "execute_plan", {"plan_id": summary["plan_id"]})
+            finally:
+                recording.motion = None
             if done.is_error or (done.structured_content or {}).get("status") != "succeeded":
                 result.stopped = f"motion {index + 1}: {_text(done) or done.structured_content}"
                 break
@@ -297,7 +302,6 @@ async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenSe
             else:
                 result.returned_home = True
             progress(f"motion {index + 1}/{len(goals)} done")
-        group.cancel_scope.cancel()
 
 
 def _section(policy: Policy, found: list[JointRecommendation]) -> dict[str, Any]:
