@@ -643,6 +643,7 @@ async def test_leaving_damping_holds_where_the_arm_sagged_to_never_where_it_was(
     moved the setpoint to the measured position, so a tick in between sent the setpoint frozen at
     the e-stop, stiffly, to an arm that sagged while limp. Here the tick is made to fall in between."""
     document = config_document()
+    document["simulate"]["dynamics"] = "per_actuator"  # its own 1-DOF loads: one joint sags alone
     document["simulate"]["loads"]["fr3_joint2"]["gravity_torque_nm"] = 5.0  # sags while limp ...
     document["joints"][1]["damping_kd_nms_per_rad"] = 100.0  # ... slowly (≈ 0.05 rad/s)
     backend = create_backend(ROBOT, POLICY, parse_backend_config("can", document))

@@ -34,6 +34,7 @@ LOADS = {"fr3_joint1": 5.0, "fr3_joint2": 4.0}
 
 def loaded(path: Path) -> CanBackend:
     document = config_document(path, joint_torques=True)
+    document["simulate"]["dynamics"] = "per_actuator"  # the known 1-DOF loads, not the robot model's arm
     for joint, load in LOADS.items():
         document["simulate"]["loads"][joint]["gravity_torque_nm"] = load
     config = parse_backend_config("can", document)
@@ -93,9 +94,10 @@ def test_before_any_reply_the_state_has_nan_torques_and_stamp_zero() -> None:
 
 
 def test_feedback_torques_are_not_the_joints_until_the_config_says_so() -> None:
-    """The emulator's actuators move their own loads, not the arm: by default their torques are
-    not offered as the arm's, and contact is not estimated from them."""
-    backend = build(ROBSTRIDE_SIM)
+    """Feedback torques are the arm's only when the config says so (`joint_torques`, which the
+    emulated example sets now that its arm has the robot model's dynamics): off, they are not
+    offered as the arm's, and contact is not estimated from them."""
+    backend = build(ROBSTRIDE_SIM, joint_torques=False)
     assert not backend.capabilities.joint_torques
     backend._publish()
     state = backend._published

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import anyio
 import numpy as np
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.backends.arm_state import ArmEvent
 from armwarden.backends.can import mit
@@ -89,7 +90,8 @@ class CanBackend(CanArm):
         upper_limits = np.asarray(tuple(upper), dtype=float)
         stream = CommandStream(robot.joint_names, actuators, everyone, fingers, direction=direction, offset=offset,
                                lower=lower_limits, upper=upper_limits, state_lock=state_lock, bus=lambda: self.bus,
-                               on_damping=lambda: self._arm_event(ArmEvent.DAMP))
+                               on_damping=lambda: self._arm_event(ArmEvent.DAMP),
+                               gravity=gravity_feedforward(robot, config))
         super().__init__(robot.joint_names, config, actuators, everyone, stream, state_lock=state_lock,
                          direction=direction, offset=offset, start_tolerance_rad=start_tolerance_rad)
         self._lower, self._upper = lower_limits, upper_limits
@@ -99,6 +101,7 @@ class CanBackend(CanArm):
         self._mit = {a.joint.can_id: a for a in everyone if a.joint.protocol is Protocol.MIT}
         self._speedup = config.simulate.speedup if config.simulate is not None else 1.0
         self._bus_factory = bus_factory
+        self._robot = robot
         self.emulator: ActuatorEmulator | None = None
         self._replies = ReplyDecoder(self._robstride, self._mit, state_lock, config.host_id, config.mit_reply_id)
         # every feedback frame reports the torque, published as the joints' when the config says it is
@@ -117,7 +120,7 @@ class CanBackend(CanArm):
     async def _start_up(self) -> None:
         config = self.config
         if config.simulate is not None:
-            self.emulator = build_emulator(config, self._actuators, self._home)
+            self.emulator = build_emulator(config, self._actuators, self._home, self._robot)
             self.emulator.start()
         self.bus = CanBus(config.bus, self._replies.on_frame, bus_factory=self._bus_factory)
         self.bus.open()
@@ -213,6 +216,21 @@ class CanBackend(CanArm):
         self._raise_if_faulted()
         if self._stream.damping:
             raise BackendError("can backend: the actuators are damped (e-stop or fault); the gripper does not move")
+
+
+def gravity_feedforward(robot: RobotModel, config: Config) -> Callable[[np.ndarray], np.ndarray] | None:
+    """g(q) of `robot` on a Data of its own (the servo thread's), or None when `config` says no or,
+    unset, when the model has no masses or the emulated actuators carry their own 1-DOF loads
+    (`simulate.dynamics: per_actuator`: no arm gravity to hold up)."""
+    model = robot.model
+    wanted = config.gravity_feedforward
+    if wanted is None:
+        per_actuator = config.simulate is not None and config.simulate.dynamics == "per_actuator"
+        wanted = not per_actuator and sum(model.inertias[j].mass for j in range(1, model.njoints)) > 0
+    if not wanted:
+        return None
+    data = model.createData()
+    return lambda q: np.asarray(pin.computeGeneralizedGravity(model, data, q), dtype=float).copy()
 
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config, *,

@@ -17,6 +17,7 @@ step waits for every actuator's answer through its `await_all`.
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,11 +27,15 @@ from armwarden.backends.can import robstride_frames as rs_frames
 from armwarden.backends.can.actuators import Actuator, OutFrame
 from armwarden.backends.can.bus import FrameKind
 from armwarden.backends.can.command import MotorCommand
-from armwarden.backends.can.config import Config
+from armwarden.backends.can.config import Config, SimulatedLoad
 from armwarden.backends.can.emulated_actuator import ActuatorSpec
-from armwarden.backends.can.emulator import ActuatorEmulator
+from armwarden.backends.can.emulated_arm import ArmDynamics
+from armwarden.backends.can.emulator import ActuatorEmulator, ArmSetup
 from armwarden.backends.can.ranges import Protocol
 from armwarden.core.errors import BackendError
+
+if TYPE_CHECKING:
+    from armwarden.robot.model import RobotModel
 
 #: send frames in order, each actuator then owing a reply
 Send = Callable[[list[OutFrame], FrameKind], None]
@@ -109,14 +114,17 @@ async def configure_actuators(everyone: Sequence[Actuator], config: Config, send
         a.parameters.get(rs.LIMIT_TORQUE.index), a.joint.torque_limit_nm), "did not confirm its limit_torque (0x700B)")
 
 
-def build_emulator(config: Config, arm: Sequence[Actuator], home: Iterable[float]) -> ActuatorEmulator:
-    """The emulated actuators `config.simulate` asks for: the arm at `home` [rad], the gripper open."""
+def build_emulator(config: Config, arm: Sequence[Actuator], home: Iterable[float],
+                   robot: RobotModel | None = None) -> ActuatorEmulator:
+    """The emulated actuators `config.simulate` asks for: the arm at `home` [rad], the gripper open;
+    under `dynamics: robot_model` the arm's actuators move `robot`'s body together (simulated time
+    runs at `speedup`, as the backend's trajectories and its `Cell.time_scale` do)."""
     simulate = config.simulate
     assert simulate is not None
     specs = []
     for a, q in zip(arm, np.asarray(tuple(home), dtype=float), strict=True):
         load = simulate.loads.get(a.joint.name)
-        extra = {} if load is None else load.model_dump()
+        extra = {} if load is None else load.model_dump(exclude={"coulomb_friction_nm"})
         specs.append(ActuatorSpec(
             can_id=a.joint.can_id, model=a.joint.model,
             initial_position_rad=a.joint.direction * float(q) + a.joint.homing_offset_rad,
@@ -130,10 +138,27 @@ def build_emulator(config: Config, arm: Sequence[Actuator], home: Iterable[float
         specs.append(ActuatorSpec(
             can_id=g.can_id, model=g.model, initial_position_rad=g.direction * g.open_position_rad + g.homing_offset_rad,
             can_timeout_s=config.can_timeout_s if g.protocol is Protocol.MIT else 0.0,
-            **({} if load is None else load.model_dump()),
+            **({} if load is None else load.model_dump(exclude={"coulomb_friction_nm"})),
         ))
+    setup = None
+    if simulate.dynamics == "robot_model":
+        if robot is None:
+            raise ValueError("simulate.dynamics robot_model needs the robot model")
+        loads = [simulate.loads.get(a.joint.name) or SimulatedLoad() for a in arm]
+        setup = ArmSetup(
+            model=robot.model, can_ids=tuple(a.joint.can_id for a in arm),
+            direction=tuple(float(a.joint.direction) for a in arm),
+            offset=tuple(a.joint.homing_offset_rad for a in arm),
+            dynamics=ArmDynamics(
+                armature_kgm2=tuple(load.inertia_kgm2 for load in loads),
+                viscous_nms=tuple(load.damping_nms_per_rad for load in loads),
+                coulomb_nm=tuple(load.coulomb_friction_nm for load in loads),
+                torque_noise_nm=simulate.torque_noise_nm, mass_error=simulate.mass_error,
+                payload_kg=simulate.payload_kg, payload_com_m=simulate.payload_com_m, payload_frame=robot.tcp_frame,
+                seed=simulate.seed, brakes=simulate.brakes),
+            time_scale=simulate.speedup)
     return ActuatorEmulator(config.bus.channel, specs, interface=config.bus.interface, rate_hz=simulate.rate_hz,
-                            host_id=config.host_id, mit_reply_id=config.mit_reply_id)
+                            host_id=config.host_id, mit_reply_id=config.mit_reply_id, arm=setup)
 
 
 def _run_mode_name(value: float) -> str:

@@ -6,6 +6,13 @@ them. Every tick sends one frame per actuator — the stream is what feeds the a
 the trajectory sample or the hold (the tracking gains), or kp = 0, kd > 0 while damping. A position
 outside the policy's joint limits, or a value a codec cannot carry, is never sent: the stream
 damps instead, and records why (`limit_violation`), which the next tick turns into a fault.
+
+Stiff commands carry the gravity feed-forward when the stream has a `gravity` (g(q*) of the robot
+model, through each joint's direction): without it an arm under gravity sags by g/kp. A
+feed-forward beyond a joint's `torque_limit_nm` is refused (damped) like any other value that
+cannot be sent, never clipped. Damping frames carry the gravity of the measured pose too
+(kp = 0: a damped arm without brakes would otherwise drop under its own weight), or none at all
+when that is unknown.
 """
 
 from __future__ import annotations
@@ -31,7 +38,8 @@ class CommandStream:
     def __init__(self, joint_names: Sequence[str], actuators: list[Actuator], everyone: list[Actuator],
                  fingers: CanFingers | None, *, direction: np.ndarray, offset: np.ndarray, lower: np.ndarray,
                  upper: np.ndarray, state_lock: threading.Lock, bus: Callable[[], CanBus | None],
-                 on_damping: Callable[[], object]) -> None:
+                 on_damping: Callable[[], object],
+                 gravity: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         self._joint_names = tuple(joint_names)
         self._actuators = actuators  # the arm's
         self._everyone = everyone  # the arm's, then the gripper's: damping covers all
@@ -40,6 +48,8 @@ class CommandStream:
         self._lower, self._upper = lower, upper
         self._state_lock = state_lock
         self._bus = bus
+        self._gravity = gravity  # q [rad] -> g(q) [N·m], on the servo thread only
+        self._torque_limit = np.array([a.joint.torque_limit_nm for a in actuators], dtype=float)
         self._on_damping = on_damping  # told (under the servo lock) when a refused setpoint starts damping
         #: damping frames from this tick on (a fault, an e-stop, a setpoint refused)
         self.damping = False
@@ -94,8 +104,16 @@ class CommandStream:
         sent; `BackendError` if one cannot be."""
         raw = (self._direction * positions + self._offset).tolist()
         raw_velocity = (self._direction * velocities).tolist()
+        feedforward = [0.0] * len(self._actuators)
+        if self._gravity is not None:
+            torque = self._gravity(positions)
+            over = [f"{a.label}: gravity feed-forward {t:.2f} N·m beyond its torque_limit_nm {a.joint.torque_limit_nm:g}"
+                    for a, t in zip(self._actuators, torque, strict=True) if not abs(t) <= a.joint.torque_limit_nm]
+            if over:
+                raise BackendError(f"can backend: command refused: {over[0]}")
+            feedforward = (self._direction * torque).tolist()
         frames = [command_frame(a, MotorCommand(raw[a.index], raw_velocity[a.index], a.joint.kp_nm_per_rad,
-                                                      a.joint.kd_nms_per_rad, 0.0))
+                                                      a.joint.kd_nms_per_rad, feedforward[a.index]))
                   for a in self._actuators]
         if self._fingers is not None:
             frames.append(self._fingers.frame())
@@ -105,14 +123,32 @@ class CommandStream:
         """kp = 0, kd > 0 for every actuator that can carry it, and why the others cannot."""
         frames: list[OutFrame] = []
         refused: list[BackendError] = []
+        holding = self._damping_gravity()
         for a in self._everyone:
             raw = a.raw_position if a.raw_position is not None else 0.0
             raw = min(max(raw, a.ranges.position.lo), a.ranges.position.hi)  # kp = 0: the position has no effect
+            feedforward = holding[a.index] if holding is not None and a.index >= 0 else 0.0
             try:
-                frames.append(command_frame(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, 0.0)))
+                frames.append(command_frame(a, MotorCommand(raw, 0.0, 0.0, a.joint.damping_kd_nms_per_rad, feedforward)))
             except BackendError as exc:
                 refused.append(exc)
         return frames, refused
+
+    def _damping_gravity(self) -> list[float] | None:
+        """The raw gravity feed-forward of the measured pose for the damping frames (a damped arm
+        without brakes does not drop under its own weight), or None — no feed-forward, plain
+        damping — when there is no gravity model, a position is unknown or not finite, or a torque
+        would exceed its joint's limit: damping always goes out."""
+        if self._gravity is None:
+            return None
+        raw = [a.raw_position for a in self._actuators]
+        if any(r is None or not np.isfinite(r) for r in raw):
+            return None
+        q = self._direction * (np.array(raw, dtype=float) - self._offset)
+        torque = self._gravity(q)
+        if not bool(np.all(np.abs(torque) <= self._torque_limit)):
+            return None
+        return (self._direction * torque).tolist()
 
     def send_batch(self, frames: list[OutFrame], kind: FrameKind) -> None:
         """Send `frames` in order; each actuator now owes an answer (its RX timeout runs from the

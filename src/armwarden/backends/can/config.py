@@ -117,11 +117,15 @@ class GripperConfig(BaseModel):
 
 
 class SimulatedLoad(BaseModel):
-    """The load an emulated actuator drives (see `armwarden.backends.can.emulated_actuator`)."""
+    """The load an emulated actuator drives (see `armwarden.backends.can.emulated_actuator`). Under
+    `dynamics: robot_model` an arm joint's `inertia_kgm2` is its rotor inertia (armature), added to
+    the robot model's own, and `gravity_torque_nm` must stay 0 (the model has the gravity)."""
 
     model_config = _STRICT
-    inertia_kgm2: float = Field(default=0.02, gt=0, description="Reflected inertia [kg·m²].")
+    inertia_kgm2: float = Field(default=0.02, gt=0, description="Reflected (rotor) inertia [kg·m²].")
     damping_nms_per_rad: float = Field(default=0.05, ge=0, description="Viscous friction [N·m·s/rad].")
+    coulomb_friction_nm: float = Field(default=0.0, ge=0,
+                                       description="Coulomb friction [N·m] (robot_model dynamics only).")
     gravity_torque_nm: float = Field(default=0.0, description="Amplitude of a gravity load [N·m] (0: none).")
     temperature_c: float = Field(default=30.0, ge=0, le=255, description="Reported temperature [°C].")
 
@@ -135,6 +139,24 @@ class Simulation(BaseModel):
                        description="Trajectory time per wall time, no unit (tests only; hardware always runs at 1).")
     loads: dict[str, SimulatedLoad] = Field(default_factory=dict,
                                             description="Load per joint name; joints not named get the defaults.")
+    dynamics: Literal["robot_model", "per_actuator"] = Field(
+        default="per_actuator",
+        description="robot_model: the arm's actuators move one body by the robot model's forward dynamics "
+                    "(gravity, inertia, coupling); per_actuator: each moves its own 1-DOF load. The gripper is always "
+                    "per_actuator.")
+    mass_error: float = Field(default=0.0, ge=0, le=0.2,
+                              description="Relative std of each emulated body's mass/inertia scale (model error on "
+                                          "purpose; robot_model only).")
+    torque_noise_nm: float = Field(default=0.0, ge=0, le=5,
+                                   description="Std [N·m] of Gaussian noise on each reported torque (robot_model only).")
+    seed: int = Field(default=0, ge=0, description="Seed of the mass error and the torque noise.")
+    brakes: bool = Field(default=True, strict=True,
+                         description="Holding brakes hold the emulated arm while an actuator is disabled or damping "
+                                     "(kp = 0); false: it falls against the damping (robot_model only).")
+    payload_kg: float = Field(default=0.0, ge=0, le=20,
+                              description="Payload [kg] the emulated arm carries (undeclared to the policy unless it says so).")
+    payload_com_m: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0),
+                                                      description="The payload's centre of mass [m] in the TCP frame.")
 
 
 class Config(BaseModel):
@@ -163,6 +185,11 @@ class Config(BaseModel):
     joints: tuple[JointConfig, ...] = Field(min_length=1, description="One actuator per policy joint.")
     gripper: GripperConfig | None = Field(default=None, description="The gripper's actuator; null: no gripper.")
     simulate: Simulation | None = Field(default=None, description="Emulate the actuators (no hardware); null: real bus.")
+    gravity_feedforward: bool | None = Field(
+        default=None, strict=True,
+        description="Send each joint's gravity torque g(q*) of the robot model as the command's feed-forward torque, "
+                    "so the arm does not sag by g/kp. Unset: on when the robot model has masses, except under "
+                    "simulate.dynamics per_actuator (whose loads have no arm gravity).")
     joint_torques: bool = Field(
         default=False, strict=True,
         description="Publish each actuator's feedback torque (through the joint's direction) as the joint's measured "
@@ -183,6 +210,12 @@ class Config(BaseModel):
             unknown = sorted(set(self.simulate.loads) - {j.name for j in [*self.joints, *gripper]})
             if unknown:
                 raise ValueError(f"simulate.loads names joints that are not configured: {', '.join(unknown)}")
+            if self.simulate.dynamics == "robot_model":
+                gravity = sorted(j.name for j in self.joints
+                                 if j.name in self.simulate.loads and self.simulate.loads[j.name].gravity_torque_nm)
+                if gravity:
+                    raise ValueError(f"simulate.loads: gravity_torque_nm of {', '.join(gravity)} must be 0 under "
+                                     "dynamics robot_model (the robot model has the gravity)")
         return self
 
 

@@ -101,6 +101,7 @@ class EmulatedActuator:
         self.position = spec.initial_position_rad
         self.velocity = 0.0
         self.torque = 0.0
+        self.torque_noise = 0.0  # added to the reported torque (the emulated arm's seeded measurement noise)
         self.zero_offset = 0.0
         self.enabled = False
         self.command = _ZERO_COMMAND
@@ -133,7 +134,9 @@ class EmulatedActuator:
             steps += 1
         self.sim_time = t if t + dt > now else now
 
-    def step(self, dt: float, now: float) -> None:
+    def motor_torque(self, now: float) -> float:
+        """The motor torque [N·m, raw] at `now`: the impedance law, clipped, while enabled; zero
+        once the CAN timeout has disabled it (judged here)."""
         if self.enabled and self.can_timeout_s > 0 and now - self.last_rx > self.can_timeout_s:
             self.set_enabled(False)
             self.timeouts += 1
@@ -143,6 +146,10 @@ class EmulatedActuator:
             c = self.command
             tau = c.kp * (c.position - self.reported_continuous()) + c.kd * (c.velocity - self.velocity) + c.torque
             self.torque = max(-self.torque_limit, min(self.torque_limit, tau))
+        return self.torque
+
+    def step(self, dt: float, now: float) -> None:
+        self.motor_torque(now)
         load = self.spec.damping_nms_per_rad * self.velocity + self.spec.gravity_torque_nm * math.cos(self.position)
         self.velocity += (self.torque - load) / self.spec.inertia_kgm2 * dt
         self.position += self.velocity * dt
@@ -169,7 +176,7 @@ class EmulatedActuator:
 
     def reported_torque(self) -> float:
         """The torque a reply carries: saturated at the model's range."""
-        return _saturate(self.torque, self.ranges.torque)
+        return _saturate(self.torque + self.torque_noise, self.ranges.torque)
 
 
 def _wrap(value: float, r: Range) -> float:

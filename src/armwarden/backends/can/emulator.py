@@ -13,6 +13,10 @@ Protocols as the notes describe them: an MIT actuator answers every frame addres
 type-2 feedback, 17 with the parameter value, 0 with its id. The actuator-side CAN timeout
 (`can_timeout_s`, for RobStride also parameter 0x7028) is honoured.
 
+With an `ArmSetup`, the arm's actuators move one body instead: the robot model's forward dynamics
+(`emulated_arm`), brought up to the present as one whenever any of them is; `push` puts a contact
+force on a link of it until `release_push`, and `true_external_torques` reads back what it applied.
+
 `place_obstacle` puts rigid stops in an actuator's way (an object between the gripper's fingers).
 Fault injection (for tests and demos): `silence` (stop replying), `raise_fault`, `overheat`,
 `send_garbage` (malformed frames), `emit_fault_frame` (RobStride type 21) and
@@ -26,14 +30,18 @@ import math
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from types import TracebackType
 
 import can
+import numpy as np
+import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
 from armwarden.backends.can import robstride_device as rs_device
 from armwarden.backends.can.emulated_actuator import ActuatorSnapshot, ActuatorSpec, EmulatedActuator
+from armwarden.backends.can.emulated_arm import ArmDynamics, EmulatedArm
 from armwarden.backends.can.errors import InvalidFrame
 from armwarden.backends.can.ranges import Protocol
 
@@ -49,12 +57,26 @@ DEFAULT_HOST_ID = 0xFD
 DEFAULT_MIT_REPLY_ID = 0x000
 
 
+@dataclass(frozen=True)
+class ArmSetup:
+    """The arm the emulated actuators `can_ids` (in the model's joint order) move together: joint =
+    direction·(raw − offset); `time_scale` simulated seconds per wall second."""
+
+    model: pin.Model
+    can_ids: tuple[int, ...]
+    direction: tuple[float, ...]
+    offset: tuple[float, ...]
+    dynamics: ArmDynamics
+    time_scale: float = 1.0
+
+
 class ActuatorEmulator:
     """Emulated actuators on one CAN channel, served by their own thread (see the module docstring)."""
 
     def __init__(
         self, channel: str, actuators: Sequence[ActuatorSpec], *, interface: str = "virtual",
         rate_hz: float = DEFAULT_RATE_HZ, host_id: int = DEFAULT_HOST_ID, mit_reply_id: int = DEFAULT_MIT_REPLY_ID,
+        arm: ArmSetup | None = None,
     ) -> None:
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
@@ -66,9 +88,16 @@ class ActuatorEmulator:
                 raise ValueError(f"two actuators with can_id {spec.can_id}")
             table = self._mit if spec.ranges.protocol is Protocol.MIT else self._robstride
             table[spec.can_id] = EmulatedActuator(spec, host_id, now)
+        self.dt = 1.0 / rate_hz
+        #: the arm's coupled body (None: every actuator moves its own 1-DOF load)
+        self.arm: EmulatedArm | None = None
+        if arm is not None:
+            members = [self._actuator(i) for i in arm.can_ids]
+            self.arm = EmulatedArm(arm.model, members, arm.direction, arm.offset, arm.dynamics, dt=self.dt,
+                                   time_scale=arm.time_scale, now=now)
+        self._in_arm = frozenset(arm.can_ids if arm is not None else ())
         self.channel = channel
         self.interface = interface
-        self.dt = 1.0 / rate_hz
         self.mit_reply_id = mit_reply_id
         #: frames addressed to no emulated actuator or malformed, and the last thread error
         self.unhandled_frames = 0
@@ -109,6 +138,24 @@ class ActuatorEmulator:
         """The actuator's state now (brought up to the present first)."""
         with self._lock:
             return self._current(can_id).snapshot()
+
+    # ---------------------------------------------------------------- push
+    def push(self, frame: str, force_base: Sequence[float], point: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """Push on the emulated arm with `force_base` [N] (base frame) at `point` [m] (in the model
+        frame `frame`'s coordinates) until `release_push` (τ_ext = Jᵀ F, every step). Thread-safe."""
+        self._require_arm().push(frame, force_base, point)
+
+    def release_push(self) -> None:
+        self._require_arm().release_push()
+
+    def true_external_torques(self) -> np.ndarray:
+        """The external joint torques [N·m] the push applies (joint coordinates; zeros: no push)."""
+        return self._require_arm().true_external_torques()
+
+    def _require_arm(self) -> EmulatedArm:
+        if self.arm is None:
+            raise RuntimeError("this emulator moves no arm (simulate.dynamics is per_actuator)")
+        return self.arm
 
     # ---------------------------------------------------------------- fault injection
     def silence(self, can_id: int, silent: bool = True) -> None:
@@ -190,8 +237,10 @@ class ActuatorEmulator:
             now = time.monotonic()
             if now >= next_housekeeping:  # every actuator to the present: CAN timeouts take effect
                 with self._lock:
+                    if self.arm is not None:
+                        self.arm.advance(now)
                     for actuator in self._all():
-                        actuator.advance(self.dt, now)
+                        self._advance(actuator, now)
                 next_housekeeping = now + HOUSEKEEPING_S
 
     def _handle(self, msg: can.Message) -> None:
@@ -319,7 +368,14 @@ class ActuatorEmulator:
     def _arrived(self, actuator: EmulatedActuator) -> None:
         """A frame reached `actuator`: bring it to the present before the frame acts (its
         watchdog is judged on the time before this frame)."""
-        actuator.advance(self.dt, time.monotonic())
+        self._advance(actuator, time.monotonic())
+
+    def _advance(self, actuator: EmulatedActuator, now: float) -> None:
+        """`actuator` up to `now`: with the arm's body if it is one of the arm's."""
+        if self.arm is not None and actuator.spec.can_id in self._in_arm:
+            self.arm.advance(now)
+        else:
+            actuator.advance(self.dt, now)
 
     def _received(self, actuator: EmulatedActuator) -> None:
         """Count a frame `actuator` accepted: it feeds the watchdog from now on."""
@@ -332,7 +388,7 @@ class ActuatorEmulator:
     def _current(self, can_id: int) -> EmulatedActuator:
         """`_actuator`, brought up to the present (under the lock)."""
         actuator = self._actuator(can_id)
-        actuator.advance(self.dt, time.monotonic())
+        self._advance(actuator, time.monotonic())
         return actuator
 
     def _actuator(self, can_id: int) -> EmulatedActuator:
@@ -350,4 +406,4 @@ class ActuatorEmulator:
         self._require_bus().send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=extended))
 
 
-__all__ = ["DEFAULT_HOST_ID", "DEFAULT_MIT_REPLY_ID", "DEFAULT_RATE_HZ", "HOUSEKEEPING_S", "ActuatorEmulator"]
+__all__ = ["DEFAULT_HOST_ID", "DEFAULT_MIT_REPLY_ID", "DEFAULT_RATE_HZ", "HOUSEKEEPING_S", "ActuatorEmulator", "ArmSetup"]
