@@ -194,8 +194,8 @@ class Config(BaseModel):
         default=False, strict=True,
         description="Publish each actuator's feedback torque (through the joint's direction) as the joint's measured "
         "torque, so the policy can watch contact from it (force.joint_torques). Set it once the arm at rest reads its "
-        "gravity torques g(q) (docs/contact.md). Leave it false under `simulate`: the emulator moves each actuator's "
-        "own load, not the arm's coupled dynamics, so its torques are not the arm's.")
+        "gravity torques g(q) (docs/contact.md). Under `simulate` only with `dynamics: robot_model`: per_actuator "
+        "loads are not the arm's coupled dynamics, so their torques are not the arm's.")
 
     @model_validator(mode="after")
     def _unique(self) -> Config:
