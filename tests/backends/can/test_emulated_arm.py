@@ -22,6 +22,7 @@ from typing import Any
 import anyio
 import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+import pytest
 
 from armwarden.backends import parse_backend_config
 from armwarden.backends.can.backend import CanBackend, create_backend
@@ -29,6 +30,7 @@ from armwarden.backends.can.config import Config
 from armwarden.backends.can.emulated_actuator import ActuatorSpec
 from armwarden.backends.can.emulated_arm import ArmDynamics
 from armwarden.backends.can.emulator import ActuatorEmulator, ArmSetup
+from armwarden.core.errors import ConfigurationError
 from tests.backends.can.polling import unique_channel
 from tests.backends.can.test_can_backend import POLICY, ROBOT, config_document
 from tests.backends.contract import wait_until
@@ -158,3 +160,28 @@ def test_mass_error_friction_and_noise_are_seeded_and_reproducible() -> None:
     assert noise_a == noise_b and noise_a != noise_c and any(noise_a)
     np.testing.assert_array_equal(first.arm.q, again.arm.q)
     np.testing.assert_array_equal(first.arm.model.armature, np.full(7, 0.1))
+
+
+def test_a_per_actuator_gravity_load_is_refused_under_robot_model_dynamics() -> None:
+    """The robot model has the gravity: a 1-DOF gravity load on an arm joint would count it twice."""
+    document = config_document()
+    document["simulate"]["loads"]["fr3_joint2"]["gravity_torque_nm"] = 5.0
+    with pytest.raises(ConfigurationError, match="gravity_torque_nm of fr3_joint2 must be 0 under dynamics robot_model"):
+        parse_backend_config("can", document)
+
+
+def test_an_undeclared_payload_weighs_on_the_emulated_arm_only() -> None:
+    q0 = np.asarray(POLICY.robot.home_joint_positions, dtype=float)
+    specs = [ActuatorSpec(i + 1, "RS04", initial_position_rad=float(q)) for i, q in enumerate(q0)]
+
+    def gravity_with(payload_kg: float) -> np.ndarray:
+        dynamics = ArmDynamics((0.1,) * 7, (0.0,) * 7, (0.0,) * 7, payload_kg=payload_kg, payload_frame=ROBOT.tcp_frame)
+        emulator = ActuatorEmulator(unique_channel(), specs, arm=ArmSetup(ROBOT.model, tuple(range(1, 8)), (1.0,) * 7,
+                                                                          (0.0,) * 7, dynamics))
+        assert emulator.arm is not None
+        return emulator.arm.gravity()
+
+    masses = [i.mass for i in ROBOT.model.inertias]
+    extra = gravity_with(1.0) - gravity_with(0.0)
+    assert np.abs(extra).max() > 1.0  # 1 kg at the TCP of the FR3 at home: several N·m on joints 2 and 4
+    assert [i.mass for i in ROBOT.model.inertias] == masses  # the policy's (the observer's) model untouched
