@@ -9,8 +9,8 @@ Tolerances: the conformance tests run with the model error and the noise off (th
 the policy's model, and the emulated body must match it to be judged against it), so what is left
 is the RobStride torque encoding (16 bits over ±120 N·m: 0.004 N·m) and what the damping of the
 last motion leaves at rest: 0.05 N·m. The arm is judged still at the conformance's own 2 mrad/s, not
-the backend's coarser `rest_speed_rad_s`: the emulated arm is underdamped on the example's gains
-(kd·0.01 rad/s is 0.2 N·m on joint 2), and the RobStride velocity encoding resolves 0.3 mrad/s.
+the backend's coarser `rest_speed_rad_s`: a joint still creeping at 0.01 rad/s reads kd·v off g(q)
+(0.7 N·m on joint 2 at the example's kd 70), and the RobStride velocity encoding resolves 0.3 mrad/s.
 The start tolerance is the backend's own.
 """
 
