@@ -206,6 +206,25 @@ class BackendContract:
         await wait_until(advanced)
         assert stamps == sorted(stamps)
 
+    async def test_the_states_since_a_stamp_are_newer_in_order_and_end_at_the_latest(self, backend: Backend) -> None:
+        """`read_joint_states_since`: what the contact observer integrates (every sample a servo
+        loop published since its last read, or the latest alone): never empty, stamps rising and
+        after the one asked about, the newest no older than what `read_joint_state` gave before."""
+        first = await backend.read_joint_states_since(None)
+        assert len(first) == 1
+        since = first[-1].stamp
+
+        async def newer() -> bool:
+            return (await backend.read_joint_state()).stamp > since
+
+        await wait_until(newer)
+        before = await backend.read_joint_state()
+        states = await backend.read_joint_states_since(since)
+        stamps = [state.stamp for state in states]
+        assert states and stamps == sorted(set(stamps)) and stamps[0] > since
+        assert stamps[-1] >= before.stamp
+        assert all(state.names == backend.joint_names for state in states)
+
     async def test_wrench_is_none_without_the_capability_and_stamped_with_it(self, backend: Backend) -> None:
         wrench = await backend.read_wrench()
         if not backend.capabilities.wrench:

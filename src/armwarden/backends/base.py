@@ -184,6 +184,19 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
             return published
         return await self._bounded("joint state read", self.read_timeout_s, self._read_joint_state)
 
+    async def read_joint_states_since(self, stamp: float | None) -> tuple[JointState, ...]:
+        """Every published sample stamped after `stamp`, oldest first, the newest last; never empty.
+
+        A backend that keeps a history (`_joint_states_since`) gives each sample it still holds;
+        one that does not, and a first read (`stamp` None), gives the latest sample alone — so
+        does a read with nothing newer (its stamp then is not after `stamp`: the same sample)."""
+        if stamp is not None:
+            self._require_open()
+            history = self._joint_states_since(stamp)
+            if history:
+                return tuple(history)
+        return (await self.read_joint_state(),)
+
     # ---------------------------------------------------------------- motion
     async def execute(
         self, trajectory: JointTrajectory, progress: ProgressCallback | None = None, *, stop_epoch: int | None = None

@@ -103,6 +103,9 @@ class CountingBackend(Backend):
     async def read_joint_state(self) -> JointState:
         return await self.inner.read_joint_state()
 
+    async def read_joint_states_since(self, stamp: float | None) -> tuple[JointState, ...]:
+        return await self.inner.read_joint_states_since(stamp)
+
     async def read_wrench(self) -> Wrench | None:
         return await self.inner.read_wrench()
 

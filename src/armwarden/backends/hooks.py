@@ -79,6 +79,7 @@ Rules every backend follows
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 
 from armwarden.backends.values import ExecutionResult, ProgressCallback
 from armwarden.core.state import JointState
@@ -116,6 +117,13 @@ class BackendHooks(abc.ABC):
     def _latest_joint_state(self) -> JointState | None:
         """The newest published sample, without waiting (may raise BackendError); None = ask
         `_read_joint_state` under the read deadline."""
+        return None
+
+    def _joint_states_since(self, stamp: float) -> Sequence[JointState] | None:
+        """Every sample published after `stamp`, oldest first, from a short history
+        (`armwarden.backends.state_history`); None = this backend keeps none, and readers get the
+        latest sample alone. A servo loop that publishes faster than the Guard polls keeps one:
+        the contact observer integrates every sample (see `Backend.read_joint_states_since`)."""
         return None
 
     @abc.abstractmethod
