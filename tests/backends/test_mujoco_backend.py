@@ -85,6 +85,24 @@ def test_published_state_is_the_measured_one_and_lags_the_command_while_moving()
     assert np.max(np.abs(state.positions - commanded)) < 0.05
 
 
+@pytest.mark.parametrize("speedup", [1.0, 4.0])
+def test_each_tick_is_kept_stamped_when_its_state_held_whole_steps_apart(speedup: float):
+    """The stamps come from the simulated time, not from when the thread measured: the contact
+    observer divides momentum changes by their intervals, so scheduling jitter would be torque."""
+    async def scenario(backend: MujocoBackend):
+        first = (await backend.read_joint_state()).stamp
+        await asyncio.sleep(0.2)
+        kept = backend.joint_history.since(first)
+        return kept, await backend.read_joint_states_since(first), backend.arm.timestep_s
+
+    kept, read, physics_step_s = run_with_backend(scenario, speedup=speedup)
+    timestep_s = physics_step_s / speedup
+    gaps = np.diff([state.stamp for state in kept]) / timestep_s
+    assert len(kept) > 10 and np.all(gaps >= 1 - 1e-6)
+    np.testing.assert_allclose(gaps, np.round(gaps), atol=1e-6)  # whole physics steps, however late a tick ran
+    assert [s.stamp for s in read][: len(kept)] == [s.stamp for s in kept]
+
+
 def test_execute_returns_completed_once_the_arm_has_settled_at_the_goal():
     async def scenario(backend: MujocoBackend):
         q_start = (await backend.read_joint_state()).positions.copy()

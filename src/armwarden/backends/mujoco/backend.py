@@ -7,9 +7,11 @@ braking on a stop; the fingers (`SimulatedFingers`, mujoco/gripper.py); the came
 servo hooks, and when an execution has settled.
 
 What is published is what the simulation measures, never what was commanded: joint positions and
-velocities (`qpos`/`qvel`), joint torques and the external wrench, stamped (monotonic clock) after
-the step that produced them. A stop brakes the arm (mujoco/arm.py) and never pulls it back to where it was last
-told to be, nor to where the stop found it; a stopped execution reports where the arm came to rest.
+velocities (`qpos`/`qvel`), joint torques and the external wrench, stamped (monotonic clock) with
+the wall time at which the simulated state held. Every tick's joint state is also kept for a
+moment (`joint_history`), so the contact observer integrates each one. A stop brakes the arm
+(mujoco/arm.py) and never pulls it back to where it was last told to be, nor to where the stop
+found it; a stopped execution reports where the arm came to rest.
 
 Wrench: the flange force/torque sensor measures what the hand's subtree exerts on the arm. At
 rest that is the hand's own weight (and its moment); the estimate subtracts it, computed from the
@@ -61,6 +63,7 @@ from armwarden.backends.mujoco.scene import scene_for_policy
 from armwarden.backends.parts import Cell, PublishedWrench
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
+from armwarden.backends.state_history import JointStateHistory
 from armwarden.backends.values import ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
@@ -126,6 +129,8 @@ class MujocoBackend(ServoBackend):
                          joint_torques=True, time_scale=float(speedup))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
                                name="mujoco backend")
+        #: every tick's joint state, for the contact observer (`_joint_states_since`)
+        self.joint_history = JointStateHistory()
 
     # ================================================================ lifecycle
     async def _open(self) -> None:
@@ -148,6 +153,10 @@ class MujocoBackend(ServoBackend):
 
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
+
+    def _joint_states_since(self, stamp: float) -> Sequence[JointState]:
+        self.servo.require_running()
+        return self.joint_history.since(stamp)
 
     def _published_wrench(self) -> Wrench:
         self.servo.require_running()
@@ -224,7 +233,12 @@ class MujocoBackend(ServoBackend):
         if not self.arm.started or threading.current_thread() is not self.servo.thread:
             return  # the loop's first setpoint is prepared at construction, before physics runs
         self._worker_checkpoint("physics")
+        before = self.arm.measured
         self.arm.step(setpoint, time.perf_counter(), self.servo.speedup)
+        sample = self.arm.measured
+        if sample is not before:  # a tick too short for a physics step measures nothing new
+            self.joint_history.append(JointState(self.joint_names, sample.positions, sample.velocities, sample.stamp,
+                                                 sample.efforts))
 
     def servo_command(self, setpoint: Setpoint) -> None:
         """Track a trajectory sample (`SimulatedArm.command`)."""

@@ -66,9 +66,11 @@ class CellMeter:
                                                        int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
         self._damping = np.zeros((model.nv, model.nv))  # ∂(actuator + passive force)/∂q̇ of the last step, dense
 
-    def measure(self, data: mujoco.MjData, velocities_before: np.ndarray | None = None) -> Measured:
+    def measure(self, data: mujoco.MjData, velocities_before: np.ndarray | None = None,
+                stamp: float | None = None) -> Measured:
         """The sample the data holds after a step (servo thread); `velocities_before`: every
-        joint velocity (`qvel`) before that step (None: no step ran)."""
+        joint velocity (`qvel`) before that step (None: no step ran); `stamp`: when, on the
+        monotonic clock, the simulated state held (None: now)."""
         cell = self._cell
         site_rotation = data.site_xmat[self._flange_site].reshape(3, 3)
         site_position = data.site_xpos[self._flange_site]
@@ -98,7 +100,7 @@ class CellMeter:
             sim_s=float(data.time),
             scene_qpos=frozen(data.qpos),
             robot_penetration_m=self._robot_penetration_m(data),
-            stamp=time.monotonic(),
+            stamp=time.monotonic() if stamp is None else stamp,
         )
 
     def _applied_actuator_torques(self, data: mujoco.MjData, velocities_before: np.ndarray | None) -> np.ndarray:
