@@ -208,12 +208,13 @@ class Bench:
         arm = self.backend.arm
         latest: list[Any] = [None]
 
-        async def read_joint_state() -> JointState:
-            sample = arm.measured  # the sample the backend's own read gives, kept for its truth
-            latest[0] = sample
-            return JointState(self.names, sample.positions, sample.velocities, sample.stamp, sample.efforts)
+        async def read_joint_states_since(stamp: float | None) -> tuple[JointState, ...]:
+            states = await self.backend.read_joint_states_since(stamp)
+            latest[0] = arm.measured  # the newest physics sample, kept for its truth
+            return states
 
-        seen_by_guard = SimpleNamespace(read_joint_state=read_joint_state, capabilities=self.backend.capabilities)
+        seen_by_guard = SimpleNamespace(read_joint_states_since=read_joint_states_since,
+                                        capabilities=self.backend.capabilities)
         runner = MotionRunner(seen_by_guard, self.policy, None, clock=time.monotonic, audit=None,  # type: ignore[arg-type]
                               emergency_stop=None, stop_for=None, record=None, robot=self.runtime.robot)  # type: ignore[arg-type]
         contact_read = runner._reader("joint_torques")  # the Guard's own wiring, measured

@@ -11,10 +11,11 @@ import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports]
 import pytest
 
+from armwarden.core.errors import BackendError
 from armwarden.core.state import JointState
 from armwarden.robot.model import RobotModel
 from armwarden.safety.contact_observer import ContactObserver, ObserverSettings
-from armwarden.safety.contact_source import ContactEstimate, JointTorqueContact, choose_contact_source
+from armwarden.safety.contact_source import ContactEstimate, JointTorqueContact, choose_contact_source, latest_only
 from armwarden.safety.force import JOINT_TORQUE_RISE_ALLOWANCE_NM, ForceLimits, ForceMonitor, ForceViolation
 from tests.helpers import FakeClock
 
@@ -58,7 +59,7 @@ def joint_monitor(robot: RobotModel, q: np.ndarray, script: Sequence[object],
     source = TorqueScript(robot, q, clock, script)
     observer = ContactObserver(robot.model, robot.tcp_frame, robot.base_frame,
                                ObserverSettings(50.0, (0.0,) * 7, (0.0,) * 7))
-    contact = JointTorqueContact(source, observer, robot.joint_names)
+    contact = JointTorqueContact(latest_only(source), observer, robot.joint_names)
     return ForceMonitor(limits, contact.read, clock=clock, carried_joint_ceiling=carried), source
 
 
@@ -100,7 +101,7 @@ async def test_a_joint_state_without_measured_torques_fails_closed(robot: RobotM
     clock = FakeClock(10.0)
     source = TorqueScript(robot, ready, clock, [])
     source.script = [source.state(None)]
-    mon = ForceMonitor(LIMITS, JointTorqueContact(source, mon_observer(robot), robot.joint_names).read, clock=clock)
+    mon = ForceMonitor(LIMITS, JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names).read, clock=clock)
     found = await mon.baseline()
     assert isinstance(found, ForceViolation) and found.kind == "wrench_missing"
     assert "no measured joint torques" in found.detail
@@ -131,7 +132,7 @@ async def test_a_torque_stream_whose_stamp_stops_advancing_fails_closed_as_froze
     source = TorqueScript(robot, ready, clock, [])
     frozen = source.state(source.gravity, stamp=10.0)
     source.script = [frozen]
-    mon = ForceMonitor(LIMITS, JointTorqueContact(source, mon_observer(robot), robot.joint_names).read, clock=clock)
+    mon = ForceMonitor(LIMITS, JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names).read, clock=clock)
     await mon.baseline()
     violation = await run_until_violation(mon)
     assert violation.kind in ("wrench_frozen", "wrench_stale")
@@ -143,7 +144,7 @@ async def test_an_old_joint_state_fails_closed_as_stale(robot: RobotModel, ready
     clock = FakeClock(10.0)
     source = TorqueScript(robot, ready, clock, [])
     source.script = [source.state(source.gravity, stamp=9.0)]  # a second old when first read
-    mon = ForceMonitor(LIMITS, JointTorqueContact(source, mon_observer(robot), robot.joint_names).read, clock=clock)
+    mon = ForceMonitor(LIMITS, JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names).read, clock=clock)
     found = await mon.baseline()
     assert isinstance(found, ForceViolation) and found.kind == "wrench_stale"
 
@@ -220,7 +221,7 @@ async def test_a_nan_sample_is_never_fed_to_the_observer(robot: RobotModel, read
     nan[2] = np.nan
     source.script = [source.state(source.gravity, stamp=10.005), source.state(nan, stamp=10.010),
                      source.state(source.gravity, stamp=10.015)]
-    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names)
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names)
     first, unusable, after = await contact.read(), await contact.read(), await contact.read()
     assert isinstance(first, ContactEstimate) and isinstance(unusable, ContactEstimate)
     assert isinstance(after, ContactEstimate)
@@ -239,7 +240,7 @@ async def test_an_interval_too_long_to_integrate_is_skipped_not_read_as_contact(
                                                                                 ready: np.ndarray) -> None:
     source = TorqueScript(robot, ready, FakeClock(10.0), [])
     source.script = [source.state(source.gravity, stamp=10.0), moving_state(source, 10.0 + 0.05, 0.5)]
-    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names)
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names)
     await contact.read()
     after_stall = await contact.read()
     assert isinstance(after_stall, ContactEstimate)
@@ -251,7 +252,7 @@ async def test_the_same_jump_inside_a_short_interval_is_read_as_contact(robot: R
     """(The rule above skips only what cannot be integrated: a jump 5 ms apart is a contact.)"""
     source = TorqueScript(robot, ready, FakeClock(10.0), [])
     source.script = [source.state(source.gravity, stamp=10.0), moving_state(source, 10.005, 0.5)]
-    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names)
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names)
     await contact.read()
     reading = await contact.read()
     assert isinstance(reading, ContactEstimate) and np.max(np.abs(reading.external_torques_nm)) > 10.0
@@ -262,7 +263,7 @@ async def test_a_moving_arm_the_observer_cannot_integrate_for_long_fails_closed(
                                                                                ready: np.ndarray) -> None:
     source = TorqueScript(robot, ready, FakeClock(10.0), [])
     source.script = [moving_state(source, 10.0 + 0.04 * k, 0.5) for k in range(5)]
-    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names, max_unobserved_s=0.1)
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names, max_unobserved_s=0.1)
     readings = [await contact.read() for _ in range(5)]
     assert all(np.all(np.isfinite(r.force)) for r in readings[:3] if r is not None)
     last = readings[-1]
@@ -273,6 +274,60 @@ async def test_a_moving_arm_the_observer_cannot_integrate_for_long_fails_closed(
 async def test_long_intervals_at_rest_are_not_unobserved_time(robot: RobotModel, ready: np.ndarray) -> None:
     source = TorqueScript(robot, ready, FakeClock(10.0), [])
     source.script = [source.state(source.gravity, stamp=10.0 + 0.5 * k) for k in range(6)]
-    contact = JointTorqueContact(source, mon_observer(robot), robot.joint_names, max_unobserved_s=0.1)
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names, max_unobserved_s=0.1)
     readings = [await contact.read() for _ in range(6)]
     assert all(r is not None and np.all(np.isfinite(r.force)) for r in readings)
+
+
+def pushed_states(source: TorqueScript, count: int, start: float = 10.0) -> list[JointState]:
+    """`count` samples 1 ms apart of the held arm with 3 N·m pushing on joint 2 from the second on."""
+    return [source.state(source.gravity - (external(1, 3.0) if k else 0.0), stamp=start + 0.001 * k)
+            for k in range(count)]
+
+
+class Batches:
+    """A `read_joint_states_since` over scripted batches; remembers what each read asked for."""
+
+    def __init__(self, batches: Sequence[Sequence[JointState]]) -> None:
+        self.batches, self.asked = list(batches), []
+
+    async def __call__(self, since: float | None) -> tuple[JointState, ...]:
+        self.asked.append(since)
+        return tuple(self.batches.pop(0))
+
+
+@pytest.mark.anyio
+async def test_a_read_integrates_every_sample_since_the_last_as_one_read_per_sample_would(
+        robot: RobotModel, ready: np.ndarray) -> None:
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    states = pushed_states(source, 11)
+    one_each = JointTorqueContact(Batches([[s] for s in states]), mon_observer(robot), robot.joint_names)
+    readings_alone = [await one_each.read() for _ in states]
+    alone = readings_alone[-1]
+    batches = Batches([states[:1], states[1:6], states[6:]])
+    in_batches = JointTorqueContact(batches, mon_observer(robot), robot.joint_names)
+    readings = [await in_batches.read() for _ in range(3)]
+    assert isinstance(alone, ContactEstimate) and isinstance(readings[-1], ContactEstimate)
+    np.testing.assert_allclose(readings[-1].external_torques_nm, alone.external_torques_nm, atol=1e-12)
+    assert readings[-1].stamp == states[-1].stamp and in_batches.samples_integrated == len(states)
+    assert batches.asked == [None, states[0].stamp, states[5].stamp]  # each read asks for what it has not seen
+
+
+@pytest.mark.anyio
+async def test_a_nan_sample_inside_a_read_fails_that_read_closed(robot: RobotModel, ready: np.ndarray) -> None:
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    states = pushed_states(source, 6)
+    nan = source.gravity.copy()
+    nan[4] = np.nan
+    states[3] = source.state(nan, stamp=states[3].stamp)
+    contact = JointTorqueContact(Batches([states[:1], states[1:]]), mon_observer(robot), robot.joint_names)
+    await contact.read()
+    reading = await contact.read()
+    assert isinstance(reading, ContactEstimate) and not np.all(np.isfinite(reading.external_torques_nm))
+
+
+@pytest.mark.anyio
+async def test_a_read_that_returns_nothing_is_a_backend_error(robot: RobotModel, ready: np.ndarray) -> None:
+    contact = JointTorqueContact(Batches([[]]), mon_observer(robot), robot.joint_names)
+    with pytest.raises(BackendError, match="no joint state"):
+        await contact.read()

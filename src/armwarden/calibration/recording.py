@@ -2,13 +2,13 @@
 
 The calibration's Guard executes through a `RecordingBackend` (its motion runner's backend, not the
 Guard's other reads: the checks before a motion read the state too, and a replay that started from
-those would drift from the monitor's): while a motion executes, every joint state read through it —
-the monitor's own samples, as the runner reads joint states for nothing else — is kept with that
-motion. The calibration's tests hold the replayed peaks against the monitor's reported ones. `replay` then feeds a motion's states
-to a fresh observer exactly as the monitor's `JointTorqueContact` does (same stamps, same skipped
-intervals), so the residuals it returns are the ones the monitor would have read with that
-observer's friction: no friction to fit it, the fitted friction to see what a monitor with the
-recommended section would have read on these very samples.
+those would drift from the monitor's): while a motion executes, every batch of joint states the
+monitor read (`read_joint_states_since`: the samples since its last read) is kept with that motion.
+The calibration's tests hold the replayed peaks against the monitor's reported ones. `replay` then
+feeds a motion's batches to a fresh observer exactly as the monitor's `JointTorqueContact` does
+(same samples, same reads, same skipped intervals), so the residuals it returns are the ones the
+monitor would have read with that observer's friction: no friction to fit it, the fitted friction
+to see what a monitor with the recommended section would have read on these very samples.
 """
 
 from __future__ import annotations
@@ -29,19 +29,20 @@ __all__ = ["RecordingBackend", "Replay", "replay"]
 
 
 class RecordingBackend(CountingBackend):
-    """`inner`, with every joint state read while `motion` is set kept in `states[motion]`."""
+    """`inner`, with every batch of joint states the monitor read while `motion` is set kept in
+    `states[motion]` (one tuple per read)."""
 
     def __init__(self, inner: Backend) -> None:
         super().__init__(inner)
         #: the motion executing now (None: between motions, nothing is kept)
         self.motion: int | None = None
-        self.states: dict[int, list[JointState]] = {}
+        self.states: dict[int, list[tuple[JointState, ...]]] = {}
 
-    async def read_joint_state(self) -> JointState:
-        state = await self.inner.read_joint_state()
+    async def read_joint_states_since(self, stamp: float | None) -> tuple[JointState, ...]:
+        states = await self.inner.read_joint_states_since(stamp)
         if self.motion is not None:
-            self.states.setdefault(self.motion, []).append(state)
-        return state
+            self.states.setdefault(self.motion, []).append(states)
+        return states
 
 
 @dataclass(frozen=True)
@@ -56,19 +57,21 @@ class Replay:
     peak_force_n: float
 
 
-async def replay(states: Sequence[JointState], observer: ContactObserver, joint_names: Sequence[str],
+async def replay(batches: Sequence[tuple[JointState, ...]], observer: ContactObserver, joint_names: Sequence[str],
                  time_scale: float) -> Replay:
-    """`states` through `observer` (fresh: one per motion, as the monitor's) the monitor's way."""
-    pending = iter(states)
+    """The monitor's reads (`batches`, one per read) through `observer` (fresh: one per motion,
+    as the monitor's) the monitor's way."""
+    pending = iter(batches)
 
-    async def read() -> JointState:
+    async def read(_since: float | None) -> tuple[JointState, ...]:
         return next(pending)
 
     contact = JointTorqueContact(read, observer, joint_names, time_scale, max_unobserved_s=math.inf)
     velocities, residuals = [], []
     peaks = np.zeros(len(joint_names))
     peak_force, last_stamp = 0.0, -math.inf
-    for state in states:
+    for batch in batches:
+        state = batch[-1]
         reading = await contact.read()
         if not isinstance(reading, ContactEstimate) or not np.all(np.isfinite(reading.external_torques_nm)):
             continue  # the monitor would have stopped the motion: it did not, so this cannot be

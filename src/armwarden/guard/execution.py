@@ -125,7 +125,7 @@ class MotionRunner:
             raise SafetyRefusal(RefusalCode.NO_WRENCH, "contact from joint torques needs the robot model, and this "
                                 "Guard was built without one; nothing was moved")
         observer = observer_for(self.policy, self.robot)  # one per execution: no state carried across motions
-        return JointTorqueContact(self.backend.read_joint_state, observer, self.policy.robot.joint_names,
+        return JointTorqueContact(self.backend.read_joint_states_since, observer, self.policy.robot.joint_names,
                                   self.backend.capabilities.time_scale, self.policy.force.wrench_timeout_s).read
 
     async def force_monitor(self) -> ForceMonitor | None:

@@ -25,7 +25,8 @@ if TYPE_CHECKING:
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
 
-__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "observer_for"]
+__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "latest_only",
+           "observer_for"]
 
 ContactSource = Literal["sensor", "joint_torques"]
 
@@ -95,16 +96,24 @@ REST_SPEED_RAD_S = 0.01
 class JointTorqueContact:
     """Readings for the force monitor from joint states and one observer (one per execution).
 
+    Each read takes every sample the backend published since the last one it integrated
+    (`Backend.read_joint_states_since`: a servo loop's whole history, or the latest sample alone)
+    and feeds them to the observer in order; the reading is the newest sample's estimate. The
+    residual is a low-pass of the external torque (bandwidth `observer_gain_per_s`, 20 ms at the
+    bundled 50 /s), so a poll between samples cannot step over a contact's rise.
+
     A sample interval longer than `MAX_INTEGRATED_INTERVAL_S` is skipped (`ContactObserver.rebase`):
     the estimate holds and the next interval starts from that sample. Skipped time that adds up
     to more than `max_unobserved_s` while the arm moved, without an integrated interval between, is a
-    lost reading (fail closed): an observer that cannot integrate cannot see a contact."""
+    lost reading (fail closed): an observer that cannot integrate cannot see a contact. So is a
+    sample without finite positions, velocities or torques, wherever it falls in a read."""
 
-    def __init__(self, read_joint_state: Callable[[], Awaitable[JointState]], observer: ContactObserver,
-                 joint_names: Sequence[str], time_scale: float = 1.0, max_unobserved_s: float = 0.1) -> None:
+    def __init__(self, read_joint_states: Callable[[float | None], Awaitable[Sequence[JointState]]],
+                 observer: ContactObserver, joint_names: Sequence[str], time_scale: float = 1.0,
+                 max_unobserved_s: float = 0.1) -> None:
         if not (np.isfinite(time_scale) and time_scale > 0):
             raise ValueError(f"time_scale must be a positive number, got {time_scale}")
-        self._read_joint_state = read_joint_state
+        self._read_joint_states = read_joint_states
         self.observer = observer
         self._joint_names = tuple(joint_names)
         #: simulated seconds per stamp second (a simulator run faster than real time; 1 on hardware)
@@ -112,12 +121,33 @@ class JointTorqueContact:
         self._max_unobserved_s = float(max_unobserved_s)
         #: stamp time skipped while the arm moved, since the last integrated interval [s]
         self.unobserved_s = 0.0
+        #: samples integrated so far (each once)
+        self.samples_integrated = 0
         self._moving = False
         self._last: ContactEstimate | None = None
+        self._last_state: JointState | None = None
 
     async def read(self) -> Wrench | None:
-        """The latest estimate (BackendError when the state carries no torques at all)."""
-        state = await self._read_joint_state()
+        """The newest sample's estimate (BackendError when a state carries no torques at all)."""
+        states = await self._read_joint_states(None if self._last_state is None else self._last_state.stamp)
+        if not states:
+            raise BackendError("the backend returned no joint state")
+        for state in states:
+            unusable = self._integrate(state)
+            if unusable is not None:
+                return unusable
+        state = self._last_state
+        if state is None:  # pragma: no cover - `_integrate` kept a sample or returned a reading
+            raise BackendError("no joint state was integrated")
+        if self._last is None or self._last.stamp != state.stamp:  # the newest sample's TCP wrench, once per read
+            residual = self.observer.residual
+            wrench = self.observer.tcp_wrench(np.asarray(state.positions, dtype=float), residual)
+            self._last = ContactEstimate(wrench.force_n, wrench.torque_nm, float(state.stamp), residual,
+                                         wrench.condition)
+        return self._last
+
+    def _integrate(self, state: JointState) -> ContactEstimate | None:
+        """Feed one sample to the observer; an unusable reading when it cannot be (else None)."""
         if tuple(state.names) != self._joint_names:
             raise BackendError(f"the joint state names {list(state.names)}, not the policy's joints")
         if state.efforts is None:
@@ -125,23 +155,33 @@ class JointTorqueContact:
         q, v, tau = (np.asarray(x, dtype=float) for x in (state.positions, state.velocities, state.efforts))
         if not all(np.all(np.isfinite(x)) for x in (q, v, tau)) or not np.isfinite(state.stamp):
             return _unusable(state.stamp, len(self._joint_names))
-        last = self._last
-        if last is not None and state.stamp <= last.stamp:  # the same sample again: same reading
-            return last
-        interval = state.stamp - last.stamp if last is not None else 0.0
-        if last is not None and interval > MAX_INTEGRATED_INTERVAL_S:
+        previous = self._last_state
+        if previous is not None and state.stamp <= previous.stamp:  # the same sample again: nothing new
+            return None
+        interval = state.stamp - previous.stamp if previous is not None else 0.0
+        if previous is not None and interval > MAX_INTEGRATED_INTERVAL_S:
             if self._moving or bool(np.any(np.abs(v) > REST_SPEED_RAD_S)):  # an arm at rest at both ends: nothing missed
                 self.unobserved_s += interval
             if self.unobserved_s > self._max_unobserved_s:
                 return _unusable(state.stamp, len(self._joint_names))
-            residual = self.observer.rebase(q, v, tau, state.stamp * self._time_scale)
+            self.observer.rebase(q, v, tau, state.stamp * self._time_scale)
         else:
             self.unobserved_s = 0.0
-            residual = self.observer.update(q, v, tau, state.stamp * self._time_scale)
+            self.observer.update(q, v, tau, state.stamp * self._time_scale)
+            self.samples_integrated += 1
         self._moving = bool(np.any(np.abs(v) > REST_SPEED_RAD_S))
-        wrench = self.observer.tcp_wrench(q, residual)
-        self._last = ContactEstimate(wrench.force_n, wrench.torque_nm, float(state.stamp), residual, wrench.condition)
-        return self._last
+        self._last_state = state
+        return None
+
+
+def latest_only(read_joint_state: Callable[[], Awaitable[JointState]]) -> Callable[[float | None], Awaitable[tuple[JointState, ...]]]:
+    """A one-sample reader (`Backend.read_joint_state`, a recording) in the shape
+    `JointTorqueContact` reads: each call gives one sample, whatever it was asked for."""
+
+    async def read(_since: float | None) -> tuple[JointState, ...]:
+        return (await read_joint_state(),)
+
+    return read
 
 
 def _unusable(stamp: float, joints: int) -> ContactEstimate:
