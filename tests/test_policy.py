@@ -262,6 +262,7 @@ BAD_VALUES: list[tuple[str, Any, str]] = [
     *[("force.joint_torques.rotor_inertia_kgm2", {FIRST_JOINT: value},
        f"force.joint_torques.rotor_inertia_kgm2.{FIRST_JOINT}") for value in (-0.1, 5.5, NAN, "1", True)],
     *_floats("force.joint_torques.observer_gain_per_s", 0, 4.9, 501),
+    *_floats("force.joint_torques.max_tcp_force_n", 0, -1.0, 30.5, nullable=True),  # 30.5: over max_contact_force_n
     *_floats("force.joint_torques.payload_kg", -0.1, 50.1),
     *_vectors("force.joint_torques.payload_com_m"),
     ("force.joint_torques.payload_com_m", [0.0, 0.0, 0.6], "force.joint_torques.payload_com_m[2]"),
@@ -1066,6 +1067,7 @@ def test_summary_states_the_facts_an_operator_checks() -> None:
         "70 N",
         "outside_envelope",
         "Dry run: off",
+        "estimated TCP force ≤ 20 N",
     ):
         assert fact in text, fact
     assert len(text.splitlines()) > 15

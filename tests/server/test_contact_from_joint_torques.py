@@ -27,8 +27,9 @@ async def plan_down(client: Any, z: float = 0.30) -> dict[str, Any]:
     return result.structured_content
 
 
-def push_once_past(arm: ArmHarness, fraction: float) -> None:
-    """Push on the forearm from the first progress report past `fraction` of the motion on (the
+def push_once_past(arm: ArmHarness, fraction: float, link: str = FOREARM,
+                   force_n: tuple[float, float, float] = PUSH_N) -> None:
+    """Push on `link` from the first progress report past `fraction` of the motion on (the
     push stays: the monitor's last sample after the motion sees it even if the motion ended)."""
     fake = arm.fake
     execute = fake.execute
@@ -38,7 +39,7 @@ def push_once_past(arm: ArmHarness, fraction: float) -> None:
         def on_progress(done: float) -> None:
             nonlocal pushed
             if done >= fraction and not pushed:
-                fake.push(FOREARM, PUSH_N)
+                fake.push(link, force_n)
                 pushed = True
             progress(done)
         return await execute(trajectory, on_progress, **kwargs)
@@ -97,6 +98,36 @@ async def test_the_push_that_stops_the_arm_is_what_the_forearm_lever_predicts(tm
         worst = int(np.argmax(np.abs(expected) / limits))
         assert np.sign(measured[worst]) == np.sign(expected[worst])
         assert abs(measured[worst]) > limits[worst]
+
+
+async def test_an_estimated_tcp_force_over_its_own_limit_stops_below_the_sensors_limit(tmp_path) -> None:
+    """25 N at the hand: under max_contact_force_n (30 N, a sensor's limit) but over the estimate's
+    own max_tcp_force_n (20 N); the joints' limits are raised so only the TCP estimate can stop it."""
+    policy = policy_with(**{"force.joint_torques.max_external_torque_nm": {f"fr3_joint{j}": 50.0 for j in range(1, 8)}})
+    assert (policy.force.max_contact_force_n, policy.force.estimated_force_limit_n) == (30.0, 20.0)
+    async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client("legacy", approve()) as client:
+        summary = await plan_down(client)
+        push_once_past(arm, 0.3, link=arm.guard.robot.tcp_frame, force_n=(0.0, 0.0, 25.0))
+
+        result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+
+        assert result.is_error and "[FORCE_LIMIT]" in text_of(result), text_of(result)
+        event = arm.guard.latch.current_event
+        assert event is not None and event.force_violation is not None
+        assert event.force_violation["kind"] == "force_limit"
+        assert "estimated from the motors' torques" in event.force_violation["detail"]
+        assert "the limit of 20 N" in event.force_violation["detail"]
+
+
+async def test_the_operator_is_told_the_estimated_forces_own_limit(tmp_path) -> None:
+    operator = approve()
+    policy = policy_with(**{"approval.mode": "always"})
+    async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client("legacy", operator) as client:
+        summary = await plan_down(client)
+        done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+        assert not done.is_error, text_of(done)
+    prompts: list[str] = operator.prompts  # type: ignore[attr-defined]
+    assert any("stops above 30 N" in p and "(20 N estimated from the joint torques)" in p for p in prompts), prompts
 
 
 async def test_a_policy_without_joint_torque_limits_refuses_an_arm_without_a_sensor(tmp_path) -> None:

@@ -40,7 +40,9 @@ def execute_prompt(policy: Policy, plan: StoredPlan, backend_name: str, force_mo
         facts.append(("Final TCP position", f"({x:.3f}, {y:.3f}, {z:.3f}) m in {policy.robot.base_frame}"))
     force = policy.force
     facts.append(
-        ("Force monitoring", f"ON, stops above {force.max_contact_force_n:g} N / {force.max_contact_torque_nm:g} N·m")
+        ("Force monitoring", f"ON, stops above {force.max_contact_force_n:g} N / {force.max_contact_torque_nm:g} N·m"
+         + (f" ({force.estimated_force_limit_n:g} N estimated from the joint torques)"
+            if force.estimated_force_limit_n != force.max_contact_force_n else ""))
         if force_monitoring
         else ("Force monitoring", "OFF: the contact force limit is NOT enforced")
     )

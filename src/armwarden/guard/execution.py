@@ -106,7 +106,6 @@ class MotionRunner:
         #: the loaded robot model the joint-torque observer copies (None: no observer can be built)
         self.robot = robot
         self.require_wrench = policy.force.require_wrench
-        self.force_limits = ForceLimits.from_policy(policy)
         self.audit = audit
         self._clock = clock
         self._emergency_stop = emergency_stop
@@ -117,6 +116,10 @@ class MotionRunner:
         self._joint_ceiling: tuple[float | None, ...] | None = None
 
     # ------------------------------------------------------------------ before moving
+    def force_limits(self, source: ContactSource) -> ForceLimits:
+        """What the monitor holds a reading from `source` to (an estimated force has its own limit)."""
+        return ForceLimits.from_policy(self.policy, source)
+
     def _reader(self, source: ContactSource) -> Callable[[], Awaitable[Any]]:
         """The monitor's read: the sensor's wrench, or a fresh observer over the joint states."""
         if source == "sensor":
@@ -135,7 +138,7 @@ class MotionRunner:
             if self.require_wrench:
                 raise SafetyRefusal(RefusalCode.NO_WRENCH, no_contact_message(self.policy, self.backend))
             return None
-        monitor = ForceMonitor(self.force_limits, self._reader(source), clock=self._clock,
+        monitor = ForceMonitor(self.force_limits(source), self._reader(source), clock=self._clock,
                                carried_ceiling=self._contact_ceiling, carried_joint_ceiling=self._joint_ceiling)
         baseline = await monitor.baseline()
         if isinstance(baseline, ForceViolation):

@@ -78,6 +78,13 @@ class JointTorqueConfig(BaseModel):
         description=f"Largest estimated external torque per joint [N·m], by joint name, each in "
         f"(0, {MAX_EXTERNAL_TORQUE_NM:g}]; must cover exactly robot.joint_names.",
     )
+    max_tcp_force_n: float | None = finite(
+        gt=0, default=None,
+        description="Largest TCP force [N] estimated from the joint torques (vector norm), held while the TCP "
+        "Jacobian is well conditioned; at most force.max_contact_force_n. Unset: force.max_contact_force_n. "
+        "The estimate's error in free motion differs from a sensor's, so it gets a limit of its own; "
+        "`armwarden calibrate-contact` recommends one.",
+    )
     friction_coulomb_nm: PerJoint = Field(
         default_factory=FrozenMap,
         description=f"Coulomb friction per joint [N·m] the observer expects while the joint moves "
@@ -96,8 +103,9 @@ class JointTorqueConfig(BaseModel):
     observer_gain_per_s: float = finite(
         ge=MIN_OBSERVER_GAIN, le=MAX_OBSERVER_GAIN, default=50.0,
         description=f"Observer bandwidth K [1/s], in [{MIN_OBSERVER_GAIN:g}, {MAX_OBSERVER_GAIN:g}]: a step of "
-        "external torque shows 63 % of its size after 1/K s. It is updated once per force.monitor_rate_hz poll: "
-        "a K near the poll rate filters little of the torque noise.",
+        "external torque shows 63 % of its size after 1/K s. It is updated with every joint state the backend "
+        "publishes (a servo loop's each tick where the backend keeps them, else once per force.monitor_rate_hz "
+        "poll): a K near that rate filters little of the torque noise.",
     )
     payload_kg: float = finite(
         ge=0, le=MAX_PAYLOAD_KG, default=0.0,

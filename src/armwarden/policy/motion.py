@@ -221,8 +221,23 @@ class ForceConfig(BaseModel):
 
     @model_validator(mode="after")
     def _rules(self) -> ForceConfig:
-        enforce([self._monitor_period_within_wrench_timeout(), self._joint_torque_source_has_limits()])
+        enforce([self._monitor_period_within_wrench_timeout(), self._joint_torque_source_has_limits(),
+                 self._estimated_force_within_contact_force()])
         return self
+
+    def _estimated_force_within_contact_force(self) -> Iterator[Violation]:
+        """The estimate's own limit tightens the contact force limit; it never loosens it."""
+        estimated = None if self.joint_torques is None else self.joint_torques.max_tcp_force_n
+        if estimated is not None and estimated > self.max_contact_force_n:
+            yield ("joint_torques", "max_tcp_force_n"), (
+                f"{estimated:g} N is above max_contact_force_n ({self.max_contact_force_n:g} N): the estimate's "
+                "limit may only be lower")
+
+    @property
+    def estimated_force_limit_n(self) -> float:
+        """The TCP force limit [N] for a force estimated from joint torques."""
+        estimated = None if self.joint_torques is None else self.joint_torques.max_tcp_force_n
+        return self.max_contact_force_n if estimated is None else estimated
 
     def _joint_torque_source_has_limits(self) -> Iterator[Violation]:
         """Joint torques without limits would estimate the contact and stop at nothing."""

@@ -79,7 +79,8 @@ def summarize_policy(policy: Policy) -> str:
         f"  contact measured by: {force.source}; "
         + ("no joint-torque limits (an arm without a sensor is not monitored)" if force.joint_torques is None else
            "external joint torque ≤ " + ", ".join(f"{v:g}" for v in force.joint_torques.max_external_torque_nm.values())
-           + f" N·m (observer {force.joint_torques.observer_gain_per_s:g}/s, payload {force.joint_torques.payload_kg:g} kg)"),
+           + f" N·m, estimated TCP force ≤ {force.estimated_force_limit_n:g} N"
+           + f" (observer {force.joint_torques.observer_gain_per_s:g}/s, payload {force.joint_torques.payload_kg:g} kg)"),
     ]
     if policy.gripper is None:
         lines.append("Gripper: none")

@@ -89,10 +89,12 @@ class ForceLimits:
             _require_positive(f"max_external_torque_nm[{index}]", value)
 
     @classmethod
-    def from_policy(cls, policy) -> ForceLimits:
+    def from_policy(cls, policy, source: str = "sensor") -> ForceLimits:
+        """The policy's limits for contact read from `source` ("sensor" or "joint_torques": a
+        force estimated from joint torques is held against `joint_torques.max_tcp_force_n`)."""
         force = policy.force
         return cls(
-            max_force_n=force.max_contact_force_n,
+            max_force_n=force.estimated_force_limit_n if source == "joint_torques" else force.max_contact_force_n,
             max_torque_nm=force.max_contact_torque_nm,
             monitor_rate_hz=force.monitor_rate_hz,
             wrench_timeout_s=force.wrench_timeout_s,
@@ -322,14 +324,15 @@ class ForceMonitor:
                 return found
         force_n, torque_nm = wrench.force_norm_n, wrench.torque_norm_nm
         force_max, torque_max = self.force_threshold_n, self.torque_threshold_nm
+        how = " estimated from the motors' torques" if isinstance(wrench, ContactEstimate) else ""
         if force_n > force_max:
             return self._violation(
-                "force_limit", f"contact force {force_n:.2f} N exceeds {self._describe(force_max, 'force')}",
+                "force_limit", f"contact force{how} {force_n:.2f} N exceeds {self._describe(force_max, 'force')}",
                 force_n, torque_nm,
             )
         if torque_nm > torque_max:
             return self._violation(
-                "torque_limit", f"contact torque {torque_nm:.3f} N·m exceeds {self._describe(torque_max, 'torque')}",
+                "torque_limit", f"contact torque{how} {torque_nm:.3f} N·m exceeds {self._describe(torque_max, 'torque')}",
                 force_n, torque_nm,
             )
         return None
