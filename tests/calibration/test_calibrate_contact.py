@@ -19,7 +19,7 @@ import yaml
 from armwarden.audit.verify import verify_file
 from armwarden.calibration import run as calibration_run
 from armwarden.calibration.command import EXIT_OK, EXIT_REFUSED, EXIT_STOPPED, add_calibrate_arguments, calibrate_command
-from armwarden.calibration.friction_fit import MIN_LIMIT_NM
+from armwarden.calibration.friction_fit import MIN_FORCE_ROOM_N, MIN_LIMIT_NM
 from armwarden.calibration.run import CalibrationOptions, run_calibration
 from armwarden.cli import check_policy_command
 from armwarden.daemon import startup
@@ -132,6 +132,7 @@ def test_the_recommended_section_pasted_into_the_policy_passes_check_policy(tmp_
     limits = load_policy(policy_path).force.joint_torques
     recommended = yaml.safe_load(section_text)["joint_torques"]["max_external_torque_nm"]
     assert limits is not None and dict(limits.max_external_torque_nm) == recommended
+    assert limits.max_tcp_force_n == yaml.safe_load(section_text)["joint_torques"]["max_tcp_force_n"]
     assert tuple(recommended) == load_policy(policy_path).robot.joint_names
 
 
@@ -163,6 +164,8 @@ def test_the_recommended_limits_exceed_what_was_seen_by_the_margin(tmp_path: Pat
         assert joint.limit_nm <= max(MIN_LIMIT_NM, 3.0 * joint.peak_after_friction_nm) + 0.01
         assert joint.margin >= 3.0
         assert result.section["max_external_torque_nm"][joint.name] == joint.limit_nm
+    assert result.force_limit_n is not None and result.section["max_tcp_force_n"] == result.force_limit_n
+    assert result.force_limit_n >= max(3.0 * result.peak_force_n, result.peak_force_n + MIN_FORCE_ROOM_N)
 
 
 def calibrate(tmp_path: Path, noise_nm: float) -> Any:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armwarden.calibration.friction_fit import MIN_LIMIT_NM, fit_friction, recommend
+from armwarden.calibration.friction_fit import MIN_FORCE_ROOM_N, MIN_LIMIT_NM, fit_friction, force_limit_for, recommend
 from armwarden.safety.contact_observer import COULOMB_SMOOTHING_RAD_S
 
 
@@ -79,3 +79,20 @@ def test_what_an_observer_with_the_fitted_friction_really_read_raises_the_limit(
     assert estimated.peak_after_friction_nm < 0.3 and estimated.limit_nm == MIN_LIMIT_NM
     assert replayed.peak_after_friction_nm == 0.9 and replayed.limit_nm == pytest.approx(1.8)
     assert recommend(["a"], v, residual, peaks_after_friction_nm=[0.1])[0] == estimated  # never lowers it
+
+
+def test_the_tcp_force_limit_is_the_margin_over_the_free_motion_estimate() -> None:
+    assert force_limit_for(10.2, 2.0, 30.0) == 21.0  # 2x, rounded up to 1 N
+
+
+def test_a_small_free_motion_estimate_still_leaves_some_newtons_of_room() -> None:
+    assert force_limit_for(1.0, 2.0, 30.0) == 1.0 + MIN_FORCE_ROOM_N
+
+
+def test_no_tcp_force_limit_is_recommended_above_the_policys_contact_force() -> None:
+    assert force_limit_for(20.0, 2.0, 30.0) is None  # the estimate keeps max_contact_force_n
+
+
+def test_a_nan_peak_force_is_refused() -> None:
+    with pytest.raises(ValueError, match="finite"):
+        force_limit_for(math.nan, 2.0, 30.0)

@@ -109,11 +109,17 @@ def render_summary(result: CalibrationResult, margin: float) -> str:
     if result.monitor_peaks_nm and not np.allclose(result.replayed_peaks_nm, result.monitor_peaks_nm, atol=1e-3):
         lines.append("calibrate-contact: WARNING: the recorded samples do not reproduce the Guard monitor's peaks "
                      f"(replayed {np.round(result.replayed_peaks_nm, 2).tolist()}): trust the monitor's column")
-    force_margin = result.max_contact_force_n / result.peak_force_n if result.peak_force_n > 0 else math.inf
-    lines.append(f"calibrate-contact: the TCP force estimate peaked at {result.peak_force_n:.1f} N with the fitted "
-                 f"friction (max_contact_force_n {result.max_contact_force_n:g} N: {force_margin:.1f}x)"
-                 + ("" if force_margin >= margin else f"; WARNING: under {margin:g}x, the force limit may stop "
-                    "motions that touch nothing"))
+    if result.force_limit_n is not None:
+        lines.append(f"calibrate-contact: the TCP force estimate peaked at {result.peak_force_n:.1f} N with the fitted "
+                     f"friction: max_tcp_force_n {result.force_limit_n:g} N (max_contact_force_n "
+                     f"{result.max_contact_force_n:g} N)")
+    else:
+        force_margin = result.max_contact_force_n / result.peak_force_n if result.peak_force_n > 0 else math.inf
+        lines.append(f"calibrate-contact: the TCP force estimate peaked at {result.peak_force_n:.1f} N with the fitted "
+                     f"friction (max_contact_force_n {result.max_contact_force_n:g} N: {force_margin:.1f}x); no "
+                     "max_tcp_force_n fits under it" + ("" if force_margin >= margin else
+                                                          f"; WARNING: under {margin:g}x, the force limit may stop "
+                                                          "motions that touch nothing"))
     if len(result.skipped) > result.executed:
         lines.append(f"calibrate-contact: WARNING: {len(result.skipped)} of {result.planned} motions were skipped: the "
                      "limits rest on few motions; look at why, or run more (--motions, another --seed)")

@@ -24,13 +24,17 @@ from armwarden.calibration.arguments import DEFAULT_MARGIN
 from armwarden.policy.joint_torques import MAX_EXTERNAL_TORQUE_NM, MAX_FRICTION_NM
 from armwarden.safety.contact_observer import COULOMB_SMOOTHING_RAD_S
 
-__all__ = ["DEFAULT_MARGIN", "MIN_LIMIT_NM", "JointRecommendation", "fit_friction", "limit_for", "recommend"]
+__all__ = ["DEFAULT_MARGIN", "MIN_FORCE_ROOM_N", "MIN_LIMIT_NM", "JointRecommendation", "fit_friction",
+           "force_limit_for", "limit_for", "recommend"]
 
 #: no limit below this [N·m]. Calibration sees only the poses and speeds it ran: friction that rises
 #: as a cold drive warms up, cable drag, a pose its motions missed would stop a limit at the noise
 #: level (a wrist joint reads ~0.1-0.3 N·m in MuJoCo). 1 N·m stays under the smallest provisional
 #: limit (2 N·m) and far under Franka's own lowest defaults (10-20 N·m).
 MIN_LIMIT_NM = 1.0
+#: the least room [N] a recommended TCP force limit leaves over the estimate's free-motion peak
+#: (the margin alone would put it within a newton or two of a peak of a few newtons)
+MIN_FORCE_ROOM_N = 5.0
 #: joint speed [rad/s] above which a sample says something about friction
 MOVING_RAD_S = 0.05
 
@@ -108,3 +112,14 @@ def recommend(joint_names: Sequence[str], velocities: np.ndarray, residuals: np.
         found.append(JointRecommendation(name, int(v.shape[0]), peak_before, round(coulomb, 3), round(viscous, 3),
                                          peak_after, limit, limit / peak_after if peak_after > 0 else math.inf))
     return found
+
+
+def force_limit_for(peak_force_n: float, margin: float, max_contact_force_n: float) -> float | None:
+    """The recommended `max_tcp_force_n` [N]: `margin` times the largest trusted TCP force the
+    observer estimated with nothing touching the arm, at least `MIN_FORCE_ROOM_N` over it, rounded
+    up to 1 N; None when that is above `max_contact_force_n` (the estimate keeps the policy's limit,
+    and the summary warns)."""
+    if not (math.isfinite(peak_force_n) and peak_force_n >= 0):
+        raise ValueError(f"the peak force must be a finite number >= 0, got {peak_force_n}")
+    limit = float(math.ceil(max(margin * peak_force_n, peak_force_n + MIN_FORCE_ROOM_N)))
+    return limit if limit <= max_contact_force_n else None

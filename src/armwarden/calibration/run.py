@@ -37,7 +37,13 @@ from mcp import Client
 from mcp import types as mcp_types
 
 from armwarden.audit import AuditWriteError
-from armwarden.calibration.friction_fit import DEFAULT_MARGIN, JointRecommendation, fit_friction, recommend
+from armwarden.calibration.friction_fit import (
+    DEFAULT_MARGIN,
+    JointRecommendation,
+    fit_friction,
+    force_limit_for,
+    recommend,
+)
 from armwarden.calibration.recording import RecordingBackend, Replay, replay
 from armwarden.daemon.shutdown import close_assembly
 from armwarden.daemon.startup import SWITCH_INTERVAL_S, assemble, freeze_long_lived_objects, open_assembly
@@ -90,6 +96,8 @@ class CalibrationResult:
     #: the largest trusted TCP force estimate with the fitted friction allowed for [N], and its limit
     peak_force_n: float = 0.0
     max_contact_force_n: float = math.inf
+    #: the recommended `max_tcp_force_n` [N] (None: none fits under `max_contact_force_n`)
+    force_limit_n: float | None = None
     skipped: list[str] = field(default_factory=list)
     stopped: str | None = None
     recommendations: list[JointRecommendation] = field(default_factory=list)
@@ -246,7 +254,8 @@ async def _recommend(options: CalibrationOptions, policy: Policy, robot: RobotMo
                                        peaks_after_friction_nm=np.max([r.peaks_nm for r in fitted], axis=0).tolist())
     result.peak_force_n = max(r.peak_force_n for r in fitted)
     result.max_contact_force_n = policy.force.max_contact_force_n
-    result.section = _section(policy, result.recommendations)
+    result.force_limit_n = force_limit_for(result.peak_force_n, options.margin, result.max_contact_force_n)
+    result.section = _section(policy, result.recommendations, result.force_limit_n)
 
 
 def _runs(summary: dict[str, Any]) -> bool:
@@ -304,12 +313,13 @@ async def _move(options: CalibrationOptions, policy: Policy, server: ArmWardenSe
             progress(f"motion {index + 1}/{len(goals)} done")
 
 
-def _section(policy: Policy, found: list[JointRecommendation]) -> dict[str, Any]:
+def _section(policy: Policy, found: list[JointRecommendation], force_limit_n: float | None) -> dict[str, Any]:
     """The `force.joint_torques` section with the recommendations (the rest as the policy had it)."""
     current = policy.force.joint_torques
     assert current is not None
     section = current.model_dump(mode="json")
     section["max_external_torque_nm"] = {r.name: r.limit_nm for r in found}
+    section["max_tcp_force_n"] = force_limit_n
     section["friction_coulomb_nm"] = {r.name: r.coulomb_nm for r in found if r.coulomb_nm > 0}
     section["friction_viscous_nms"] = {r.name: r.viscous_nms for r in found if r.viscous_nms > 0}
     return section
