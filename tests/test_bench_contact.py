@@ -77,6 +77,13 @@ def test_the_threshold_with_other_limits_is_the_smallest_force_caught_often_enou
     found = CONTACT.threshold_with(detection, [2.0])
 
     assert found["shares"] == {"20": 1.0, "10": 0.0, "30": 1.0} and found["threshold_n"] == 20.0
+    with_tcp_limit = CONTACT.threshold_with(detection, [2.0], force_limit_n=4.0)  # 5 N estimates now caught
+    assert with_tcp_limit["shares"]["10"] == 1.0 and with_tcp_limit["threshold_n"] == 10.0
+
+
+def test_the_suggested_tcp_force_limit_leaves_room_over_the_free_motion_estimate() -> None:
+    assert CONTACT.suggested_force_limit([{"peak_tcp_force_n": 4.0}, {"peak_tcp_force_n": 6.2}]) == 12.0  # +5 N
+    assert CONTACT.suggested_force_limit([{"peak_tcp_force_n": 20.0}]) == 30.0  # 1.5x
 
 
 def test_the_report_names_every_figure(capsys: pytest.CaptureFixture[str]) -> None:
@@ -90,8 +97,10 @@ def test_the_report_names_every_figure(capsys: pytest.CaptureFixture[str]) -> No
                       "push_samples": 10},
         "false_alarms": [{"payload_kg": 0.0, "motions": 2, "violations": 0, "examples": [],
                           "peak_estimate_nm": [1.0] * 7, "peak_estimate_p50_nm": [0.5] * 7,
-                          "peak_estimate_p99_nm": [0.9] * 7, "limits_nm": [10.0] * 7}],
-        "with_suggested_limits": {"limits_nm": [2.5] * 7, "shares": {"30": 1.0}, "threshold_n": 30.0},
+                          "peak_estimate_p99_nm": [0.9] * 7, "limits_nm": [10.0] * 7,
+                          "peak_tcp_force_n": 4.0, "max_force_n": 30.0}],
+        "with_suggested_limits": {"limits_nm": [2.5] * 7, "force_limit_n": 9.0, "shares": {"30": 1.0},
+                                  "threshold_n": 30.0},
     }
 
     CONTACT.report_contact(result)

@@ -228,7 +228,7 @@ class Bench:
                                     np.asarray(latest[0].external_efforts, dtype=float).copy(), force))
             return estimate
 
-        return ForceMonitor(runner.force_limits, read)
+        return ForceMonitor(runner.force_limits("joint_torques"), read)
 
     async def execute(self, trajectory: Any, *, stop_on_violation: bool,
                       during: Callable[[], Coroutine[Any, Any, None]] | None = None) -> Run:
@@ -442,7 +442,7 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
 
     return {"per_force": per_force, "threshold_n": threshold, "rms_error_nm": rms(errors_all),
             "rms_error_settled_nm": rms(errors_settled), "push_samples": len(errors_all), "refused_goals": bench.refused,
-            "trials": trials_seen, "max_force_n": bench.policy.force.max_contact_force_n, "backend_faults": faults}
+            "trials": trials_seen, "max_force_n": bench.policy.force.estimated_force_limit_n, "backend_faults": faults}
 
 
 def suggested_limits(false_alarm_runs: list[dict[str, Any]]) -> list[float]:
@@ -452,19 +452,28 @@ def suggested_limits(false_alarm_runs: list[dict[str, Any]]) -> list[float]:
     return [math.ceil(2 * max(1.5 * p, p + 1.0)) / 2 for p in peaks]
 
 
-def threshold_with(detection: dict[str, Any], limits: list[float]) -> dict[str, Any]:
-    """The detection shares per force had the per-joint limits been `limits` (the TCP force limit
-    as it is), from the estimates each push trial recorded: what those limits would catch."""
+def suggested_force_limit(false_alarm_runs: list[dict[str, Any]]) -> float:
+    """A TCP force limit [N] for the estimate with room over the largest trusted estimate any
+    false-alarm run saw: 1.5x it and at least 5 N over it, rounded up to 1 N."""
+    peak = max(row["peak_tcp_force_n"] for row in false_alarm_runs)
+    return float(math.ceil(max(1.5 * peak, peak + 5.0)))
+
+
+def threshold_with(detection: dict[str, Any], limits: list[float], force_limit_n: float | None = None) -> dict[str, Any]:
+    """The detection shares per force had the per-joint limits been `limits` and the TCP force
+    limit `force_limit_n` (None: the policy's), from the estimates each push trial recorded: what
+    those limits would catch."""
+    force_limit = detection["max_force_n"] if force_limit_n is None else force_limit_n
     shares: dict[str, float] = {}
     for trial in detection["trials"]:
         caught = (any(p > lim for p, lim in zip(trial["joint_peak_nm"], limits, strict=True))
-                  or trial["wrench_peak_n"] > detection["max_force_n"])
+                  or trial["wrench_peak_n"] > force_limit)
         key = f"{trial['force_n']:g}"
         shares.setdefault(key, 0.0)
         shares[key] += caught / detection["per_force"][key]["trials"]
     threshold = next((float(f) for f, share in sorted(shares.items(), key=lambda item: float(item[0]))
                       if share >= DETECTED_SHARE), None)
-    return {"limits_nm": limits, "shares": shares, "threshold_n": threshold}
+    return {"limits_nm": limits, "force_limit_n": force_limit, "shares": shares, "threshold_n": threshold}
 
 
 # ---------------------------------------------------------------------------------------- 3
@@ -474,6 +483,7 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
     violations: list[dict[str, Any]] = []
     peaks = np.zeros(len(bench.names))
     per_motion: list[np.ndarray] = []  # each motion's peak |estimate| per joint
+    peak_force_n = 0.0  # the largest trusted TCP force estimate (held against max_contact_force_n)
     faults = 0
     try:
         for _ in range(motions):
@@ -488,6 +498,8 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
             if run.peaks is not None:
                 peaks = np.maximum(peaks, run.peaks)
                 per_motion.append(np.asarray(run.peaks, dtype=float))
+            forces = [sample[3] for sample in run.samples if not math.isnan(sample[3])]
+            peak_force_n = max([peak_force_n, *forces])
     finally:
         await bench.backend.close()
     limits = bench.policy.force.joint_torques.per_joint("max_external_torque_nm", bench.names)
@@ -496,8 +508,8 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
             "peak_estimate_nm": [float(p) for p in peaks],
             "peak_estimate_p99_nm": [float(p) for p in np.percentile(per_motion, 99, axis=0)] if per_motion else [],
             "peak_estimate_p50_nm": [float(p) for p in np.percentile(per_motion, 50, axis=0)] if per_motion else [],
-            "limits_nm": [float(v) for v in limits],
-            "refused_goals": bench.refused}
+            "limits_nm": [float(v) for v in limits], "peak_tcp_force_n": peak_force_n,
+            "max_force_n": bench.policy.force.estimated_force_limit_n, "refused_goals": bench.refused}
 
 
 def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[str, Any]:
@@ -519,7 +531,8 @@ def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[s
         out["false_alarms"] = [await false_alarms(motions, 0.0, rng, section),
                                await false_alarms(motions, PAYLOAD_KG, rng, section)]
         limits = suggested_limits(out["false_alarms"])
-        out["with_suggested_limits"] = threshold_with(out["detection"], limits)
+        out["with_suggested_limits"] = threshold_with(out["detection"], limits,
+                                                      suggested_force_limit(out["false_alarms"]))
         out["wall_s"] = time.monotonic() - started
         return out
 
@@ -558,12 +571,14 @@ def report_contact(r: dict[str, Any]) -> None:
               f"({row.get('backend_faults', 0)} lost to a backend fault) "
               f"(target 0: {'met' if row['violations'] == 0 else 'MISSED'}); peak |estimate| per joint "
               f"{fmt(row['peak_estimate_nm'])} N·m (per motion p50 {fmt(row['peak_estimate_p50_nm'])}, p99 "
-              f"{fmt(row['peak_estimate_p99_nm'])}), margin to the limits {fmt(margin)} N·m")
+              f"{fmt(row['peak_estimate_p99_nm'])}), margin to the limits {fmt(margin)} N·m; peak trusted TCP "
+              f"force estimate {row['peak_tcp_force_n']:.1f} N (limit {row['max_force_n']:g} N)")
         for example in row["examples"]:
             print(f"    {example['kind']}: {example['detail']}")
     suggested = r["with_suggested_limits"]
     shares = ", ".join(f"{f} N {share:.0%}" for f, share in suggested["shares"].items())
     at = suggested["threshold_n"]
-    print(f"limits the false-alarm margins support (1.5x the peak, >= 1 N·m over it): {fmt(suggested['limits_nm'])} N·m; "
+    print(f"limits the false-alarm margins support (1.5x the peak, >= 1 N·m over it): {fmt(suggested['limits_nm'])} N·m, "
+          f"TCP force {suggested.get('force_limit_n', float('nan')):g} N (1.5x the peak estimate, >= 5 N over it); "
           f"with them the same pushes are detected: {shares}; threshold {'none of the forces' if at is None else f'{at:g} N'}")
     print(f"wall time {r['wall_s']:.0f} s" + (" (quick)" if r["quick"] else ""))
