@@ -1,8 +1,9 @@
 """The contact benchmark's code paths (scripts/_bench/contact.py) with one or two trials each, on
 the real MuJoCo cell: the hand driven into the box the policy does not know is stopped after the
 contact's onset, a push at the TCP is recorded beside the true external torques, a payload the
-policy declares is no contact; and the pure parts (limits from false-alarm peaks, what they would
-detect, the report). Nothing about timing is asserted: the figures are the benchmark's to report.
+policy declares is no contact, a backend fault mid-run is counted and the run goes on; and the
+pure parts (limits from false-alarm peaks, what they would detect, the report). Nothing about
+timing is asserted: the figures are the benchmark's to report.
 """
 
 from __future__ import annotations
@@ -40,6 +41,26 @@ async def test_moving_into_the_unknown_box_is_stopped_after_the_contact_onset() 
     assert result["latency_ms"]["p50"] >= 0.0  # the stop followed the touch: no false alarm on the way down
     assert result["peak_contact_force_n"]["max"] > 0.0
     assert set(result["kinds"]) <= {"joint_torque_limit", "force_limit", "torque_limit"}
+
+
+@pytest.mark.anyio
+async def test_a_backend_fault_mid_run_is_counted_and_the_latency_run_goes_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    execute = CONTACT.Bench.execute
+    calls = 0
+
+    async def faulting_once(self: object, trajectory: object, **kwargs: object) -> object:
+        nonlocal calls
+        calls += 1
+        if calls == 1:
+            raise CONTACT.BackendError("mujoco backend: the physics thread missed its deadline (injected)")
+        return await execute(self, trajectory, **kwargs)
+
+    monkeypatch.setattr(CONTACT.Bench, "execute", faulting_once)
+
+    result = await CONTACT.stop_latency(2, np.random.default_rng(0))
+
+    assert result["backend_faults"] == 1 and result["trials"] == 2
+    assert result["latency_ms"]["n"] + result["not_stopped"] == 1  # the other trial ran on a fresh cell
 
 
 @pytest.mark.anyio

@@ -305,17 +305,15 @@ def joint_torques_section(limits_file: str | None) -> dict[str, Any]:
     return {"force.joint_torques": document}
 
 
-async def reopened(bench: Bench, payload_kg: float, rng: np.random.Generator,
+async def reopened(bench: Bench, payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator,
                    section: dict[str, Any] | None) -> Bench:
     """A fresh cell after a backend fault (a physics thread starved past its deadline on a loaded
     machine dies, as it should): the fault is counted and the run goes on, not lost."""
     from contextlib import suppress
 
-    from armwarden.core.errors import BackendError
-
     with suppress(BackendError):
         await bench.backend.close()
-    fresh = await open_bench(payload_kg, [], rng, section)
+    fresh = await open_bench(payload_kg, objects, rng, section)
     fresh.refused = bench.refused
     return fresh
 
@@ -345,28 +343,33 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
     contact_n: list[float] = []
     sensor_n: list[float] = []
     kinds: list[str] = []
-    unstopped = 0
+    unstopped = faults = 0
     try:
         for _ in range(trials):
             x = HOME_TCP_X_M + float(rng.uniform(-0.03, 0.03))
             y = float(rng.uniform(-0.03, 0.03))
             above = float(rng.uniform(0.42, 0.50))
-            await bench.move_plain(bench.plan_tcp((x, y, above)))
-            hook.arm()
-            run = await bench.execute(bench.plan_tcp((x, y, BOX_TOP_Z_M - AIM_BELOW_TOP_M)), stop_on_violation=True)
-            await bench.wait_at_rest()
-            hook.armed = False
-            if run.stop_stamp is None or hook.onset_stamp is None:
-                unstopped += 1
-            else:
-                latencies.append((run.stop_stamp - hook.onset_stamp) * 1e3)
-                contact_n.append(hook.peak_contact_n)
-                sensor_n.append(hook.peak_sensor_n)
-                kinds.append(run.violation.kind)
-            await bench.move_plain(bench.plan_tcp((x, y, above)))  # back up, off the box
+            try:
+                await bench.move_plain(bench.plan_tcp((x, y, above)))
+                hook.arm()
+                run = await bench.execute(bench.plan_tcp((x, y, BOX_TOP_Z_M - AIM_BELOW_TOP_M)), stop_on_violation=True)
+                await bench.wait_at_rest()
+                hook.armed = False
+                if run.stop_stamp is None or hook.onset_stamp is None:
+                    unstopped += 1
+                else:
+                    latencies.append((run.stop_stamp - hook.onset_stamp) * 1e3)
+                    contact_n.append(hook.peak_contact_n)
+                    sensor_n.append(hook.peak_sensor_n)
+                    kinds.append(run.violation.kind)
+                await bench.move_plain(bench.plan_tcp((x, y, above)))  # back up, off the box
+            except BackendError:
+                faults += 1
+                bench = await reopened(bench, 0.0, [box], rng, section)
+                hook = install_hook(bench.backend, bench.runtime.robot.base_frame, box["name"])
     finally:
         await bench.backend.close()
-    return {"trials": trials, "not_stopped": unstopped, "latency_ms": percentiles(latencies),
+    return {"trials": trials, "not_stopped": unstopped, "backend_faults": faults, "latency_ms": percentiles(latencies),
             "peak_contact_force_n": percentiles(contact_n), "peak_hand_ft_n": percentiles(sensor_n),
             "kinds": {k: kinds.count(k) for k in sorted(set(kinds))}}
 
@@ -409,7 +412,7 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
                     run = await bench.execute(trajectory, stop_on_violation=False, during=push)
                 except BackendError:
                     faults += 1
-                    bench = await reopened(bench, 0.0, rng, section)
+                    bench = await reopened(bench, 0.0, [], rng, section)
                     continue
                 done += 1
                 if len(window) < 2:
@@ -491,7 +494,7 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
                 run = await bench.execute(bench.random_motion(), stop_on_violation=False)
             except BackendError:
                 faults += 1
-                bench = await reopened(bench, payload_kg, rng, section)
+                bench = await reopened(bench, payload_kg, [], rng, section)
                 continue
             if run.violation is not None:
                 violations.append({"kind": run.violation.kind, "detail": run.violation.detail})
@@ -549,7 +552,8 @@ def report_contact(r: dict[str, Any]) -> None:
     print(f"\n== contact from joint torques (MuJoCo FR3, speedup 1, force.source: joint_torques, {section} limits)")
     print(f"stop latency, contact onset -> e-stop commanded: p50 {ms['p50']:.1f} ms, p95 {ms['p95']:.1f} ms, "
           f"max {ms['max']:.1f} ms over {ms['n']} of {latency['trials']} trials (target p95 <= 20 ms: "
-          f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; by {latency['kinds']}")
+          f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; "
+          f"lost to a backend fault {latency.get('backend_faults', 0)}; by {latency['kinds']}")
     print(f"peak contact force (MuJoCo's robot-box contact forces) per trial: p50 {force['p50']:.1f} N, "
           f"max {force['max']:.1f} N; the hand's F/T reading (braking inertia included): p50 {ft['p50']:.1f} N, "
           f"max {ft['max']:.1f} N")
