@@ -6,6 +6,8 @@ policy's monitor rate like `ForceMonitor.run` — around `backend.execute` at sp
 observer sees the real, irregular sample intervals. The Guard path itself is covered by tests
 (tests/server/test_contact_mujoco.py); this measures. Every motion is planned and checked by the
 envelope (`plan_and_check`) at the policy's maximum velocity and acceleration scaling. Seeded.
+The interpreter runs as `armwarden serve` runs it (its GIL switch interval and frozen, less
+frequent garbage collection): the monitor shares the interpreter lock with the backend's threads.
 
 1. Stop latency: the hand moves down into a box welded to the world that the policy does not
    know. Contact onset (the first physics sample in which a robot geom overlaps the box, seen
@@ -28,6 +30,7 @@ envelope (`plan_and_check`) at the policy's maximum velocity and acceleration sc
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
@@ -527,7 +530,8 @@ def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[s
 
     async def main() -> dict[str, Any]:
         rng = np.random.default_rng(SEED)
-        out: dict[str, Any] = {"quick": quick, "seed": SEED, "limits_file": limits_file}
+        out: dict[str, Any] = {"quick": quick, "seed": SEED, "limits_file": limits_file,
+                               "switch_interval_s": sys.getswitchinterval()}
         started = time.monotonic()
         out["latency"] = await stop_latency(latency_trials, rng, section)
         out["detection"] = await detection(forces, detect_trials, rng, section)
@@ -539,7 +543,17 @@ def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[s
         out["wall_s"] = time.monotonic() - started
         return out
 
-    return anyio.run(main)
+    # the interpreter as `armwarden serve` runs it: the servo, physics and emulator threads share one
+    # interpreter lock with the monitor, and how long each waits for it shapes the samples measured
+    from armwarden.daemon.startup import SWITCH_INTERVAL_S, freeze_long_lived_objects
+
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    freeze_long_lived_objects()
+    try:
+        return anyio.run(main)
+    finally:
+        sys.setswitchinterval(before)
 
 
 def report_contact(r: dict[str, Any]) -> None:
