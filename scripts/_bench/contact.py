@@ -141,10 +141,16 @@ class Run:
     violation: Any = None
     stop_stamp: float | None = None
     completed: bool = False
+    #: the monitor had no usable baseline (a stale or lost reading): the Guard refuses such a motion
+    #: (NO_WRENCH) and the bench did not move; `violation` says why
+    refused: bool = False
     peaks: np.ndarray | None = None
     #: (stamp, estimated external torques, true external torques, the TCP force estimate where it
     #: is trusted else NaN) per monitor sample
     samples: list[tuple[float, np.ndarray, np.ndarray, float]] = field(default_factory=list)
+    #: the stamp of every joint state the monitor's reads returned (more than one a read from a
+    #: backend that keeps a history of its samples)
+    state_stamps: list[float] = field(default_factory=list)
 
 
 class Bench:
@@ -214,6 +220,7 @@ class Bench:
         async def read_joint_states_since(stamp: float | None) -> tuple[JointState, ...]:
             states = await self.backend.read_joint_states_since(stamp)
             latest[0] = arm.measured  # the newest physics sample, kept for its truth
+            run.state_stamps.extend(float(state.stamp) for state in states)
             return states
 
         seen_by_guard = SimpleNamespace(read_joint_states_since=read_joint_states_since,
@@ -245,7 +252,8 @@ class Bench:
         from armwarden.safety.force import ForceViolation
 
         if isinstance(baseline, ForceViolation):
-            raise RuntimeError(f"no usable baseline: {baseline.detail}")
+            run.violation, run.refused = baseline, True
+            return run
 
         async def found(violation: Any) -> None:
             if run.violation is None:
@@ -346,7 +354,7 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
     contact_n: list[float] = []
     sensor_n: list[float] = []
     kinds: list[str] = []
-    unstopped = faults = 0
+    unstopped = faults = refused = 0
     try:
         for _ in range(trials):
             x = HOME_TCP_X_M + float(rng.uniform(-0.03, 0.03))
@@ -358,7 +366,9 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
                 run = await bench.execute(bench.plan_tcp((x, y, BOX_TOP_Z_M - AIM_BELOW_TOP_M)), stop_on_violation=True)
                 await bench.wait_at_rest()
                 hook.armed = False
-                if run.stop_stamp is None or hook.onset_stamp is None:
+                if run.refused:
+                    refused += 1
+                elif run.stop_stamp is None or hook.onset_stamp is None:
                     unstopped += 1
                 else:
                     latencies.append((run.stop_stamp - hook.onset_stamp) * 1e3)
@@ -372,7 +382,8 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
                 hook = install_hook(bench.backend, bench.runtime.robot.base_frame, box["name"])
     finally:
         await bench.backend.close()
-    return {"trials": trials, "not_stopped": unstopped, "backend_faults": faults, "latency_ms": percentiles(latencies),
+    return {"trials": trials, "not_stopped": unstopped, "backend_faults": faults, "no_baseline": refused,
+            "latency_ms": percentiles(latencies),
             "peak_contact_force_n": percentiles(contact_n), "peak_hand_ft_n": percentiles(sensor_n),
             "kinds": {k: kinds.count(k) for k in sorted(set(kinds))}}
 
@@ -388,7 +399,7 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
     trials_seen: list[dict[str, Any]] = []
     errors_all: list[np.ndarray] = []
     errors_settled: list[np.ndarray] = []
-    faults = 0
+    faults = refused = 0
     try:
         period = bench.policy.force.monitor_rate_hz ** -1
         for force in forces_n:
@@ -417,6 +428,9 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
                     faults += 1
                     bench = await reopened(bench, 0.0, [], rng, section)
                     continue
+                if run.refused:
+                    refused += 1
+                    continue
                 done += 1
                 if len(window) < 2:
                     raise RuntimeError("the motion ended before its push did")
@@ -432,8 +446,8 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
                     if began <= stamp <= ended + period:
                         joint_peak = np.maximum(joint_peak, np.abs(estimate))
                         wrench_peak = wrench_peak if math.isnan(tcp_force) else max(wrench_peak, tcp_force)
-                    if began + 0.002 <= stamp <= ended:  # the push acts from the step after `began`
-                        errors_all.append(estimate - truth)
+                    if began + 0.002 <= stamp <= ended and np.all(np.isfinite(estimate)):  # the push acts from
+                        errors_all.append(estimate - truth)  # the step after `began`; a lost reading has no estimate
                         if stamp >= began + SETTLED_AFTER_S:
                             errors_settled.append(estimate - truth)
                 trials_seen.append({"force_n": force, "joint_peak_nm": joint_peak.tolist(), "wrench_peak_n": wrench_peak})
@@ -448,7 +462,8 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
 
     return {"per_force": per_force, "threshold_n": threshold, "rms_error_nm": rms(errors_all),
             "rms_error_settled_nm": rms(errors_settled), "push_samples": len(errors_all), "refused_goals": bench.refused,
-            "trials": trials_seen, "max_force_n": bench.policy.force.estimated_force_limit_n, "backend_faults": faults}
+            "trials": trials_seen, "max_force_n": bench.policy.force.estimated_force_limit_n, "backend_faults": faults,
+            "no_baseline": refused}
 
 
 def suggested_limits(false_alarm_runs: list[dict[str, Any]]) -> list[float]:
@@ -489,18 +504,26 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
     violations: list[dict[str, Any]] = []
     peaks = np.zeros(len(bench.names))
     per_motion: list[np.ndarray] = []  # each motion's peak |estimate| per joint
-    peak_force_n = 0.0  # the largest trusted TCP force estimate (held against max_contact_force_n)
-    faults = 0
+    peak_force_n = 0.0  # the largest trusted TCP force estimate (held against the estimate's force limit)
+    gaps_ms: list[float] = []  # each motion's longest interval between the joint states the monitor read
+    faults = refused = 0
     try:
-        for _ in range(motions):
+        while len(per_motion) < motions and faults + refused < motions:  # `motions` ran, unless most could not
             try:
                 run = await bench.execute(bench.random_motion(), stop_on_violation=False)
             except BackendError:
                 faults += 1
                 bench = await reopened(bench, payload_kg, [], rng, section)
                 continue
+            if run.refused:  # the Guard would refuse to start it (NO_WRENCH): a stop for nothing, counted
+                refused += 1
+                violations.append({"kind": f"no_baseline ({run.violation.kind})", "detail": run.violation.detail})
+                continue
+            stamps = np.unique(run.state_stamps)
+            gaps_ms.append(float(np.max(np.diff(stamps))) * 1e3 if len(stamps) > 1 else math.nan)
             if run.violation is not None:
-                violations.append({"kind": run.violation.kind, "detail": run.violation.detail})
+                violations.append({"kind": run.violation.kind, "detail": run.violation.detail,
+                                   "longest_gap_ms": gaps_ms[-1]})
             if run.peaks is not None:
                 peaks = np.maximum(peaks, run.peaks)
                 per_motion.append(np.asarray(run.peaks, dtype=float))
@@ -509,8 +532,11 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
     finally:
         await bench.backend.close()
     limits = bench.policy.force.joint_torques.per_joint("max_external_torque_nm", bench.names)
-    return {"motions": len(per_motion), "backend_faults": faults, "payload_kg": payload_kg,
+    kinds = [v["kind"] for v in violations]
+    return {"motions": len(per_motion), "backend_faults": faults, "no_baseline": refused, "payload_kg": payload_kg,
             "violations": len(violations), "examples": violations[:5],
+            "violations_by_kind": {k: kinds.count(k) for k in sorted(set(kinds))},
+            "longest_gap_ms": percentiles([g for g in gaps_ms if math.isfinite(g)], (50, 99)),
             "peak_estimate_nm": [float(p) for p in peaks],
             "peak_estimate_p99_nm": [float(p) for p in np.percentile(per_motion, 99, axis=0)] if per_motion else [],
             "peak_estimate_p50_nm": [float(p) for p in np.percentile(per_motion, 50, axis=0)] if per_motion else [],
@@ -567,7 +593,8 @@ def report_contact(r: dict[str, Any]) -> None:
     print(f"stop latency, contact onset -> e-stop commanded: p50 {ms['p50']:.1f} ms, p95 {ms['p95']:.1f} ms, "
           f"max {ms['max']:.1f} ms over {ms['n']} of {latency['trials']} trials (target p95 <= 20 ms: "
           f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; "
-          f"lost to a backend fault {latency.get('backend_faults', 0)}; by {latency['kinds']}")
+          f"lost to a backend fault {latency.get('backend_faults', 0)}, to no usable baseline "
+          f"{latency.get('no_baseline', 0)}; by {latency['kinds']}")
     print(f"peak contact force (MuJoCo's robot-box contact forces) per trial: p50 {force['p50']:.1f} N, "
           f"max {force['max']:.1f} N; the hand's F/T reading (braking inertia included): p50 {ft['p50']:.1f} N, "
           f"max {ft['max']:.1f} N")
@@ -581,18 +608,29 @@ def report_contact(r: dict[str, Any]) -> None:
           f"{'met' if threshold is not None and threshold <= 15 else 'MISSED'})")
     print(f"RMS error estimate - true external torque per joint during pushes [N·m]: {fmt(detection['rms_error_nm'])}"
           f"; settled ({SETTLED_AFTER_S * 1e3:g} ms in): {fmt(detection['rms_error_settled_nm'])} "
-          f"({detection['push_samples']} samples; {detection.get('backend_faults', 0)} trials lost to a backend "
-          "fault)")
+          f"({detection['push_samples']} samples; trials lost to a backend fault {detection.get('backend_faults', 0)}, "
+          f"to no usable baseline {detection.get('no_baseline', 0)})")
     for row in r["false_alarms"]:
         margin = [limit - peak for limit, peak in zip(row["limits_nm"], row["peak_estimate_nm"], strict=True)]
         print(f"false alarms, payload {row['payload_kg']:g} kg: {row['violations']} in {row['motions']} motions "
-              f"({row.get('backend_faults', 0)} lost to a backend fault) "
+              f"(besides, {row.get('backend_faults', 0)} lost to a backend fault; of the false alarms "
+              f"{row.get('no_baseline', 0)} refused to start for want of a usable baseline) "
               f"(target 0: {'met' if row['violations'] == 0 else 'MISSED'}); peak |estimate| per joint "
               f"{fmt(row['peak_estimate_nm'])} N·m (per motion p50 {fmt(row['peak_estimate_p50_nm'])}, p99 "
               f"{fmt(row['peak_estimate_p99_nm'])}), margin to the limits {fmt(margin)} N·m; peak trusted TCP "
               f"force estimate {row['peak_tcp_force_n']:.1f} N (limit {row['max_force_n']:g} N)")
+        if row["violations"]:
+            print(f"    by kind: {row['violations_by_kind']} (wrench_stale / wrench_invalid: the joint-state stream "
+                  "stalled, a lost reading the Guard fails closed on; joint_torque_limit / force_limit / torque_limit: "
+                  "an estimate over a limit)")
+        gaps = row.get("longest_gap_ms")
+        if gaps is not None and gaps["n"]:
+            print(f"    longest interval between the joint states the monitor read, per motion: p50 {gaps['p50']:.1f} ms, "
+                  f"p99 {gaps['p99']:.1f} ms, max {gaps['max']:.1f} ms")
         for example in row["examples"]:
-            print(f"    {example['kind']}: {example['detail']}")
+            gap = example.get("longest_gap_ms")
+            print(f"    {example['kind']}: {example['detail']}"
+                  + ("" if gap is None else f" (that motion's longest interval {gap:.1f} ms)"))
     suggested = r["with_suggested_limits"]
     shares = ", ".join(f"{f} N {share:.0%}" for f, share in suggested["shares"].items())
     at = suggested["threshold_n"]
