@@ -7,6 +7,7 @@
     python scripts/bench.py flood-mix       # the heavier mixed flood: about 80 s of a 2-core machine's full attention
     python scripts/bench.py mujoco          # the physics backend while the server handles calls
     python scripts/bench.py contact         # contact from joint torques on MuJoCo (about 10 min; --quick: 1 min)
+    python scripts/bench.py contact --backend can  # the same on the CAN emulator (no stop latency; about 15 min)
     python scripts/bench.py can --can-seconds 10  # the CAN servo loop (default 60 s per rate: opt-in)
     .venv-ros/bin/python scripts/bench.py ros2    # the ROS 2 backend against the fake cell (opt-in: ROS venv)
     python scripts/bench.py --json out.json # also write the raw figures, with the run's commit and machine
@@ -60,7 +61,10 @@ Sections
   push (random direction, 0.3 s mid-motion, at the policy's maximum scaling) detected in >= 95 %
   of trials (goal <= 15 N) and the per-joint RMS error against MuJoCo's true external torques;
   false alarms over 200 random safe motions with payloads 0 and 1 kg (target 0) and the peak
-  estimate per joint, with the per-joint limits those peaks support.
+  estimate per joint, with the per-joint limits those peaks support. `--backend can`: the same
+  detection and false-alarm figures on the CAN backend's emulated arm (examples/can_sim.yaml at
+  speedup 1; its truth is the emulator's `true_external_torques()`); no stop latency there, the
+  emulator has no obstacles.
 - planner: the detour planner beside the straight-line planner, in one process, through the same
   `plan_and_check` the Guard runs (`scripts/_bench/planner_scenes.py`): a scene set (open bin in
   front, shelf, behind a wall-like zone, near the robot's own body) and the near-obstacle set (a
@@ -1017,9 +1021,10 @@ def _report_arms(r: dict[str, Any]) -> None:
     importlib.import_module("arms").report_arms(r)
 
 
-def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[str, Any]:
-    """Contact from joint torques on the FR3 in MuJoCo (stop latency, false alarms, detection)."""
-    return importlib.import_module("contact").bench_contact(quick=quick, limits_file=limits_file)
+def bench_contact(quick: bool = False, limits_file: str | None = None, backend: str = "mujoco") -> dict[str, Any]:
+    """Contact from joint torques on the FR3 in MuJoCo (stop latency, false alarms, detection) or on
+    the CAN backend's emulated arm (false alarms, detection)."""
+    return importlib.import_module("contact").bench_contact(quick=quick, limits_file=limits_file, backend=backend)
 
 
 def _report_contact(r: dict[str, Any]) -> None:
@@ -1102,6 +1107,9 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="contact only: a few trials of each figure (a smoke run)")
     parser.add_argument("--contact-limits", default=None, metavar="FILE",
                         help="contact only: the joint_torques section calibrate-contact wrote, instead of the bundled limits")
+    parser.add_argument("--backend", choices=("mujoco", "can"), default="mujoco",
+                        help="contact only: the MuJoCo FR3 (default) or the CAN backend's emulated arm "
+                             "(examples/can_sim.yaml; no stop-latency figure: the emulator has no obstacles)")
     args = parser.parse_args()
     chosen = args.sections or list(DEFAULT_SECTIONS)
     unknown = [name for name in chosen if name not in SECTIONS]
@@ -1120,7 +1128,7 @@ def main() -> int:
         elif name == "ros2":
             results[name] = run(runs=args.ros2_runs)
         elif name == "contact":
-            results[name] = run(quick=args.quick, limits_file=args.contact_limits)
+            results[name] = run(quick=args.quick, limits_file=args.contact_limits, backend=args.backend)
         else:
             results[name] = run()
         report(results[name])

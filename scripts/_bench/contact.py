@@ -1,13 +1,16 @@
-"""`python scripts/bench.py contact`: contact detection from joint torques on the MuJoCo FR3.
+"""`python scripts/bench.py contact [--backend can]`: contact detection from joint torques, on the
+MuJoCo FR3 (the default) or on the CAN backend's emulated arm (examples/can_sim.yaml).
 
-The Guard's own pieces — `ForceMonitor` over `JointTorqueContact` with the observer
-`observer_for` builds from the bundled policy (`force.source: joint_torques`), polled at the
-policy's monitor rate like `ForceMonitor.run` — around `backend.execute` at speedup 1, so the
-observer sees the real, irregular sample intervals. The Guard path itself is covered by tests
-(tests/server/test_contact_mujoco.py); this measures. Every motion is planned and checked by the
-envelope (`plan_and_check`) at the policy's maximum velocity and acceleration scaling. Seeded.
-The interpreter runs as `armwarden serve` runs it (its GIL switch interval and frozen, less
-frequent garbage collection): the monitor shares the interpreter lock with the backend's threads.
+One `Bench` for both: what differs between them is a `Cell` (`MujocoCell`, `CanCell`): opening the
+backend with a payload the hand carries, telling the true external torques, and pushing on a link.
+The Guard's own pieces — `ForceMonitor` over `JointTorqueContact` with the observer `observer_for`
+builds from the bundled policy (`force.source: joint_torques`), reading the backend's
+`read_joint_states_since`, polled at the policy's monitor rate like `ForceMonitor.run` — run
+around `backend.execute` at speedup 1, so the observer sees the real, irregular sample intervals.
+The Guard path itself is covered by tests (tests/server/test_contact_mujoco.py,
+tests/scenarios/test_contact.py on every backend); this measures. Every motion is planned and
+checked by the envelope (`plan_and_check`) at the policy's maximum velocity and acceleration
+scaling. Seeded.
 
 1. Stop latency: the hand moves down into a box welded to the world that the policy does not
    know. Contact onset (the first physics sample in which a robot geom overlaps the box, seen
@@ -20,8 +23,23 @@ frequent garbage collection): the monitor shares the interpreter lock with the b
    RMS error of the estimate against the true external torque (`Measured.external_efforts`)
    over the pushes, all samples and once the observer has settled (`SETTLED_AFTER_S` in).
 3. False alarms: random safe motions with nothing touching the arm, payload 0 and 1 kg (the
-   kilogram declared in `force.joint_torques.payload_kg` and carried at the TCP body of the
-   MuJoCo model): violations, and per joint the peak |estimate| (the margin to each limit).
+   kilogram declared in `force.joint_torques.payload_kg` and carried at the TCP: a point mass at
+   the MuJoCo model's TCP body, `simulate.payload_kg` on the emulator): violations, and per joint
+   the peak |estimate| (the margin to each limit).
+
+On CAN the arm is the emulator's Pinocchio body (2 % mass error, torque noise, the friction of
+can_sim.yaml), stepped in real time (speedup 1) on its own thread beside the servo loop; the 1st
+figure is MuJoCo's alone (the emulator has no obstacles to run into). The truth there is
+`true_external_torques()` read the moment the monitor reads the joint states, the newest of which
+is a servo period or two older: the push's first samples are misaligned by that much (the settled
+RMS is not).
+
+The interpreter runs as `armwarden serve` runs it (its GIL switch interval and frozen, less
+frequent garbage collection): the monitor shares the interpreter lock with the backend's threads.
+
+A backend fault mid-run (a servo or physics thread starved past its deadline on a loaded machine,
+which the backend rightly treats as a fault) ends that trial only: it is counted, a fresh cell is
+opened and the run goes on.
 """
 
 # mujoco ships compiled modules without type stubs (see src/armwarden/backends/mujoco/model.py)
@@ -32,14 +50,20 @@ from __future__ import annotations
 import math
 import sys
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from bench_common import bench_policy, percentiles  # scripts/_bench is on sys.path (scripts/bench.py puts it there)
 
 from armwarden.core.errors import BackendError
+from armwarden.core.state import JointState
+
+#: the CAN backend's emulated arm (the example config `armwarden serve --backend can` is shown with)
+CAN_SIM = Path(__file__).resolve().parents[2] / "examples" / "can_sim.yaml"
 
 SEED = 28
 #: the box the policy does not know: top height [m], full size [m] (centred under the home TCP)
@@ -146,44 +170,155 @@ class Run:
     refused: bool = False
     peaks: np.ndarray | None = None
     #: (stamp, estimated external torques, true external torques, the TCP force estimate where it
-    #: is trusted else NaN) per monitor sample
+    #: is trusted else NaN) per monitor sample (the stamp: the truth's)
     samples: list[tuple[float, np.ndarray, np.ndarray, float]] = field(default_factory=list)
     #: the stamp of every joint state the monitor's reads returned (more than one a read from a
     #: backend that keeps a history of its samples)
     state_stamps: list[float] = field(default_factory=list)
 
 
-class Bench:
-    """One MuJoCo cell (speedup 1) with the policy's planner, envelope and contact monitor."""
+class Cell(ABC):
+    """What the bench needs of a simulated arm beyond the backend contract (see the module
+    docstring): each subclass opens its backend at speedup 1 with the policy and a payload the
+    hand carries, tells the true external torques, and pushes."""
 
-    def __init__(self, policy: Any, backend: Any, runtime: Any, rng: np.random.Generator) -> None:
-        self.policy, self.backend, self.runtime, self.rng = policy, backend, runtime, rng
+    #: how the report names the cell
+    title: str
+    #: the figures it can give: "latency" needs obstacles in the simulation
+    figures: tuple[str, ...] = ("detection", "false_alarms")
+
+    def __init__(self, backend: Any) -> None:
+        self.backend = backend
+
+    @classmethod
+    @abstractmethod
+    def build(cls, policy: Any, runtime: Any, payload_kg: float, objects: list[dict[str, Any]]) -> Cell:
+        """The cell for `policy`, not yet open: `payload_kg` at the TCP (the policy declares it too),
+        `objects` fixed in the scene (only a cell with "latency" among its `figures` takes any)."""
+
+    async def state(self) -> JointState:
+        """The latest joint state, as the Guard reads it."""
+        return await self.backend.read_joint_state()
+
+    @abstractmethod
+    def truth(self) -> tuple[float, np.ndarray]:
+        """The external joint torques [N·m] acting on the arm in the newest simulated instant, and
+        that instant's time on the monotonic clock [s]: what the observer estimates, never shown to it."""
+
+    @abstractmethod
+    def push(self, frame: str, force_base: np.ndarray) -> None:
+        """Push with `force_base` [N] (base frame) at the origin of `frame` until `release_push`."""
+
+    @abstractmethod
+    def release_push(self) -> None: ...
+
+    async def open(self) -> None:
+        await self.backend.open()
+
+    async def close(self) -> None:
+        await self.backend.close()
+
+
+class MujocoCell(Cell):
+    """The MuJoCo FR3 (its own contact dynamics and its `Measured.external_efforts` as the truth)."""
+
+    title = "MuJoCo FR3"
+    figures = ("latency", "detection", "false_alarms")
+
+    @classmethod
+    def build(cls, policy: Any, runtime: Any, payload_kg: float, objects: list[dict[str, Any]]) -> Cell:
+        from armwarden.backends import create_backend
+
+        backend = create_backend("mujoco", runtime.robot, policy, {"speedup": 1.0, "objects": objects})
+        if payload_kg > 0:
+            add_payload(backend, runtime.robot.tcp_frame, payload_kg)
+        return cls(backend)
+
+    def truth(self) -> tuple[float, np.ndarray]:
+        measured = self.backend.arm.measured  # the newest physics sample
+        return float(measured.stamp), np.asarray(measured.external_efforts, dtype=float).copy()
+
+    def push(self, frame: str, force_base: np.ndarray) -> None:
+        self.backend.push(frame, force_base.tolist())
+
+    def release_push(self) -> None:
+        self.backend.release_push()
+
+
+class CanCell(Cell):
+    """The CAN backend on the emulated arm of examples/can_sim.yaml, on a virtual bus of its own,
+    with the example's own timeouts (the daemon's, not the test harness's relaxed ones): a starved
+    servo loop is a fault here as it would be in the daemon, and the bench counts it."""
+
+    title = "CAN backend, emulated arm (examples/can_sim.yaml: 2 % mass error, torque noise, friction)"
+
+    @classmethod
+    def build(cls, policy: Any, runtime: Any, payload_kg: float, objects: list[dict[str, Any]]) -> Cell:
+        import uuid
+
+        import yaml
+
+        from armwarden.backends import create_backend
+
+        if objects:
+            raise ValueError("the CAN emulator has no obstacles: the stop-latency figure is MuJoCo's")
+        document = yaml.safe_load(CAN_SIM.read_text())
+        document["bus"]["channel"] = f"armwarden-contact-bench-{uuid.uuid4().hex}"  # one name shares frames
+        document["simulate"] |= {"speedup": 1.0, "payload_kg": payload_kg, "payload_com_m": [0.0, 0.0, 0.0]}
+        return cls(create_backend("can", runtime.robot, policy, document))
+
+    def truth(self) -> tuple[float, np.ndarray]:
+        return time.monotonic(), self._emulator().true_external_torques()  # its last step: now, give or take 1 ms
+
+    def push(self, frame: str, force_base: np.ndarray) -> None:
+        self._emulator().push(frame, force_base.tolist())
+
+    def release_push(self) -> None:
+        self._emulator().release_push()
+
+    def _emulator(self) -> Any:
+        emulator = self.backend.emulator
+        if emulator is None:
+            raise RuntimeError("the CAN backend runs no emulator (is it open?)")
+        return emulator
+
+
+#: the cells `--backend` chooses from
+CELLS: dict[str, type[Cell]] = {"mujoco": MujocoCell, "can": CanCell}
+
+
+class Bench:
+    """One cell (speedup 1) with the policy's planner, envelope and contact monitor."""
+
+    def __init__(self, policy: Any, cell: Cell, runtime: Any, rng: np.random.Generator) -> None:
+        self.policy, self.cell, self.runtime, self.rng = policy, cell, runtime, rng
+        self.backend = cell.backend
         self.names = tuple(policy.robot.joint_names)
         self.home = np.asarray(policy.robot.home_joint_positions, dtype=float)
         self.scaling = {"velocity_scaling": policy.motion.max_velocity_scaling,
                         "acceleration_scaling": policy.motion.max_acceleration_scaling}
         self.refused = 0
 
-    def here(self) -> np.ndarray:
-        return np.asarray(self.backend.arm.measured.positions, dtype=float).copy()
+    async def here(self) -> np.ndarray:
+        return np.asarray((await self.cell.state()).positions, dtype=float).copy()
 
-    def plan_joints(self, goal: np.ndarray) -> Any:
+    async def plan_joints(self, goal: np.ndarray) -> Any:
         """The checked trajectory from here to `goal`, or None (refused by planner or envelope)."""
         from armwarden.guard.planning import plan_and_check
 
-        outcome, report = plan_and_check(self.runtime, "joints", self.here(),
+        outcome, report = plan_and_check(self.runtime, "joints", await self.here(),
                                          {"joint_positions": goal.tolist(), **self.scaling})
         if outcome.trajectory is None or report is None or any(v.is_hard for v in report.violations):
             self.refused += 1
             return None
         return outcome.trajectory
 
-    def plan_tcp(self, position: tuple[float, float, float]) -> Any:
+    async def plan_tcp(self, position: tuple[float, float, float]) -> Any:
         from armwarden.guard.planning import plan_and_check
         from armwarden.planning.planners import PoseTarget
 
         target = PoseTarget(np.asarray(position, dtype=float), self.backend_tcp_rotation())
-        outcome, _report = plan_and_check(self.runtime, "pose", self.here(), {"target": target, **self.scaling})
+        outcome, _report = plan_and_check(self.runtime, "pose", await self.here(), {"target": target, **self.scaling})
         if outcome.trajectory is None:  # the box is unknown to the envelope: its verdict is not asked
             raise RuntimeError(f"no plan to {position}: {[v.detail for v in outcome.violations]}")
         return outcome.trajectory
@@ -197,29 +332,27 @@ class Bench:
         goal = self.home + self.rng.uniform(-GOAL_SPREAD_RAD, GOAL_SPREAD_RAD, len(self.names))
         return np.clip(goal, robot.lower + margin, robot.upper - margin)
 
-    def random_motion(self, min_duration_s: float = 0.0) -> Any:
+    async def random_motion(self, min_duration_s: float = 0.0) -> Any:
         """A checked motion from here to a random goal near home at the policy's maximum scaling."""
         while True:
-            trajectory = self.plan_joints(self.random_goal())
+            trajectory = await self.plan_joints(self.random_goal())
             if trajectory is not None and trajectory.duration_s >= min_duration_s:
                 return trajectory
 
     def monitor(self, run: Run) -> Any:
         """A fresh monitor built as the Guard builds one for `force.source: joint_torques`
         (`MotionRunner._reader`: whatever observer and reading rules it applies, this measures);
-        its reads are recorded beside the true external torques of the same physics sample."""
+        its reads are recorded beside the cell's true external torques of the same sample."""
         from types import SimpleNamespace
 
-        from armwarden.core.state import JointState
         from armwarden.guard.execution import MotionRunner
         from armwarden.safety.force import ForceMonitor
 
-        arm = self.backend.arm
-        latest: list[Any] = [None]
+        latest: list[tuple[float, np.ndarray] | None] = [None]
 
         async def read_joint_states_since(stamp: float | None) -> tuple[JointState, ...]:
             states = await self.backend.read_joint_states_since(stamp)
-            latest[0] = arm.measured  # the newest physics sample, kept for its truth
+            latest[0] = self.cell.truth()  # the newest truth, kept beside the estimate these states give
             run.state_stamps.extend(float(state.stamp) for state in states)
             return states
 
@@ -232,10 +365,10 @@ class Bench:
         async def read() -> Any:
             estimate = await contact_read()
             torques = getattr(estimate, "external_torques_nm", None)
-            if torques is not None and latest[0] is not None:
+            truth = latest[0]
+            if torques is not None and truth is not None:
                 force = estimate.force_norm_n if estimate.wrench_trusted else math.nan  # type: ignore[union-attr]
-                run.samples.append((float(latest[0].stamp), np.asarray(torques, dtype=float).copy(),
-                                    np.asarray(latest[0].external_efforts, dtype=float).copy(), force))
+                run.samples.append((truth[0], np.asarray(torques, dtype=float).copy(), truth[1], force))
             return estimate
 
         return ForceMonitor(runner.force_limits("joint_torques"), read)
@@ -288,8 +421,10 @@ class Bench:
         import anyio
 
         deadline = time.monotonic() + timeout_s
-        while float(np.max(np.abs(self.backend.arm.measured.velocities))) >= REST_RAD_S and time.monotonic() < deadline:  # noqa: ASYNC110 - published by the physics thread
-            await anyio.sleep(0.005)
+        while time.monotonic() < deadline:
+            if float(np.max(np.abs((await self.cell.state()).velocities))) < REST_RAD_S:
+                return
+            await anyio.sleep(0.005)  # published by the physics or servo thread: nothing to await
 
     async def move_plain(self, trajectory: Any) -> None:
         result = await self.backend.execute(trajectory)
@@ -316,39 +451,42 @@ def joint_torques_section(limits_file: str | None) -> dict[str, Any]:
     return {"force.joint_torques": document}
 
 
-async def reopened(bench: Bench, payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator,
-                   section: dict[str, Any] | None) -> Bench:
-    """A fresh cell after a backend fault (a physics thread starved past its deadline on a loaded
-    machine dies, as it should): the fault is counted and the run goes on, not lost."""
+async def open_bench(backend: str, payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator,
+                     section: dict[str, Any] | None = None) -> Bench:
+    """An open cell of kind `backend` (a key of `CELLS`) with the bundled policy at
+    `force.source: joint_torques`, `section` over its `force.joint_torques`, and `payload_kg`
+    declared in the policy and carried by the hand."""
+    from armwarden.preflight import load_runtime_model
+
+    if backend not in CELLS:
+        raise ValueError(f"no contact bench cell {backend!r}; choose from {', '.join(CELLS)}")
+    policy = bench_policy(**{"force.source": "joint_torques", **(section or {}),
+                             "force.joint_torques.payload_kg": payload_kg})
+    runtime = load_runtime_model(policy)
+    cell = CELLS[backend].build(policy, runtime, payload_kg, objects)
+    await cell.open()
+    return Bench(policy, cell, runtime, rng)
+
+
+async def reopened(bench: Bench, backend: str, payload_kg: float, objects: list[dict[str, Any]],
+                   rng: np.random.Generator, section: dict[str, Any] | None) -> Bench:
+    """A fresh cell after a backend fault (a physics or servo thread starved past its deadline on a
+    loaded machine fails the backend, as it should): the fault is counted and the run goes on."""
     from contextlib import suppress
 
     with suppress(BackendError):
-        await bench.backend.close()
-    fresh = await open_bench(payload_kg, objects, rng, section)
+        await bench.cell.close()
+    fresh = await open_bench(backend, payload_kg, objects, rng, section)
     fresh.refused = bench.refused
     return fresh
 
 
-async def open_bench(payload_kg: float, objects: list[dict[str, Any]], rng: np.random.Generator,
-                     section: dict[str, Any] | None = None) -> Bench:
-    from armwarden.backends import create_backend
-    from armwarden.preflight import load_runtime_model
-
-    policy = bench_policy(**{"force.source": "joint_torques", **(section or {}),
-                             "force.joint_torques.payload_kg": payload_kg})
-    runtime = load_runtime_model(policy)
-    backend = create_backend("mujoco", runtime.robot, policy, {"speedup": 1.0, "objects": objects})
-    if payload_kg > 0:
-        add_payload(backend, runtime.robot.tcp_frame, payload_kg)
-    await backend.open()
-    return Bench(policy, backend, runtime, rng)
-
-
 # ---------------------------------------------------------------------------------------- 1
 async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str, Any] | None = None) -> dict[str, Any]:
+    """MuJoCo only: the cell must have a box to run into (see the module docstring)."""
     box = {"name": "unknown_box", "shape": "box", "position_m": [HOME_TCP_X_M, 0.0, BOX_TOP_Z_M - BOX_SIZE_M[2] / 2],
            "size_m": list(BOX_SIZE_M), "mass_kg": 1.0, "fixed": True}
-    bench = await open_bench(0.0, [box], rng, section)
+    bench = await open_bench("mujoco", 0.0, [box], rng, section)
     hook = install_hook(bench.backend, bench.runtime.robot.base_frame, box["name"])
     latencies: list[float] = []
     contact_n: list[float] = []
@@ -361,9 +499,10 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
             y = float(rng.uniform(-0.03, 0.03))
             above = float(rng.uniform(0.42, 0.50))
             try:
-                await bench.move_plain(bench.plan_tcp((x, y, above)))
+                await bench.move_plain(await bench.plan_tcp((x, y, above)))
                 hook.arm()
-                run = await bench.execute(bench.plan_tcp((x, y, BOX_TOP_Z_M - AIM_BELOW_TOP_M)), stop_on_violation=True)
+                run = await bench.execute(await bench.plan_tcp((x, y, BOX_TOP_Z_M - AIM_BELOW_TOP_M)),
+                                          stop_on_violation=True)
                 await bench.wait_at_rest()
                 hook.armed = False
                 if run.refused:
@@ -375,13 +514,13 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
                     contact_n.append(hook.peak_contact_n)
                     sensor_n.append(hook.peak_sensor_n)
                     kinds.append(run.violation.kind)
-                await bench.move_plain(bench.plan_tcp((x, y, above)))  # back up, off the box
+                await bench.move_plain(await bench.plan_tcp((x, y, above)))  # back up, off the box
             except BackendError:
                 faults += 1
-                bench = await reopened(bench, 0.0, [box], rng, section)
+                bench = await reopened(bench, "mujoco", 0.0, [box], rng, section)
                 hook = install_hook(bench.backend, bench.runtime.robot.base_frame, box["name"])
     finally:
-        await bench.backend.close()
+        await bench.cell.close()
     return {"trials": trials, "not_stopped": unstopped, "backend_faults": faults, "no_baseline": refused,
             "latency_ms": percentiles(latencies),
             "peak_contact_force_n": percentiles(contact_n), "peak_hand_ft_n": percentiles(sensor_n),
@@ -390,10 +529,10 @@ async def stop_latency(trials: int, rng: np.random.Generator, section: dict[str,
 
 # ---------------------------------------------------------------------------------------- 2
 async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Generator,
-                    section: dict[str, Any] | None = None) -> dict[str, Any]:
+                    section: dict[str, Any] | None = None, backend: str = "mujoco") -> dict[str, Any]:
     import anyio
 
-    bench = await open_bench(0.0, [], rng, section)
+    bench = await open_bench(backend, 0.0, [], rng, section)
     per_force: dict[str, dict[str, Any]] = {}
     #: per trial: the force, and in its window the peak |estimate| per joint and the peak trusted TCP force
     trials_seen: list[dict[str, Any]] = []
@@ -405,7 +544,7 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
         for force in forces_n:
             detected = early = done = 0
             for _ in range(trials):
-                trajectory = bench.random_motion(min_duration_s=PUSH_S + 0.4)
+                trajectory = await bench.random_motion(min_duration_s=PUSH_S + 0.4)
                 direction = rng.normal(size=3)
                 direction /= np.linalg.norm(direction)
                 window: list[float] = []
@@ -414,19 +553,19 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
                 async def push(direction: np.ndarray = direction, window: list[float] = window,
                                start_s: float = start_s, force: float = force, cell: Bench = bench) -> None:
                     await anyio.sleep(start_s)
-                    cell.backend.push(cell.runtime.robot.tcp_frame, (force * direction).tolist())
+                    cell.cell.push(cell.runtime.robot.tcp_frame, force * direction)
                     window.append(time.monotonic())
                     try:
                         await anyio.sleep(PUSH_S)
                     finally:
-                        cell.backend.release_push()
+                        cell.cell.release_push()
                         window.append(time.monotonic())
 
                 try:
                     run = await bench.execute(trajectory, stop_on_violation=False, during=push)
                 except BackendError:
                     faults += 1
-                    bench = await reopened(bench, 0.0, [], rng, section)
+                    bench = await reopened(bench, backend, 0.0, [], rng, section)
                     continue
                 if run.refused:
                     refused += 1
@@ -454,7 +593,7 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
             per_force[f"{force:g}"] = {"trials": done, "detected": detected, "share": detected / max(done, 1),
                                        "violations_before_push": early}
     finally:
-        await bench.backend.close()
+        await bench.cell.close()
     threshold = next((float(f) for f in sorted(forces_n) if per_force[f"{f:g}"]["share"] >= DETECTED_SHARE), None)
 
     def rms(rows: list[np.ndarray]) -> list[float]:
@@ -499,8 +638,8 @@ def threshold_with(detection: dict[str, Any], limits: list[float], force_limit_n
 
 # ---------------------------------------------------------------------------------------- 3
 async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator,
-                       section: dict[str, Any] | None = None) -> dict[str, Any]:
-    bench = await open_bench(payload_kg, [], rng, section)
+                       section: dict[str, Any] | None = None, backend: str = "mujoco") -> dict[str, Any]:
+    bench = await open_bench(backend, payload_kg, [], rng, section)
     violations: list[dict[str, Any]] = []
     peaks = np.zeros(len(bench.names))
     per_motion: list[np.ndarray] = []  # each motion's peak |estimate| per joint
@@ -510,10 +649,10 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
     try:
         while len(per_motion) < motions and faults + refused < motions:  # `motions` ran, unless most could not
             try:
-                run = await bench.execute(bench.random_motion(), stop_on_violation=False)
+                run = await bench.execute(await bench.random_motion(), stop_on_violation=False)
             except BackendError:
                 faults += 1
-                bench = await reopened(bench, payload_kg, [], rng, section)
+                bench = await reopened(bench, backend, payload_kg, [], rng, section)
                 continue
             if run.refused:  # the Guard would refuse to start it (NO_WRENCH): a stop for nothing, counted
                 refused += 1
@@ -530,7 +669,7 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
             forces = [sample[3] for sample in run.samples if not math.isnan(sample[3])]
             peak_force_n = max([peak_force_n, *forces])
     finally:
-        await bench.backend.close()
+        await bench.cell.close()
     limits = bench.policy.force.joint_torques.per_joint("max_external_torque_nm", bench.names)
     kinds = [v["kind"] for v in violations]
     return {"motions": len(per_motion), "backend_faults": faults, "no_baseline": refused, "payload_kg": payload_kg,
@@ -544,25 +683,29 @@ async def false_alarms(motions: int, payload_kg: float, rng: np.random.Generator
             "max_force_n": bench.policy.force.estimated_force_limit_n, "refused_goals": bench.refused}
 
 
-def bench_contact(quick: bool = False, limits_file: str | None = None) -> dict[str, Any]:
-    """All three figures from one run (`quick`: a handful of trials each, to see it work;
-    `limits_file`: the `force.joint_torques` section calibrate-contact wrote, else the bundled one)."""
+def bench_contact(quick: bool = False, limits_file: str | None = None, backend: str = "mujoco") -> dict[str, Any]:
+    """Every figure `backend`'s cell gives (a key of `CELLS`), from one run (`quick`: a handful of
+    trials each, to see it work; `limits_file`: the `force.joint_torques` section calibrate-contact
+    wrote, else the bundled one)."""
     import anyio
 
+    if backend not in CELLS:
+        raise ValueError(f"no contact bench cell {backend!r}; choose from {', '.join(CELLS)}")
     section = joint_torques_section(limits_file)
+    figures = CELLS[backend].figures
 
     latency_trials, detect_trials, motions = (3, 3, 10) if quick else (20, 20, 200)
     forces = (10.0, 30.0) if quick else FORCES_N
 
     async def main() -> dict[str, Any]:
         rng = np.random.default_rng(SEED)
-        out: dict[str, Any] = {"quick": quick, "seed": SEED, "limits_file": limits_file,
-                               "switch_interval_s": sys.getswitchinterval()}
+        out: dict[str, Any] = {"quick": quick, "seed": SEED, "limits_file": limits_file, "backend": backend,
+                               "cell": CELLS[backend].title, "switch_interval_s": sys.getswitchinterval()}
         started = time.monotonic()
-        out["latency"] = await stop_latency(latency_trials, rng, section)
-        out["detection"] = await detection(forces, detect_trials, rng, section)
-        out["false_alarms"] = [await false_alarms(motions, 0.0, rng, section),
-                               await false_alarms(motions, PAYLOAD_KG, rng, section)]
+        out["latency"] = await stop_latency(latency_trials, rng, section) if "latency" in figures else None
+        out["detection"] = await detection(forces, detect_trials, rng, section, backend)
+        out["false_alarms"] = [await false_alarms(motions, 0.0, rng, section, backend),
+                               await false_alarms(motions, PAYLOAD_KG, rng, section, backend)]
         limits = suggested_limits(out["false_alarms"])
         out["with_suggested_limits"] = threshold_with(out["detection"], limits,
                                                       suggested_force_limit(out["false_alarms"]))
@@ -586,26 +729,32 @@ def report_contact(r: dict[str, Any]) -> None:
     def fmt(values: list[float]) -> str:
         return " / ".join(f"{v:.2f}" for v in values)
 
-    latency = r["latency"]
-    ms, force, ft = latency["latency_ms"], latency["peak_contact_force_n"], latency["peak_hand_ft_n"]
     section = r.get("limits_file") or "the bundled policy's"
-    print(f"\n== contact from joint torques (MuJoCo FR3, speedup 1, force.source: joint_torques, {section} limits)")
-    print(f"stop latency, contact onset -> e-stop commanded: p50 {ms['p50']:.1f} ms, p95 {ms['p95']:.1f} ms, "
-          f"max {ms['max']:.1f} ms over {ms['n']} of {latency['trials']} trials (target p95 <= 20 ms: "
-          f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; "
-          f"lost to a backend fault {latency.get('backend_faults', 0)}, to no usable baseline "
-          f"{latency.get('no_baseline', 0)}; by {latency['kinds']}")
-    print(f"peak contact force (MuJoCo's robot-box contact forces) per trial: p50 {force['p50']:.1f} N, "
-          f"max {force['max']:.1f} N; the hand's F/T reading (braking inertia included): p50 {ft['p50']:.1f} N, "
-          f"max {ft['max']:.1f} N")
+    cell = r.get("cell", MujocoCell.title)
+    print(f"\n== contact from joint torques ({cell}, speedup 1, force.source: joint_torques, {section} limits)")
+    latency = r["latency"]
+    if latency is None:
+        print("stop latency into a box the policy does not know: not measured here (this simulation has no "
+              "obstacles; the figure is the MuJoCo bench's)")
+    else:
+        ms, force, ft = latency["latency_ms"], latency["peak_contact_force_n"], latency["peak_hand_ft_n"]
+        print(f"stop latency, contact onset -> e-stop commanded: p50 {ms['p50']:.1f} ms, p95 {ms['p95']:.1f} ms, "
+              f"max {ms['max']:.1f} ms over {ms['n']} of {latency['trials']} trials (target p95 <= 20 ms: "
+              f"{'met' if ms['p95'] <= 20 else 'MISSED'}); not stopped {latency['not_stopped']}; "
+              f"lost to a backend fault {latency.get('backend_faults', 0)}, to no usable baseline "
+              f"{latency.get('no_baseline', 0)}; by {latency['kinds']}")
+        print(f"peak contact force (MuJoCo's robot-box contact forces) per trial: p50 {force['p50']:.1f} N, "
+              f"max {force['max']:.1f} N; the hand's F/T reading (braking inertia included): p50 {ft['p50']:.1f} N, "
+              f"max {ft['max']:.1f} N")
     detection = r["detection"]
     for f, row in detection["per_force"].items():
         print(f"  TCP push {f:>5} N for {PUSH_S:g} s mid-motion: detected {row['detected']}/{row['trials']} "
               f"({row['share']:.0%}); violations before the push {row['violations_before_push']}")
     threshold = detection["threshold_n"]
+    goal = (f"goal <= 15 N: {'met' if threshold is not None and threshold <= 15 else 'MISSED'}"
+            if r.get("backend", "mujoco") == "mujoco" else "the issue sets its 15 N goal for the FR3 in MuJoCo")
     print(f"detection threshold (>= {DETECTED_SHARE:.0%} detected): "
-          f"{'none of the forces' if threshold is None else f'{threshold:g} N'} (goal <= 15 N: "
-          f"{'met' if threshold is not None and threshold <= 15 else 'MISSED'})")
+          f"{'none of the forces' if threshold is None else f'{threshold:g} N'} ({goal})")
     print(f"RMS error estimate - true external torque per joint during pushes [N·m]: {fmt(detection['rms_error_nm'])}"
           f"; settled ({SETTLED_AFTER_S * 1e3:g} ms in): {fmt(detection['rms_error_settled_nm'])} "
           f"({detection['push_samples']} samples; trials lost to a backend fault {detection.get('backend_faults', 0)}, "
