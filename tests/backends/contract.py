@@ -35,6 +35,7 @@ from armwarden.backends.base import Backend
 from armwarden.backends.parts import Capabilities
 from armwarden.backends.values import PREEMPTED
 from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
+from armwarden.core.state import JointState
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.policy import bundled_policy, load_policy
 from armwarden.tools import spec_of
@@ -213,17 +214,18 @@ class BackendContract:
         first = await backend.read_joint_states_since(None)
         assert len(first) == 1
         since = first[-1].stamp
+        again = await backend.read_joint_states_since(since)
+        assert again and all(state.stamp >= since for state in again)  # never empty, never older
+        reads: list[tuple[JointState, ...]] = []
 
-        async def newer() -> bool:
-            return (await backend.read_joint_state()).stamp > since
+        async def newer() -> bool:  # however long a loaded machine takes to deliver the next state
+            reads.append(await backend.read_joint_states_since(since))
+            return reads[-1][-1].stamp > since
 
         await wait_until(newer)
-        before = await backend.read_joint_state()
-        states = await backend.read_joint_states_since(since)
-        stamps = [state.stamp for state in states]
-        assert states and stamps == sorted(set(stamps)) and stamps[0] > since
-        assert stamps[-1] >= before.stamp
-        assert all(state.names == backend.joint_names for state in states)
+        stamps = [state.stamp for state in reads[-1]]
+        assert stamps == sorted(set(stamps)) and stamps[0] > since
+        assert all(state.names == backend.joint_names for state in reads[-1])
 
     async def test_wrench_is_none_without_the_capability_and_stamped_with_it(self, backend: Backend) -> None:
         wrench = await backend.read_wrench()

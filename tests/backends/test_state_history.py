@@ -38,3 +38,12 @@ def test_only_the_last_capacity_states_are_kept_so_a_late_reader_sees_a_gap() ->
 def test_a_history_without_room_is_refused() -> None:
     with pytest.raises(ValueError, match="at least one sample"):
         JointStateHistory(capacity=0)
+
+
+def test_a_reader_with_nothing_newer_gets_the_newest_kept_state_again() -> None:
+    history = JointStateHistory()
+    assert history.since_or_latest(0.0) == ()
+    history.append(state(1.0))
+    history.append(state(2.0))
+    assert [s.stamp for s in history.since_or_latest(2.0)] == [2.0]
+    assert [s.stamp for s in history.since_or_latest(1.5)] == [2.0]

@@ -185,11 +185,12 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
         return await self._bounded("joint state read", self.read_timeout_s, self._read_joint_state)
 
     async def read_joint_states_since(self, stamp: float | None) -> tuple[JointState, ...]:
-        """Every published sample stamped after `stamp`, oldest first, the newest last; never empty.
+        """Every sample stamped after `stamp`, oldest first, the newest last; never empty.
 
-        A backend that keeps a history (`_joint_states_since`) gives each sample it still holds;
-        one that does not, and a first read (`stamp` None), gives the latest sample alone — so
-        does a read with nothing newer (its stamp then is not after `stamp`: the same sample)."""
+        A backend that keeps a history (`_joint_states_since`) gives each sample it still holds,
+        or its newest kept sample when none is newer (its stamp then is not after `stamp`: no new
+        sample). One that keeps none, a first read (`stamp` None) and a history still empty give
+        the latest published sample alone."""
         if stamp is not None:
             self._require_open()
             history = self._joint_states_since(stamp)

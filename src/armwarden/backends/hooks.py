@@ -120,8 +120,9 @@ class BackendHooks(abc.ABC):
         return None
 
     def _joint_states_since(self, stamp: float) -> Sequence[JointState] | None:
-        """Every sample published after `stamp`, oldest first, from a short history
-        (`armwarden.backends.state_history`); None = this backend keeps none, and readers get the
+        """Every sample kept after `stamp`, oldest first, from a short history
+        (`armwarden.backends.state_history`), or the newest kept one alone when none is newer
+        (`JointStateHistory.since_or_latest`); None = this backend keeps none, and readers get the
         latest sample alone. A servo loop that publishes faster than the Guard polls keeps one:
         the contact observer integrates every sample (see `Backend.read_joint_states_since`)."""
         return None

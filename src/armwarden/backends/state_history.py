@@ -46,6 +46,16 @@ class JointStateHistory:
         newer.reverse()
         return tuple(newer)
 
+    def since_or_latest(self, stamp: float) -> tuple[JointState, ...]:
+        """`since(stamp)`, or the newest kept state alone when none is newer (empty: none kept yet).
+
+        A reader asking again before the next state is kept gets the one it has, not a newer state
+        that was never kept: a backend keeps only what the observer can integrate."""
+        with self._lock:
+            newest = self._states[-1] if self._states else None
+        newer = self.since(stamp)
+        return newer if newer or newest is None else (newest,)
+
     def clear(self) -> None:
         with self._lock:
             self._states.clear()

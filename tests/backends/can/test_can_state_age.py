@@ -72,3 +72,19 @@ async def test_get_robot_state_refuses_the_positions_of_silent_actuators(tmp_pat
                 await anyio.sleep(0.05)
                 state = await client.call_tool("get_robot_state", {})
         assert "STALE_STATE" in text_of(state) and "s old" in text_of(state), text_of(state)
+
+
+async def test_the_contact_observer_gets_only_states_every_actuator_answered(arm: CanBackend) -> None:
+    """A state that mixes one actuator's old reply with the others' new ones is published (stamped
+    by its oldest part) but not kept for the observer, which would read the mix as a contact."""
+    emulator = arm.emulator
+    assert emulator is not None
+    answered = arm.joint_history.since(0.0)
+    assert len(answered) > 1 and [s.stamp for s in answered] == sorted({s.stamp for s in answered})
+    emulator.silence(3)
+    await settled_stamp(arm)
+    kept = arm.joint_history.since(0.0)[-1]
+    await anyio.sleep(AGED_S)  # six actuators go on answering every tick
+    assert arm.joint_history.since(kept.stamp) == ()
+    # the observer's read gets the last kept state again, not the newer mixed one published since
+    assert [s.stamp for s in await arm.read_joint_states_since(kept.stamp)] == [kept.stamp]

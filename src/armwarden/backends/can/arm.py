@@ -59,6 +59,7 @@ from armwarden.backends.can.health import fault_conditions
 from armwarden.backends.can.ranges import Protocol
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
 from armwarden.backends.settle import settle
+from armwarden.backends.state_history import JointStateHistory
 from armwarden.backends.values import ExecutionResult, ProgressCallback
 from armwarden.core.errors import BackendError
 from armwarden.core.state import JointState
@@ -105,6 +106,9 @@ class CanArm(ServoBackend):
         self._estopped = False  # an e-stop damps until the next admitted execution
         self._enabled = False  # every actuator confirmed run mode at start-up
         self._published: JointState | None = None
+        #: complete samples (every actuator replied since the last one), for the contact observer
+        self.joint_history = JointStateHistory()
+        self._history_replies: list[float | None] | None = None  # each actuator's reply time in the last one
         self._tracking_peak_rad = 0.0
         self._following: np.ndarray | None = None  # the previous tick's trajectory sample
 
@@ -129,6 +133,10 @@ class CanArm(ServoBackend):
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
 
+    def _joint_states_since(self, stamp: float) -> Sequence[JointState]:
+        self._require_servo().require_running()
+        return self.joint_history.since_or_latest(stamp)
+
     def _measured_positions(self) -> np.ndarray:
         with self._state_lock:
             raw = np.array([a.raw_position if a.raw_position is not None else np.nan for a in self._actuators])
@@ -147,8 +155,26 @@ class CanArm(ServoBackend):
             replies = [a.reported_at for a in self._actuators]
         stamp = 0.0 if None in replies else min(r for r in replies if r is not None)
         efforts = frozen(self._direction * raw_torque) if self.config.joint_torques else None
-        self._published = JointState(self.joint_names, frozen(self._direction * (raw - self._offset)),
-                                     frozen(self._direction * raw_velocity), stamp, efforts)
+        published = JointState(self.joint_names, frozen(self._direction * (raw - self._offset)),
+                               frozen(self._direction * raw_velocity), stamp, efforts)
+        self._published = published
+        self._keep_if_complete(published, replies)
+
+    def _keep_if_complete(self, state: JointState, replies: list[float | None]) -> None:
+        """Keep `state` for the contact observer when every actuator replied since the last kept
+        one. A tick that drained only some replies (a stalled servo thread catching up) publishes
+        a state that mixes this cycle's positions with an older cycle's; the observer divides its
+        momentum change by the stamps' interval and read such mixes as contacts (on the emulator,
+        after a stall, replies up to 147 ms apart in one sample). The Guard's other reads still get
+        the latest state, stamped by its oldest part."""
+        previous = self._history_replies
+        if None in replies:
+            return
+        if previous is not None and not all(now > then for now, then in zip(replies, previous, strict=True)
+                                            if now is not None and then is not None):
+            return
+        self._history_replies = replies
+        self.joint_history.append(state)
 
     # ================================================================ motion
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:

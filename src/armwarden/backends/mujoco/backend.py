@@ -156,7 +156,7 @@ class MujocoBackend(ServoBackend):
 
     def _joint_states_since(self, stamp: float) -> Sequence[JointState]:
         self.servo.require_running()
-        return self.joint_history.since(stamp)
+        return self.joint_history.since_or_latest(stamp)
 
     def _published_wrench(self) -> Wrench:
         self.servo.require_running()
