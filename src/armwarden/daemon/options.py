@@ -41,6 +41,8 @@ class ServeOptions:
     no_console: bool
     console_estop_needs_sign_in: bool
     dry_run: bool
+    #: evaluation only: append every actuating/stopping backend call to this file (`JournalBackend`)
+    actuation_journal: str | None = None
 
     @property
     def policy_label(self) -> str:

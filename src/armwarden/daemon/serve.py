@@ -149,7 +149,7 @@ def serve_command(options: ServeOptions) -> int:
         if options.estop_port is not None and not options.auth_tokens:
             raise ConfigurationError(ESTOP_PORT_NEEDS_TOKENS)
         parts = assemble(policy, options.backend, options.backend_config, options.audit_log,
-                         options.audit_commit_window_s)
+                         options.audit_commit_window_s, options.actuation_journal)
     except PolicyError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)
         return EXIT_REFUSED

@@ -64,12 +64,17 @@ class Assembly:
 
 
 def assemble(policy: Policy, backend_name: str, backend_config: str | None, audit_path: str,
-             commit_window_s: float = DEFAULT_COMMIT_WINDOW_S) -> AssemblyParts:
+             commit_window_s: float = DEFAULT_COMMIT_WINDOW_S, actuation_journal: str | None = None) -> AssemblyParts:
     """Build everything that can fail before serving (each failure is a clean exit 2).
-    ``commit_window_s``: the audit log's group-commit window for read-only calls' records."""
+    ``commit_window_s``: the audit log's group-commit window for read-only calls' records;
+    ``actuation_journal``: wrap the backend in a `JournalBackend` writing there (`armwarden eval`)."""
     runtime = load_runtime_model(policy)
     state_robot = build_robot(policy)
     backend = build_backend(backend_name, policy, robot=state_robot, config_path=backend_config)
+    if actuation_journal is not None:
+        from armwarden.backends.journal import JournalBackend
+
+        backend = JournalBackend(backend, actuation_journal)
     audit = AuditLog(audit_path, hmac_key=hmac_key_for_serving(), commit_window_s=commit_window_s)
     return AssemblyParts(policy, backend, audit, runtime, state_robot)
 
