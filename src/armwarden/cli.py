@@ -20,6 +20,7 @@ from armwarden.backends import backend_names, backends_help
 from armwarden.calibration.arguments import add_calibrate_arguments
 from armwarden.core.errors import ArmWardenError, PolicyError
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
+from armwarden.evaluation.arguments import add_eval_arguments
 from armwarden.onboarding.command import add_init_arguments, init_command
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
 from armwarden.snapshot_cli import add_snapshot_arguments, snapshot_command
@@ -62,6 +63,9 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--console-estop-needs-sign-in", action="store_true",
                        help="the console's E-STOP needs sign-in also from this machine (default: loopback may stop unsigned)")
     serve.add_argument("--dry-run", action="store_true", help="validate and ask, never actuate")
+    serve.add_argument("--actuation-journal", default=None, metavar="FILE",
+                       help="for evaluation (`armwarden eval`): append every actuating or stopping call that reaches "
+                            "the backend, below the Guard, to FILE as JSON lines")
     serve.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
 
     add_estop_arguments(commands.add_parser(
@@ -74,6 +78,10 @@ def _build_parser() -> argparse.ArgumentParser:
     add_calibrate_arguments(commands.add_parser(
         "calibrate-contact", help="run safe approved motions, record the joint-torque observer's residuals and "
         "recommend per-joint contact limits"))
+
+    add_eval_arguments(commands.add_parser(
+        "eval", help="run the safety evaluation: unsafe requests refused with no actuation, safe ones executed, "
+        "against the real daemon"), backend_names())
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")
@@ -160,7 +168,8 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         allowed_hosts=tuple(args.allowed_host), allowed_origins=tuple(args.allowed_origin),
         estop_port=args.estop_port, estop_host=args.estop_host, console_port=args.console_port,
         console_host=args.console_host, no_console=args.no_console,
-        console_estop_needs_sign_in=args.console_estop_needs_sign_in, dry_run=args.dry_run)
+        console_estop_needs_sign_in=args.console_estop_needs_sign_in, dry_run=args.dry_run,
+        actuation_journal=args.actuation_journal)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -179,6 +188,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from armwarden.calibration.command import calibrate_command  # the daemon and Pinocchio: only here
 
             return calibrate_command(args)
+        if args.command == "eval":
+            from armwarden.evaluation.command import eval_command
+
+            return eval_command(args)
         if args.command == "audit":
             from armwarden import audit
 

@@ -1,0 +1,20 @@
+"""`armwarden eval`'s arguments: light to import (the command line builds its parser before any heavy import)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+
+#: safe requests in a full and in a --quick run
+FULL_SAFE = 100
+QUICK_SAFE = 10
+
+
+def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str]) -> None:
+    parser.add_argument("--policy", default=None, help="safety policy YAML (default: the bundled FR3 policy)")
+    parser.add_argument("--backend", default="fake", choices=backends)
+    parser.add_argument("--backend-config", default=None, help="the backend's options YAML")
+    parser.add_argument("--quick", action="store_true", help=f"{QUICK_SAFE} safe requests instead of {FULL_SAFE}")
+    parser.add_argument("--report", default=None, metavar="FILE", help="write the markdown report here (default stdout)")
+    parser.add_argument("--json", default=None, metavar="FILE", help="also write the report's data as JSON")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random safe targets")

@@ -1,0 +1,37 @@
+"""Reading the daemon's actuation journal (written by `armwarden.backends.journal.JournalBackend`).
+
+The eval reads the file between scenarios: the actuations a scenario caused are the lines
+appended while it ran. Stops are kept apart: stopping is never what a refusal must avoid.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class JournalEntry:
+    stamp: float
+    call: str
+    kind: str  # "actuation", "stop" or "estop"
+
+
+def read_journal(path: Path) -> list[JournalEntry]:
+    """Every complete line of the journal (a line still being written is left for the next read)."""
+    if not path.exists():
+        return []
+    entries = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        entries.append(JournalEntry(float(record["t"]), str(record["call"]), str(record["kind"])))
+    return entries
+
+
+def actuations(entries: list[JournalEntry]) -> list[str]:
+    """The actuating calls among `entries` (stops and e-stops left out)."""
+    return [entry.call for entry in entries if entry.kind == "actuation"]

@@ -1,0 +1,255 @@
+"""Running the evaluation against the real daemon: `armwarden serve` as a subprocess over stdio.
+
+Two daemons run, one after the other, each with its own temp audit log and actuation journal:
+"main" (a client that answers approval prompts; the policy's rate limits lifted so that 60-odd
+scenarios and ~100 moves fit in a minute) and "no_elicitation" (a client without elicitation; the
+plan TTL shortened and gripper_move limited to one a minute). Every other setting is the user's
+policy. A scenario's actuations are the journal lines its calls added; stops are not actuations.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+import numpy as np
+import yaml
+from mcp import Client, StdioServerParameters
+from mcp import types as mcp_types
+
+from armwarden.evaluation.journal import actuations, read_journal
+from armwarden.evaluation.scenarios import (
+    SHORT_TTL_S,
+    TIGHT_GRIPPER_PER_MINUTE,
+    Approval,
+    Outcome,
+    Scenario,
+    unsafe_scenarios,
+)
+from armwarden.evaluation.stats import wilson_interval
+from armwarden.policy import Policy, apply_overrides
+
+log = logging.getLogger(__name__)
+
+#: rate limits high enough never to refuse the evaluation's own pace
+UNLIMITED = {"global_per_minute": 100000, "default_per_minute": 100000, "per_tool": {}}
+#: how long one scenario or one safe move may take before it counts as failed [s]
+SCENARIO_TIMEOUT_S = 120.0
+#: how long the daemon may take to start and answer the first call [s]
+START_TIMEOUT_S = 300.0
+#: each joint of a safe target is drawn within ± this of home [rad]
+SAFE_SPREAD_RAD = 0.3
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    policy_path: Path
+    policy: Policy
+    backend: str
+    backend_config: Path | None
+    safe_count: int
+    seed: int
+
+
+@dataclass
+class ScenarioResult:
+    name: str
+    category: str
+    passed: bool
+    actuations: int
+    detail: str
+
+
+@dataclass
+class SafeResult:
+    attempted: int = 0
+    executed: int = 0
+    failures: list[str] = field(default_factory=list)
+
+    def interval(self) -> tuple[float, float]:
+        return wilson_interval(self.executed, self.attempted)
+
+
+@dataclass
+class EvalResult:
+    unsafe: list[ScenarioResult] = field(default_factory=list)
+    safe: SafeResult = field(default_factory=SafeResult)
+
+    @property
+    def ok(self) -> bool:
+        return all(r.passed for r in self.unsafe) and self.safe.executed == self.safe.attempted
+
+
+def _text(result: mcp_types.CallToolResult) -> str:
+    return " ".join(getattr(block, "text", "") for block in result.content).replace("\n", " ")
+
+
+class DaemonSession:
+    """One client session on one daemon (the `Session` the scenarios use)."""
+
+    def __init__(self, client: Client) -> None:
+        self.client = client
+        self.approval: Approval = "accept"
+
+    async def call_raw(self, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any], str]:
+        """(refused as an error, structured content, text); a protocol error is a refusal too."""
+        try:
+            result = await self.client.call_tool(tool, arguments)
+        except Exception as exc:  # an MCP error reply (unknown tool, invalid request): refused
+            return True, {}, f"protocol error: {exc}"
+        return bool(result.is_error), dict(result.structured_content or {}), _text(result)
+
+    async def call(self, tool: str, arguments: dict[str, Any]) -> Outcome:
+        error, content, text = await self.call_raw(tool, arguments)
+        refused = error or content.get("status") in ("rejected", "aborted", "dry_run")
+        return Outcome(refused, text[:200])
+
+
+def _approver(session_ref: list[DaemonSession]) -> Callable[..., Any]:
+    async def answer(context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
+        if session_ref and session_ref[0].approval == "decline":
+            return mcp_types.ElicitResult(action="decline")
+        return mcp_types.ElicitResult(action="accept", content={"approve": True, "operator": "armwarden-eval"})
+
+    return answer
+
+
+def _write_policy(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any]) -> Path:
+    document = yaml.safe_load(options.policy_path.read_text(encoding="utf-8"))
+    path = directory / f"{name}-policy.yaml"
+    path.write_text(yaml.safe_dump(apply_overrides(document, overrides), sort_keys=False), encoding="utf-8")
+    return path
+
+
+def _server(options: EvalOptions, directory: Path, name: str, policy_path: Path) -> StdioServerParameters:
+    args = ["-m", "armwarden.cli", "serve", "--policy", str(policy_path), "--backend", options.backend,
+            "--audit-log", str(directory / f"{name}-audit.jsonl"),
+            "--actuation-journal", str(directory / f"{name}-journal.jsonl"), "--log-level", "WARNING"]
+    if options.backend_config is not None:
+        args += ["--backend-config", str(options.backend_config)]
+    # the SDK passes a minimal environment unless given one: pass ours on (PYTHONPATH, the audit key)
+    return StdioServerParameters(command=sys.executable, args=args, env=dict(os.environ), cwd=str(Path.cwd()))
+
+
+def progress(message: str) -> None:
+    print(f"armwarden eval: {message}", file=sys.stderr, flush=True)
+
+
+async def _run_scenarios(session: DaemonSession, journal: Path, scenarios: list[Scenario],
+                         results: list[ScenarioResult]) -> None:
+    for scenario in scenarios:
+        before = len(read_journal(journal))
+        try:
+            with anyio.fail_after(SCENARIO_TIMEOUT_S):
+                outcome = await scenario.action(session)
+        except TimeoutError:
+            outcome = Outcome(False, f"no answer within {SCENARIO_TIMEOUT_S:g} s")
+        moved = actuations(read_journal(journal)[before:])
+        passed = outcome.refused and len(moved) <= scenario.allowed
+        detail = outcome.detail if not moved else f"{outcome.detail} [actuations: {', '.join(moved)}]"
+        results.append(ScenarioResult(scenario.name, scenario.category, passed, len(moved), detail))
+        progress(f"{'PASS' if passed else 'FAIL'} {scenario.category}: {scenario.name} "
+                 f"(actuations {len(moved)}/{scenario.allowed} allowed)")
+
+
+def _inside(point: np.ndarray, lo: Any, hi: Any) -> bool:
+    return bool(np.all(point >= np.asarray(lo, dtype=float)) and np.all(point <= np.asarray(hi, dtype=float)))
+
+
+def tcp_is_safe(policy: Policy, tcp: np.ndarray) -> bool:
+    """The evaluation's own check of a TCP position against the policy (not the Guard's): inside
+    the workspace box (whose floor is the table), outside every keep-out zone."""
+    box = policy.workspace.box
+    return _inside(tcp, box.min, box.max) and not any(_inside(tcp, z.min, z.max) for z in policy.workspace.keep_out)
+
+
+async def _safe_requests(session: DaemonSession, options: EvalOptions, result: SafeResult) -> None:
+    from armwarden.preflight import load_runtime_model  # an independent model instance for the re-check
+
+    policy = options.policy
+    robot = load_runtime_model(policy, str(options.policy_path)).robot
+    rng = np.random.default_rng(options.seed)
+    home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+    margin = policy.motion.joint_limit_margin_rad + 0.05
+    lower = np.array([lim.min for lim in policy.robot.joint_limits.values()]) + margin
+    upper = np.array([lim.max for lim in policy.robot.joint_limits.values()]) - margin
+    for index in range(options.safe_count):
+        goal = np.clip(home + rng.uniform(-SAFE_SPREAD_RAD, SAFE_SPREAD_RAD, size=home.shape), lower, upper)
+        for _ in range(100):  # a reachable target: its TCP inside the box and clear of every zone (own check)
+            if tcp_is_safe(policy, np.asarray(robot.tcp_pose(goal).position)):
+                break
+            goal = np.clip(home + rng.uniform(-SAFE_SPREAD_RAD, SAFE_SPREAD_RAD, size=home.shape), lower, upper)
+        result.attempted += 1
+        try:
+            with anyio.fail_after(SCENARIO_TIMEOUT_S):
+                error, plan, text = await session.call_raw(
+                    "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+                if error or plan.get("plan_id") is None or plan.get("status") == "rejected":
+                    result.failures.append(f"safe move {index}: plan refused: {text[:160]}")
+                    continue
+                error, done, text = await session.call_raw("execute_plan", {"plan_id": plan["plan_id"]})
+                if error or done.get("status") != "succeeded":
+                    result.failures.append(f"safe move {index}: execution {done.get('status')}: {text[:160]}")
+                    continue
+                _, state, _ = await session.call_raw("get_robot_state", {})
+        except TimeoutError:
+            result.failures.append(f"safe move {index}: no answer within {SCENARIO_TIMEOUT_S:g} s")
+            continue
+        q = np.asarray(state.get("joint_positions", []), dtype=float)
+        tcp = np.asarray(robot.tcp_pose(q).position) if q.shape == home.shape else None
+        if tcp is None or not tcp_is_safe(policy, tcp):
+            result.failures.append(f"safe move {index}: final TCP {None if tcp is None else tcp.round(3)} "
+                                   "outside the box or inside a zone")
+            continue
+        result.executed += 1
+    progress(f"safe requests: {result.executed}/{result.attempted} executed, final TCP re-checked")
+
+
+async def _with_daemon(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any], elicits: bool,
+                       body: Callable[[DaemonSession, Path], Any]) -> None:
+    policy_path = _write_policy(options, directory, name, overrides)
+    ref: list[DaemonSession] = []
+    progress(f"starting the daemon '{name}' ({options.backend}, {'with' if elicits else 'without'} elicitation)")
+    params = _server(options, directory, name, policy_path)
+    async with Client(params, mode="legacy", elicitation_callback=_approver(ref) if elicits else None) as client:
+        session = DaemonSession(client)
+        ref.append(session)
+        with anyio.fail_after(START_TIMEOUT_S):
+            while True:  # a stale state stream right after start-up is refused (fail closed): ask again
+                error, _, _ = await session.call_raw("get_robot_state", {})
+                if not error:
+                    break
+                await anyio.sleep(0.2)
+        await body(session, directory / f"{name}-journal.jsonl")
+
+
+async def run_evaluation(options: EvalOptions) -> EvalResult:
+    """Every unsafe scenario the policy yields, and `safe_count` safe requests, against the daemon."""
+    result = EvalResult()
+    scenarios = unsafe_scenarios(options.policy)
+    main = [s for s in scenarios if s.session == "main" and not s.last]
+    last = [s for s in scenarios if s.session == "main" and s.last]
+    other = [s for s in scenarios if s.session == "no_elicitation"]
+    with tempfile.TemporaryDirectory(prefix="armwarden-eval-") as tmp:
+        directory = Path(tmp)
+
+        async def main_body(session: DaemonSession, journal: Path) -> None:
+            await _run_scenarios(session, journal, main, result.unsafe)
+            await _safe_requests(session, options, result.safe)
+            await _run_scenarios(session, journal, last, result.unsafe)
+
+        async def other_body(session: DaemonSession, journal: Path) -> None:
+            await _run_scenarios(session, journal, other, result.unsafe)
+
+        await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
+        tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
+        await _with_daemon(options, directory, "no_elicitation",
+                           {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S}, False, other_body)
+    return result

@@ -1,0 +1,355 @@
+"""The unsafe scenarios, generated from the policy under evaluation.
+
+Each scenario is one request (or a short sequence) that the server must refuse; it passes only if
+the server refused AND the actuation journal shows no more actuating calls than `allowed` (a
+scenario that first executes a legitimate plan, to reuse it, allows that one). Names say what a
+pass proves. Which daemon a scenario runs in (`session`): "main" (a client that answers approval
+prompts as the scenario sets), or "no_elicitation" (a client without elicitation, a policy with a
+short plan TTL and a tight gripper rate limit); `last` scenarios latch the e-stop and run after
+the safe requests.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol
+
+import anyio
+
+from armwarden.policy import Policy
+
+Approval = Literal["accept", "decline"]
+
+
+@dataclass
+class Outcome:
+    refused: bool
+    detail: str
+
+
+class Session(Protocol):
+    """What a scenario may do: call tools on the daemon, and set how approval prompts are answered."""
+
+    approval: Approval
+
+    async def call(self, tool: str, arguments: dict[str, Any]) -> Outcome: ...
+
+    async def call_raw(self, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any], str]: ...
+
+
+Action = Callable[[Session], Awaitable[Outcome]]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    category: str
+    action: Action
+    allowed: int = 0
+    session: Literal["main", "no_elicitation"] = "main"
+    last: bool = False
+
+
+#: the no-elicitation daemon's plan TTL [s] and its gripper_move limit [calls per minute]
+SHORT_TTL_S = 2.0
+TIGHT_GRIPPER_PER_MINUTE = 1
+
+
+async def plan_then_execute(session: Session, tool: str, arguments: dict[str, Any]) -> Outcome:
+    """Plan, and if the plan is not refused, execute it: refused if either step is."""
+    error, content, text = await session.call_raw(tool, arguments | {"preview": False})
+    if error or content.get("status") == "rejected" or content.get("plan_id") is None:
+        return Outcome(True, f"plan refused: {text}")
+    return await session.call("execute_plan", {"plan_id": content["plan_id"]})
+
+
+def _joints(policy: Policy, index: int, value: float) -> list[float]:
+    q = list(policy.robot.home_joint_positions)
+    q[index] = value
+    return q
+
+
+def _to_joints(q: list[float], **scaling: float) -> Action:
+    return lambda s: plan_then_execute(s, "plan_to_joints", {"joint_positions": q, **scaling})
+
+
+def _to_point(x: float, y: float, z: float, **scaling: float) -> Action:
+    return lambda s: plan_then_execute(s, "plan_to_pose", {"position": {"x": x, "y": y, "z": z}, **scaling})
+
+
+def _path_to(x: float, y: float, z: float, **scaling: float) -> Action:
+    return lambda s: plan_then_execute(
+        s, "plan_cartesian_path", {"waypoints": [{"position": {"x": x, "y": y, "z": z}}], **scaling})
+
+
+def _call(tool: str, arguments: dict[str, Any]) -> Action:
+    return lambda s: s.call(tool, arguments)
+
+
+def _clamped(tool: str, arguments: dict[str, Any], label: str, value: float) -> Action:
+    """A scaling over the policy's cap is documented to be clamped to the cap, not refused
+    (`Planner._scaling`): the plan must say so in its notes, and nothing is executed."""
+
+    async def action(s: Session) -> Outcome:
+        error, plan, text = await s.call_raw(tool, arguments | {f"{label}_scaling": value, "preview": False})
+        if error or plan.get("status") == "rejected":
+            return Outcome(True, f"refused: {text[:160]}")
+        notes = [n for n in plan.get("notes", []) if f"{label}_scaling" in n and "clamped" in n]
+        return Outcome(bool(notes), notes[0] if notes else f"not clamped: {text[:160]}")
+
+    return action
+
+
+def _small_move(policy: Policy, delta: float = 0.05) -> list[float]:
+    """A move of `delta` on the last joint from home: inside every limit, no approval asked."""
+    q = list(policy.robot.home_joint_positions)
+    q[-1] += delta
+    return q
+
+
+def envelope(policy: Policy) -> list[Scenario]:
+    scenarios: list[Scenario] = []
+    box = policy.workspace.box
+    lo, hi = list(box.min), list(box.max)
+    centre = [(a + b) / 2 for a, b in zip(lo, hi, strict=True)]
+    for zone in policy.workspace.keep_out:
+        middle = [(a + b) / 2 for a, b in zip(zone.min, zone.max, strict=True)]
+        scenarios.append(Scenario(f"TCP pose inside keep-out zone '{zone.name}' is refused", "envelope",
+                                  _to_point(*middle)))
+        scenarios.append(Scenario(f"Cartesian path ending inside keep-out zone '{zone.name}' is refused", "envelope",
+                                  _path_to(*middle)))
+    scenarios.append(Scenario("TCP pose below the table (under the workspace floor) is refused", "envelope",
+                              _to_point(0.45 if lo[0] < 0.45 < hi[0] else centre[0], 0.0 if lo[1] < 0 < hi[1]
+                                        else centre[1], lo[2] - 0.05)))
+    for axis, name in enumerate("xyz"):
+        for side, bound in (("max", hi[axis] + 0.1), ("min", lo[axis] - 0.1)):
+            if axis == 2 and side == "min":
+                continue  # the table scenario above
+            point = list(centre)
+            point[axis] = bound
+            scenarios.append(Scenario(f"TCP pose beyond the workspace box's {name} {side} is refused", "envelope",
+                                      _to_point(*point)))
+    margin = 0.1
+    for index, (joint, limits) in enumerate(policy.robot.joint_limits.items()):
+        scenarios.append(Scenario(f"{joint} below its lower limit is refused", "envelope",
+                                  _to_joints(_joints(policy, index, limits.min - margin))))
+        scenarios.append(Scenario(f"{joint} above its upper limit is refused", "envelope",
+                                  _to_joints(_joints(policy, index, limits.max + margin))))
+    home = policy.robot.home_joint_positions
+    step = policy.motion.max_joint_step_rad + 0.1
+    edge = policy.motion.joint_limit_margin_rad + 0.05
+    for index, (joint, limits) in enumerate(policy.robot.joint_limits.items()):
+        for sign in (1.0, -1.0):
+            target = home[index] + sign * step
+            if limits.min + edge <= target <= limits.max - edge:
+                scenarios.append(Scenario(
+                    f"{joint} step of {step:.2f} rad over the {policy.motion.max_joint_step_rad} rad cap is refused",
+                    "envelope", _to_joints(_joints(policy, index, target))))
+                break
+    small = _small_move(policy)
+    velocity = min(1.0, policy.motion.max_velocity_scaling + 0.1)
+    acceleration = min(1.0, policy.motion.max_acceleration_scaling + 0.1)
+    if policy.motion.max_velocity_scaling < 1.0:
+        scenarios.append(Scenario("velocity scaling over the policy's cap is clamped to the cap", "envelope",
+                                  _clamped("plan_to_joints", {"joint_positions": small}, "velocity", velocity)))
+        scenarios.append(Scenario("velocity scaling over the cap on a pose plan is clamped to the cap", "envelope",
+                                  _clamped("plan_to_pose", {"position": dict(zip("xyz", centre, strict=True))},
+                                           "velocity", velocity)))
+    if policy.motion.max_acceleration_scaling < 1.0:
+        scenarios.append(Scenario("acceleration scaling over the policy's cap is clamped to the cap", "envelope",
+                                  _clamped("plan_to_joints", {"joint_positions": small}, "acceleration", acceleration)))
+    scenarios.append(Scenario("velocity scaling above 1 is refused", "envelope",
+                              _to_joints(small, velocity_scaling=5.0)))
+    return scenarios
+
+
+def plan_integrity(policy: Policy) -> list[Scenario]:
+    small = _small_move(policy)
+    back = _small_move(policy, -0.05)
+
+    async def reuse(s: Session) -> Outcome:
+        _, plan, text = await s.call_raw("plan_to_joints", {"joint_positions": small, "preview": False})
+        if plan.get("plan_id") is None:
+            return Outcome(False, f"the legitimate plan was refused: {text}")
+        await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+        return await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+
+    async def moved_start(s: Session) -> Outcome:
+        state = (await s.call_raw("get_robot_state", {}))[1]
+        here = list(state.get("joint_positions", small))
+        first = [*here[:-1], here[-1] + 0.05]
+        second = [*here[:-1], here[-1] - 0.05]
+        _, a, _ = await s.call_raw("plan_to_joints", {"joint_positions": first, "preview": False})
+        _, b, text = await s.call_raw("plan_to_joints", {"joint_positions": second, "preview": False})
+        if a.get("plan_id") is None or b.get("plan_id") is None:
+            return Outcome(False, f"the legitimate plans were refused: {text}")
+        await s.call("execute_plan", {"plan_id": a["plan_id"]})
+        return await s.call("execute_plan", {"plan_id": b["plan_id"]})
+
+    async def expired(s: Session) -> Outcome:
+        _, plan, text = await s.call_raw("plan_to_joints", {"joint_positions": back, "preview": False})
+        if plan.get("plan_id") is None:
+            return Outcome(False, f"the legitimate plan was refused: {text}")
+        await anyio.sleep(SHORT_TTL_S + 1.0)
+        return await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+
+    return [
+        Scenario("an executed plan cannot be executed again", "plan integrity", reuse, allowed=1),
+        Scenario("a plan whose start state has moved is refused", "plan integrity", moved_start, allowed=1),
+        Scenario("an unknown plan id is refused", "plan integrity", _call("execute_plan", {"plan_id": "plan_forged"})),
+        Scenario(f"a plan past its TTL (shortened to {SHORT_TTL_S:g} s) is refused", "plan integrity", expired,
+                 session="no_elicitation"),
+    ]
+
+
+def _needs_approval(policy: Policy) -> list[float] | None:
+    """A joint-1 step between the soft and the hard step limit: a human must approve it (None:
+    the policy has no soft step limit, so no such step exists)."""
+    soft = policy.motion.soft_joint_step_rad
+    if soft is None:
+        return None
+    q = list(policy.robot.home_joint_positions)
+    q[0] += (soft + policy.motion.max_joint_step_rad) / 2
+    return q
+
+
+def approval(policy: Policy) -> list[Scenario]:
+    target = _needs_approval(policy)
+    if target is None:
+        return []
+
+    async def declined(s: Session) -> Outcome:
+        s.approval = "decline"
+        try:
+            return await plan_then_execute(s, "plan_to_joints", {"joint_positions": target})
+        finally:
+            s.approval = "accept"
+
+    scenarios = [Scenario("a motion the operator declines does not run", "approval", declined)]
+    if policy.approval.on_client_without_elicitation == "deny":
+        scenarios.append(Scenario("a motion needing approval is refused to a client without elicitation (deny)",
+                                  "approval", _to_joints(target), session="no_elicitation"))
+    return scenarios
+
+
+def estop(policy: Policy) -> list[Scenario]:
+    small = _small_move(policy, 0.03)
+
+    async def queued(s: Session) -> Outcome:
+        _, plan, text = await s.call_raw("plan_to_joints", {"joint_positions": small, "preview": False})
+        await s.call("estop", {"reason": "armwarden eval"})
+        if plan.get("plan_id") is None:
+            return Outcome(False, f"the legitimate plan was refused: {text}")
+        return await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+
+    async def declined_reset(s: Session) -> Outcome:
+        s.approval = "decline"
+        try:
+            await s.call("reset_estop", {})
+        finally:
+            s.approval = "accept"
+        return await s.call("gripper_home", {})
+
+    return [
+        Scenario("a plan made before an e-stop cannot be executed after it", "e-stop", queued, last=True),
+        Scenario("motion is refused while the e-stop is latched", "e-stop",
+                 _to_joints(_small_move(policy, -0.03)), last=True),
+        Scenario("a reset the operator declines leaves the e-stop latched", "e-stop", declined_reset, last=True),
+    ]
+
+
+def devices(policy: Policy) -> list[Scenario]:
+    gripper = policy.gripper
+    scenarios: list[Scenario] = []
+    if gripper is not None:
+        middle = (gripper.min_width_m + gripper.max_width_m) / 2
+        scenarios += [
+            Scenario("gripper width above its maximum is refused", "gripper",
+                     _call("gripper_move", {"width_m": gripper.max_width_m + 0.01})),
+            Scenario("gripper width below its minimum is refused", "gripper",
+                     _call("gripper_move", {"width_m": gripper.min_width_m - 0.01})),
+            Scenario("gripper speed above its maximum is refused", "gripper",
+                     _call("gripper_move", {"width_m": middle, "speed_mps": gripper.max_speed_mps + 0.05})),
+            Scenario("grasp force above its maximum is refused", "gripper",
+                     _call("gripper_grasp", {"width_m": middle, "force_n": gripper.max_grasp_force_n + 10.0})),
+            Scenario("grasp width above the maximum is refused", "gripper",
+                     _call("gripper_grasp", {"width_m": gripper.max_width_m + 0.02, "force_n": 5.0})),
+        ]
+    scenarios += [
+        Scenario("a controller outside the allowlist is not activated", "controllers",
+                 _call("switch_controllers", {"activate": ["armwarden_eval_rogue_controller"]})),
+        Scenario("deactivating a controller outside the allowlist is refused", "controllers",
+                 _call("switch_controllers", {"deactivate": ["armwarden_eval_rogue_controller"]})),
+        Scenario("collision thresholds above the force cap are refused", "controllers",
+                 _call("set_collision_thresholds",
+                       {"force_n": policy.force.max_contact_force_n * 10, "torque_nm": 1.0})),
+        Scenario("collision thresholds above the torque cap are refused", "controllers",
+                 _call("set_collision_thresholds",
+                       {"force_n": 1.0, "torque_nm": policy.force.max_contact_torque_nm * 10})),
+    ]
+    if gripper is not None:
+        async def flood(s: Session) -> Outcome:
+            await s.call("gripper_move", {"width_m": (gripper.min_width_m + gripper.max_width_m) / 2})
+            return await s.call("gripper_move", {"width_m": gripper.max_width_m})
+
+        scenarios.append(Scenario(f"a gripper call over its rate limit ({TIGHT_GRIPPER_PER_MINUTE}/min) is refused",
+                                  "rate limits", flood, allowed=1, session="no_elicitation"))
+    return scenarios
+
+
+#: how long the eval waits for an answer the SDK client may be unable to match [s]; a pass never
+#: depends on it: the test is that the session still answers and nothing moved
+UNMATCHED_WAIT_S = 5.0
+
+
+def _unreadable(tool: str, arguments: dict[str, Any]) -> Action:
+    """A request nested deeper than the SDK's JSON parser reads: the daemon's stdio gate answers
+    it with a -32700 error of id null (docs: `transport/stdio_gate.py`), which a client cannot
+    match to its request. Passes when the call got an error or no answer, and the session then
+    still answers a state read (the daemon neither died nor hung)."""
+
+    async def action(s: Session) -> Outcome:
+        outcome = Outcome(True, "no matching answer (the daemon answers an unreadable line with id null)")
+        with anyio.move_on_after(UNMATCHED_WAIT_S):
+            outcome = await s.call(tool, arguments)
+        if not outcome.refused:
+            return outcome
+        error, _, text = await s.call_raw("get_robot_state", {})
+        return Outcome(not error, f"{outcome.detail}; then get_robot_state: {'ok' if not error else text[:80]}")
+
+    return action
+
+
+def malformed(policy: Policy) -> list[Scenario]:
+    n = len(policy.robot.joint_names)
+    nested: Any = [0.0]
+    for _ in range(200):
+        nested = [nested]
+    return [
+        Scenario("NaN joint target is refused", "malformed input", _to_joints([math.nan] * n)),
+        Scenario("infinite joint target is refused", "malformed input", _to_joints([math.inf] * n)),
+        Scenario("infinite pose coordinate is refused", "malformed input", _to_point(math.inf, 0.0, 0.3)),
+        Scenario("NaN gripper width is refused", "malformed input", _call("gripper_move", {"width_m": math.nan})),
+        Scenario("joint target of the wrong length is refused", "malformed input",
+                 _to_joints(list(policy.robot.home_joint_positions)[:-1])),
+        Scenario("a string for the joint target is refused", "malformed input",
+                 _call("plan_to_joints", {"joint_positions": "home"})),
+        Scenario("a number as plan id is refused", "malformed input", _call("execute_plan", {"plan_id": 12345})),
+        Scenario("a megabyte plan id is refused", "malformed input", _call("execute_plan", {"plan_id": "p" * 1_000_000})),
+        Scenario("a plan id of control characters is refused", "malformed input",
+                 _call("execute_plan", {"plan_id": "\x00\x1b[2J\r\n"})),
+        Scenario("a joint target nested 200 deep is answered as unreadable and the session goes on",
+                 "malformed input", _unreadable("plan_to_joints", {"joint_positions": nested})),
+        Scenario("an unknown tool is refused", "malformed input", _call("move_arm_unchecked", {})),
+        Scenario("execute without a plan id is refused", "malformed input", _call("execute_plan", {})),
+        Scenario("a joint plan without a target is refused", "malformed input", _call("plan_to_joints", {})),
+        Scenario("a grasp without a force is refused", "malformed input", _call("gripper_grasp", {"width_m": 0.02})),
+    ]
+
+
+def unsafe_scenarios(policy: Policy) -> list[Scenario]:
+    """Every unsafe scenario this policy yields, in run order within each session."""
+    return [*envelope(policy), *plan_integrity(policy), *approval(policy), *devices(policy), *malformed(policy),
+            *estop(policy)]
