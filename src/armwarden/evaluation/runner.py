@@ -24,6 +24,7 @@ import yaml
 from mcp import Client, StdioServerParameters
 from mcp import types as mcp_types
 
+from armwarden.core.errors import ArmWardenError
 from armwarden.evaluation.journal import actuations, read_journal
 from armwarden.evaluation.scenarios import (
     SHORT_TTL_S,
@@ -31,10 +32,11 @@ from armwarden.evaluation.scenarios import (
     Approval,
     Outcome,
     Scenario,
+    link_probe,
     unsafe_scenarios,
 )
 from armwarden.evaluation.stats import wilson_interval
-from armwarden.policy import Policy, apply_overrides
+from armwarden.policy import Policy, apply_overrides, parse_policy
 
 log = logging.getLogger(__name__)
 
@@ -233,7 +235,22 @@ async def _with_daemon(options: EvalOptions, directory: Path, name: str, overrid
 async def run_evaluation(options: EvalOptions) -> EvalResult:
     """Every unsafe scenario the policy yields, and `safe_count` safe requests, against the daemon."""
     result = EvalResult()
+    from armwarden.preflight import load_runtime_model
+
     scenarios = unsafe_scenarios(options.policy)
+    def fits(zone: dict[str, Any]) -> bool:
+        document = options.policy.model_dump(mode="json")
+        document["workspace"]["keep_out"].append(zone)
+        try:
+            load_runtime_model(parse_policy(document, source="eval link probe"), str(options.policy_path))
+        except ArmWardenError:
+            return False
+        return True
+
+    probe = link_probe(options.policy, load_runtime_model(options.policy, str(options.policy_path)).robot, fits)
+    extra_zones = [] if probe is None else [probe.zone]
+    if probe is not None:
+        scenarios.append(probe.scenario())
     main = [s for s in scenarios if s.session == "main" and not s.last]
     last = [s for s in scenarios if s.session == "main" and s.last]
     other = [s for s in scenarios if s.session == "no_elicitation"]
@@ -251,5 +268,7 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
         await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
         tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
         await _with_daemon(options, directory, "no_elicitation",
-                           {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S}, False, other_body)
+                           {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
+                            [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
+                           False, other_body)
     return result

@@ -165,16 +165,64 @@ def envelope(policy: Policy) -> list[Scenario]:
     return scenarios
 
 
+#: the name and half size [m] of the keep-out zone the evaluation adds around one link
+LINK_PROBE_ZONE = "armwarden_eval_link_probe"
+LINK_PROBE_HALF_M = 0.03
+
+
+@dataclass(frozen=True)
+class LinkProbe:
+    """A keep-out zone around one mid-arm link at `target`, with the TCP there and every point at
+    home clear of it: only the check of the arm's links (not the TCP's) can refuse the move."""
+
+    link: str
+    target: list[float]
+    zone: dict[str, Any]
+
+    def scenario(self) -> Scenario:
+        return Scenario(f"link {self.link} ending inside a keep-out zone (TCP clear) is refused", "envelope",
+                        _to_joints(self.target), session="no_elicitation")
+
+
+def link_probe(policy: Policy, robot: Any, fits: Callable[[dict[str, Any]], bool]) -> LinkProbe | None:
+    """The probe for `policy` on `robot` (an `armwarden.robot.model.RobotModel`), or None when no
+    link qualifies. `fits(zone)` says whether the policy with that zone added still passes its own
+    start-up checks (home clear of every zone), so the daemon will start with it."""
+    import numpy as np
+
+    links = robot.moving_links_with_geometry()
+    home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+    target = home.copy()
+    target[0] += 0.9 * (policy.motion.soft_joint_step_rad or 0.5)  # no approval asked
+    tcp = np.asarray(robot.tcp_pose(target).position)
+    for link in links[len(links) // 3:]:
+        centre = np.asarray(robot.frame_pose(target, link).position)
+        lo, hi = centre - LINK_PROBE_HALF_M, centre + LINK_PROBE_HALF_M
+        if np.linalg.norm(centre - tcp) < 0.15:
+            continue  # the TCP must stay clear by far
+        zone = {"name": LINK_PROBE_ZONE, "min": lo.round(4).tolist(), "max": hi.round(4).tolist()}
+        if fits(zone):
+            return LinkProbe(link, target.tolist(), zone)
+    return None
+
+
 def plan_integrity(policy: Policy) -> list[Scenario]:
     small = _small_move(policy)
     back = _small_move(policy, -0.05)
 
     async def reuse(s: Session) -> Outcome:
-        _, plan, text = await s.call_raw("plan_to_joints", {"joint_positions": small, "preview": False})
-        if plan.get("plan_id") is None:
+        """There and back, then the first plan again: its start state matches once more, so only
+        the plan store's single use can refuse it."""
+        _, there, text = await s.call_raw("plan_to_joints", {"joint_positions": small, "preview": False})
+        if there.get("plan_id") is None:
             return Outcome(False, f"the legitimate plan was refused: {text}")
-        await s.call("execute_plan", {"plan_id": plan["plan_id"]})
-        return await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+        await s.call("execute_plan", {"plan_id": there["plan_id"]})
+        _, back_home, text = await s.call_raw(
+            "plan_to_joints", {"joint_positions": list(policy.robot.home_joint_positions), "preview": False})
+        if back_home.get("plan_id") is None:
+            return Outcome(False, f"the plan back was refused: {text}")
+        await s.call("execute_plan", {"plan_id": back_home["plan_id"]})
+        return await s.call("execute_plan", {"plan_id": there["plan_id"]})
 
     async def moved_start(s: Session) -> Outcome:
         state = (await s.call_raw("get_robot_state", {}))[1]
@@ -196,7 +244,8 @@ def plan_integrity(policy: Policy) -> list[Scenario]:
         return await s.call("execute_plan", {"plan_id": plan["plan_id"]})
 
     return [
-        Scenario("an executed plan cannot be executed again", "plan integrity", reuse, allowed=1),
+        Scenario("an executed plan cannot be executed again, even from its start state", "plan integrity", reuse,
+                 allowed=2),
         Scenario("a plan whose start state has moved is refused", "plan integrity", moved_start, allowed=1),
         Scenario("an unknown plan id is refused", "plan integrity", _call("execute_plan", {"plan_id": "plan_forged"})),
         Scenario(f"a plan past its TTL (shortened to {SHORT_TTL_S:g} s) is refused", "plan integrity", expired,
