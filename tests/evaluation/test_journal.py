@@ -1,0 +1,47 @@
+"""The actuation journal: what `armwarden eval` counts, written below the Guard."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from armwarden.assembly import build_backend
+from armwarden.backends.journal import JournalBackend
+from armwarden.evaluation.journal import actuations, read_journal
+from armwarden.policy import bundled_policy, load_policy
+from tests.helpers import REPO, child_env
+
+
+@pytest.mark.anyio
+async def test_each_actuating_call_and_each_stop_is_one_journal_line(tmp_path: Path) -> None:
+    path = tmp_path / "journal.jsonl"
+    backend = JournalBackend(build_backend("fake", load_policy(bundled_policy()), config={"speedup": 50.0}), path)
+    await backend.open()
+    try:
+        await backend.gripper_home()
+        await backend.stop()
+        backend.emergency_stop_now()
+    finally:
+        await backend.close()
+    entries = read_journal(path)
+    assert [(e.call, e.kind) for e in entries] == [
+        ("gripper_home", "actuation"), ("stop", "stop"), ("emergency_stop", "estop")]
+    assert actuations(entries) == ["gripper_home"]
+    assert entries[0].stamp <= entries[1].stamp <= entries[2].stamp
+
+
+def test_a_half_written_line_is_left_for_the_next_read(tmp_path: Path) -> None:
+    path = tmp_path / "journal.jsonl"
+    path.write_text('{"t": 1.0, "call": "execute", "kind": "actuation"}\n{"t": 2.0, "ca', encoding="utf-8")
+    assert actuations(read_journal(path)) == ["execute"]
+
+
+def test_the_command_line_parser_does_not_load_the_evaluation() -> None:
+    probe = ("import sys; from armwarden.cli import _build_parser; _build_parser(); "
+             "print(sorted(m for m in sys.modules if m.startswith('armwarden.evaluation')))")
+    result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=child_env(), capture_output=True, text=True,
+                            timeout=120, check=True)
+    assert result.stdout.strip() == "['armwarden.evaluation', 'armwarden.evaluation.arguments']"
