@@ -80,6 +80,16 @@ def child_env() -> dict[str, str]:
     return env
 
 
+def modules_the_parser_loads(package: str) -> list[str]:
+    """The modules of `package` loaded by building the command-line parser, in a fresh interpreter
+    (every subcommand builds it, `armwarden estop` among them: a heavy command must not load there)."""
+    probe = ("import json, sys; from armwarden.cli import _build_parser; _build_parser(); "
+             f"print(json.dumps(sorted(m for m in sys.modules if m.startswith({package!r}))))")
+    result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=child_env(), capture_output=True, text=True,
+                            timeout=120, check=True)
+    return json.loads(result.stdout)
+
+
 def stop_process(process: subprocess.Popen, timeout_s: float) -> None:
     """SIGTERM `process` if it still runs, wait up to `timeout_s` for it to exit, else kill it."""
     if process.poll() is None:

@@ -5,11 +5,10 @@ it runs, never by the parser every other subcommand (`armwarden estop` among the
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 from armwarden.policy import bundled_policy
-from tests.helpers import CLI, REPO, child_env
+from tests.helpers import CLI, REPO, child_env, modules_the_parser_loads
 
 
 def test_from_the_shell_without_a_terminal_or_yes_it_refuses_and_nothing_moves(tmp_path: Path) -> None:
@@ -24,8 +23,5 @@ def test_from_the_shell_without_a_terminal_or_yes_it_refuses_and_nothing_moves(t
 
 
 def test_the_command_line_parser_does_not_load_the_calibration() -> None:
-    probe = ("import sys; from armwarden.cli import _build_parser; _build_parser(); "
-             "print(sorted(m for m in sys.modules if m.startswith('armwarden.calibration')))")
-    result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=child_env(), capture_output=True, text=True,
-                            timeout=120, check=True)
-    assert result.stdout.strip() == "['armwarden.calibration', 'armwarden.calibration.arguments']"
+    assert modules_the_parser_loads("armwarden.calibration") == ["armwarden.calibration",
+                                                                 "armwarden.calibration.arguments"]

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,7 +10,7 @@ from armwarden.assembly import build_backend
 from armwarden.backends.journal import JournalBackend
 from armwarden.evaluation.journal import actuations, read_journal
 from armwarden.policy import bundled_policy, load_policy
-from tests.helpers import REPO, child_env
+from tests.helpers import modules_the_parser_loads
 
 
 @pytest.mark.anyio
@@ -40,8 +38,4 @@ def test_a_half_written_line_is_left_for_the_next_read(tmp_path: Path) -> None:
 
 
 def test_the_command_line_parser_does_not_load_the_evaluation() -> None:
-    probe = ("import sys; from armwarden.cli import _build_parser; _build_parser(); "
-             "print(sorted(m for m in sys.modules if m.startswith('armwarden.evaluation')))")
-    result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=child_env(), capture_output=True, text=True,
-                            timeout=120, check=True)
-    assert result.stdout.strip() == "['armwarden.evaluation', 'armwarden.evaluation.arguments']"
+    assert modules_the_parser_loads("armwarden.evaluation") == ["armwarden.evaluation", "armwarden.evaluation.arguments"]
