@@ -39,3 +39,14 @@ def test_a_half_written_line_is_left_for_the_next_read(tmp_path: Path) -> None:
 
 def test_the_command_line_parser_does_not_load_the_evaluation() -> None:
     assert modules_the_parser_loads("armwarden.evaluation") == ["armwarden.evaluation", "armwarden.evaluation.arguments"]
+
+
+@pytest.mark.parametrize("backend", ["can", "ros2"])
+def test_the_evaluation_refuses_a_backend_that_can_reach_a_physical_arm(backend: str,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """It approves its own motions: a CAN bus or a ROS graph may have a real arm on it."""
+    from armwarden.cli import _build_parser
+
+    with pytest.raises(SystemExit):
+        _build_parser().parse_args(["eval", "--backend", backend])
+    assert "invalid choice" in capsys.readouterr().err

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
+#: the backends the evaluation may drive: it approves its own motions (no human answers), so never
+#: a backend that can reach a physical arm (CAN, ROS 2) until a scenario set bounded by an
+#: operator's approval exists for them
+SIMULATED_BACKENDS = ("fake", "mujoco")
 #: safe requests in a full and in a --quick run
 FULL_SAFE = 100
 QUICK_SAFE = 10
