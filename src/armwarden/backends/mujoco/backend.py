@@ -58,6 +58,7 @@ from armwarden.backends.mujoco.cameras import OffscreenCameras, SimulatedCameras
 from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.gains import armature_from_profile
 from armwarden.backends.mujoco.gripper import SimulatedFingers
+from armwarden.backends.mujoco.measurement import Measured
 from armwarden.backends.mujoco.model import MujocoModel, build_model
 from armwarden.backends.mujoco.scene import scene_for_policy
 from armwarden.backends.parts import Cell, PublishedWrench
@@ -148,7 +149,9 @@ class MujocoBackend(ServoBackend):
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
         self.servo.require_running()
-        sample = self.arm.measured
+        return self._joint_state(self.arm.measured)
+
+    def _joint_state(self, sample: Measured) -> JointState:
         return JointState(self.joint_names, sample.positions, sample.velocities, sample.stamp, sample.efforts)
 
     async def _read_joint_state(self) -> JointState:
@@ -237,8 +240,7 @@ class MujocoBackend(ServoBackend):
         self.arm.step(setpoint, time.perf_counter(), self.servo.speedup)
         sample = self.arm.measured
         if sample is not before:  # a tick too short for a physics step measures nothing new
-            self.joint_history.append(JointState(self.joint_names, sample.positions, sample.velocities, sample.stamp,
-                                                 sample.efforts))
+            self.joint_history.append(self._joint_state(sample))
 
     def servo_command(self, setpoint: Setpoint) -> None:
         """Track a trajectory sample (`SimulatedArm.command`)."""
