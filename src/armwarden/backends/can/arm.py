@@ -108,7 +108,7 @@ class CanArm(ServoBackend):
         self._published: JointState | None = None
         #: complete samples (every actuator replied since the last one), for the contact observer
         self.joint_history = JointStateHistory()
-        self._history_replies: list[float | None] | None = None  # each actuator's reply time in the last one
+        self._history_replies: list[float] | None = None  # each actuator's reply time in the last one kept
         self._tracking_peak_rad = 0.0
         self._following: np.ndarray | None = None  # the previous tick's trajectory sample
 
@@ -167,13 +167,13 @@ class CanArm(ServoBackend):
         momentum change by the stamps' interval and read such mixes as contacts (on the emulator,
         after a stall, replies up to 147 ms apart in one sample). The Guard's other reads still get
         the latest state, stamped by its oldest part."""
+        answered = [reply for reply in replies if reply is not None]
+        if len(answered) < len(replies):  # one never replied: no state is complete yet
+            return
         previous = self._history_replies
-        if None in replies:
+        if previous is not None and not all(now > then for now, then in zip(answered, previous, strict=True)):
             return
-        if previous is not None and not all(now > then for now, then in zip(replies, previous, strict=True)
-                                            if now is not None and then is not None):
-            return
-        self._history_replies = replies
+        self._history_replies = answered
         self.joint_history.append(state)
 
     # ================================================================ motion
