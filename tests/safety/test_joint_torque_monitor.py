@@ -4,7 +4,7 @@ wrench sensor's stream."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 
 import anyio
 import numpy as np
@@ -15,7 +15,7 @@ from armwarden.core.errors import BackendError
 from armwarden.core.state import JointState
 from armwarden.robot.model import RobotModel
 from armwarden.safety.contact_observer import ContactObserver, ObserverSettings
-from armwarden.safety.contact_source import ContactEstimate, JointTorqueContact, choose_contact_source, latest_only
+from armwarden.safety.contact_source import ContactEstimate, JointTorqueContact, choose_contact_source
 from armwarden.safety.force import JOINT_TORQUE_RISE_ALLOWANCE_NM, ForceLimits, ForceMonitor, ForceViolation
 from tests.helpers import FakeClock
 
@@ -50,6 +50,16 @@ class TorqueScript:
             return item
         external = np.asarray(item, dtype=float)
         return self.state(self.gravity - external)  # the motors hold less where something pushes
+
+
+def latest_only(read_joint_state: Callable[[], Awaitable[JointState]]) -> Callable[[float | None], Awaitable[tuple[JointState, ...]]]:
+    """A one-sample reader (a `TorqueScript`) in the shape `JointTorqueContact` reads: each call
+    gives one sample, whatever it was asked for."""
+
+    async def read(_since: float | None) -> tuple[JointState, ...]:
+        return (await read_joint_state(),)
+
+    return read
 
 
 def joint_monitor(robot: RobotModel, q: np.ndarray, script: Sequence[object],

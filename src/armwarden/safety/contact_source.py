@@ -25,8 +25,7 @@ if TYPE_CHECKING:
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
 
-__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "latest_only",
-           "observer_for"]
+__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "observer_for"]
 
 ContactSource = Literal["sensor", "joint_torques"]
 
@@ -172,16 +171,6 @@ class JointTorqueContact:
         self._moving = bool(np.any(np.abs(v) > REST_SPEED_RAD_S))
         self._last_state = state
         return None
-
-
-def latest_only(read_joint_state: Callable[[], Awaitable[JointState]]) -> Callable[[float | None], Awaitable[tuple[JointState, ...]]]:
-    """A one-sample reader (`Backend.read_joint_state`, a recording) in the shape
-    `JointTorqueContact` reads: each call gives one sample, whatever it was asked for."""
-
-    async def read(_since: float | None) -> tuple[JointState, ...]:
-        return (await read_joint_state(),)
-
-    return read
 
 
 def _unusable(stamp: float, joints: int) -> ContactEstimate:
