@@ -1067,7 +1067,7 @@ def test_summary_states_the_facts_an_operator_checks() -> None:
         "70 N",
         "outside_envelope",
         "Dry run: off",
-        "estimated TCP force ≤ 20 N",
+        "estimated TCP force ≤ 30 N",
     ):
         assert fact in text, fact
     assert len(text.splitlines()) > 15

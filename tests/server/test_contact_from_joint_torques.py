@@ -103,7 +103,8 @@ async def test_the_push_that_stops_the_arm_is_what_the_forearm_lever_predicts(tm
 async def test_an_estimated_tcp_force_over_its_own_limit_stops_below_the_sensors_limit(tmp_path) -> None:
     """25 N at the hand: under max_contact_force_n (30 N, a sensor's limit) but over the estimate's
     own max_tcp_force_n (20 N); the joints' limits are raised so only the TCP estimate can stop it."""
-    policy = policy_with(**{"force.joint_torques.max_external_torque_nm": {f"fr3_joint{j}": 50.0 for j in range(1, 8)}})
+    policy = policy_with(**{"force.joint_torques.max_external_torque_nm": {f"fr3_joint{j}": 50.0 for j in range(1, 8)},
+                            "force.joint_torques.max_tcp_force_n": 20.0})
     assert (policy.force.max_contact_force_n, policy.force.estimated_force_limit_n) == (30.0, 20.0)
     async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client("legacy", approve()) as client:
         summary = await plan_down(client)
@@ -121,7 +122,7 @@ async def test_an_estimated_tcp_force_over_its_own_limit_stops_below_the_sensors
 
 async def test_the_operator_is_told_the_estimated_forces_own_limit(tmp_path) -> None:
     operator = approve()
-    policy = policy_with(**{"approval.mode": "always"})
+    policy = policy_with(**{"approval.mode": "always", "force.joint_torques.max_tcp_force_n": 20.0})
     async with arm_harness(tmp_path, policy, wrench=False) as arm, arm.client("legacy", operator) as client:
         summary = await plan_down(client)
         done = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
