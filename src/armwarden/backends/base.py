@@ -189,13 +189,15 @@ class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, B
 
         A backend that keeps a history (`_joint_states_since`) gives each sample it still holds,
         or its newest kept sample when none is newer (its stamp then is not after `stamp`: no new
-        sample). One that keeps none, a first read (`stamp` None) and a history still empty give
-        the latest published sample alone."""
-        if stamp is not None:
-            self._require_open()
-            history = self._joint_states_since(stamp)
-            if history:
-                return tuple(history)
+        sample); a first read (`stamp` None) gets that newest kept sample too. The latest published
+        sample can be newer than any kept one (the CAN backend keeps only states every actuator
+        answered): a first read that got it would find the next one older (found by CI). One that
+        keeps none, and a history still empty, give the latest published sample alone."""
+        self._require_open()
+        # no kept sample is newer than +inf: the history's newest comes back alone
+        history = self._joint_states_since(math.inf if stamp is None else stamp)
+        if history:
+            return tuple(history)
         return (await self.read_joint_state(),)
 
     # ---------------------------------------------------------------- motion

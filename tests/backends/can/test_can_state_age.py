@@ -88,3 +88,5 @@ async def test_the_contact_observer_gets_only_states_every_actuator_answered(arm
     assert arm.joint_history.since(kept.stamp) == ()
     # the observer's read gets the last kept state again, not the newer mixed one published since
     assert [s.stamp for s in await arm.read_joint_states_since(kept.stamp)] == [kept.stamp]
+    # and its first read starts there too: a newer start would make the next read go back in time
+    assert [s.stamp for s in await arm.read_joint_states_since(None)] == [kept.stamp]
