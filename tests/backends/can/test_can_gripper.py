@@ -5,14 +5,20 @@ freezes on a stop and is damped with the arm on an e-stop."""
 from __future__ import annotations
 
 import asyncio
+import threading
 import time
 
 import anyio
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from armwarden.backends import parse_backend_config
+from armwarden.backends.can.actuators import Actuator, OutFrame
 from armwarden.backends.can.backend import CanBackend
-from armwarden.backends.can.gripper import CanFingers
+from armwarden.backends.can.command import MotorCommand
+from armwarden.backends.can.gripper import CanFingers, FingerGuards, ImpedanceFingerMotion, capped_setpoint
+from armwarden.backends.ramp import Ramp
 from armwarden.core.errors import BackendError
 from tests.backends.can.test_can_backend import MIT_SIM, Spy, _async_true, build, config_document
 from tests.backends.contract import wait_until
@@ -66,6 +72,43 @@ async def test_a_grasp_holds_the_object_squeezing_with_no_more_than_the_force(ar
     squeeze = abs(emulator.snapshot(GRIPPER_ID).torque_nm)
     lsb_torque = g.kp_nm_per_rad * g.ranges.position.span / 0xFFFF  # the cap acts on measured (quantised) positions
     assert 0.0 < squeeze <= 40.0 * abs(g.width_per_rad_m) + 4 * lsb_torque
+
+
+@given(wanted=st.floats(-3, 3), measured=st.floats(-3, 3), velocity=st.floats(-5, 5),
+       measured_velocity=st.floats(-5, 5), cap=st.floats(0.01, 4))
+def test_the_command_never_pushes_harder_than_the_cap_counting_its_damping(
+        wanted: float, measured: float, velocity: float, measured_velocity: float, cap: float) -> None:
+    kp, kd = 20.0, 1.0
+    damping = kd * (velocity - measured_velocity)
+    position = capped_setpoint(wanted, measured, cap, kp, damping)
+    assert abs(kp * (position - measured) + damping) <= cap * (1 + 1e-9)
+
+
+def test_fingers_blocked_while_their_ramp_still_runs_are_commanded_no_more_than_the_force():
+    """The ramp's velocity is fed forward through kd: fingers standing on the object would get it
+    on top of the spring's capped push (3.6 N·m squeezed where 1.6 were asked, found by CI)."""
+    g = build().config.gripper
+    assert g is not None
+    blocked_at = g.position_of(0.02)
+    actuator = Actuator(-1, g, g.ranges, None, raw_position=g.direction * blocked_at + g.homing_offset_rad,
+                        raw_velocity=0.0, reported_at=time.monotonic())
+    commands: list[MotorCommand] = []
+
+    def command_frame(target: Actuator, command: MotorCommand) -> OutFrame:
+        commands.append(command)
+        return OutFrame(target, 0, b"", True)
+
+    fingers = CanFingers(actuator, g, threading.Lock(), command_frame,
+                         FingerGuards(lambda: None, lambda: None, lambda: False, lambda: 0.02))
+    torque = 40.0 * abs(g.width_per_rad_m)
+    speed = 0.1 / abs(g.width_per_rad_m)  # 0.1 m/s, from the object to shut, half-way there
+    closing = Ramp(blocked_at, g.position_of(0.0), speed, time.monotonic() - abs(blocked_at - g.position_of(0.0)) / speed / 2)
+    fingers.motion = ImpedanceFingerMotion(closing, torque, grasp=True)
+    fingers.frame()
+    (command,) = commands
+    assert command.velocity != 0.0  # the ramp still runs
+    pushed = command.kp * (command.position - actuator.raw_position) + command.kd * (command.velocity - 0.0)
+    assert 0.0 < abs(pushed) <= torque * (1 + 1e-9)
 
 
 async def test_a_grasp_that_closes_past_the_band_fails_naming_the_width(arm: CanBackend):

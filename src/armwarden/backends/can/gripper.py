@@ -2,9 +2,11 @@
 
 The motion law (`ImpedanceFingerMotion`, `capped_setpoint`): the commanded position follows a ramp
 from where the fingers were to the target at the requested speed, but never further than
-`torque_cap / kp` from where the fingers are measured — so the actuator's spring,
-kp·(setpoint − measured), never pushes harder than the cap (a grasp's force, a move's torque
-limit) when the fingers are blocked by an object.
+`torque_cap / kp` from where the fingers are measured, less what the damping term adds — so the
+actuator's law, kp·(setpoint − measured) + kd·(velocity − measured velocity), never pushes harder
+than the cap (a grasp's force, a move's torque limit) when the fingers are blocked by an object.
+The ramp's velocity alone, fed forward through kd while the fingers stood on the object, once
+squeezed with 3.6 N·m where a grasp asked for 1.6 (found by CI).
 
 The part (`CanFingers`, the cell's `Gripper`): the backend's servo thread asks `frame` for one
 impedance command per tick (the ramp of the running action, or the hold, its spring capped); the
@@ -60,10 +62,14 @@ class ImpedanceFingerMotion:
         return self.ramp.position(now), self.ramp.velocity(now)
 
 
-def capped_setpoint(wanted_rad: float, measured_rad: float, torque_cap_nm: float, kp_nm_per_rad: float) -> float:
-    """`wanted_rad`, moved toward `measured_rad` until kp·|setpoint − measured| ≤ `torque_cap_nm`."""
-    reach = torque_cap_nm / kp_nm_per_rad
-    return measured_rad + min(max(wanted_rad - measured_rad, -reach), reach)
+def capped_setpoint(wanted_rad: float, measured_rad: float, torque_cap_nm: float, kp_nm_per_rad: float,
+                    damping_nm: float = 0.0) -> float:
+    """`wanted_rad`, moved until the command's torque at the measured state,
+    kp·(setpoint − measured) + `damping_nm` (the law's kd·(velocity − measured velocity)), lies
+    within ±`torque_cap_nm`; a damping term beyond the cap is pulled back by the spring."""
+    low = measured_rad + (-torque_cap_nm - damping_nm) / kp_nm_per_rad
+    high = measured_rad + (torque_cap_nm - damping_nm) / kp_nm_per_rad
+    return min(max(wanted_rad, low), high)
 
 
 @dataclass(frozen=True)
@@ -119,9 +125,11 @@ class CanFingers(Gripper):
 
     def frame(self) -> OutFrame:
         """Servo thread, under the servo lock: this tick's command to the gripper (not damping)."""
-        g = self.config
+        g, a = self.config, self.actuator
         now = time.monotonic()
         measured = self.position()
+        with self._state_lock:
+            measured_velocity = g.direction * a.raw_velocity
         with self._lock:
             motion = self.motion
             if motion is None:
@@ -129,7 +137,8 @@ class CanFingers(Gripper):
             else:
                 (wanted, velocity), cap = motion.setpoint(now), motion.torque_cap_nm
         low, high = sorted((g.open_position_rad, g.closed_position_rad))
-        position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad), low), high)
+        damping = g.kd_nms_per_rad * (velocity - measured_velocity)
+        position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad, damping), low), high)
         return self._command_frame(self.actuator, MotorCommand(g.direction * position + g.homing_offset_rad,
                                                                g.direction * velocity, g.kp_nm_per_rad,
                                                                g.kd_nms_per_rad, 0.0))
