@@ -162,3 +162,31 @@ async def test_the_gripper_state_carries_the_time_its_reading_arrived_not_the_ti
     await anyio.sleep(0.2)
     aged = await arm.gripper_state()
     assert aged is not None and aged.stamp == last and time.monotonic() - aged.stamp >= 0.2
+
+
+def test_fingers_blocked_where_their_ramp_starts_are_commanded_no_more_than_the_force():
+    """An object as wide as the open fingers: the cap wants a setpoint past the open end to cancel
+    kd·v, the travel clamp keeps it at the end, and the command pushed with kd·v (2.5 N·m where a
+    grasp asked for 1.6) while the ramp ran; the velocity fed forward is capped instead."""
+    g = build().config.gripper
+    assert g is not None
+    blocked_at = g.position_of(g.max_width_m)
+    actuator = Actuator(-1, g, g.ranges, None, raw_position=g.direction * blocked_at + g.homing_offset_rad,
+                        raw_velocity=0.0, reported_at=time.monotonic())
+    commands: list[MotorCommand] = []
+
+    def command_frame(target: Actuator, command: MotorCommand) -> OutFrame:
+        commands.append(command)
+        return OutFrame(target, 0, b"", True)
+
+    fingers = CanFingers(actuator, g, threading.Lock(), command_frame,
+                         FingerGuards(lambda: None, lambda: None, lambda: False, lambda: 0.02))
+    torque = 40.0 * abs(g.width_per_rad_m)
+    speed = 0.1 / abs(g.width_per_rad_m)
+    closing = Ramp(blocked_at, g.position_of(0.0), speed, time.monotonic() - 0.05)
+    fingers.motion = ImpedanceFingerMotion(closing, torque, grasp=True)
+    fingers.frame()
+    (command,) = commands
+    assert command.velocity != 0.0  # still pushing toward closed
+    pushed = command.kp * (command.position - actuator.raw_position) + command.kd * (command.velocity - 0.0)
+    assert 0.0 < abs(pushed) <= torque * (1 + 1e-9)

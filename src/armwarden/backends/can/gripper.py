@@ -139,6 +139,13 @@ class CanFingers(Gripper):
         low, high = sorted((g.open_position_rad, g.closed_position_rad))
         damping = g.kd_nms_per_rad * (velocity - measured_velocity)
         position = min(max(capped_setpoint(wanted, measured, cap, g.kp_nm_per_rad, damping), low), high)
+        # the travel clamp can undo the cap: fingers blocked at the end the ramp starts from (an
+        # object as wide as the open fingers) need a setpoint beyond it to cancel kd·v, and would
+        # be pushed with kd·v, over the cap, while the ramp runs. Cap the velocity fed forward then.
+        spring = g.kp_nm_per_rad * (position - measured)
+        allowed = min(max(damping, -cap - spring), cap - spring)
+        if abs(allowed - damping) > 1e-9 * cap and g.kd_nms_per_rad > 0:  # not the cap's own rounding
+            velocity = measured_velocity + allowed / g.kd_nms_per_rad
         return self._command_frame(self.actuator, MotorCommand(g.direction * position + g.homing_offset_rad,
                                                                g.direction * velocity, g.kp_nm_per_rad,
                                                                g.kd_nms_per_rad, 0.0))
