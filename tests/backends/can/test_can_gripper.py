@@ -190,3 +190,34 @@ def test_fingers_blocked_where_their_ramp_starts_are_commanded_no_more_than_the_
     assert command.velocity != 0.0  # still pushing toward closed
     pushed = command.kp * (command.position - actuator.raw_position) + command.kd * (command.velocity - 0.0)
     assert 0.0 < abs(pushed) <= torque * (1 + 1e-9)
+
+
+_GRIPPER = build().config.gripper
+
+
+@given(measured=st.floats(-0.5, 2.5), measured_velocity=st.floats(-5, 5), start=st.floats(0, 2),
+       target=st.floats(0, 2), elapsed=st.floats(0, 2), force_n=st.floats(1, 100))
+def test_whatever_the_fingers_do_a_frame_pushes_no_harder_than_its_cap(
+        measured: float, measured_velocity: float, start: float, target: float, elapsed: float, force_n: float) -> None:
+    """The whole law kp·(setpoint − measured) + kd·(velocity − measured velocity), after the
+    travel clamp, for fingers anywhere (even past an end of their travel) at any speed."""
+    g = _GRIPPER
+    assert g is not None
+    actuator = Actuator(-1, g, g.ranges, None, raw_position=g.direction * measured + g.homing_offset_rad,
+                        raw_velocity=g.direction * measured_velocity, reported_at=time.monotonic())
+    commands: list[MotorCommand] = []
+
+    def command_frame(target_actuator: Actuator, command: MotorCommand) -> OutFrame:
+        commands.append(command)
+        return OutFrame(target_actuator, 0, b"", True)
+
+    fingers = CanFingers(actuator, g, threading.Lock(), command_frame,
+                         FingerGuards(lambda: None, lambda: None, lambda: False, lambda: 0.02))
+    cap = min(force_n * abs(g.width_per_rad_m), g.torque_limit_nm)
+    fingers.motion = ImpedanceFingerMotion(Ramp(start, target, 0.1 / abs(g.width_per_rad_m), time.monotonic() - elapsed),
+                                           cap, grasp=True)
+    fingers.frame()
+    (command,) = commands
+    pushed = (command.kp * (command.position - actuator.raw_position)
+              + command.kd * (command.velocity - actuator.raw_velocity))
+    assert abs(pushed) <= cap * (1 + 1e-6) + 1e-9
