@@ -34,7 +34,7 @@ directory.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -43,6 +43,7 @@ import numpy as np
 import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
 
 from armwarden.core.errors import RobotModelError
+from armwarden.robot.jit_compile import compile_cached
 
 if TYPE_CHECKING:
     from armwarden.robot.model import RobotModel
@@ -178,7 +179,7 @@ def _frame_id(model: pin.Model, name: str) -> int:
 
 
 # ---------------------------------------------------------------------------------------- kernels
-# Plain Python functions, compiled below by `_compile`. The chain is flattened into "nodes": the
+# Plain Python functions, compiled below by `compile_cached`. The chain is flattened into "nodes": the
 # joints (index = Pinocchio joint id) then the frames of interest (`KinematicChain.node_tables`).
 # Node k's pose is its parent's pose · its fixed placement · its joint motion (none for a frame or
 # the universe, whose parent is -1 and whose placement is base_from_world). Few arguments on
@@ -288,24 +289,13 @@ def _fk_batch_into(qs, node_ints, node_floats, out):  # pragma: no cover - compi
     return -1
 
 
-def _compile(py_func: Callable[..., Any], signature: Any) -> tuple[Any, bool]:
-    """`njit(signature, cache=True)(py_func)`, or without the on-disk cache where numba has no
-    writable cache directory (it raises RuntimeError then, or OSError when a write fails):
-    FK must work on a read-only install, only its start-up is slower. Returns (kernel, cached)."""
-    try:
-        return numba.njit(signature, cache=True, nogil=True)(py_func), True
-    except (RuntimeError, OSError) as exc:
-        log.warning("numba cannot cache %s on disk (%s); compiling it in memory at every start-up", py_func.__name__, exc)
-        return numba.njit(signature, cache=False, nogil=True)(py_func), False
-
-
 _SINGLE = numba.boolean(numba.float64[::1], numba.int64[:, ::1], numba.float64[:, ::1], numba.float64[:, :, ::1])
 _BATCH = numba.int64(numba.float64[:, ::1], numba.int64[:, ::1], numba.float64[:, ::1], numba.float64[:, :, :, ::1])
 
 #: compiled `_fk_into(q, node_ints, node_floats, out) -> bool`; callable from other numba kernels
-fk_into, _single_cached = _compile(_fk_into, _SINGLE)
+fk_into, _single_cached = compile_cached(_fk_into, _SINGLE)
 #: compiled `_fk_batch_into(qs, node_ints, node_floats, out) -> int`; callable from other numba kernels
-fk_batch_into, _batch_cached = _compile(_fk_batch_into, _BATCH)
+fk_batch_into, _batch_cached = compile_cached(_fk_batch_into, _BATCH)
 
 
 def kernels_cached() -> bool:

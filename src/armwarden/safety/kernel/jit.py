@@ -17,6 +17,7 @@ from typing import Any
 import numba
 
 from armwarden.robot import batch_fk
+from armwarden.robot.jit_compile import compile_cached
 
 __all__ = ["COMPILED_SOURCES", "SOURCES_DIGEST", "compile_entry", "helper", "inlined", "sources_digest"]
 
@@ -49,7 +50,7 @@ SOURCES_DIGEST = sources_digest(list(COMPILED_SOURCES))
 
 
 def compile_entry(py_func: Callable[..., Any], signature: Any) -> tuple[Any, bool]:
-    """`batch_fk`'s eager compilation with the on-disk cache (or in memory where none is
+    """`compile_cached`: eager compilation with the on-disk cache (or in memory where none is
     writable), under a name that carries `SOURCES_DIGEST`. Returns (kernel, cached)."""
     py_func.__qualname__ = f"{py_func.__name__}_{SOURCES_DIGEST}"
-    return batch_fk._compile(py_func, signature)  # pyright: ignore[reportPrivateUsage]
+    return compile_cached(py_func, signature)
