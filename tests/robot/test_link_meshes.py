@@ -119,3 +119,24 @@ def test_an_mjcf_floor_is_not_a_link_surface(tmp_path: Path) -> None:
                     "<geom type='box' size='.1 .1 .1'/><body name='l1'><joint name='j1' type='hinge'/>"
                     "<geom type='capsule' size='0.05 0.1'/></body></body></worldbody></mujoco>", encoding="utf-8")
     assert sorted(link_meshes(load_description(path))) == ["base", "l1"]
+
+
+def _winding_numbers_numpy(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The Van Oosterom–Strackee sum in numpy: the oracle of the compiled kernel."""
+    rel = vertices[triangles][None, :, :, :] - points[:, None, None, :]  # (N, M, 3, 3)
+    a, b, c = rel[:, :, 0], rel[:, :, 1], rel[:, :, 2]
+    la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
+    det = np.einsum("nmi,nmi->nm", a, np.cross(b, c))
+    den = (la * lb * lc + np.einsum("nmi,nmi->nm", a, b) * lc + np.einsum("nmi,nmi->nm", b, c) * la
+           + np.einsum("nmi,nmi->nm", c, a) * lb)
+    return np.sum(2.0 * np.arctan2(det, den), axis=1) / (4.0 * np.pi)
+
+
+def test_the_compiled_winding_numbers_equal_the_numpy_formula_inside_outside_and_near_the_surface() -> None:
+    mesh = shape_mesh("link", coal.Capsule(0.04, 0.1), "primitive")
+    rng = np.random.default_rng(11)
+    points = np.vstack([rng.uniform(-0.1, 0.1, size=(300, 3)),  # inside, outside
+                        mesh.vertices[:50] * (1 + rng.uniform(-1e-3, 1e-3, size=(50, 1)))])  # at the surface
+    compiled = winding_numbers(points, mesh.vertices, mesh.triangles)
+    np.testing.assert_allclose(compiled, _winding_numbers_numpy(points, mesh.vertices, mesh.triangles), atol=1e-12)
+    assert np.any(compiled > 0.99) and np.any(np.abs(compiled) < 0.01)  # both sides were asked

@@ -1,24 +1,33 @@
 """Collision meshes for the fitter: loading (trimesh, imported only by `load_mesh`: the `fit`
 extra), subdividing, inside/outside by winding number, exact point–mesh distances (coal) and
-points on a capsule's surface. Used by `armwarden.robot.fitting`; never by the runtime."""
+points on a capsule's surface. Used by `armwarden.robot.fitting`; never by the runtime.
+
+Winding numbers run in a numba kernel (`_winding_into`, compiled on first use): in numpy they
+were 94 % of a Kinova Gen3 link's fit (every interior grid point against every triangle, and two
+points per step of the segment search), and `armwarden init` took hours on its meshes.
+tests/robot/test_link_meshes.py holds the kernel equal to the numpy formula."""
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import coal  # pyright: ignore[reportMissingImports] - cmeel installs it behind a .pth hook pyright cannot follow
+import numba
 import numpy as np
 
 from armwarden.robot.fitted_file import FittingError
+from armwarden.robot.jit_compile import compile_cached
 
 __all__ = [
     "LinkMesh",
     "box_mesh",
     "bvh_distances",
     "capsule_surface_points",
+    "corner_winding_numbers",
     "interior_points",
     "load_mesh",
     "merge_meshes",
@@ -28,6 +37,7 @@ __all__ = [
     "point_segment_distances",
     "subdivide",
     "transform_mesh",
+    "triangle_corners",
     "winding_numbers",
 ]
 
@@ -148,17 +158,47 @@ def subdivide(vertices: np.ndarray, triangles: np.ndarray, max_edge_m: float) ->
 def winding_numbers(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Generalised winding number of each point (≈1 inside a closed surface, ≈0 outside;
     overlapping closed surfaces add up). Van Oosterom–Strackee solid angles, summed."""
-    total = np.zeros(len(points))
-    tri = vertices[triangles]  # (M, 3, 3)
-    for start in range(0, len(points), 512):
-        rel = tri[None, :, :, :] - points[start:start + 512, None, None, :]  # (n, M, 3, 3)
-        a, b, c = rel[:, :, 0], rel[:, :, 1], rel[:, :, 2]
-        la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
-        det = np.einsum("nmi,nmi->nm", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("nmi,nmi->nm", a, b) * lc + np.einsum("nmi,nmi->nm", b, c) * la
-               + np.einsum("nmi,nmi->nm", c, a) * lb)
-        total[start:start + 512] = np.sum(2.0 * np.arctan2(det, den), axis=1) / (4.0 * math.pi)
-    return total
+    return corner_winding_numbers(points, triangle_corners(vertices, triangles))
+
+
+def triangle_corners(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) each triangle's corners, as `corner_winding_numbers` takes them (made once per mesh)."""
+    return np.ascontiguousarray(vertices[triangles], dtype=np.float64)
+
+
+def corner_winding_numbers(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """`winding_numbers` of the triangles with `corners` (`triangle_corners`)."""
+    points = np.ascontiguousarray(np.atleast_2d(points), dtype=np.float64)
+    out = np.empty(len(points))
+    _winding_kernel()(points, corners, out)
+    return out
+
+
+def _winding_into(points, corners, out):  # pragma: no cover - compiled
+    """Each point's winding number into `out`: per triangle (corners a, b, c taken from the point)
+    the solid angle 2·atan2(a·(b×c), |a||b||c| + (a·b)|c| + (b·c)|a| + (c·a)|b|), summed over 4π."""
+    for n in range(points.shape[0]):
+        px, py, pz = points[n, 0], points[n, 1], points[n, 2]
+        total = 0.0
+        for m in range(corners.shape[0]):
+            ax, ay, az = corners[m, 0, 0] - px, corners[m, 0, 1] - py, corners[m, 0, 2] - pz
+            bx, by, bz = corners[m, 1, 0] - px, corners[m, 1, 1] - py, corners[m, 1, 2] - pz
+            cx, cy, cz = corners[m, 2, 0] - px, corners[m, 2, 1] - py, corners[m, 2, 2] - pz
+            la = math.sqrt(ax * ax + ay * ay + az * az)
+            lb = math.sqrt(bx * bx + by * by + bz * bz)
+            lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+            det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+            den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (bx * cx + by * cy + bz * cz) * la
+                   + (cx * ax + cy * ay + cz * az) * lb)
+            total += 2.0 * math.atan2(det, den)
+        out[n] = total / (4.0 * math.pi)
+
+
+@functools.cache
+def _winding_kernel() -> Callable[[np.ndarray, np.ndarray, np.ndarray], None]:
+    """`_winding_into`, compiled on first use (the fitter's, never the daemon's start-up)."""
+    signature = numba.void(numba.float64[:, ::1], numba.float64[:, :, ::1], numba.float64[::1])
+    return compile_cached(_winding_into, signature)[0]
 
 
 def mesh_distances(mesh: LinkMesh, points: np.ndarray) -> np.ndarray:
