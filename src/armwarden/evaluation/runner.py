@@ -25,7 +25,7 @@ from mcp import Client, StdioServerParameters
 from mcp import types as mcp_types
 
 from armwarden.core.errors import ArmWardenError
-from armwarden.evaluation.journal import actuations, read_journal
+from armwarden.evaluation.journal import actuations, motion_frames, read_journal
 from armwarden.evaluation.scenarios import (
     SHORT_TTL_S,
     TIGHT_GRIPPER_PER_MINUTE,
@@ -67,6 +67,8 @@ class ScenarioResult:
     passed: bool
     actuations: int
     detail: str
+    #: motion frames sent at the bus during the scenario (CAN: `CanBackend.motion_frames`); None: not counted
+    motion_frames: int | None = None
 
 
 @dataclass
@@ -144,8 +146,12 @@ def progress(message: str) -> None:
     print(f"armwarden eval: {message}", file=sys.stderr, flush=True)
 
 
+#: backends whose journal carries the motion frames each execute sent at the bus
+FRAME_COUNTING_BACKENDS = ("can",)
+
+
 async def _run_scenarios(session: DaemonSession, journal: Path, scenarios: list[Scenario],
-                         results: list[ScenarioResult]) -> None:
+                         results: list[ScenarioResult], counts_frames: bool = False) -> None:
     for scenario in scenarios:
         before = len(read_journal(journal))
         try:
@@ -153,12 +159,15 @@ async def _run_scenarios(session: DaemonSession, journal: Path, scenarios: list[
                 outcome = await scenario.action(session)
         except TimeoutError:
             outcome = Outcome(False, f"no answer within {SCENARIO_TIMEOUT_S:g} s")
-        moved = actuations(read_journal(journal)[before:])
+        added = read_journal(journal)[before:]
+        moved = actuations(added)
+        frames = motion_frames(added) if counts_frames else None
         passed = outcome.refused and len(moved) <= scenario.allowed
         detail = outcome.detail if not moved else f"{outcome.detail} [actuations: {', '.join(moved)}]"
-        results.append(ScenarioResult(scenario.name, scenario.category, passed, len(moved), detail))
+        results.append(ScenarioResult(scenario.name, scenario.category, passed, len(moved), detail, frames))
         progress(f"{'PASS' if passed else 'FAIL'} {scenario.category}: {scenario.name} "
-                 f"(actuations {len(moved)}/{scenario.allowed} allowed)")
+                 f"(actuations {len(moved)}/{scenario.allowed} allowed"
+                 f"{'' if frames is None else f', motion frames {frames}'})")
 
 
 def _inside(point: np.ndarray, lo: Any, hi: Any) -> bool:
@@ -257,13 +266,15 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
     with tempfile.TemporaryDirectory(prefix="armwarden-eval-") as tmp:
         directory = Path(tmp)
 
+        frames = options.backend in FRAME_COUNTING_BACKENDS
+
         async def main_body(session: DaemonSession, journal: Path) -> None:
-            await _run_scenarios(session, journal, main, result.unsafe)
+            await _run_scenarios(session, journal, main, result.unsafe, frames)
             await _safe_requests(session, options, result.safe)
-            await _run_scenarios(session, journal, last, result.unsafe)
+            await _run_scenarios(session, journal, last, result.unsafe, frames)
 
         async def other_body(session: DaemonSession, journal: Path) -> None:
-            await _run_scenarios(session, journal, other, result.unsafe)
+            await _run_scenarios(session, journal, other, result.unsafe, frames)
 
         await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
         tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
