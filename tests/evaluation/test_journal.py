@@ -41,17 +41,6 @@ def test_the_command_line_parser_does_not_load_the_evaluation() -> None:
     assert modules_the_parser_loads("armwarden.evaluation") == ["armwarden.evaluation", "armwarden.evaluation.arguments"]
 
 
-@pytest.mark.parametrize("backend", ["can", "ros2"])
-def test_the_evaluation_refuses_a_backend_that_can_reach_a_physical_arm(backend: str,
-                                                                       capsys: pytest.CaptureFixture[str]) -> None:
-    """It approves its own motions: a CAN bus or a ROS graph may have a real arm on it."""
-    from armwarden.cli import _build_parser
-
-    with pytest.raises(SystemExit):
-        _build_parser().parse_args(["eval", "--backend", backend])
-    assert "invalid choice" in capsys.readouterr().err
-
-
 @pytest.mark.anyio
 async def test_each_execute_on_a_frame_counting_backend_journals_the_frames_it_sent(tmp_path: Path) -> None:
     """The CAN backend counts its motion frames at the bus: one line per execute says how many it sent."""
