@@ -81,7 +81,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     add_eval_arguments(commands.add_parser(
         "eval", help="run the safety evaluation: unsafe requests refused with no actuation, safe ones executed, "
-        "against the real daemon (simulated arms only: it approves its own motions)"), SIMULATED_BACKENDS)
+        "against the real daemon (simulated arms only, CAN on its emulator: it approves its own motions)"),
+        SIMULATED_BACKENDS)
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")

@@ -8,7 +8,7 @@ import pytest
 
 from armwarden.assembly import build_backend
 from armwarden.backends.journal import JournalBackend
-from armwarden.evaluation.journal import actuations, read_journal
+from armwarden.evaluation.journal import actuations, motion_frames, read_journal
 from armwarden.policy import bundled_policy, load_policy
 from tests.helpers import modules_the_parser_loads
 
@@ -41,12 +41,34 @@ def test_the_command_line_parser_does_not_load_the_evaluation() -> None:
     assert modules_the_parser_loads("armwarden.evaluation") == ["armwarden.evaluation", "armwarden.evaluation.arguments"]
 
 
-@pytest.mark.parametrize("backend", ["can", "ros2"])
-def test_the_evaluation_refuses_a_backend_that_can_reach_a_physical_arm(backend: str,
-                                                                       capsys: pytest.CaptureFixture[str]) -> None:
-    """It approves its own motions: a CAN bus or a ROS graph may have a real arm on it."""
-    from armwarden.cli import _build_parser
+@pytest.mark.anyio
+async def test_each_execute_on_a_frame_counting_backend_journals_the_frames_it_sent(tmp_path: Path) -> None:
+    """The CAN backend counts its motion frames at the bus: one line per execute says how many it sent."""
+    path = tmp_path / "journal.jsonl"
+    inner = build_backend("fake", load_policy(bundled_policy()), config={"speedup": 50.0})
+    inner.motion_frames = 100  # type: ignore[attr-defined] - the CAN backend's counter, on a stand-in
 
-    with pytest.raises(SystemExit):
-        _build_parser().parse_args(["eval", "--backend", backend])
-    assert "invalid choice" in capsys.readouterr().err
+    async def execute(trajectory: object, progress: object = None, *, stop_epoch: object = None) -> str:
+        inner.motion_frames += 14  # type: ignore[attr-defined]
+        return "done"
+
+    inner.execute = execute  # type: ignore[method-assign]
+    backend = JournalBackend(inner, path)
+    assert await backend.execute(None) == "done"  # type: ignore[arg-type]
+    entries = read_journal(path)
+    assert [(e.call, e.kind, e.frames) for e in entries] == [("execute", "actuation", 0),
+                                                             ("execute", "motion_frames", 14)]
+    assert actuations(entries) == ["execute"] and motion_frames(entries) == 14
+
+
+@pytest.mark.anyio
+async def test_a_backend_without_a_frame_counter_journals_no_frames(tmp_path: Path) -> None:
+    path = tmp_path / "journal.jsonl"
+    inner = build_backend("fake", load_policy(bundled_policy()), config={"speedup": 50.0})
+
+    async def execute(trajectory: object, progress: object = None, *, stop_epoch: object = None) -> str:
+        return "done"
+
+    inner.execute = execute  # type: ignore[method-assign]
+    await JournalBackend(inner, path).execute(None)  # type: ignore[arg-type]
+    assert [(e.call, e.kind) for e in read_journal(path)] == [("execute", "actuation")]

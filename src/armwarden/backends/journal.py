@@ -8,6 +8,11 @@ every stop (marked as such) becomes one JSON line ``{"t": <monotonic s>, "call":
 "actuation"|"stop"|"estop"}``, written and flushed *before* the call is forwarded (so a call the
 inner backend refuses still counts). The wrapper only records: it issues no command of its own,
 and without the option the daemon does not build it.
+
+A backend that counts its motion at the bus (the CAN backend's `motion_frames`: command frames
+sent while following a trajectory) also gets one line after each execute returns, ``{"t": ...,
+"call": "execute", "kind": "motion_frames", "frames": <sent during it>, "total": <since start>}``:
+what reached the actuators, one level below what reached the backend.
 """
 
 from __future__ import annotations
@@ -16,10 +21,12 @@ import json
 import threading
 import time
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 from armwarden.backends.base import Backend
 from armwarden.backends.counting import CountingBackend
+from armwarden.backends.values import ExecutionResult, ProgressCallback
+from armwarden.core.trajectory import JointTrajectory
 
 __all__ = ["JournalBackend"]
 
@@ -32,8 +39,8 @@ class JournalBackend(CountingBackend):
         self._journal_lock = threading.Lock()  # stop_now comes from other threads
         self._journal: TextIO = Path(path).open("a", encoding="utf-8")  # noqa: SIM115 - open for the backend's life, closed in close()
 
-    def _write(self, call: str, kind: str) -> None:
-        line = json.dumps({"t": time.monotonic(), "call": call, "kind": kind}) + "\n"
+    def _write(self, call: str, kind: str, **extra: Any) -> None:
+        line = json.dumps({"t": time.monotonic(), "call": call, "kind": kind, **extra}) + "\n"
         with self._journal_lock:
             if self._journal.closed:  # after close nothing reaches the inner backend's arm anyway
                 return
@@ -47,6 +54,22 @@ class JournalBackend(CountingBackend):
     def _stopping(self, *, emergency: bool = False) -> None:
         super()._stopping(emergency=emergency)
         self._write("emergency_stop" if emergency else "stop", "estop" if emergency else "stop")
+
+    def _motion_frames(self) -> int | None:
+        """The inner backend's count of motion frames sent at the bus, None if it keeps none."""
+        frames = getattr(self.inner, "motion_frames", None)
+        return frames if isinstance(frames, int) else None
+
+    async def execute(
+        self, trajectory: JointTrajectory, progress: ProgressCallback | None = None, *, stop_epoch: int | None = None
+    ) -> ExecutionResult:
+        before = self._motion_frames()
+        try:
+            return await super().execute(trajectory, progress, stop_epoch=stop_epoch)
+        finally:
+            after = self._motion_frames()
+            if before is not None and after is not None:
+                self._write("execute", "motion_frames", frames=after - before, total=after)
 
     async def close(self) -> None:
         try:

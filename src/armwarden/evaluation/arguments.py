@@ -6,9 +6,10 @@ import argparse
 from collections.abc import Sequence
 
 #: the backends the evaluation may drive: it approves its own motions (no human answers), so never
-#: a backend that can reach a physical arm (CAN, ROS 2) until a scenario set bounded by an
-#: operator's approval exists for them
-SIMULATED_BACKENDS = ("fake", "mujoco")
+#: a physical arm. `can` only on its emulator (`simulate` and the `virtual` bus: checked before
+#: anything starts, `armwarden.evaluation.targets`); not ROS 2, whose graph may hold a real arm
+#: until a scenario set bounded by an operator's approval exists for it
+SIMULATED_BACKENDS = ("fake", "mujoco", "can")
 #: safe requests in a full and in a --quick run
 FULL_SAFE = 100
 QUICK_SAFE = 10
@@ -17,7 +18,9 @@ QUICK_SAFE = 10
 def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str]) -> None:
     parser.add_argument("--policy", default=None, help="safety policy YAML (default: the bundled FR3 policy)")
     parser.add_argument("--backend", default="fake", choices=backends)
-    parser.add_argument("--backend-config", default=None, help="the backend's options YAML")
+    parser.add_argument("--backend-config", default=None,
+                        help="the backend's options YAML (can: default examples/can_sim.yaml, the emulator; a config "
+                             "without `simulate` or with a bus interface other than `virtual` is refused)")
     parser.add_argument("--quick", action="store_true", help=f"{QUICK_SAFE} safe requests instead of {FULL_SAFE}")
     parser.add_argument("--report", default=None, metavar="FILE", help="write the markdown report here (default stdout)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the report's data as JSON")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 import anyio
@@ -12,15 +13,37 @@ from armwarden.daemon.options import EXIT_REFUSED
 from armwarden.evaluation.arguments import FULL_SAFE, QUICK_SAFE
 from armwarden.evaluation.report import report_data, report_json, report_markdown
 from armwarden.evaluation.runner import EvalOptions, progress, run_evaluation
+from armwarden.evaluation.targets import EvalRefused, checked_can_config, default_backend_config
 from armwarden.policy import bundled_policy, load_policy
+
+
+def _backend_config(args: argparse.Namespace, directory: Path) -> Path | None:
+    """The config the daemon gets: for `can` a checked private copy (emulator only, `EvalRefused` otherwise)."""
+    given = Path(args.backend_config) if args.backend_config else default_backend_config(args.backend)
+    if given is None:
+        return None
+    if args.backend == "can":
+        progress(f"can backend config {given}: checking that it runs the emulator on the virtual bus")
+        return checked_can_config(given.resolve(), directory)
+    return given.resolve()
 
 
 def eval_command(args: argparse.Namespace) -> int:
     policy_path = Path(args.policy) if args.policy else bundled_policy()
     policy = load_policy(policy_path)  # a PolicyError is the command line's exit 2
-    options = EvalOptions(policy_path=policy_path.resolve(), policy=policy, backend=args.backend,
-                          backend_config=None if args.backend_config is None else Path(args.backend_config).resolve(),
-                          safe_count=QUICK_SAFE if args.quick else FULL_SAFE, seed=args.seed)
+    with tempfile.TemporaryDirectory(prefix="armwarden-eval-config-") as private:
+        try:
+            backend_config = _backend_config(args, Path(private))
+        except EvalRefused as exc:  # never started: it could reach a real arm, or the config is unusable
+            progress(str(exc))
+            return EXIT_REFUSED
+        options = EvalOptions(policy_path=policy_path.resolve(), policy=policy, backend=args.backend,
+                              backend_config=backend_config, safe_count=QUICK_SAFE if args.quick else FULL_SAFE,
+                              seed=args.seed)
+        return _run(args, options)
+
+
+def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     try:
         result = anyio.run(run_evaluation, options)
     except Exception as exc:  # the daemon refused to start, or the session broke: no result to report

@@ -1,7 +1,9 @@
 """Reading the daemon's actuation journal (written by `armwarden.backends.journal.JournalBackend`).
 
 The eval reads the file between scenarios: the actuations a scenario caused are the lines
-appended while it ran. Stops are kept apart: stopping is never what a refusal must avoid.
+appended while it ran. Stops are kept apart: stopping is never what a refusal must avoid. On a
+backend that counts its motion at the bus (CAN), each execute also leaves a "motion_frames" line
+with the frames it sent.
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ from pathlib import Path
 class JournalEntry:
     stamp: float
     call: str
-    kind: str  # "actuation", "stop" or "estop"
+    kind: str  # "actuation", "stop", "estop" or "motion_frames"
+    frames: int = 0  # motion frames sent at the bus ("motion_frames" lines only)
 
 
 def read_journal(path: Path) -> list[JournalEntry]:
@@ -28,10 +31,16 @@ def read_journal(path: Path) -> list[JournalEntry]:
             record = json.loads(line)
         except json.JSONDecodeError:
             continue
-        entries.append(JournalEntry(float(record["t"]), str(record["call"]), str(record["kind"])))
+        entries.append(JournalEntry(float(record["t"]), str(record["call"]), str(record["kind"]),
+                                    int(record.get("frames", 0))))
     return entries
 
 
 def actuations(entries: list[JournalEntry]) -> list[str]:
     """The actuating calls among `entries` (stops and e-stops left out)."""
     return [entry.call for entry in entries if entry.kind == "actuation"]
+
+
+def motion_frames(entries: list[JournalEntry]) -> int:
+    """The motion frames the executions among `entries` sent at the bus (0 on a backend that counts none)."""
+    return sum(entry.frames for entry in entries if entry.kind == "motion_frames")

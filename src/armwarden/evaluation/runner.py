@@ -25,7 +25,7 @@ from mcp import Client, StdioServerParameters
 from mcp import types as mcp_types
 
 from armwarden.core.errors import ArmWardenError
-from armwarden.evaluation.journal import actuations, read_journal
+from armwarden.evaluation.journal import actuations, motion_frames, read_journal
 from armwarden.evaluation.scenarios import (
     SHORT_TTL_S,
     TIGHT_GRIPPER_PER_MINUTE,
@@ -37,6 +37,7 @@ from armwarden.evaluation.scenarios import (
 )
 from armwarden.evaluation.stats import wilson_interval
 from armwarden.policy import Policy, apply_overrides, parse_policy
+from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,13 @@ SCENARIO_TIMEOUT_S = 120.0
 START_TIMEOUT_S = 300.0
 #: each joint of a safe target is drawn within ± this of home [rad]
 SAFE_SPREAD_RAD = 0.3
+#: backends whose arm is a real-time thread of the daemon's own process (physics, CAN emulator)
+REALTIME_BACKENDS = ("mujoco", "can")
+#: the oldest wrench (or joint-torque) sample their daemons accept in the evaluation [s]: the
+#: policy's ceiling. On a loaded shared host the interpreter stalls past the FR3 policy's 0.1 s,
+#: the monitor fails closed (as it must) and latches the e-stop, and every later scenario then
+#: reports the host's load. No scenario tests this timeout; the refusals under test do not read it.
+REALTIME_WRENCH_TIMEOUT_S = MAX_WRENCH_TIMEOUT_S
 
 
 @dataclass(frozen=True)
@@ -67,6 +75,8 @@ class ScenarioResult:
     passed: bool
     actuations: int
     detail: str
+    #: motion frames sent at the bus during the scenario (CAN: `CanBackend.motion_frames`); None: not counted
+    motion_frames: int | None = None
 
 
 @dataclass
@@ -144,8 +154,12 @@ def progress(message: str) -> None:
     print(f"armwarden eval: {message}", file=sys.stderr, flush=True)
 
 
+#: backends whose journal carries the motion frames each execute sent at the bus
+FRAME_COUNTING_BACKENDS = ("can",)
+
+
 async def _run_scenarios(session: DaemonSession, journal: Path, scenarios: list[Scenario],
-                         results: list[ScenarioResult]) -> None:
+                         results: list[ScenarioResult], counts_frames: bool = False) -> None:
     for scenario in scenarios:
         before = len(read_journal(journal))
         try:
@@ -153,12 +167,15 @@ async def _run_scenarios(session: DaemonSession, journal: Path, scenarios: list[
                 outcome = await scenario.action(session)
         except TimeoutError:
             outcome = Outcome(False, f"no answer within {SCENARIO_TIMEOUT_S:g} s")
-        moved = actuations(read_journal(journal)[before:])
+        added = read_journal(journal)[before:]
+        moved = actuations(added)
+        frames = motion_frames(added) if counts_frames else None
         passed = outcome.refused and len(moved) <= scenario.allowed
         detail = outcome.detail if not moved else f"{outcome.detail} [actuations: {', '.join(moved)}]"
-        results.append(ScenarioResult(scenario.name, scenario.category, passed, len(moved), detail))
+        results.append(ScenarioResult(scenario.name, scenario.category, passed, len(moved), detail, frames))
         progress(f"{'PASS' if passed else 'FAIL'} {scenario.category}: {scenario.name} "
-                 f"(actuations {len(moved)}/{scenario.allowed} allowed)")
+                 f"(actuations {len(moved)}/{scenario.allowed} allowed"
+                 f"{'' if frames is None else f', motion frames {frames}'})")
 
 
 def _inside(point: np.ndarray, lo: Any, hi: Any) -> bool:
@@ -254,21 +271,28 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
     main = [s for s in scenarios if s.session == "main" and not s.last]
     last = [s for s in scenarios if s.session == "main" and s.last]
     other = [s for s in scenarios if s.session == "no_elicitation"]
+    timing: dict[str, Any] = {}
+    if options.backend in REALTIME_BACKENDS:
+        timing["force.wrench_timeout_s"] = max(options.policy.force.wrench_timeout_s, REALTIME_WRENCH_TIMEOUT_S)
+        progress(f"{options.backend}: wrench_timeout_s {timing['force.wrench_timeout_s']:g} s in both daemons "
+                 f"(the policy's {options.policy.force.wrench_timeout_s:g} s fails closed on host stalls)")
     with tempfile.TemporaryDirectory(prefix="armwarden-eval-") as tmp:
         directory = Path(tmp)
 
+        frames = options.backend in FRAME_COUNTING_BACKENDS
+
         async def main_body(session: DaemonSession, journal: Path) -> None:
-            await _run_scenarios(session, journal, main, result.unsafe)
+            await _run_scenarios(session, journal, main, result.unsafe, frames)
             await _safe_requests(session, options, result.safe)
-            await _run_scenarios(session, journal, last, result.unsafe)
+            await _run_scenarios(session, journal, last, result.unsafe, frames)
 
         async def other_body(session: DaemonSession, journal: Path) -> None:
-            await _run_scenarios(session, journal, other, result.unsafe)
+            await _run_scenarios(session, journal, other, result.unsafe, frames)
 
-        await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
+        await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED, **timing}, True, main_body)
         tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
         await _with_daemon(options, directory, "no_elicitation",
-                           {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
+                           {**timing, "rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
                             [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
                            False, other_body)
     return result
