@@ -11,7 +11,7 @@ import anyio
 from armwarden.daemon.options import EXIT_REFUSED
 from armwarden.evaluation.arguments import FULL_SAFE, QUICK_SAFE
 from armwarden.evaluation.report import report_data, report_json, report_markdown
-from armwarden.evaluation.runner import EvalOptions, progress, run_evaluation
+from armwarden.evaluation.runner import EvalOptions, NothingSelected, progress, run_evaluation
 from armwarden.policy import bundled_policy, load_policy
 
 
@@ -20,9 +20,13 @@ def eval_command(args: argparse.Namespace) -> int:
     policy = load_policy(policy_path)  # a PolicyError is the command line's exit 2
     options = EvalOptions(policy_path=policy_path.resolve(), policy=policy, backend=args.backend,
                           backend_config=None if args.backend_config is None else Path(args.backend_config).resolve(),
-                          safe_count=QUICK_SAFE if args.quick else FULL_SAFE, seed=args.seed)
+                          safe_count=0 if args.only else QUICK_SAFE if args.quick else FULL_SAFE, seed=args.seed,
+                          only=tuple(args.only or ()))
     try:
         result = anyio.run(run_evaluation, options)
+    except NothingSelected as exc:  # invalid input, like a policy error
+        progress(str(exc))
+        return 2
     except Exception as exc:  # the daemon refused to start, or the session broke: no result to report
         progress(f"could not complete: {exc!r}")
         return EXIT_REFUSED

@@ -25,6 +25,7 @@ def report_data(options: EvalOptions, result: EvalResult) -> dict[str, Any]:
         "policy_digest": policy_digest(options.policy),
         "backend": options.backend,
         "seed": options.seed,
+        "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
         "passed": result.ok,
         "unsafe": [asdict(r) for r in result.unsafe],
         "safe": {"attempted": result.safe.attempted, "executed": result.safe.executed,
@@ -47,7 +48,8 @@ def report_markdown(data: dict[str, Any]) -> str:
         f"# ArmWarden safety evaluation ({'PASSED' if data['passed'] else 'FAILED'})",
         "",
         f"armwarden {data['version']}, policy `{data['policy']}` (digest `{data['policy_digest'][:16]}`), "
-        f"backend `{data['backend']}`, seed {data['seed']}.",
+        f"backend `{data['backend']}`, seed {data['seed']}."
+        + (f" Filtered with --only {data['only']}: not the whole evaluation." if data["only"] else ""),
         "",
         f"## Unsafe requests: {len(unsafe) - len(failed)}/{len(unsafe)} refused with no actuation beyond allowed",
         "",

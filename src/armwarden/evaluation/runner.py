@@ -3,8 +3,9 @@
 Two daemons run, one after the other, each with its own temp audit log and actuation journal:
 "main" (a client that answers approval prompts; the policy's rate limits lifted so that 60-odd
 scenarios and ~100 moves fit in a minute) and "no_elicitation" (a client without elicitation; the
-plan TTL shortened and gripper_move limited to one a minute). Every other setting is the user's
-policy. A scenario's actuations are the journal lines its calls added; stops are not actuations.
+plan TTL shortened and gripper_move limited to one a minute). `--only` starts only the daemons
+its scenarios need. Every other setting is the user's policy. A scenario's actuations are the
+journal lines its calls added; stops are not actuations.
 """
 
 from __future__ import annotations
@@ -50,6 +51,10 @@ START_TIMEOUT_S = 300.0
 SAFE_SPREAD_RAD = 0.3
 
 
+class NothingSelected(Exception):
+    """`--only` kept no scenario: invalid input, not a run that passed."""
+
+
 @dataclass(frozen=True)
 class EvalOptions:
     policy_path: Path
@@ -58,6 +63,16 @@ class EvalOptions:
     backend_config: Path | None
     safe_count: int
     seed: int
+    #: run only the unsafe scenarios these select (`selects`); empty: every scenario
+    only: tuple[str, ...] = ()
+
+    def selects(self, scenario: Scenario) -> bool:
+        """Whether `--only` keeps `scenario`: its name contains one of the texts, or its category
+        is one (case-insensitive). With no `--only`, every scenario."""
+        if not self.only:
+            return True
+        name, category = scenario.name.casefold(), scenario.category.casefold()
+        return any(text.casefold() in name or text.casefold() == category for text in self.only)
 
 
 @dataclass
@@ -211,7 +226,8 @@ async def _safe_requests(session: DaemonSession, options: EvalOptions, result: S
                                    "outside the box or inside a zone")
             continue
         result.executed += 1
-    progress(f"safe requests: {result.executed}/{result.attempted} executed, final TCP re-checked")
+    if options.safe_count:
+        progress(f"safe requests: {result.executed}/{result.attempted} executed, final TCP re-checked")
 
 
 async def _with_daemon(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any], elicits: bool,
@@ -251,6 +267,11 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
     extra_zones = [] if probe is None else [probe.zone]
     if probe is not None:
         scenarios.append(probe.scenario())
+    # the e-stop scenarios build on each other (the first latches the e-stop): one selected, all run
+    with_estop = any(s.last and options.selects(s) for s in scenarios)
+    scenarios = [s for s in scenarios if options.selects(s) or (s.last and with_estop)]
+    if not scenarios:
+        raise NothingSelected(f"--only {list(options.only)} selects no scenario of this policy")
     main = [s for s in scenarios if s.session == "main" and not s.last]
     last = [s for s in scenarios if s.session == "main" and s.last]
     other = [s for s in scenarios if s.session == "no_elicitation"]
@@ -265,10 +286,12 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
         async def other_body(session: DaemonSession, journal: Path) -> None:
             await _run_scenarios(session, journal, other, result.unsafe)
 
-        await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
+        if main or last or options.safe_count:  # a filtered run starts only the daemons it needs
+            await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
         tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
-        await _with_daemon(options, directory, "no_elicitation",
-                           {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
-                            [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
-                           False, other_body)
+        if other:
+            await _with_daemon(options, directory, "no_elicitation",
+                               {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
+                                [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
+                               False, other_body)
     return result
