@@ -255,12 +255,13 @@ def plan_integrity(policy: Policy) -> list[Scenario]:
 
 def _needs_approval(policy: Policy) -> list[float] | None:
     """A joint-1 step between the soft and the hard step limit: a human must approve it (None:
-    the policy has no soft step limit, so no such step exists)."""
+    the policy has no soft step limit, so no such step exists). Turned the other way from the link
+    probe's target (`link_probe`), whose zone would otherwise refuse it before approval is asked."""
     soft = policy.motion.soft_joint_step_rad
     if soft is None:
         return None
     q = list(policy.robot.home_joint_positions)
-    q[0] += (soft + policy.motion.max_joint_step_rad) / 2
+    q[0] -= (soft + policy.motion.max_joint_step_rad) / 2
     return q
 
 
