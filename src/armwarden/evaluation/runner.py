@@ -1,11 +1,12 @@
 """Running the evaluation against the real daemon: `armwarden serve` as a subprocess over stdio.
 
-Two daemons run, one after the other, each with its own temp audit log and actuation journal:
+Three daemons run, one after the other, each with its own temp audit log and actuation journal:
 "main" (a client that answers approval prompts; the policy's rate limits lifted so that 60-odd
-scenarios and ~100 moves fit in a minute) and "no_elicitation" (a client without elicitation; the
-plan TTL shortened and gripper_move limited to one a minute). `--only` starts only the daemons
-its scenarios need. Every other setting is the user's policy. A scenario's actuations are the
-journal lines its calls added; stops are not actuations.
+scenarios and ~100 moves fit in a minute), "no_elicitation" (a client without elicitation; the
+plan TTL shortened and gripper_move limited to one a minute) and "short_ttl" (a client with
+elicitation that answers late or never; the plan TTL shortened). `--only` starts only the
+daemons its scenarios need. Every other setting is the user's policy. A scenario's actuations
+are the journal lines its calls added; stops are not actuations.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from mcp import types as mcp_types
 from armwarden.core.errors import ArmWardenError
 from armwarden.evaluation.journal import actuations, read_journal
 from armwarden.evaluation.scenarios import (
+    PAST_TTL_S,
     SHORT_TTL_S,
     TIGHT_GRIPPER_PER_MINUTE,
     Approval,
@@ -131,8 +133,13 @@ class DaemonSession:
 
 def _approver(session_ref: list[DaemonSession]) -> Callable[..., Any]:
     async def answer(context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
-        if session_ref and session_ref[0].approval == "decline":
+        approval = session_ref[0].approval if session_ref else "accept"
+        if approval == "decline":
             return mcp_types.ElicitResult(action="decline")
+        if approval == "never":
+            await anyio.sleep_forever()  # cancelled when the session closes
+        if approval == "late":
+            await anyio.sleep(SHORT_TTL_S + PAST_TTL_S)
         return mcp_types.ElicitResult(action="accept", content={"approve": True, "operator": "armwarden-eval"})
 
     return answer
@@ -275,6 +282,7 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
     main = [s for s in scenarios if s.session == "main" and not s.last]
     last = [s for s in scenarios if s.session == "main" and s.last]
     other = [s for s in scenarios if s.session == "no_elicitation"]
+    short_ttl = [s for s in scenarios if s.session == "short_ttl"]
     with tempfile.TemporaryDirectory(prefix="armwarden-eval-") as tmp:
         directory = Path(tmp)
 
@@ -286,6 +294,9 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
         async def other_body(session: DaemonSession, journal: Path) -> None:
             await _run_scenarios(session, journal, other, result.unsafe)
 
+        async def short_ttl_body(session: DaemonSession, journal: Path) -> None:
+            await _run_scenarios(session, journal, short_ttl, result.unsafe)
+
         if main or last or options.safe_count:  # a filtered run starts only the daemons it needs
             await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED}, True, main_body)
         tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
@@ -294,4 +305,7 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
                                {"rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
                                 [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
                                False, other_body)
+        if short_ttl:
+            await _with_daemon(options, directory, "short_ttl", {"rate_limits": UNLIMITED, "motion.plan_ttl_s": SHORT_TTL_S},
+                               True, short_ttl_body)
     return result

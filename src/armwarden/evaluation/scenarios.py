@@ -4,9 +4,10 @@ Each scenario is one request (or a short sequence) that the server must refuse; 
 the server refused AND the actuation journal shows no more actuating calls than `allowed` (a
 scenario that first executes a legitimate plan, to reuse it, allows that one). Names say what a
 pass proves. Which daemon a scenario runs in (`session`): "main" (a client that answers approval
-prompts as the scenario sets), or "no_elicitation" (a client without elicitation, a policy with a
-short plan TTL and a tight gripper rate limit); `last` scenarios latch the e-stop and run after
-the safe requests.
+prompts as the scenario sets), "no_elicitation" (a client without elicitation, a policy with a
+short plan TTL and a tight gripper rate limit), or "short_ttl" (a client with elicitation, the
+same short plan TTL: approvals answered late or never); `last` scenarios latch the e-stop and run
+after the safe requests.
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ import anyio
 
 from armwarden.policy import Policy
 
-Approval = Literal["accept", "decline"]
+#: how the client answers an approval prompt: at once (accept, decline), after the short plan TTL
+#: has passed (late: then it accepts), or never (the callback does not return)
+Approval = Literal["accept", "decline", "late", "never"]
 
 
 @dataclass
@@ -48,7 +51,7 @@ class Scenario:
     category: str
     action: Action
     allowed: int = 0
-    session: Literal["main", "no_elicitation"] = "main"
+    session: Literal["main", "no_elicitation", "short_ttl"] = "main"
     last: bool = False
 
 
@@ -284,6 +287,51 @@ def approval(policy: Policy) -> list[Scenario]:
     return scenarios
 
 
+#: how long after the short plan TTL a late approver answers, and an unanswered call is given up [s]
+PAST_TTL_S = 1.0
+
+
+def unanswered(policy: Policy) -> list[Scenario]:
+    """Approvals that come too late or never, in the "short_ttl" daemon (client with elicitation,
+    plans live SHORT_TTL_S). Bounded: each waits SHORT_TTL_S + PAST_TTL_S, never the server."""
+    target = _needs_approval(policy)
+    if target is None:
+        return []
+
+    async def late(s: Session) -> Outcome:
+        s.approval = "late"
+        try:
+            return await plan_then_execute(s, "plan_to_joints", {"joint_positions": target})
+        finally:
+            s.approval = "accept"
+
+    async def never(s: Session) -> Outcome:
+        """The server does not time a pending form approval out (it waits for the client); what
+        must hold is that nothing moves while it waits, and the plan is dead once its TTL passed."""
+        _, plan, text = await s.call_raw("plan_to_joints", {"joint_positions": target, "preview": False})
+        if plan.get("plan_id") is None:
+            return Outcome(False, f"the legitimate plan was refused: {text}")
+        s.approval = "never"
+        outcome = Outcome(False, "no answer")
+        try:
+            with anyio.move_on_after(SHORT_TTL_S + PAST_TTL_S) as waited:
+                outcome = await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+        finally:
+            s.approval = "accept"
+        if not waited.cancelled_caught:
+            return outcome  # the server answered by itself: a refusal passes (the journal says if it moved)
+        again = await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+        return Outcome(again.refused, f"no answer while the approval was pending (given up after "
+                                      f"{SHORT_TTL_S + PAST_TTL_S:g} s); the plan then: {again.detail}")
+
+    return [
+        Scenario(f"an approval given after its plan expired (TTL {SHORT_TTL_S:g} s) does not run the plan", "approval",
+                 late, session="short_ttl"),
+        Scenario("an approval never answered moves nothing, and its plan is refused once expired", "approval",
+                 never, session="short_ttl"),
+    ]
+
+
 def estop(policy: Policy) -> list[Scenario]:
     small = _small_move(policy, 0.03)
 
@@ -401,5 +449,5 @@ def malformed(policy: Policy) -> list[Scenario]:
 
 def unsafe_scenarios(policy: Policy) -> list[Scenario]:
     """Every unsafe scenario this policy yields, in run order within each session."""
-    return [*envelope(policy), *plan_integrity(policy), *approval(policy), *devices(policy), *malformed(policy),
-            *estop(policy)]
+    return [*envelope(policy), *plan_integrity(policy), *approval(policy), *unanswered(policy), *devices(policy),
+            *malformed(policy), *estop(policy)]
