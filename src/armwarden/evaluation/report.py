@@ -28,6 +28,7 @@ def report_data(options: EvalOptions, result: EvalResult) -> dict[str, Any]:
         "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
         "passed": result.ok,
         "unsafe": [asdict(r) for r in result.unsafe],
+        "skipped": list(result.skipped),
         "safe": {"attempted": result.safe.attempted, "executed": result.safe.executed,
                  "wilson_low": low, "wilson_high": high, "failures": result.safe.failures},
         "fuzz": NOT_BUILT,
@@ -60,6 +61,8 @@ def report_markdown(data: dict[str, Any]) -> str:
               for r in unsafe]
     if failed:
         lines += ["", "Failures:", ""] + [f"- {r['name']}: {r['detail']}" for r in failed]
+    if data["skipped"]:
+        lines += ["", "Not generated for this policy:", ""] + [f"- {why}" for why in data["skipped"]]
     lines += [
         "",
         f"## Safe requests: {safe['executed']}/{safe['attempted']} executed "

@@ -30,12 +30,15 @@ from armwarden.core.errors import ArmWardenError
 from armwarden.evaluation.journal import actuations, read_journal
 from armwarden.evaluation.scenarios import (
     PAST_TTL_S,
+    SELF_COLLISION_TRIES,
     SHORT_TTL_S,
     TIGHT_GRIPPER_PER_MINUTE,
     Approval,
     Outcome,
     Scenario,
     link_probe,
+    self_collision,
+    self_collision_target,
     unsafe_scenarios,
 )
 from armwarden.evaluation.stats import wilson_interval
@@ -100,6 +103,8 @@ class SafeResult:
 class EvalResult:
     unsafe: list[ScenarioResult] = field(default_factory=list)
     safe: SafeResult = field(default_factory=SafeResult)
+    #: scenarios this policy could not yield, each with why (reported, never counted as passed)
+    skipped: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -270,10 +275,18 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
             return False
         return True
 
-    probe = link_probe(options.policy, load_runtime_model(options.policy, str(options.policy_path)).robot, fits)
+    runtime = load_runtime_model(options.policy, str(options.policy_path))
+    probe = link_probe(options.policy, runtime.robot, fits)
     extra_zones = [] if probe is None else [probe.zone]
     if probe is not None:
         scenarios.append(probe.scenario())
+    colliding = self_collision_target(options.policy, runtime.robot, runtime.envelope)
+    if colliding is not None:
+        scenarios.append(self_collision(colliding))
+    else:
+        result.skipped.append("self-collision: no joint target within the limits and the step cap from home "
+                              "at which the model's links collide and nothing else is found (single-joint sweeps and "
+                              f"{SELF_COLLISION_TRIES} random joint pairs searched)")
     # the e-stop scenarios build on each other (the first latches the e-stop): one selected, all run
     with_estop = any(s.last and options.selects(s) for s in scenarios)
     scenarios = [s for s in scenarios if options.selects(s) or (s.last and with_estop)]

@@ -287,6 +287,8 @@ def approval(policy: Policy) -> list[Scenario]:
     return scenarios
 
 
+#: random two-joint targets tried for a self-collision after the single-joint sweeps
+SELF_COLLISION_TRIES = 2000
 #: how long after the short plan TTL a late approver answers, and an unanswered call is given up [s]
 PAST_TTL_S = 1.0
 
@@ -330,6 +332,77 @@ def unanswered(policy: Policy) -> list[Scenario]:
         Scenario("an approval never answered moves nothing, and its plan is refused once expired", "approval",
                  never, session="short_ttl"),
     ]
+
+
+def _segment_distances(p0: Any, p1: Any, q0: Any, q1: Any) -> Any:
+    """Closest distances between segments p0-p1 and q0-q1 (arrays (..., 3)), the clamped
+    closed form (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    import numpy as np
+
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e = np.sum(d1 * d1, axis=-1), np.sum(d2 * d2, axis=-1)
+    b, c, f = np.sum(d1 * d2, axis=-1), np.sum(d1 * r, axis=-1), np.sum(d2 * r, axis=-1)
+    tiny = 1e-12
+    denominator = a * e - b * b
+    s = np.where(denominator > tiny, np.clip((b * f - c * e) / np.maximum(denominator, tiny), 0.0, 1.0), 0.0)
+    t = np.where(e > tiny, (b * s + f) / np.maximum(e, tiny), 0.0)
+    s = np.where(t < 0.0, np.where(a > tiny, np.clip(-c / np.maximum(a, tiny), 0.0, 1.0), 0.0), s)
+    s = np.where(t > 1.0, np.where(a > tiny, np.clip((b - c) / np.maximum(a, tiny), 0.0, 1.0), 0.0), s)
+    t = np.clip(t, 0.0, 1.0)
+    gap = (p0 + d1 * s[..., None]) - (q0 + d2 * t[..., None])
+    return np.linalg.norm(gap, axis=-1)
+
+
+def links_collide(robot: Any, qs: Any) -> Any:
+    """For each configuration in `qs` (N, nq), whether two capsules of a self-collision pair of
+    `robot` (an `armwarden.robot.model.RobotModel`) overlap: the evaluation's own test, not the
+    Guard's (exact segment distances against the sum of the unpadded radii)."""
+    import numpy as np
+
+    p0, p1 = robot.body_points(robot.joint_frames(np.asarray(qs, dtype=float)))
+    pairs = np.asarray(robot.self_collision_pairs, dtype=int).reshape(-1, 2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    distance = _segment_distances(p0[:, a], p1[:, a], p0[:, b], p1[:, b])
+    return np.any(distance < robot.capsule_radii[a] + robot.capsule_radii[b], axis=1)
+
+
+def self_collision_target(policy: Policy, robot: Any, envelope: Any) -> list[float] | None:
+    """A joint target at which links of `robot` collide with each other (`links_collide`, the
+    evaluation's own test), within the joint limits and the joint step cap from home, on a
+    straight path on which the Guard's `envelope` finds nothing but self-collision: only that
+    check can refuse it. Single joints swept first, then random pairs (seeded); None if none."""
+    import numpy as np
+
+    from armwarden.safety.violations import Code
+
+    home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+    edge = policy.motion.joint_limit_margin_rad + 0.05
+    lower = np.array([lim.min for lim in policy.robot.joint_limits.values()]) + edge
+    upper = np.array([lim.max for lim in policy.robot.joint_limits.values()]) - edge
+    reach = policy.motion.max_joint_step_rad - 0.05
+    candidates: list[np.ndarray] = []
+    for delta in np.linspace(reach, -reach, 30):
+        for joint in range(len(home)):
+            q = home.copy()
+            q[joint] += delta
+            candidates.append(q)
+    rng = np.random.default_rng(0)
+    for _ in range(SELF_COLLISION_TRIES):
+        q = home.copy()
+        joints = rng.choice(len(home), size=2, replace=False)
+        q[joints] += rng.uniform(-reach, reach, size=2)
+        candidates.append(q)
+    inside = [q for q in candidates if np.all((lower <= q) & (q <= upper))]
+    for first in range(0, len(inside), 100):  # in batches: the search usually ends early
+        batch = inside[first:first + 100]
+        for q, collides in zip(batch, links_collide(robot, np.asarray(batch)), strict=True):
+            if collides and {v.code for v in envelope.check_path(np.vstack([home, q]))} <= {Code.SELF_COLLISION}:
+                return [float(x) for x in q]
+    return None
+
+
+def self_collision(target: list[float]) -> Scenario:
+    return Scenario("a joint target whose links collide with each other is refused", "envelope", _to_joints(target))
 
 
 def estop(policy: Policy) -> list[Scenario]:
