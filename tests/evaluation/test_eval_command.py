@@ -1,8 +1,11 @@
 """`armwarden eval` end to end: the real command, which starts the real daemon as a subprocess.
 
-The evaluation proves something only if a weaker Guard fails it: the mutant tests take edits from
-scripts/mutation.py (one check removed each), apply them to a copy of `src`, and run the command
-with PYTHONPATH on that copy (the daemon subprocess inherits it): each must make a scenario fail.
+The evaluation proves something only if a weaker Guard fails it: each mutant below is one check
+removed (a one-line edit in the format of scripts/mutation.py, most taken from there), applied to
+a copy of `src`; the command runs with PYTHONPATH on that copy (the daemon subprocess inherits it)
+and `--only` the scenario meant to catch it (one daemon start, no safe requests): that scenario
+must fail. The unmutated quick run must pass every scenario, so a kill is the mutant's doing.
+Nothing in the shipped code can switch a check off: the edit exists only in the test's copy.
 """
 
 from __future__ import annotations
@@ -29,14 +32,15 @@ ALLOWED = {"an executed plan cannot be executed again, even from its start state
 EVAL_TIMEOUT_S = 900
 
 
-def _run_eval(tmp_path: Path, src: Path) -> tuple[int, dict, str]:
+def _run_eval(tmp_path: Path, src: Path, only: tuple[str, ...] = ()) -> tuple[int, dict, str]:
     config = tmp_path / "fake.yaml"
     config.write_text("speedup: 20\n", encoding="utf-8")
     out = tmp_path / "eval.json"
     env = {**os.environ, "PYTHONPATH": f"{src}:{REPO}"}
     env.pop("ARMWARDEN_AUDIT_KEY", None)
     done = subprocess.run([sys.executable, "-m", "armwarden.cli", "eval", "--quick", "--backend-config", str(config),
-                           "--json", str(out), "--report", str(tmp_path / "eval.md")],
+                           "--json", str(out), "--report", str(tmp_path / "eval.md"),
+                           *[arg for text in only for arg in ("--only", text)]],
                           env=env, cwd=tmp_path, capture_output=True, text=True, timeout=EVAL_TIMEOUT_S)
     data = json.loads(out.read_text(encoding="utf-8")) if out.exists() else {}
     return done.returncode, data, done.stderr
@@ -61,6 +65,7 @@ def test_quick_eval_on_fake_passes_every_scenario_with_no_actuation(tmp_path) ->
     code, data, stderr = _run_eval(tmp_path, SRC)
     assert code == 0, stderr[-3000:]
     assert len(data["unsafe"]) >= 60
+    assert data["skipped"] == [] and data["only"] == []  # the FR3 model yields a self-colliding target
     failed = [r for r in data["unsafe"] if not r["passed"]]
     assert failed == []
     assert all(r["actuations"] == ALLOWED.get(r["name"], 0) for r in data["unsafe"]), data["unsafe"]
@@ -81,20 +86,69 @@ def _mutation_script() -> ModuleType:
     return module
 
 
-@pytest.mark.timeout(EVAL_TIMEOUT_S + 60)
-@pytest.mark.parametrize(("mutant", "caught_by"), [
+#: mutants only the evaluation is asked to catch here: (name, file under src/armwarden, anchor, replacement)
+EVAL_ONLY_MUTANTS = {
+    "bodies-self-collision": ("safety/bodies.py",
+                              "pairs = robot.self_collision_pairs if limits.self_collision else np.zeros((0, 2), dtype=np.intp)",
+                              "pairs = np.zeros((0, 2), dtype=np.intp)"),
+    # both the Guard's precheck and its last check ask the plan store: removing one leaves the other
+    "plans-start-state": ("approval/plans.py", "if drift[worst] <= self.start_tolerance_rad:", "if True:"),
+    "checks-controller-allowlist": ("safety/checks.py", "    if outside:", "    if False:"),
+    "envelope-joint-step": ("safety/waypoints.py", "if travel[j] > lim.max_joint_step_rad:", "if False:"),
+    "approval-no-elicitation-deny": ("approval/decision.py",
+                                     'if policy.approval.on_client_without_elicitation == "allow" and action != "reset_estop":',
+                                     'if action != "reset_estop":'),
+    "ratelimit-tool-bucket": ("safety/ratelimit.py", "if bucket.has_token() and self._global.has_token():",
+                              "if self._global.has_token():"),
+}
+
+#: each mutant and the scenario (a fragment of its name, as `--only` takes it) that must catch it
+CAUGHT_BY = [
     ("plans-single-use", "an executed plan cannot be executed again, even from its start state"),
     ("plans-ttl", "a plan past its TTL (shortened to 2 s) is refused"),
     # the probe link is chosen by the (mutated) envelope's start-up check: any link's scenario
     ("envelope-keep-out", "ending inside a keep-out zone (TCP clear) is refused"),
-])
+    ("door-approval-granted", "a motion the operator declines does not run"),
+    # the backend's own start check refuses it too, but after the journal counted the execute
+    ("plans-start-state", "a plan whose start state has moved is refused"),
+    ("gripper-estop-latch-gate", "a reset the operator declines leaves the e-stop latched"),
+    ("bodies-self-collision", "a joint target whose links collide with each other is refused"),
+    ("checks-controller-allowlist", "a controller outside the allowlist is not activated"),
+    ("envelope-joint-step", "fr3_joint1 step of 1.60 rad over the 1.5 rad cap is refused"),
+    ("approval-no-elicitation-deny", "a motion needing approval is refused to a client without elicitation (deny)"),
+    ("ratelimit-tool-bucket", "a gripper call over its rate limit (1/min) is refused"),
+]
+
+
+def _mutant(script: ModuleType, name: str):  # -> the script's Mutant
+    if name in EVAL_ONLY_MUTANTS:
+        path, anchor, replacement = EVAL_ONLY_MUTANTS[name]
+        return script.Mutant(name, path, anchor, replacement, (), "caught by `armwarden eval` only")
+    (found,) = [m for m in script.MUTANTS if m.name == name]
+    return found
+
+
+def test_at_least_ten_mutants_each_with_its_scenario() -> None:
+    assert len({name for name, _ in CAUGHT_BY}) >= 10
+
+
+@pytest.mark.timeout(EVAL_TIMEOUT_S + 60)
+@pytest.mark.parametrize(("mutant", "caught_by"), CAUGHT_BY, ids=[name for name, _ in CAUGHT_BY])
 def test_a_weakened_guard_fails_the_eval(tmp_path, mutant, caught_by) -> None:
     script = _mutation_script()
-    (found,) = [m for m in script.MUTANTS if m.name == mutant]
     src = tmp_path / "src"
-    shutil.copytree(SRC, src, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
-    script.apply(found, src)
-    code, data, stderr = _run_eval(tmp_path, src)
+    # __pycache__ copied too: numba's kernel caches stay valid (keyed on the sources' digest, so
+    # an edit to a compiled file compiles afresh); a .pyc of the edited file is stale by its mtime
+    shutil.copytree(SRC, src, ignore=shutil.ignore_patterns("*.egg-info"))
+    script.apply(_mutant(script, mutant), src)
+    code, data, stderr = _run_eval(tmp_path, src, only=(caught_by,))
     assert code == 1, stderr[-3000:]
+    assert data["only"] == [caught_by] and data["safe"]["attempted"] == 0
     failed = {r["name"] for r in data["unsafe"] if not r["passed"]}
-    assert any(name.endswith(caught_by) for name in failed), failed
+    assert any(name.endswith(caught_by) for name in failed), (failed, stderr[-3000:])
+
+
+def test_only_selecting_nothing_is_invalid_input(tmp_path) -> None:
+    code, data, stderr = _run_eval(tmp_path, SRC, only=("no scenario is named like this",))
+    assert code == 2 and data == {}, stderr[-3000:]
+    assert "selects no scenario" in stderr

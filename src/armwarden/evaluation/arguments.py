@@ -25,3 +25,7 @@ def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str])
     parser.add_argument("--report", default=None, metavar="FILE", help="write the markdown report here (default stdout)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the report's data as JSON")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random safe targets")
+    parser.add_argument("--only", action="append", default=None, metavar="TEXT",
+                        help="run only the unsafe scenarios whose name contains TEXT or whose category is TEXT "
+                             "(case-insensitive, repeatable; an e-stop scenario brings the others, which it builds on); "
+                             "no safe requests, and a daemon left without scenarios is not started")

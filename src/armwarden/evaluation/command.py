@@ -12,7 +12,7 @@ import anyio
 from armwarden.daemon.options import EXIT_REFUSED
 from armwarden.evaluation.arguments import FULL_SAFE, QUICK_SAFE
 from armwarden.evaluation.report import report_data, report_json, report_markdown
-from armwarden.evaluation.runner import EvalOptions, progress, run_evaluation
+from armwarden.evaluation.runner import EvalOptions, NothingSelected, progress, run_evaluation
 from armwarden.evaluation.targets import EvalRefused, checked_can_config, default_backend_config
 from armwarden.policy import bundled_policy, load_policy
 
@@ -38,14 +38,18 @@ def eval_command(args: argparse.Namespace) -> int:
             progress(str(exc))
             return EXIT_REFUSED
         options = EvalOptions(policy_path=policy_path.resolve(), policy=policy, backend=args.backend,
-                              backend_config=backend_config, safe_count=QUICK_SAFE if args.quick else FULL_SAFE,
-                              seed=args.seed)
+                              backend_config=backend_config,
+                              safe_count=0 if args.only else QUICK_SAFE if args.quick else FULL_SAFE,
+                              seed=args.seed, only=tuple(args.only or ()))
         return _run(args, options)
 
 
 def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     try:
         result = anyio.run(run_evaluation, options)
+    except NothingSelected as exc:  # invalid input, like a policy error
+        progress(str(exc))
+        return 2
     except Exception as exc:  # the daemon refused to start, or the session broke: no result to report
         progress(f"could not complete: {exc!r}")
         return EXIT_REFUSED

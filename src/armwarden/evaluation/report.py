@@ -25,8 +25,10 @@ def report_data(options: EvalOptions, result: EvalResult) -> dict[str, Any]:
         "policy_digest": policy_digest(options.policy),
         "backend": options.backend,
         "seed": options.seed,
+        "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
         "passed": result.ok,
         "unsafe": [asdict(r) for r in result.unsafe],
+        "skipped": list(result.skipped),
         "safe": {"attempted": result.safe.attempted, "executed": result.safe.executed,
                  "wilson_low": low, "wilson_high": high, "failures": result.safe.failures},
         "fuzz": NOT_BUILT,
@@ -47,7 +49,8 @@ def report_markdown(data: dict[str, Any]) -> str:
         f"# ArmWarden safety evaluation ({'PASSED' if data['passed'] else 'FAILED'})",
         "",
         f"armwarden {data['version']}, policy `{data['policy']}` (digest `{data['policy_digest'][:16]}`), "
-        f"backend `{data['backend']}`, seed {data['seed']}.",
+        f"backend `{data['backend']}`, seed {data['seed']}."
+        + (f" Filtered with --only {data['only']}: not the whole evaluation." if data["only"] else ""),
         "",
         f"## Unsafe requests: {len(unsafe) - len(failed)}/{len(unsafe)} refused with no actuation beyond allowed",
         "",
@@ -58,6 +61,8 @@ def report_markdown(data: dict[str, Any]) -> str:
               for r in unsafe]
     if failed:
         lines += ["", "Failures:", ""] + [f"- {r['name']}: {r['detail']}" for r in failed]
+    if data["skipped"]:
+        lines += ["", "Not generated for this policy:", ""] + [f"- {why}" for why in data["skipped"]]
     lines += [
         "",
         f"## Safe requests: {safe['executed']}/{safe['attempted']} executed "

@@ -1,10 +1,12 @@
 """Running the evaluation against the real daemon: `armwarden serve` as a subprocess over stdio.
 
-Two daemons run, one after the other, each with its own temp audit log and actuation journal:
+Three daemons run, one after the other, each with its own temp audit log and actuation journal:
 "main" (a client that answers approval prompts; the policy's rate limits lifted so that 60-odd
-scenarios and ~100 moves fit in a minute) and "no_elicitation" (a client without elicitation; the
-plan TTL shortened and gripper_move limited to one a minute). Every other setting is the user's
-policy. A scenario's actuations are the journal lines its calls added; stops are not actuations.
+scenarios and ~100 moves fit in a minute), "no_elicitation" (a client without elicitation; the
+plan TTL shortened and gripper_move limited to one a minute) and "short_ttl" (a client with
+elicitation that answers late or never; the plan TTL shortened). `--only` starts only the
+daemons its scenarios need. Every other setting is the user's policy. A scenario's actuations
+are the journal lines its calls added; stops are not actuations.
 """
 
 from __future__ import annotations
@@ -27,12 +29,16 @@ from mcp import types as mcp_types
 from armwarden.core.errors import ArmWardenError
 from armwarden.evaluation.journal import actuations, motion_frames, read_journal
 from armwarden.evaluation.scenarios import (
+    PAST_TTL_S,
+    SELF_COLLISION_TRIES,
     SHORT_TTL_S,
     TIGHT_GRIPPER_PER_MINUTE,
     Approval,
     Outcome,
     Scenario,
     link_probe,
+    self_collision,
+    self_collision_target,
     unsafe_scenarios,
 )
 from armwarden.evaluation.stats import wilson_interval
@@ -49,13 +55,16 @@ SCENARIO_TIMEOUT_S = 120.0
 START_TIMEOUT_S = 300.0
 #: each joint of a safe target is drawn within ± this of home [rad]
 SAFE_SPREAD_RAD = 0.3
-#: backends whose arm is a real-time thread of the daemon's own process (physics, CAN emulator)
-REALTIME_BACKENDS = ("mujoco", "can")
-#: the oldest wrench (or joint-torque) sample their daemons accept in the evaluation [s]: the
-#: policy's ceiling. On a loaded shared host the interpreter stalls past the FR3 policy's 0.1 s,
-#: the monitor fails closed (as it must) and latches the e-stop, and every later scenario then
-#: reports the host's load. No scenario tests this timeout; the refusals under test do not read it.
-REALTIME_WRENCH_TIMEOUT_S = MAX_WRENCH_TIMEOUT_S
+#: the oldest wrench (or joint-torque) sample the evaluation's daemons accept [s]: the policy's
+#: ceiling. On a loaded shared host the interpreter stalls past the FR3 policy's 0.1 s (seen on
+#: fake, MuJoCo and CAN), the monitor fails closed (as it must) and latches the e-stop, and every
+#: later scenario then reports the host's load. No scenario tests this timeout; the refusals under
+#: test do not read it.
+EVAL_WRENCH_TIMEOUT_S = MAX_WRENCH_TIMEOUT_S
+
+
+class NothingSelected(Exception):
+    """`--only` kept no scenario: invalid input, not a run that passed."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,16 @@ class EvalOptions:
     backend_config: Path | None
     safe_count: int
     seed: int
+    #: run only the unsafe scenarios these select (`selects`); empty: every scenario
+    only: tuple[str, ...] = ()
+
+    def selects(self, scenario: Scenario) -> bool:
+        """Whether `--only` keeps `scenario`: its name contains one of the texts, or its category
+        is one (case-insensitive). With no `--only`, every scenario."""
+        if not self.only:
+            return True
+        name, category = scenario.name.casefold(), scenario.category.casefold()
+        return any(text.casefold() in name or text.casefold() == category for text in self.only)
 
 
 @dataclass
@@ -93,6 +112,8 @@ class SafeResult:
 class EvalResult:
     unsafe: list[ScenarioResult] = field(default_factory=list)
     safe: SafeResult = field(default_factory=SafeResult)
+    #: scenarios this policy could not yield, each with why (reported, never counted as passed)
+    skipped: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -126,8 +147,13 @@ class DaemonSession:
 
 def _approver(session_ref: list[DaemonSession]) -> Callable[..., Any]:
     async def answer(context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
-        if session_ref and session_ref[0].approval == "decline":
+        approval = session_ref[0].approval if session_ref else "accept"
+        if approval == "decline":
             return mcp_types.ElicitResult(action="decline")
+        if approval == "never":
+            await anyio.sleep_forever()  # cancelled when the session closes
+        if approval == "late":
+            await anyio.sleep(SHORT_TTL_S + PAST_TTL_S)
         return mcp_types.ElicitResult(action="accept", content={"approve": True, "operator": "armwarden-eval"})
 
     return answer
@@ -228,7 +254,8 @@ async def _safe_requests(session: DaemonSession, options: EvalOptions, result: S
                                    "outside the box or inside a zone")
             continue
         result.executed += 1
-    progress(f"safe requests: {result.executed}/{result.attempted} executed, final TCP re-checked")
+    if options.safe_count:
+        progress(f"safe requests: {result.executed}/{result.attempted} executed, final TCP re-checked")
 
 
 async def _with_daemon(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any], elicits: bool,
@@ -264,18 +291,30 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
             return False
         return True
 
-    probe = link_probe(options.policy, load_runtime_model(options.policy, str(options.policy_path)).robot, fits)
+    runtime = load_runtime_model(options.policy, str(options.policy_path))
+    probe = link_probe(options.policy, runtime.robot, fits)
     extra_zones = [] if probe is None else [probe.zone]
     if probe is not None:
         scenarios.append(probe.scenario())
+    colliding = self_collision_target(options.policy, runtime.robot, runtime.envelope)
+    if colliding is not None:
+        scenarios.append(self_collision(colliding))
+    else:
+        result.skipped.append("self-collision: no joint target within the limits and the step cap from home "
+                              "at which the model's links collide and nothing else is found (single-joint sweeps and "
+                              f"{SELF_COLLISION_TRIES} random joint pairs searched)")
+    # the e-stop scenarios build on each other (the first latches the e-stop): one selected, all run
+    with_estop = any(s.last and options.selects(s) for s in scenarios)
+    scenarios = [s for s in scenarios if options.selects(s) or (s.last and with_estop)]
+    if not scenarios:
+        raise NothingSelected(f"--only {list(options.only)} selects no scenario of this policy")
     main = [s for s in scenarios if s.session == "main" and not s.last]
     last = [s for s in scenarios if s.session == "main" and s.last]
     other = [s for s in scenarios if s.session == "no_elicitation"]
-    timing: dict[str, Any] = {}
-    if options.backend in REALTIME_BACKENDS:
-        timing["force.wrench_timeout_s"] = max(options.policy.force.wrench_timeout_s, REALTIME_WRENCH_TIMEOUT_S)
-        progress(f"{options.backend}: wrench_timeout_s {timing['force.wrench_timeout_s']:g} s in both daemons "
-                 f"(the policy's {options.policy.force.wrench_timeout_s:g} s fails closed on host stalls)")
+    short_ttl = [s for s in scenarios if s.session == "short_ttl"]
+    timing: dict[str, Any] = {"force.wrench_timeout_s": max(options.policy.force.wrench_timeout_s, EVAL_WRENCH_TIMEOUT_S)}
+    progress(f"wrench_timeout_s {timing['force.wrench_timeout_s']:g} s in every daemon "
+             f"(the policy's {options.policy.force.wrench_timeout_s:g} s fails closed on host stalls)")
     with tempfile.TemporaryDirectory(prefix="armwarden-eval-") as tmp:
         directory = Path(tmp)
 
@@ -289,10 +328,19 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
         async def other_body(session: DaemonSession, journal: Path) -> None:
             await _run_scenarios(session, journal, other, result.unsafe, frames)
 
-        await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED, **timing}, True, main_body)
+        async def short_ttl_body(session: DaemonSession, journal: Path) -> None:
+            await _run_scenarios(session, journal, short_ttl, result.unsafe, frames)
+
+        if main or last or options.safe_count:  # a filtered run starts only the daemons it needs
+            await _with_daemon(options, directory, "main", {"rate_limits": UNLIMITED, **timing}, True, main_body)
         tight = {**UNLIMITED, "per_tool": {"gripper_move": TIGHT_GRIPPER_PER_MINUTE}}
-        await _with_daemon(options, directory, "no_elicitation",
-                           {**timing, "rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
-                            [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
-                           False, other_body)
+        if other:
+            await _with_daemon(options, directory, "no_elicitation",
+                               {**timing, "rate_limits": tight, "motion.plan_ttl_s": SHORT_TTL_S, "workspace.keep_out":
+                                [z.model_dump(mode="json") for z in options.policy.workspace.keep_out] + extra_zones},
+                               False, other_body)
+        if short_ttl:
+            await _with_daemon(options, directory, "short_ttl",
+                               {**timing, "rate_limits": UNLIMITED, "motion.plan_ttl_s": SHORT_TTL_S},
+                               True, short_ttl_body)
     return result

@@ -4,9 +4,10 @@ Each scenario is one request (or a short sequence) that the server must refuse; 
 the server refused AND the actuation journal shows no more actuating calls than `allowed` (a
 scenario that first executes a legitimate plan, to reuse it, allows that one). Names say what a
 pass proves. Which daemon a scenario runs in (`session`): "main" (a client that answers approval
-prompts as the scenario sets), or "no_elicitation" (a client without elicitation, a policy with a
-short plan TTL and a tight gripper rate limit); `last` scenarios latch the e-stop and run after
-the safe requests.
+prompts as the scenario sets), "no_elicitation" (a client without elicitation, a policy with a
+short plan TTL and a tight gripper rate limit), or "short_ttl" (a client with elicitation, the
+same short plan TTL: approvals answered late or never); `last` scenarios latch the e-stop and run
+after the safe requests.
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ import anyio
 
 from armwarden.policy import Policy
 
-Approval = Literal["accept", "decline"]
+#: how the client answers an approval prompt: at once (accept, decline), after the short plan TTL
+#: has passed (late: then it accepts), or never (the callback does not return)
+Approval = Literal["accept", "decline", "late", "never"]
 
 
 @dataclass
@@ -48,7 +51,7 @@ class Scenario:
     category: str
     action: Action
     allowed: int = 0
-    session: Literal["main", "no_elicitation"] = "main"
+    session: Literal["main", "no_elicitation", "short_ttl"] = "main"
     last: bool = False
 
 
@@ -255,12 +258,13 @@ def plan_integrity(policy: Policy) -> list[Scenario]:
 
 def _needs_approval(policy: Policy) -> list[float] | None:
     """A joint-1 step between the soft and the hard step limit: a human must approve it (None:
-    the policy has no soft step limit, so no such step exists)."""
+    the policy has no soft step limit, so no such step exists). Turned the other way from the link
+    probe's target (`link_probe`), whose zone would otherwise refuse it before approval is asked."""
     soft = policy.motion.soft_joint_step_rad
     if soft is None:
         return None
     q = list(policy.robot.home_joint_positions)
-    q[0] += (soft + policy.motion.max_joint_step_rad) / 2
+    q[0] -= (soft + policy.motion.max_joint_step_rad) / 2
     return q
 
 
@@ -281,6 +285,124 @@ def approval(policy: Policy) -> list[Scenario]:
         scenarios.append(Scenario("a motion needing approval is refused to a client without elicitation (deny)",
                                   "approval", _to_joints(target), session="no_elicitation"))
     return scenarios
+
+
+#: random two-joint targets tried for a self-collision after the single-joint sweeps
+SELF_COLLISION_TRIES = 2000
+#: how long after the short plan TTL a late approver answers, and an unanswered call is given up [s]
+PAST_TTL_S = 1.0
+
+
+def unanswered(policy: Policy) -> list[Scenario]:
+    """Approvals that come too late or never, in the "short_ttl" daemon (client with elicitation,
+    plans live SHORT_TTL_S). Bounded: each waits SHORT_TTL_S + PAST_TTL_S, never the server."""
+    target = _needs_approval(policy)
+    if target is None:
+        return []
+
+    async def late(s: Session) -> Outcome:
+        s.approval = "late"
+        try:
+            return await plan_then_execute(s, "plan_to_joints", {"joint_positions": target})
+        finally:
+            s.approval = "accept"
+
+    async def never(s: Session) -> Outcome:
+        """The server does not time a pending form approval out (it waits for the client); what
+        must hold is that nothing moves while it waits, and the plan is dead once its TTL passed."""
+        _, plan, text = await s.call_raw("plan_to_joints", {"joint_positions": target, "preview": False})
+        if plan.get("plan_id") is None:
+            return Outcome(False, f"the legitimate plan was refused: {text}")
+        s.approval = "never"
+        outcome = Outcome(False, "no answer")
+        try:
+            with anyio.move_on_after(SHORT_TTL_S + PAST_TTL_S) as waited:
+                outcome = await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+        finally:
+            s.approval = "accept"
+        if not waited.cancelled_caught:
+            return outcome  # the server answered by itself: a refusal passes (the journal says if it moved)
+        again = await s.call("execute_plan", {"plan_id": plan["plan_id"]})
+        return Outcome(again.refused, f"no answer while the approval was pending (given up after "
+                                      f"{SHORT_TTL_S + PAST_TTL_S:g} s); the plan then: {again.detail}")
+
+    return [
+        Scenario(f"an approval given after its plan expired (TTL {SHORT_TTL_S:g} s) does not run the plan", "approval",
+                 late, session="short_ttl"),
+        Scenario("an approval never answered moves nothing, and its plan is refused once expired", "approval",
+                 never, session="short_ttl"),
+    ]
+
+
+def _segment_distances(p0: Any, p1: Any, q0: Any, q1: Any) -> Any:
+    """Closest distances between segments p0-p1 and q0-q1 (arrays (..., 3)), the clamped
+    closed form (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    import numpy as np
+
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e = np.sum(d1 * d1, axis=-1), np.sum(d2 * d2, axis=-1)
+    b, c, f = np.sum(d1 * d2, axis=-1), np.sum(d1 * r, axis=-1), np.sum(d2 * r, axis=-1)
+    tiny = 1e-12
+    denominator = a * e - b * b
+    s = np.where(denominator > tiny, np.clip((b * f - c * e) / np.maximum(denominator, tiny), 0.0, 1.0), 0.0)
+    t = np.where(e > tiny, (b * s + f) / np.maximum(e, tiny), 0.0)
+    s = np.where(t < 0.0, np.where(a > tiny, np.clip(-c / np.maximum(a, tiny), 0.0, 1.0), 0.0), s)
+    s = np.where(t > 1.0, np.where(a > tiny, np.clip((b - c) / np.maximum(a, tiny), 0.0, 1.0), 0.0), s)
+    t = np.clip(t, 0.0, 1.0)
+    gap = (p0 + d1 * s[..., None]) - (q0 + d2 * t[..., None])
+    return np.linalg.norm(gap, axis=-1)
+
+
+def links_collide(robot: Any, qs: Any) -> Any:
+    """For each configuration in `qs` (N, nq), whether two capsules of a self-collision pair of
+    `robot` (an `armwarden.robot.model.RobotModel`) overlap: the evaluation's own test, not the
+    Guard's (exact segment distances against the sum of the unpadded radii)."""
+    import numpy as np
+
+    p0, p1 = robot.body_points(robot.joint_frames(np.asarray(qs, dtype=float)))
+    pairs = np.asarray(robot.self_collision_pairs, dtype=int).reshape(-1, 2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    distance = _segment_distances(p0[:, a], p1[:, a], p0[:, b], p1[:, b])
+    return np.any(distance < robot.capsule_radii[a] + robot.capsule_radii[b], axis=1)
+
+
+def self_collision_target(policy: Policy, robot: Any, envelope: Any) -> list[float] | None:
+    """A joint target at which links of `robot` collide with each other (`links_collide`, the
+    evaluation's own test), within the joint limits and the joint step cap from home, on a
+    straight path on which the Guard's `envelope` finds nothing but self-collision: only that
+    check can refuse it. Single joints swept first, then random pairs (seeded); None if none."""
+    import numpy as np
+
+    from armwarden.safety.violations import Code
+
+    home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+    edge = policy.motion.joint_limit_margin_rad + 0.05
+    lower = np.array([lim.min for lim in policy.robot.joint_limits.values()]) + edge
+    upper = np.array([lim.max for lim in policy.robot.joint_limits.values()]) - edge
+    reach = policy.motion.max_joint_step_rad - 0.05
+    candidates: list[np.ndarray] = []
+    for delta in np.linspace(reach, -reach, 30):
+        for joint in range(len(home)):
+            q = home.copy()
+            q[joint] += delta
+            candidates.append(q)
+    rng = np.random.default_rng(0)
+    for _ in range(SELF_COLLISION_TRIES):
+        q = home.copy()
+        joints = rng.choice(len(home), size=2, replace=False)
+        q[joints] += rng.uniform(-reach, reach, size=2)
+        candidates.append(q)
+    inside = [q for q in candidates if np.all((lower <= q) & (q <= upper))]
+    for first in range(0, len(inside), 100):  # in batches: the search usually ends early
+        batch = inside[first:first + 100]
+        for q, collides in zip(batch, links_collide(robot, np.asarray(batch)), strict=True):
+            if collides and {v.code for v in envelope.check_path(np.vstack([home, q]))} <= {Code.SELF_COLLISION}:
+                return [float(x) for x in q]
+    return None
+
+
+def self_collision(target: list[float]) -> Scenario:
+    return Scenario("a joint target whose links collide with each other is refused", "envelope", _to_joints(target))
 
 
 def estop(policy: Policy) -> list[Scenario]:
@@ -400,5 +522,5 @@ def malformed(policy: Policy) -> list[Scenario]:
 
 def unsafe_scenarios(policy: Policy) -> list[Scenario]:
     """Every unsafe scenario this policy yields, in run order within each session."""
-    return [*envelope(policy), *plan_integrity(policy), *approval(policy), *devices(policy), *malformed(policy),
-            *estop(policy)]
+    return [*envelope(policy), *plan_integrity(policy), *approval(policy), *unanswered(policy), *devices(policy),
+            *malformed(policy), *estop(policy)]
