@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from collections.abc import Callable
 
 import anyio
 import pytest
@@ -17,6 +18,7 @@ from armwarden.backends import parse_backend_config
 from armwarden.backends.can.actuators import Actuator, OutFrame
 from armwarden.backends.can.backend import CanBackend
 from armwarden.backends.can.command import MotorCommand
+from armwarden.backends.can.config import GripperConfig
 from armwarden.backends.can.gripper import CanFingers, FingerGuards, ImpedanceFingerMotion, capped_setpoint
 from armwarden.backends.ramp import Ramp
 from armwarden.core.errors import BackendError
@@ -25,6 +27,8 @@ from tests.backends.contract import wait_until
 
 pytestmark = pytest.mark.anyio
 GRIPPER_ID = 8
+#: the torque a 40 N grasp asks of the fingers' actuator (examples/can_sim.yaml: 0.04 m/rad)
+GRASP_TORQUE_NM = 40.0 * 0.04
 
 
 def gripper_of(backend: CanBackend):
@@ -84,14 +88,19 @@ def test_the_command_never_pushes_harder_than_the_cap_counting_its_damping(
     assert abs(kp * (position - measured) + damping) <= cap * (1 + 1e-9)
 
 
-def test_fingers_blocked_while_their_ramp_still_runs_are_commanded_no_more_than_the_force():
-    """The ramp's velocity is fed forward through kd: fingers standing on the object would get it
-    on top of the spring's capped push (3.6 N·m squeezed where 1.6 were asked, found by CI)."""
-    g = build().config.gripper
+_GRIPPER = build().config.gripper
+
+
+def frame_pushes(motion_of: Callable[[GripperConfig], ImpedanceFingerMotion], measured_rad: float,
+                 measured_velocity: float = 0.0) -> tuple[MotorCommand, float]:
+    """One frame of fingers measured at `measured_rad` (gripper position) moving at
+    `measured_velocity` under the motion `motion_of` gives: the command, and the torque its whole
+    law kp·(setpoint − measured) + kd·(velocity − measured velocity) pushes with."""
+    g = _GRIPPER
     assert g is not None
-    blocked_at = g.position_of(0.02)
-    actuator = Actuator(-1, g, g.ranges, None, raw_position=g.direction * blocked_at + g.homing_offset_rad,
-                        raw_velocity=0.0, reported_at=time.monotonic())
+    raw_position = g.direction * measured_rad + g.homing_offset_rad
+    actuator = Actuator(-1, g, g.ranges, None, raw_position=raw_position,
+                        raw_velocity=g.direction * measured_velocity, reported_at=time.monotonic())
     commands: list[MotorCommand] = []
 
     def command_frame(target: Actuator, command: MotorCommand) -> OutFrame:
@@ -100,15 +109,25 @@ def test_fingers_blocked_while_their_ramp_still_runs_are_commanded_no_more_than_
 
     fingers = CanFingers(actuator, g, threading.Lock(), command_frame,
                          FingerGuards(lambda: None, lambda: None, lambda: False, lambda: 0.02))
-    torque = 40.0 * abs(g.width_per_rad_m)
-    speed = 0.1 / abs(g.width_per_rad_m)  # 0.1 m/s, from the object to shut, half-way there
-    closing = Ramp(blocked_at, g.position_of(0.0), speed, time.monotonic() - abs(blocked_at - g.position_of(0.0)) / speed / 2)
-    fingers.motion = ImpedanceFingerMotion(closing, torque, grasp=True)
+    fingers.motion = motion_of(g)
     fingers.frame()
     (command,) = commands
+    return command, (command.kp * (command.position - raw_position)
+                     + command.kd * (command.velocity - actuator.raw_velocity))
+
+
+def test_fingers_blocked_while_their_ramp_still_runs_are_commanded_no_more_than_the_force():
+    """The ramp's velocity is fed forward through kd: fingers standing on the object would get it
+    on top of the spring's capped push (3.6 N·m squeezed where 1.6 were asked, found by CI)."""
+    def closing(g: GripperConfig) -> ImpedanceFingerMotion:  # 0.1 m/s from the object to shut, half-way there
+        speed, blocked_at = 0.1 / abs(g.width_per_rad_m), g.position_of(0.02)
+        began = time.monotonic() - abs(blocked_at - g.position_of(0.0)) / speed / 2
+        return ImpedanceFingerMotion(Ramp(blocked_at, g.position_of(0.0), speed, began), GRASP_TORQUE_NM, grasp=True)
+
+    assert _GRIPPER is not None
+    command, pushed = frame_pushes(closing, _GRIPPER.position_of(0.02))
     assert command.velocity != 0.0  # the ramp still runs
-    pushed = command.kp * (command.position - actuator.raw_position) + command.kd * (command.velocity - 0.0)
-    assert 0.0 < abs(pushed) <= torque * (1 + 1e-9)
+    assert 0.0 < abs(pushed) <= GRASP_TORQUE_NM * (1 + 1e-9)
 
 
 async def test_a_grasp_that_closes_past_the_band_fails_naming_the_width(arm: CanBackend):
@@ -168,31 +187,14 @@ def test_fingers_blocked_where_their_ramp_starts_are_commanded_no_more_than_the_
     """An object as wide as the open fingers: the cap wants a setpoint past the open end to cancel
     kd·v, the travel clamp keeps it at the end, and the command pushed with kd·v (2.5 N·m where a
     grasp asked for 1.6) while the ramp ran; the velocity fed forward is capped instead."""
-    g = build().config.gripper
-    assert g is not None
-    blocked_at = g.position_of(g.max_width_m)
-    actuator = Actuator(-1, g, g.ranges, None, raw_position=g.direction * blocked_at + g.homing_offset_rad,
-                        raw_velocity=0.0, reported_at=time.monotonic())
-    commands: list[MotorCommand] = []
+    def closing(g: GripperConfig) -> ImpedanceFingerMotion:
+        ramp = Ramp(g.position_of(g.max_width_m), g.position_of(0.0), 0.1 / abs(g.width_per_rad_m), time.monotonic() - 0.05)
+        return ImpedanceFingerMotion(ramp, GRASP_TORQUE_NM, grasp=True)
 
-    def command_frame(target: Actuator, command: MotorCommand) -> OutFrame:
-        commands.append(command)
-        return OutFrame(target, 0, b"", True)
-
-    fingers = CanFingers(actuator, g, threading.Lock(), command_frame,
-                         FingerGuards(lambda: None, lambda: None, lambda: False, lambda: 0.02))
-    torque = 40.0 * abs(g.width_per_rad_m)
-    speed = 0.1 / abs(g.width_per_rad_m)
-    closing = Ramp(blocked_at, g.position_of(0.0), speed, time.monotonic() - 0.05)
-    fingers.motion = ImpedanceFingerMotion(closing, torque, grasp=True)
-    fingers.frame()
-    (command,) = commands
+    assert _GRIPPER is not None
+    command, pushed = frame_pushes(closing, _GRIPPER.position_of(_GRIPPER.max_width_m))
     assert command.velocity != 0.0  # still pushing toward closed
-    pushed = command.kp * (command.position - actuator.raw_position) + command.kd * (command.velocity - 0.0)
-    assert 0.0 < abs(pushed) <= torque * (1 + 1e-9)
-
-
-_GRIPPER = build().config.gripper
+    assert 0.0 < abs(pushed) <= GRASP_TORQUE_NM * (1 + 1e-9)
 
 
 @given(measured=st.floats(-0.5, 2.5), measured_velocity=st.floats(-5, 5), start=st.floats(0, 2),
@@ -201,23 +203,12 @@ def test_whatever_the_fingers_do_a_frame_pushes_no_harder_than_its_cap(
         measured: float, measured_velocity: float, start: float, target: float, elapsed: float, force_n: float) -> None:
     """The whole law kp·(setpoint − measured) + kd·(velocity − measured velocity), after the
     travel clamp, for fingers anywhere (even past an end of their travel) at any speed."""
-    g = _GRIPPER
-    assert g is not None
-    actuator = Actuator(-1, g, g.ranges, None, raw_position=g.direction * measured + g.homing_offset_rad,
-                        raw_velocity=g.direction * measured_velocity, reported_at=time.monotonic())
-    commands: list[MotorCommand] = []
+    assert _GRIPPER is not None
+    cap = min(force_n * abs(_GRIPPER.width_per_rad_m), _GRIPPER.torque_limit_nm)
 
-    def command_frame(target_actuator: Actuator, command: MotorCommand) -> OutFrame:
-        commands.append(command)
-        return OutFrame(target_actuator, 0, b"", True)
+    def motion(g: GripperConfig) -> ImpedanceFingerMotion:
+        return ImpedanceFingerMotion(Ramp(start, target, 0.1 / abs(g.width_per_rad_m), time.monotonic() - elapsed),
+                                     cap, grasp=True)
 
-    fingers = CanFingers(actuator, g, threading.Lock(), command_frame,
-                         FingerGuards(lambda: None, lambda: None, lambda: False, lambda: 0.02))
-    cap = min(force_n * abs(g.width_per_rad_m), g.torque_limit_nm)
-    fingers.motion = ImpedanceFingerMotion(Ramp(start, target, 0.1 / abs(g.width_per_rad_m), time.monotonic() - elapsed),
-                                           cap, grasp=True)
-    fingers.frame()
-    (command,) = commands
-    pushed = (command.kp * (command.position - actuator.raw_position)
-              + command.kd * (command.velocity - actuator.raw_velocity))
+    _, pushed = frame_pushes(motion, measured, measured_velocity)
     assert abs(pushed) <= cap * (1 + 1e-6) + 1e-9
