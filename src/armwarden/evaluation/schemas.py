@@ -46,7 +46,9 @@ HUGE_CHARS = {"x": 1, "\u00e9": 2, "\x00": 6, "\u2028": 3}
 #: control characters and look-alikes a string may carry: C0, DEL, C1, line/paragraph separators,
 #: bidi overrides, zero-width joiner, BOM
 CONTROL_CHARS = "".join(chr(c) for c in range(0x20)) + "\x7f\x85\x9b\u2028\u2029\u202e\u2066\u200d\ufeff"
-#: how deep the invalid mode nests lists and objects
+#: how deep the invalid mode nests lists and objects: below the depth the SDK's JSON parser reads
+#: (between 130 and 200 levels with the request's envelope), so every call reaches the daemon's
+#: tools; a deeper request is unreadable JSON, the malformed-input scenario's business
 MAX_NESTING = 120
 #: the invalid mutations, each named in a finding's report
 MUTATIONS = ("wrong_type", "non_finite", "out_of_range", "huge_string", "control_characters", "deep_nesting",
