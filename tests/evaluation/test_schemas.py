@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import anyio
 import pytest
@@ -16,7 +16,7 @@ from armwarden.evaluation.schemas import MUTATIONS, closed, conforms, invalid_ar
 from tests.server.harness import arm_harness
 
 SETTINGS = settings(max_examples=30, database=None, derandomize=True, deadline=None, phases=[Phase.generate],
-                    suppress_health_check=list(HealthCheck))
+                    suppress_health_check=cast("list[HealthCheck]", list(HealthCheck)))
 
 
 def _tool_schemas(tmp_path: Path) -> dict[str, dict[str, Any]]:
