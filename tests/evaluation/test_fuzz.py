@@ -5,11 +5,22 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
+from typing import Any, cast
 
 import anyio
 import pytest
 
-from armwarden.evaluation.fuzz import FuzzOptions, JournalReader, audit_calls, run_fuzz, short_repr, unaudited_calls
+from armwarden.evaluation.fuzz import (
+    FuzzOptions,
+    FuzzSession,
+    JournalReader,
+    TransportResult,
+    audit_calls,
+    run_fuzz,
+    short_repr,
+    unaudited_calls,
+)
 from armwarden.evaluation.runner import EvalOptions
 from armwarden.policy import bundled_policy, load_policy
 from tests.evaluation.unaudited_daemon import UNRECORDED_TOOL
@@ -86,3 +97,30 @@ def test_a_daemon_that_skips_a_record_is_caught(tmp_path, daemon_env) -> None:
     assert run.unaudited >= 1
     assert {f.tool for f in run.findings if f.kind == "unaudited"} == {UNRECORDED_TOOL}
     assert result.report()["unaudited"] == run.unaudited
+
+
+def _session(journal: Path) -> FuzzSession:
+    return FuzzSession(cast("Any", None), TransportResult("stdio"), journal, None, FuzzOptions(calls=1, seed=0), 0.0)
+
+
+def test_only_a_valid_gripper_call_may_actuate(tmp_path) -> None:
+    journal = tmp_path / "journal.jsonl"
+    session = _session(journal)
+
+    def journal_line(call: str, kind: str = "actuation") -> None:
+        with journal.open("a", encoding="utf-8") as handle:
+            handle.write(json.dumps({"t": 0.0, "call": call, "kind": kind}) + "\n")
+
+    journal_line("gripper_move")
+    session._check_journal("gripper_move", {"width_m": 0.01}, True)  # allowed by the policy, no approval
+    journal_line("stop", "stop")
+    journal_line("emergency_stop", "estop")
+    session._check_journal("estop", {}, False)  # stops are not actuations
+    assert (session.result.allowed_gripper_actuations, session.result.actuations) == (1, 0)
+    journal_line("gripper_move")
+    session._check_journal("gripper_move", {"width_m": 1.0}, False)  # invalid arguments reached the backend
+    journal_line("execute")
+    session._check_journal("execute_plan", {"plan_id": "p"}, True)  # every approval is declined
+    assert session.result.actuations == 2
+    assert [(f.kind, f.tool) for f in session.result.findings] == [("actuation", "gripper_move"),
+                                                                    ("actuation", "execute_plan")]

@@ -10,7 +10,8 @@ runs the user's policy with rate limits lifted (the calls must reach the tools) 
 approvable action behind approval (`approval.mode: always`, all of `require_for`), so an
 approved plan can never happen: any actuation of the arm is a finding. Gripper moves are not
 approvable (the policy lets a client move the fingers within their limits): a gripper actuation by
-a gripper call the daemon answered as done is counted apart, as allowed.
+a gripper call with valid arguments is counted apart, as allowed (answered or refused: the journal
+counts a call as it reaches the backend, and a backend that has failed refuses it there).
 
 Findings, each counted per transport: a crash (the daemon died, or a call got no answer within
 `CALL_TIMEOUT_S`: the run on that transport stops there), an unaudited call (the audit log's
@@ -335,11 +336,14 @@ class FuzzSession:
                                  f"{why}; daemon {'still running' if alive else 'gone'}"))
         self.broken = True
 
-    def _check_journal(self, tool: str, arguments: dict[str, Any], error: bool) -> None:
+    def _check_journal(self, tool: str, arguments: dict[str, Any], valid: bool) -> None:
+        """Journal lines since the last call are this call's. A gripper actuation is allowed for a
+        gripper call whose arguments conform to its schema, whatever the answer: the journal
+        counts the call as it reaches the backend, before the backend may refuse it."""
         for entry in self.journal.new_entries():
             if entry.get("kind") != "actuation":
                 continue  # stops and e-stops are not actuations
-            if tool.startswith("gripper_") and entry.get("call") == tool and not error:
+            if tool.startswith("gripper_") and entry.get("call") == tool and valid:
                 self.result.allowed_gripper_actuations += 1
                 continue
             self.result.actuations += 1
@@ -349,7 +353,7 @@ class FuzzSession:
     async def harness_call(self, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any]] | None:
         self.result.harness_calls += 1
         answer = await self._send(tool, arguments)
-        self._check_journal(tool, arguments, True if answer is None else answer[0])
+        self._check_journal(tool, arguments, False)
         return answer
 
     async def start(self) -> None:
@@ -408,7 +412,7 @@ class FuzzSession:
         plan_id = content.get("plan_id")
         if isinstance(plan_id, str) and plan_id not in self.known_plans:
             self.known_plans = [*self.known_plans, plan_id][-KNOWN_PLANS:]
-        self._check_journal(call.tool, arguments, error)
+        self._check_journal(call.tool, arguments, call.mode == "valid")
         if call.tool == "estop":
             self.latched = True
         if self.result.calls % self.options.estop_every == 0:
