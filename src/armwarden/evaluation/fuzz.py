@@ -118,6 +118,9 @@ class TransportResult:
     estop_checks: int = 0
     estop_unanswered: int = 0
     resets_refused: int = 0
+    #: the daemon's own faults at the end (`get_safety_status`), e.g. a backend it found hung: not
+    #: findings of the fuzz (the daemon failed closed), but calls after one met a refusing backend
+    faults_at_end: list[str] = field(default_factory=list)
     audit_records: int = 0
     rss_start_mb: float | None = None
     rss_end_mb: float | None = None
@@ -467,6 +470,10 @@ async def _fuzz(session: FuzzSession, audit: Path) -> None:
         await anyio.to_thread.run_sync(_run_generation, session, schemas, session.options.seed)
     if not session.broken:
         await session.check_estop()  # and at the end
+    if not session.broken:
+        status = await session.harness_call("get_safety_status", {})
+        if status is not None:
+            result.faults_at_end = [str(fault)[:300] for fault in status[1].get("faults", [])]
     result.rss_end_mb = _rss_mb(session.pid)
     if not session.broken and not _alive(session.pid):
         session._crash(len(session.sent), "(none)", {}, "the daemon exited")
