@@ -4,6 +4,7 @@ deliberately broken daemon caught; the audit and journal readers it counts with.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any, cast
@@ -16,12 +17,14 @@ from armwarden.evaluation.fuzz import (
     FuzzSession,
     JournalReader,
     TransportResult,
+    as_sent,
     audit_calls,
     run_fuzz,
     short_repr,
     unaudited_calls,
 )
 from armwarden.evaluation.runner import EvalOptions
+from armwarden.evaluation.schemas import conforms
 from armwarden.policy import bundled_policy, load_policy
 from tests.evaluation.unaudited_daemon import UNRECORDED_TOOL
 from tests.helpers import REPO, SRC
@@ -124,3 +127,13 @@ def test_only_a_valid_gripper_call_may_actuate(tmp_path) -> None:
     assert session.result.actuations == 2
     assert [(f.kind, f.tool) for f in session.result.findings] == [("actuation", "gripper_move"),
                                                                     ("actuation", "execute_plan")]
+
+
+def test_a_non_finite_value_is_judged_as_the_client_sends_it() -> None:
+    schema = {"type": "object", "required": ["width_m"], "properties": {
+        "width_m": {"type": "number", "minimum": 0.0, "maximum": 0.08},
+        "speed_mps": {"anyOf": [{"type": "number", "minimum": 0.001, "maximum": 0.1}, {"type": "null"}]}}}
+    # NaN in an optional, nullable field reaches the daemon as null: a valid call that may move the fingers
+    assert as_sent({"width_m": 0.01, "speed_mps": math.nan}) == {"width_m": 0.01, "speed_mps": None}
+    assert conforms(schema, as_sent({"width_m": 0.01, "speed_mps": math.inf}))
+    assert not conforms(schema, as_sent({"width_m": math.nan}))  # null where a number is required

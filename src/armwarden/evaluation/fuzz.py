@@ -23,6 +23,7 @@ daemon's RSS growth (VmRSS at the first answered call and at the last) is report
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import socket
@@ -192,6 +193,18 @@ def call_strategy(schemas: Mapping[str, Mapping[str, Any]]) -> Any:
     return st.builds(lambda call, knob: GeneratedCall(*call, knob=knob), chosen, st.integers(0, 1 << 16))
 
 
+def as_sent(value: Any) -> Any:
+    """`value` as the SDK client puts it on the wire: a non-finite float becomes `null` (pydantic's
+    JSON default; JSON has no NaN). A NaN in an optional field thus arrives as a valid `null`."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {key: as_sent(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [as_sent(item) for item in value]
+    return value
+
+
 def _rss_mb(pid: int | None) -> float | None:
     if pid is None:
         return None
@@ -307,6 +320,7 @@ class FuzzSession:
         self.accept_reset = False  # set only while the harness's own reset_estop is open
         self.latched = False
         self.broken = False
+        self.schemas: dict[str, dict[str, Any]] = {}  # the tools' input schemas, as listed
         self.started = started  # monotonic time the daemon was started
 
     async def approve(self, context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
@@ -341,8 +355,9 @@ class FuzzSession:
 
     def _check_journal(self, tool: str, arguments: dict[str, Any], valid: bool) -> None:
         """Journal lines since the last call are this call's. A gripper actuation is allowed for a
-        gripper call whose arguments conform to its schema, whatever the answer: the journal
-        counts the call as it reaches the backend, before the backend may refuse it."""
+        gripper call whose arguments, as sent (`as_sent`), conform to its schema (`valid`), whatever
+        the answer: the journal counts the call as it reaches the backend, before the backend may
+        refuse it."""
         for entry in self.journal.new_entries():
             if entry.get("kind") != "actuation":
                 continue  # stops and e-stops are not actuations
@@ -415,7 +430,10 @@ class FuzzSession:
         plan_id = content.get("plan_id")
         if isinstance(plan_id, str) and plan_id not in self.known_plans:
             self.known_plans = [*self.known_plans, plan_id][-KNOWN_PLANS:]
-        self._check_journal(call.tool, arguments, call.mode == "valid")
+        from armwarden.evaluation.schemas import conforms  # with hypothesis: loaded only when fuzzing
+
+        schema = self.schemas.get(call.tool)
+        self._check_journal(call.tool, arguments, schema is not None and conforms(schema, as_sent(arguments)))
         if call.tool == "estop":
             self.latched = True
         if self.result.calls % self.options.estop_every == 0:
@@ -466,6 +484,7 @@ async def _fuzz(session: FuzzSession, audit: Path) -> None:
     result = session.result
     await session.start()
     schemas = {tool.name: dict(tool.input_schema or {}) for tool in (await session.client.list_tools()).tools}
+    session.schemas = schemas
     if not session.broken:
         await anyio.to_thread.run_sync(_run_generation, session, schemas, session.options.seed)
     if not session.broken:
