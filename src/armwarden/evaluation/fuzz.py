@@ -43,7 +43,7 @@ import anyio.to_thread
 from mcp import Client, MCPError, StdioServerParameters
 from mcp import types as mcp_types
 
-from armwarden.evaluation.runner import UNLIMITED, EvalOptions, progress
+from armwarden.evaluation.runner import EVAL_WRENCH_TIMEOUT_S, UNLIMITED, EvalOptions, progress
 
 #: the transports a run fuzzes, in order
 TRANSPORTS = ("stdio", "http")
@@ -579,7 +579,9 @@ async def run_fuzz(options: EvalOptions, fuzz: FuzzOptions) -> FuzzResult:
 
     result = FuzzResult()
     overrides = {"rate_limits": UNLIMITED, "approval.mode": "always", "approval.require_for": APPROVE_ALL,
-                 "approval.channel": "form"}
+                 "approval.channel": "form",
+                 # as in the scenarios' daemons: host stalls must not be what the run measures
+                 "force.wrench_timeout_s": max(options.policy.force.wrench_timeout_s, EVAL_WRENCH_TIMEOUT_S)}
     with tempfile.TemporaryDirectory(prefix="armwarden-fuzz-") as tmp:
         directory = Path(tmp) if fuzz.workdir is None else fuzz.workdir
         directory.mkdir(parents=True, exist_ok=True)
