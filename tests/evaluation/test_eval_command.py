@@ -71,7 +71,11 @@ def test_quick_eval_on_fake_passes_every_scenario_with_no_actuation(tmp_path) ->
     assert all(r["actuations"] == ALLOWED.get(r["name"], 0) for r in data["unsafe"]), data["unsafe"]
     assert data["safe"]["attempted"] == data["safe"]["executed"] == 10
     assert 0 < data["safe"]["wilson_low"] < 1 and data["safe"]["wilson_high"] == pytest.approx(1.0)
-    for key in ("fuzz", "faults", "load"):
+    fuzz = data["fuzz"]
+    assert fuzz["run"] and fuzz["calls"] == 2 * 300, fuzz  # --quick: 300 per transport, stdio and HTTP
+    assert (fuzz["crashes"], fuzz["unaudited"], fuzz["actuations"], fuzz["estop_unanswered"]) == (0, 0, 0, 0), fuzz
+    assert set(fuzz["per_transport"]) == {"stdio", "http"}
+    for key in ("faults", "load"):
         assert data[key] == {"run": False, "why": "not in this version"}
     assert data["backend"] == "fake" and data["policy_digest"] and data["version"]
     assert "PASSED" in (tmp_path / "eval.md").read_text(encoding="utf-8")

@@ -13,6 +13,9 @@ SIMULATED_BACKENDS = ("fake", "mujoco", "can")
 #: safe requests in a full and in a --quick run
 FULL_SAFE = 100
 QUICK_SAFE = 10
+#: generated fuzz calls per transport in a full and in a --quick run
+FULL_FUZZ = 10_000
+QUICK_FUZZ = 300
 
 
 def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str]) -> None:
@@ -24,8 +27,11 @@ def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str])
     parser.add_argument("--quick", action="store_true", help=f"{QUICK_SAFE} safe requests instead of {FULL_SAFE}")
     parser.add_argument("--report", default=None, metavar="FILE", help="write the markdown report here (default stdout)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the report's data as JSON")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the random safe targets")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random safe targets and of the fuzz generation")
     parser.add_argument("--only", action="append", default=None, metavar="TEXT",
                         help="run only the unsafe scenarios whose name contains TEXT or whose category is TEXT "
                              "(case-insensitive, repeatable; an e-stop scenario brings the others, which it builds on); "
                              "no safe requests, and a daemon left without scenarios is not started")
+    parser.add_argument("--fuzz-calls", type=int, default=None, metavar="N",
+                        help=f"generated calls per transport (default {FULL_FUZZ}, --quick {QUICK_FUZZ}; 0: no fuzzing)")
+    parser.add_argument("--fuzz-only", action="store_true", help="run only the fuzzing (the scenarios reported as not run)")

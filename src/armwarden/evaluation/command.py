@@ -10,9 +10,10 @@ from pathlib import Path
 import anyio
 
 from armwarden.daemon.options import EXIT_REFUSED
-from armwarden.evaluation.arguments import FULL_SAFE, QUICK_SAFE
+from armwarden.evaluation.arguments import FULL_FUZZ, FULL_SAFE, QUICK_FUZZ, QUICK_SAFE
+from armwarden.evaluation.fuzz import FuzzOptions, FuzzResult, run_fuzz
 from armwarden.evaluation.report import report_data, report_json, report_markdown
-from armwarden.evaluation.runner import EvalOptions, NothingSelected, progress, run_evaluation
+from armwarden.evaluation.runner import EvalOptions, EvalResult, NothingSelected, progress, run_evaluation
 from armwarden.evaluation.targets import EvalRefused, checked_can_config, default_backend_config
 from armwarden.policy import bundled_policy, load_policy
 
@@ -45,15 +46,21 @@ def eval_command(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, options: EvalOptions) -> int:
+    # --only is a filtered scenario run: no fuzzing unless asked for
+    default_calls = 0 if args.only else QUICK_FUZZ if args.quick else FULL_FUZZ
+    fuzz_calls = args.fuzz_calls if args.fuzz_calls is not None else default_calls
+    fuzz: FuzzResult | str = "not asked for (--fuzz-calls 0, or --only)"
     try:
-        result = anyio.run(run_evaluation, options)
+        result = EvalResult() if args.fuzz_only else anyio.run(run_evaluation, options)
+        if fuzz_calls > 0:
+            fuzz = _fuzz(options, FuzzOptions(calls=fuzz_calls, seed=args.seed))
     except NothingSelected as exc:  # invalid input, like a policy error
         progress(str(exc))
         return 2
     except Exception as exc:  # the daemon refused to start, or the session broke: no result to report
         progress(f"could not complete: {exc!r}")
         return EXIT_REFUSED
-    data = report_data(options, result)
+    data = report_data(options, result, fuzz, scenarios_run=not args.fuzz_only)
     markdown = report_markdown(data)
     if args.report:
         Path(args.report).write_text(markdown, encoding="utf-8")
@@ -64,4 +71,13 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     failed = sum(not r.passed for r in result.unsafe)
     progress(f"{len(result.unsafe) - failed}/{len(result.unsafe)} unsafe scenarios passed, "
              f"{result.safe.executed}/{result.safe.attempted} safe requests executed")
-    return 0 if result.ok else 1
+    return 0 if result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok) else 1
+
+
+def _fuzz(options: EvalOptions, fuzz: FuzzOptions) -> FuzzResult | str:
+    """The fuzz run, or why it cannot run: hypothesis is a development dependency, not a runtime one."""
+    try:
+        import hypothesis  # noqa: F401
+    except ImportError:
+        return "hypothesis is not installed (pip install 'armwarden[dev]')"
+    return anyio.run(run_fuzz, options, fuzz)

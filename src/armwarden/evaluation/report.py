@@ -11,14 +11,18 @@ from dataclasses import asdict
 from typing import Any
 
 from armwarden import __version__
+from armwarden.evaluation.fuzz import FuzzResult
 from armwarden.evaluation.runner import EvalOptions, EvalResult
 from armwarden.policy import policy_digest
 
 NOT_BUILT = {"run": False, "why": "not in this version"}
 
 
-def report_data(options: EvalOptions, result: EvalResult) -> dict[str, Any]:
+def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str = "not in this version", *,
+                scenarios_run: bool = True) -> dict[str, Any]:
+    """The report's data; `fuzz` is the fuzz run's result or why it did not run."""
     low, high = result.safe.interval()
+    fuzz_data = fuzz.report() if isinstance(fuzz, FuzzResult) else {"run": False, "why": fuzz}
     return {
         "version": __version__,
         "policy": str(options.policy_path),
@@ -26,12 +30,13 @@ def report_data(options: EvalOptions, result: EvalResult) -> dict[str, Any]:
         "backend": options.backend,
         "seed": options.seed,
         "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
-        "passed": result.ok,
+        "passed": result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok),
+        "scenarios_run": scenarios_run,
         "unsafe": [asdict(r) for r in result.unsafe],
         "skipped": list(result.skipped),
         "safe": {"attempted": result.safe.attempted, "executed": result.safe.executed,
                  "wilson_low": low, "wilson_high": high, "failures": result.safe.failures},
-        "fuzz": NOT_BUILT,
+        "fuzz": fuzz_data,
         "faults": NOT_BUILT,
         "load": NOT_BUILT,
     }
@@ -72,6 +77,37 @@ def report_markdown(data: dict[str, Any]) -> str:
         "against the workspace box, the table and the keep-out zones by the evaluation itself.",
     ]
     lines += [f"- {failure}" for failure in safe["failures"]]
+    if not data.get("scenarios_run", True):
+        lines += ["", "(--fuzz-only: the unsafe scenarios and the safe requests were not run.)"]
+    if data["fuzz"].get("run"):
+        lines += fuzz_markdown(data["fuzz"])
     lines += ["", "## Not run by this version", ""]
-    lines += [f"- {key}: {data[key]['why']}" for key in ("fuzz", "faults", "load")]
+    lines += [f"- {key}: {data[key]['why']}" for key in ("fuzz", "faults", "load") if not data[key].get("run")]
     return "\n".join(lines) + "\n"
+
+
+def fuzz_markdown(fuzz: dict[str, Any]) -> list[str]:
+    """The fuzz section: totals, one row per transport, and the findings kept (tool and arguments)."""
+    findings = fuzz["crashes"] + fuzz["unaudited"] + fuzz["actuations"] + fuzz["estop_unanswered"]
+    lines = [
+        "",
+        f"## Fuzzing: {fuzz['calls']} generated calls, {findings} findings",
+        "",
+        "Calls drawn (hypothesis, fixed seed) from the tools' own input schemas, valid and invalid (wrong types, "
+        "NaN/Inf, out of range, huge and control-character strings, deep nesting, unknown and missing keys); every "
+        "approval prompt declined, `estop` called every 100 calls and at the end.",
+        "",
+        "| transport | calls (valid/invalid) | crashes | unaudited | actuations | estop unanswered | RSS growth [MB] "
+        "| wall [s] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, run in fuzz["per_transport"].items():
+        lines.append(f"| {name} | {run['calls']} ({run['valid']}/{run['invalid']}) | {run['crashes']} | "
+                     f"{run['unaudited']} | {run['actuations']} | {run['estop_unanswered']} | "
+                     f"{run['rss_growth_mb']} | {run['wall_s']} |")
+    for name, run in fuzz["per_transport"].items():
+        lines += [f"- {name}: the daemon's faults at the end (calls after one met a refusing backend): {fault}"
+                  for fault in run.get("faults_at_end", [])]
+        lines += [f"- {name}: {f['kind']} at call {f['call']}: `{f['tool']}` {f['arguments']!r} — {f['detail']}"
+                  for f in run["findings"]]
+    return lines
