@@ -137,3 +137,11 @@ def test_a_non_finite_value_is_judged_as_the_client_sends_it() -> None:
     assert as_sent({"width_m": 0.01, "speed_mps": math.nan}) == {"width_m": 0.01, "speed_mps": None}
     assert conforms(schema, as_sent({"width_m": 0.01, "speed_mps": math.inf}))
     assert not conforms(schema, as_sent({"width_m": math.nan}))  # null where a number is required
+
+
+def test_importing_the_broken_daemon_leaves_this_process_auditing() -> None:
+    from armwarden.server.app import ArmWardenServer
+    from tests.evaluation import unaudited_daemon
+
+    assert ArmWardenServer._audit.__module__ == "armwarden.server.app"  # pyright: ignore[reportPrivateUsage]
+    assert unaudited_daemon.UNRECORDED_TOOL == "get_robot_state"

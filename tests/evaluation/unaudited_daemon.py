@@ -17,16 +17,21 @@ from armwarden.server.app import ArmWardenServer
 #: the tool whose calls go unrecorded (the fuzz harness's first call is always one)
 UNRECORDED_TOOL = "get_robot_state"
 
-_audit = ArmWardenServer._audit
+def break_auditing() -> None:
+    """Patch this process's server to skip the records of `UNRECORDED_TOOL`. Called only when run
+    as the daemon: importing this module (for `UNRECORDED_TOOL`) must not break the importing
+    test process's auditing (it once did, and every later server test in that worker lost its
+    `get_robot_state` records)."""
+    audit = ArmWardenServer._audit
 
+    async def audit_all_but_one(self: ArmWardenServer, record: Any) -> None:
+        if record.tool == UNRECORDED_TOOL:
+            return
+        await audit(self, record)
 
-async def _audit_all_but_one(self: ArmWardenServer, record: Any) -> None:
-    if record.tool == UNRECORDED_TOOL:
-        return
-    await _audit(self, record)
+    ArmWardenServer._audit = audit_all_but_one  # type: ignore[method-assign]
 
-
-ArmWardenServer._audit = _audit_all_but_one  # type: ignore[method-assign]
 
 if __name__ == "__main__":
+    break_auditing()
     sys.exit(main())
