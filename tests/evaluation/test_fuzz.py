@@ -15,7 +15,6 @@ import pytest
 from armwarden.evaluation.fuzz import (
     FuzzOptions,
     FuzzSession,
-    JournalReader,
     TransportResult,
     as_sent,
     audit_calls,
@@ -23,6 +22,7 @@ from armwarden.evaluation.fuzz import (
     short_repr,
     unaudited_calls,
 )
+from armwarden.evaluation.journal import JournalReader
 from armwarden.evaluation.runner import EvalOptions
 from armwarden.evaluation.schemas import conforms
 from armwarden.policy import bundled_policy, load_policy
@@ -49,10 +49,10 @@ def test_audit_and_journal_lines_split_on_newlines_only(tmp_path) -> None:
     journal = tmp_path / "journal.jsonl"
     reader = JournalReader(journal)
     journal.write_text('{"t": 1, "call": "execute", "kind": "actuation"}\n{"t": 2, "ca', encoding="utf-8")
-    assert [e["call"] for e in reader.new_entries()] == ["execute"]
+    assert [e.call for e in reader.new_entries()] == ["execute"]
     with journal.open("a", encoding="utf-8") as handle:
         handle.write('ll": "stop", "kind": "stop"}\n')
-    assert [e["call"] for e in reader.new_entries()] == ["stop"]
+    assert [e.call for e in reader.new_entries()] == ["stop"]
 
 
 def test_a_finding_names_a_shortened_argument() -> None:

@@ -43,7 +43,15 @@ import anyio.to_thread
 from mcp import Client, MCPError, StdioServerParameters
 from mcp import types as mcp_types
 
-from armwarden.evaluation.runner import EVAL_WRENCH_TIMEOUT_S, UNLIMITED, EvalOptions, progress
+from armwarden.evaluation.journal import JournalReader
+from armwarden.evaluation.runner import (
+    EVAL_WRENCH_TIMEOUT_S,
+    UNLIMITED,
+    EvalOptions,
+    progress,
+    serve_arguments,
+    write_policy,
+)
 
 #: the transports a run fuzzes, in order
 TRANSPORTS = ("stdio", "http")
@@ -252,30 +260,6 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-class JournalReader:
-    """The actuation journal read incrementally: the complete lines appended since the last read."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self._offset = 0
-
-    def new_entries(self) -> list[dict[str, Any]]:
-        if not self.path.exists():
-            return []
-        with self.path.open("rb") as handle:
-            handle.seek(self._offset)
-            data = handle.read()
-        end = data.rfind(b"\n") + 1  # a line still being written is left for the next read
-        self._offset += end
-        entries = []
-        for line in data[:end].split(b"\n"):
-            try:
-                entries.append(json.loads(line))
-            except json.JSONDecodeError:
-                continue
-        return entries
-
-
 def audit_calls(path: Path) -> list[str]:
     """The tool of every call the audit log records, in order: each `tool_call` record, and each
     call a transport refused before the tools (`request_refused` naming a tool, with the refusals
@@ -359,14 +343,14 @@ class FuzzSession:
         the answer: the journal counts the call as it reaches the backend, before the backend may
         refuse it."""
         for entry in self.journal.new_entries():
-            if entry.get("kind") != "actuation":
+            if entry.kind != "actuation":
                 continue  # stops and e-stops are not actuations
-            if tool.startswith("gripper_") and entry.get("call") == tool and valid:
+            if tool.startswith("gripper_") and entry.call == tool and valid:
                 self.result.allowed_gripper_actuations += 1
                 continue
             self.result.actuations += 1
             self.result.note(Finding("actuation", len(self.sent), tool, short_repr(arguments),
-                                     f"the backend got {entry.get('call')} (no plan is ever approved)"))
+                                     f"the backend got {entry.call} (no plan is ever approved)"))
 
     async def harness_call(self, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any]] | None:
         self.result.harness_calls += 1
@@ -508,15 +492,6 @@ async def _fuzz(session: FuzzSession, audit: Path) -> None:
     result.wall_s = round(time.monotonic() - session.started, 1)
 
 
-def _serve_args(options: EvalOptions, policy: Path, directory: Path, name: str) -> list[str]:
-    args = ["serve", "--policy", str(policy), "--backend", options.backend,
-            "--audit-log", str(directory / f"{name}-audit.jsonl"),
-            "--actuation-journal", str(directory / f"{name}-journal.jsonl"), "--log-level", "WARNING"]
-    if options.backend_config is not None:
-        args += ["--backend-config", str(options.backend_config)]
-    return args
-
-
 @asynccontextmanager
 async def _stdio_client(fuzz: FuzzOptions, args: list[str], audit: Path,
                         approve: Callable[..., Any]) -> AsyncIterator[tuple[Client, int | None]]:
@@ -575,8 +550,6 @@ async def _http_client(fuzz: FuzzOptions, args: list[str], directory: Path,
 
 async def run_fuzz(options: EvalOptions, fuzz: FuzzOptions) -> FuzzResult:
     """`fuzz.calls` generated calls on each of `fuzz.transports`, one daemon each (see the module docstring)."""
-    from armwarden.evaluation.runner import _write_policy
-
     result = FuzzResult()
     overrides = {"rate_limits": UNLIMITED, "approval.mode": "always", "approval.require_for": APPROVE_ALL,
                  "approval.channel": "form",
@@ -585,11 +558,11 @@ async def run_fuzz(options: EvalOptions, fuzz: FuzzOptions) -> FuzzResult:
     with tempfile.TemporaryDirectory(prefix="armwarden-fuzz-") as tmp:
         directory = Path(tmp) if fuzz.workdir is None else fuzz.workdir
         directory.mkdir(parents=True, exist_ok=True)
-        policy = _write_policy(options, directory, "fuzz", overrides)
+        policy = write_policy(options, directory, "fuzz", overrides)
         for transport in fuzz.transports:
             outcome = TransportResult(transport)
             result.per_transport[transport] = outcome
-            args = _serve_args(options, policy, directory, transport)
+            args = serve_arguments(options, directory, transport, policy)
             audit = directory / f"{transport}-audit.jsonl"
             holder: list[FuzzSession] = []
 

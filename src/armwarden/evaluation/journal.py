@@ -25,8 +25,32 @@ def read_journal(path: Path) -> list[JournalEntry]:
     """Every complete line of the journal (a line still being written is left for the next read)."""
     if not path.exists():
         return []
+    return _parse(path.read_bytes().split(b"\n"))
+
+
+class JournalReader:
+    """The journal read incrementally (the fuzz reads it after every call): the complete lines
+    appended since the last read."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._offset = 0
+
+    def new_entries(self) -> list[JournalEntry]:
+        if not self.path.exists():
+            return []
+        with self.path.open("rb") as handle:
+            handle.seek(self._offset)
+            data = handle.read()
+        end = data.rfind(b"\n") + 1  # a line still being written is left for the next read
+        self._offset += end
+        return _parse(data[:end].split(b"\n"))
+
+
+def _parse(lines: list[bytes]) -> list[JournalEntry]:
+    """The lines that hold a whole record (split on newlines only, never on U+2028 and the like)."""
     entries = []
-    for line in path.read_text(encoding="utf-8").splitlines():
+    for line in lines:
         try:
             record = json.loads(line)
         except json.JSONDecodeError:

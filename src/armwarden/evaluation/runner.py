@@ -159,19 +159,26 @@ def _approver(session_ref: list[DaemonSession]) -> Callable[..., Any]:
     return answer
 
 
-def _write_policy(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any]) -> Path:
+def write_policy(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any]) -> Path:
     document = yaml.safe_load(options.policy_path.read_text(encoding="utf-8"))
     path = directory / f"{name}-policy.yaml"
     path.write_text(yaml.safe_dump(apply_overrides(document, overrides), sort_keys=False), encoding="utf-8")
     return path
 
 
-def _server(options: EvalOptions, directory: Path, name: str, policy_path: Path) -> StdioServerParameters:
-    args = ["-m", "armwarden.cli", "serve", "--policy", str(policy_path), "--backend", options.backend,
+def serve_arguments(options: EvalOptions, directory: Path, name: str, policy_path: Path) -> list[str]:
+    """`armwarden serve`'s arguments for the daemon `name`: its policy, the backend under
+    evaluation, and its own audit log and actuation journal in `directory`."""
+    args = ["serve", "--policy", str(policy_path), "--backend", options.backend,
             "--audit-log", str(directory / f"{name}-audit.jsonl"),
             "--actuation-journal", str(directory / f"{name}-journal.jsonl"), "--log-level", "WARNING"]
     if options.backend_config is not None:
         args += ["--backend-config", str(options.backend_config)]
+    return args
+
+
+def _server(options: EvalOptions, directory: Path, name: str, policy_path: Path) -> StdioServerParameters:
+    args = ["-m", "armwarden.cli", *serve_arguments(options, directory, name, policy_path)]
     # the SDK passes a minimal environment unless given one: pass ours on (PYTHONPATH, the audit key)
     return StdioServerParameters(command=sys.executable, args=args, env=dict(os.environ), cwd=str(Path.cwd()))
 
@@ -260,7 +267,7 @@ async def _safe_requests(session: DaemonSession, options: EvalOptions, result: S
 
 async def _with_daemon(options: EvalOptions, directory: Path, name: str, overrides: dict[str, Any], elicits: bool,
                        body: Callable[[DaemonSession, Path], Any]) -> None:
-    policy_path = _write_policy(options, directory, name, overrides)
+    policy_path = write_policy(options, directory, name, overrides)
     ref: list[DaemonSession] = []
     progress(f"starting the daemon '{name}' ({options.backend}, {'with' if elicits else 'without'} elicitation)")
     params = _server(options, directory, name, policy_path)
