@@ -12,10 +12,16 @@ Habits of this suite:
   `_full_budget` suffix, marked `slow`, with the full budget: `pytest -m slow` runs the full
   budgets (see the dense-resampling properties in `safety/test_envelope.py`). A property is given
   a quick/full pair when one example costs more than about 0.1 s.
+- Real-time tests (the CAN emulator's wall-clock physics and servo loop: everything under
+  `tests/backends/can/`, every test parametrized with the `can` backend, and any test marked
+  `realtime`) can be run apart from the rest: `ARMWARDEN_TEST_REALTIME=only` keeps just them,
+  `=skip` keeps all but them. `scripts/test.sh` runs them first, alone on the machine, because a
+  starved servo thread fails closed (a fault, a stopped motion) where a quiet one passes.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +34,31 @@ from armwarden.robot import RobotModel, build_robot
 from armwarden.safety.envelope import Envelope
 from armwarden.safety.limits import EnvelopeLimits
 from tests.helpers import READY
+
+REALTIME_ENV = "ARMWARDEN_TEST_REALTIME"
+CAN_TESTS = Path(__file__).parent / "backends" / "can"
+
+
+def is_realtime(item: pytest.Item) -> bool:
+    """Whether the test runs the CAN emulator's wall-clock loop (or is marked `realtime`)."""
+    if item.get_closest_marker("realtime") is not None or item.path.is_relative_to(CAN_TESTS):
+        return True
+    params = getattr(item, "callspec", None)
+    return params is not None and any(isinstance(v, str) and v == "can" for v in params.params.values())
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Keep only the real-time tests, or all but them, as ARMWARDEN_TEST_REALTIME says."""
+    choice = os.environ.get(REALTIME_ENV, "")
+    if not choice:
+        return
+    if choice not in ("only", "skip"):
+        raise pytest.UsageError(f"{REALTIME_ENV} must be 'only' or 'skip', not {choice!r}")
+    keep = [item for item in items if is_realtime(item) == (choice == "only")]
+    dropped = [item for item in items if is_realtime(item) != (choice == "only")]
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = keep
 
 
 @pytest.fixture

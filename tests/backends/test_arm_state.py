@@ -167,6 +167,7 @@ def test_error_recovery_makes_a_held_arm_idle() -> None:
 
 
 # ---------------------------------------------------------------------------- the CAN backend
+@pytest.mark.realtime
 def test_a_can_fault_latches_faulted_until_the_execution_a_reset_admits_recovers_it() -> None:
     """CAN recovers inside the execution the Guard admits after a human reset (`_recover` reports
     the recovery before the hand-over to its servo loop), and the arm moves again, then rests idle."""

@@ -73,6 +73,7 @@ async def test_a_servo_thread_that_hangs_while_idle_is_a_latched_audited_backend
             assert arm.actuations == []
 
 
+@pytest.mark.realtime
 async def test_the_damping_frames_go_out_while_the_can_servo_thread_hangs(tmp_path) -> None:
     async with arm_harness(tmp_path, policy_with(**{"force.require_wrench": False}), backend="can") as arm:
         backend = arm.inner
