@@ -32,6 +32,7 @@ from armwarden.core.errors import ArmWardenError, ConfigurationError, PolicyErro
 from armwarden.daemon import startup
 from armwarden.daemon.http import bind_listener, log_startup_lines, serve_console_alone, serve_http_clients, served_endpoints
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
+from armwarden.daemon.previous_run import latch_at_start
 from armwarden.daemon.shutdown import (
     EXIT_AUDIT_INCOMPLETE,
     FinalRecordLost,
@@ -80,8 +81,10 @@ async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
             extra={"policy": options.policy_label, "policy_digest": policy_digest(assembly.policy),
                    "dry_run": assembly.policy.dry_run,
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
-                   "pid": os.getpid()},
+                   "pid": os.getpid(), "previous_run_unclean": parts.unclean_end},
         )
+        if parts.unclean_end is not None:  # before any client is served
+            await latch_at_start(assembly.guard, assembly.audit, parts.unclean_end)
         if options.transport == "stdio" and started_from_terminal(sys.stdin):
             print(first_contact_line(backend=options.backend, policy=options.policy_label,
                                      audit_log=assembly.audit.path, tools=len(assembly.server.tools),

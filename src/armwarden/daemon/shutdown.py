@@ -15,6 +15,7 @@ import anyio
 from armwarden.audit import AuditWriteError
 from armwarden.core.errors import ArmWardenError
 from armwarden.daemon.options import Transport
+from armwarden.daemon.previous_run import SHUTDOWN_EVENT, shutdown_extra
 from armwarden.daemon.startup import Assembly
 
 logger = logging.getLogger("armwarden")
@@ -43,11 +44,12 @@ async def close_assembly(assembly: Assembly, why: str) -> str | None:
     the final record and close the log. Returns None, or why the final record could not be
     written and whether the arm was stopped (the log is closed all the same). Safe to call twice."""
     with anyio.CancelScope(shield=True):
-        detail, stopped = why, "the arm was stopped"
+        detail, stopped, arm_stopped = why, "the arm was stopped", True
         try:
             await assembly.backend.stop()
         except Exception as exc:  # the shutdown must go on; the record says the stop failed
             detail, stopped = f"{why}; stop failed: {exc}", f"the stop at shutdown FAILED: {exc}"
+            arm_stopped = False
             logger.error("stop at shutdown failed: %s", exc)
         await assembly.backend.close()
         for reports in assembly.refusal_reports:  # handed to the writer before the final record
@@ -55,7 +57,8 @@ async def close_assembly(assembly: Assembly, why: str) -> str | None:
         if assembly.audit.closed:
             return None
         try:
-            await assembly.audit.append_async("shutdown", outcome="ok", detail=detail)
+            await assembly.audit.append_async(SHUTDOWN_EVENT, outcome="ok", detail=detail,
+                                              extra=shutdown_extra(assembly.guard.latch, arm_stopped))
         except AuditWriteError as exc:  # the arm is stopped either way; the log must still be closed
             return f"{exc}; {stopped}"
         finally:

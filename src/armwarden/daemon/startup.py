@@ -12,6 +12,7 @@ from armwarden.assembly import build_backend, build_guard, plan_previewer
 from armwarden.audit import DEFAULT_COMMIT_WINDOW_S, AuditLog, hmac_key_for_serving
 from armwarden.backends.base import Backend
 from armwarden.core.errors import ArmWardenError, BackendUnavailable
+from armwarden.daemon.previous_run import unclean_end
 from armwarden.guard import Guard
 from armwarden.metrics import DaemonMetrics
 from armwarden.policy import Policy
@@ -41,6 +42,9 @@ class AssemblyParts:
     runtime: RuntimeModel
     #: the loop-side model the backend's state is read with
     state_robot: RobotModel
+    #: why the previous run on this audit log did not end clean (`previous_run`), so this one
+    #: starts with the e-stop latched; None: it did, or there was none
+    unclean_end: str | None = None
 
 @dataclass
 class Assembly:
@@ -76,7 +80,7 @@ def assemble(policy: Policy, backend_name: str, backend_config: str | None, audi
 
         backend = JournalBackend(backend, actuation_journal)
     audit = AuditLog(audit_path, hmac_key=hmac_key_for_serving(), commit_window_s=commit_window_s)
-    return AssemblyParts(policy, backend, audit, runtime, state_robot)
+    return AssemblyParts(policy, backend, audit, runtime, state_robot, unclean_end(audit))
 
 
 async def open_assembly(parts: AssemblyParts) -> Assembly:
