@@ -32,7 +32,7 @@ ALLOWED = {"an executed plan cannot be executed again, even from its start state
 EVAL_TIMEOUT_S = 900
 
 
-def _run_eval(tmp_path: Path, src: Path, only: tuple[str, ...] = ()) -> tuple[int, dict, str]:
+def _run_eval(tmp_path: Path, src: Path, only: tuple[str, ...] = (), *extra: str) -> tuple[int, dict, str]:
     config = tmp_path / "fake.yaml"
     config.write_text("speedup: 20\n", encoding="utf-8")
     out = tmp_path / "eval.json"
@@ -40,7 +40,7 @@ def _run_eval(tmp_path: Path, src: Path, only: tuple[str, ...] = ()) -> tuple[in
     env.pop("ARMWARDEN_AUDIT_KEY", None)
     done = subprocess.run([sys.executable, "-m", "armwarden.cli", "eval", "--quick", "--backend-config", str(config),
                            "--json", str(out), "--report", str(tmp_path / "eval.md"),
-                           *[arg for text in only for arg in ("--only", text)]],
+                           *[arg for text in only for arg in ("--only", text)], *extra],
                           env=env, cwd=tmp_path, capture_output=True, text=True, timeout=EVAL_TIMEOUT_S)
     data = json.loads(out.read_text(encoding="utf-8")) if out.exists() else {}
     return done.returncode, data, done.stderr
@@ -75,8 +75,11 @@ def test_quick_eval_on_fake_passes_every_scenario_with_no_actuation(tmp_path) ->
     assert fuzz["run"] and fuzz["calls"] == 2 * 300, fuzz  # --quick: 300 per transport, stdio and HTTP
     assert (fuzz["crashes"], fuzz["unaudited"], fuzz["actuations"], fuzz["estop_unanswered"]) == (0, 0, 0, 0), fuzz
     assert set(fuzz["per_transport"]) == {"stdio", "http"}
-    for key in ("faults", "load"):
-        assert data[key] == {"run": False, "why": "not in this version"}
+    faults = data["faults"]
+    assert faults["run"] and faults["passed"], faults
+    assert faults["kills"] == faults["survived"] == faults["latched_after_restart"] == 2 and faults["ended_clean"]
+    assert faults["disk_full"]["passed"] and faults["disk_full"]["actuations"] == 0, faults["disk_full"]
+    assert data["load"] == {"run": False, "why": "not in this version"}
     assert data["backend"] == "fake" and data["policy_digest"] and data["version"]
     assert "PASSED" in (tmp_path / "eval.md").read_text(encoding="utf-8")
 
@@ -150,6 +153,20 @@ def test_a_weakened_guard_fails_the_eval(tmp_path, mutant, caught_by) -> None:
     assert data["only"] == [caught_by] and data["safe"]["attempted"] == 0
     failed = {r["name"] for r in data["unsafe"] if not r["passed"]}
     assert any(name.endswith(caught_by) for name in failed), (failed, stderr[-3000:])
+
+
+@pytest.mark.timeout(EVAL_TIMEOUT_S + 60)
+def test_a_daemon_that_forgets_how_its_last_run_ended_fails_the_faults(tmp_path) -> None:
+    script = _mutation_script()
+    src = tmp_path / "src"
+    shutil.copytree(SRC, src, ignore=shutil.ignore_patterns("*.egg-info"))
+    script.apply(script.Mutant("previous-run-forgotten", "daemon/previous_run.py", "    if not records:",
+                               "    if True:", (), "caught by `armwarden eval` only"), src)
+    code, data, stderr = _run_eval(tmp_path, src, ("a reset the operator declines",), "--kills", "1")
+    assert code == 1, stderr[-3000:]
+    faults = data["faults"]
+    assert faults["kills"] == 1 and faults["survived"] == faults["latched_after_restart"] == 0, faults
+    assert "restart not latched by the previous run" in faults["per_kill"][0]["detail"]
 
 
 def test_only_selecting_nothing_is_invalid_input(tmp_path) -> None:

@@ -10,7 +10,8 @@ from pathlib import Path
 import anyio
 
 from armwarden.daemon.options import EXIT_REFUSED
-from armwarden.evaluation.arguments import FULL_FUZZ, FULL_SAFE, QUICK_FUZZ, QUICK_SAFE
+from armwarden.evaluation.arguments import FULL_FUZZ, FULL_KILLS, FULL_SAFE, QUICK_FUZZ, QUICK_KILLS, QUICK_SAFE
+from armwarden.evaluation.faults import FaultsResult, run_faults
 from armwarden.evaluation.fuzz import FuzzOptions, FuzzResult, run_fuzz
 from armwarden.evaluation.report import report_data, report_json, report_markdown
 from armwarden.evaluation.runner import EvalOptions, EvalResult, NothingSelected, progress, run_evaluation
@@ -50,17 +51,23 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     default_calls = 0 if args.only else QUICK_FUZZ if args.quick else FULL_FUZZ
     fuzz_calls = args.fuzz_calls if args.fuzz_calls is not None else default_calls
     fuzz: FuzzResult | str = "not asked for (--fuzz-calls 0, or --only)"
+    default_kills = 0 if args.only or args.fuzz_only else QUICK_KILLS if args.quick else FULL_KILLS
+    kills = args.kills if args.kills is not None else default_kills
+    faults: FaultsResult | str = "not asked for (--kills 0, --only or --fuzz-only)"
     try:
         result = EvalResult() if args.fuzz_only else anyio.run(run_evaluation, options)
         if fuzz_calls > 0:
             fuzz = _fuzz(options, FuzzOptions(calls=fuzz_calls, seed=args.seed))
+        if kills > 0:
+            with tempfile.TemporaryDirectory(prefix="armwarden-eval-faults-") as directory:
+                faults = anyio.run(run_faults, options, Path(directory), kills)
     except NothingSelected as exc:  # invalid input, like a policy error
         progress(str(exc))
         return 2
     except Exception as exc:  # the daemon refused to start, or the session broke: no result to report
         progress(f"could not complete: {exc!r}")
         return EXIT_REFUSED
-    data = report_data(options, result, fuzz, scenarios_run=not args.fuzz_only)
+    data = report_data(options, result, fuzz, faults, scenarios_run=not args.fuzz_only)
     markdown = report_markdown(data)
     if args.report:
         Path(args.report).write_text(markdown, encoding="utf-8")
@@ -71,7 +78,7 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     failed = sum(not r.passed for r in result.unsafe)
     progress(f"{len(result.unsafe) - failed}/{len(result.unsafe)} unsafe scenarios passed, "
              f"{result.safe.executed}/{result.safe.attempted} safe requests executed")
-    return 0 if result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok) else 1
+    return 0 if data["passed"] else 1
 
 
 def _fuzz(options: EvalOptions, fuzz: FuzzOptions) -> FuzzResult | str:

@@ -1,7 +1,7 @@
 """The evaluation's report: markdown for people, JSON for CI and comparisons.
 
-What this version does not run (fuzzing, fault injection, load) is reported as not run, with why,
-never as a figure.
+What this version does not run (load), or a run was not asked for, is reported as not run, with
+why, never as a figure.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from dataclasses import asdict
 from typing import Any
 
 from armwarden import __version__
+from armwarden.evaluation.faults import FaultsResult
 from armwarden.evaluation.fuzz import FuzzResult
 from armwarden.evaluation.runner import EvalOptions, EvalResult
 from armwarden.policy import policy_digest
@@ -18,11 +19,12 @@ from armwarden.policy import policy_digest
 NOT_BUILT = {"run": False, "why": "not in this version"}
 
 
-def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str = "not in this version", *,
-                scenarios_run: bool = True) -> dict[str, Any]:
-    """The report's data; `fuzz` is the fuzz run's result or why it did not run."""
+def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str = "not in this version",
+                faults: FaultsResult | str = "not in this version", *, scenarios_run: bool = True) -> dict[str, Any]:
+    """The report's data; `fuzz` and `faults` are their runs' results or why they did not run."""
     low, high = result.safe.interval()
     fuzz_data = fuzz.report() if isinstance(fuzz, FuzzResult) else {"run": False, "why": fuzz}
+    faults_data = faults.report() if isinstance(faults, FaultsResult) else {"run": False, "why": faults}
     return {
         "version": __version__,
         "policy": str(options.policy_path),
@@ -30,14 +32,15 @@ def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str
         "backend": options.backend,
         "seed": options.seed,
         "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
-        "passed": result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok),
+        "passed": result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok)
+                  and (not isinstance(faults, FaultsResult) or faults.ok),
         "scenarios_run": scenarios_run,
         "unsafe": [asdict(r) for r in result.unsafe],
         "skipped": list(result.skipped),
         "safe": {"attempted": result.safe.attempted, "executed": result.safe.executed,
                  "wilson_low": low, "wilson_high": high, "failures": result.safe.failures},
         "fuzz": fuzz_data,
-        "faults": NOT_BUILT,
+        "faults": faults_data,
         "load": NOT_BUILT,
     }
 
@@ -81,6 +84,8 @@ def report_markdown(data: dict[str, Any]) -> str:
         lines += ["", "(--fuzz-only: the unsafe scenarios and the safe requests were not run.)"]
     if data["fuzz"].get("run"):
         lines += fuzz_markdown(data["fuzz"])
+    if data["faults"].get("run"):
+        lines += faults_markdown(data["faults"])
     lines += ["", "## Not run by this version", ""]
     lines += [f"- {key}: {data[key]['why']}" for key in ("fuzz", "faults", "load") if not data[key].get("run")]
     return "\n".join(lines) + "\n"
@@ -110,4 +115,38 @@ def fuzz_markdown(fuzz: dict[str, Any]) -> list[str]:
                   for fault in run.get("faults_at_end", [])]
         lines += [f"- {name}: {f['kind']} at call {f['call']}: `{f['tool']}` {f['arguments']!r} — {f['detail']}"
                   for f in run["findings"]]
+    return lines
+
+
+def faults_markdown(faults: dict[str, Any]) -> list[str]:
+    """The fault section: the kills and restarts, then the full audit disk."""
+    lines = [
+        "",
+        f"## Faults: {faults['survived']}/{faults['kills']} kills survived"
+        f"{'' if faults['ended_clean'] else ' (the last start did NOT end clean)'}",
+        "",
+        "The daemon killed with SIGKILL once a safe motion's progress passed a random fraction (5–50 %) of it, then "
+        "started again on "
+        "the same audit log: the log must verify up to its last complete record (a torn tail is reported and "
+        "recovered by the next start), and the restart must come up with the e-stop latched by the previous run, "
+        "refuse to move, and release only on an approved reset.",
+        "",
+        f"- killed mid-motion: {faults['mid_motion']}/{faults['kills']}; torn tails: {faults['torn_tails']}; "
+        f"restarts latched: {faults['latched_after_restart']}/{faults['kills']}",
+    ]
+    lines += [f"- kill {k['index'] + 1} FAILED:{k['detail']}" for k in faults["per_kill"] if not k["passed"]]
+    if faults.get("final_detail"):
+        lines.append(f"- the last start: {faults['final_detail']}")
+    disk = faults.get("disk_full")
+    if disk is not None:
+        lines += [
+            "",
+            f"### Audit disk full: {'pass' if disk['passed'] else '**FAIL**'}",
+            "",
+            f"The daemon's files limited in size (RLIMIT_FSIZE, a full disk's EFBIG): the log filled after "
+            f"{disk['filled_after_calls']} read-only calls; the state said the log is unusable: "
+            f"{disk['state_says_unusable']}; a plan made before was refused: {disk['execute_refused']}; actuations: "
+            f"{disk['actuations']}; `estop` still answered: {disk['estop_answered']}."
+            + (f" {disk['detail']}" if disk["detail"] else ""),
+        ]
     return lines

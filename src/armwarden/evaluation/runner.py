@@ -44,6 +44,7 @@ from armwarden.evaluation.scenarios import (
 from armwarden.evaluation.stats import wilson_interval
 from armwarden.policy import Policy, apply_overrides, parse_policy
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
+from armwarden.robot import RobotModel
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +146,7 @@ class DaemonSession:
         return Outcome(refused, text[:200])
 
 
-def _approver(session_ref: list[DaemonSession]) -> Callable[..., Any]:
+def approver(session_ref: list[DaemonSession]) -> Callable[..., Any]:
     async def answer(context: Any, params: mcp_types.ElicitRequestParams) -> mcp_types.ElicitResult:
         approval = session_ref[0].approval if session_ref else "accept"
         if approval == "decline":
@@ -222,6 +223,21 @@ def tcp_is_safe(policy: Policy, tcp: np.ndarray) -> bool:
     return _inside(tcp, box.min, box.max) and not any(_inside(tcp, z.min, z.max) for z in policy.workspace.keep_out)
 
 
+def safe_goal(policy: Policy, robot: RobotModel, rng: np.random.Generator) -> np.ndarray:
+    """A random joint target near home, within the limits and their margin, whose TCP the
+    evaluation's own check finds inside the box and clear of every zone (the last draw after 100)."""
+    home = np.asarray(policy.robot.home_joint_positions, dtype=float)
+    margin = policy.motion.joint_limit_margin_rad + 0.05
+    lower = np.array([lim.min for lim in policy.robot.joint_limits.values()]) + margin
+    upper = np.array([lim.max for lim in policy.robot.joint_limits.values()]) - margin
+    goal = np.clip(home + rng.uniform(-SAFE_SPREAD_RAD, SAFE_SPREAD_RAD, size=home.shape), lower, upper)
+    for _ in range(100):
+        if tcp_is_safe(policy, np.asarray(robot.tcp_pose(goal).position)):
+            break
+        goal = np.clip(home + rng.uniform(-SAFE_SPREAD_RAD, SAFE_SPREAD_RAD, size=home.shape), lower, upper)
+    return goal
+
+
 async def _safe_requests(session: DaemonSession, options: EvalOptions, result: SafeResult) -> None:
     from armwarden.preflight import load_runtime_model  # an independent model instance for the re-check
 
@@ -229,15 +245,8 @@ async def _safe_requests(session: DaemonSession, options: EvalOptions, result: S
     robot = load_runtime_model(policy, str(options.policy_path)).robot
     rng = np.random.default_rng(options.seed)
     home = np.asarray(policy.robot.home_joint_positions, dtype=float)
-    margin = policy.motion.joint_limit_margin_rad + 0.05
-    lower = np.array([lim.min for lim in policy.robot.joint_limits.values()]) + margin
-    upper = np.array([lim.max for lim in policy.robot.joint_limits.values()]) - margin
     for index in range(options.safe_count):
-        goal = np.clip(home + rng.uniform(-SAFE_SPREAD_RAD, SAFE_SPREAD_RAD, size=home.shape), lower, upper)
-        for _ in range(100):  # a reachable target: its TCP inside the box and clear of every zone (own check)
-            if tcp_is_safe(policy, np.asarray(robot.tcp_pose(goal).position)):
-                break
-            goal = np.clip(home + rng.uniform(-SAFE_SPREAD_RAD, SAFE_SPREAD_RAD, size=home.shape), lower, upper)
+        goal = safe_goal(policy, robot, rng)
         result.attempted += 1
         try:
             with anyio.fail_after(SCENARIO_TIMEOUT_S):
@@ -271,16 +280,22 @@ async def _with_daemon(options: EvalOptions, directory: Path, name: str, overrid
     ref: list[DaemonSession] = []
     progress(f"starting the daemon '{name}' ({options.backend}, {'with' if elicits else 'without'} elicitation)")
     params = _server(options, directory, name, policy_path)
-    async with Client(params, mode="legacy", elicitation_callback=_approver(ref) if elicits else None) as client:
+    async with Client(params, mode="legacy", elicitation_callback=approver(ref) if elicits else None) as client:
         session = DaemonSession(client)
         ref.append(session)
-        with anyio.fail_after(START_TIMEOUT_S):
-            while True:  # a stale state stream right after start-up is refused (fail closed): ask again
-                error, _, _ = await session.call_raw("get_robot_state", {})
-                if not error:
-                    break
-                await anyio.sleep(0.2)
+        await wait_for_state(session)
         await body(session, directory / f"{name}-journal.jsonl")
+
+
+async def wait_for_state(session: DaemonSession) -> None:
+    """Until the daemon answers `get_robot_state` (a stale state stream right after start-up is
+    refused, fail closed: ask again), at most `START_TIMEOUT_S`."""
+    with anyio.fail_after(START_TIMEOUT_S):
+        while True:
+            error, _, _ = await session.call_raw("get_robot_state", {})
+            if not error:
+                return
+            await anyio.sleep(0.2)
 
 
 async def run_evaluation(options: EvalOptions) -> EvalResult:

@@ -1,0 +1,332 @@
+"""Fault injection against the real daemon: kill -9 mid-motion and a restart on the same audit log,
+and an audit log that can no longer be written.
+
+Kills: the daemon is started on one audit log again and again. Each run plans a safe move,
+executes it and is killed (SIGKILL, the pid from its `startup` record) once the motion's
+reported progress passes a random fraction of it. After each kill the log must verify up to its last complete record (a torn last
+line is reported, and recovered by the next start); each restart must come up with the e-stop
+latched (source `previous_run`) and moving nothing until the reset, which is approved as a human
+would; a last start checks the final kill the same way and ends clean.
+
+Audit disk full: a full file system needs root to make, so the daemon runs under a file-size
+limit (RLIMIT_FSIZE; CPython ignores SIGXFSZ, so a write past it fails with EFBIG as one on a
+full disk fails with ENOSPC: a short write, then an error). A plan made while the log worked is
+executed once read-only calls have filled it: the execution must be refused, the state must say
+the log is unusable, nothing may actuate, and `estop` must still stop.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import anyio
+import numpy as np
+from mcp import Client, StdioServerParameters
+from mcp.client.stdio import stdio_client
+
+from armwarden.audit import verify_file
+from armwarden.audit.chain import hmac_key_from_env
+from armwarden.audit.verify import decode_records
+from armwarden.daemon.previous_run import PREVIOUS_RUN_SOURCE
+from armwarden.evaluation.journal import JournalReader, actuations
+from armwarden.evaluation.runner import (
+    EVAL_WRENCH_TIMEOUT_S,
+    UNLIMITED,
+    DaemonSession,
+    EvalOptions,
+    approver,
+    progress,
+    safe_goal,
+    serve_arguments,
+    wait_for_state,
+    write_policy,
+)
+
+#: the kill comes once the motion's progress passes a fraction drawn uniformly from this range
+KILL_AT_PROGRESS = (0.05, 0.5)
+#: the killed motion's scaling: a slow move (as an operator's careful one), so that the kill finds
+#: it moving even on a sped-up simulation (progress is reported every 0.1 s)
+SLOW = {"velocity_scaling": 0.05, "acceleration_scaling": 0.05}
+#: how long a motion may take to start, or a killed daemon to be gone [s]
+FAULT_STEP_TIMEOUT_S = 60.0
+#: the audit log's size limit under which the daemon of the disk-full fault runs [bytes]: room for
+#: its start-up and a few dozen records
+DISK_LIMIT_BYTES = 24_000
+#: read-only calls the disk-full fault makes at most to fill the log
+FILL_CALLS = 400
+
+
+@dataclass
+class KillRun:
+    index: int
+    #: the execute had not answered when the kill came
+    mid_motion: bool = False
+    #: the log verified after the kill, up to its last complete record
+    verified: bool = False
+    torn_tail: bool = False
+    #: the start after this kill came up latched (source previous_run) and refused to move
+    latched_after_restart: bool = False
+    released: bool = False
+    detail: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return self.verified and self.latched_after_restart and self.released
+
+
+@dataclass
+class DiskFullResult:
+    filled_after_calls: int = 0
+    state_says_unusable: bool = False
+    execute_refused: bool = False
+    actuations: int = 0
+    estop_answered: bool = False
+    detail: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return self.filled_after_calls > 0 and self.state_says_unusable and self.execute_refused \
+            and self.actuations == 0 and self.estop_answered
+
+
+@dataclass
+class FaultsResult:
+    kills: list[KillRun] = field(default_factory=list)
+    disk_full: DiskFullResult | None = None
+    #: the last start (after the last kill) ended with a clean shutdown record
+    ended_clean: bool = False
+    final_detail: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return all(k.passed for k in self.kills) and self.ended_clean and \
+            (self.disk_full is None or self.disk_full.passed)
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "run": True, "passed": self.ok,
+            "kills": len(self.kills), "survived": sum(k.passed for k in self.kills),
+            "mid_motion": sum(k.mid_motion for k in self.kills),
+            "torn_tails": sum(k.torn_tail for k in self.kills),
+            "latched_after_restart": sum(k.latched_after_restart for k in self.kills),
+            "ended_clean": self.ended_clean, "final_detail": self.final_detail,
+            "per_kill": [asdict(k) | {"passed": k.passed} for k in self.kills],
+            "disk_full": None if self.disk_full is None else asdict(self.disk_full) | {"passed": self.disk_full.passed},
+        }
+
+
+def _params(arguments: list[str], file_size_limit: int | None = None) -> StdioServerParameters:
+    """`armwarden serve` as a user runs it; under `file_size_limit` through a small launcher that
+    sets RLIMIT_FSIZE and then execs the daemon."""
+    command = [sys.executable, "-m", "armwarden.cli", *arguments]
+    if file_size_limit is not None:
+        launcher = ("import os, resource, sys; "
+                    f"resource.setrlimit(resource.RLIMIT_FSIZE, ({file_size_limit}, {file_size_limit})); "
+                    "os.execv(sys.argv[1], sys.argv[1:])")
+        command = [sys.executable, "-c", launcher, *command]
+    return StdioServerParameters(command=command[0], args=command[1:], env=dict(os.environ), cwd=str(Path.cwd()))
+
+
+def _client(params: StdioServerParameters, errlog: TextIO, ref: list[DaemonSession]) -> Client:
+    """A client session that approves as a human would; the daemon's stderr goes to `errlog` (a
+    daemon whose log is full says so loudly, and a killed one's last words are kept there)."""
+    return Client(stdio_client(params, errlog=errlog), mode="legacy", elicitation_callback=approver(ref))
+
+
+def _last_words(errlog: Path) -> str:
+    lines = errlog.read_text(encoding="utf-8", errors="replace").strip().splitlines() if errlog.exists() else []
+    return f" (the daemon's last stderr line: {lines[-1][:200]})" if lines else ""
+
+
+def _last_startup(audit: Path) -> dict[str, Any]:
+    starts = [r for r in decode_records(audit.read_bytes().split(b"\n")) if r.get("event") == "startup"]
+    if not starts:
+        raise RuntimeError(f"no startup record in {audit}")
+    return starts[-1]
+
+
+async def _safety(session: DaemonSession) -> dict[str, Any]:
+    _, status, _ = await session.call_raw("get_safety_status", {})
+    return status
+
+
+async def _release_if_latched(session: DaemonSession, goal: np.ndarray, run: KillRun | None) -> None:
+    """Check the start's latch (after a kill: latched by the previous run, a safe plan refused
+    for it), then reset it as an approving human would."""
+    status = await _safety(session)
+    event = status.get("estop_event") or {}
+    if run is not None:
+        refused, _, text = await session.call_raw("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+        run.latched_after_restart = bool(status.get("estopped")) and event.get("source") == PREVIOUS_RUN_SOURCE \
+            and refused and "ESTOP" in text
+        if not run.latched_after_restart:
+            run.detail += f" restart not latched by the previous run: e-stop {event or None}; plan: {text[:120]}"
+    if status.get("estopped"):
+        error, reset, text = await session.call_raw("reset_estop", {})
+        released = not error and reset.get("estopped") is False
+        if run is not None:
+            run.released = released
+            if not released:
+                run.detail += f" reset refused: {text[:160]}"
+
+
+async def _kill_mid_motion(session: DaemonSession, audit: Path, goal: np.ndarray, rng: np.random.Generator,
+                           run: KillRun) -> None:
+    """Plan and execute a safe move; SIGKILL the daemon once the motion's progress passes a random
+    fraction of it (or, were the motion answered first, right then)."""
+    error, plan, text = await session.call_raw("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False,
+                                                                  **SLOW})
+    if error or plan.get("plan_id") is None:
+        run.detail += f" plan refused: {text[:160]}"
+    pid = int(_last_startup(audit)["extra"]["pid"])
+    at = float(rng.uniform(*KILL_AT_PROGRESS))
+    answered, cue = anyio.Event(), anyio.Event()
+
+    async def on_progress(progress: float, total: float | None, message: str | None) -> None:
+        if at * (total or 1.0) <= progress < (total or 1.0):  # moving, past the drawn fraction
+            cue.set()
+
+    async def execute() -> None:
+        try:
+            await session.client.call_tool("execute_plan", {"plan_id": plan.get("plan_id", "")},
+                                           progress_callback=on_progress)
+        except Exception:  # the killed daemon's pipe
+            pass
+        finally:
+            answered.set()
+            cue.set()
+
+    async with anyio.create_task_group() as group:
+        group.start_soon(execute)
+        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
+            await cue.wait()
+        run.mid_motion = not answered.is_set()
+        os.kill(pid, signal.SIGKILL)
+        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
+            await answered.wait()  # the session sees the pipe close
+        group.cancel_scope.cancel()
+
+
+async def _kills(options: EvalOptions, directory: Path, kills: int, result: FaultsResult) -> None:
+    from armwarden.preflight import load_runtime_model
+
+    robot = load_runtime_model(options.policy, str(options.policy_path)).robot
+    policy_path = write_policy(options, directory, "faults", {"rate_limits": UNLIMITED,
+                                                              "force.wrench_timeout_s": EVAL_WRENCH_TIMEOUT_S})
+    arguments = serve_arguments(options, directory, "faults", policy_path)
+    audit, errlog = directory / "faults-audit.jsonl", directory / "faults-daemon.err"
+    rng = np.random.default_rng(options.seed)
+    key = hmac_key_from_env()
+    for index in range(kills + 1):
+        previous = result.kills[-1] if result.kills else None
+        run = KillRun(index) if index < kills else None
+        progress(f"fault: start {index + 1}/{kills + 1} on one audit log, "
+                 + ("then kill -9 mid-motion" if run is not None else "then a clean end"))
+        ref: list[DaemonSession] = []
+        goal = safe_goal(options.policy, robot, rng)
+        try:
+            with errlog.open("a", encoding="utf-8") as err:
+                async with _client(_params(arguments), err, ref) as client:
+                    session = DaemonSession(client)
+                    ref.append(session)
+                    await wait_for_state(session)
+                    await _release_if_latched(session, goal, previous)
+                    if run is not None:
+                        await _kill_mid_motion(session, audit, goal, rng, run)
+        except Exception as exc:  # after the kill: the pipe closed under the session, as it must
+            if run is None or not _gone(audit):
+                detail = f"the session broke: {exc!r}"[:300] + _last_words(errlog)
+                if run is None:
+                    result.final_detail = detail
+                else:
+                    run.detail += f" {detail}"
+        if run is None:
+            records = decode_records(audit.read_bytes().split(b"\n"))
+            extra = records[-1].get("extra") if records else None
+            result.ended_clean = bool(records) and records[-1].get("event") == "shutdown" and \
+                extra == {"arm_stopped": True, "estops_held": []}
+            break
+        report = verify_file(audit, key)
+        run.torn_tail = not report.ok and report.reason == "torn last line"
+        run.verified = report.ok or run.torn_tail
+        if not run.verified:
+            run.detail += f" log does not verify after the kill: line {report.first_bad_line}: {report.reason}"
+        result.kills.append(run)
+        progress(f"fault: kill {index + 1}/{kills} {'mid-motion' if run.mid_motion else 'after the motion'}; "
+                 f"log {'verifies' if report.ok else 'has a torn tail' if run.torn_tail else 'BROKEN'}")
+
+
+def _gone(audit: Path) -> bool:
+    """Whether the daemon of the last startup record is no longer running."""
+    try:
+        os.kill(int(_last_startup(audit)["extra"]["pid"]), 0)
+    except ProcessLookupError:
+        return True
+    except (RuntimeError, KeyError, ValueError):  # no startup record: it never started
+        return False
+    return False
+
+
+async def _disk_full(options: EvalOptions, directory: Path) -> DiskFullResult:
+    result = DiskFullResult()
+    policy_path = write_policy(options, directory, "diskfull", {"rate_limits": UNLIMITED,
+                                                                "force.wrench_timeout_s": EVAL_WRENCH_TIMEOUT_S})
+    arguments = serve_arguments(options, directory, "diskfull", policy_path)
+    reader = JournalReader(directory / "diskfull-journal.jsonl")
+    progress(f"fault: the audit log's file limited to {DISK_LIMIT_BYTES} bytes (a full disk)")
+    from armwarden.preflight import load_runtime_model
+
+    robot = load_runtime_model(options.policy, str(options.policy_path)).robot
+    goal = safe_goal(options.policy, robot, np.random.default_rng(options.seed))
+    ref: list[DaemonSession] = []
+    errlog = directory / "diskfull-daemon.err"
+    with errlog.open("a", encoding="utf-8") as err:
+        return await _fill_the_log(arguments, err, ref, goal, reader, result)
+
+
+async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSession], goal: np.ndarray,
+                        reader: JournalReader, result: DiskFullResult) -> DiskFullResult:
+    async with _client(_params(arguments, DISK_LIMIT_BYTES), err, ref) as client:
+        session = DaemonSession(client)
+        ref.append(session)
+        await wait_for_state(session)
+        error, plan, text = await session.call_raw("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+        if error or plan.get("plan_id") is None:
+            result.detail = f"plan refused before the log filled: {text[:160]}"
+            return result
+        for call in range(1, FILL_CALLS + 1):
+            status = await _safety(session)
+            if status.get("audit_ok") is False:
+                result.filled_after_calls = call
+                result.state_says_unusable = bool(status.get("audit_error"))
+                break
+        else:
+            result.detail = f"the log still took records after {FILL_CALLS} calls"
+            return result
+        reader.new_entries()
+        error, done, text = await session.call_raw("execute_plan", {"plan_id": plan["plan_id"]})
+        # refused saying why: a refusal (AUDIT_UNAVAILABLE) or, where even that cannot be recorded,
+        # an error naming the log; either way nothing may have moved (counted below)
+        result.execute_refused = (error or done.get("status") != "succeeded") and \
+            ("AUDIT_UNAVAILABLE" in text or "audit log" in text)
+        if not result.execute_refused:
+            result.detail = f"execute with the log full: {text[:160]}"
+        result.actuations = len(actuations(reader.new_entries()))
+        error, stopped, text = await session.call_raw("estop", {"reason": "eval: audit disk full"})
+        result.estop_answered = not error and stopped.get("estopped") is True
+        if not result.estop_answered:
+            result.detail = f"estop with the log full: {text[:160]}"
+    return result
+
+
+async def run_faults(options: EvalOptions, directory: Path, kills: int, disk_full: bool = True) -> FaultsResult:
+    result = FaultsResult()
+    await _kills(options, directory, kills, result)
+    if disk_full:
+        result.disk_full = await _disk_full(options, directory)
+    return result
