@@ -9,6 +9,7 @@ backend's state lock.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ class Actuator:
     raw_velocity: float = 0.0
     #: the torque [N·m] its last feedback reported (RobStride type 2, MIT reply); None: none yet
     raw_torque: float | None = None
-    reported_at: float | None = None  # monotonic time its last position arrived
+    reported_at: float | None = None  # monotonic time its last position arrived (on the bus, see `arrived_at`)
     temperature_c: float | None = None
     fault_bits: tuple[str, ...] = ()  # reported in the latest feedback (current)
     fault_frames: tuple[str, ...] = ()  # RobStride type-21 reports (latched until recovery)
@@ -78,6 +79,7 @@ class ReplyDecoder:
         """Reader thread: one received frame into the actuator that sent it (`InvalidFrame` if none did,
         or if it is malformed: counted against that actuator until recovery)."""
         data = bytes(msg.data)
+        arrived = arrived_at(msg)
         if msg.is_extended_id:
             fields = rs.split_id(msg.arbitration_id)
             motor = fields.data2 & 0xFF
@@ -86,7 +88,7 @@ class ReplyDecoder:
                 raise InvalidFrame(f"frame 0x{msg.arbitration_id:X} from unknown RobStride motor {motor}")
             with self.lock:
                 try:
-                    self._on_robstride(a, fields.comm_type, msg.arbitration_id, data)
+                    self._on_robstride(a, fields.comm_type, msg.arbitration_id, data, arrived)
                 except InvalidFrame:
                     a.invalid_frames += 1
                     raise
@@ -108,7 +110,7 @@ class ReplyDecoder:
             a.raw_position = a.unwrapper.update(reply.position)
             a.raw_velocity = reply.velocity
             a.raw_torque = reply.torque
-            a.reported_at = time.monotonic()
+            a.reported_at = _later(a.reported_at, arrived)
             if reply.temperature_c is not None:
                 a.temperature_c = float(reply.temperature_c)
             a.fault_bits = () if reply.error in (None, mit.MitError.NONE) else (reply.error.name,)
@@ -116,13 +118,13 @@ class ReplyDecoder:
             a.replies += 1
             a.unanswered_since = None
 
-    def _on_robstride(self, a: Actuator, comm_type: int, arbitration_id: int, data: bytes) -> None:
+    def _on_robstride(self, a: Actuator, comm_type: int, arbitration_id: int, data: bytes, arrived: float) -> None:
         host = self.host_id
         if comm_type == rs.CommType.FEEDBACK:
             feedback = rs_frames.parse_feedback(arbitration_id, data, a.ranges, host_id=host)
             a.raw_position, a.raw_velocity = feedback.position, feedback.velocity
             a.raw_torque = feedback.torque
-            a.reported_at = time.monotonic()
+            a.reported_at = _later(a.reported_at, arrived)
             a.temperature_c, a.mode = feedback.temperature_c, feedback.mode
             a.fault_bits = rs.flag_names(feedback.faults)
         elif comm_type == rs.CommType.FAULT:
@@ -141,3 +143,25 @@ class ReplyDecoder:
 
 
 __all__ = ["Actuator", "OutFrame", "ReplyDecoder"]
+
+
+def arrived_at(msg: can.Message) -> float:
+    """When `msg` arrived, on the monotonic clock: its receive timestamp (python-can's, on the wall
+    clock: the kernel's for SocketCAN, the sender's for the virtual bus) carried over by its age.
+
+    Not when it is handled: after a stalled servo tick the replies that waited in the socket are
+    drained late, and stamped when handled they passed for fresh — the Guard's stale check could
+    not see their age, and a catch-up drain that handled two replies of an actuator in one tick
+    gave the contact observer two ticks of motion over one tick of stamps. A message without a
+    timestamp, or one from the future (the wall clock stepped back), is stamped now."""
+    now = time.monotonic()
+    stamp = msg.timestamp
+    if not (isinstance(stamp, (int, float)) and math.isfinite(stamp) and stamp > 0):
+        return now
+    return now - max(0.0, time.time() - float(stamp))
+
+
+def _later(previous: float | None, arrived: float) -> float:
+    """`arrived`, never before `previous`: an actuator's reply time only grows (the two clocks
+    `arrived_at` reads are read microseconds apart)."""
+    return arrived if previous is None else max(previous, arrived)

@@ -1,0 +1,44 @@
+"""A CAN reply is stamped with when it arrived on the bus, not when a servo tick got to it: replies
+that waited in the socket behind a stalled tick are as old as they are, for the Guard's stale check
+and for the contact observer's intervals."""
+
+from __future__ import annotations
+
+import time
+
+import can
+
+from armwarden.backends.can import mit
+from armwarden.backends.can.actuators import arrived_at
+from tests.backends.can.test_can_backend import MIT_SIM, build
+
+
+def reply(backend, actuator, arrived_wall: float) -> can.Message:
+    data = mit.pack_reply(mit.MitReply(actuator.joint.can_id, 0.1, 0.0, 0.5, 30, mit.MitError.NONE), actuator.ranges)
+    return can.Message(arbitration_id=backend.config.mit_reply_id, data=data, is_extended_id=False,
+                       timestamp=arrived_wall)
+
+
+def test_replies_that_waited_200_ms_are_kept_as_200_ms_old():
+    backend = build(MIT_SIM)
+    arrived = time.time() - 0.200  # a stalled servo thread left them in the socket
+    for actuator in backend._actuators:
+        backend._replies.on_frame(reply(backend, actuator, arrived))
+    backend._publish()
+    (kept,) = backend.joint_history.since_or_latest(float("-inf"))
+    assert time.monotonic() - kept.stamp >= 0.200
+
+
+def test_a_reply_without_a_timestamp_or_from_the_future_is_stamped_when_handled():
+    before = time.monotonic()
+    assert arrived_at(can.Message(timestamp=0.0)) >= before
+    assert arrived_at(can.Message(timestamp=time.time() + 3600.0)) >= before
+
+
+def test_an_actuators_reply_time_never_goes_back():
+    backend = build(MIT_SIM)
+    actuator = backend._actuators[0]
+    backend._replies.on_frame(reply(backend, actuator, time.time()))
+    first = actuator.reported_at
+    backend._replies.on_frame(reply(backend, actuator, time.time() - 1.0))  # a clock step, an odd interface
+    assert first is not None and actuator.reported_at == first
