@@ -25,9 +25,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -43,6 +40,7 @@ import anyio.to_thread
 from mcp import Client, MCPError, StdioServerParameters
 from mcp import types as mcp_types
 
+from armwarden.evaluation.daemon_process import START_TIMEOUT_S, alive, http_daemon, http_session, rss_mb
 from armwarden.evaluation.journal import JournalReader
 from armwarden.evaluation.runner import (
     EVAL_WRENCH_TIMEOUT_S,
@@ -58,8 +56,6 @@ TRANSPORTS = ("stdio", "http")
 #: a call not answered within this is a crash finding [s] (generous: a loaded machine is slow, a
 #: hung daemon is not)
 CALL_TIMEOUT_S = 60.0
-#: how long the daemon may take to start and answer its first call [s]
-START_TIMEOUT_S = 300.0
 #: how long the audit log may take to hold every call's record after the last call [s]
 AUDIT_SETTLE_S = 60.0
 #: an `estop` check every this many generated calls
@@ -72,8 +68,6 @@ REPR_CHARS = 160
 FINDINGS_KEPT = 10
 #: plan ids remembered from plan results, offered to execute_plan / get_plan
 KNOWN_PLANS = 32
-#: the loopback address the HTTP daemon binds (never anything else)
-HOST = "127.0.0.1"
 #: generated calls per hypothesis run (each run has its own seed, derived from --seed)
 BATCH = 500
 #: the daemon's command line up to `serve` (tests put a deliberately broken daemon here)
@@ -213,32 +207,6 @@ def as_sent(value: Any) -> Any:
     return value
 
 
-def _rss_mb(pid: int | None) -> float | None:
-    if pid is None:
-        return None
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text(encoding="ascii").splitlines():
-            if line.startswith("VmRSS:"):
-                return round(int(line.split()[1]) / 1024, 1)
-    except OSError:
-        return None
-    return None
-
-
-def _alive(pid: int | None) -> bool:
-    return pid is not None and Path(f"/proc/{pid}").exists() and "zombie" not in _proc_state(pid)
-
-
-def _proc_state(pid: int) -> str:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text(encoding="ascii").splitlines():
-            if line.startswith("State:"):
-                return line
-    except OSError:
-        return "gone zombie"
-    return ""
-
-
 def _pid_with_argument(argument: str) -> int | None:
     """The process whose command line holds `argument` (the daemon the SDK's stdio client started:
     its own audit log path is unique to it)."""
@@ -252,12 +220,6 @@ def _pid_with_argument(argument: str) -> int | None:
         except OSError:
             continue
     return None
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind((HOST, 0))
-        return int(sock.getsockname()[1])
 
 
 def audit_calls(path: Path) -> list[str]:
@@ -331,10 +293,10 @@ class FuzzSession:
         return bool(answer.is_error), dict(answer.structured_content or {})
 
     def _crash(self, number: int, tool: str, arguments: dict[str, Any], why: str) -> None:
-        alive = _alive(self.pid)
+        running = alive(self.pid)
         self.result.crashes += 1
         self.result.note(Finding("crash", number, tool, short_repr(arguments),
-                                 f"{why}; daemon {'still running' if alive else 'gone'}"))
+                                 f"{why}; daemon {'still running' if running else 'gone'}"))
         self.broken = True
 
     def _check_journal(self, tool: str, arguments: dict[str, Any], valid: bool) -> None:
@@ -366,7 +328,7 @@ class FuzzSession:
                 if answer is not None and not answer[0]:
                     break
                 await anyio.sleep(0.2)
-        self.result.rss_start_mb = _rss_mb(self.pid)
+        self.result.rss_start_mb = rss_mb(self.pid)
         self.result.start_s = round(time.monotonic() - self.started, 1)
 
     async def check_estop(self) -> None:
@@ -477,8 +439,8 @@ async def _fuzz(session: FuzzSession, audit: Path) -> None:
         status = await session.harness_call("get_safety_status", {})
         if status is not None:
             result.faults_at_end = [str(fault)[:300] for fault in status[1].get("faults", [])]
-    result.rss_end_mb = _rss_mb(session.pid)
-    if not session.broken and not _alive(session.pid):
+    result.rss_end_mb = rss_mb(session.pid)
+    if not session.broken and not alive(session.pid):
         session._crash(len(session.sent), "(none)", {}, "the daemon exited")
     recorded = await _settle_audit(audit, len(session.sent))
     result.audit_records = len(recorded)
@@ -504,48 +466,13 @@ async def _stdio_client(fuzz: FuzzOptions, args: list[str], audit: Path,
 @asynccontextmanager
 async def _http_client(fuzz: FuzzOptions, args: list[str], directory: Path,
                        approve: Callable[..., Any]) -> AsyncIterator[tuple[Client, int | None]]:
-    import httpx2
-    from mcp.client.streamable_http import streamable_http_client
-
     from armwarden.transport.tokens import TokenStore
 
     tokens = directory / "http-tokens.json"
     token = TokenStore.add(tokens, "operator", "eval-fuzz")
-    port = _free_port()
-    stderr_path = directory / "http-stderr.log"
-    with stderr_path.open("wb") as stderr:
-        process = await anyio.open_process(
-            [*fuzz.daemon_command, *args, "--transport", "http", "--host", HOST, "--port", str(port),
-             "--auth-tokens", str(tokens), "--no-console"],
-            env=dict(os.environ), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=stderr)
-    try:
-        base = f"http://{HOST}:{port}"
-        with anyio.fail_after(START_TIMEOUT_S):
-            while True:
-                if process.returncode is not None:
-                    tail = stderr_path.read_text(encoding="utf-8", errors="replace")[-2000:]
-                    raise RuntimeError(f"the HTTP daemon exited with {process.returncode}: {tail}")
-                try:
-                    async with httpx2.AsyncClient(timeout=2.0) as probe:
-                        if (await probe.get(f"{base}/healthz")).status_code == 200:
-                            break
-                except httpx2.HTTPError:
-                    pass
-                await anyio.sleep(0.2)
-        async with (httpx2.AsyncClient(headers={"Authorization": f"Bearer {token}"},
-                                       timeout=httpx2.Timeout(CALL_TIMEOUT_S)) as http,
-                    Client(streamable_http_client(f"{base}/mcp", http_client=http), mode="legacy",
-                           elicitation_callback=approve) as client):
-            yield client, process.pid
-    finally:
-        with anyio.CancelScope(shield=True):
-            if process.returncode is None:
-                process.send_signal(signal.SIGTERM)
-                with anyio.move_on_after(30):
-                    await process.wait()
-                if process.returncode is None:
-                    process.kill()
-                    await process.wait()
+    async with (http_daemon(fuzz.daemon_command, args, tokens, directory / "http-stderr.log") as daemon,
+                http_session(daemon, token, CALL_TIMEOUT_S, approve) as client):
+        yield client, daemon.pid
 
 
 async def run_fuzz(options: EvalOptions, fuzz: FuzzOptions) -> FuzzResult:
