@@ -79,7 +79,10 @@ def test_quick_eval_on_fake_passes_every_scenario_with_no_actuation(tmp_path) ->
     assert faults["run"] and faults["passed"], faults
     assert faults["kills"] == faults["survived"] == faults["latched_after_restart"] == 2 and faults["ended_clean"]
     assert faults["disk_full"]["passed"] and faults["disk_full"]["actuations"] == 0, faults["disk_full"]
-    assert data["load"] == {"run": False, "why": "not in this version"}
+    load = data["load"]
+    assert load["run"] and load["passed"] and load["clients"] == 16 and load["duration_s"] == 10, load
+    assert load["estop"]["count"] >= 1 and load["estop"]["unanswered"] == 0 and load["alive_at_end"], load
+    assert load["actuations"] <= load["approvals"] - load["resets"], load
     assert data["backend"] == "fake" and data["policy_digest"] and data["version"]
     assert "PASSED" in (tmp_path / "eval.md").read_text(encoding="utf-8")
 

@@ -16,6 +16,10 @@ QUICK_SAFE = 10
 #: generated fuzz calls per transport in a full and in a --quick run
 FULL_FUZZ = 10_000
 QUICK_FUZZ = 300
+#: seconds of the load run in a full and a --quick run, and its clients
+FULL_LOAD_S = 60.0
+QUICK_LOAD_S = 10.0
+LOAD_CLIENTS = 16
 #: kill -9 mid-motion (each followed by a restart on the same audit log) in a full and a --quick run
 FULL_KILLS = 10
 QUICK_KILLS = 2
@@ -38,6 +42,10 @@ def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str])
     parser.add_argument("--fuzz-calls", type=int, default=None, metavar="N",
                         help=f"generated calls per transport (default {FULL_FUZZ}, --quick {QUICK_FUZZ}; 0: no fuzzing)")
     parser.add_argument("--fuzz-only", action="store_true", help="run only the fuzzing (the scenarios reported as not run)")
+    parser.add_argument("--load-seconds", type=float, default=None, metavar="S",
+                        help=f"load: {LOAD_CLIENTS} HTTP clients (--load-clients) for S seconds with e-stops through the "
+                             f"stop channel (default {FULL_LOAD_S:g}, --quick {QUICK_LOAD_S:g}; 0: no load run)")
+    parser.add_argument("--load-clients", type=int, default=LOAD_CLIENTS, metavar="N", help="clients of the load run")
     parser.add_argument("--kills", type=int, default=None, metavar="N",
                         help=f"faults: kill -9 the daemon mid-motion N times, restarting it on the same audit log, then "
                              f"fill its audit log (default {FULL_KILLS}, --quick {QUICK_KILLS}; 0: no fault injection)")

@@ -10,9 +10,19 @@ from pathlib import Path
 import anyio
 
 from armwarden.daemon.options import EXIT_REFUSED
-from armwarden.evaluation.arguments import FULL_FUZZ, FULL_KILLS, FULL_SAFE, QUICK_FUZZ, QUICK_KILLS, QUICK_SAFE
+from armwarden.evaluation.arguments import (
+    FULL_FUZZ,
+    FULL_KILLS,
+    FULL_LOAD_S,
+    FULL_SAFE,
+    QUICK_FUZZ,
+    QUICK_KILLS,
+    QUICK_LOAD_S,
+    QUICK_SAFE,
+)
 from armwarden.evaluation.faults import FaultsResult, run_faults
 from armwarden.evaluation.fuzz import FuzzOptions, FuzzResult, run_fuzz
+from armwarden.evaluation.load import LoadResult, run_load
 from armwarden.evaluation.report import report_data, report_json, report_markdown
 from armwarden.evaluation.runner import EvalOptions, EvalResult, NothingSelected, progress, run_evaluation
 from armwarden.evaluation.targets import EvalRefused, checked_can_config, default_backend_config
@@ -54,6 +64,12 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     default_kills = 0 if args.only or args.fuzz_only else QUICK_KILLS if args.quick else FULL_KILLS
     kills = args.kills if args.kills is not None else default_kills
     faults: FaultsResult | str = "not asked for (--kills 0, --only or --fuzz-only)"
+    default_load = 0.0 if args.only or args.fuzz_only else QUICK_LOAD_S if args.quick else FULL_LOAD_S
+    load_s = args.load_seconds if args.load_seconds is not None else default_load
+    load: LoadResult | str = "not asked for (--load-seconds 0, --only or --fuzz-only)"
+    if load_s < 0 or args.load_clients < 2:
+        progress("--load-seconds must be 0 or more and --load-clients at least 2")
+        return 2
     try:
         result = EvalResult() if args.fuzz_only else anyio.run(run_evaluation, options)
         if fuzz_calls > 0:
@@ -61,13 +77,15 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
         if kills > 0:
             with tempfile.TemporaryDirectory(prefix="armwarden-eval-faults-") as directory:
                 faults = anyio.run(run_faults, options, Path(directory), kills)
+        if load_s > 0:
+            load = anyio.run(run_load, options, args.load_clients, load_s)
     except NothingSelected as exc:  # invalid input, like a policy error
         progress(str(exc))
         return 2
     except Exception as exc:  # the daemon refused to start, or the session broke: no result to report
         progress(f"could not complete: {exc!r}")
         return EXIT_REFUSED
-    data = report_data(options, result, fuzz, faults, scenarios_run=not args.fuzz_only)
+    data = report_data(options, result, fuzz, faults, load, scenarios_run=not args.fuzz_only)
     markdown = report_markdown(data)
     if args.report:
         Path(args.report).write_text(markdown, encoding="utf-8")

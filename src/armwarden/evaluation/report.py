@@ -1,7 +1,6 @@
 """The evaluation's report: markdown for people, JSON for CI and comparisons.
 
-What this version does not run (load), or a run was not asked for, is reported as not run, with
-why, never as a figure.
+A part not asked for is reported as not run, with why, never as a figure.
 """
 
 from __future__ import annotations
@@ -13,18 +12,19 @@ from typing import Any
 from armwarden import __version__
 from armwarden.evaluation.faults import FaultsResult
 from armwarden.evaluation.fuzz import FuzzResult
+from armwarden.evaluation.load import LoadResult
 from armwarden.evaluation.runner import EvalOptions, EvalResult
 from armwarden.policy import policy_digest
 
-NOT_BUILT = {"run": False, "why": "not in this version"}
-
 
 def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str = "not in this version",
-                faults: FaultsResult | str = "not in this version", *, scenarios_run: bool = True) -> dict[str, Any]:
-    """The report's data; `fuzz` and `faults` are their runs' results or why they did not run."""
+                faults: FaultsResult | str = "not in this version", load: LoadResult | str = "not in this version", *,
+                scenarios_run: bool = True) -> dict[str, Any]:
+    """The report's data; `fuzz`, `faults` and `load` are their runs' results or why they did not run."""
     low, high = result.safe.interval()
     fuzz_data = fuzz.report() if isinstance(fuzz, FuzzResult) else {"run": False, "why": fuzz}
     faults_data = faults.report() if isinstance(faults, FaultsResult) else {"run": False, "why": faults}
+    load_data = load.report() if isinstance(load, LoadResult) else {"run": False, "why": load}
     return {
         "version": __version__,
         "policy": str(options.policy_path),
@@ -33,7 +33,8 @@ def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str
         "seed": options.seed,
         "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
         "passed": result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok)
-                  and (not isinstance(faults, FaultsResult) or faults.ok),
+                  and (not isinstance(faults, FaultsResult) or faults.ok)
+                  and (not isinstance(load, LoadResult) or load.ok),
         "scenarios_run": scenarios_run,
         "unsafe": [asdict(r) for r in result.unsafe],
         "skipped": list(result.skipped),
@@ -41,7 +42,7 @@ def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str
                  "wilson_low": low, "wilson_high": high, "failures": result.safe.failures},
         "fuzz": fuzz_data,
         "faults": faults_data,
-        "load": NOT_BUILT,
+        "load": load_data,
     }
 
 
@@ -86,8 +87,11 @@ def report_markdown(data: dict[str, Any]) -> str:
         lines += fuzz_markdown(data["fuzz"])
     if data["faults"].get("run"):
         lines += faults_markdown(data["faults"])
-    lines += ["", "## Not run by this version", ""]
-    lines += [f"- {key}: {data[key]['why']}" for key in ("fuzz", "faults", "load") if not data[key].get("run")]
+    if data["load"].get("run"):
+        lines += load_markdown(data["load"])
+    not_run = [f"- {key}: {data[key]['why']}" for key in ("fuzz", "faults", "load") if not data[key].get("run")]
+    if not_run:
+        lines += ["", "## Not run", "", *not_run]
     return "\n".join(lines) + "\n"
 
 
@@ -149,4 +153,25 @@ def faults_markdown(faults: dict[str, Any]) -> list[str]:
             f"{disk['actuations']}; `estop` still answered: {disk['estop_answered']}."
             + (f" {disk['detail']}" if disk["detail"] else ""),
         ]
+    return lines
+
+
+def load_markdown(load: dict[str, Any]) -> list[str]:
+    """The load section: totals, the e-stops under load, one row per tool."""
+    estop = load["estop"]
+    lines = [
+        "",
+        f"## Load: {load['clients']} HTTP clients for {load['duration_s']:g} s — {'pass' if load['passed'] else '**FAIL**'}",
+        "",
+        f"{load['calls']} calls ({load['throughput_per_s']}/s); e-stops through the stop channel under that load: "
+        f"{estop['count']} answered (p50 {estop['p50_ms']} ms, max {estop['max_ms']} ms), {estop['unanswered']} not; "
+        f"actuations {load['actuations']} for {load['approvals']} approvals ({load['resets']} of them resets); "
+        f"daemon RSS growth {load['rss_growth_mb']} MB; still running at the end: {load['alive_at_end']}.",
+        "",
+        "| tool | calls | refused | failed | p50 [ms] | p99 [ms] |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [f"| {tool} | {s['calls']} | {s['refused']} | {s['failed']} | {s['p50_ms']} | {s['p99_ms']} |"
+              for tool, s in load["per_tool"].items()]
+    lines += [f"- {failure}" for failure in load["failures"]]
     return lines
