@@ -4,7 +4,7 @@ through the stop channel while they work.
 One daemon over streamable HTTP on 127.0.0.1 (a random free port, a temporary token file) with
 its stop channel (`--estop-port`). `clients` sessions run for `duration_s` and then stop by
 themselves: a quarter of them operators (plan a safe target, execute it with approval, read the
-motion status), the rest observers (state, safety status, envelope). Every execute needs
+motion status), the rest observers (the reads an observer's token may make). Every execute needs
 approval (`approval.mode: always`); the operators' clients approve, as a human would, and count
 what they approved. E-stops are posted to the stop channel at even intervals and timed; an
 operator resets each one (approved) so the work goes on.
@@ -42,12 +42,12 @@ from armwarden.evaluation.runner import (
     serve_arguments,
     write_policy,
 )
+from armwarden.tools.registry import names
 
 #: an e-stop through the stop channel every this many seconds of the run
 ESTOP_EVERY_S = 10.0
 #: a call not answered within this is a failure [s]
 CALL_TIMEOUT_S = 60.0
-OBSERVER_TOOLS = ("get_robot_state", "get_safety_status", "get_safety_envelope")
 
 
 @dataclass
@@ -135,9 +135,18 @@ class LoadClient:
         return time.monotonic() < self.deadline
 
 
+def observer_reads() -> frozenset[str]:
+    """The tools an observer's token may call that only read, pictures aside (the catalogue's)."""
+    return names(lambda spec: spec.observer_may_call and spec.hints.read_only and not spec.picture)
+
+
 async def _observer(client: LoadClient, rng: np.random.Generator) -> None:
-    while client.running():
-        await client.call(str(rng.choice(OBSERVER_TOOLS)), {})
+    """Reads, drawn from the observer's reads the daemon serves that need no arguments."""
+    listed = await client.client.list_tools()
+    reads = sorted(t.name for t in listed.tools
+                   if t.name in observer_reads() and not (t.input_schema or {}).get("required"))
+    while client.running() and reads:
+        await client.call(str(rng.choice(reads)), {})
 
 
 async def _operator(client: LoadClient, options: EvalOptions, robot: Any, rng: np.random.Generator) -> None:
