@@ -275,6 +275,7 @@ async def test_a_topic_fallback_stop_with_stale_joint_states_holds_where_the_arm
         task = asyncio.create_task(backend.execute(straight_line(backend.joint_names, q, q + 0.6, 3.0)))
         await wait_for(lambda: cell.positions()[0] > q[0] + 0.05, "the cell moving")
         cell.pause_joint_states()
+        last_measured = cell.positions()  # the backend's newest measurement from here on
         await wait_for(lambda: bool(faults), "a fault")
         with pytest.raises(BackendError):
             await task
@@ -282,9 +283,14 @@ async def test_a_topic_fallback_stop_with_stale_joint_states_holds_where_the_arm
         arm = cell.positions()
         hold = cell.counters().last_topic_trajectory
     assert hold is not None and len(hold.points) == 1
-    # the trajectory moves 0.2 rad/s and the hold is reached in 0.05 s: the arm is within about
-    # 0.01 rad of it (the hold at the stale measurement was 0.1 rad behind)
-    assert float(np.max(np.abs(np.array(hold.points[0].positions) - arm))) <= 0.01
+    # every joint moves the same way (q + 0.6): compare joint 1. The arm went on from the last
+    # measurement until the hold reached the cell; the hold is the setpoint at the fault, which
+    # came at least the stale-state timeout after the pause, so it lies well along that travel
+    # (at the last measurement, as it was, it lay at 0). The share depends on how quickly the hold
+    # was published after the fault, so only "well along" is asserted, not a time.
+    travelled = arm[0] - last_measured[0]
+    assert travelled > 0.02, (arm, last_measured)
+    assert hold.points[0].positions[0] - last_measured[0] >= 0.25 * travelled, (hold.points[0].positions, arm)
 
 
 class SpareController:
