@@ -75,7 +75,7 @@ class ReplyDecoder:
     host_id: int
     mit_reply_id: int
     #: when each frame arrived on the bus
-    arrivals: ArrivalClock = field(default_factory=lambda: ArrivalClock())
+    arrivals: ArrivalClock = field(default_factory=lambda: ArrivalClock(trusts_stamps=False))
 
     def on_frame(self, msg: can.Message) -> None:
         """Reader thread: one received frame into the actuator that sent it (`InvalidFrame` if none did,
@@ -144,49 +144,42 @@ class ReplyDecoder:
             raise InvalidFrame(f"unexpected RobStride frame type {comm_type} from motor {a.joint.can_id}")
 
 
-__all__ = ["Actuator", "ArrivalClock", "OutFrame", "ReplyDecoder"]
+__all__ = ["WALL_CLOCK_STAMPS", "Actuator", "ArrivalClock", "OutFrame", "ReplyDecoder"]
 
 
+#: python-can interfaces whose receive stamps are on this host's wall clock: the kernel's
+#: (SocketCAN) and the sender's `time.time()` (the virtual bus, in this process)
+WALL_CLOCK_STAMPS = frozenset({"socketcan", "virtual"})
+
+
+@dataclass(frozen=True)
 class ArrivalClock:
-    """When each frame arrived, on the monotonic clock, from the receive timestamp python-can gives it.
+    """When each frame arrived, on the monotonic clock.
 
     Not when it is handled: after a stalled servo tick the replies that waited in the socket are
     drained late, and stamped when handled they passed for fresh — the Guard's stale check could
     not see their age, and a catch-up drain that handled two replies of an actuator in one tick
-    gave the contact observer two ticks of motion over one tick of stamps.
+    gave the contact observer two ticks of motion over one tick of stamps. So on an interface
+    that stamps frames on this host's wall clock (`WALL_CLOCK_STAMPS`) a frame is as old as its
+    stamp says, in full (a wait of any length counts, nothing is taken for a clock step). Other
+    interfaces stamp on a device clock mapped to the epoch, with an offset and a drift a lag
+    cannot tell from a wait: their frames are stamped when handled, as before. A stamp missing, or
+    from the future (a wall-clock step between stamp and handling), is taken as handled now."""
 
-    Interfaces stamp on clocks of their own: SocketCAN the kernel's wall clock, the virtual bus the
-    sender's, others a device clock mapped to the epoch with an offset and a drift. So a stamp is
-    never compared with the wall clock directly: the clock keeps the smallest lag seen (wall time
-    when handled minus the stamp, i.e. the lag of a frame handled at once), lets it creep up by
-    `DRIFT_S_PER_S` to follow a drifting device clock, and a frame's age is its lag beyond that. A
-    lag more than `STEP_S` beyond it is a clock step (a stall that long has long been an RX timeout
-    fault), and starts the floor again. A frame without a stamp is taken as handled at once."""
+    trusts_stamps: bool
 
-    #: how fast the lag floor may rise [s/s]: 100 ppm, above a crystal's drift
-    DRIFT_S_PER_S = 1e-4
-    #: a lag this far above the floor is a clock step, not a frame that waited [s]
-    STEP_S = 2.0
-
-    def __init__(self) -> None:
-        self._floor: float | None = None
-        self._floor_at = 0.0
-        self._lock = threading.Lock()  # one reader thread in the backend; tests call it from theirs
+    @classmethod
+    def for_interface(cls, interface: str) -> ArrivalClock:
+        return cls(interface in WALL_CLOCK_STAMPS)
 
     def arrived(self, stamp: object) -> float:
         now = time.monotonic()
-        if not (isinstance(stamp, (int, float)) and math.isfinite(stamp) and stamp > 0):
+        if not self.trusts_stamps or not (isinstance(stamp, (int, float)) and math.isfinite(stamp) and stamp > 0):
             return now
-        lag = time.time() - float(stamp)
-        with self._lock:
-            floor = lag if self._floor is None else min(lag, self._floor + self.DRIFT_S_PER_S * (now - self._floor_at))
-            if lag - floor > self.STEP_S:
-                floor = lag
-            self._floor, self._floor_at = floor, now
-        return now - (lag - floor)
+        return now - max(0.0, time.time() - float(stamp))
 
 
 def _later(previous: float | None, arrived: float) -> float:
     """`arrived`, never before `previous`: an actuator's reply time only grows (a frame stamped
-    before one already handled, or the floor of `ArrivalClock` falling)."""
+    before one already handled, or a wall-clock step)."""
     return arrived if previous is None else max(previous, arrived)

@@ -31,7 +31,7 @@ import pinocchio as pin  # pyright: ignore[reportMissingImports] - cmeel install
 from armwarden.backends.arm_state import ArmEvent
 from armwarden.backends.can import mit
 from armwarden.backends.can import robstride as rs
-from armwarden.backends.can.actuators import Actuator, ReplyDecoder
+from armwarden.backends.can.actuators import Actuator, ArrivalClock, ReplyDecoder
 from armwarden.backends.can.arm import POLL_S, CanArm
 from armwarden.backends.can.bring_up import (
     build_emulator,
@@ -103,7 +103,8 @@ class CanBackend(CanArm):
         self._bus_factory = bus_factory
         self._robot = robot
         self.emulator: ActuatorEmulator | None = None
-        self._replies = ReplyDecoder(self._robstride, self._mit, state_lock, config.host_id, config.mit_reply_id)
+        self._replies = ReplyDecoder(self._robstride, self._mit, state_lock, config.host_id, config.mit_reply_id,
+                                     ArrivalClock.for_interface(config.bus.interface))
         # every feedback frame reports the torque, published as the joints' when the config says it is
         # the arm's (`joint_torques`); an emulated bus may run faster than real time
         self.cell = Cell(gripper=fingers, joint_torques=config.joint_torques, time_scale=float(self._speedup))
