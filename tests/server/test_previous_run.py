@@ -5,16 +5,18 @@ the restart; the log alone for each way a run can end."""
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 from typing import Any
 
+import anyio
 import pytest
 from mcp import Client, StdioServerParameters
 from mcp.client.stdio import stdio_client
 
 from armwarden.audit import AuditLog, verify_file
 from armwarden.daemon.previous_run import PREVIOUS_RUN_SOURCE, unclean_end
-from tests.helpers import records_of, text_of
+from tests.helpers import CLI, REPO, child_env, records_of, text_of
 from tests.server.harness import approve
 from tests.server.test_audit_kill import kill_at_once
 from tests.server.test_daemon_stdio import backend_config, serve_params, start_motion, start_raw_daemon, stop_raw_daemon
@@ -121,7 +123,7 @@ async def test_a_start_after_a_kill_mid_motion_is_latched_until_a_human_releases
 
     run = restart_records(audit)
     assert run[0]["extra"]["previous_run_unclean"] == event["reason"].split("latched at start: ")[1].split(". Look")[0]
-    latched = [r for r in run if r["event"] == "estop"]
+    latched = [r for r in records_of(audit) if r["event"] == "estop"]  # the start's, before its startup record
     assert [r["extra"] for r in latched] == [{"estop_event": event["number"], "source": PREVIOUS_RUN_SOURCE}]
     assert any(r["event"] == "estop_release" and r["operator"] == "bob" for r in run)
     assert run[-1]["event"] == "shutdown" and run[-1]["extra"] == {"arm_stopped": True, "estops_held": []}
@@ -151,3 +153,29 @@ async def test_an_estop_never_released_is_latched_again_after_a_clean_restart(tm
         status = await safety_of(client)
     assert status["estopped"] and "e-stop #1 (estop: person in the cell) latched and never released" in \
         status["estop_event"]["reason"]
+
+
+@pytest.mark.anyio
+async def test_a_start_refused_after_a_kill_does_not_clear_the_latch_for_the_next_one(tmp_path) -> None:
+    """Found by review: a start refused after its backend opened (here its HTTP port is busy)
+    wrote a clean shutdown record, and the start after it came up unlatched."""
+    process, rpc, audit = start_raw_daemon(tmp_path, SPEEDUP)
+    try:
+        start_motion(rpc)
+    finally:
+        kill_at_once(process)
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        with anyio.fail_after(180):
+            refused = await anyio.run_process(
+                [*CLI, "serve", "--transport", "http", "--host", "127.0.0.1", "--port", str(busy.getsockname()[1]),
+                 "--no-console", "--audit-log", str(audit), "--backend-config", str(backend_config(tmp_path, SPEEDUP)),
+                 "--log-level", "WARNING"], cwd=REPO, env=child_env(), check=False)
+    stderr = refused.stderr.decode(errors="replace")
+    assert refused.returncode == 2 and "Address already in use" in stderr, stderr[-500:]
+    assert [e["source"] for e in records_of(audit)[-1]["extra"]["estops_held"]] == [PREVIOUS_RUN_SOURCE]
+
+    async with Client(stdio_client(daemon_on(tmp_path))) as client:
+        status = await safety_of(client)
+    assert status["estopped"] and status["estop_event"]["source"] == PREVIOUS_RUN_SOURCE, status

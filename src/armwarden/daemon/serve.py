@@ -66,6 +66,8 @@ async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
     listener: socket.socket | None = None
     external = ExternalStops(assembly.guard.stopper, assembly.audit, asyncio.get_running_loop())
     try:
+        if parts.unclean_end is not None:  # first: every way out of this run now records the e-stop as held
+            await latch_at_start(assembly.guard, assembly.audit, parts.unclean_end)
         options, listener = bind_listener(options)
         door = console_door(options, external)
         signal_stop, channel = start_external_stops(options, external, None if door is None else door[0],
@@ -83,8 +85,6 @@ async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
                    "pid": os.getpid(), "previous_run_unclean": parts.unclean_end},
         )
-        if parts.unclean_end is not None:  # before any client is served
-            await latch_at_start(assembly.guard, assembly.audit, parts.unclean_end)
         if options.transport == "stdio" and started_from_terminal(sys.stdin):
             print(first_contact_line(backend=options.backend, policy=options.policy_label,
                                      audit_log=assembly.audit.path, tools=len(assembly.server.tools),

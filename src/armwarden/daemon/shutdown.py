@@ -57,8 +57,14 @@ async def close_assembly(assembly: Assembly, why: str) -> str | None:
         if assembly.audit.closed:
             return None
         try:
+            latch = assembly.guard.latch
+            generation = latch.generation
             await assembly.audit.append_async(SHUTDOWN_EVENT, outcome="ok", detail=detail,
-                                              extra=shutdown_extra(assembly.guard.latch, arm_stopped))
+                                              extra=shutdown_extra(latch, arm_stopped))
+            if latch.generation != generation:  # a stop (signal, stop channel) latched meanwhile
+                await assembly.audit.append_async(
+                    "estop", outcome="latched", detail=f"e-stop #{latch.generation} latched as the shutdown record "
+                    "was written: the log no longer ends clean, so the next start latches")
         except AuditWriteError as exc:  # the arm is stopped either way; the log must still be closed
             return f"{exc}; {stopped}"
         finally:
