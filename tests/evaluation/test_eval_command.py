@@ -82,7 +82,8 @@ def test_quick_eval_on_fake_passes_every_scenario_with_no_actuation(tmp_path) ->
     load = data["load"]
     assert load["run"] and load["passed"] and load["clients"] == 16 and load["duration_s"] == 10, load
     assert load["estop"]["count"] >= 1 and load["estop"]["unanswered"] == 0 and load["alive_at_end"], load
-    assert load["actuations"] <= load["approvals"] - load["resets"], load
+    assert load["actuations"] <= load["executions"] <= load["approvals"] - load["resets"], load
+    assert load["succeeded"] > 0 and load["resets"] == load["estop"]["count"], load
     assert data["backend"] == "fake" and data["policy_digest"] and data["version"]
     assert "PASSED" in (tmp_path / "eval.md").read_text(encoding="utf-8")
 
@@ -158,18 +159,29 @@ def test_a_weakened_guard_fails_the_eval(tmp_path, mutant, caught_by) -> None:
     assert any(name.endswith(caught_by) for name in failed), (failed, stderr[-3000:])
 
 
+#: mutants of how a start reads the previous run, and the faults' figure each must spoil
+PREVIOUS_RUN_MUTANTS = [
+    # it forgets a kill: the restart comes up unlatched
+    pytest.param("    if not records:", "    if True:", "latched_after_restart", id="forgets-the-kill"),
+    # it latches after every run, a clean one too (review: the faults could not see that)
+    pytest.param('    if extra["arm_stopped"] is not True:', "    if True:", "clean_restart_unlatched",
+                 id="latches-after-a-clean-end"),
+]
+
+
 @pytest.mark.timeout(EVAL_TIMEOUT_S + 60)
-def test_a_daemon_that_forgets_how_its_last_run_ended_fails_the_faults(tmp_path) -> None:
+@pytest.mark.parametrize(("anchor", "replacement", "spoiled"), PREVIOUS_RUN_MUTANTS)
+def test_a_daemon_that_misreads_how_its_last_run_ended_fails_the_faults(tmp_path, anchor, replacement,
+                                                                         spoiled) -> None:
     script = _mutation_script()
     src = tmp_path / "src"
     shutil.copytree(SRC, src, ignore=shutil.ignore_patterns("*.egg-info"))
-    script.apply(script.Mutant("previous-run-forgotten", "daemon/previous_run.py", "    if not records:",
-                               "    if True:", (), "caught by `armwarden eval` only"), src)
+    script.apply(script.Mutant("previous-run", "daemon/previous_run.py", anchor, replacement, (),
+                               "caught by `armwarden eval` only"), src)
     code, data, stderr = _run_eval(tmp_path, src, ("a reset the operator declines",), "--kills", "1")
     assert code == 1, stderr[-3000:]
     faults = data["faults"]
-    assert faults["kills"] == 1 and faults["survived"] == faults["latched_after_restart"] == 0, faults
-    assert "restart not latched by the previous run" in faults["per_kill"][0]["detail"]
+    assert not faults["passed"] and faults[spoiled] in (0, False), faults
 
 
 def test_only_selecting_nothing_is_invalid_input(tmp_path) -> None:

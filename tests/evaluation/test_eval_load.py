@@ -7,7 +7,8 @@ from armwarden.evaluation.load import LoadResult
 
 
 def answered_run(**changes: object) -> LoadResult:
-    result = LoadResult(clients=16, duration_s=10.0, approvals=5, resets=1, actuations=4, alive_at_end=True)
+    result = LoadResult(clients=16, duration_s=10.0, approvals=5, resets=1, actuations=4, executions=4, succeeded=3,
+                        alive_at_end=True)
     result.estop_ms.append(12.0)
     result.per_tool["get_robot_state"].latencies_ms.extend([5.0, 7.0])
     for name, value in changes.items():
@@ -22,8 +23,20 @@ def test_a_run_with_every_call_answered_and_actuations_within_the_approvals_pass
     assert report["per_tool"]["get_robot_state"]["p50_ms"] == 6.0
 
 
-def test_an_actuation_beyond_the_approvals_fails_the_run() -> None:
-    assert not answered_run(actuations=5).ok  # five approvals, one of them a reset: four moves at most
+def test_an_actuation_beyond_the_executions_the_daemon_reported_fails_the_run() -> None:
+    assert not answered_run(actuations=5).ok  # four executes reached the arm: four actuations at most
+
+
+def test_executions_beyond_the_approvals_for_executes_fail_the_run() -> None:
+    assert not answered_run(actuations=5, executions=5).ok  # five approvals, one of them a reset
+
+
+def test_an_estop_left_latched_fails_the_run() -> None:
+    assert not answered_run(resets=0, approvals=4).ok  # the work did not go on
+
+
+def test_a_run_in_which_no_motion_succeeded_fails() -> None:
+    assert not answered_run(succeeded=0).ok  # a daemon refusing everything proves nothing
 
 
 def test_an_unanswered_estop_fails_the_run() -> None:

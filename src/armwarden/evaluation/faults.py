@@ -36,6 +36,7 @@ from armwarden.daemon.previous_run import PREVIOUS_RUN_SOURCE
 from armwarden.evaluation.journal import JournalReader, actuations
 from armwarden.evaluation.runner import (
     EVAL_WRENCH_TIMEOUT_S,
+    SCENARIO_TIMEOUT_S,
     UNLIMITED,
     DaemonSession,
     EvalOptions,
@@ -76,7 +77,7 @@ class KillRun:
 
     @property
     def passed(self) -> bool:
-        return self.verified and self.latched_after_restart and self.released
+        return self.mid_motion and self.verified and self.latched_after_restart and self.released
 
 
 @dataclass
@@ -98,14 +99,17 @@ class DiskFullResult:
 class FaultsResult:
     kills: list[KillRun] = field(default_factory=list)
     disk_full: DiskFullResult | None = None
-    #: the last start (after the last kill) ended with a clean shutdown record
+    #: the runs after the last kill ended with a clean shutdown record
     ended_clean: bool = False
+    #: the first start (a new log) and the start after a clean end came up unlatched
+    first_start_unlatched: bool = False
+    clean_restart_unlatched: bool = False
     final_detail: str = ""
 
     @property
     def ok(self) -> bool:
-        return all(k.passed for k in self.kills) and self.ended_clean and \
-            (self.disk_full is None or self.disk_full.passed)
+        return all(k.passed for k in self.kills) and self.ended_clean and self.first_start_unlatched \
+            and self.clean_restart_unlatched and (self.disk_full is None or self.disk_full.passed)
 
     def report(self) -> dict[str, Any]:
         return {
@@ -114,7 +118,8 @@ class FaultsResult:
             "mid_motion": sum(k.mid_motion for k in self.kills),
             "torn_tails": sum(k.torn_tail for k in self.kills),
             "latched_after_restart": sum(k.latched_after_restart for k in self.kills),
-            "ended_clean": self.ended_clean, "final_detail": self.final_detail,
+            "ended_clean": self.ended_clean, "first_start_unlatched": self.first_start_unlatched,
+            "clean_restart_unlatched": self.clean_restart_unlatched, "final_detail": self.final_detail,
             "per_kill": [asdict(k) | {"passed": k.passed} for k in self.kills],
             "disk_full": None if self.disk_full is None else asdict(self.disk_full) | {"passed": self.disk_full.passed},
         }
@@ -150,37 +155,48 @@ def _last_startup(audit: Path) -> dict[str, Any]:
     return starts[-1]
 
 
+async def _call(session: DaemonSession, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any], str]:
+    """`call_raw` within `SCENARIO_TIMEOUT_S`: a daemon wedged by the fault injected fails the
+    fault, it does not hang the evaluation."""
+    try:
+        with anyio.fail_after(SCENARIO_TIMEOUT_S):
+            return await session.call_raw(tool, arguments)
+    except TimeoutError:
+        return True, {}, f"{tool}: no answer within {SCENARIO_TIMEOUT_S:g} s"
+
+
 async def _safety(session: DaemonSession) -> dict[str, Any]:
-    _, status, _ = await session.call_raw("get_safety_status", {})
+    _, status, _ = await _call(session, "get_safety_status", {})
     return status
 
 
-async def _release_if_latched(session: DaemonSession, goal: np.ndarray, run: KillRun | None) -> None:
-    """Check the start's latch (after a kill: latched by the previous run, a safe plan refused
-    for it), then reset it as an approving human would."""
+async def _check_latch(session: DaemonSession, goal: np.ndarray, run: KillRun | None) -> bool:
+    """After a kill (`run`): the start must be latched by the previous run and refuse to plan a
+    safe target; then it is reset as an approving human would. Without one (a new log, or after a
+    clean end): the start must not be latched. Returns whether the start was as it must be."""
     status = await _safety(session)
     event = status.get("estop_event") or {}
-    if run is not None:
-        refused, _, text = await session.call_raw("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
-        run.latched_after_restart = bool(status.get("estopped")) and event.get("source") == PREVIOUS_RUN_SOURCE \
-            and refused and "ESTOP" in text
-        if not run.latched_after_restart:
-            run.detail += f" restart not latched by the previous run: e-stop {event or None}; plan: {text[:120]}"
+    if run is None:
+        return status.get("estopped") is False
+    refused, _, text = await _call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+    run.latched_after_restart = bool(status.get("estopped")) and event.get("source") == PREVIOUS_RUN_SOURCE \
+        and refused and "ESTOP" in text
+    if not run.latched_after_restart:
+        run.detail += f" restart not latched by the previous run: e-stop {event or None}; plan: {text[:120]}"
     if status.get("estopped"):
-        error, reset, text = await session.call_raw("reset_estop", {})
-        released = not error and reset.get("estopped") is False
-        if run is not None:
-            run.released = released
-            if not released:
-                run.detail += f" reset refused: {text[:160]}"
+        error, reset, text = await _call(session, "reset_estop", {})
+        run.released = not error and reset.get("estopped") is False
+        if not run.released:
+            run.detail += f" reset refused: {text[:160]}"
+    return run.latched_after_restart and run.released
 
 
 async def _kill_mid_motion(session: DaemonSession, audit: Path, goal: np.ndarray, rng: np.random.Generator,
                            run: KillRun) -> None:
     """Plan and execute a safe move; SIGKILL the daemon once the motion's progress passes a random
     fraction of it (or, were the motion answered first, right then)."""
-    error, plan, text = await session.call_raw("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False,
-                                                                  **SLOW})
+    error, plan, text = await _call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False,
+                                                                **SLOW})
     if error or plan.get("plan_id") is None:
         run.detail += f" plan refused: {text[:160]}"
     pid = int(_last_startup(audit)["extra"]["pid"])
@@ -222,40 +238,49 @@ async def _kills(options: EvalOptions, directory: Path, kills: int, result: Faul
     audit, errlog = directory / "faults-audit.jsonl", directory / "faults-daemon.err"
     rng = np.random.default_rng(options.seed)
     key = hmac_key_from_env()
-    for index in range(kills + 1):
+    starts = kills + 2  # each kill's run, the run after the last kill (ends clean), one more (must start unlatched)
+    for index in range(starts):
         previous = result.kills[-1] if result.kills else None
         run = KillRun(index) if index < kills else None
-        progress(f"fault: start {index + 1}/{kills + 1} on one audit log, "
-                 + ("then kill -9 mid-motion" if run is not None else "then a clean end"))
+        progress(f"fault: start {index + 1}/{starts} on one audit log, then "
+                 + ("kill -9 mid-motion" if run is not None else "a clean end"))
         ref: list[DaemonSession] = []
         goal = safe_goal(options.policy, robot, rng)
+        as_it_must = False
         try:
             with errlog.open("a", encoding="utf-8") as err:
                 async with _client(_params(arguments), err, ref) as client:
                     session = DaemonSession(client)
                     ref.append(session)
                     await wait_for_state(session)
-                    await _release_if_latched(session, goal, previous)
+                    as_it_must = await _check_latch(session, goal, None if index in (0, kills + 1) else previous)
                     if run is not None:
                         await _kill_mid_motion(session, audit, goal, rng, run)
         except Exception as exc:  # after the kill: the pipe closed under the session, as it must
             if run is None or not _gone(audit):
                 detail = f"the session broke: {exc!r}"[:300] + _last_words(errlog)
                 if run is None:
-                    result.final_detail = detail
+                    result.final_detail += f" start {index + 1}: {detail}"
                 else:
                     run.detail += f" {detail}"
+        if index == 0:
+            result.first_start_unlatched = as_it_must
+        if index == kills + 1:
+            result.clean_restart_unlatched = as_it_must
         if run is None:
             records = decode_records(audit.read_bytes().split(b"\n"))
             extra = records[-1].get("extra") if records else None
-            result.ended_clean = bool(records) and records[-1].get("event") == "shutdown" and \
+            clean = bool(records) and records[-1].get("event") == "shutdown" and \
                 extra == {"arm_stopped": True, "estops_held": []}
-            break
+            result.ended_clean = clean if index == kills else result.ended_clean and clean
+            continue
         report = verify_file(audit, key)
         run.torn_tail = not report.ok and report.reason == "torn last line"
         run.verified = report.ok or run.torn_tail
         if not run.verified:
             run.detail += f" log does not verify after the kill: line {report.first_bad_line}: {report.reason}"
+        if not run.mid_motion:
+            run.detail += " the kill did not find the arm moving (the execute had answered)"
         result.kills.append(run)
         progress(f"fault: kill {index + 1}/{kills} {'mid-motion' if run.mid_motion else 'after the motion'}; "
                  f"log {'verifies' if report.ok else 'has a torn tail' if run.torn_tail else 'BROKEN'}")
@@ -295,7 +320,7 @@ async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSessi
         session = DaemonSession(client)
         ref.append(session)
         await wait_for_state(session)
-        error, plan, text = await session.call_raw("plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+        error, plan, text = await _call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
         if error or plan.get("plan_id") is None:
             result.detail = f"plan refused before the log filled: {text[:160]}"
             return result
@@ -309,7 +334,7 @@ async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSessi
             result.detail = f"the log still took records after {FILL_CALLS} calls"
             return result
         reader.new_entries()
-        error, done, text = await session.call_raw("execute_plan", {"plan_id": plan["plan_id"]})
+        error, done, text = await _call(session, "execute_plan", {"plan_id": plan["plan_id"]})
         # refused saying why: a refusal (AUDIT_UNAVAILABLE) or, where even that cannot be recorded,
         # an error naming the log; either way nothing may have moved (counted below)
         result.execute_refused = (error or done.get("status") != "succeeded") and \
@@ -317,7 +342,7 @@ async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSessi
         if not result.execute_refused:
             result.detail = f"execute with the log full: {text[:160]}"
         result.actuations = len(actuations(reader.new_entries()))
-        error, stopped, text = await session.call_raw("estop", {"reason": "eval: audit disk full"})
+        error, stopped, text = await _call(session, "estop", {"reason": "eval: audit disk full"})
         result.estop_answered = not error and stopped.get("estopped") is True
         if not result.estop_answered:
             result.detail = f"estop with the log full: {text[:160]}"

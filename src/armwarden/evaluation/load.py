@@ -11,8 +11,9 @@ operator resets each one (approved) so the work goes on.
 
 Reported: calls, throughput, p50/p99 per tool, the e-stops' latency, the daemon's RSS growth.
 Judged: no call may fail without an answer (a protocol error or a timeout), every e-stop must be
-answered, the daemon must still run at the end, and no actuation may happen beyond the
-approvals given (the actuation journal, below the Guard).
+answered and reset, motions must succeed, the daemon must still run at the end, and the
+actuation journal (below the Guard) may count no more actuations than executes the daemon
+answered with an execution report, nor those more than the approvals given for executes.
 """
 
 from __future__ import annotations
@@ -46,8 +47,12 @@ from armwarden.tools.registry import names
 
 #: an e-stop through the stop channel every this many seconds of the run
 ESTOP_EVERY_S = 10.0
+#: no e-stop this close to the end: its reset must be answered while the operators' sessions last [s]
+RESET_MARGIN_S = 2.0
 #: a call not answered within this is a failure [s]
 CALL_TIMEOUT_S = 60.0
+#: the statuses of an execution report: the plan reached the arm (a refusal has none of them)
+EXECUTION_STATUSES = ("succeeded", "aborted")
 
 
 @dataclass
@@ -73,6 +78,9 @@ class LoadResult:
     approvals: int = 0
     resets: int = 0
     actuations: int = 0
+    #: executes answered with an execution report (it reached the arm), and those that succeeded
+    executions: int = 0
+    succeeded: int = 0
     rss_start_mb: float | None = None
     rss_end_mb: float | None = None
     alive_at_end: bool = False
@@ -85,8 +93,11 @@ class LoadResult:
     @property
     def ok(self) -> bool:
         failed = sum(s.failed for s in self.per_tool.values())
-        return failed == 0 and self.estops_unanswered == 0 and self.alive_at_end and \
-            self.actuations <= self.approvals - self.resets and bool(self.estop_ms)
+        # every actuation is an execute the daemon answered with its report (an approved plan that
+        # ran), and the work went on: every e-stop was reset and motions succeeded
+        return failed == 0 and self.estops_unanswered == 0 and self.alive_at_end and bool(self.estop_ms) \
+            and self.actuations <= self.executions <= self.approvals - self.resets \
+            and self.resets == len(self.estop_ms) and self.succeeded > 0
 
     def report(self) -> dict[str, Any]:
         estops = np.asarray(self.estop_ms, dtype=float)
@@ -100,6 +111,7 @@ class LoadResult:
                       "p50_ms": round(float(np.percentile(estops, 50)), 1) if estops.size else None,
                       "max_ms": round(float(estops.max()), 1) if estops.size else None},
             "approvals": self.approvals, "resets": self.resets, "actuations": self.actuations,
+            "executions": self.executions, "succeeded": self.succeeded,
             "rss_growth_mb": growth, "alive_at_end": self.alive_at_end, "failures": self.failures[:10],
         }
 
@@ -126,6 +138,9 @@ class LoadClient:
             return None
         stats.latencies_ms.append((time.perf_counter() - started) * 1000.0)
         content = dict(answer.structured_content or {})
+        if tool == "execute_plan" and content.get("status") in EXECUTION_STATUSES:
+            self.result.executions += 1  # it reached the arm, whatever became of it
+            self.result.succeeded += content["status"] == "succeeded"
         if answer.is_error or content.get("status") in ("rejected", "aborted"):
             stats.refused += 1
             return None
@@ -164,7 +179,7 @@ async def _estops(daemon_channel: str, token: str, result: LoadResult, operator:
 
     while True:
         await anyio.sleep(every_s)
-        if not operator.running():
+        if operator.deadline - time.monotonic() < RESET_MARGIN_S:  # its reset must come before the sessions end
             return
         started = time.perf_counter()
         try:

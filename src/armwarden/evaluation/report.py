@@ -126,8 +126,7 @@ def faults_markdown(faults: dict[str, Any]) -> list[str]:
     """The fault section: the kills and restarts, then the full audit disk."""
     lines = [
         "",
-        f"## Faults: {faults['survived']}/{faults['kills']} kills survived"
-        f"{'' if faults['ended_clean'] else ' (the last start did NOT end clean)'}",
+        f"## Faults: {faults['survived']}/{faults['kills']} kills survived — {'pass' if faults['passed'] else '**FAIL**'}",
         "",
         "The daemon killed with SIGKILL once a safe motion's progress passed a random fraction (5–50 %) of it, then "
         "started again on "
@@ -137,6 +136,9 @@ def faults_markdown(faults: dict[str, Any]) -> list[str]:
         "",
         f"- killed mid-motion: {faults['mid_motion']}/{faults['kills']}; torn tails: {faults['torn_tails']}; "
         f"restarts latched: {faults['latched_after_restart']}/{faults['kills']}",
+        f"- a start on a new log unlatched: {faults['first_start_unlatched']}; after the last kill the run ended "
+        f"clean: {faults['ended_clean']}; the start after that clean end unlatched: "
+        f"{faults['clean_restart_unlatched']}",
     ]
     lines += [f"- kill {k['index'] + 1} FAILED:{k['detail']}" for k in faults["per_kill"] if not k["passed"]]
     if faults.get("final_detail"):
