@@ -91,10 +91,13 @@ async def test_a_daemon_whose_audit_log_hits_the_kernels_limit_keeps_the_estop_l
     assert human.prompts == []  # type: ignore[attr-defined]  # a release that cannot be recorded is not asked for
     assert after["estopped"] is True and after["audit_ok"] is False
     assert after["estop_event"]["number"] == estop.structured_content["estop_event"]["number"]
-    assert audit.stat().st_size == LIMIT_BYTES  # the kernel took bytes up to its limit: a torn last line
+    assert audit.stat().st_size == LIMIT_BYTES  # the kernel took bytes up to its limit
+    # mostly mid-record (a torn last line); now and then a record ends exactly at the limit and the
+    # next write is refused whole (CI saw it once): then there is nothing torn to recover
+    torn = not audit.read_bytes().endswith(b"\n")
 
-    with AuditLog(audit) as log:  # restarted with room: the torn tail is named, the chain goes on
-        assert log.recovery_record is not None
+    with AuditLog(audit) as log:  # restarted with room: a torn tail is named, the chain goes on
+        assert (log.recovery_record is not None) == torn
     assert verify_file(audit).ok
     assert b"estop_release" not in audit.read_bytes()
 
