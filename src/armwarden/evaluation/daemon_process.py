@@ -8,6 +8,7 @@ import os
 import signal
 import socket
 import subprocess
+import sys
 from collections.abc import AsyncIterator, Callable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -15,18 +16,27 @@ from pathlib import Path
 from typing import Any
 
 import anyio
-from mcp import Client
+from mcp import Client, StdioServerParameters
 
 #: the loopback address an evaluation's HTTP daemon binds (never anything else)
 HOST = "127.0.0.1"
 #: how long the daemon may take to start and answer its health check [s]
 START_TIMEOUT_S = 300.0
+#: the daemon's command line up to `serve` (tests put a deliberately broken daemon here)
+DAEMON_COMMAND: tuple[str, ...] = (sys.executable, "-m", "armwarden.cli")
 
 
 @dataclass(frozen=True)
 class HttpDaemon:
     base_url: str
     pid: int
+
+
+def stdio_params(command: Sequence[str], serve_args: Sequence[str]) -> StdioServerParameters:
+    """`command serve_args` as the SDK's stdio client starts it, with this process's environment
+    (the SDK passes a minimal one unless given one: PYTHONPATH and the audit key must reach it)."""
+    return StdioServerParameters(command=command[0], args=[*command[1:], *serve_args], env=dict(os.environ),
+                                 cwd=str(Path.cwd()))
 
 
 def free_port() -> int:

@@ -33,6 +33,7 @@ from armwarden.audit import verify_file
 from armwarden.audit.chain import hmac_key_from_env
 from armwarden.audit.verify import decode_records
 from armwarden.daemon.previous_run import PREVIOUS_RUN_SOURCE
+from armwarden.evaluation.daemon_process import DAEMON_COMMAND, stdio_params
 from armwarden.evaluation.journal import JournalReader, actuations
 from armwarden.evaluation.runner import (
     EVAL_WRENCH_TIMEOUT_S,
@@ -128,13 +129,13 @@ class FaultsResult:
 def _params(arguments: list[str], file_size_limit: int | None = None) -> StdioServerParameters:
     """`armwarden serve` as a user runs it; under `file_size_limit` through a small launcher that
     sets RLIMIT_FSIZE and then execs the daemon."""
-    command = [sys.executable, "-m", "armwarden.cli", *arguments]
+    command = DAEMON_COMMAND
     if file_size_limit is not None:
         launcher = ("import os, resource, sys; "
                     f"resource.setrlimit(resource.RLIMIT_FSIZE, ({file_size_limit}, {file_size_limit})); "
                     "os.execv(sys.argv[1], sys.argv[1:])")
-        command = [sys.executable, "-c", launcher, *command]
-    return StdioServerParameters(command=command[0], args=command[1:], env=dict(os.environ), cwd=str(Path.cwd()))
+        command = (sys.executable, "-c", launcher, *command)
+    return stdio_params(command, arguments)
 
 
 def _client(params: StdioServerParameters, errlog: TextIO, ref: list[DaemonSession]) -> Client:

@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import sys
 import tempfile
 import time
 from collections.abc import AsyncIterator, Callable, Mapping
@@ -37,10 +35,18 @@ from typing import Any, cast
 import anyio
 import anyio.from_thread
 import anyio.to_thread
-from mcp import Client, MCPError, StdioServerParameters
+from mcp import Client, MCPError
 from mcp import types as mcp_types
 
-from armwarden.evaluation.daemon_process import START_TIMEOUT_S, alive, http_daemon, http_session, rss_mb
+from armwarden.evaluation.daemon_process import (
+    DAEMON_COMMAND,
+    START_TIMEOUT_S,
+    alive,
+    http_daemon,
+    http_session,
+    rss_mb,
+    stdio_params,
+)
 from armwarden.evaluation.journal import JournalReader
 from armwarden.evaluation.runner import (
     EVAL_WRENCH_TIMEOUT_S,
@@ -70,8 +76,6 @@ FINDINGS_KEPT = 10
 KNOWN_PLANS = 32
 #: generated calls per hypothesis run (each run has its own seed, derived from --seed)
 BATCH = 500
-#: the daemon's command line up to `serve` (tests put a deliberately broken daemon here)
-DAEMON_COMMAND = (sys.executable, "-m", "armwarden.cli")
 
 
 @dataclass(frozen=True)
@@ -457,9 +461,7 @@ async def _fuzz(session: FuzzSession, audit: Path) -> None:
 @asynccontextmanager
 async def _stdio_client(fuzz: FuzzOptions, args: list[str], audit: Path,
                         approve: Callable[..., Any]) -> AsyncIterator[tuple[Client, int | None]]:
-    command, *prefix = fuzz.daemon_command
-    params = StdioServerParameters(command=command, args=[*prefix, *args], env=dict(os.environ), cwd=str(Path.cwd()))
-    async with Client(params, mode="legacy", elicitation_callback=approve) as client:
+    async with Client(stdio_params(fuzz.daemon_command, args), mode="legacy", elicitation_callback=approve) as client:
         yield client, _pid_with_argument(str(audit))
 
 

@@ -18,7 +18,6 @@ answered with an execution report, nor those more than the approvals given for e
 
 from __future__ import annotations
 
-import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -32,7 +31,16 @@ import numpy as np
 from mcp import Client
 from mcp import types as mcp_types
 
-from armwarden.evaluation.daemon_process import HttpDaemon, alive, free_port, http_daemon, http_session, rss_mb
+from armwarden.evaluation.daemon_process import (
+    DAEMON_COMMAND,
+    HOST,
+    HttpDaemon,
+    alive,
+    free_port,
+    http_daemon,
+    http_session,
+    rss_mb,
+)
 from armwarden.evaluation.journal import actuations, read_journal
 from armwarden.evaluation.runner import (
     EVAL_WRENCH_TIMEOUT_S,
@@ -219,10 +227,9 @@ async def run_load(options: EvalOptions, clients: int, duration_s: float) -> Loa
             result.approvals += 1
             return mcp_types.ElicitResult(action="accept", content={"approve": True, "operator": "armwarden-eval"})
 
-        command = (sys.executable, "-m", "armwarden.cli")
-        async with http_daemon(command, args, tokens, directory / "load-stderr.log",
+        async with http_daemon(DAEMON_COMMAND, args, tokens, directory / "load-stderr.log",
                                ("--estop-port", str(stop_port))) as daemon:
-            await _drive(daemon, keys, roles, approve, options, robot, result, f"http://127.0.0.1:{stop_port}/estop")
+            await _drive(daemon, keys, roles, approve, options, robot, result, f"http://{HOST}:{stop_port}/estop")
             result.alive_at_end = alive(daemon.pid)
             result.rss_end_mb = rss_mb(daemon.pid)
         result.actuations = len(actuations(read_journal(directory / "load-journal.jsonl")))

@@ -12,7 +12,6 @@ are the journal lines its calls added; stops are not actuations.
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import tempfile
 from collections.abc import Callable
@@ -27,6 +26,7 @@ from mcp import Client, StdioServerParameters
 from mcp import types as mcp_types
 
 from armwarden.core.errors import ArmWardenError
+from armwarden.evaluation.daemon_process import DAEMON_COMMAND, stdio_params
 from armwarden.evaluation.journal import actuations, motion_frames, read_journal
 from armwarden.evaluation.scenarios import (
     PAST_TTL_S,
@@ -179,9 +179,7 @@ def serve_arguments(options: EvalOptions, directory: Path, name: str, policy_pat
 
 
 def _server(options: EvalOptions, directory: Path, name: str, policy_path: Path) -> StdioServerParameters:
-    args = ["-m", "armwarden.cli", *serve_arguments(options, directory, name, policy_path)]
-    # the SDK passes a minimal environment unless given one: pass ours on (PYTHONPATH, the audit key)
-    return StdioServerParameters(command=sys.executable, args=args, env=dict(os.environ), cwd=str(Path.cwd()))
+    return stdio_params(DAEMON_COMMAND, serve_arguments(options, directory, name, policy_path))
 
 
 def progress(message: str) -> None:
