@@ -72,6 +72,6 @@ async def latch_at_start(guard: Guard, audit: AuditLog, why: str) -> int:
     result = await guard.emergency_stop(reason, source=PREVIOUS_RUN_SOURCE)
     number = result.estop_event.number
     await audit.append_async("estop", outcome="latched", detail=f"e-stop #{number} {reason}",
-                                      extra={"estop_event": number, "source": PREVIOUS_RUN_SOURCE})
+                             extra={"estop_event": number, "source": PREVIOUS_RUN_SOURCE})
     logger.warning("e-stop #%d %s", number, reason)
     return number

@@ -37,7 +37,7 @@ class Actuator:
     raw_velocity: float = 0.0
     #: the torque [N·m] its last feedback reported (RobStride type 2, MIT reply); None: none yet
     raw_torque: float | None = None
-    reported_at: float | None = None  # monotonic time its last position arrived (on the bus, see `arrived_at`)
+    reported_at: float | None = None  # monotonic time its last position arrived (on the bus, see `ArrivalClock`)
     temperature_c: float | None = None
     fault_bits: tuple[str, ...] = ()  # reported in the latest feedback (current)
     fault_frames: tuple[str, ...] = ()  # RobStride type-21 reports (latched until recovery)
