@@ -179,3 +179,56 @@ def test_segment_velocity_is_the_slope_of_the_current_segment_and_zero_outside()
     assert segment_velocity(trajectory, 0.75).tolist() == [1.0, 1.0]
     assert segment_velocity(trajectory, 1.0).tolist() == [0.0, 0.0]
     assert segment_velocity(trajectory, -1.0).tolist() == [0.0, 0.0]
+
+
+class StallingRecorder(Recorder):
+    """A kinematic arm's hooks whose servo thread stalls once, 30 ms, a few ticks into a run."""
+
+    records_missed_samples = True
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.recorded: list[Setpoint] = []
+        self._following_ticks = 0
+
+    def servo_prepare(self, setpoint: Setpoint) -> None:
+        if setpoint.following and threading.current_thread().name == "servo-under-test":
+            self._following_ticks += 1
+            if self._following_ticks == 5:
+                threading.Event().wait(0.03)
+
+    def servo_record(self, setpoint: Setpoint) -> None:
+        self.recorded.append(setpoint)
+        self.commanded.append(setpoint)
+
+
+async def test_a_late_tick_records_the_samples_of_the_periods_it_skipped_on_the_trajectory() -> None:
+    hooks = StallingRecorder()
+    servo = ServoLoop(hooks, [0.0, 0.0], period_s=0.001, name="test servo")
+    await servo.start("servo-under-test")
+    try:
+        result = await servo.run(line(0.1), lambda fraction: None)
+    finally:
+        await servo.shutdown()
+    assert result.completed and len(hooks.recorded) >= 25  # the 30 ms stall, a period each
+    following = [s for s in hooks.commanded if s.following]
+    stamps = np.array([s.stamp for s in following])
+    assert np.all(np.diff(stamps) > 0)  # in order, each once
+    assert np.max(np.diff(stamps)) < 1.5 * servo.period_s  # no hole a period and a half wide
+    # each recorded sample lies on the line: joint a rises 0 -> 1 and b is -a mirrored about the middle
+    first_joint = np.array([s.positions[0] for s in following])
+    assert np.all(np.diff(first_joint) >= 0)
+    for sample in hooks.recorded:
+        assert sample.positions[1] == pytest.approx(-min(sample.positions[0], 1.0 - sample.positions[0]))
+
+
+async def test_a_physics_simulation_gets_no_recorded_samples_from_a_late_tick() -> None:
+    hooks = StallingRecorder()
+    hooks.records_missed_samples = False  # the default: it steps the world and measures that itself
+    servo = ServoLoop(hooks, [0.0, 0.0], period_s=0.001, name="test servo")
+    await servo.start("servo-under-test")
+    try:
+        result = await servo.run(line(0.05), lambda fraction: None)
+    finally:
+        await servo.shutdown()
+    assert result.completed and hooks.recorded == []

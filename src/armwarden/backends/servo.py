@@ -48,6 +48,9 @@ logger = logging.getLogger(__name__)
 
 #: minimum interval between two progress callbacks [s] (≤ 50 Hz)
 PROGRESS_PERIOD_S = 0.02
+#: the most control periods a late tick records for a hook that asks for them
+#: (`ServoHooks.records_missed_samples`): a stall longer than that leaves its gap in the stamps
+MAX_MISSED_SAMPLES = 200
 #: servo period while nothing moves [s]; stops and executions wake the loop at once
 IDLE_PERIOD_S = 0.01
 #: how long `shutdown` waits for the servo thread to finish [s]
@@ -78,6 +81,16 @@ class Setpoint:
 
 class ServoHooks:
     """The backend side of a `ServoLoop`. Defaults do nothing; override what the backend needs."""
+
+    #: a kinematic arm is on its trajectory whatever the host does, and its sensors sample it every
+    #: control period: a tick that comes late records the samples of the periods it skipped
+    #: (`servo_record`), so a stalled thread leaves no hole in what the contact observer integrates.
+    #: Not for a physics simulation: it steps the world itself and measures what it stepped.
+    records_missed_samples: bool = False
+
+    def servo_record(self, setpoint: Setpoint) -> None:
+        """Servo thread, under the lock, before a late tick's `servo_command`: publish the sample
+        of a control period the tick skipped (only where `records_missed_samples`). Must be quick."""
 
     def servo_prepare(self, setpoint: Setpoint) -> Any:
         """Servo thread, outside the lock: the slow part of a tick (kinematics, a physics step).
@@ -411,29 +424,23 @@ class ServoLoop:
         stamp = time.monotonic()
         self.tick_count += 1
 
-        positions, velocities, completed, fraction = held.positions, self._still, False, 0.0
-        spread: SpreadMotion | None = None
-        if execution is not None:
+        missed: list[Setpoint] = []
+        if execution is None:
+            setpoint, completed, fraction = Setpoint(held.positions, self._still, stamp), False, 0.0
+        else:
             if execution.start_time is None:
                 execution.start_time = now
-            trajectory = execution.trajectory
             t = (now - execution.start_time) * self.speedup
-            duration = trajectory.duration_s
-            if t >= duration:
-                positions, completed, fraction = frozen(trajectory.goal), True, 1.0
-            else:
-                positions, velocities = frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t))
-                motion = spread_motion(trajectory, t)
-                spread = SpreadMotion(frozen(motion.velocities), frozen(motion.accelerations))
-                fraction = t / duration
-        setpoint = Setpoint(positions, velocities, stamp, following=execution is not None, spread=spread)
-        extra = self.hooks.servo_prepare(setpoint)
-        if extra is not None:  # (dataclasses.replace costs microseconds a tick; most hooks return None)
-            setpoint = replace(setpoint, extra=extra)
+            setpoint, completed, fraction = self._following(execution.trajectory, t, stamp)
+            if self.hooks.records_missed_samples:
+                missed = self._missed_samples(execution.trajectory, t, held.stamp if held.following else None, stamp)
+        setpoint = self._prepared(setpoint)
 
         with self._lock:
             if self._stop_seq != stop_seq:
                 return  # a stop landed while this tick was computed: it already commanded the hold
+            for sample in missed:
+                self.hooks.servo_record(sample)
             self.hooks.servo_command(setpoint)
             self._latest = setpoint
             if execution is not None:
@@ -442,8 +449,44 @@ class ServoLoop:
                     self._active = None
                     self.hooks.servo_finished()
         if completed and execution is not None:
-            settle_threadsafe(execution.loop, execution.future, ExecutionResult(True, "completed", positions.copy()))
+            settle_threadsafe(execution.loop, execution.future, ExecutionResult(True, "completed", setpoint.positions.copy()))
+
+    def _prepared(self, setpoint: Setpoint) -> Setpoint:
+        extra = self.hooks.servo_prepare(setpoint)
+        if extra is None:  # (dataclasses.replace costs microseconds a tick; most hooks return None)
+            return setpoint
+        return replace(setpoint, extra=extra)
+
+    @staticmethod
+    def _following(trajectory: JointTrajectory, t: float, stamp: float) -> tuple[Setpoint, bool, float]:
+        """The setpoint at trajectory time `t` [s], stamped `stamp`; whether it is the goal; the
+        fraction of the trajectory done."""
+        duration = trajectory.duration_s
+        if t >= duration:
+            goal = frozen(trajectory.goal)
+            return Setpoint(goal, frozen(np.zeros(goal.shape)), stamp, following=True), True, 1.0
+        motion = spread_motion(trajectory, t)
+        spread = SpreadMotion(frozen(motion.velocities), frozen(motion.accelerations))
+        setpoint = Setpoint(frozen(trajectory.sample(t)), frozen(segment_velocity(trajectory, t)), stamp,
+                            following=True, spread=spread)
+        return setpoint, False, t / duration
+
+    def _missed_samples(self, trajectory: JointTrajectory, t: float, previous_stamp: float | None,
+                        stamp: float) -> list[Setpoint]:
+        """The samples, prepared, of the control periods between the previous following tick
+        (`previous_stamp`; None: this tick starts the trajectory) and this one at `stamp`, where it
+        came more than a period and a half late; at most `MAX_MISSED_SAMPLES`, the latest ones."""
+        if previous_stamp is None:
+            return []
+        count = min(int((stamp - previous_stamp) / self.period_s - 0.5), MAX_MISSED_SAMPLES)
+        samples = []
+        for k in range(count, 0, -1):  # oldest first
+            at = stamp - k * self.period_s
+            t_at = t - k * self.period_s * self.speedup
+            if t_at >= 0.0 and at > previous_stamp:
+                samples.append(self._prepared(self._following(trajectory, t_at, at)[0]))
+        return samples
 
 
-__all__ = ["FIRST_TICK_TIMEOUT_S", "IDLE_PERIOD_S", "JOIN_TIMEOUT_S", "PROGRESS_PERIOD_S", "ServoBackend",
+__all__ = ["FIRST_TICK_TIMEOUT_S", "IDLE_PERIOD_S", "JOIN_TIMEOUT_S", "MAX_MISSED_SAMPLES", "PROGRESS_PERIOD_S", "ServoBackend",
            "ServoHooks", "ServoLoop", "Setpoint", "SpreadMotion", "frozen", "segment_velocity", "spread_motion"]
