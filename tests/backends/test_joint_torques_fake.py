@@ -245,3 +245,44 @@ async def _state_after(backend: FakeBackend, stamp: float) -> JointState:
             return state
         assert time.monotonic() < deadline, "no new sample"
         await _sleep()
+
+
+def test_a_sped_up_fake_whose_thread_stalls_mid_motion_leaves_the_observer_nothing_to_skip(fr3: RobotModel) -> None:
+    """At speedup 10 a 30 ms stall of the servo thread is 0.3 s of the arm's motion: the observer
+    skips an interval that long and fails closed after 0.1 s of them (review finding F1). The fake
+    arm moved on meanwhile, and its history holds every control period of it."""
+    from armwarden.safety.contact_source import JointTorqueContact
+    from tests.safety.test_joint_torque_monitor import mon_observer
+
+    async def scenario(backend: FakeBackend) -> tuple[int, float, bool]:
+        kinematics = backend._compute_tcp
+        stalls = 0
+
+        def stalling(q: np.ndarray) -> np.ndarray:
+            nonlocal stalls
+            if backend.servo.busy and stalls == 0 and backend.servo.latest.following:
+                stalls += 1
+                time.sleep(0.03)
+            return kinematics(q)
+
+        backend._compute_tcp = stalling  # type: ignore[method-assign]
+        contact = JointTorqueContact(backend.read_joint_states_since, mon_observer(fr3), FR3_JOINT_NAMES,
+                                     time_scale=backend.speedup, max_unobserved_s=0.1)
+        await contact.read()
+        finite = True
+        async with anyio.create_task_group() as group:
+            done = anyio.Event()
+
+            async def move() -> None:
+                await backend.execute(straight_line(Q_READY, Q_REACH, duration_s=2.0))
+                done.set()
+
+            group.start_soon(move)
+            while not done.is_set():
+                estimate = await contact.read()
+                finite = finite and estimate is not None and bool(np.all(np.isfinite(estimate.force)))
+                await anyio.sleep(0.005)
+        return stalls, contact.unobserved_s, finite
+
+    stalls, unobserved_s, finite = run(scenario, speedup=10.0)
+    assert stalls == 1 and unobserved_s == 0.0 and finite

@@ -60,6 +60,7 @@ from armwarden.backends.fake.gripper import FakeFingers
 from armwarden.backends.fake.knobs import FakeKnobs, Knob
 from armwarden.backends.parts import Cell
 from armwarden.backends.servo import ServoBackend, ServoLoop, Setpoint, frozen
+from armwarden.backends.state_history import JointStateHistory
 from armwarden.backends.values import ControllerInfo, ExecutionResult, ProgressCallback
 from armwarden.backends.watchdog import Heartbeat
 from armwarden.core.errors import BackendError
@@ -143,6 +144,10 @@ class FakeBackend(ServoBackend):
         self._controllers = FakeControllers.for_profile(profile, controllers)
 
         self._wrench = (self._contact_force_n(self._compute_tcp(arm.home)), time.monotonic())
+        #: every tick's joint state, for the contact observer (`_joint_states_since`): polled alone,
+        #: the samples lie a monitor period apart, and on a sped-up fake that is more of the arm's
+        #: motion than the observer integrates in one interval
+        self.joint_history = JointStateHistory()
         self.servo = ServoLoop(self, arm.home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
         self._loop: asyncio.AbstractEventLoop | None = None
 
@@ -197,7 +202,9 @@ class FakeBackend(ServoBackend):
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
         self._require_running()
-        setpoint = self.servo.latest  # read-only arrays, replaced whole by each tick
+        return self._joint_state(self.servo.latest)  # read-only arrays, replaced whole by each tick
+
+    def _joint_state(self, setpoint: Setpoint) -> JointState:
         efforts: Efforts | None = setpoint.extra[2]
         # following, the arm moves as a physical one would follow the path (`spread_motion`): the
         # velocity its measured torques belong to, never outside the segments' velocities
@@ -208,6 +215,10 @@ class FakeBackend(ServoBackend):
 
     async def _read_joint_state(self) -> JointState:
         return self._latest_joint_state()
+
+    def _joint_states_since(self, stamp: float) -> Sequence[JointState]:
+        self._require_running()
+        return self.joint_history.since_or_latest(stamp)
 
     def _wrench_sample(self) -> Wrench:
         """The wrench the servo thread last published (`FakeWrench`)."""
@@ -278,7 +289,14 @@ class FakeBackend(ServoBackend):
         self._last_efforts = efforts
         return efforts
 
+    #: the fake arm is on its trajectory even while this thread is late (`ServoHooks`)
+    records_missed_samples = True
+
+    def servo_record(self, setpoint: Setpoint) -> None:
+        self.joint_history.append(self._joint_state(setpoint))
+
     def servo_command(self, setpoint: Setpoint) -> None:
+        self.joint_history.append(self._joint_state(setpoint))
         if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
             self._wrench = (setpoint.extra[1], setpoint.stamp)
 
