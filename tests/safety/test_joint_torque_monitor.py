@@ -341,3 +341,30 @@ async def test_a_read_that_returns_nothing_is_a_backend_error(robot: RobotModel,
     contact = JointTorqueContact(Batches([[]]), mon_observer(robot), robot.joint_names)
     with pytest.raises(BackendError, match="no joint state"):
         await contact.read()
+
+
+@pytest.mark.anyio
+async def test_an_interval_too_long_on_the_arms_time_is_skipped_at_any_speedup(robot: RobotModel,
+                                                                                ready: np.ndarray) -> None:
+    """A simulator at speedup 10 moves the arm 50 ms between stamps 5 ms apart: the jump the test
+    above skips at speedup 1 is skipped here too (it read 10.6 N·m when the cap was on the stamps)."""
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    source.script = [source.state(source.gravity, stamp=10.0), moving_state(source, 10.0 + 0.005, 0.5)]
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names, time_scale=10.0)
+    await contact.read()
+    after_stall = await contact.read()
+    assert isinstance(after_stall, ContactEstimate)
+    assert np.allclose(after_stall.external_torques_nm, 0.0, atol=1e-6) and contact.unobserved_s == pytest.approx(0.05)
+
+
+@pytest.mark.anyio
+async def test_a_moving_arm_unobserved_for_long_on_its_own_time_fails_closed_at_speedup(robot: RobotModel,
+                                                                                       ready: np.ndarray) -> None:
+    """At speedup 2.5, stamps 16 ms apart are 40 ms of motion each: the same as the test above."""
+    source = TorqueScript(robot, ready, FakeClock(10.0), [])
+    source.script = [moving_state(source, 10.0 + 0.016 * k, 0.5) for k in range(5)]
+    contact = JointTorqueContact(latest_only(source), mon_observer(robot), robot.joint_names, time_scale=2.5,
+                                 max_unobserved_s=0.1)
+    readings = [await contact.read() for _ in range(5)]
+    last = readings[-1]
+    assert last is not None and not np.all(np.isfinite(last.force))

@@ -82,10 +82,11 @@ def observer_for(policy: Policy, robot_model: RobotModel) -> ContactObserver:
     return ContactObserver(robot_model.model, robot_model.tcp_frame, robot_model.base_frame, settings)
 
 
-#: the longest sample interval [s, on the stamps' clock] whose torques the observer integrates from
-#: its two ends; a longer one (an event loop that stalled) is skipped, not trusted: the torques may
-#: have risen and fallen inside it, and the trapezoid would read that as a contact (28 N·m once in
-#: MuJoCo at the largest scaling, with nothing touching)
+#: the longest sample interval [s of the arm's time: stamps × time_scale] whose torques the observer
+#: integrates from its two ends; a longer one (an event loop that stalled) is skipped, not trusted:
+#: the torques may have risen and fallen inside it, and the trapezoid would read that as a contact
+#: (28 N·m once in MuJoCo at the largest scaling, with nothing touching). Measured on the arm's
+#: time, not the stamps': at speedup 10 a 5 ms stall is 50 ms of motion (read as 10.6 N·m)
 MAX_INTEGRATED_INTERVAL_S = 0.02
 #: joint speed [rad/s] under which a sample counts as an arm at rest (a skipped interval between two
 #: of them misses nothing: no momentum changed)
@@ -105,7 +106,9 @@ class JointTorqueContact:
     the estimate holds and the next interval starts from that sample. Skipped time that adds up
     to more than `max_unobserved_s` while the arm moved, without an integrated interval between, is a
     lost reading (fail closed): an observer that cannot integrate cannot see a contact. So is a
-    sample without finite positions, velocities or torques, wherever it falls in a read."""
+    sample without finite positions, velocities or torques, wherever it falls in a read. Both
+    bounds are on the arm's time (the stamps' interval × `time_scale`): a simulator run faster
+    than real time moves the arm that much further between two stamps."""
 
     def __init__(self, read_joint_states: Callable[[float | None], Awaitable[Sequence[JointState]]],
                  observer: ContactObserver, joint_names: Sequence[str], time_scale: float = 1.0,
@@ -118,7 +121,7 @@ class JointTorqueContact:
         #: simulated seconds per stamp second (a simulator run faster than real time; 1 on hardware)
         self._time_scale = float(time_scale)
         self._max_unobserved_s = float(max_unobserved_s)
-        #: stamp time skipped while the arm moved, since the last integrated interval [s]
+        #: the arm's time (stamps × time_scale) skipped while it moved, since the last integrated interval [s]
         self.unobserved_s = 0.0
         #: samples integrated so far (each once)
         self.samples_integrated = 0
@@ -157,7 +160,8 @@ class JointTorqueContact:
         previous = self._last_state
         if previous is not None and state.stamp <= previous.stamp:  # the same sample again: nothing new
             return None
-        interval = state.stamp - previous.stamp if previous is not None else 0.0
+        # on the arm's time: what the observer integrates and what the arm moved through
+        interval = (state.stamp - previous.stamp) * self._time_scale if previous is not None else 0.0
         if previous is not None and interval > MAX_INTEGRATED_INTERVAL_S:
             if self._moving or bool(np.any(np.abs(v) > REST_SPEED_RAD_S)):  # an arm at rest at both ends: nothing missed
                 self.unobserved_s += interval
