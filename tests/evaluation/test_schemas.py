@@ -41,9 +41,9 @@ def test_the_tools_use_schema_features_the_mapper_covers(schemas) -> None:
         invalid_arguments(schema)
 
 
-def _check_modes(name: str, schema: dict[str, Any], seen: set[str]) -> None:
+def _check_modes(name: str, schema: dict[str, Any], seen: set[str], only: tuple[str, ...] | None = None) -> None:
     @SETTINGS
-    @given(valid_arguments(schema), invalid_arguments(schema))
+    @given(valid_arguments(schema), invalid_arguments(schema, only))
     def check(valid: dict[str, Any], invalid: tuple[str, dict[str, Any]]) -> None:
         assert conforms(schema, valid), (name, valid)
         mutation, arguments = invalid
@@ -59,10 +59,12 @@ def test_valid_mode_conforms_and_invalid_mode_does_not(schemas) -> None:
         seen: set[str] = set()
         _check_modes(name, schema, seen)
         assert seen, name
-    # the property mutations reach a tool with typed arguments
-    seen = set()
-    _check_modes("gripper_grasp", schemas["gripper_grasp"], seen)
-    assert {"wrong_type", "non_finite", "out_of_range", "unknown_key"} <= seen, seen
+    # the property mutations reach a tool with typed arguments: each drawn on its own (from all of
+    # them, 30 examples can miss one, and which one depends on hypothesis's version)
+    for mutation in ("wrong_type", "non_finite", "out_of_range", "unknown_key"):
+        seen = set()
+        _check_modes("gripper_grasp", schemas["gripper_grasp"], seen, only=(mutation,))
+        assert seen == {mutation}, (mutation, seen)
 
 
 def test_conforms_is_the_servers_contract() -> None:

@@ -19,7 +19,7 @@ JSON has no NaN or infinity, so a non-finite float never conforms (jsonschema it
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import jsonschema
@@ -252,10 +252,16 @@ def _typed(schema: Mapping[str, Any]) -> list[str]:
                   if _types_of(_resolve(sub, schema)) or "anyOf" in sub or "$ref" in sub)
 
 
-def invalid_arguments(schema: Mapping[str, Any]) -> st.SearchStrategy[tuple[str, dict[str, Any]]]:
+def invalid_arguments(schema: Mapping[str, Any],
+                      only: Sequence[str] | None = None) -> st.SearchStrategy[tuple[str, dict[str, Any]]]:
     """(mutation, arguments) where the arguments do not conform to `schema`: one of `MUTATIONS`
-    applied to valid arguments (a property mutation only where some property is typed); a
-    mutation that happened to conform is drawn again."""
+    (or of `only`, a subset of them) applied to valid arguments (a property mutation only where
+    some property is typed); a mutation that happened to conform is drawn again."""
     mutations = MUTATIONS if _typed(schema) else ("unknown_key", "missing_required")
+    if only is not None:
+        unknown = sorted(set(only) - set(MUTATIONS))
+        if unknown:
+            raise ValueError(f"unknown mutations {unknown}; known: {', '.join(MUTATIONS)}")
+        mutations = tuple(m for m in mutations if m in only)
     options = [_mutated(schema, mutation).map(lambda value, m=mutation: (m, value)) for mutation in mutations]
     return st.one_of(options).filter(lambda pair: not conforms(schema, pair[1]))
