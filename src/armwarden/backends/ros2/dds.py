@@ -1,6 +1,6 @@
 """Which DDS domain and discovery range a ROS node of ours uses, and how to say so (no rclpy).
 
-The daemon's ros2 backend and the fake cell (`tests_ros/cell.py`) resolve them here, so that both,
+The daemon's ros2 backend and the fake cell (`armwarden.backends.ros2.fake_cell`) resolve them here, so that both,
 started with nothing set (a desktop client's minimal environment), meet: ``ROS_DOMAIN_ID`` unset
 is domain 0, as ROS itself has it, and ``ROS_AUTOMATIC_DISCOVERY_RANGE`` unset is ``LOCALHOST``
 (ROS's own default is ``SUBNET``): DDS leaves this host only when that is asked for.

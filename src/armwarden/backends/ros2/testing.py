@@ -2,7 +2,7 @@
 
 `build_for_tests(policy, robot, *, speedup, options)` is the one function every backend package's
 `testing.py` has (docs/add-a-backend.md). The backend under test is wired as examples/ros2_fr3.yaml
-(so it needs a source checkout), whose names the fake FR3 cell `tests_ros.cell.Cell` mirrors; the
+(so it needs a source checkout), whose names the fake FR3 cell `armwarden.backends.ros2.fake_cell.Cell` mirrors; the
 harness starts that cell. `speedup` is ignored: the cell interpolates goals in real time. rclpy is
 imported only when the backend is built.
 """
