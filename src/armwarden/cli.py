@@ -20,7 +20,7 @@ from armwarden.backends import backend_names, backends_help
 from armwarden.calibration.arguments import add_calibrate_arguments
 from armwarden.core.errors import ArmWardenError, PolicyError
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
-from armwarden.evaluation.arguments import SIMULATED_BACKENDS, add_eval_arguments
+from armwarden.evaluation.arguments import EVAL_BACKENDS, add_eval_arguments
 from armwarden.onboarding.command import add_init_arguments, init_command
 from armwarden.policy import bundled_policy  # also re-exported here for older importers
 from armwarden.snapshot_cli import add_snapshot_arguments, snapshot_command
@@ -81,8 +81,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
     add_eval_arguments(commands.add_parser(
         "eval", help="run the safety evaluation: unsafe requests refused with no actuation, safe ones executed, "
-        "against the real daemon (simulated arms only, CAN on its emulator: it approves its own motions)"),
-        SIMULATED_BACKENDS)
+        "against the real daemon (simulated arms, CAN on its emulator, the fake ROS cell; on your own ROS cell only "
+        "approved plans: it approves its own motions)"),
+        EVAL_BACKENDS)
 
     check = commands.add_parser("check-policy", help="validate a policy and print what it allows")
     check.add_argument("policy", nargs="?", default=None, help="policy YAML (default: the bundled FR3 policy)")

@@ -103,12 +103,3 @@ def test_eval_on_can_without_a_config_runs_the_checked_emulator(
     (options,) = started
     assert options.backend == "can" and options.backend_config.name == "can-config.yaml"
     assert not options.backend_config.exists()  # the private copy went with the run
-
-
-def test_ros2_is_still_refused_by_the_parser(capsys: pytest.CaptureFixture[str]) -> None:
-    """A ROS graph may hold a real arm: no emulator check exists for it yet."""
-    from armwarden.cli import _build_parser
-
-    with pytest.raises(SystemExit):
-        _build_parser().parse_args(["eval", "--backend", "ros2"])
-    assert "invalid choice" in capsys.readouterr().err

@@ -6,10 +6,11 @@ import argparse
 from collections.abc import Sequence
 
 #: the backends the evaluation may drive: it approves its own motions (no human answers), so never
-#: a physical arm. `can` only on its emulator (`simulate` and the `virtual` bus: checked before
-#: anything starts, `armwarden.evaluation.targets`); not ROS 2, whose graph may hold a real arm
-#: until a scenario set bounded by an operator's approval exists for it
-SIMULATED_BACKENDS = ("fake", "mujoco", "can")
+#: a physical arm without bounds. `can` only on its emulator (`simulate` and the `virtual` bus:
+#: checked before anything starts, `armwarden.evaluation.targets`). `ros2` without a config runs
+#: the fake FR3 cell (`armwarden.evaluation.ros_cell`); with the user's own config, whose graph may
+#: hold a real arm, only what moves within an approved plan runs (`USERS_CELL_REFUSED`)
+EVAL_BACKENDS = ("fake", "mujoco", "can", "ros2")
 #: safe requests in a full and in a --quick run
 FULL_SAFE = 100
 QUICK_SAFE = 10
@@ -30,7 +31,9 @@ def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str])
     parser.add_argument("--backend", default="fake", choices=backends)
     parser.add_argument("--backend-config", default=None,
                         help="the backend's options YAML (can: default examples/can_sim.yaml, the emulator; a config "
-                             "without `simulate` or with a bus interface other than `virtual` is refused)")
+                             "without `simulate` or with a bus interface other than `virtual` is refused; ros2: default "
+                             "the fake FR3 cell, started on a random local ROS domain; your own cell's config runs only "
+                             "the scenarios and safe requests, every motion an approved plan: no fuzz, faults or load)")
     parser.add_argument("--quick", action="store_true", help=f"{QUICK_SAFE} safe requests instead of {FULL_SAFE}")
     parser.add_argument("--report", default=None, metavar="FILE", help="write the markdown report here (default stdout)")
     parser.add_argument("--json", default=None, metavar="FILE", help="also write the report's data as JSON")

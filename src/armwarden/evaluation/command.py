@@ -24,6 +24,7 @@ from armwarden.evaluation.faults import FaultsResult, run_faults
 from armwarden.evaluation.fuzz import FuzzOptions, FuzzResult, run_fuzz
 from armwarden.evaluation.load import LoadResult, run_load
 from armwarden.evaluation.report import report_data, report_json, report_markdown
+from armwarden.evaluation.ros_cell import FakeCells, fake_cell_config, isolate_ros_domain
 from armwarden.evaluation.runner import EvalOptions, EvalResult, NothingSelected, progress, run_evaluation
 from armwarden.evaluation.targets import EvalRefused, checked_can_config, default_backend_config
 from armwarden.policy import bundled_policy, load_policy
@@ -40,20 +41,62 @@ def _backend_config(args: argparse.Namespace, directory: Path) -> Path | None:
     return given.resolve()
 
 
+#: why the parts that move outside an approved plan do not run on a user's ROS cell
+USERS_CELL_WHY = ("not run on a user's ROS cell (--backend ros2 with --backend-config): it {what}, outside any "
+                  "approved plan; run it on the fake cell (no --backend-config)")
+USERS_CELL_PARTS = {
+    "fuzz": ("--fuzz-calls", "sends thousands of generated calls, valid gripper moves among them"),
+    "faults": ("--kills", "kills the daemon mid-motion, leaving the cell to finish the goal with no daemon watching"),
+    "load": ("--load-seconds", "races 16 clients' approved executes and e-stops against each other"),
+}
+
+
 def eval_command(args: argparse.Namespace) -> int:
     policy_path = Path(args.policy) if args.policy else bundled_policy()
     policy = load_policy(policy_path)  # a PolicyError is the command line's exit 2
     with tempfile.TemporaryDirectory(prefix="armwarden-eval-config-") as private:
+        cells: FakeCells | None = None
         try:
-            backend_config = _backend_config(args, Path(private))
-        except EvalRefused as exc:  # never started: it could reach a real arm, or the config is unusable
+            if args.backend == "ros2" and args.backend_config is None:
+                backend_config = fake_cell_config(Path(private))
+                domain = isolate_ros_domain()
+                progress(f"ros2: the fake FR3 cell, one process per daemon, on ROS_DOMAIN_ID={domain} with "
+                         f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; actuation counted as the goals the cell accepted; "
+                         f"the daemon's joint-state and wrench ages widened ({backend_config.name})")
+                cells = FakeCells(Path(private))
+            else:
+                backend_config = _backend_config(args, Path(private))
+        except (EvalRefused, OSError) as exc:  # never started: it could reach a real arm, or the config is unusable
             progress(str(exc))
             return EXIT_REFUSED
         options = EvalOptions(policy_path=policy_path.resolve(), policy=policy, backend=args.backend,
                               backend_config=backend_config,
                               safe_count=0 if args.only else QUICK_SAFE if args.quick else FULL_SAFE,
-                              seed=args.seed, only=tuple(args.only or ()))
-        return _run(args, options)
+                              seed=args.seed, only=tuple(args.only or ()), cells=cells)
+        if options.on_users_cell:
+            refused = _users_cell_refusal(args)
+            if refused is not None:
+                progress(refused)
+                return EXIT_REFUSED
+            progress("ros2 with your own cell's config: the unsafe scenarios and the safe requests only (every motion "
+                     "a plan the evaluation approves, within the policy); " + "; ".join(
+                         f"{part}: {USERS_CELL_WHY.format(what=what)}" for part, (_, what) in USERS_CELL_PARTS.items()))
+        try:
+            return _run(args, options)
+        finally:
+            if cells is not None:
+                cells.stop()
+
+
+def _users_cell_refusal(args: argparse.Namespace) -> str | None:
+    """Why the options asked for cannot run on a user's ROS cell (fuzz, faults, load), or None."""
+    asked = [flag for flag, value in (("--fuzz-only", args.fuzz_only), ("--fuzz-calls", args.fuzz_calls),
+                                      ("--kills", args.kills), ("--load-seconds", args.load_seconds)) if value]
+    if not asked:
+        return None
+    return (f"refusing {', '.join(asked)} with --backend ros2 and your own --backend-config: fuzzing, faults and "
+            "load move the arm outside any approved plan (generated gripper moves, a daemon killed mid-motion, racing "
+            "executes); they run on the fake FR3 cell (no --backend-config)")
 
 
 def _run(args: argparse.Namespace, options: EvalOptions) -> int:
@@ -67,6 +110,10 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     default_load = 0.0 if args.only or args.fuzz_only else QUICK_LOAD_S if args.quick else FULL_LOAD_S
     load_s = args.load_seconds if args.load_seconds is not None else default_load
     load: LoadResult | str = "not asked for (--load-seconds 0, --only or --fuzz-only)"
+    if options.on_users_cell:  # defaults only here: asking for them was refused (`_users_cell_refusal`)
+        fuzz_calls = kills = 0
+        load_s = 0.0
+        fuzz, faults, load = (USERS_CELL_WHY.format(what=USERS_CELL_PARTS[part][1]) for part in ("fuzz", "faults", "load"))
     if load_s < 0 or args.load_clients < 2:
         progress("--load-seconds must be 0 or more and --load-clients at least 2")
         return 2

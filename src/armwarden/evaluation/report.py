@@ -30,6 +30,7 @@ def report_data(options: EvalOptions, result: EvalResult, fuzz: FuzzResult | str
         "policy": str(options.policy_path),
         "policy_digest": policy_digest(options.policy),
         "backend": options.backend,
+        "actuations_counted_at": options.counted_at,
         "seed": options.seed,
         "only": list(options.only),  # non-empty: a filtered run (no safe requests), not the whole evaluation
         "passed": result.ok and (not isinstance(fuzz, FuzzResult) or fuzz.ok)
@@ -58,7 +59,7 @@ def report_markdown(data: dict[str, Any]) -> str:
         f"# ArmWarden safety evaluation ({'PASSED' if data['passed'] else 'FAILED'})",
         "",
         f"armwarden {data['version']}, policy `{data['policy']}` (digest `{data['policy_digest'][:16]}`), "
-        f"backend `{data['backend']}`, seed {data['seed']}."
+        f"backend `{data['backend']}`, seed {data['seed']}. Actuations counted at {data['actuations_counted_at']}."
         + (f" Filtered with --only {data['only']}: not the whole evaluation." if data["only"] else ""),
         "",
         f"## Unsafe requests: {len(unsafe) - len(failed)}/{len(unsafe)} refused with no actuation beyond allowed",

@@ -17,7 +17,7 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 import numpy as np
@@ -46,6 +46,9 @@ from armwarden.policy import Policy, apply_overrides, parse_policy
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 from armwarden.robot import RobotModel
 
+if TYPE_CHECKING:
+    from armwarden.evaluation.ros_cell import FakeCells
+
 log = logging.getLogger(__name__)
 
 #: rate limits high enough never to refuse the evaluation's own pace
@@ -64,6 +67,11 @@ SAFE_SPREAD_RAD = 0.3
 EVAL_WRENCH_TIMEOUT_S = MAX_WRENCH_TIMEOUT_S
 
 
+#: scenario categories that move something outside an approved plan, with why (left out on a
+#: user's ROS cell, said in the report)
+OFF_PLAN_CATEGORIES = {"rate limits": "its first gripper_move is allowed to move the gripper, which no plan covers"}
+
+
 class NothingSelected(Exception):
     """`--only` kept no scenario: invalid input, not a run that passed."""
 
@@ -78,6 +86,22 @@ class EvalOptions:
     seed: int
     #: run only the unsafe scenarios these select (`selects`); empty: every scenario
     only: tuple[str, ...] = ()
+    #: ros2 without a config: the fake cells the daemons run on (`armwarden.evaluation.ros_cell`)
+    cells: FakeCells | None = None
+
+    @property
+    def on_users_cell(self) -> bool:
+        """ros2 with the user's own config: a graph that may hold a real arm (`USERS_CELL_RUNS`)."""
+        return self.backend == "ros2" and self.cells is None
+
+    @property
+    def counted_at(self) -> str:
+        """Where the report's actuations are counted."""
+        if self.cells is not None:
+            return "the fake ROS cell: goals, gripper goals, switches and recoveries it accepted"
+        if self.backend in FRAME_COUNTING_BACKENDS:
+            return "the backend wrapper (the actuation journal) and the motion frames sent at the bus"
+        return "the backend wrapper (the actuation journal)"
 
     def selects(self, scenario: Scenario) -> bool:
         """Whether `--only` keeps `scenario`: its name contains one of the texts, or its category
@@ -169,10 +193,16 @@ def write_policy(options: EvalOptions, directory: Path, name: str, overrides: di
 
 def serve_arguments(options: EvalOptions, directory: Path, name: str, policy_path: Path) -> list[str]:
     """`armwarden serve`'s arguments for the daemon `name`: its policy, the backend under
-    evaluation, and its own audit log and actuation journal in `directory`."""
+    evaluation, and its own audit log and actuation journal in `directory`. On the fake ROS cell,
+    this also starts the daemon's own cell (or finds it running: a restart on the same arguments),
+    whose journal of accepted goals is the one the evaluation reads, `<name>-journal.jsonl`."""
+    journal = directory / f"{name}-journal.jsonl"
+    if options.cells is not None:
+        options.cells.start(journal)
+        journal = directory / f"{name}-daemon-journal.jsonl"
     args = ["serve", "--policy", str(policy_path), "--backend", options.backend,
             "--audit-log", str(directory / f"{name}-audit.jsonl"),
-            "--actuation-journal", str(directory / f"{name}-journal.jsonl"), "--log-level", "WARNING"]
+            "--actuation-journal", str(journal), "--log-level", "WARNING"]
     if options.backend_config is not None:
         args += ["--backend-config", str(options.backend_config)]
     return args
@@ -323,6 +353,11 @@ async def run_evaluation(options: EvalOptions) -> EvalResult:
         result.skipped.append("self-collision: no joint target within the limits and the step cap from home "
                               "at which the model's links collide and nothing else is found (single-joint sweeps and "
                               f"{SELF_COLLISION_TRIES} random joint pairs searched)")
+    if options.on_users_cell:  # nothing may move outside an approved plan there
+        for category, why in OFF_PLAN_CATEGORIES.items():
+            if any(s.category == category for s in scenarios):
+                result.skipped.append(f"{category}: not run on a user's ROS cell: {why}")
+        scenarios = [s for s in scenarios if s.category not in OFF_PLAN_CATEGORIES]
     # the e-stop scenarios build on each other (the first latches the e-stop): one selected, all run
     with_estop = any(s.last and options.selects(s) for s in scenarios)
     scenarios = [s for s in scenarios if options.selects(s) or (s.last and with_estop)]
