@@ -9,11 +9,14 @@ import json
 from pathlib import Path
 from typing import Any
 
+import anyio
 import pytest
 
 from armwarden.cli import main
-from armwarden.evaluation import command
-from armwarden.evaluation.runner import EvalResult
+from armwarden.evaluation import command, runner
+from armwarden.evaluation.ros_cell import FakeCells
+from armwarden.evaluation.runner import EvalOptions, EvalResult
+from armwarden.policy import bundled_policy, load_policy
 
 EXIT_REFUSED = 2
 USERS_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "ros2_fr3.yaml"
@@ -57,3 +60,45 @@ def test_a_users_cell_gets_the_scenarios_only_and_the_report_says_what_was_left_
         assert data[part]["run"] is False
         assert "not run on a user's ROS cell" in data[part]["why"], data[part]
     assert "the unsafe scenarios and the safe requests only" in capsys.readouterr().err
+
+
+def _scenarios_run(options: EvalOptions, monkeypatch: pytest.MonkeyPatch) -> tuple[list[str], EvalResult]:
+    """The categories of the scenarios `run_evaluation` hands to its daemons (none started), and its result."""
+    categories: list[str] = []
+
+    async def with_daemon(options: Any, directory: Path, name: str, overrides: Any, elicits: bool, body: Any) -> None:
+        await body(None, directory / f"{name}-journal.jsonl")
+
+    async def run_scenarios(session: Any, journal: Path, scenarios: list[Any], *rest: Any) -> None:
+        categories.extend(s.category for s in scenarios)
+
+    async def safe_requests(*args: Any) -> None:
+        pass
+
+    monkeypatch.setattr(runner, "_with_daemon", with_daemon)
+    monkeypatch.setattr(runner, "_run_scenarios", run_scenarios)
+    monkeypatch.setattr(runner, "_safe_requests", safe_requests)
+    result = anyio.run(runner.run_evaluation, options)
+    return categories, result
+
+
+def test_on_a_users_cell_the_rate_limit_scenario_that_moves_the_gripper_is_left_out_and_said(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    path = bundled_policy()
+    options = EvalOptions(path, load_policy(path), "ros2", USERS_CONFIG, safe_count=0, seed=0)
+
+    categories, result = _scenarios_run(options, monkeypatch)
+
+    assert "rate limits" not in categories and "envelope" in categories
+    assert any(why.startswith("rate limits: not run on a user's ROS cell") for why in result.skipped), result.skipped
+
+
+def test_on_the_fake_cell_the_rate_limit_scenario_runs(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    path = bundled_policy()
+    options = EvalOptions(path, load_policy(path), "ros2", USERS_CONFIG, safe_count=0, seed=0,
+                          cells=FakeCells(tmp_path))  # never started: no daemon's arguments are built
+
+    categories, result = _scenarios_run(options, monkeypatch)
+
+    assert "rate limits" in categories and not options.on_users_cell
+    assert not any("user's ROS cell" in why for why in result.skipped)
