@@ -5,6 +5,7 @@ before anything starts. (The fake cell's run needs ROS: tests_ros/test_eval_ros2
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 from typing import Any
@@ -102,3 +103,13 @@ def test_on_the_fake_cell_the_rate_limit_scenario_runs(monkeypatch: pytest.Monke
 
     assert "rate limits" in categories and not options.on_users_cell
     assert not any("user's ROS cell" in why for why in result.skipped)
+
+
+def test_the_fake_cell_without_rclpy_is_refused_naming_the_ros_venv(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], started: list[Any]) -> None:
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *rest: None if name == "rclpy" else real(name, *rest))
+
+    assert main(["eval", "--quick", "--backend", "ros2"]) == EXIT_REFUSED
+    assert started == []
+    assert "needs rclpy in this interpreter" in capsys.readouterr().err

@@ -20,6 +20,7 @@ stderr. No rclpy here: only the cell and the daemons import it.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import random
 import selectors
@@ -60,7 +61,13 @@ def isolate_ros_domain(environ: dict[str, str] | os._Environ[str] = os.environ) 
 
 
 def fake_cell_config(directory: Path) -> Path:
-    """The daemon's config for the fake cell: examples/ros2_fr3.yaml with the ages widened (module docstring)."""
+    """The daemon's config for the fake cell: examples/ros2_fr3.yaml with the ages widened (module
+    docstring). `FileNotFoundError` when this interpreter has no rclpy (the cells and the daemons
+    run under it) or the example is not there."""
+    if importlib.util.find_spec("rclpy") is None:
+        raise FileNotFoundError(f"--backend ros2 needs rclpy in this interpreter ({sys.executable}): the cells "
+                                "and daemons run under it. In a checkout, bash scripts/setup_ros.sh builds the ROS "
+                                "venv; then run .venv-ros/bin/armwarden eval --backend ros2")
     if not DEFAULT_ROS2_CONFIG.is_file():
         raise FileNotFoundError(f"--backend ros2 without --backend-config needs {DEFAULT_ROS2_CONFIG} "
                                 "(it ships with a source checkout only)")
