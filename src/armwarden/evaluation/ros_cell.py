@@ -43,6 +43,8 @@ EVAL_JOINT_STATE_AGE_S = 1.0
 CELL_START_TIMEOUT_S = 120.0
 #: how long a cell has to exit on SIGTERM before it is killed [s]
 CELL_STOP_TIMEOUT_S = 15.0
+#: prctl(2)'s option: a signal for the child when its parent dies
+PR_SET_PDEATHSIG = 1
 #: domains the evaluation draws from (0 is everyone's default; above 101 the DDS ports run out)
 DOMAINS = 100
 
@@ -79,6 +81,15 @@ def fake_cell_config(directory: Path) -> Path:
     return copy
 
 
+def _die_with_parent() -> None:
+    """In the cell's process before exec (Linux): SIGTERM when the evaluation dies, even by SIGKILL,
+    so no cell outlives it on the domain. Elsewhere nothing (`FakeCells.stop` still ends them)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
 class FakeCells:
     """The fake cells of one evaluation, one at a time (see the module docstring)."""
 
@@ -103,7 +114,7 @@ class FakeCells:
         with stderr_path.open("wb") as stderr:
             process = subprocess.Popen([sys.executable, "-m", CELL_MODULE, "--journal", str(journal)],
                                        env=dict(os.environ), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                       stderr=stderr)
+                                       stderr=stderr, preexec_fn=_die_with_parent)
         self.process, self.journal = process, journal
         if not self._ready(process):
             tail = stderr_path.read_text(encoding="utf-8", errors="replace")[-1500:]
