@@ -5,7 +5,9 @@ before anything starts. (The fake cell's run needs ROS: tests_ros/test_eval_ros2
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
+import io
 import json
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,7 @@ import pytest
 
 from armwarden.cli import main
 from armwarden.evaluation import command, runner
+from armwarden.evaluation.arguments import add_eval_arguments
 from armwarden.evaluation.ros_cell import FakeCells
 from armwarden.evaluation.runner import EvalOptions, EvalResult
 from armwarden.policy import bundled_policy, load_policy
@@ -50,7 +53,7 @@ def test_faults_load_or_fuzzing_asked_for_on_a_users_cell_are_refused_before_any
 
 def test_a_users_cell_gets_the_scenarios_only_and_the_report_says_what_was_left_out(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], started: list[Any]) -> None:
-    code = main(["eval", "--quick", "--backend", "ros2", "--backend-config", str(USERS_CONFIG),
+    code = main(["eval", "--quick", "--backend", "ros2", "--backend-config", str(USERS_CONFIG), "--yes",
                  "--json", str(tmp_path / "eval.json"), "--report", str(tmp_path / "eval.md")])
 
     (options,) = started
@@ -61,6 +64,41 @@ def test_a_users_cell_gets_the_scenarios_only_and_the_report_says_what_was_left_
         assert data[part]["run"] is False
         assert "not run on a user's ROS cell" in data[part]["why"], data[part]
     assert "the unsafe scenarios and the safe requests only" in capsys.readouterr().err
+
+
+class Terminal(io.StringIO):
+    """A terminal the person answers on."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+def users_cell_eval(tmp_path: Path, stdin: io.StringIO, stderr: io.StringIO, *extra: str) -> int:
+    parser = argparse.ArgumentParser()
+    add_eval_arguments(parser, ("fake", "ros2"))
+    args = parser.parse_args(["--quick", "--backend", "ros2", "--backend-config", str(USERS_CONFIG),
+                                      "--json", str(tmp_path / "eval.json"), *extra])
+    return command.eval_command(args, stdin=stdin, stderr=stderr)
+
+
+def test_on_a_users_cell_without_a_terminal_or_yes_nothing_starts(tmp_path: Path, started: list[Any]) -> None:
+    stderr = io.StringIO()
+    assert users_cell_eval(tmp_path, io.StringIO("yes\n"), stderr) == EXIT_REFUSED  # a pipe is not a person
+    assert started == [] and not (tmp_path / "eval.json").exists()
+    said = stderr.getvalue()
+    assert "will move YOUR arm" in said and "e-stop in reach" in said and "nothing moved" in said
+
+
+def test_on_a_users_cell_an_answer_other_than_yes_starts_nothing(tmp_path: Path, started: list[Any]) -> None:
+    stderr = io.StringIO()
+    assert users_cell_eval(tmp_path, Terminal("y\n"), stderr) == EXIT_REFUSED
+    assert started == [] and "not approved: nothing moved" in stderr.getvalue()
+
+
+def test_on_a_users_cell_the_person_typing_yes_starts_the_evaluation(tmp_path: Path, started: list[Any]) -> None:
+    assert users_cell_eval(tmp_path, Terminal("yes\n"), io.StringIO()) == 0
+    (options,) = started
+    assert options.on_users_cell
 
 
 def _scenarios_run(options: EvalOptions, monkeypatch: pytest.MonkeyPatch) -> tuple[list[str], EvalResult]:

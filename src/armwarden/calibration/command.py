@@ -24,6 +24,7 @@ from armwarden.audit import AuditWriteError
 from armwarden.calibration.arguments import add_calibrate_arguments
 from armwarden.calibration.friction_fit import MIN_LIMIT_NM, JointRecommendation
 from armwarden.calibration.run import CalibrationOptions, CalibrationResult, calibration_goals, run_calibration
+from armwarden.consent import confirmed
 from armwarden.core.errors import ArmWardenError
 from armwarden.policy import Policy, load_policy
 from armwarden.policy.joint_torques import MAX_EXTERNAL_TORQUE_NM
@@ -53,21 +54,8 @@ def what_moves(policy: Policy, args: argparse.Namespace) -> str:
 
 
 def _approved(policy: Policy, args: argparse.Namespace, stdin: TextIO, stderr: TextIO) -> bool:
-    print(what_moves(policy, args), file=stderr)
-    if args.yes:
-        return True
-    if not stdin.isatty():
-        print("armwarden calibrate-contact: no terminal to ask on and no --yes: nothing moved", file=stderr)
-        return False
-    print("Type yes to start: ", end="", file=stderr, flush=True)
-    try:
-        answer = stdin.readline()
-    except KeyboardInterrupt:
-        answer = ""
-    if answer.strip().lower() != "yes":
-        print("armwarden calibrate-contact: not approved: nothing moved", file=stderr)
-        return False
-    return True
+    return confirmed(what_moves(policy, args), assume_yes=args.yes, command="armwarden calibrate-contact",
+                     stdin=stdin, stderr=stderr)
 
 
 def _margin_text(r: JointRecommendation) -> str:

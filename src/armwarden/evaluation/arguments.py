@@ -49,6 +49,9 @@ def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str])
                         help=f"load: {LOAD_CLIENTS} HTTP clients (--load-clients) for S seconds with e-stops through the "
                              f"stop channel (default {FULL_LOAD_S:g}, --quick {QUICK_LOAD_S:g}; 0: no load run)")
     parser.add_argument("--load-clients", type=int, default=LOAD_CLIENTS, metavar="N", help="clients of the load run")
+    parser.add_argument("--yes", action="store_true",
+                        help="on your own ROS cell (--backend ros2 --backend-config): start without asking; someone "
+                             "watches the arm with the e-stop in reach")
     parser.add_argument("--kills", type=int, default=None, metavar="N",
                         help=f"faults: kill -9 the daemon mid-motion N times, restarting it on the same audit log, then "
                              f"fill its audit log (default {FULL_KILLS}, --quick {QUICK_KILLS}; 0: no fault injection)")

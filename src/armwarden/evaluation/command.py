@@ -6,9 +6,11 @@ import argparse
 import sys
 import tempfile
 from pathlib import Path
+from typing import TextIO
 
 import anyio
 
+from armwarden.consent import confirmed
 from armwarden.daemon.options import EXIT_REFUSED
 from armwarden.evaluation.arguments import (
     FULL_FUZZ,
@@ -51,7 +53,19 @@ USERS_CELL_PARTS = {
 }
 
 
-def eval_command(args: argparse.Namespace) -> int:
+def users_cell_moves(options: EvalOptions) -> str:
+    """What the person at a user's own cell approves before anything moves."""
+    robot, motion = options.policy.robot, options.policy.motion
+    home = ", ".join(f"{q:+.2f}" for q in robot.home_joint_positions)
+    return (f"armwarden eval will move YOUR arm ({robot.name}) on the ROS 2 cell of {options.backend_config}: "
+            f"{options.safe_count} random reachable targets within the policy and the few scenario motions that "
+            "execute a plan, each planned, checked by the envelope and audited, and approved by the evaluation "
+            f"itself, not by a person; at up to the policy's largest scalings ({motion.max_velocity_scaling:g} of "
+            f"each joint's velocity, {motion.max_acceleration_scaling:g} of its acceleration). Start with the arm at "
+            f"the policy's home ({home} rad), keep the cell clear and the e-stop in reach.")
+
+
+def eval_command(args: argparse.Namespace, stdin: TextIO = sys.stdin, stderr: TextIO = sys.stderr) -> int:
     policy_path = Path(args.policy) if args.policy else bundled_policy()
     policy = load_policy(policy_path)  # a PolicyError is the command line's exit 2
     with tempfile.TemporaryDirectory(prefix="armwarden-eval-config-") as private:
@@ -77,6 +91,9 @@ def eval_command(args: argparse.Namespace) -> int:
             refused = _users_cell_refusal(args)
             if refused is not None:
                 progress(refused)
+                return EXIT_REFUSED
+            if not confirmed(users_cell_moves(options), assume_yes=args.yes, command="armwarden eval", stdin=stdin,
+                             stderr=stderr):
                 return EXIT_REFUSED
             progress("ros2 with your own cell's config: the unsafe scenarios and the safe requests only (every motion "
                      "a plan the evaluation approves, within the policy); " + "; ".join(
