@@ -55,9 +55,10 @@ logger = logging.getLogger("armwarden")
 CONSOLE_CLOSE_S = 5.0
 
 
-async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
+async def _run(options: ServeOptions, parts: AssemblyParts, claimed: tuple[int, int] | None = None) -> None:
     """Open the assembly, start the independent stops, record the start-up, serve until the client
-    leaves or a signal arrives, then shut down (raising `FinalRecordLost` without a final record)."""
+    leaves or a signal arrives, then shut down (raising `FinalRecordLost` without a final record).
+    `claimed`: on stdio, the pipes `serve_command` claimed (None: the SDK's threads serve them)."""
     assembly = await open_assembly(parts)
     why = "shutdown"
     lost: str | None = None  # why the final record could not be written
@@ -109,7 +110,7 @@ async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
                 else:
                     log_startup_lines(served)  # the stop channel of --estop-port, if any: it listens already
                     console_closed.set()
-                why = await serve_stdio_client(assembly, external)
+                why = await serve_stdio_client(assembly, external, claimed)
                 # The console's server returns once it has closed its connections; cancelled while
                 # it serves, its lifespan task logs a CancelledError traceback on every exit.
                 shutdown.set()
@@ -134,6 +135,17 @@ async def _run(options: ServeOptions, parts: AssemblyParts) -> None:
 
 def serve_command(options: ServeOptions) -> int:
     """`armwarden serve`: refuse (exit 2) before serving anything that cannot start safely, then run."""
+    if options.transport != "stdio":
+        return _serve_command(options, None)
+    from armwarden.transport.pipes import claimed_pipes
+
+    # stdout is the MCP channel: claimed before anything is built, so that a native library of a
+    # backend (Fast DDS, a GL driver) writing to fd 1 as it starts or shuts down writes to stderr
+    with claimed_pipes() as claimed:
+        return _serve_command(options, claimed)
+
+
+def _serve_command(options: ServeOptions, claimed: tuple[int, int] | None) -> int:
     from armwarden.policy import bundled_policy
 
     policy_path = Path(options.policy) if options.policy else bundled_policy()
@@ -161,7 +173,7 @@ def serve_command(options: ServeOptions) -> int:
         return EXIT_REFUSED
     sys.setswitchinterval(startup.SWITCH_INTERVAL_S)  # read here: a benchmark may replace it
     try:
-        anyio.run(_run, options, parts)
+        anyio.run(_run, options, parts, claimed)
     except FinalRecordLost as exc:
         print(final_record_lost_message(str(exc)), file=sys.stderr)
         return EXIT_AUDIT_INCOMPLETE

@@ -12,6 +12,7 @@ Lean on purpose: serving on stdio imports nothing of the HTTP transport.
 from __future__ import annotations
 
 from collections.abc import Callable, Coroutine
+from contextlib import nullcontext
 from typing import Any, cast
 
 import anyio
@@ -22,7 +23,14 @@ from armwarden.transport.jsonrpc import LatchOnRefusal, RefusedCallback, StopOnR
 from armwarden.transport.pipes import PipeLineReader, PipeWriter, claimed_pipes
 from armwarden.transport.stdio_gate import gate_streams
 
-__all__ = ["OutputClosed", "serve_stdio"]
+__all__ = ["UNCLAIMED", "OutputClosed", "Unclaimed", "serve_stdio"]
+
+
+class Unclaimed:
+    """`serve_stdio`'s default: no caller claimed the pipes, so the session claims them itself."""
+
+
+UNCLAIMED = Unclaimed()
 
 
 class OutputClosed(ConnectionError):
@@ -43,15 +51,20 @@ def _only_a_closed_output(exc: BaseException) -> bool:
 async def serve_stdio(server: MCPServer, *, on_refused: RefusedCallback | None = None,
                       on_stop_request: StopOnReceipt | None = None,
                       on_input_end: Callable[[], None] | None = None,
-                      on_estop_refused: LatchOnRefusal | None = None) -> None:
+                      on_estop_refused: LatchOnRefusal | None = None,
+                      claimed: tuple[int, int] | Unclaimed | None = UNCLAIMED) -> None:
     """Serve `server` on stdin/stdout until stdin ends (what `MCPServer.run_stdio_async` does,
     with the gate in between). Pending duplicate reports finish before this returns. Raises
     `OutputClosed` when the client closed the daemon's stdout (the SDK's transport would end the
-    session with a traceback of nested exception groups)."""
+    session with a traceback of nested exception groups).
+
+    `claimed`: the wires of a `claimed_pipes` the caller holds (the daemon claims them before it
+    opens its backend, whose native libraries may write to fd 1), None when it found none to claim;
+    by default they are claimed here, for the session only."""
     # MCPServer runs its low-level server over the SDK's stdio streams and offers no public hook
     # between the two; the low-level server is the documented way to serve custom streams.
     lowlevel = server._lowlevel_server
-    with claimed_pipes() as wires:
+    with claimed_pipes() if isinstance(claimed, Unclaimed) else nullcontext(claimed) as wires:
         stdin = None if wires is None else PipeLineReader(wires[0])
         stdout = None if wires is None else PipeWriter(wires[1])
         try:
