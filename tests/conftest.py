@@ -61,6 +61,21 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         items[:] = keep
 
 
+@pytest.fixture(autouse=True)
+def _the_can_emulator_runs_only_in_the_realtime_lane(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With ARMWARDEN_TEST_REALTIME=skip, a test that starts the CAN emulator in this process fails,
+    naming the fix: `is_realtime` missed it, and it would run beside other tests on a shared core."""
+    if os.environ.get(REALTIME_ENV) != "skip":
+        return
+    from armwarden.backends.can.emulator import ActuatorEmulator
+
+    def refuse(self: ActuatorEmulator) -> None:
+        pytest.fail(f"this test starts the CAN emulator outside the realtime lane ({REALTIME_ENV}=skip): mark it "
+                    "`@pytest.mark.realtime` (or parametrize it with 'can'; see tests/conftest.py)")
+
+    monkeypatch.setattr(ActuatorEmulator, "start", refuse)
+
+
 @pytest.fixture
 def anyio_backend() -> str:
     """`@pytest.mark.anyio` tests run on asyncio (the daemon's loop)."""
