@@ -49,8 +49,9 @@ logger = logging.getLogger(__name__)
 #: minimum interval between two progress callbacks [s] (≤ 50 Hz)
 PROGRESS_PERIOD_S = 0.02
 #: the most control periods a late tick records for a hook that asks for them
-#: (`ServoHooks.records_missed_samples`): a stall longer than that leaves its gap in the stamps
-MAX_MISSED_SAMPLES = 200
+#: (`ServoHooks.records_missed_samples`): a stall longer than that (a second at 1 kHz) leaves its
+#: gap in the stamps
+MAX_MISSED_SAMPLES = 1000
 #: servo period while nothing moves [s]; stops and executions wake the loop at once
 IDLE_PERIOD_S = 0.01
 #: how long `shutdown` waits for the servo thread to finish [s]

@@ -147,7 +147,7 @@ class FakeBackend(ServoBackend):
         #: every tick's joint state, for the contact observer (`_joint_states_since`): polled alone,
         #: the samples lie a monitor period apart, and on a sped-up fake that is more of the arm's
         #: motion than the observer integrates in one interval
-        self.joint_history = JointStateHistory()
+        self.joint_history = JointStateHistory(FAKE_HISTORY_SAMPLES)
         self.servo = ServoLoop(self, arm.home, period_s=self.control_period_s, speedup=float(speedup), name="fake backend")
         self._loop: asyncio.AbstractEventLoop | None = None
 
@@ -314,6 +314,9 @@ class FakeBackend(ServoBackend):
 
 
 _ZERO3 = frozen(np.zeros(3))
+#: the fake's history: 4 s at its 1 kHz, so a Guard whose event loop stalled on a loaded test
+#: machine still finds every sample since its last read (a sped-up fake moves 10x further meanwhile)
+FAKE_HISTORY_SAMPLES = 4096
 
 
 def _nan_like(values: np.ndarray) -> np.ndarray:
