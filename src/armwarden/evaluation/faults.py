@@ -126,7 +126,7 @@ class FaultsResult:
         }
 
 
-def _params(arguments: list[str], file_size_limit: int | None = None) -> StdioServerParameters:
+def daemon_params(arguments: list[str], file_size_limit: int | None = None) -> StdioServerParameters:
     """`armwarden serve` as a user runs it; under `file_size_limit` through a small launcher that
     sets RLIMIT_FSIZE and then execs the daemon."""
     command = DAEMON_COMMAND
@@ -138,25 +138,25 @@ def _params(arguments: list[str], file_size_limit: int | None = None) -> StdioSe
     return stdio_params(command, arguments)
 
 
-def _client(params: StdioServerParameters, errlog: TextIO, ref: list[DaemonSession]) -> Client:
+def fault_client(params: StdioServerParameters, errlog: TextIO, ref: list[DaemonSession]) -> Client:
     """A client session that approves as a human would; the daemon's stderr goes to `errlog` (a
     daemon whose log is full says so loudly, and a killed one's last words are kept there)."""
     return Client(stdio_client(params, errlog=errlog), mode="legacy", elicitation_callback=approver(ref))
 
 
-def _last_words(errlog: Path) -> str:
+def last_words(errlog: Path) -> str:
     lines = errlog.read_text(encoding="utf-8", errors="replace").strip().splitlines() if errlog.exists() else []
     return f" (the daemon's last stderr line: {lines[-1][:200]})" if lines else ""
 
 
-def _last_startup(audit: Path) -> dict[str, Any]:
+def last_startup(audit: Path) -> dict[str, Any]:
     starts = [r for r in decode_records(audit.read_bytes().split(b"\n")) if r.get("event") == "startup"]
     if not starts:
         raise RuntimeError(f"no startup record in {audit}")
     return starts[-1]
 
 
-async def _call(session: DaemonSession, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any], str]:
+async def bounded_call(session: DaemonSession, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any], str]:
     """`call_raw` within `SCENARIO_TIMEOUT_S`: a daemon wedged by the fault injected fails the
     fault, it does not hang the evaluation."""
     try:
@@ -167,7 +167,7 @@ async def _call(session: DaemonSession, tool: str, arguments: dict[str, Any]) ->
 
 
 async def _safety(session: DaemonSession) -> dict[str, Any]:
-    _, status, _ = await _call(session, "get_safety_status", {})
+    _, status, _ = await bounded_call(session, "get_safety_status", {})
     return status
 
 
@@ -179,13 +179,13 @@ async def _check_latch(session: DaemonSession, goal: np.ndarray, run: KillRun | 
     event = status.get("estop_event") or {}
     if run is None:
         return status.get("estopped") is False
-    refused, _, text = await _call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+    refused, _, text = await bounded_call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
     run.latched_after_restart = bool(status.get("estopped")) and event.get("source") == PREVIOUS_RUN_SOURCE \
         and refused and "ESTOP" in text
     if not run.latched_after_restart:
         run.detail += f" restart not latched by the previous run: e-stop {event or None}; plan: {text[:120]}"
     if status.get("estopped"):
-        error, reset, text = await _call(session, "reset_estop", {})
+        error, reset, text = await bounded_call(session, "reset_estop", {})
         run.released = not error and reset.get("estopped") is False
         if not run.released:
             run.detail += f" reset refused: {text[:160]}"
@@ -196,11 +196,11 @@ async def _kill_mid_motion(session: DaemonSession, audit: Path, goal: np.ndarray
                            run: KillRun) -> None:
     """Plan and execute a safe move; SIGKILL the daemon once the motion's progress passes a random
     fraction of it (or, were the motion answered first, right then)."""
-    error, plan, text = await _call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False,
+    error, plan, text = await bounded_call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False,
                                                                 **SLOW})
     if error or plan.get("plan_id") is None:
         run.detail += f" plan refused: {text[:160]}"
-    pid = int(_last_startup(audit)["extra"]["pid"])
+    pid = int(last_startup(audit)["extra"]["pid"])
     at = float(rng.uniform(*KILL_AT_PROGRESS))
     answered, cue = anyio.Event(), anyio.Event()
 
@@ -250,7 +250,7 @@ async def _kills(options: EvalOptions, directory: Path, kills: int, result: Faul
         as_it_must = False
         try:
             with errlog.open("a", encoding="utf-8") as err:
-                async with _client(_params(arguments), err, ref) as client:
+                async with fault_client(daemon_params(arguments), err, ref) as client:
                     session = DaemonSession(client)
                     ref.append(session)
                     await wait_for_state(session)
@@ -259,7 +259,7 @@ async def _kills(options: EvalOptions, directory: Path, kills: int, result: Faul
                         await _kill_mid_motion(session, audit, goal, rng, run)
         except Exception as exc:  # after the kill: the pipe closed under the session, as it must
             if run is None or not _gone(audit):
-                detail = f"the session broke: {exc!r}"[:300] + _last_words(errlog)
+                detail = f"the session broke: {exc!r}"[:300] + last_words(errlog)
                 if run is None:
                     result.final_detail += f" start {index + 1}: {detail}"
                 else:
@@ -290,7 +290,7 @@ async def _kills(options: EvalOptions, directory: Path, kills: int, result: Faul
 def _gone(audit: Path) -> bool:
     """Whether the daemon of the last startup record is no longer running."""
     try:
-        os.kill(int(_last_startup(audit)["extra"]["pid"]), 0)
+        os.kill(int(last_startup(audit)["extra"]["pid"]), 0)
     except ProcessLookupError:
         return True
     except (RuntimeError, KeyError, ValueError):  # no startup record: it never started
@@ -317,11 +317,11 @@ async def _disk_full(options: EvalOptions, directory: Path) -> DiskFullResult:
 
 async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSession], goal: np.ndarray,
                         reader: JournalReader, result: DiskFullResult) -> DiskFullResult:
-    async with _client(_params(arguments, DISK_LIMIT_BYTES), err, ref) as client:
+    async with fault_client(daemon_params(arguments, DISK_LIMIT_BYTES), err, ref) as client:
         session = DaemonSession(client)
         ref.append(session)
         await wait_for_state(session)
-        error, plan, text = await _call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
+        error, plan, text = await bounded_call(session, "plan_to_joints", {"joint_positions": goal.tolist(), "preview": False})
         if error or plan.get("plan_id") is None:
             result.detail = f"plan refused before the log filled: {text[:160]}"
             return result
@@ -335,7 +335,7 @@ async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSessi
             result.detail = f"the log still took records after {FILL_CALLS} calls"
             return result
         reader.new_entries()
-        error, done, text = await _call(session, "execute_plan", {"plan_id": plan["plan_id"]})
+        error, done, text = await bounded_call(session, "execute_plan", {"plan_id": plan["plan_id"]})
         # refused saying why: a refusal (AUDIT_UNAVAILABLE) or, where even that cannot be recorded,
         # an error naming the log; either way nothing may have moved (counted below)
         result.execute_refused = (error or done.get("status") != "succeeded") and \
@@ -343,7 +343,7 @@ async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSessi
         if not result.execute_refused:
             result.detail = f"execute with the log full: {text[:160]}"
         result.actuations = len(actuations(reader.new_entries()))
-        error, stopped, text = await _call(session, "estop", {"reason": "eval: audit disk full"})
+        error, stopped, text = await bounded_call(session, "estop", {"reason": "eval: audit disk full"})
         result.estop_answered = not error and stopped.get("estopped") is True
         if not result.estop_answered:
             result.detail = f"estop with the log full: {text[:160]}"
