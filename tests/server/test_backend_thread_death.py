@@ -6,6 +6,10 @@ names the dead thread instead of serving stale data.
 Found by review: a ROS executor thread killed by concurrent camera snapshots left the daemon
 serving stale joint states while `get_safety_status` said all was well, and nothing was audited;
 the fake's control thread died just as silently.
+
+The evaluation's injected death (`Backend.inject_death`, which `armwarden eval` asks a daemon for
+with SIGUSR2) must take the same path: a simulated backend's worker raises, or the CAN emulator
+goes silent and the backend's RX timeout finds it; any other backend refuses to die on request.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from typing import Any
 import pytest
 from mcp import Client
 
+from armwarden.core.errors import BackendError
 from tests.helpers import records_of, text_of, wait_for_record
 from tests.server.harness import BACKENDS, HOME_TCP_X, MODES, approve, arm_harness, wait_until
 
@@ -28,8 +33,10 @@ async def safety(client: Client) -> dict[str, Any]:
     return result.structured_content
 
 
-async def assert_a_latched_audited_fault(arm: Any, client: Client, died: str) -> None:
-    """What a dead backend thread must leave, whatever killed it."""
+async def assert_a_latched_audited_fault(arm: Any, client: Client, died: str, *, state_names_it: bool = True) -> None:
+    """What a dead backend thread must leave, whatever killed it. `state_names_it`: `get_robot_state`
+    is refused naming the fault (a dead thread); else it is refused all the same (the CAN backend's
+    silent actuators: the state is too old)."""
     await wait_until(lambda: arm.guard.latch.is_latched, timeout_s=10.0, what="the e-stop latched")
     status = await safety(client)
     assert status["estopped"] and status["estop_event"]["source"] == "backend_fault", status
@@ -41,7 +48,7 @@ async def assert_a_latched_audited_fault(arm: Any, client: Client, died: str) ->
     planned = await client.call_tool("plan_to_pose", {"position": {"x": HOME_TCP_X, "y": 0.0, "z": 0.4}})
     assert planned.is_error and "ESTOPPED" in text_of(planned), text_of(planned)
     state = await client.call_tool("get_robot_state", {})
-    assert state.is_error and died in text_of(state), text_of(state)
+    assert state.is_error and (died in text_of(state) or not state_names_it), text_of(state)
 
 
 @pytest.mark.anyio
@@ -69,3 +76,30 @@ async def test_each_backend_thread_dying_while_idle_is_a_latched_audited_backend
         await assert_a_latched_audited_fault(arm, client, f"the {worker} thread stopped (RuntimeError: injected")
         assert arm.actuations == []
         assert records_of(arm.audit_path)  # (the harness verifies the chain on exit)
+
+
+#: how each simulated backend's injected death shows in its fault (`Backend.inject_death`)
+INJECTED_DEATH = {"fake": "the control thread stopped (InjectedBackendDeath: evaluation",
+                  "mujoco": "the physics thread stopped (InjectedBackendDeath: evaluation",
+                  "can": "no reply for"}  # every emulated actuator silent: the RX timeout
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("backend", [backend for backend in BACKENDS if backend in INJECTED_DEATH])
+async def test_the_evaluations_injected_death_is_a_latched_audited_backend_fault(tmp_path, backend) -> None:
+    async with arm_harness(tmp_path, backend=backend) as arm, arm.client("legacy", approve()) as client:
+        what = arm.backend.inject_death()  # through the counting wrapper, as through the daemon's journal
+        assert what
+        await assert_a_latched_audited_fault(arm, client, INJECTED_DEATH[backend], state_names_it=backend != "can")
+        assert arm.actuations == []
+
+
+@pytest.mark.anyio
+@pytest.mark.parametrize("backend", [backend for backend in BACKENDS if backend not in INJECTED_DEATH])
+async def test_a_backend_that_may_drive_a_real_arm_refuses_an_injected_death(tmp_path, backend) -> None:
+    async with arm_harness(tmp_path, backend=backend) as arm, arm.client("legacy", approve()) as client:
+        assert arm.backend.why_no_injected_death() is not None
+        with pytest.raises(BackendError, match="may drive a real arm"):
+            arm.backend.inject_death()
+        assert not (await safety(client))["estopped"]
+        assert arm.actuations == []

@@ -22,6 +22,7 @@ import anyio
 import numpy as np
 
 from armwarden.backends.arm_state import ArmEvent, ArmState, ArmStateReporting
+from armwarden.backends.death import DeathInjection
 from armwarden.backends.faults import FaultReporting
 from armwarden.backends.hooks import BackendHooks
 from armwarden.backends.part_calls import PartCalls
@@ -37,7 +38,7 @@ logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
 
-class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, PartCalls, BackendHooks):
+class Backend(ArmStateReporting, FaultReporting, WorkerSupervision, DeathInjection, PartCalls, BackendHooks):
     """Base class: lifecycle, deadlines, checks, the arm state and logging; subclasses implement the `_hooks`."""
 
     def __init_subclass__(cls, **kwargs: object) -> None:

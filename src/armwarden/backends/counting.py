@@ -91,6 +91,12 @@ class CountingBackend(Backend):
     def inject_worker_hang(self, worker: str, release: threading.Event) -> None:
         self.inner.inject_worker_hang(worker, release)
 
+    def why_no_injected_death(self) -> str | None:
+        return self.inner.why_no_injected_death()
+
+    def inject_death(self) -> str:
+        return self.inner.inject_death()
+
     async def fault_behind_stale_data(self) -> str | None:
         return await self.inner.fault_behind_stale_data()
 

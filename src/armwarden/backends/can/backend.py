@@ -183,6 +183,28 @@ class CanBackend(CanArm):
         if self.emulator is not None:
             self.emulator.close()
 
+    # ================================================================ the evaluation's injected death
+    def why_no_injected_death(self) -> str | None:
+        """Only the emulator on python-can's in-process bus can die on request (the rule of
+        `armwarden.evaluation.targets`): with real actuators, or a bus another process may bridge
+        to hardware, there is nothing to break but a real arm."""
+        reasons = []
+        if self.config.simulate is None:
+            reasons.append("it has no `simulate` section (its actuators are real ones)")
+        if self.config.bus.interface != "virtual":
+            reasons.append(f"its bus interface is {self.config.bus.interface!r}, not 'virtual' (a real CAN bus)")
+        return f"the can backend may drive a real arm: {'; '.join(reasons)}" if reasons else None
+
+    def _inject_death(self) -> str:
+        """Evaluation only (`armwarden.backends.death`): the emulator stops, so every emulated
+        actuator goes silent and still at once, as a bus or power failure looks to the host; the
+        servo loop's RX timeout then finds it (`health.fault_conditions`) and damps and reports it."""
+        emulator = self.emulator
+        if emulator is None:
+            raise BackendError("can backend: no emulator runs (the actuators are real)")
+        emulator.close()
+        return "the emulator stopped: every emulated actuator is silent"
+
     async def _await_all(self, ready: Callable[[Actuator], bool], what: str) -> None:
         deadline = time.monotonic() + self.config.startup_timeout_s
         while True:

@@ -36,7 +36,8 @@ live in `knobs` (`FakeKnobs`), shared with the parts, with the records `actuatio
 `collision_thresholds` and `last_grasp_force_n`.
 The control thread dies like any backend thread (`inject_worker_failure("control", ...)`): a
 latched fault, every later call refused; so does a control thread that hangs (no tick within its
-deadline, `inject_worker_hang`): the watchdog holds the arm from its own thread.
+deadline, `inject_worker_hang`): the watchdog holds the arm from its own thread. The evaluation's
+injected death (`inject_death`, `armwarden.backends.death`) is that same death of the control thread.
 """
 
 from __future__ import annotations
@@ -303,6 +304,13 @@ class FakeBackend(ServoBackend):
     def servo_failed(self, error: BaseException) -> None:
         self.fault, self.fault_reason = True, f"control thread failed: {error!r}"
         self._worker_died("control", error)  # reported: the Guard latches and records it
+
+    def why_no_injected_death(self) -> str | None:
+        return None  # a simulation, always
+
+    def _inject_death(self) -> str:
+        """Evaluation only (`armwarden.backends.death`): the control thread dies at its next tick."""
+        return self._kill_worker("control")
 
     def _compute_tcp(self, q: np.ndarray) -> np.ndarray:
         """TCP position in the base frame (servo thread side; a test replaces it to break the thread)."""

@@ -260,6 +260,13 @@ class MujocoBackend(ServoBackend):
         refused naming it."""
         self._worker_died("physics", error)
 
+    def why_no_injected_death(self) -> str | None:
+        return None  # a simulation, always
+
+    def _inject_death(self) -> str:
+        """Evaluation only (`armwarden.backends.death`): the physics thread dies at its next step."""
+        return self._kill_worker("physics")
+
 
 def create_backend(robot: RobotModel, policy: Policy, config: Config) -> MujocoBackend:
     """Registry factory: the simulated cell for `policy`'s robot, with `config`'s options."""
