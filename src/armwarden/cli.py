@@ -66,6 +66,10 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--actuation-journal", default=None, metavar="FILE",
                        help="for evaluation (`armwarden eval`): append every actuating or stopping call that reaches "
                             "the backend, below the Guard, to FILE as JSON lines")
+    serve.add_argument("--eval-backend-death", action="store_true",
+                       help="EVALUATION ONLY (`armwarden eval`): on SIGUSR2 the simulated backend dies mid-run (fake: "
+                            "its control thread, mujoco: its physics thread, can: its emulator stops); refused for "
+                            "any backend that may drive a real arm")
     serve.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
 
     add_estop_arguments(commands.add_parser(
@@ -171,7 +175,7 @@ def serve_options(args: argparse.Namespace) -> ServeOptions:
         estop_port=args.estop_port, estop_host=args.estop_host, console_port=args.console_port,
         console_host=args.console_host, no_console=args.no_console,
         console_estop_needs_sign_in=args.console_estop_needs_sign_in, dry_run=args.dry_run,
-        actuation_journal=args.actuation_journal)
+        actuation_journal=args.actuation_journal, eval_backend_death=args.eval_backend_death)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -43,6 +43,8 @@ class ServeOptions:
     dry_run: bool
     #: evaluation only: append every actuating/stopping backend call to this file (`JournalBackend`)
     actuation_journal: str | None = None
+    #: evaluation only: SIGUSR2 makes the simulated backend die (`armwarden.daemon.death`)
+    eval_backend_death: bool = False
 
     @property
     def policy_label(self) -> str:

@@ -11,6 +11,9 @@ SIGUSR1 always, and with `--estop-port` the stop channel (`POST /estop`, any tok
 Whenever the operator console is served, a stop channel listens too (`--estop-port`, or an
 ephemeral loopback port only for the console): the console's E-STOP button posts there.
 
+Evaluation only: with `--eval-backend-death` (refused unless the backend is a simulation) SIGUSR2
+makes the backend die mid-run (`armwarden.daemon.death`); the start-up record says whether it is on.
+
 Once it listens, `serve` logs (INFO) every URL it serves and what each one takes (`endpoints`),
 with the ports it really bound: the HTTP socket is bound before anything is built from its port,
 so `--port 0` / `--console-port 0` serve, check Host headers and link on the real port.
@@ -30,6 +33,7 @@ import anyio
 from armwarden import __version__
 from armwarden.core.errors import ArmWardenError, ConfigurationError, PolicyError
 from armwarden.daemon import startup
+from armwarden.daemon.death import die_on_signal, refuse_unless_simulated
 from armwarden.daemon.http import bind_listener, log_startup_lines, serve_console_alone, serve_http_clients, served_endpoints
 from armwarden.daemon.options import EXIT_REFUSED, ServeOptions
 from armwarden.daemon.previous_run import latch_at_start
@@ -84,7 +88,8 @@ async def _run(options: ServeOptions, parts: AssemblyParts, claimed: tuple[int, 
             extra={"policy": options.policy_label, "policy_digest": policy_digest(assembly.policy),
                    "dry_run": assembly.policy.dry_run,
                    "tools": assembly.server.tools, "stop_channel": None if channel is None else channel.url,
-                   "pid": os.getpid(), "previous_run_unclean": parts.unclean_end},
+                   "pid": os.getpid(), "previous_run_unclean": parts.unclean_end,
+                   "eval_backend_death": options.eval_backend_death},
         )
         if options.transport == "stdio" and started_from_terminal(sys.stdin):
             print(first_contact_line(backend=options.backend, policy=options.policy_label,
@@ -96,6 +101,8 @@ async def _run(options: ServeOptions, parts: AssemblyParts, claimed: tuple[int, 
                 why = signal_why
 
             group.start_soon(stop_on_signals, assembly, options.transport, shutdown, group.cancel_scope, signalled)
+            if options.eval_backend_death:  # evaluation only, a simulated backend (checked at start-up)
+                group.start_soon(die_on_signal, assembly)
             if options.transport == "stdio":
                 console_closed = anyio.Event()
 
@@ -163,8 +170,12 @@ def _serve_command(options: ServeOptions, claimed: tuple[int, int] | None) -> in
             check_bind_safety(options.console_host, TokenStore.load(options.auth_tokens) if options.auth_tokens else None)
         if options.estop_port is not None and not options.auth_tokens:
             raise ConfigurationError(ESTOP_PORT_NEEDS_TOKENS)
+        if options.eval_backend_death:
+            refuse_unless_simulated(options.backend)  # by name, before anything is built
         parts = assemble(policy, options.backend, options.backend_config, options.audit_log,
                          options.audit_commit_window_s, options.actuation_journal)
+        if options.eval_backend_death:
+            refuse_unless_simulated(options.backend, parts.backend)  # the backend's own word (can: the emulator)
     except PolicyError as exc:
         print(f"armwarden: {exc}", file=sys.stderr)
         return EXIT_REFUSED
