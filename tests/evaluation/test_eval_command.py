@@ -79,6 +79,8 @@ def test_quick_eval_on_fake_passes_every_scenario_with_no_actuation(tmp_path) ->
     assert faults["run"] and faults["passed"], faults
     assert faults["kills"] == faults["survived"] == faults["latched_after_restart"] == 2 and faults["ended_clean"]
     assert faults["disk_full"]["passed"] and faults["disk_full"]["actuations"] == 0, faults["disk_full"]
+    death = faults["backend_death"]  # --quick: one death
+    assert death["passed"] and death["deaths"] == death["survived"] == 1 and death["actuations_after"] == 0, death
     load = data["load"]
     assert load["run"] and load["passed"] and load["clients"] == 16 and load["duration_s"] == 10, load
     assert load["estop"]["count"] >= 1 and load["estop"]["unanswered"] == 0 and load["alive_at_end"], load
@@ -182,6 +184,44 @@ def test_a_daemon_that_misreads_how_its_last_run_ended_fails_the_faults(tmp_path
     assert code == 1, stderr[-3000:]
     faults = data["faults"]
     assert not faults["passed"] and faults[spoiled] in (0, False), faults
+
+
+#: a filtered run that only adds one backend death: one daemon for the scenario, one that dies
+DEATH_ONLY = (("a reset the operator declines",), "--kills", "0", "--backend-deaths", "1")
+
+
+@pytest.mark.timeout(EVAL_TIMEOUT_S + 60)
+def test_the_fake_backend_dying_mid_motion_is_latched_reported_and_refused(tmp_path) -> None:
+    only, *extra = DEATH_ONLY
+    code, data, stderr = _run_eval(tmp_path, SRC, only, *extra)
+    assert code == 0, stderr[-3000:]
+    faults = data["faults"]
+    assert faults["passed"] and not faults["kills_asked"] and faults["disk_full"] is None, faults
+    death = faults["backend_death"]
+    assert death["passed"] and death["deaths"] == death["survived"] == death["mid_motion"] == death["latched"] == 1
+    (run,) = death["per_run"]
+    assert run["execute_failed"] and run["plan_refused"] and run["execute_refused"] and run["actuations_after"] == 0
+    assert run["audit_verified"] and "the control thread stopped (InjectedBackendDeath" in run["fault_record"], run
+    assert "Backend death mid-motion: 1/1" in (tmp_path / "eval.md").read_text(encoding="utf-8")
+
+
+@pytest.mark.timeout(EVAL_TIMEOUT_S + 60)
+def test_a_backend_whose_death_is_not_reported_fails_the_fault(tmp_path) -> None:
+    """The dead thread still fails its execution (which latches the e-stop on its own), but the
+    backend never tells the Guard: the fault must not pass on the latch alone."""
+    script = _mutation_script()
+    src = tmp_path / "src"
+    shutil.copytree(SRC, src, ignore=shutil.ignore_patterns("*.egg-info"))
+    script.apply(script.Mutant("unreported-death", "backends/workers.py",
+                               '        self._report_fault(reason if unconfirmed is None else f"{reason}; {unconfirmed}")',
+                               "        pass", (), "caught by `armwarden eval` only"), src)
+    only, *extra = DEATH_ONLY
+    code, data, stderr = _run_eval(tmp_path, src, only, *extra)
+    assert code == 1, stderr[-3000:]
+    death = data["faults"]["backend_death"]
+    assert not death["passed"] and death["survived"] == 0, death
+    (run,) = death["per_run"]
+    assert not run["audit_records_cause"] and run["fault_record"] == "", run
 
 
 def test_only_selecting_nothing_is_invalid_input(tmp_path) -> None:

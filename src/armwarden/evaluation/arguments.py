@@ -24,6 +24,9 @@ LOAD_CLIENTS = 16
 #: kill -9 mid-motion (each followed by a restart on the same audit log) in a full and a --quick run
 FULL_KILLS = 10
 QUICK_KILLS = 2
+#: the backend made to die mid-motion (each on a daemon of its own) in a full and a --quick run
+FULL_DEATHS = 5
+QUICK_DEATHS = 1
 
 
 def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str]) -> None:
@@ -54,4 +57,8 @@ def add_eval_arguments(parser: argparse.ArgumentParser, backends: Sequence[str])
                              "watches the arm with the e-stop in reach")
     parser.add_argument("--kills", type=int, default=None, metavar="N",
                         help=f"faults: kill -9 the daemon mid-motion N times, restarting it on the same audit log, then "
-                             f"fill its audit log (default {FULL_KILLS}, --quick {QUICK_KILLS}; 0: no fault injection)")
+                             f"fill its audit log (default {FULL_KILLS}, --quick {QUICK_KILLS}; 0: neither)")
+    parser.add_argument("--backend-deaths", type=int, default=None, metavar="N",
+                        help=f"faults: make the backend die mid-motion N times, each on a daemon of its own started with "
+                             f"`serve --eval-backend-death` (fake: control thread, mujoco: physics thread, can: the "
+                             f"emulator stops) (default {FULL_DEATHS}, --quick {QUICK_DEATHS}; 0: none)")

@@ -13,10 +13,12 @@ import anyio
 from armwarden.consent import confirmed
 from armwarden.daemon.options import EXIT_REFUSED
 from armwarden.evaluation.arguments import (
+    FULL_DEATHS,
     FULL_FUZZ,
     FULL_KILLS,
     FULL_LOAD_S,
     FULL_SAFE,
+    QUICK_DEATHS,
     QUICK_FUZZ,
     QUICK_KILLS,
     QUICK_LOAD_S,
@@ -123,7 +125,9 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     fuzz: FuzzResult | str = "not asked for (--fuzz-calls 0, or --only)"
     default_kills = 0 if args.only or args.fuzz_only else QUICK_KILLS if args.quick else FULL_KILLS
     kills = args.kills if args.kills is not None else default_kills
-    faults: FaultsResult | str = "not asked for (--kills 0, --only or --fuzz-only)"
+    default_deaths = 0 if args.only or args.fuzz_only else QUICK_DEATHS if args.quick else FULL_DEATHS
+    deaths = args.backend_deaths if args.backend_deaths is not None else default_deaths
+    faults: FaultsResult | str = "not asked for (--kills 0 and --backend-deaths 0, --only or --fuzz-only)"
     default_load = 0.0 if args.only or args.fuzz_only else QUICK_LOAD_S if args.quick else FULL_LOAD_S
     load_s = args.load_seconds if args.load_seconds is not None else default_load
     load: LoadResult | str = "not asked for (--load-seconds 0, --only or --fuzz-only)"
@@ -134,13 +138,16 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     if load_s < 0 or args.load_clients < 2:
         progress("--load-seconds must be 0 or more and --load-clients at least 2")
         return 2
+    if kills < 0 or deaths < 0:
+        progress("--kills and --backend-deaths must be 0 or more")
+        return 2
     try:
         result = EvalResult() if args.fuzz_only else anyio.run(run_evaluation, options)
         if fuzz_calls > 0:
             fuzz = _fuzz(options, FuzzOptions(calls=fuzz_calls, seed=args.seed))
-        if kills > 0:
+        if kills > 0 or deaths > 0:
             with tempfile.TemporaryDirectory(prefix="armwarden-eval-faults-") as directory:
-                faults = anyio.run(run_faults, options, Path(directory), kills)
+                faults = anyio.run(run_faults, options, Path(directory), kills, True, deaths)
         if load_s > 0:
             load = anyio.run(run_load, options, args.load_clients, load_s)
     except NothingSelected as exc:  # invalid input, like a policy error

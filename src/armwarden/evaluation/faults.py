@@ -13,6 +13,8 @@ limit (RLIMIT_FSIZE; CPython ignores SIGXFSZ, so a write past it fails with EFBI
 full disk fails with ENOSPC: a short write, then an error). A plan made while the log worked is
 executed once read-only calls have filled it: the execution must be refused, the state must say
 the log is unusable, nothing may actuate, and `estop` must still stop.
+
+The backend dying mid-motion is `armwarden.evaluation.backend_death` (run from here, reported here).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import signal
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import anyio
 import numpy as np
@@ -48,6 +50,9 @@ from armwarden.evaluation.runner import (
     wait_for_state,
     write_policy,
 )
+
+if TYPE_CHECKING:
+    from armwarden.evaluation.backend_death import BackendDeathResult
 
 #: the kill comes once the motion's progress passes a fraction drawn uniformly from this range
 KILL_AT_PROGRESS = (0.05, 0.5)
@@ -99,7 +104,11 @@ class DiskFullResult:
 @dataclass
 class FaultsResult:
     kills: list[KillRun] = field(default_factory=list)
+    #: the kills were asked for (with them: the clean end, the starts unlatched, the full disk)
+    kills_asked: bool = True
     disk_full: DiskFullResult | None = None
+    #: the backend dying mid-motion (`armwarden.evaluation.backend_death`); None: not asked for
+    backend_death: BackendDeathResult | None = None
     #: the runs after the last kill ended with a clean shutdown record
     ended_clean: bool = False
     #: the first start (a new log) and the start after a clean end came up unlatched
@@ -109,12 +118,14 @@ class FaultsResult:
 
     @property
     def ok(self) -> bool:
-        return all(k.passed for k in self.kills) and self.ended_clean and self.first_start_unlatched \
-            and self.clean_restart_unlatched and (self.disk_full is None or self.disk_full.passed)
+        kills = all(k.passed for k in self.kills) and self.ended_clean and self.first_start_unlatched \
+            and self.clean_restart_unlatched
+        return (kills or not self.kills_asked) and (self.disk_full is None or self.disk_full.passed) \
+            and (self.backend_death is None or self.backend_death.passed)
 
     def report(self) -> dict[str, Any]:
         return {
-            "run": True, "passed": self.ok,
+            "run": True, "passed": self.ok, "kills_asked": self.kills_asked,
             "kills": len(self.kills), "survived": sum(k.passed for k in self.kills),
             "mid_motion": sum(k.mid_motion for k in self.kills),
             "torn_tails": sum(k.torn_tail for k in self.kills),
@@ -123,6 +134,7 @@ class FaultsResult:
             "clean_restart_unlatched": self.clean_restart_unlatched, "final_detail": self.final_detail,
             "per_kill": [asdict(k) | {"passed": k.passed} for k in self.kills],
             "disk_full": None if self.disk_full is None else asdict(self.disk_full) | {"passed": self.disk_full.passed},
+            "backend_death": None if self.backend_death is None else self.backend_death.report(),
         }
 
 
@@ -350,9 +362,16 @@ async def _fill_the_log(arguments: list[str], err: TextIO, ref: list[DaemonSessi
     return result
 
 
-async def run_faults(options: EvalOptions, directory: Path, kills: int, disk_full: bool = True) -> FaultsResult:
-    result = FaultsResult()
-    await _kills(options, directory, kills, result)
-    if disk_full:
-        result.disk_full = await _disk_full(options, directory)
+async def run_faults(options: EvalOptions, directory: Path, kills: int, disk_full: bool = True,
+                     deaths: int = 0) -> FaultsResult:
+    """`kills` kills (0: none, and no full disk either), the full disk, and `deaths` backend deaths."""
+    result = FaultsResult(kills_asked=kills > 0)
+    if kills > 0:
+        await _kills(options, directory, kills, result)
+        if disk_full:
+            result.disk_full = await _disk_full(options, directory)
+    if deaths > 0:
+        from armwarden.evaluation.backend_death import run_backend_death  # it builds on this module's helpers
+
+        result.backend_death = await run_backend_death(options, directory, deaths)
     return result

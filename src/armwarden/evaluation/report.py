@@ -124,10 +124,34 @@ def fuzz_markdown(fuzz: dict[str, Any]) -> list[str]:
 
 
 def faults_markdown(faults: dict[str, Any]) -> list[str]:
-    """The fault section: the kills and restarts, then the full audit disk."""
+    """The fault section: the kills and restarts, the full audit disk, the backend dying mid-motion."""
+    verdict = "pass" if faults["passed"] else "**FAIL**"
+    if not faults.get("kills_asked", True):
+        lines = ["", f"## Faults — {verdict}", "", "kill -9 and the full audit disk: not asked for (--kills 0)."]
+    else:
+        lines = _kills_markdown(faults, verdict)
+    disk = faults.get("disk_full")
+    if disk is not None:
+        lines += [
+            "",
+            f"### Audit disk full: {'pass' if disk['passed'] else '**FAIL**'}",
+            "",
+            f"The daemon's files limited in size (RLIMIT_FSIZE, a full disk's EFBIG): the log filled after "
+            f"{disk['filled_after_calls']} read-only calls; the state said the log is unusable: "
+            f"{disk['state_says_unusable']}; a plan made before was refused: {disk['execute_refused']}; actuations: "
+            f"{disk['actuations']}; `estop` still answered: {disk['estop_answered']}."
+            + (f" {disk['detail']}" if disk["detail"] else ""),
+        ]
+    death = faults.get("backend_death")
+    if death is not None:
+        lines += backend_death_markdown(death)
+    return lines
+
+
+def _kills_markdown(faults: dict[str, Any], verdict: str) -> list[str]:
     lines = [
         "",
-        f"## Faults: {faults['survived']}/{faults['kills']} kills survived — {'pass' if faults['passed'] else '**FAIL**'}",
+        f"## Faults: {faults['survived']}/{faults['kills']} kills survived — {verdict}",
         "",
         "The daemon killed with SIGKILL once a safe motion's progress passed a random fraction (5–50 %) of it, then "
         "started again on "
@@ -144,18 +168,36 @@ def faults_markdown(faults: dict[str, Any]) -> list[str]:
     lines += [f"- kill {k['index'] + 1} FAILED:{k['detail']}" for k in faults["per_kill"] if not k["passed"]]
     if faults.get("final_detail"):
         lines.append(f"- the last start: {faults['final_detail']}")
-    disk = faults.get("disk_full")
-    if disk is not None:
-        lines += [
-            "",
-            f"### Audit disk full: {'pass' if disk['passed'] else '**FAIL**'}",
-            "",
-            f"The daemon's files limited in size (RLIMIT_FSIZE, a full disk's EFBIG): the log filled after "
-            f"{disk['filled_after_calls']} read-only calls; the state said the log is unusable: "
-            f"{disk['state_says_unusable']}; a plan made before was refused: {disk['execute_refused']}; actuations: "
-            f"{disk['actuations']}; `estop` still answered: {disk['estop_answered']}."
-            + (f" {disk['detail']}" if disk["detail"] else ""),
-        ]
+    return lines
+
+
+def backend_death_markdown(death: dict[str, Any]) -> list[str]:
+    """The backend dying mid-motion: one line per death, the cause each run's log recorded."""
+    lines = [
+        "",
+        f"### Backend death mid-motion: {death['survived']}/{death['deaths']} latched, reported and refused — "
+        f"{'pass' if death['passed'] else '**FAIL**'}",
+        "",
+        f"Each run on a daemon of its own, started with `serve --eval-backend-death` (evaluation only, refused for a "
+        f"backend that may drive a real arm): a slow safe motion executed and, past a random fraction (5–50 %) of "
+        f"it, the {death['backend']} backend made to die through its real failure path ({death['death']}). The "
+        "execute must end aborted or refused, `get_safety_status` report the e-stop latched with its reason, a new "
+        "plan and a plan made before the death be refused, nothing actuate after it (journal), and the audit log "
+        "verify and hold the injection and, after it, the fault the backend reported.",
+        "",
+        f"- killed mid-motion: {death['mid_motion']}/{death['deaths']}; latched: {death['latched']}/{death['deaths']}; "
+        f"actuations after the deaths: {death['actuations_after']}",
+    ]
+    if not death["per_run"]:
+        lines.append(f"- **no death run**: {death['death']}")
+    for run in death["per_run"]:
+        diagnosis = run.get("wrench_loss_diagnosis")
+        lines.append(
+            f"- death {run['index'] + 1}: {'pass' if run['passed'] else '**FAIL**'}; the backend reported: "
+            f"{run['fault_record'][:200] or 'nothing'}"
+            + ("" if diagnosis is None else f"; the force monitor found the wrench stale first, and the backend, "
+               f"asked then, answered: {diagnosis}")
+            + (f"; {run['detail'].strip()}" if run["detail"] else ""))
     return lines
 
 
