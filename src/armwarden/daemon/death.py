@@ -7,9 +7,10 @@ the built backend itself (`Backend.why_no_injected_death`: the CAN backend only 
 and the virtual bus). It is written into the start-up audit record. Without the flag nothing here
 runs and SIGUSR2 keeps its default action.
 
-On each SIGUSR2 the injection is recorded (`eval_backend_death`) before the backend is broken
-(`Backend.inject_death`, on a worker thread: the CAN emulator joins its thread); what follows — the
-fault, the e-stop latch, its record — is the backend's and the Guard's own failure path.
+On each SIGUSR2 the injection's record (`eval_backend_death`) is handed to the audit writer, so it
+comes before any the death causes, and then the backend is broken (`Backend.inject_death`, on a
+worker thread: the CAN emulator joins its thread); what follows — the fault, the e-stop latch, its
+record — is the backend's and the Guard's own failure path.
 """
 
 from __future__ import annotations
@@ -54,10 +55,10 @@ async def die_on_signal(assembly: Assembly) -> None:
         async for _ in signals:
             logger.warning("SIGUSR2 with --eval-backend-death: the %s backend is made to die (evaluation only)",
                            assembly.backend.name)
-            try:
-                await assembly.audit.append_async(DEATH_EVENT, outcome="injected",
-                                                  detail=f"SIGUSR2: the {assembly.backend.name} backend made to die "
-                                                         "(--eval-backend-death, evaluation only)")
+            try:  # handed to the writer, not waited for: the death must land mid-motion, right now
+                assembly.audit.submit(DEATH_EVENT, outcome="injected",
+                                      detail=f"SIGUSR2: the {assembly.backend.name} backend made to die "
+                                             "(--eval-backend-death, evaluation only)")
             except AuditWriteError as exc:  # the injection goes on: what it checks is recorded by the Guard
                 logger.error("the injected death could not be recorded: %s", exc)
             try:
