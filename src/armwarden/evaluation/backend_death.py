@@ -2,7 +2,7 @@
 
 Each run starts the daemon with `--eval-backend-death` (evaluation only, refused by the daemon for
 any backend that may drive a real arm; `armwarden.daemon.death`), plans a slow safe move and a
-second one, executes the first and, once its progress passes a random fraction of it, sends
+second one, executes the first (as slowly as a plan may move) and, once its progress passes a random fraction of it, sends
 SIGUSR2: the backend dies through its real failure path — fake: its control thread, MuJoCo: its
 physics thread, CAN: the emulator stops and every actuator goes silent, which the backend's own RX
 timeout finds. ROS 2's cell process dying is its own fault (another module).
@@ -34,7 +34,6 @@ from armwarden.daemon.death import DEATH_EVENT, DEATH_SIGNAL
 from armwarden.evaluation.faults import (
     FAULT_STEP_TIMEOUT_S,
     KILL_AT_PROGRESS,
-    SLOW,
     bounded_call,
     daemon_params,
     fault_client,
@@ -53,9 +52,15 @@ from armwarden.evaluation.runner import (
     wait_for_state,
     write_policy,
 )
+from armwarden.planning.planners import MIN_SCALING
 
 #: the `serve` flag of the injected death (its signal and audit event: `armwarden.daemon.death`)
 DEATH_FLAG = "--eval-backend-death"
+#: the dying motion's scaling: the slowest a plan may ask for (`planning.planners.MIN_SCALING`),
+#: so that a sped-up simulation (the tests' fake runs 20× real time; progress is reported every
+#: 0.1 s) is still moving when the death lands (found by the first full run: at the kills' 5 %
+#: the fake finished 3 of 5 motions before its control thread died)
+DYING = {"velocity_scaling": MIN_SCALING, "acceleration_scaling": MIN_SCALING}
 #: the e-stop source of a fault the backend reported on its own (`Stopper.backend_fault`)
 BACKEND_FAULT = "backend_fault"
 #: how long the backend may take to find its death and the e-stop to latch [s] (CAN: its RX
@@ -116,9 +121,9 @@ class DeathRun:
     audit_records_cause: bool = False
     #: that record's detail: the cause as the backend found it
     fault_record: str = ""
-    #: when the force monitor found the wrench stale first (the CAN backend's silent actuators
-    #: stop it before the RX timeout), what the backend answered when asked whether it was the
-    #: cause (the `wrench_loss_diagnosis` record's outcome: "backend_fault" or "wrench_only")
+    #: when the force monitor also found the wrench stale (a dead backend stops it too), what the
+    #: backend answered when asked whether it was the cause (the `wrench_loss_diagnosis` record's
+    #: outcome: "backend_fault" or "wrench_only", the latter a wrong answer here)
     wrench_loss_diagnosis: str | None = None
     detail: str = ""
 
@@ -283,7 +288,7 @@ async def _one_death(options: EvalOptions, directory: Path, index: int, rng: np.
                 ref.append(session)
                 await wait_for_state(session)
                 plans = []
-                for target, scaling in ((goal, SLOW), (other, {})):
+                for target, scaling in ((goal, DYING), (other, {})):
                     error, plan, text = await bounded_call(
                         session, "plan_to_joints", {"joint_positions": target.tolist(), "preview": False, **scaling})
                     if error or plan.get("plan_id") is None:

@@ -195,8 +195,8 @@ def backend_death_markdown(death: dict[str, Any]) -> list[str]:
         lines.append(
             f"- death {run['index'] + 1}: {'pass' if run['passed'] else '**FAIL**'}; the backend reported: "
             f"{run['fault_record'][:200] or 'nothing'}"
-            + ("" if diagnosis is None else f"; the force monitor found the wrench stale first, and the backend, "
-               f"asked then, answered: {diagnosis}")
+            + ("" if diagnosis is None else f"; the force monitor also found the wrench stale, and the backend, "
+               f"asked then whether it was the cause, answered: {diagnosis}")
             + (f"; {run['detail'].strip()}" if run["detail"] else ""))
     return lines
 
