@@ -48,6 +48,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 
+import anyio
 import numpy as np
 
 from armwarden.backends.arm_state import ArmEvent
@@ -209,6 +210,30 @@ class CanArm(ServoBackend):
         fault = self.fault
         if fault is not None:
             raise BackendError(f"can backend fault, motion aborted, actuators damped: {fault}")
+
+    async def _fault_behind_stale_data(self) -> str | None:
+        """Whether the actuators are why the data stopped (the Guard asks once the force monitor
+        found no usable wrench and stopped the arm). Silent actuators — a bus or power failure —
+        stop the joint states and the wrench together, and a wrench timeout shorter than
+        `rx_timeout_s` sees it first: so wait until every actuator has answered since this call (the
+        bus lives: None, the wrench alone is stale) or the servo loop's health check finds the fault
+        (its RX timeout), at most `rx_timeout_s` and a few ticks; still silent then, the silence is
+        the fault (fail closed). Found by the evaluation's backend death: with the emulator
+        stopped, this answered "no fault of its own" half a second before the RX timeout said
+        otherwise."""
+        asked = time.monotonic()
+        deadline = asked + self.config.rx_timeout_s + 10 * self.period_s
+        while True:
+            if (fault := self.fault) is not None:
+                return f"can backend fault: {fault}"
+            with self._state_lock:
+                silent = [a.label for a in self._everyone if a.unanswered_since is not None and a.unanswered_since <= asked]
+            if not silent:
+                return None
+            if time.monotonic() > deadline:
+                return (f"can backend: {', '.join(silent)}: no reply for {time.monotonic() - asked:.3f} s "
+                        f"(rx_timeout_s {self.config.rx_timeout_s:g} s)")
+            await anyio.sleep(POLL_S)
 
     def _recover(self) -> None:
         """Leave damping (a fault's or an e-stop's) for an execution the Guard admitted (so a human
