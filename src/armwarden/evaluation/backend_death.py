@@ -31,9 +31,9 @@ from armwarden.audit import verify_file
 from armwarden.audit.chain import hmac_key_from_env
 from armwarden.audit.verify import decode_records
 from armwarden.daemon.death import DEATH_EVENT, DEATH_SIGNAL
-from armwarden.evaluation.faults import (
+from armwarden.evaluation.fault_daemon import (
+    FAULT_AT_PROGRESS,
     FAULT_STEP_TIMEOUT_S,
-    KILL_AT_PROGRESS,
     bounded_call,
     daemon_params,
     fault_client,
@@ -161,7 +161,7 @@ async def _die_mid_motion(session: DaemonSession, audit: Path, plan_id: str, rea
     """Execute `plan_id`; inject the death (SIGUSR2 to the daemon) once the motion's progress passes a random fraction of
     it (or, were the motion answered first, right then); wait for the execute's answer."""
     pid = int(last_startup(audit)["extra"]["pid"])
-    at = float(rng.uniform(*KILL_AT_PROGRESS))
+    at = float(rng.uniform(*FAULT_AT_PROGRESS))
     answered, cue = anyio.Event(), anyio.Event()
     answer: list[tuple[bool, dict[str, Any], str]] = []
 

@@ -21,29 +21,33 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import Any, TextIO
 
 import anyio
 import numpy as np
-from mcp import Client, StdioServerParameters
-from mcp.client.stdio import stdio_client
 
 from armwarden.audit import verify_file
 from armwarden.audit.chain import hmac_key_from_env
 from armwarden.audit.verify import decode_records
 from armwarden.daemon.previous_run import PREVIOUS_RUN_SOURCE
-from armwarden.evaluation.daemon_process import DAEMON_COMMAND, stdio_params
+from armwarden.evaluation.backend_death import BackendDeathResult, run_backend_death
+from armwarden.evaluation.fault_daemon import (
+    FAULT_AT_PROGRESS,
+    FAULT_STEP_TIMEOUT_S,
+    bounded_call,
+    daemon_params,
+    fault_client,
+    last_startup,
+    last_words,
+)
 from armwarden.evaluation.journal import JournalReader, actuations
 from armwarden.evaluation.runner import (
     EVAL_WRENCH_TIMEOUT_S,
-    SCENARIO_TIMEOUT_S,
     UNLIMITED,
     DaemonSession,
     EvalOptions,
-    approver,
     progress,
     safe_goal,
     serve_arguments,
@@ -51,16 +55,9 @@ from armwarden.evaluation.runner import (
     write_policy,
 )
 
-if TYPE_CHECKING:
-    from armwarden.evaluation.backend_death import BackendDeathResult
-
-#: the kill comes once the motion's progress passes a fraction drawn uniformly from this range
-KILL_AT_PROGRESS = (0.05, 0.5)
 #: the killed motion's scaling: a slow move (as an operator's careful one), so that the kill finds
 #: it moving even on a sped-up simulation (progress is reported every 0.1 s)
 SLOW = {"velocity_scaling": 0.05, "acceleration_scaling": 0.05}
-#: how long a motion may take to start, or a killed daemon to be gone [s]
-FAULT_STEP_TIMEOUT_S = 60.0
 #: the audit log's size limit under which the daemon of the disk-full fault runs [bytes]: room for
 #: its start-up and a few dozen records
 DISK_LIMIT_BYTES = 24_000
@@ -138,46 +135,6 @@ class FaultsResult:
         }
 
 
-def daemon_params(arguments: list[str], file_size_limit: int | None = None) -> StdioServerParameters:
-    """`armwarden serve` as a user runs it; under `file_size_limit` through a small launcher that
-    sets RLIMIT_FSIZE and then execs the daemon."""
-    command = DAEMON_COMMAND
-    if file_size_limit is not None:
-        launcher = ("import os, resource, sys; "
-                    f"resource.setrlimit(resource.RLIMIT_FSIZE, ({file_size_limit}, {file_size_limit})); "
-                    "os.execv(sys.argv[1], sys.argv[1:])")
-        command = (sys.executable, "-c", launcher, *command)
-    return stdio_params(command, arguments)
-
-
-def fault_client(params: StdioServerParameters, errlog: TextIO, ref: list[DaemonSession]) -> Client:
-    """A client session that approves as a human would; the daemon's stderr goes to `errlog` (a
-    daemon whose log is full says so loudly, and a killed one's last words are kept there)."""
-    return Client(stdio_client(params, errlog=errlog), mode="legacy", elicitation_callback=approver(ref))
-
-
-def last_words(errlog: Path) -> str:
-    lines = errlog.read_text(encoding="utf-8", errors="replace").strip().splitlines() if errlog.exists() else []
-    return f" (the daemon's last stderr line: {lines[-1][:200]})" if lines else ""
-
-
-def last_startup(audit: Path) -> dict[str, Any]:
-    starts = [r for r in decode_records(audit.read_bytes().split(b"\n")) if r.get("event") == "startup"]
-    if not starts:
-        raise RuntimeError(f"no startup record in {audit}")
-    return starts[-1]
-
-
-async def bounded_call(session: DaemonSession, tool: str, arguments: dict[str, Any]) -> tuple[bool, dict[str, Any], str]:
-    """`call_raw` within `SCENARIO_TIMEOUT_S`: a daemon wedged by the fault injected fails the
-    fault, it does not hang the evaluation."""
-    try:
-        with anyio.fail_after(SCENARIO_TIMEOUT_S):
-            return await session.call_raw(tool, arguments)
-    except TimeoutError:
-        return True, {}, f"{tool}: no answer within {SCENARIO_TIMEOUT_S:g} s"
-
-
 async def _safety(session: DaemonSession) -> dict[str, Any]:
     _, status, _ = await bounded_call(session, "get_safety_status", {})
     return status
@@ -213,7 +170,7 @@ async def _kill_mid_motion(session: DaemonSession, audit: Path, goal: np.ndarray
     if error or plan.get("plan_id") is None:
         run.detail += f" plan refused: {text[:160]}"
     pid = int(last_startup(audit)["extra"]["pid"])
-    at = float(rng.uniform(*KILL_AT_PROGRESS))
+    at = float(rng.uniform(*FAULT_AT_PROGRESS))
     answered, cue = anyio.Event(), anyio.Event()
 
     async def on_progress(progress: float, total: float | None, message: str | None) -> None:
@@ -371,7 +328,5 @@ async def run_faults(options: EvalOptions, directory: Path, kills: int, disk_ful
         if disk_full:
             result.disk_full = await _disk_full(options, directory)
     if deaths > 0:
-        from armwarden.evaluation.backend_death import run_backend_death  # it builds on this module's helpers
-
         result.backend_death = await run_backend_death(options, directory, deaths)
     return result
