@@ -200,7 +200,8 @@ def test_the_fake_backend_dying_mid_motion_is_latched_reported_and_refused(tmp_p
     death = faults["backend_death"]
     assert death["passed"] and death["deaths"] == death["survived"] == death["mid_motion"] == death["latched"] == 1
     (run,) = death["per_run"]
-    assert run["execute_failed"] and run["plan_refused"] and run["execute_refused"] and run["actuations_after"] == 0
+    assert run["execute_failed"] and run["robot_state_refused"] and run["plan_refused"] and run["execute_refused"]
+    assert run["actuations_after"] == 0
     assert run["audit_verified"] and "the control thread stopped (InjectedBackendDeath" in run["fault_record"], run
     assert "Backend death mid-motion: 1/1" in (tmp_path / "eval.md").read_text(encoding="utf-8")
 

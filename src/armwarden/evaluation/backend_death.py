@@ -1,19 +1,21 @@
 """Fault injection: the backend dies mid-motion (issue 30, faults: "latched, reported, refused").
 
 Each run starts the daemon with `--eval-backend-death` (evaluation only, refused by the daemon for
-any backend that may drive a real arm; `armwarden.daemon.death`), plans a slow safe move and a
-second one, executes the first (as slowly as a plan may move) and, once its progress passes a random fraction of it, sends
-SIGUSR2: the backend dies through its real failure path — fake: its control thread, MuJoCo: its
-physics thread, CAN: the emulator stops and every actuator goes silent, which the backend's own RX
-timeout finds. ROS 2's cell process dying is its own fault (another module).
+any backend that may drive a real arm; `armwarden.daemon.death`), plans a safe move as slowly as a
+plan may and a second one, executes the first and, once its progress passes a random fraction of
+it, sends SIGUSR2: the backend dies through its real failure path — fake: its control thread,
+MuJoCo: its physics thread, CAN: the emulator stops and every actuator goes silent, which the
+backend's own RX timeout finds. ROS 2's cell process dying is another `DeathInjection` (another
+module's).
 
 Then, through the SDK client and the files the daemon leaves: the execute must have ended with an
-error or abort, not success; `get_safety_status` must report the e-stop latched by the backend
-fault, saying why; a new plan and the execute of the plan made before the death must be refused;
-no actuation may reach the backend after the death (the journal); the audit log must verify and
-hold the injection and, after it, the fault the backend itself reported (the record the Guard
-writes as it latches on that report: a backend that dies unreported fails here even if the failed
-execute latched the e-stop on its own).
+error or abort, not success; `get_safety_status` must report the e-stop latched, saying why, and
+`get_robot_state` must refuse (naming the dead thread, or the state too old) rather than serve a
+state as if nothing happened; a new plan and the execute of the plan made before the death must
+be refused; no actuation may reach the backend after the death (the journal); the audit log must
+verify and hold the injection and, after it, the fault the backend itself reported (the record the
+Guard writes as it latches on that report: a backend that dies unreported fails here even though
+the failed execute latches the e-stop on its own).
 """
 
 from __future__ import annotations
@@ -104,11 +106,12 @@ class DeathRun:
     mid_motion: bool = False
     #: the execute answered with an error or an abort, not success
     execute_failed: bool = False
-    #: get_safety_status: the e-stop latched by the backend's fault, with a reason
+    #: get_safety_status: the e-stop latched, with a reason
     latched: bool = False
-    #: the e-stop's reason (the cause the backend found)
+    #: that reason (of the latest latch: the backend's fault, or one the failure caused after it)
     cause: str = ""
-    #: what get_robot_state answered after the death (a refusal naming the fault, or the state)
+    #: get_robot_state was refused after the death, and what it answered
+    robot_state_refused: bool = False
     robot_state: str = ""
     plan_refused: bool = False
     #: the plan made before the death, executed after it, was refused
@@ -129,8 +132,9 @@ class DeathRun:
 
     @property
     def passed(self) -> bool:
-        return self.mid_motion and self.execute_failed and self.latched and self.plan_refused \
-            and self.execute_refused and self.actuations_after == 0 and self.audit_verified and self.audit_records_cause
+        return self.mid_motion and self.execute_failed and self.latched and self.robot_state_refused \
+            and self.plan_refused and self.execute_refused and self.actuations_after == 0 \
+            and self.audit_verified and self.audit_records_cause
 
 
 @dataclass
@@ -158,8 +162,9 @@ class BackendDeathResult:
 
 async def _die_mid_motion(session: DaemonSession, audit: Path, plan_id: str, reader: JournalReader,
                           rng: np.random.Generator, injection: DeathInjection, run: DeathRun) -> None:
-    """Execute `plan_id`; inject the death (SIGUSR2 to the daemon) once the motion's progress passes a random fraction of
-    it (or, were the motion answered first, right then); wait for the execute's answer."""
+    """Execute `plan_id`; inject the death (SIGUSR2 to the daemon) once the motion's progress passes
+    a random fraction of it (or, were the motion answered first, right then); wait for the
+    execute's answer."""
     pid = int(last_startup(audit)["extra"]["pid"])
     at = float(rng.uniform(*FAULT_AT_PROGRESS))
     answered, cue = anyio.Event(), anyio.Event()
@@ -235,9 +240,11 @@ def backend_report(audit: Path, injection: DeathInjection) -> str | None:
 
 
 async def _check_refusals(session: DaemonSession, goal: np.ndarray, before_death: str, run: DeathRun) -> None:
-    """A new plan, and the execute of the plan made before the death, must be refused."""
-    _, _, text = await bounded_call(session, "get_robot_state", {})
-    run.robot_state = text[:300]
+    """The state read, a new plan, and the execute of the plan made before the death must be refused."""
+    error, _, text = await bounded_call(session, "get_robot_state", {})
+    run.robot_state_refused, run.robot_state = error, text[:300]
+    if not error:
+        run.detail += f" get_robot_state served a state after the death: {text[:160]}"
     error, plan, text = await bounded_call(session, "plan_to_joints", {"joint_positions": goal.tolist(),
                                                                       "preview": False})
     run.plan_refused = error or plan.get("plan_id") is None or plan.get("status") == "rejected"
