@@ -1,6 +1,6 @@
 """`armwarden eval --backend ros2` on the fake FR3 cell (a process of its own per daemon, started
-by the evaluation on a random local ROS domain), and the cell-death fault
-(`armwarden.evaluation.cell_death`): the cell SIGKILLed while a slow approved motion runs."""
+by the evaluation on a random local ROS domain), and ROS 2's backend death
+(`armwarden.evaluation.backend_death`): the cell SIGKILLed while a slow approved motion runs."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from tests.helpers import REPO, SRC
 
-from armwarden.evaluation.cell_death import run_cell_death
+from armwarden.evaluation.backend_death import run_backend_death
 from armwarden.evaluation.ros_cell import FakeCells, fake_cell_config
 from armwarden.evaluation.runner import EvalOptions
 from armwarden.policy import bundled_policy, load_policy
@@ -79,15 +79,16 @@ async def test_a_cell_killed_mid_motion_latches_is_reported_and_refuses_what_fol
     options = EvalOptions(policy_path=policy_path, policy=load_policy(policy_path), backend="ros2",
                           backend_config=fake_cell_config(tmp_path), safe_count=0, seed=0, cells=cells)
     try:
-        result = await run_cell_death(options, tmp_path)
+        result = await run_backend_death(options, tmp_path, 1)
         killed = cells.process
     finally:
         cells.stop()
 
+    (run,) = result.runs
     assert killed is not None and killed.returncode == -signal.SIGKILL
-    assert result.mid_motion, result.detail
-    assert result.answered_as_fault, result.detail
-    assert result.latched and result.reported, result.detail
-    assert result.plan_refused and result.execute_refused, result.detail
-    assert result.actuations_after_kill == 0, result.detail
+    assert run.mid_motion and run.execute_failed, run.detail
+    assert run.latched and run.robot_state_refused, run.detail
+    assert run.plan_refused and run.execute_refused, run.detail
+    assert run.actuations_after == 0, run.detail
+    assert run.audit_verified and run.audit_records_cause, run.detail
     assert result.passed

@@ -5,8 +5,9 @@ any backend that may drive a real arm; `armwarden.daemon.death`), plans a safe m
 plan may and a second one, executes the first and, once its progress passes a random fraction of
 it, sends SIGUSR2: the backend dies through its real failure path — fake: its control thread,
 MuJoCo: its physics thread, CAN: the emulator stops and every actuator goes silent, which the
-backend's own RX timeout finds. ROS 2's cell process dying is another `DeathInjection` (another
-module's).
+backend's own RX timeout finds. On ROS 2 the fake cell's process is SIGKILLed instead, as a cell
+dies when its driver or host crashes (no topic, no feedback, no result ever again): the daemon has
+no flag for it and must notice on its own.
 
 Then, through the SDK client and the files the daemon leaves: the execute must have ended with an
 error or abort, not success; `get_safety_status` must report the e-stop latched, saying why, and
@@ -81,19 +82,30 @@ class DeathInjection:
 
     what: str
     serve_flags: tuple[str, ...]
-    inject: Callable[[int], None]
+    #: given the daemon's pid and the evaluation's options (the fake ROS cells among them)
+    inject: Callable[[int, EvalOptions], None]
     audit_event: str | None
+    #: the journal suffix of what reached the backend: the daemon's own (`-journal.jsonl`), or on
+    #: the fake ROS cell the daemon's wrapper (`-daemon-journal.jsonl`: the dead cell journals nothing)
+    journal_suffix: str = "-journal.jsonl"
 
 
-def _signal_death(pid: int) -> None:
+def _signal_death(pid: int, options: EvalOptions) -> None:
     os.kill(pid, DEATH_SIGNAL)
 
 
-#: each backend's injected death (ROS 2's, its cell process killed, is added by its own module)
+def _kill_cell(pid: int, options: EvalOptions) -> None:
+    if options.cells is None:  # a user's own cell: faults never run there (`evaluation.command`)
+        raise RuntimeError("no fake ROS cell to kill: the backend death runs on the fake cell only")
+    options.cells.kill()
+
+
+#: each backend's injected death
 INJECTIONS: dict[str, DeathInjection] = {
     "fake": DeathInjection("its control thread raises", (DEATH_FLAG,), _signal_death, DEATH_EVENT),
     "mujoco": DeathInjection("its physics thread raises", (DEATH_FLAG,), _signal_death, DEATH_EVENT),
     "can": DeathInjection("the emulator stops: every actuator silent", (DEATH_FLAG,), _signal_death, DEATH_EVENT),
+    "ros2": DeathInjection("the fake cell's process is SIGKILLed", (), _kill_cell, None, "-daemon-journal.jsonl"),
 }
 #: the audit event a backend's report must follow when the daemon does not record the injection
 EXECUTION_STARTED = "execution_started"
@@ -161,7 +173,8 @@ class BackendDeathResult:
 
 
 async def _die_mid_motion(session: DaemonSession, audit: Path, plan_id: str, reader: JournalReader,
-                          rng: np.random.Generator, injection: DeathInjection, run: DeathRun) -> None:
+                          rng: np.random.Generator, injection: DeathInjection, options: EvalOptions,
+                          run: DeathRun) -> None:
     """Execute `plan_id`; inject the death (SIGUSR2 to the daemon) once the motion's progress passes
     a random fraction of it (or, were the motion answered first, right then); wait for the
     execute's answer."""
@@ -192,7 +205,7 @@ async def _die_mid_motion(session: DaemonSession, audit: Path, plan_id: str, rea
             await cue.wait()
         run.mid_motion = not answered.is_set()
         reader.new_entries()  # what reached the backend before the death (the execute itself)
-        injection.inject(pid)
+        injection.inject(pid, options)
         with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
             await answered.wait()
         group.cancel_scope.cancel()
@@ -284,7 +297,7 @@ async def _one_death(options: EvalOptions, directory: Path, index: int, rng: np.
                                                           "force.wrench_timeout_s": EVAL_WRENCH_TIMEOUT_S})
     arguments = [*serve_arguments(options, directory, name, policy_path), *injection.serve_flags]
     audit, errlog = directory / f"{name}-audit.jsonl", directory / f"{name}-daemon.err"
-    reader = JournalReader(directory / f"{name}-journal.jsonl")
+    reader = JournalReader(directory / f"{name}{injection.journal_suffix}")
     robot = load_runtime_model(options.policy, str(options.policy_path)).robot
     goal, other = safe_goal(options.policy, robot, rng), safe_goal(options.policy, robot, rng)
     ref: list[DaemonSession] = []
@@ -302,7 +315,7 @@ async def _one_death(options: EvalOptions, directory: Path, index: int, rng: np.
                         run.detail += f" plan refused before the death: {text[:160]}"
                         return run
                     plans.append(str(plan["plan_id"]))
-                await _die_mid_motion(session, audit, plans[0], reader, rng, injection, run)
+                await _die_mid_motion(session, audit, plans[0], reader, rng, injection, options, run)
                 await _wait_for_report(session, audit, injection, run)
                 await _check_refusals(session, other, plans[1], run)
     except Exception as exc:  # the daemon went away or wedged: the run failed, say how

@@ -110,12 +110,13 @@ def eval_command(args: argparse.Namespace, stdin: TextIO = sys.stdin, stderr: Te
 def _users_cell_refusal(args: argparse.Namespace) -> str | None:
     """Why the options asked for cannot run on a user's ROS cell (fuzz, faults, load), or None."""
     asked = [flag for flag, value in (("--fuzz-only", args.fuzz_only), ("--fuzz-calls", args.fuzz_calls),
-                                      ("--kills", args.kills), ("--load-seconds", args.load_seconds)) if value]
+                                      ("--kills", args.kills), ("--backend-deaths", args.backend_deaths),
+                                      ("--load-seconds", args.load_seconds)) if value]
     if not asked:
         return None
     return (f"refusing {', '.join(asked)} with --backend ros2 and your own --backend-config: fuzzing, faults and "
-            "load move the arm outside any approved plan (generated gripper moves, a daemon killed mid-motion, racing "
-            "executes); they run on the fake FR3 cell (no --backend-config)")
+            "load move the arm outside any approved plan (generated gripper moves, a daemon or the cell killed "
+            "mid-motion, racing executes); they run on the fake FR3 cell (no --backend-config)")
 
 
 def _run(args: argparse.Namespace, options: EvalOptions) -> int:
@@ -132,7 +133,7 @@ def _run(args: argparse.Namespace, options: EvalOptions) -> int:
     load_s = args.load_seconds if args.load_seconds is not None else default_load
     load: LoadResult | str = "not asked for (--load-seconds 0, --only or --fuzz-only)"
     if options.on_users_cell:  # defaults only here: asking for them was refused (`_users_cell_refusal`)
-        fuzz_calls = kills = 0
+        fuzz_calls = kills = deaths = 0
         load_s = 0.0
         fuzz, faults, load = (USERS_CELL_WHY.format(what=USERS_CELL_PARTS[part][1]) for part in ("fuzz", "faults", "load"))
     if load_s < 0 or args.load_clients < 2:
