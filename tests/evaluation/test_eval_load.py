@@ -3,7 +3,15 @@ end to end by the quick evaluation in test_eval_command.py)."""
 
 from __future__ import annotations
 
-from armwarden.evaluation.load import LoadResult
+import time
+from typing import cast
+
+import anyio
+import pytest
+
+from armwarden.evaluation import load
+from armwarden.evaluation.load import LoadClient, LoadResult
+from armwarden.stopchannel import client as stop_client
 
 
 def answered_run(**changes: object) -> LoadResult:
@@ -55,3 +63,28 @@ def test_a_daemon_gone_at_the_end_fails_the_run() -> None:
 
 def test_a_run_without_an_estop_proves_nothing_about_stopping_and_fails() -> None:
     assert not answered_run(estop_ms=[]).ok
+
+
+class Operator:
+    """The operator who resets the e-stops: its sessions end at `deadline`."""
+
+    def __init__(self, left_s: float) -> None:
+        self.deadline = time.monotonic() + left_s
+        self.calls: list[str] = []
+
+    async def call(self, tool: str, arguments: dict[str, object]) -> dict[str, object]:
+        self.calls.append(tool)
+        return {}
+
+
+def test_sessions_that_opened_late_still_get_their_estop_before_the_end(monkeypatch: pytest.MonkeyPatch) -> None:
+    """16 sessions opening on a loaded machine left less of a short run than the e-stop period:
+    the run then had no e-stop and failed for nothing (MuJoCo's quick evaluation, once)."""
+    sent: list[str] = []
+    monkeypatch.setattr(stop_client, "send_estop", lambda url, token, reason: sent.append(reason) or {"estopped": True})
+    result, operator = LoadResult(clients=16, duration_s=10.0), Operator(left_s=2.6)
+
+    anyio.run(load._estops, "http://127.0.0.1:1/estop", "token", result, cast("LoadClient", operator), 5.0)
+
+    assert len(sent) == 1 and len(result.estop_ms) == 1 and result.estops_unanswered == 0
+    assert operator.calls == ["reset_estop"] and result.resets == 1

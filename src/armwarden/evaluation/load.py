@@ -182,13 +182,21 @@ async def _operator(client: LoadClient, options: EvalOptions, robot: Any, rng: n
 
 
 async def _estops(daemon_channel: str, token: str, result: LoadResult, operator: LoadClient, every_s: float) -> None:
-    """An e-stop through the stop channel every `every_s` until the deadline, each reset by an operator."""
+    """An e-stop through the stop channel every `every_s` until the deadline, each reset by an operator.
+
+    The first comes within the time left once the sessions are open, whatever their opening took
+    (16 sessions on a loaded machine took longer than a short run's `every_s` allowed): a run
+    with no e-stop measured nothing of it."""
     from armwarden.stopchannel.client import EStopRequestError, send_estop
 
+    wait_s = min(every_s, max(0.0, (operator.deadline - time.monotonic() - RESET_MARGIN_S) / 2))
+    first = True
     while True:
-        await anyio.sleep(every_s)
-        if operator.deadline - time.monotonic() < RESET_MARGIN_S:  # its reset must come before the sessions end
+        await anyio.sleep(wait_s)
+        wait_s = every_s
+        if not first and operator.deadline - time.monotonic() < RESET_MARGIN_S:  # its reset comes before the end
             return
+        first = False
         started = time.perf_counter()
         try:
             answer = await anyio.to_thread.run_sync(send_estop, daemon_channel, token, "eval: load e-stop")
