@@ -240,6 +240,8 @@ class MujocoBackend(ServoBackend):
         self.arm.step(setpoint, time.perf_counter(), self.servo.speedup)
         sample = self.arm.measured
         if sample is not before:  # a tick too short for a physics step measures nothing new
+            for caught_up in self.arm.catch_up:  # a long tick's samples on the way, oldest first
+                self.joint_history.append(self._joint_state(caught_up))
             self.joint_history.append(self._joint_state(sample))
 
     def servo_command(self, setpoint: Setpoint) -> None:
