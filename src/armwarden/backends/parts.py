@@ -169,6 +169,9 @@ class Capabilities:
     joint_torques: bool = False
     #: simulated seconds per wall-clock second (1: real time; a simulator may run faster)
     time_scale: float = 1.0
+    #: the interval [s, wall clock] between the joint states the backend keeps while it runs
+    #: steadily (None: not known, e.g. a topic's rate)
+    joint_state_interval_s: float | None = None
     gripper: bool = False
     cameras: tuple[str, ...] = ()
     controllers: bool = False
@@ -201,6 +204,10 @@ class Cell:
     #: while velocities are per simulated second, so whatever integrates states over their stamps
     #: (the contact observer) scales the intervals by this; 1 for hardware
     time_scale: float = 1.0
+    #: the interval [s, wall clock] between the joint states the backend keeps (its servo period)
+    #: while it runs steadily; None: not known. Times `time_scale`, it is how much of the arm's
+    #: motion the contact observer integrates at once: over its cap, it can integrate none
+    joint_state_interval_s: float | None = None
 
     @functools.cached_property
     def capabilities(self) -> Capabilities:
@@ -209,6 +216,7 @@ class Cell:
             wrench=self.wrench is not None,
             joint_torques=self.joint_torques,
             time_scale=self.time_scale,
+            joint_state_interval_s=self.joint_state_interval_s,
             gripper=self.gripper is not None,
             cameras=self.cameras.names if self.cameras is not None else (),
             controllers=self.controllers is not None,

@@ -39,7 +39,13 @@ from armwarden.core.errors import BackendError, RefusalCode, SafetyRefusal
 from armwarden.policy import Policy
 from armwarden.results import ExecutionReport
 from armwarden.robot.model import RobotModel
-from armwarden.safety.contact_source import ContactSource, JointTorqueContact, choose_contact_source, observer_for
+from armwarden.safety.contact_source import (
+    ContactSource,
+    JointTorqueContact,
+    choose_contact_source,
+    observer_for,
+    unintegrable_joint_states,
+)
 from armwarden.safety.estop import EStopEvent, EStopLatch
 from armwarden.safety.force import ForceLimits, ForceMonitor, ForceViolation
 
@@ -62,10 +68,18 @@ NO_WRENCH_MESSAGE = (
 
 
 def contact_source(policy: Policy, backend: Backend) -> ContactSource | None:
-    """What the force monitor reads for `policy` on `backend` (None: nothing; see `choose_contact_source`)."""
+    """What the force monitor reads for `policy` on `backend` (None: nothing; see `choose_contact_source`).
+    Not the joint torques when the observer could integrate none of them (`unintegrable_joint_states`):
+    every reading would be a lost one, so the plan, the approval and the refusal say so up front."""
     capabilities = backend.capabilities
-    return choose_contact_source(policy.force.source, capabilities.wrench, capabilities.joint_torques,
+    measures_torques = capabilities.joint_torques and _unintegrable(backend) is None
+    return choose_contact_source(policy.force.source, capabilities.wrench, measures_torques,
                                  policy.force.joint_torques is not None)
+
+
+def _unintegrable(backend: Backend) -> str | None:
+    capabilities = backend.capabilities
+    return unintegrable_joint_states(capabilities.joint_state_interval_s, capabilities.time_scale)
 
 
 def no_contact_message(policy: Policy, backend: Backend) -> str:
@@ -73,8 +87,11 @@ def no_contact_message(policy: Policy, backend: Backend) -> str:
     force, capabilities = policy.force, backend.capabilities
     if force.source == "sensor" or (not capabilities.joint_torques and force.joint_torques is None):
         return NO_WRENCH_MESSAGE
+    problem = _unintegrable(backend) if capabilities.joint_torques else None
     if not capabilities.joint_torques:
         missing = f"backend {backend.name} measures no joint torques"
+    elif problem is not None and force.joint_torques is not None:
+        missing = problem
     else:
         missing = "the policy sets no external joint-torque limits (force.joint_torques)"
     return (f"{missing}, so contact cannot be monitored (force.source: {force.source}), and the policy requires it "

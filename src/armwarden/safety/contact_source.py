@@ -25,7 +25,8 @@ if TYPE_CHECKING:
     from armwarden.policy import Policy
     from armwarden.robot.model import RobotModel
 
-__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "observer_for"]
+__all__ = ["ContactEstimate", "ContactSource", "JointTorqueContact", "choose_contact_source", "observer_for",
+           "unintegrable_joint_states"]
 
 ContactSource = Literal["sensor", "joint_torques"]
 
@@ -88,6 +89,25 @@ def observer_for(policy: Policy, robot_model: RobotModel) -> ContactObserver:
 #: (28 N·m once in MuJoCo at the largest scaling, with nothing touching). Measured on the arm's
 #: time, not the stamps': at speedup 10 a 5 ms stall is 50 ms of motion (read as 10.6 N·m)
 MAX_INTEGRATED_INTERVAL_S = 0.02
+
+
+def unintegrable_joint_states(interval_s: float | None, time_scale: float) -> str | None:
+    """Why the observer can integrate none of a backend's joint states kept `interval_s` apart
+    [s, wall clock] at `time_scale` (None: it can, or the interval is not known).
+
+    Each interval is then `MAX_INTEGRATED_INTERVAL_S` or more of the arm's time: every one is
+    skipped, and a free motion ends as a lost reading with the e-stop latched. Said before
+    anything moves instead (e.g. a fake sped up 20 times samples 20 ms of motion a tick)."""
+    if interval_s is None:
+        return None
+    arm_s = interval_s * time_scale
+    if arm_s < MAX_INTEGRATED_INTERVAL_S:
+        return None
+    return (f"the backend keeps a joint state every {interval_s * 1e3:g} ms at speedup {time_scale:g}, "
+            f"{arm_s * 1e3:g} ms of the arm's motion, and the joint-torque observer integrates less than "
+            f"{MAX_INTEGRATED_INTERVAL_S * 1e3:g} ms at once (lower the speedup)")
+
+
 #: joint speed [rad/s] under which a sample counts as an arm at rest (a skipped interval between two
 #: of them misses nothing: no momentum changed)
 REST_SPEED_RAD_S = 0.01

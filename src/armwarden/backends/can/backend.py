@@ -107,7 +107,8 @@ class CanBackend(CanArm):
                                      ArrivalClock.for_interface(config.bus.interface))
         # every feedback frame reports the torque, published as the joints' when the config says it is
         # the arm's (`joint_torques`); an emulated bus may run faster than real time
-        self.cell = Cell(gripper=fingers, joint_torques=config.joint_torques, time_scale=float(self._speedup))
+        self.cell = Cell(gripper=fingers, joint_torques=config.joint_torques, time_scale=float(self._speedup),
+                         joint_state_interval_s=1.0 / config.control_rate_hz)
 
     # ================================================================ lifecycle
     async def _open(self) -> None:

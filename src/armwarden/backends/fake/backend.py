@@ -167,6 +167,7 @@ class FakeBackend(ServoBackend):
             frames=tuple(robot.frame_names() if robot is not None else arm.model.frame_names()),
             joint_torques=joint_torques,
             time_scale=float(speedup),
+            joint_state_interval_s=self.control_period_s,
         )
 
     # ================================================================ lifecycle

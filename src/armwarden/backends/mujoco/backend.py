@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from armwarden.backends.mujoco.arm import Push, SimulatedArm
+from armwarden.backends.mujoco.arm import CATCH_UP_SAMPLE_SIM_S, Push, SimulatedArm
 from armwarden.backends.mujoco.cameras import OffscreenCameras, SimulatedCameras
 from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.gains import armature_from_profile
@@ -127,7 +127,9 @@ class MujocoBackend(ServoBackend):
                          cameras=SimulatedCameras(self._renderer, tuple(cell.cameras), self._published_scene)
                          if cell.cameras else None,
                          wrench=PublishedWrench(self._published_wrench), frames=tuple(robot.frame_names()),
-                         joint_torques=True, time_scale=float(speedup))
+                         joint_torques=True, time_scale=float(speedup),
+                         # a tick keeps a sample at least every CATCH_UP_SAMPLE_SIM_S simulated
+                         joint_state_interval_s=min(CONTROL_PERIOD_S, CATCH_UP_SAMPLE_SIM_S / float(speedup)))
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
                                name="mujoco backend")
         #: every tick's joint state, for the contact observer (`_joint_states_since`)
