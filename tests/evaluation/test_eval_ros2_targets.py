@@ -39,7 +39,8 @@ def started(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     return runs
 
 
-@pytest.mark.parametrize("asked", [["--kills", "2"], ["--backend-deaths", "1"], ["--load-seconds", "5"], ["--fuzz-calls", "10"], ["--fuzz-only"]])
+@pytest.mark.parametrize("asked", [["--kills", "2"], ["--backend-deaths", "1"], ["--load-seconds", "5"],
+                                   ["--fuzz-calls", "10"], ["--fuzz-only"]])
 def test_faults_load_or_fuzzing_asked_for_on_a_users_cell_are_refused_before_anything_starts(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], started: list[Any], asked: list[str]) -> None:
     code = main(["eval", "--quick", "--backend", "ros2", "--backend-config", str(USERS_CONFIG), *asked,
