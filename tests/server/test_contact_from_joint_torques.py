@@ -178,3 +178,13 @@ async def test_torques_that_turn_nan_mid_motion_stop_the_arm_as_a_lost_wrench_do
         assert result.is_error and "[FORCE_LIMIT]" in text_of(result), text_of(result)
         event = arm.guard.latch.current_event
         assert event is not None and event.source == "wrench_lost"  # no contact was measured: none is latched
+
+
+async def test_a_free_motion_at_a_speedup_the_observer_cannot_follow_is_refused_before_it_moves(tmp_path) -> None:
+    async with arm_harness(tmp_path, wrench=False, speedup=50.0) as arm, arm.client("legacy", approve()) as client:
+        summary = await plan_down(client)
+        assert summary["force_monitoring"] is False  # the plan says so before anyone approves it
+        result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
+        assert result.is_error and "[NO_WRENCH]" in text_of(result), text_of(result)
+        assert "at speedup 50" in text_of(result) and "lower the speedup" in text_of(result)
+        assert arm.actuations == []

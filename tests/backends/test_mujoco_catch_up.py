@@ -1,8 +1,7 @@
-"""Review of F1 (bda5577) on MuJoCo: the fake now keeps a sample per control period through a
-stall of its servo thread (fc3b6b2, 374af96); MuJoCo still measures only at the end of a tick's
-catch-up steps. With the interval bounds on the arm's time, a stall of the physics thread at the
-harness's speedup 4 is four times as long unobserved: 30 ms of it ends a free motion as a lost
-reading, where it was skipped (30 ms < wrench_timeout_s) before."""
+"""MuJoCo's physics thread catching up after a stall keeps a sample every 5 ms of simulated time
+on the way. The observer's interval bounds are on the arm's time, so at the harness's speedup 4 a
+30 ms stall is 120 ms of motion: measured once at the end, it ended a free motion as a lost
+reading (found by review)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Review of F1 (bda5577): the observer's interval cap on the arm's time, against a backend whose
-joint states lie as far apart on the arm's time as the cap or more. Every interval is then
+"""The observer's interval cap is on the arm's time: a backend whose joint states lie as far
+apart on the arm's time as the cap or more (a fake sped up 20 times and more). Every interval is then
 skipped (a free motion read as a lost reading, the e-stop latched); the Guard says so before
 anything moves instead (`unintegrable_joint_states`)."""
 
