@@ -42,6 +42,7 @@ from armwarden.evaluation.fault_daemon import (
     fault_client,
     last_startup,
     last_words,
+    strike_mid_motion,
 )
 from armwarden.evaluation.journal import JournalReader, actuations
 from armwarden.evaluation.runner import (
@@ -175,44 +176,19 @@ class BackendDeathResult:
 async def _die_mid_motion(session: DaemonSession, audit: Path, plan_id: str, reader: JournalReader,
                           rng: np.random.Generator, injection: DeathInjection, options: EvalOptions,
                           run: DeathRun) -> None:
-    """Execute `plan_id`; inject the death (SIGUSR2 to the daemon) once the motion's progress passes
-    a random fraction of it (or, were the motion answered first, right then); wait for the
-    execute's answer."""
+    """Execute `plan_id`; inject the death once the motion's progress passes a random fraction of
+    it (or, were the motion answered first, right then); wait for the execute's answer."""
     pid = int(last_startup(audit)["extra"]["pid"])
-    at = float(rng.uniform(*FAULT_AT_PROGRESS))
-    answered, cue = anyio.Event(), anyio.Event()
-    answer: list[tuple[bool, dict[str, Any], str]] = []
 
-    async def on_progress(progress: float, total: float | None, message: str | None) -> None:
-        if at * (total or 1.0) <= progress < (total or 1.0):  # moving, past the drawn fraction
-            cue.set()
-
-    async def execute() -> None:
-        try:
-            result = await session.client.call_tool("execute_plan", {"plan_id": plan_id},
-                                                    progress_callback=on_progress)
-            text = " ".join(getattr(block, "text", "") for block in result.content)
-            answer.append((bool(result.is_error), dict(result.structured_content or {}), text))
-        except Exception as exc:  # a protocol error: not a success either
-            answer.append((True, {}, f"protocol error: {exc}"))
-        finally:
-            answered.set()
-            cue.set()
-
-    async with anyio.create_task_group() as group:
-        group.start_soon(execute)
-        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
-            await cue.wait()
-        run.mid_motion = not answered.is_set()
+    def die() -> None:
         reader.new_entries()  # what reached the backend before the death (the execute itself)
         injection.inject(pid, options)
-        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
-            await answered.wait()
-        group.cancel_scope.cancel()
-    if not answer:
+
+    run.mid_motion, answer = await strike_mid_motion(session, plan_id, float(rng.uniform(*FAULT_AT_PROGRESS)), die)
+    if answer is None:
         run.detail += f" the execute did not answer within {FAULT_STEP_TIMEOUT_S:g} s of the death"
         return
-    error, done, text = answer[0]
+    error, done, text = answer
     run.execute_failed = error or done.get("status") == "aborted"
     if not run.execute_failed:
         run.detail += f" the execute answered {done.get('status')!r}: {text[:160]}"

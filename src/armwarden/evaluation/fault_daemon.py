@@ -6,6 +6,7 @@ a daemon wedged by the fault injected fails the fault instead of hanging the eva
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -63,5 +64,47 @@ async def bounded_call(session: DaemonSession, tool: str, arguments: dict[str, A
         return True, {}, f"{tool}: no answer within {SCENARIO_TIMEOUT_S:g} s"
 
 
-__all__ = ["FAULT_AT_PROGRESS", "FAULT_STEP_TIMEOUT_S", "bounded_call", "daemon_params", "fault_client",
-           "last_startup", "last_words"]
+#: an execute's answer: (an error or a protocol failure, its structured content, its text)
+Answer = tuple[bool, dict[str, Any], str]
+
+
+async def strike_mid_motion(session: DaemonSession, plan_id: str, at: float,
+                            strike: Callable[[], None]) -> tuple[bool, Answer | None]:
+    """Execute `plan_id` and `strike` (kill the daemon, kill the backend) once the motion's reported
+    progress passes the fraction `at` of it, or, were the motion answered first, right then; then
+    wait for the execute's answer, each step within `FAULT_STEP_TIMEOUT_S`. Returns whether the
+    strike found the motion unanswered (mid-motion), and the answer (None: none came)."""
+    answered, cue = anyio.Event(), anyio.Event()
+    answer: list[Answer] = []
+    mid_motion = False
+
+    async def on_progress(progress: float, total: float | None, message: str | None) -> None:
+        if at * (total or 1.0) <= progress < (total or 1.0):  # moving, past the drawn fraction
+            cue.set()
+
+    async def execute() -> None:
+        try:
+            result = await session.client.call_tool("execute_plan", {"plan_id": plan_id},
+                                                    progress_callback=on_progress)
+            text = " ".join(getattr(block, "text", "") for block in result.content)
+            answer.append((bool(result.is_error), dict(result.structured_content or {}), text))
+        except Exception as exc:  # a protocol error (a killed daemon's pipe): not a success either
+            answer.append((True, {}, f"protocol error: {exc}"))
+        finally:
+            answered.set()
+            cue.set()
+
+    async with anyio.create_task_group() as group:
+        group.start_soon(execute)
+        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
+            await cue.wait()
+        mid_motion = not answered.is_set()
+        strike()
+        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
+            await answered.wait()
+        group.cancel_scope.cancel()
+    return mid_motion, (answer[0] if answer else None)
+
+
+__all__ = ["FAULT_AT_PROGRESS", "FAULT_STEP_TIMEOUT_S", "Answer", "bounded_call", "daemon_params", "fault_client",
+           "last_startup", "last_words", "strike_mid_motion"]

@@ -25,7 +25,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-import anyio
 import numpy as np
 
 from armwarden.audit import verify_file
@@ -35,12 +34,12 @@ from armwarden.daemon.previous_run import PREVIOUS_RUN_SOURCE
 from armwarden.evaluation.backend_death import BackendDeathResult, run_backend_death
 from armwarden.evaluation.fault_daemon import (
     FAULT_AT_PROGRESS,
-    FAULT_STEP_TIMEOUT_S,
     bounded_call,
     daemon_params,
     fault_client,
     last_startup,
     last_words,
+    strike_mid_motion,
 )
 from armwarden.evaluation.journal import JournalReader, actuations
 from armwarden.evaluation.runner import (
@@ -171,31 +170,9 @@ async def _kill_mid_motion(session: DaemonSession, audit: Path, goal: np.ndarray
         run.detail += f" plan refused: {text[:160]}"
     pid = int(last_startup(audit)["extra"]["pid"])
     at = float(rng.uniform(*FAULT_AT_PROGRESS))
-    answered, cue = anyio.Event(), anyio.Event()
-
-    async def on_progress(progress: float, total: float | None, message: str | None) -> None:
-        if at * (total or 1.0) <= progress < (total or 1.0):  # moving, past the drawn fraction
-            cue.set()
-
-    async def execute() -> None:
-        try:
-            await session.client.call_tool("execute_plan", {"plan_id": plan.get("plan_id", "")},
-                                           progress_callback=on_progress)
-        except Exception:  # the killed daemon's pipe
-            pass
-        finally:
-            answered.set()
-            cue.set()
-
-    async with anyio.create_task_group() as group:
-        group.start_soon(execute)
-        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
-            await cue.wait()
-        run.mid_motion = not answered.is_set()
-        os.kill(pid, signal.SIGKILL)
-        with anyio.move_on_after(FAULT_STEP_TIMEOUT_S):
-            await answered.wait()  # the session sees the pipe close
-        group.cancel_scope.cancel()
+    # the killed daemon's session sees its pipe close: the answer is that protocol error
+    run.mid_motion, _ = await strike_mid_motion(session, str(plan.get("plan_id", "")), at,
+                                                lambda: os.kill(pid, signal.SIGKILL))
 
 
 async def _kills(options: EvalOptions, directory: Path, kills: int, result: FaultsResult) -> None:
