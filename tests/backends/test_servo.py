@@ -189,9 +189,12 @@ class StallingRecorder(Recorder):
     def __init__(self) -> None:
         super().__init__()
         self.recorded: list[Setpoint] = []
+        self.prepared = 0
         self._following_ticks = 0
 
     def servo_prepare(self, setpoint: Setpoint) -> None:
+        if threading.current_thread().name == "servo-under-test":
+            self.prepared += 1
         if setpoint.following and threading.current_thread().name == "servo-under-test":
             self._following_ticks += 1
             if self._following_ticks == 5:
@@ -211,6 +214,9 @@ async def test_a_late_tick_records_the_samples_of_the_periods_it_skipped_on_the_
     finally:
         await servo.shutdown()
     assert result.completed and len(hooks.recorded) >= 25  # the 30 ms stall, a period each
+    # a tick's whole work (servo_prepare) runs once per tick, never per recorded period: a slow one
+    # repeated for each would make the next tick later still, until the watchdog fired
+    assert hooks.prepared == len(hooks.commanded) - len(hooks.recorded)
     following = [s for s in hooks.commanded if s.following]
     stamps = np.array([s.stamp for s in following])
     assert np.all(np.diff(stamps) > 0)  # in order, each once

@@ -89,9 +89,17 @@ class ServoHooks:
     #: Not for a physics simulation: it steps the world itself and measures what it stepped.
     records_missed_samples: bool = False
 
+    def servo_measure_missed(self, setpoint: Setpoint) -> Any:
+        """Servo thread, outside the lock: what a sample of a skipped period needs (the measured
+        torques), kept as its `extra`. Not `servo_prepare`: a late tick may record hundreds of
+        these, and each must cost microseconds, not a whole tick's work (a backend whose prepare
+        was slow fell further behind with every tick it recorded, until its watchdog fired)."""
+        return None
+
     def servo_record(self, setpoint: Setpoint) -> None:
         """Servo thread, under the lock, before a late tick's `servo_command`: publish the sample
-        of a control period the tick skipped (only where `records_missed_samples`). Must be quick."""
+        of a control period the tick skipped (only where `records_missed_samples`), its `extra`
+        from `servo_measure_missed`. Must be quick."""
 
     def servo_prepare(self, setpoint: Setpoint) -> Any:
         """Servo thread, outside the lock: the slow part of a tick (kinematics, a physics step).
@@ -474,7 +482,7 @@ class ServoLoop:
 
     def _missed_samples(self, trajectory: JointTrajectory, t: float, previous_stamp: float | None,
                         stamp: float) -> list[Setpoint]:
-        """The samples, prepared, of the control periods between the previous following tick
+        """The samples, measured (`servo_measure_missed`), of the control periods between the previous following tick
         (`previous_stamp`; None: this tick starts the trajectory) and this one at `stamp`, where it
         came more than a period and a half late; at most `MAX_MISSED_SAMPLES`, the latest ones."""
         if previous_stamp is None:
@@ -485,7 +493,8 @@ class ServoLoop:
             at = stamp - k * self.period_s
             t_at = t - k * self.period_s * self.speedup
             if t_at >= 0.0 and at > previous_stamp:
-                samples.append(self._prepared(self._following(trajectory, t_at, at)[0]))
+                sample = self._following(trajectory, t_at, at)[0]
+                samples.append(replace(sample, extra=self.hooks.servo_measure_missed(sample)))
         return samples
 
 

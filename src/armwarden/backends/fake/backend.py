@@ -204,10 +204,10 @@ class FakeBackend(ServoBackend):
     # ================================================================ state
     def _latest_joint_state(self) -> JointState:
         self._require_running()
-        return self._joint_state(self.servo.latest)  # read-only arrays, replaced whole by each tick
+        setpoint = self.servo.latest  # read-only arrays, replaced whole by each tick
+        return self._joint_state(setpoint, setpoint.extra[2])
 
-    def _joint_state(self, setpoint: Setpoint) -> JointState:
-        efforts: Efforts | None = setpoint.extra[2]
+    def _joint_state(self, setpoint: Setpoint, efforts: Efforts | None) -> JointState:
         # following, the arm moves as a physical one would follow the path (`spread_motion`): the
         # velocity its measured torques belong to, never outside the segments' velocities
         spread = setpoint.spread
@@ -294,11 +294,14 @@ class FakeBackend(ServoBackend):
     #: the fake arm is on its trajectory even while this thread is late (`ServoHooks`)
     records_missed_samples = True
 
+    def servo_measure_missed(self, setpoint: Setpoint) -> Efforts | None:
+        return self._efforts(setpoint)
+
     def servo_record(self, setpoint: Setpoint) -> None:
-        self.joint_history.append(self._joint_state(setpoint))
+        self.joint_history.append(self._joint_state(setpoint, setpoint.extra))
 
     def servo_command(self, setpoint: Setpoint) -> None:
-        self.joint_history.append(self._joint_state(setpoint))
+        self.joint_history.append(self._joint_state(setpoint, setpoint.extra[2]))
         if not self.freeze_wrench:  # a frozen sensor repeats its last sample, stamp included
             self._wrench = (setpoint.extra[1], setpoint.stamp)
 
