@@ -50,6 +50,10 @@ MAX_STEPS_PER_TICK = 500
 #: after wrench_timeout_s of them, so a stalled physics thread at speedup 4 (one tick stepping
 #: 120 ms) must not publish one sample for all of it; a quarter of that cap
 CATCH_UP_SAMPLE_SIM_S = 0.005
+#: the most such samples one tick keeps (then further apart): each is a measurement in Python, and
+#: a tick that measured in proportion to how late it was made the next one later still under load
+#: (CI: the physics thread declared hung); 8 keep a 30 ms stall at speedup 4 under 20 ms apart
+MAX_CATCH_UP_SAMPLES = 8
 #: a stop turns the arm actuators into dampers this many times stiffer than the tracking damping
 #: (saturating at the torque limits). Measured: 5 brings 0.5 rad/s to rest in ~25 ms simulated;
 #: 20 goes unstable at 1 kHz on the light joints (scripts/_bench/mujoco_cell.py, docs/benchmarks.md)
@@ -171,7 +175,7 @@ class SimulatedArm:
         # scheduling, and the contact observer, which divides momentum changes by the stamps'
         # intervals, read that jitter as torque (4.3 N·m on joint 2 against 2.1 N·m)
         held_at = now_wall - self._pending_sim_s / speedup + self._monotonic_minus_wall
-        stride = self._catch_up_stride
+        stride = max(self._catch_up_stride, -(-steps // (MAX_CATCH_UP_SAMPLES + 1)))
         kept: list[Measured] = []
         for step in range(steps):
             target = self.target
