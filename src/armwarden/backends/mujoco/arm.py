@@ -45,15 +45,6 @@ logger = logging.getLogger(__name__)
 
 #: most physics steps one tick may run; a tick further behind (machine stalled) drops the rest
 MAX_STEPS_PER_TICK = 500
-#: simulated time [s] between the samples a tick that ran more steps keeps on the way (`catch_up`):
-#: the contact observer skips an interval longer than 20 ms of the arm's time and fails closed
-#: after wrench_timeout_s of them, so a stalled physics thread at speedup 4 (one tick stepping
-#: 120 ms) must not publish one sample for all of it; a quarter of that cap
-CATCH_UP_SAMPLE_SIM_S = 0.005
-#: the most such samples one tick keeps (then further apart): each is a measurement in Python, and
-#: a tick that measured in proportion to how late it was made the next one later still under load
-#: (CI: the physics thread declared hung); 8 keep a 30 ms stall at speedup 4 under 20 ms apart
-MAX_CATCH_UP_SAMPLES = 8
 #: a stop turns the arm actuators into dampers this many times stiffer than the tracking damping
 #: (saturating at the torque limits). Measured: 5 brings 0.5 rad/s to rest in ~25 ms simulated;
 #: 20 goes unstable at 1 kHz on the light joints (scripts/_bench/mujoco_cell.py, docs/benchmarks.md)
@@ -123,10 +114,6 @@ class SimulatedArm:
         self._tracking_kp = np.asarray(cell.gains.kp, dtype=float)
         #: the latest published sample, replaced whole after each tick's steps
         self.measured: Measured = self._meter.measure(self.data)
-        #: the samples a tick that ran more than `CATCH_UP_SAMPLE_SIM_S` of steps measured on the
-        #: way, oldest first, before `measured` (physics thread; replaced whole by each tick)
-        self.catch_up: tuple[Measured, ...] = ()
-        self._catch_up_stride = max(1, round(CATCH_UP_SAMPLE_SIM_S / self.timestep_s))
         self._last_wall: float | None = None  # perf_counter up to which physics has run; None: not started
         self._pending_sim_s = 0.0
         self._monotonic_minus_wall = 0.0  # monotonic − perf_counter, read when the physics starts
@@ -169,14 +156,6 @@ class SimulatedArm:
         ramp = self.target if self.target.following and setpoint.following and steps > 1 else None
         gripper = cell.gripper_actuator
         velocities_before: np.ndarray | None = None
-        # stamped when the simulated state held on the wall clock, not when the thread got to
-        # measuring it: the physics reaches `now_wall` less the fraction of a step still pending.
-        # A stamp taken after the steps would carry their compute time and the thread's
-        # scheduling, and the contact observer, which divides momentum changes by the stamps'
-        # intervals, read that jitter as torque (4.3 N·m on joint 2 against 2.1 N·m)
-        held_at = now_wall - self._pending_sim_s / speedup + self._monotonic_minus_wall
-        stride = max(self._catch_up_stride, -(-steps // (MAX_CATCH_UP_SAMPLES + 1)))
-        kept: list[Measured] = []
         for step in range(steps):
             target = self.target
             if target.braking:
@@ -202,15 +181,16 @@ class SimulatedArm:
             self._apply_push(self.push)
             velocities_before = data.qvel.copy()  # the measured torques need the last step's
             mujoco.mj_step(model, data)
-            to_go = steps - 1 - step  # steps after this one: a sample every `stride`, the last is `measured`
-            if to_go > 0 and to_go % stride == 0:
-                kept.append(self._meter.measure(data, velocities_before,
-                                                stamp=held_at - to_go * self.timestep_s / speedup))
         self.step_count += steps
         unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
         if unstable or not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
             raise BackendError("the simulation diverged (" + ("unstable accelerations" if unstable else "non-finite state") + ")")
-        self.catch_up = tuple(kept)
+        # stamped when the simulated state held on the wall clock, not when the thread got to
+        # measuring it: the physics reached `now_wall` less the fraction of a step still pending.
+        # A stamp taken after the steps would carry their compute time and the thread's
+        # scheduling, and the contact observer, which divides momentum changes by the stamps'
+        # intervals, read that jitter as torque (4.3 N·m on joint 2 against 2.1 N·m)
+        held_at = now_wall - self._pending_sim_s / speedup + self._monotonic_minus_wall
         self.measured = self._meter.measure(self.data, velocities_before, stamp=held_at)
         self.peak_robot_penetration_m = max(self.peak_robot_penetration_m, self.measured.robot_penetration_m)
         if setpoint.following:  # the physics has reached this sample's time: how far off is the arm?

@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from armwarden.backends.mujoco.arm import CATCH_UP_SAMPLE_SIM_S, Push, SimulatedArm
+from armwarden.backends.mujoco.arm import Push, SimulatedArm
 from armwarden.backends.mujoco.cameras import OffscreenCameras, SimulatedCameras
 from armwarden.backends.mujoco.config import Config
 from armwarden.backends.mujoco.gains import armature_from_profile
@@ -128,8 +128,7 @@ class MujocoBackend(ServoBackend):
                          if cell.cameras else None,
                          wrench=PublishedWrench(self._published_wrench), frames=tuple(robot.frame_names()),
                          joint_torques=True, time_scale=float(speedup),
-                         # a tick keeps a sample at least every CATCH_UP_SAMPLE_SIM_S simulated
-                         joint_state_interval_s=min(CONTROL_PERIOD_S, CATCH_UP_SAMPLE_SIM_S / float(speedup)))
+                         joint_state_interval_s=CONTROL_PERIOD_S)  # a sample per physics tick
         self.servo = ServoLoop(self, home, period_s=CONTROL_PERIOD_S, idle_period_s=CONTROL_PERIOD_S, speedup=speedup,
                                name="mujoco backend")
         #: every tick's joint state, for the contact observer (`_joint_states_since`)
@@ -242,8 +241,6 @@ class MujocoBackend(ServoBackend):
         self.arm.step(setpoint, time.perf_counter(), self.servo.speedup)
         sample = self.arm.measured
         if sample is not before:  # a tick too short for a physics step measures nothing new
-            for caught_up in self.arm.catch_up:  # a long tick's samples on the way, oldest first
-                self.joint_history.append(self._joint_state(caught_up))
             self.joint_history.append(self._joint_state(sample))
 
     def servo_command(self, setpoint: Setpoint) -> None:
