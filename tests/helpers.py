@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from typing import Any, TypeVar
 import anyio
 import numpy as np
 
+from armwarden.evaluation.daemon_process import stop_process as stop_process  # re-exported: one stop for every child process
 from armwarden.policy import ALL_TOOLS
 
 REPO = Path(__file__).resolve().parents[1]
@@ -88,17 +88,6 @@ def modules_the_parser_loads(package: str) -> list[str]:
     result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=child_env(), capture_output=True, text=True,
                             timeout=120, check=True)
     return json.loads(result.stdout)
-
-
-def stop_process(process: subprocess.Popen, timeout_s: float) -> None:
-    """SIGTERM `process` if it still runs, wait up to `timeout_s` for it to exit, else kill it."""
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def free_port(host: str = "127.0.0.1") -> int:

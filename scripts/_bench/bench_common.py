@@ -3,14 +3,14 @@ timed tool calls, the benchmark's policy and an operator who approves everything
 
 from __future__ import annotations
 
-import signal
 import statistics
-import subprocess
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+from armwarden.evaluation.daemon_process import stop_process as stop_process  # re-exported: one stop for every child process
 
 #: rate limits of the benchmark's policy: it calls far faster than an agent would
 RAISED_RATE_LIMITS = {
@@ -51,17 +51,6 @@ async def timed_calls(client: Any, tool: str, args_for: Callable[[int], dict[str
 async def timed_ms(client: Any, tool: str, arguments: dict[str, Any]) -> float:
     """One call's round trip [ms]; a call that fails stops the benchmark."""
     return (await timed_calls(client, tool, lambda i: arguments, 1, warm=0))[0] * 1e3
-
-
-def stop_process(process: subprocess.Popen, timeout_s: float) -> None:
-    """SIGTERM `process` if it still runs, wait up to `timeout_s` for it to exit, else kill it."""
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def bench_policy(**overrides: Any) -> Any:

@@ -39,6 +39,17 @@ def stdio_params(command: Sequence[str], serve_args: Sequence[str]) -> StdioServ
                                  cwd=str(Path.cwd()))
 
 
+def stop_process(process: subprocess.Popen[Any], timeout_s: float) -> None:
+    """SIGTERM `process` if it still runs, wait up to `timeout_s` for it to exit, else kill it."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind((HOST, 0))

@@ -33,6 +33,7 @@ from pathlib import Path
 import yaml
 
 from armwarden.backends.ros2.fake_cell_journal import CELL_MODULE, READY
+from armwarden.evaluation.daemon_process import stop_process
 from armwarden.policy.motion import MAX_WRENCH_TIMEOUT_S
 
 #: the cell's names, as the daemon is to be wired to them (a source checkout's file)
@@ -149,13 +150,7 @@ class FakeCells:
         process, self.process, self.journal = self.process, None, None
         if process is None:
             return
-        if process.poll() is None:
-            process.send_signal(signal.SIGTERM)
-            try:
-                process.wait(timeout=CELL_STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+        stop_process(process, CELL_STOP_TIMEOUT_S)
         if process.stdout is not None:
             process.stdout.close()
 
