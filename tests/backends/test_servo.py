@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from armwarden.backends.servo import ServoHooks, ServoLoop, Setpoint, segment_velocity
+from armwarden.backends.values import ExecutionResult
 from armwarden.core.errors import BackendError
 from armwarden.core.trajectory import JointTrajectory
 from armwarden.handoff import settle, settle_threadsafe
@@ -205,14 +206,19 @@ class StallingRecorder(Recorder):
         self.commanded.append(setpoint)
 
 
-async def test_a_late_tick_records_the_samples_of_the_periods_it_skipped_on_the_trajectory() -> None:
-    hooks = StallingRecorder()
+async def run_stalling(hooks: StallingRecorder, duration_s: float) -> tuple[ServoLoop, ExecutionResult]:
+    """Run `line(duration_s)` on a 1 kHz loop whose thread `hooks` stall once; the loop and its result."""
     servo = ServoLoop(hooks, [0.0, 0.0], period_s=0.001, name="test servo")
     await servo.start("servo-under-test")
     try:
-        result = await servo.run(line(0.1), lambda fraction: None)
+        return servo, await servo.run(line(duration_s), lambda fraction: None)
     finally:
         await servo.shutdown()
+
+
+async def test_a_late_tick_records_the_samples_of_the_periods_it_skipped_on_the_trajectory() -> None:
+    hooks = StallingRecorder()
+    servo, result = await run_stalling(hooks, 0.1)
     assert result.completed and len(hooks.recorded) >= 25  # the 30 ms stall, a period each
     # a tick's whole work (servo_prepare) runs once per tick, never per recorded period: a slow one
     # repeated for each would make the next tick later still, until the watchdog fired
@@ -231,10 +237,5 @@ async def test_a_late_tick_records_the_samples_of_the_periods_it_skipped_on_the_
 async def test_a_physics_simulation_gets_no_recorded_samples_from_a_late_tick() -> None:
     hooks = StallingRecorder()
     hooks.records_missed_samples = False  # the default: it steps the world and measures that itself
-    servo = ServoLoop(hooks, [0.0, 0.0], period_s=0.001, name="test servo")
-    await servo.start("servo-under-test")
-    try:
-        result = await servo.run(line(0.05), lambda fraction: None)
-    finally:
-        await servo.shutdown()
+    _, result = await run_stalling(hooks, 0.05)
     assert result.completed and hooks.recorded == []
