@@ -230,11 +230,13 @@ def _ros_cell(stack: contextlib.AsyncExitStack) -> Any:
     return stack.enter_context(Cell())
 
 
-def _for_an_in_process_cell(policy: Policy) -> Policy:
-    """`policy` with the longest wrench timeout a policy may set: the cell (the ROS 2 cell's
-    publishers, the MuJoCo physics) runs on threads of the test process, which stall far longer
-    than a cell of its own (measured here: gaps of 0.1–0.24 s between wrench messages while a
-    scenario executes on a loaded 2-core machine). Wrench staleness has tests of its own."""
+def _stall_tolerant(policy: Policy) -> Policy:
+    """`policy` with the longest wrench timeout a policy may set. The arm (the fake's servo thread,
+    the ROS 2 cell's publishers, the MuJoCo physics) runs on threads of the test process, which
+    stall far longer than an arm of its own (measured here: gaps of 0.1–0.24 s between wrench
+    messages while a scenario executes on a loaded 2-core machine; a fake's wrench 0.1 s old failed
+    a CI run's plain execution). Used for the default policy on every backend and for any policy
+    on a real-time one; wrench staleness has tests of their own, which pass their policy."""
     force = policy.force.model_copy(update={"wrench_timeout_s": MAX_WRENCH_TIMEOUT_S})
     return policy.model_copy(update={"force": force})
 
@@ -254,9 +256,10 @@ async def arm_harness(tmp_path: Path, policy: Policy | None = None, *, backend: 
                       audit_disk: Disk = OS_DISK, **fake_options: Any) -> AsyncIterator[ArmHarness]:
     """The harness on `backend`; `audit_disk` is the audit log's file system (a test's
     `tests.fulldisk.SmallDisk` to fill it up)."""
-    policy = policy or _policy_for(backend)
-    if backend in REAL_TIME:
-        policy = _for_an_in_process_cell(policy)
+    if policy is None:  # a test of wrench staleness passes the policy (e.g. `policy_with()`) explicitly
+        policy = _stall_tolerant(_policy_for(backend))
+    elif backend in REAL_TIME:
+        policy = _stall_tolerant(policy)
     inner = _backend(backend, policy, fake_options)
     counting = CountingBackend(inner)
     audit_path = tmp_path / "audit.jsonl"

@@ -105,7 +105,8 @@ async def test_pressing_into_the_table_over_the_force_limit_aborts_mid_motion_an
 @pytest.mark.parametrize("fault", ["freeze_wrench", "stall_wrench_s"])
 @pytest.mark.parametrize("mode", MODES)
 async def test_a_wrench_that_freezes_or_stalls_mid_motion_aborts_the_motion(tmp_path, mode, fault) -> None:
-    async with arm_harness(tmp_path, speedup=1.0) as arm, arm.client(mode, approve()) as client:
+    # the bundled policy as it is (`policy_with()`): its 0.1 s wrench timeout, not the harness's stall-tolerant one
+    async with arm_harness(tmp_path, policy_with(), speedup=1.0) as arm, arm.client(mode, approve()) as client:
         summary = await plan_down(client, z=0.40)
         async with executing(arm, client, summary["plan_id"]) as outcome:
             setattr(arm.fake, fault, True if fault == "freeze_wrench" else 0.5)
@@ -127,7 +128,7 @@ async def test_a_wrench_that_freezes_or_stalls_mid_motion_aborts_the_motion(tmp_
 @pytest.mark.anyio
 @pytest.mark.parametrize("mode", MODES)
 async def test_a_wrench_that_is_already_stalled_refuses_execution_before_anything_moves(tmp_path, mode) -> None:
-    async with arm_harness(tmp_path, stall_wrench_s=0.3) as arm, arm.client(mode, approve()) as client:
+    async with arm_harness(tmp_path, policy_with(), stall_wrench_s=0.3) as arm, arm.client(mode, approve()) as client:
         summary = await plan_down(client, z=0.40)
         result = await client.call_tool("execute_plan", {"plan_id": summary["plan_id"]})
         assert result.is_error and "NO_WRENCH" in text_of(result)
