@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Set up .venv and .venv-ros (extras dev,can,ros pinned by constraints/ros.txt, then the
 # control_msgs/controller_manager_msgs/tf2_msgs interfaces built into it), then run the whole test
-# suite as three lanes, each logging to build/test-logs/ (printed as each lane ends); fails if a
-# set-up step fails, or any lane fails or collects no test:
+# suite as three lanes, one after the other, each logging to build/test-logs/ (printed as each lane
+# ends); fails if a set-up step fails, or any lane fails or collects no test:
 #
 #   realtime  first and alone on the machine: the tests of `tests/` that run the CAN emulator's
 #          wall-clock physics and servo loop (ARMWARDEN_TEST_REALTIME=only, see tests/conftest.py),
@@ -10,8 +10,8 @@
 #          timeout fault, a torque estimate off by a 50 ms stall) where a quiet one passes; they
 #          keep about half a core busy, so alone they cost about two minutes.
 #   tests  then the rest of `tests/` in .venv (no ROS), on ARMWARDEN_TEST_WORKERS pytest-xdist
-#          workers (default 2), beside the ros lane
-#   ros    `tests_ros/` and the scenario suite on the ros2 backend only
+#          workers (default 2)
+#   ros    last, `tests_ros/` and the scenario suite on the ros2 backend only
 #          (ARMWARDEN_HARNESS_BACKENDS=ros2, see tests/server/harness.py), on ARMWARDEN_ROS_WORKERS
 #          workers (default 1), each on a ROS domain of its own (`-p tests_ros.domains`), with
 #          `-p tests_ros.no_skips`: a skipped test there is a failure.
@@ -77,36 +77,11 @@ run_lane() {
   echo "lane $lane: exit $status after ${SECONDS} s" >>"$logs/$lane.log"; echo "$status" >"$logs/$lane.rc"
 }
 
-# the real-time lane alone, in the foreground
-( run_lane realtime "$@" )
-report realtime
-
-# then the other two, each in the background; its exit status lands in $logs/<lane>.rc when it ends
-pids=()
-for lane in tests ros; do
-  ( run_lane "$lane" "$@" ) &
-  pids+=($!)
+# one lane after the other, each in the foreground: beside each other the tests and ros lanes ran
+# three test processes on two cores, and their starved servo and monitor threads failed closed
+for lane in realtime tests ros; do
+  ( run_lane "$lane" "$@" )
+  report "$lane"
 done
-stop_lanes() {
-  for pid in "${pids[@]}"; do pkill -TERM -P "$pid" 2>/dev/null || true; kill "$pid" 2>/dev/null || true; done
-  exit 130
-}
-trap stop_lanes INT TERM
-
-pending=(tests ros)
-heartbeat=$((SECONDS + 120))
-while [ "${#pending[@]}" -gt 0 ]; do
-  sleep 2
-  still=()
-  for lane in "${pending[@]}"; do
-    if [ ! -f "$logs/$lane.rc" ]; then still+=("$lane"); continue; fi
-    report "$lane"
-  done
-  pending=("${still[@]}")
-  if [ "${#pending[@]}" -gt 0 ] && [ "$SECONDS" -ge "$heartbeat" ]; then
-    echo "test.sh: after $SECONDS s still running: ${pending[*]}"; heartbeat=$((SECONDS + 120))
-  fi
-done
-wait
 echo "test.sh: $(tail -qn1 "$logs/realtime.log" "$logs/tests.log" "$logs/ros.log" | paste -sd';' - | sed 's/;/; /g')"
 exit "$failed"
