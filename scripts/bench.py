@@ -65,6 +65,10 @@ Sections
   detection and false-alarm figures on the CAN backend's emulated arm (examples/can_sim.yaml at
   speedup 1; its truth is the emulator's `true_external_torques()`); no stop latency there, the
   emulator has no obstacles.
+- fit (opt-in: a few minutes): capsules fitted to a link mesh that is not convex (a generated torus
+  of about 10k triangles, or `--fit-mesh FILE`), up to `--fit-bodies` capsules, with the grid's signs
+  and with every point's winding number summed: both times, the ratio, and whether the fits are
+  identical (`scripts/_bench/fit_speed.py`).
 - planner: the detour planner beside the straight-line planner, in one process, through the same
   `plan_and_check` the Guard runs (`scripts/_bench/planner_scenes.py`): a scene set (open bin in
   front, shelf, behind a wall-like zone, near the robot's own body) and the near-obstacle set (a
@@ -1021,6 +1025,15 @@ def _report_arms(r: dict[str, Any]) -> None:
     importlib.import_module("arms").report_arms(r)
 
 
+def bench_fit(mesh: str | None = None, bodies: int = 2) -> dict[str, Any]:
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    return importlib.import_module("fit_speed").bench_fit(mesh, bodies)
+
+
+def _report_fit(r: dict[str, Any]) -> None:
+    importlib.import_module("fit_speed").report_fit(r)
+
+
 def bench_contact(quick: bool = False, limits_file: str | None = None, backend: str = "mujoco") -> dict[str, Any]:
     """Contact from joint torques on the FR3 in MuJoCo (stop latency, false alarms, detection) or on
     the CAN backend's emulated arm (false alarms, detection)."""
@@ -1071,6 +1084,7 @@ SECTIONS = {
     "table": (bench_table, _report_table),
     "arms": (bench_arms, _report_arms),
     "contact": (bench_contact, _report_contact),
+    "fit": (bench_fit, _report_fit),
 }
 #: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
 #: minutes: ask for them by name; ros2 needs the ROS venv)
@@ -1110,6 +1124,9 @@ def main() -> int:
     parser.add_argument("--backend", choices=("mujoco", "can"), default="mujoco",
                         help="contact only: the MuJoCo FR3 (default) or the CAN backend's emulated arm "
                              "(examples/can_sim.yaml; no stop-latency figure: the emulator has no obstacles)")
+    parser.add_argument("--fit-mesh", default=None, metavar="FILE",
+                        help="fit only: an STL/OBJ link mesh instead of the generated torus")
+    parser.add_argument("--fit-bodies", type=int, default=2, help="fit only: capsules at most (default 2)")
     args = parser.parse_args()
     chosen = args.sections or list(DEFAULT_SECTIONS)
     unknown = [name for name in chosen if name not in SECTIONS]
@@ -1129,6 +1146,8 @@ def main() -> int:
             results[name] = run(runs=args.ros2_runs)
         elif name == "contact":
             results[name] = run(quick=args.quick, limits_file=args.contact_limits, backend=args.backend)
+        elif name == "fit":
+            results[name] = run(mesh=args.fit_mesh, bodies=args.fit_bodies)
         else:
             results[name] = run()
         report(results[name])

@@ -12,7 +12,7 @@ import pytest
 
 from armwarden.core.errors import RobotModelError
 from armwarden.robot.description_files import load_description
-from armwarden.robot.fitting_mesh import load_mesh, winding_numbers
+from armwarden.robot.fitting_mesh import LinkMesh, SignedDistance, is_closed, load_mesh, mesh_distances, winding_numbers
 from armwarden.robot.link_meshes import link_meshes, shape_mesh
 from tests.robot.generated_arm import write_random_arm
 
@@ -140,3 +140,57 @@ def test_the_compiled_winding_numbers_equal_the_numpy_formula_inside_outside_and
     compiled = winding_numbers(points, mesh.vertices, mesh.triangles)
     np.testing.assert_allclose(compiled, _winding_numbers_numpy(points, mesh.vertices, mesh.triangles), atol=1e-12)
     assert np.any(compiled > 0.99) and np.any(np.abs(compiled) < 0.01)  # both sides were asked
+
+
+def _ring() -> LinkMesh:
+    """A thick ring: closed, and not convex (its hole is outside)."""
+    import trimesh  # pyright: ignore[reportMissingImports] - the `fit` extra, in dev
+
+    ring = trimesh.creation.annulus(r_min=0.03, r_max=0.06, height=0.05, sections=24)
+    return LinkMesh("ring", np.asarray(ring.vertices, dtype=float), np.asarray(ring.faces, dtype=np.int64), "annulus")
+
+
+def _points_around(mesh: LinkMesh, seed: int) -> np.ndarray:
+    """Points all over the mesh's box (inside, outside, in the hole) and just off its surface."""
+    rng = np.random.default_rng(seed)
+    lo, hi = mesh.vertices.min(axis=0) - 0.01, mesh.vertices.max(axis=0) + 0.01
+    near = mesh.vertices[rng.integers(0, len(mesh.vertices), 100)] * (1 + rng.uniform(-2e-3, 2e-3, size=(100, 1)))
+    return np.vstack([rng.uniform(lo, hi, size=(400, 3)), near])
+
+
+def _winding_signed(mesh: LinkMesh, points: np.ndarray) -> np.ndarray:
+    inside = winding_numbers(points, mesh.vertices, mesh.triangles) > 0.5
+    return np.where(inside, 1.0, -1.0) * mesh_distances(mesh, points)
+
+
+def test_a_ring_is_closed_and_loses_that_with_a_missing_or_flipped_triangle() -> None:
+    ring = _ring()
+    flipped = ring.triangles.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert is_closed(ring.triangles)
+    assert not is_closed(ring.triangles[1:])
+    assert not is_closed(flipped)
+
+
+def test_the_signed_distance_on_a_closed_surface_is_the_winding_numbers_with_fewer_sums() -> None:
+    ring = _ring()
+    points = _points_around(ring, seed=3)
+    signed = SignedDistance(ring)
+    depth = signed(points)
+    np.testing.assert_array_equal(depth, _winding_signed(ring, points))
+    assert np.any(depth > 0) and np.any(depth < 0)
+    # asked again, points farther from the surface than any node of the 4 mm grid is from them
+    # take their nodes' signs, summed the first time: no winding number is summed for them
+    far = points[np.abs(depth) > 0.004]
+    before = signed.summed
+    np.testing.assert_array_equal(signed(far), depth[np.abs(depth) > 0.004])
+    assert len(far) > 100 and signed.summed == before
+
+
+def test_the_signed_distance_on_an_open_surface_sums_every_point() -> None:
+    ring = _ring()
+    open_ring = LinkMesh("ring", ring.vertices, ring.triangles[1:], "annulus less a triangle")
+    points = _points_around(open_ring, seed=4)
+    signed = SignedDistance(open_ring)
+    np.testing.assert_array_equal(signed(points), _winding_signed(open_ring, points))
+    assert signed.summed == len(points)

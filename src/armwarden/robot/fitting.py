@@ -44,14 +44,11 @@ import numpy as np
 from armwarden.robot.fitted_file import FittedBody, FittingError, LinkFit
 from armwarden.robot.fitting_mesh import (
     LinkMesh,
-    bvh_distances,
-    corner_winding_numbers,
+    SignedDistance,
     interior_points,
-    mesh_bvh,
     over_approximation,
     point_segment_distances,
     subdivide,
-    triangle_corners,
 )
 
 __all__ = [
@@ -178,8 +175,7 @@ class _Problem:
         self._component = self.mesh.components[keep]
         self._labels = np.unique(self._component)
         self._convex = self._highest_above_a_face() <= _CONVEX_TOLERANCE_M if len(self._labels) == 1 else True
-        self.mesh_bvh = None if self._convex else mesh_bvh(self.mesh)
-        self._corners = None if self._convex else triangle_corners(self.mesh.vertices, self.mesh.triangles)
+        self._signed = None if self._convex else SignedDistance(self.mesh)
 
     def _highest_above_a_face(self) -> float:
         """How far the highest vertex lies above any face's plane [m] (0: convex), in blocks of
@@ -196,9 +192,8 @@ class _Problem:
         counting; otherwise the distance to the surface, signed by the winding number. It only
         steers the fit: containment is enforced and the over-approximation measured separately."""
         points = np.atleast_2d(points)
-        if self.mesh_bvh is not None and self._corners is not None:
-            inside = corner_winding_numbers(points, self._corners) > 0.5
-            return np.where(inside, 1.0, -1.0) * bvh_distances(self.mesh_bvh, points)
+        if self._signed is not None:
+            return self._signed(points)
         heights = self._offsets[None, :] - points @ self._normals.T  # (N, F)
         return np.max([np.min(heights[:, self._component == c], axis=1) for c in self._labels], axis=0)
 

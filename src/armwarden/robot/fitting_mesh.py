@@ -24,11 +24,13 @@ from armwarden.robot.jit_compile import compile_cached
 
 __all__ = [
     "LinkMesh",
+    "SignedDistance",
     "box_mesh",
     "bvh_distances",
     "capsule_surface_points",
     "corner_winding_numbers",
     "interior_points",
+    "is_closed",
     "load_mesh",
     "merge_meshes",
     "mesh_bvh",
@@ -221,6 +223,78 @@ def bvh_distances(bvh: coal.BVHModelOBBRSS, points: np.ndarray) -> np.ndarray:
     for k, point in enumerate(points):
         out[k] = coal.distance(bvh, identity, probe, coal.Transform3s(rotation, point), request, coal.DistanceResult())
     return out
+
+
+def is_closed(triangles: np.ndarray) -> bool:
+    """Whether the triangles bound solids without holes: every directed edge a→b is matched by
+    exactly one b→a (each edge shared by two consistently wound triangles). Off such a surface the
+    winding number is a whole number, constant until the surface is crossed."""
+    triangles = np.asarray(triangles, dtype=np.int64)
+    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    forward = np.unique(directed, axis=0, return_counts=True)
+    backward = np.unique(directed[:, ::-1], axis=0, return_counts=True)
+    return (len(forward[0]) == len(directed) and len(backward[0]) == len(directed)
+            and np.array_equal(forward[0], backward[0]))
+
+
+#: how much nearer than the surface a grid node must be to lend a point its sign [m]: rounding room
+_SIGN_CLEARANCE_M = 1e-6
+
+
+class SignedDistance:
+    """Each point's distance to the mesh's surface (coal, exact), positive inside (winding number
+    above ½): what steers the fit on a part that is not convex.
+
+    The winding number sums every triangle, for each point. On a closed surface (`is_closed`) it
+    is constant off the surface, so a point farther from the surface than from its nearest node of
+    a grid (pitch `pitch_m`) has that node's sign: no surface crosses the segment between them.
+    Each node's sign is summed once and kept; only points nearer the surface than their node are
+    summed themselves. The answer is the winding number's, to the bit; an open surface is summed
+    point by point as before (tests/robot/test_link_meshes.py holds both equal to the sum)."""
+
+    def __init__(self, mesh: LinkMesh, pitch_m: float = 0.004) -> None:
+        self._bvh = mesh_bvh(mesh)
+        self._corners = triangle_corners(mesh.vertices, mesh.triangles)
+        self._closed = is_closed(mesh.triangles)
+        self._origin = mesh.vertices.min(axis=0)
+        self._pitch = pitch_m
+        self._node_inside: dict[tuple[int, int, int], bool] = {}
+        self.summed = 0  # points whose winding number was summed (the nodes' included)
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        distances = bvh_distances(self._bvh, points)
+        inside = np.empty(len(points), dtype=bool)
+        direct: list[int] = []
+        for k, point in enumerate(points):
+            node = self._near_node(point, float(distances[k]))
+            if node is None:
+                direct.append(k)
+            else:
+                inside[k] = node
+        if direct:
+            inside[direct] = self._winding(points[direct]) > 0.5
+        return np.where(inside, 1.0, -1.0) * distances
+
+    def _near_node(self, point: np.ndarray, distance: float) -> bool | None:
+        """Whether the point's nearest grid node is inside, if no surface lies between them."""
+        if not self._closed:
+            return None
+        index = np.round((point - self._origin) / self._pitch)
+        if not np.all(np.isfinite(index)):
+            return None
+        node = self._origin + index * self._pitch
+        if float(np.linalg.norm(point - node)) >= distance - _SIGN_CLEARANCE_M:  # the surface may pass between
+            return None
+        key = (int(index[0]), int(index[1]), int(index[2]))
+        found = self._node_inside.get(key)
+        if found is None:
+            found = self._node_inside[key] = bool(self._winding(node[None])[0] > 0.5)
+        return found
+
+    def _winding(self, points: np.ndarray) -> np.ndarray:
+        self.summed += len(points)
+        return corner_winding_numbers(points, self._corners)
 
 
 def capsule_surface_points(p0: np.ndarray, p1: np.ndarray, radius: float, spacing: float) -> np.ndarray:
