@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import sys
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -212,8 +213,12 @@ def _server(options: EvalOptions, directory: Path, name: str, policy_path: Path)
     return stdio_params(DAEMON_COMMAND, serve_arguments(options, directory, name, policy_path))
 
 
+#: when this process imported the evaluation: each progress line says how long the run has taken
+_STARTED = time.monotonic()
+
+
 def progress(message: str) -> None:
-    print(f"armwarden eval: {message}", file=sys.stderr, flush=True)
+    print(f"armwarden eval [{time.monotonic() - _STARTED:6.1f} s]: {message}", file=sys.stderr, flush=True)
 
 
 #: backends whose journal carries the motion frames each execute sent at the bus
