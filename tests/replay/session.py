@@ -24,7 +24,7 @@ import yaml
 
 from armwarden.policy import apply_overrides, bundled_policy
 from tests.helpers import HOME, text_of
-from tests.server.harness import approve, arm_harness
+from tests.server.harness import approve, arm_harness, policy_with
 
 #: where `to_b` takes the TCP [m]; `B_ZONE` is a keep-out box around it and nothing else the session does
 B_TARGET = (0.40, -0.15, 0.35)
@@ -42,7 +42,8 @@ async def record_session(tmp_path: Path) -> SessionLog:
     """Run the session (module docstring) and return its audit log."""
     plan_ids: dict[str, str | None] = {}
     statuses: dict[str, str] = {}
-    async with arm_harness(tmp_path) as arm:
+    # the bundled policy as it is (not the harness's stall-tolerant default): its digest is recorded
+    async with arm_harness(tmp_path, policy_with()) as arm:
         async with arm.client("legacy", approve("replay-test")) as client:
             async def plan(step: str, tool: str, arguments: dict[str, Any], execute: bool = False) -> None:
                 result = await client.call_tool(tool, arguments)
