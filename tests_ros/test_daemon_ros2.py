@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -207,3 +208,67 @@ async def test_over_http_an_approved_plan_runs_and_a_client_dropped_mid_motion_l
         assert daemon.process.poll() is None  # the daemon serves on
     interrupted = [r for r in records_of(daemon.audit) if r["event"] == "execution_interrupted" and back in r["detail"]]
     assert [r["outcome"] for r in interrupted] == ["stopped"], interrupted
+
+
+async def test_a_daemon_killed_mid_motion_has_its_goal_cancelled_by_the_guardian(tmp_path, watch, policy, config) -> None:
+    with http_daemon(tmp_path, 1.0, ("--policy", str(policy)), backend="ros2", config=config) as daemon:
+        moving = MotionStarted()
+        with anyio.fail_after(60):
+            async with anyio.create_task_group() as group:
+                http, client = session(daemon, daemon.operator_token, "legacy", approve())
+                async with http, client:
+                    slow = await plan_id(client, GOAL, **SLOW)
+
+                    async def execute() -> None:
+                        with contextlib.suppress(Exception):  # the daemon dies under the call
+                            await client.call_tool("execute_plan", {"plan_id": slow}, progress_callback=moving)
+
+                    group.start_soon(execute)
+                    await moving.event.wait()
+                    daemon.process.kill()  # SIGKILL: no shutdown, no stop of its own
+                    daemon.process.wait()
+                    group.cancel_scope.cancel()
+
+        # nobody but the guardian was left to stop it: without it the goal runs to its end
+        assert await anyio.to_thread.run_sync(watch.wait_for_goals, "canceled") == ["canceled"]
+        held = await anyio.to_thread.run_sync(watch.wait_still)
+        assert held != pytest.approx(GOAL, abs=1e-3)
+        assert "the daemon's pipe closed" in daemon.stderr_path.read_text()
+
+
+async def test_a_daemon_hung_mid_motion_has_its_goal_cancelled_and_latches_when_it_wakes(
+        tmp_path, watch, policy, config) -> None:
+    with http_daemon(tmp_path, 1.0, ("--policy", str(policy)), backend="ros2", config=config) as daemon:
+        moving = MotionStarted()
+        outcome: dict[str, Any] = {}
+        with anyio.fail_after(60):
+            http, client = session(daemon, daemon.operator_token, "legacy", approve())
+            async with http, client, anyio.create_task_group() as group:
+                slow = await plan_id(client, GOAL, **SLOW)
+
+                async def execute() -> None:
+                    outcome["result"] = await client.call_tool("execute_plan", {"plan_id": slow},
+                                                               progress_callback=moving)
+
+                group.start_soon(execute)
+                await moving.event.wait()
+                daemon.process.send_signal(signal.SIGSTOP)  # hung: no beat, no stop, no answer
+                try:
+                    assert await anyio.to_thread.run_sync(watch.wait_for_goals, "canceled") == ["canceled"]
+                finally:
+                    daemon.process.send_signal(signal.SIGCONT)
+            safety = await read_safety(daemon)
+
+        held = await anyio.to_thread.run_sync(watch.wait_still)
+        assert held != pytest.approx(GOAL, abs=1e-3)
+        assert outcome["result"].is_error or outcome["result"].structured_content["status"] == "aborted"
+        # latched for whatever the daemon found first on waking: the guardian's cancel, or joint
+        # states it had not read for the whole stop
+        assert safety["estopped"] is True, safety
+        assert "the daemon was silent for 0.5 s" in daemon.stderr_path.read_text()
+
+
+async def read_safety(daemon: Any) -> dict[str, Any]:
+    http, client = session(daemon, daemon.operator_token, "legacy")
+    async with http, client:
+        return (await client.call_tool("get_safety_status", {})).structured_content

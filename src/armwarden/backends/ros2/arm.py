@@ -98,6 +98,8 @@ class Ros2Arm:
     arm_event: Callable[[ArmEvent], ArmState]
     run: GoalRun | TopicRun | None = None
     server_seen: bool = False  # the trajectory action server was seen at least once
+    #: told each goal's id before it is sent, and None once it is over (the guardian's watch)
+    on_goal: Callable[[bytes | None], None] = lambda _goal: None
 
     @property
     def interface(self) -> str:
@@ -136,6 +138,7 @@ class Ros2Arm:
             self._handing_over()
             run = GoalRun(new_goal_id(), epoch, trajectory.duration_s, time.monotonic())
             self.run = run
+            self.on_goal(bytes(run.goal_id.uuid))
             sending = action.send_goal_async(goal, feedback_callback=run.on_feedback, goal_uuid=run.goal_id)
         sending.add_done_callback(lambda future: self._on_goal_response(run, future))
         try:
@@ -167,6 +170,8 @@ class Ros2Arm:
                 self.run = None
             if not run.stopped:
                 self.arm_event(ArmEvent.FINISH)
+        if isinstance(run, GoalRun):
+            self.on_goal(None)
 
     def _on_goal_response(self, run: GoalRun, future: Any) -> None:
         """Executor thread: note the handle; a goal accepted after a stop is cancelled now."""

@@ -23,6 +23,10 @@ running execution then ends in `BackendError` naming the recorded fault, so the 
 depend on which thread looked first (on a loaded machine either may). Closing ends a running
 execution as "stopped", whatever answer the cell sends to the close's cancel.
 
+The guardian (`guardian.py`, `guardian_link.py`; config `guardian`, action mode only): a process
+of its own, started by open, told each goal before it is sent, that cancels it if the daemon dies
+or stops beating; its exit is a fault for good (`_health_problem`) and no goal is sent without it.
+
 Open waits (`joint_states.startup_timeout_s`) for the first arm joint state, and for the first
 finger state and wrench when those are configured, so reads right after open find them.
 
@@ -66,6 +70,7 @@ from armwarden.backends.ros2.controllers import Ros2Controllers, Ros2ErrorRecove
 from armwarden.backends.ros2.endpoints import Endpoints, Streams, create_endpoints
 from armwarden.backends.ros2.graph import Ros2Graph
 from armwarden.backends.ros2.gripper import Ros2Gripper
+from armwarden.backends.ros2.guardian_link import GuardianLink
 from armwarden.backends.ros2.runs import Fault, StopRecord
 from armwarden.backends.ros2.state import JointStateCache, WrenchCache, wait_for_first_samples
 from armwarden.backends.ros2.tf import TfFrames, TransformBuffer
@@ -123,6 +128,7 @@ class Ros2Backend(Backend):
                            self._motion_lock, self.stop_records, lambda: self.is_open, self._stop_landed,
                            lambda: self._stop_epoch, self._abort_on_fault, self.goal_accuracy_rad,
                            self.rest_speed_rad_s, lambda: self.arm_state, self._arm_event)
+        self.guardian: GuardianLink | None = None  # while open, in action mode with `config.guardian`
         self._fault_lock = threading.Lock()
         self._fault_active = False  # a fault was reported and the cell has not been healthy since
         self._last_fault: Fault | None = None  # the latest fault found (executions name it)
@@ -157,10 +163,22 @@ class Ros2Backend(Backend):
             await wait_for_first_samples(self.joint_states, self.fingers, self.wrench,
                                          self.config.joint_states.startup_timeout_s, self.bridge.dds,
                                          self._require_spinning)
+            await self._start_guardian()
         except BaseException:
             with anyio.CancelScope(shield=True):
                 await anyio.to_thread.run_sync(self.bridge.close)
             raise
+
+    async def _start_guardian(self) -> None:
+        """The guardian process, when the config has one and goals go through the action."""
+        config, action = self.config.guardian, self.arm.config.action
+        if config is None or action is None or self._endpoints.trajectory_action is None:
+            return
+        guardian = GuardianLink(action, config.deadline_s, self.bridge.dds.domain_id if self.bridge.dds else None,
+                                self._fault)
+        await anyio.to_thread.run_sync(guardian.start, config.start_timeout_s)
+        self.guardian = guardian
+        self.arm.on_goal = lambda goal: guardian.idle() if goal is None else guardian.goal(goal)
 
     def _create_endpoints(self) -> None:
         """The endpoints that live as long as the node, made before the executor spins (see
@@ -169,7 +187,11 @@ class Ros2Backend(Backend):
                          self.transforms), self._watch, WATCH_PERIOD_S)
 
     async def _close(self) -> None:
-        await anyio.to_thread.run_sync(self.bridge.close)
+        try:
+            await anyio.to_thread.run_sync(self.bridge.close)
+        finally:  # after the bridge's own cancel of a running goal: the guardian then leaves quietly
+            if self.guardian is not None:
+                await anyio.to_thread.run_sync(self.guardian.close)
 
     def _worker_heartbeats(self) -> tuple[Heartbeat, ...]:
         return (Heartbeat("executor", lambda: self.bridge.heartbeats, stall_deadline_s(HEARTBEAT_PERIOD_S)),)
@@ -187,6 +209,8 @@ class Ros2Backend(Backend):
         (also while the executor is quiet: then it may be the cause, see the module docstring)."""
         if self._worker_quiet_s("executor") > EXECUTOR_QUIET_S:
             return None
+        if self.guardian is not None and self.guardian.problem is not None:
+            return self.guardian.problem
         age = self.joint_states.age_s()
         limit = self.config.joint_states.max_age_s
         if age is None or age > limit:
@@ -277,6 +301,8 @@ class Ros2Backend(Backend):
 
     # ================================================================ motion and stops
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
+        if self.guardian is not None and self.guardian.problem is not None:
+            raise BackendError(f"{self.guardian.problem}; nothing was sent")
         return await self.arm.execute(trajectory, progress, self._execution_epoch)
 
     async def _stop(self) -> None:

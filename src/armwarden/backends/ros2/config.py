@@ -86,6 +86,18 @@ class TrajectoryConfig(BaseModel):
         return self
 
 
+class GuardianConfig(BaseModel):
+    """The guardian: a process of its own that cancels the daemon's trajectory goal when the daemon
+    dies, hangs or closes its pipe (`armwarden.backends.ros2.guardian`). Action mode only: the
+    topic fallback has no goal to cancel."""
+
+    model_config = _STRICT
+    deadline_s: float = Field(default=0.5, ge=0.1, le=5,
+                              description="The daemon silent this long [s] counts as hung: the goal is cancelled.")
+    start_timeout_s: float = Field(default=15.0, gt=0, le=120,
+                                   description="How long open waits for the guardian to find the cancel service [s].")
+
+
 class GripperConfig(BaseModel):
     """A `control_msgs/GripperCommand` action; command.position is the finger gap [m]."""
 
@@ -150,6 +162,10 @@ class Config(BaseModel):
     joint_states: JointStatesConfig = Field(default_factory=JointStatesConfig, description="Joint state topic.")
     wrench: WrenchConfig | None = Field(default_factory=WrenchConfig, description="Wrench topic; null: no wrench.")
     trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig, description="How trajectories are sent.")
+    guardian: GuardianConfig | None = Field(
+        default_factory=GuardianConfig,
+        description="The process that cancels the goal if the daemon dies or hangs; null: none (a goal then runs "
+                    "to its end if the daemon is killed mid-motion).")
     gripper: GripperConfig | None = Field(default=None, description="Gripper action; null: no gripper.")
     controller_manager: ControllerManagerConfig | None = Field(default=None, description="null: no controller tools.")
     error_recovery: ErrorRecoveryConfig | None = Field(default=None, description="null: no error recovery.")

@@ -34,6 +34,9 @@ def build_for_tests(policy: Policy, robot: RobotModel, *, speedup: float, option
     # (planning, a large heap, 2 cores shared with other suites): ages on a scale those stalls do not reach
     document["joint_states"]["max_age_s"] = 1.0
     document["wrench"]["max_age_s"] = MAX_WRENCH_TIMEOUT_S
+    # no guardian process per harness test (a second of rclpy start-up each); its own tests, and
+    # every daemon a test starts from examples/ros2_fr3.yaml, have it
+    document["guardian"] = None
     return create_backend("ros2", robot, policy, document | dict(options))
 
 

@@ -1,0 +1,117 @@
+"""The daemon's end of the ROS 2 guardian's pipe (`armwarden.backends.ros2.guardian` has the
+protocol): start the guardian process, beat from a thread of its own, tell it each goal, and read
+what it says.
+
+A guardian that cancelled a goal on its own (the daemon was silent past the deadline) or that is
+gone is a fault: `on_fault` is called with the reason (the backend stops the arm and reports it;
+the Guard latches its e-stop). A gone guardian is one for good: `problem` names it from then on,
+so no goal is sent without a guardian watching. Closing says "bye" (the guardian then exits by itself).
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+
+from armwarden.backends.ros2.guardian import BEAT_PERIOD_S
+from armwarden.core.errors import BackendError
+
+logger = logging.getLogger(__name__)
+
+class GuardianLink:
+    """The guardian process for the trajectory action `action`, from `start` to `close`."""
+
+    def __init__(self, action: str, deadline_s: float, domain_id: int | None, on_fault: Callable[[str], None]) -> None:
+        self._command = [sys.executable, "-m", "armwarden.backends.ros2.guardian", "--action", action,
+                         "--deadline-s", f"{deadline_s:g}"]
+        if domain_id is not None:
+            self._command += ["--domain-id", str(domain_id)]
+        self._on_fault = on_fault
+        self._process: subprocess.Popen[str] | None = None
+        self._write_lock = threading.Lock()
+        self._closing = threading.Event()
+        self._problem: str | None = None
+
+    @property
+    def problem(self) -> str | None:
+        """Why the guardian no longer watches (None: it does)."""
+        return self._problem
+
+    @property
+    def process(self) -> subprocess.Popen[str] | None:
+        """The guardian process, once started."""
+        return self._process
+
+    def start(self, timeout_s: float) -> None:
+        """Blocking: start the guardian and wait (at most `timeout_s`) for its "ready"."""
+        process = self._process = subprocess.Popen(self._command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                                   text=True, bufsize=1)
+        assert process.stdout is not None
+        answer: list[str] = []
+        reader = threading.Thread(target=lambda: answer.append(process.stdout.readline() if process.stdout else ""),
+                                  name="armwarden-guardian-ready", daemon=True)
+        reader.start()
+        reader.join(timeout_s)
+        if not answer or answer[0].strip() != "ready":
+            self._kill()
+            said = answer[0].strip() if answer else f"nothing within {timeout_s:g} s"
+            raise BackendError(f"the ROS 2 guardian process did not start ({said}); without it a goal would run "
+                               "on if the daemon died, so nothing is sent")
+        threading.Thread(target=self._beat, name="armwarden-guardian-beat", daemon=True).start()
+        threading.Thread(target=self._listen, name="armwarden-guardian-listen", daemon=True).start()
+
+    def goal(self, goal_id: bytes) -> None:
+        """Before a goal is sent: the guardian cancels it if the daemon goes."""
+        self._send(f"goal {goal_id.hex()}")
+
+    def idle(self) -> None:
+        """The goal is over."""
+        self._send("idle")
+
+    def close(self) -> None:
+        """Say "bye": the guardian exits by itself, cancelling nothing. Not waited for: the daemon's
+        own shutdown must not wait on another process's (an MCP client gives a closing server
+        about two seconds before it kills it)."""
+        self._closing.set()
+        self._send("bye")
+
+    def _send(self, line: str) -> None:
+        process = self._process
+        if process is None or process.stdin is None:
+            return
+        with self._write_lock:
+            try:
+                process.stdin.write(line + "\n")
+                process.stdin.flush()
+            except (OSError, ValueError):  # the guardian is gone: `_listen` finds its end and reports it
+                pass
+
+    def _beat(self) -> None:
+        while not self._closing.wait(BEAT_PERIOD_S):
+            self._send("beat")
+
+    def _listen(self) -> None:
+        """What the guardian says, until its output ends (it exited): each is a fault."""
+        process = self._process
+        assert process is not None and process.stdout is not None
+        for line in process.stdout:
+            if line.startswith("cancelled"):  # it stopped the arm behind the daemon's back, and watches on
+                problem = f"the ROS 2 guardian process cancelled the goal: {line.strip()[len('cancelled '):]}"
+                logger.error("ros2 backend: %s", problem)
+                self._on_fault(problem)
+        if not self._closing.is_set():
+            code = process.wait()
+            self._problem = f"the ROS 2 guardian process exited (code {code}); goals would run on if the daemon died"
+            logger.error("ros2 backend: %s", self._problem)
+            self._on_fault(self._problem)
+
+    def _kill(self) -> None:
+        if self._process is not None and self._process.poll() is None:
+            self._process.kill()
+            self._process.wait()
+
+
+__all__ = ["GuardianLink"]
