@@ -95,7 +95,7 @@ class GuardianConfig(BaseModel):
     deadline_s: float = Field(default=0.5, ge=0.1, le=5,
                               description="The daemon silent this long [s] counts as hung: the goal is cancelled.")
     start_timeout_s: float = Field(default=15.0, gt=0, le=120,
-                                   description="How long open waits for the guardian to find the cancel service [s].")
+                                   description="How long open waits for the guardian process to be ready [s].")
 
 
 class GripperConfig(BaseModel):

@@ -13,7 +13,7 @@ pipe (`armwarden.backends.ros2.guardian_link` is the daemon's end):
         idle            that goal is over (ended, cancelled, rejected)
         bye             the daemon closes normally: exit, cancelling nothing
     guardian -> daemon (its stdout):
-        ready           the cancel service is there; the watch has begun
+        ready           its node is up; the watch has begun
         cancelled WHY   it asked the cell to cancel the current goal on its own, and why
 
 It cancels the current goal (by id: other clients' goals are not its business) when its stdin
@@ -39,6 +39,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from typing import TextIO
 
 import rclpy.node
 from action_msgs.srv import CancelGoal
@@ -49,8 +50,8 @@ logger = logging.getLogger("armwarden.ros2.guardian")
 
 #: how often the daemon writes "beat" [s]
 BEAT_PERIOD_S = 0.05
-#: how long the guardian waits for the cancel service at start [s]
-SERVICE_TIMEOUT_S = 10.0
+#: how long a cancel waits for the cancel service to be discovered [s]
+SERVICE_TIMEOUT_S = 1.0
 #: how long the guardian waits for the cell to answer a cancel before exiting [s]
 ANSWER_TIMEOUT_S = 2.0
 #: the pipe's end: the reader puts this on the queue when stdin closes
@@ -67,15 +68,14 @@ def cancel_request(goal_id: bytes) -> CancelGoal.Request:
 class Guardian:
     """The watch: lines from the daemon in, a cancel out when the daemon is gone or silent."""
 
-    def __init__(self, node: rclpy.node.Node, action: str, deadline_s: float) -> None:
+    def __init__(self, node: rclpy.node.Node, action: str, deadline_s: float, report: TextIO) -> None:
+        self._report = report
         self._client = node.create_client(CancelGoal, f"{action}/_action/cancel_goal")  # made before the spin
         self._deadline_s = deadline_s
         self._lines: queue.Queue[str] = queue.Queue()
         self._goal: bytes | None = None
         self._cancelled_for_silence = False
 
-    def wait_for_service(self, timeout_s: float) -> bool:
-        return self._client.wait_for_service(timeout_sec=timeout_s)
 
     def read(self, stream: object) -> None:
         """Reader thread: every line of `stream` onto the queue, then `_END`."""
@@ -110,9 +110,12 @@ class Guardian:
     def _cancel(self, why: str, *, wait: bool) -> None:
         goal = self._goal
         assert goal is not None
+        # a goal was sent, so the server was there; discovery of its cancel service may lag behind
+        if not self._client.wait_for_service(timeout_sec=SERVICE_TIMEOUT_S):
+            logger.error("armwarden guardian: no cancel service for goal %s: %s", goal.hex(), why)
         future = self._client.call_async(cancel_request(goal))
         with contextlib.suppress(OSError):  # a dead daemon's end of the pipe is closed
-            print(f"cancelled {why}", flush=True)
+            print(f"cancelled {why}", file=self._report, flush=True)
         logger.warning("armwarden guardian: cancelled goal %s: %s", goal.hex(), why)
         if wait:
             deadline = time.monotonic() + ANSWER_TIMEOUT_S
@@ -129,16 +132,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon's shutdown stops the arm, then says bye
+    # the pipe to the daemon is a copy of stdout; stdout itself becomes stderr, so what DDS and other
+    # C libraries print there (a shared-memory segment that cannot be made, say) is logged, not read
+    report = os.fdopen(os.dup(sys.stdout.fileno()), "w", buffering=1, encoding="utf-8")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
     bridge = RosBridge(f"armwarden_guardian_{os.getpid()}", args.domain_id)
     made: list[Guardian] = []
-    bridge.start(lambda: made.append(Guardian(bridge.node, args.action, args.deadline_s)))
+    bridge.start(lambda: made.append(Guardian(bridge.node, args.action, args.deadline_s, report)))
     guardian = made[0]
     try:
-        if not guardian.wait_for_service(SERVICE_TIMEOUT_S):
-            print(f"no cancel service for {args.action} within {SERVICE_TIMEOUT_S:g} s", file=sys.stderr, flush=True)
-            return 2
         threading.Thread(target=guardian.read, args=(sys.stdin,), name="armwarden-guardian-input", daemon=True).start()
-        print("ready", flush=True)
+        print("ready", file=report, flush=True)
         guardian.watch()
         return 0
     finally:

@@ -51,17 +51,25 @@ class GuardianLink:
                                                    text=True, bufsize=1)
         assert process.stdout is not None
         answer: list[str] = []
-        reader = threading.Thread(target=lambda: answer.append(process.stdout.readline() if process.stdout else ""),
-                                  name="armwarden-guardian-ready", daemon=True)
+        reader = threading.Thread(target=self._wait_ready, args=(answer,), name="armwarden-guardian-ready", daemon=True)
         reader.start()
         reader.join(timeout_s)
-        if not answer or answer[0].strip() != "ready":
+        if not answer or answer[-1] != "ready":
             self._kill()
-            said = answer[0].strip() if answer else f"nothing within {timeout_s:g} s"
+            said = answer[-1] if answer else f"nothing within {timeout_s:g} s"
             raise BackendError(f"the ROS 2 guardian process did not start ({said}); without it a goal would run "
                                "on if the daemon died, so nothing is sent")
         threading.Thread(target=self._beat, name="armwarden-guardian-beat", daemon=True).start()
         threading.Thread(target=self._listen, name="armwarden-guardian-listen", daemon=True).start()
+
+    def _wait_ready(self, answer: list[str]) -> None:
+        """Reader: lines until "ready" or the end (the last one read lands in `answer`)."""
+        assert self._process is not None and self._process.stdout is not None
+        for line in self._process.stdout:
+            answer.append(line.strip())
+            if answer[-1] == "ready":
+                return
+        answer.append("it exited")
 
     def goal(self, goal_id: bytes) -> None:
         """Before a goal is sent: the guardian cancels it if the daemon goes."""
@@ -97,7 +105,7 @@ class GuardianLink:
         """What the guardian says, until its output ends (it exited): each is a fault."""
         process = self._process
         assert process is not None and process.stdout is not None
-        for line in process.stdout:
+        for line in process.stdout:  # the guardian writes only its protocol here (its stdout is its stderr)
             if line.startswith("cancelled"):  # it stopped the arm behind the daemon's back, and watches on
                 problem = f"the ROS 2 guardian process cancelled the goal: {line.strip()[len('cancelled '):]}"
                 logger.error("ros2 backend: %s", problem)
