@@ -8,7 +8,7 @@ own rclpy node and a client of the action's cancel service, and the daemon talks
 pipe (`armwarden.backends.ros2.guardian_link` is the daemon's end):
 
     daemon -> guardian (its stdin), one line each:
-        beat            every `BEAT_PERIOD_S` from a thread of the daemon
+        beat            every 50 ms (`guardian_link.BEAT_PERIOD_S`) from a thread of the daemon
         goal HEX        the 16-byte goal id (hex) the daemon is about to send
         idle            that goal is over (ended, cancelled, rejected)
         bye             the daemon closes normally: exit, cancelling nothing
@@ -48,8 +48,6 @@ from armwarden.backends.ros2.bridge import RosBridge
 
 logger = logging.getLogger("armwarden.ros2.guardian")
 
-#: how often the daemon writes "beat" [s]
-BEAT_PERIOD_S = 0.05
 #: how long a cancel waits for the cancel service to be discovered [s]
 SERVICE_TIMEOUT_S = 1.0
 #: how long the guardian waits for the cell to answer a cancel before exiting [s]

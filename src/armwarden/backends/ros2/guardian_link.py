@@ -11,24 +11,31 @@ so no goal is sent without a guardian watching. Closing says "bye" (the guardian
 from __future__ import annotations
 
 import logging
+import os
 import subprocess
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
-from armwarden.backends.ros2.guardian import BEAT_PERIOD_S
 from armwarden.core.errors import BackendError
 
 logger = logging.getLogger(__name__)
 
+#: how often the daemon writes "beat" to the guardian [s]
+BEAT_PERIOD_S = 0.05
+
 class GuardianLink:
     """The guardian process for the trajectory action `action`, from `start` to `close`."""
 
-    def __init__(self, action: str, deadline_s: float, domain_id: int | None, on_fault: Callable[[str], None]) -> None:
+    def __init__(self, action: str, deadline_s: float, domain_id: int | None, on_fault: Callable[[str], None], *,
+                 command: Sequence[str] | None = None) -> None:
+        """`command`: another program that speaks the protocol instead of the guardian (tests)."""
         self._command = [sys.executable, "-m", "armwarden.backends.ros2.guardian", "--action", action,
                          "--deadline-s", f"{deadline_s:g}"]
         if domain_id is not None:
             self._command += ["--domain-id", str(domain_id)]
+        if command is not None:
+            self._command = list(command)
         self._on_fault = on_fault
         self._process: subprocess.Popen[str] | None = None
         self._write_lock = threading.Lock()
@@ -59,6 +66,8 @@ class GuardianLink:
             said = answer[-1] if answer else f"nothing within {timeout_s:g} s"
             raise BackendError(f"the ROS 2 guardian process did not start ({said}); without it a goal would run "
                                "on if the daemon died, so nothing is sent")
+        assert process.stdin is not None
+        os.set_blocking(process.stdin.fileno(), False)  # see `_send`
         threading.Thread(target=self._beat, name="armwarden-guardian-beat", daemon=True).start()
         threading.Thread(target=self._listen, name="armwarden-guardian-listen", daemon=True).start()
 
@@ -69,7 +78,7 @@ class GuardianLink:
             answer.append(line.strip())
             if answer[-1] == "ready":
                 return
-        answer.append("it exited")
+        answer.append(f"it exited after saying {answer[-1]!r}" if answer else "it exited")
 
     def goal(self, goal_id: bytes) -> None:
         """Before a goal is sent: the guardian cancels it if the daemon goes."""
@@ -87,15 +96,27 @@ class GuardianLink:
         self._send("bye")
 
     def _send(self, line: str) -> None:
+        """Never blocks (`goal` runs under the arm's motion lock, which every stop takes): the pipe
+        is non-blocking and a line is far below its atomic size, so it goes whole or not at all. A
+        pipe full of unread lines means a guardian that no longer reads (stopped, stuck): a fault
+        for good, reported from a thread of its own (the reporting stops the arm: the motion lock)."""
         process = self._process
         if process is None or process.stdin is None:
             return
         with self._write_lock:
             try:
-                process.stdin.write(line + "\n")
-                process.stdin.flush()
+                os.write(process.stdin.fileno(), (line + "\n").encode())
+            except BlockingIOError:
+                if self._problem is None:
+                    self._problem = "the ROS 2 guardian process stopped reading its pipe; goals would run on if the daemon died"
+                    threading.Thread(target=self._report, args=(self._problem,), name="armwarden-guardian-fault",
+                                     daemon=True).start()
             except (OSError, ValueError):  # the guardian is gone: `_listen` finds its end and reports it
                 pass
+
+    def _report(self, problem: str) -> None:
+        logger.error("ros2 backend: %s", problem)
+        self._on_fault(problem)
 
     def _beat(self) -> None:
         while not self._closing.wait(BEAT_PERIOD_S):
@@ -107,14 +128,11 @@ class GuardianLink:
         assert process is not None and process.stdout is not None
         for line in process.stdout:  # the guardian writes only its protocol here (its stdout is its stderr)
             if line.startswith("cancelled"):  # it stopped the arm behind the daemon's back, and watches on
-                problem = f"the ROS 2 guardian process cancelled the goal: {line.strip()[len('cancelled '):]}"
-                logger.error("ros2 backend: %s", problem)
-                self._on_fault(problem)
+                self._report(f"the ROS 2 guardian process cancelled the goal: {line.strip()[len('cancelled '):]}")
         if not self._closing.is_set():
             code = process.wait()
             self._problem = f"the ROS 2 guardian process exited (code {code}); goals would run on if the daemon died"
-            logger.error("ros2 backend: %s", self._problem)
-            self._on_fault(self._problem)
+            self._report(self._problem)
 
     def _kill(self) -> None:
         if self._process is not None and self._process.poll() is None:
