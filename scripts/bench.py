@@ -65,6 +65,10 @@ Sections
   detection and false-alarm figures on the CAN backend's emulated arm (examples/can_sim.yaml at
   speedup 1; its truth is the emulator's `true_external_torques()`); no stop latency there, the
   emulator has no obstacles.
+- guardian (opt-in, the ROS venv: about 10 s per run): the ROS 2 daemon killed (SIGKILL) mid-motion
+  `--guardian-runs` times, each on a daemon and fake cell process of its own: kill -> the cell's
+  cancel callback and kill -> the cell's arm still, p50/p95/max, and how each goal ended (canceled
+  by the guardian process, or run to its end) (`scripts/_bench/guardian_kill.py`).
 - fit (opt-in: a few minutes): capsules fitted to a link mesh that is not convex (a generated torus
   of about 10k triangles, or `--fit-mesh FILE`), up to `--fit-bodies` capsules, with the grid's signs
   and with every point's winding number summed: both times, the ratio, and whether the fits are
@@ -1025,6 +1029,18 @@ def _report_arms(r: dict[str, Any]) -> None:
     importlib.import_module("arms").report_arms(r)
 
 
+def bench_guardian(runs: int = 20) -> dict[str, Any]:
+    import tempfile
+
+    sys.path.insert(0, str(TRIVIAL_SERVER.parent))
+    with tempfile.TemporaryDirectory() as tmp:
+        return importlib.import_module("guardian_kill").bench_guardian(_bench_policy_file(Path(tmp)), runs)
+
+
+def _report_guardian(r: dict[str, Any]) -> None:
+    importlib.import_module("guardian_kill").report_guardian(r)
+
+
 def bench_fit(mesh: str | None = None, bodies: int = 2) -> dict[str, Any]:
     sys.path.insert(0, str(TRIVIAL_SERVER.parent))
     return importlib.import_module("fit_speed").bench_fit(mesh, bodies)
@@ -1085,6 +1101,7 @@ SECTIONS = {
     "arms": (bench_arms, _report_arms),
     "contact": (bench_contact, _report_contact),
     "fit": (bench_fit, _report_fit),
+    "guardian": (bench_guardian, _report_guardian),
 }
 #: sections run when none is named (flood takes about 8 minutes, flood-mix a minute and a half, can two
 #: minutes: ask for them by name; ros2 needs the ROS venv)
@@ -1124,6 +1141,7 @@ def main() -> int:
     parser.add_argument("--backend", choices=("mujoco", "can"), default="mujoco",
                         help="contact only: the MuJoCo FR3 (default) or the CAN backend's emulated arm "
                              "(examples/can_sim.yaml; no stop-latency figure: the emulator has no obstacles)")
+    parser.add_argument("--guardian-runs", type=int, default=20, help="guardian only: daemons killed (default 20)")
     parser.add_argument("--fit-mesh", default=None, metavar="FILE",
                         help="fit only: an STL/OBJ link mesh instead of the generated torus")
     parser.add_argument("--fit-bodies", type=int, default=2, help="fit only: capsules at most (default 2)")
@@ -1146,6 +1164,8 @@ def main() -> int:
             results[name] = run(runs=args.ros2_runs)
         elif name == "contact":
             results[name] = run(quick=args.quick, limits_file=args.contact_limits, backend=args.backend)
+        elif name == "guardian":
+            results[name] = run(runs=args.guardian_runs)
         elif name == "fit":
             results[name] = run(mesh=args.fit_mesh, bodies=args.fit_bodies)
         else:
