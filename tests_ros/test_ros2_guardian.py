@@ -4,6 +4,10 @@ sent while it is gone. (A daemon that dies or hangs mid-motion: tests_ros/test_d
 
 from __future__ import annotations
 
+import os
+import signal
+
+import anyio
 import pytest
 from tests.helpers import text_of
 from tests.server.harness import HOME_TCP_X, approve, arm_harness, wait_until
@@ -40,3 +44,16 @@ async def test_a_guardian_that_dies_latches_the_estop_and_no_goal_is_sent(tmp_pa
         assert plan.is_error and "ESTOPPED" in text_of(plan), text_of(plan)
         assert arm.actuations == []
         assert guardian.problem is not None and "exited" in guardian.problem
+
+
+async def test_the_guardian_outlives_signals_to_the_daemons_group_in_a_session_of_its_own(tmp_path) -> None:
+    async with arm_harness(tmp_path, backend="ros2", **GUARDED) as arm:
+        guardian = arm.inner.guardian
+        assert guardian is not None and guardian.process is not None
+        pid = guardian.process.pid
+        assert os.getsid(pid) != os.getsid(0)  # a terminal's hang-up or Ctrl-C does not reach it
+        for number in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):  # a group stop would send these
+            os.kill(pid, number)
+        await anyio.sleep(0.5)  # a guardian that died of them has exited by now
+        assert guardian.process.poll() is None and guardian.problem is None
+    assert guardian.process.wait(timeout=10) == 0  # only its pipe ends it

@@ -98,7 +98,8 @@ class Ros2Arm:
     arm_event: Callable[[ArmEvent], ArmState]
     run: GoalRun | TopicRun | None = None
     server_seen: bool = False  # the trajectory action server was seen at least once
-    #: told each goal's id before it is sent, and None once it is over (the guardian's watch)
+    #: told each goal's id before it is sent (raising: it is not sent), and None once the server
+    #: has ended it (the guardian's watch)
     on_goal: Callable[[bytes | None], None] = lambda _goal: None
 
     @property
@@ -135,10 +136,10 @@ class Ros2Arm:
         with self.motion_lock:  # the stops take it: a stop is either before the send or cancels it
             if self.stop_landed():
                 return ExecutionResult(False, PREEMPTED, self.joint_states.fresh().positions.copy())
-            self._handing_over()
             run = GoalRun(new_goal_id(), epoch, trajectory.duration_s, time.monotonic())
+            self.on_goal(bytes(run.goal_id.uuid))  # the guardian knows it first (raises: nothing was sent)
+            self._handing_over()
             self.run = run
-            self.on_goal(bytes(run.goal_id.uuid))
             sending = action.send_goal_async(goal, feedback_callback=run.on_feedback, goal_uuid=run.goal_id)
         sending.add_done_callback(lambda future: self._on_goal_response(run, future))
         try:
@@ -170,7 +171,7 @@ class Ros2Arm:
                 self.run = None
             if not run.stopped:
                 self.arm_event(ArmEvent.FINISH)
-        if isinstance(run, GoalRun):
+        if isinstance(run, GoalRun) and run.terminal:  # else the guardian keeps it: it may still run
             self.on_goal(None)
 
     def _on_goal_response(self, run: GoalRun, future: Any) -> None:

@@ -187,6 +187,8 @@ class Ros2Backend(Backend):
                          self.transforms), self._watch, WATCH_PERIOD_S)
 
     async def _close(self) -> None:
+        if self.guardian is not None:
+            self.guardian.expect_exit()
         try:
             await anyio.to_thread.run_sync(self.bridge.close)
         finally:  # after the bridge's own cancel of a running goal: the guardian then leaves quietly

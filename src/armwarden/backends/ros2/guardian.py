@@ -10,21 +10,28 @@ pipe (`armwarden.backends.ros2.guardian_link` is the daemon's end):
     daemon -> guardian (its stdin), one line each:
         beat            every 50 ms (`guardian_link.BEAT_PERIOD_S`) from a thread of the daemon
         goal HEX        the 16-byte goal id (hex) the daemon is about to send
-        idle            that goal is over (ended, cancelled, rejected)
-        bye             the daemon closes normally: exit, cancelling nothing
-    guardian -> daemon (its stdout):
+        idle            that goal is over (the server said so)
+        bye             the daemon closes normally: exit (cancelling a goal still current)
+    guardian -> daemon (a copy of its stdout; stdout itself is pointed at stderr, where whatever
+    C libraries print belongs):
         ready           its node is up; the watch has begun
-        cancelled WHY   it asked the cell to cancel the current goal on its own, and why
+        alive           every `ALIVE_PERIOD_S` from the watch loop (the daemon faults on silence)
+        cancelled WHY   it cancelled the current goal on its own (the cell confirmed), and why
+        failed to cancel (DETAIL): WHY
+                        it tried and the cell did not confirm (no service, no answer, refused)
 
 It cancels the current goal (by id: other clients' goals are not its business) when its stdin
 ends (the daemon died or closed the pipe: the kernel closes it, so a `kill -9` is seen at once),
-and when no line came for `deadline_s` (the daemon hangs, or is stopped with SIGSTOP). After a
-cancel on end of input it waits for the cell's answer (at most `ANSWER_TIMEOUT_S`), so the
-request is out before it exits. A cancel for silence is sent once per goal; the daemon, if it
-wakes, reads "cancelled" and latches its e-stop (the arm has been stopped behind its back).
+and when nothing came for `deadline_s` while a goal is current (the daemon hangs, or is stopped
+with SIGSTOP). Silence is `select`'s verdict, measured by the kernel, so a guardian that was
+itself descheduled finds the beats waiting and does not blame its own stall on the daemon. Each
+cancel waits for the cell's answer; a goal the cell says is already over is no news (no fault),
+a cancel that did not get through is reported as such and tried again while the silence lasts.
 
-Ctrl-C in a terminal reaches every process of the foreground group: the guardian ignores SIGINT,
-so it outlives the daemon's own shutdown (which stops the arm and then says "bye").
+It runs in a session of its own and ignores SIGINT, SIGTERM, SIGHUP and SIGTSTP: a terminal's
+Ctrl-C or hang-up, or a service manager's stop, reaches the daemon's process group, and the
+guardian must outlive the daemon's end to cancel what the daemon could not. Only its pipe ends it
+(or SIGKILL).
 """
 
 from __future__ import annotations
@@ -33,10 +40,9 @@ import argparse
 import contextlib
 import logging
 import os
-import queue
+import select
 import signal
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from typing import TextIO
@@ -52,8 +58,8 @@ logger = logging.getLogger("armwarden.ros2.guardian")
 SERVICE_TIMEOUT_S = 1.0
 #: how long the guardian waits for the cell to answer a cancel before exiting [s]
 ANSWER_TIMEOUT_S = 2.0
-#: the pipe's end: the reader puts this on the queue when stdin closes
-_END = ""
+#: how often the guardian says "alive" to the daemon [s]
+ALIVE_PERIOD_S = 0.1
 
 
 def cancel_request(goal_id: bytes) -> CancelGoal.Request:
@@ -64,61 +70,99 @@ def cancel_request(goal_id: bytes) -> CancelGoal.Request:
 
 
 class Guardian:
-    """The watch: lines from the daemon in, a cancel out when the daemon is gone or silent."""
+    """The watch: lines from the daemon in, a cancel out when the daemon is gone or silent, and
+    "alive" back to the daemon every `ALIVE_PERIOD_S` (so a guardian that stalls is seen)."""
 
     def __init__(self, node: rclpy.node.Node, action: str, deadline_s: float, report: TextIO) -> None:
         self._report = report
         self._client = node.create_client(CancelGoal, f"{action}/_action/cancel_goal")  # made before the spin
         self._deadline_s = deadline_s
-        self._lines: queue.Queue[str] = queue.Queue()
         self._goal: bytes | None = None
-        self._cancelled_for_silence = False
+        self._silence_handled = False  # the current goal was cancelled (or found over) for this silence
+        self._last_alive = 0.0
+        self._last_heard = time.monotonic()  # when the daemon last wrote anything
 
-
-    def read(self, stream: object) -> None:
-        """Reader thread: every line of `stream` onto the queue, then `_END`."""
-        try:
-            for line in stream:  # type: ignore[attr-defined]
-                self._lines.put(line.strip() or "beat")
-        finally:
-            self._lines.put(_END)
-
-    def watch(self) -> str:
-        """Until the daemon says bye or goes: returns why the watch ended."""
+    def watch(self, fd: int) -> str:
+        """Until the daemon says bye or goes: returns why the watch ended. Silence is what `select`
+        says, measured by the kernel: a guardian that was itself descheduled finds the daemon's
+        beats waiting when it runs again, and does not take its own stall for the daemon's."""
+        pending = b""
         while True:
-            try:
-                line = self._lines.get(timeout=self._deadline_s)
-            except queue.Empty:
-                if self._goal is not None and not self._cancelled_for_silence:
-                    self._cancelled_for_silence = True
-                    self._cancel(f"the daemon was silent for {self._deadline_s:g} s", wait=False)
+            self._say_alive()
+            ready, _, _ = select.select([fd], [], [], min(self._deadline_s, ALIVE_PERIOD_S))
+            if not ready:
+                if time.monotonic() - self._last_heard >= self._deadline_s:
+                    self._on_silence()
                 continue
-            if line == _END:
+            chunk = os.read(fd, 4096)
+            if not chunk:
                 if self._goal is not None:
-                    self._cancel("the daemon's pipe closed (it exited or was killed)", wait=True)
+                    self._cancel("the daemon's pipe closed (it exited or was killed)")
                 return "end of input"
-            command, _, argument = line.partition(" ")
-            if command == "bye":
-                return "bye"
-            if command == "goal":
-                self._goal, self._cancelled_for_silence = bytes.fromhex(argument), False
-            elif command == "idle":
-                self._goal = None
+            self._last_heard = time.monotonic()
+            pending += chunk
+            *lines, pending = pending.split(b"\n")
+            for line in lines:
+                command, _, argument = line.decode("ascii", "replace").strip().partition(" ")
+                if command == "bye":
+                    if self._goal is not None:  # the daemon's own stop should have ended it: once more
+                        self._cancel("the daemon closed while a goal was current")
+                    return "bye"
+                if command == "goal":
+                    self._goal, self._silence_handled = bytes.fromhex(argument), False
+                elif command == "idle":
+                    self._goal = None
 
-    def _cancel(self, why: str, *, wait: bool) -> None:
+    def _say_alive(self) -> None:
+        now = time.monotonic()
+        if now - self._last_alive >= ALIVE_PERIOD_S:
+            self._last_alive = now
+            self._tell("alive")
+
+    def _on_silence(self) -> None:
+        """The daemon silent past the deadline with a goal current: cancel it, once per goal, and
+        again on a later silence if the cancel did not get through."""
+        if self._goal is None or self._silence_handled:
+            return
+        outcome = self._cancel(f"the daemon was silent for {self._deadline_s:g} s")
+        self._silence_handled = outcome != "failed"
+
+    def _cancel(self, why: str) -> str:
+        """Ask the cell to cancel the current goal and wait for its answer: "cancelled" (told to the
+        daemon, which latches), "over" (the goal had already ended: nothing to tell), or "failed"
+        (no cancel service, no answer, refused: told to the daemon as a failed cancel)."""
         goal = self._goal
         assert goal is not None
+        outcome, detail = "failed", "no cancel service"
         # a goal was sent, so the server was there; discovery of its cancel service may lag behind
-        if not self._client.wait_for_service(timeout_sec=SERVICE_TIMEOUT_S):
-            logger.error("armwarden guardian: no cancel service for goal %s: %s", goal.hex(), why)
-        future = self._client.call_async(cancel_request(goal))
-        with contextlib.suppress(OSError):  # a dead daemon's end of the pipe is closed
-            print(f"cancelled {why}", file=self._report, flush=True)
-        logger.warning("armwarden guardian: cancelled goal %s: %s", goal.hex(), why)
-        if wait:
+        if self._client.wait_for_service(timeout_sec=SERVICE_TIMEOUT_S):
+            future = self._client.call_async(cancel_request(goal))
             deadline = time.monotonic() + ANSWER_TIMEOUT_S
             while not future.done() and time.monotonic() < deadline:
-                time.sleep(0.005)
+                time.sleep(0.002)
+            outcome, detail = _outcome(goal, future.result() if future.done() else None)
+        if outcome == "cancelled":
+            self._tell(f"cancelled {why}")
+            logger.warning("armwarden guardian: cancelled goal %s: %s", goal.hex(), why)
+        elif outcome == "failed":
+            self._tell(f"failed to cancel ({detail}): {why}")
+            logger.error("armwarden guardian: could not cancel goal %s (%s): %s", goal.hex(), detail, why)
+        return outcome
+
+    def _tell(self, line: str) -> None:
+        with contextlib.suppress(OSError):  # a dead daemon's end of the pipe is closed
+            print(line, file=self._report, flush=True)
+
+
+def _outcome(goal: bytes, response: CancelGoal.Response | None) -> tuple[str, str]:
+    """What the cell's answer to a cancel of `goal` says (see `Guardian._cancel`)."""
+    if response is None:
+        return "failed", f"no answer within {ANSWER_TIMEOUT_S:g} s"
+    if any(bytes(info.goal_id.uuid) == goal for info in response.goals_canceling):
+        return "cancelled", ""
+    if response.return_code in (CancelGoal.Response.ERROR_UNKNOWN_GOAL_ID, CancelGoal.Response.ERROR_GOAL_TERMINATED):
+        return "over", ""
+    return "failed", f"the cell answered return code {response.return_code}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -129,7 +173,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: the environment's)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon's shutdown stops the arm, then says bye
+    for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGTSTP):
+        signal.signal(number, signal.SIG_IGN)  # see the module docstring: only the pipe ends the watch
     # the pipe to the daemon is a copy of stdout; stdout itself becomes stderr, so what DDS and other
     # C libraries print there (a shared-memory segment that cannot be made, say) is logged, not read
     report = os.fdopen(os.dup(sys.stdout.fileno()), "w", buffering=1, encoding="utf-8")
@@ -139,9 +184,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     bridge.start(lambda: made.append(Guardian(bridge.node, args.action, args.deadline_s, report)))
     guardian = made[0]
     try:
-        threading.Thread(target=guardian.read, args=(sys.stdin,), name="armwarden-guardian-input", daemon=True).start()
         print("ready", file=report, flush=True)
-        guardian.watch()
+        guardian.watch(sys.stdin.fileno())
         return 0
     finally:
         bridge.close()  # the executor joined before the node goes: a thread left spinning aborts at exit
