@@ -18,7 +18,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -181,6 +181,27 @@ async def test_a_stdio_client_that_goes_away_mid_motion_has_its_goal_cancelled_a
     assert "client_gone" in events and events.index("client_gone") < events.index("shutdown") == len(events) - 1
 
 
+async def interrupted_mid_motion(daemon: Any, goal: list[float], interrupt: Callable[[], None]) -> str:
+    """Over a session of its own: a slow plan to `goal` executes; once it moves, `interrupt()` runs
+    and the whole client goes (streams closed, connection dropped). The plan's id."""
+    moving = MotionStarted()
+    with anyio.fail_after(60):
+        async with anyio.create_task_group() as group:
+            http, client = session(daemon, daemon.operator_token, "legacy", approve())
+            async with http, client:
+                slow = await plan_id(client, goal, **SLOW)
+
+                async def execute() -> None:
+                    with contextlib.suppress(Exception):  # the daemon may die under the call
+                        await client.call_tool("execute_plan", {"plan_id": slow}, progress_callback=moving)
+
+                group.start_soon(execute)
+                await moving.event.wait()
+                interrupt()
+                group.cancel_scope.cancel()
+    return slow
+
+
 async def test_over_http_an_approved_plan_runs_and_a_client_dropped_mid_motion_leaves_the_cell_stopped(
         tmp_path, watch, policy, config) -> None:
     with http_daemon(tmp_path, 1.0, ("--policy", str(policy)), backend="ros2", config=config) as daemon:
@@ -188,19 +209,7 @@ async def test_over_http_an_approved_plan_runs_and_a_client_dropped_mid_motion_l
         async with http, client:
             await state_then_an_approved_move(client, watch)
 
-        moving = MotionStarted()
-        with anyio.fail_after(60):
-            async with anyio.create_task_group() as group:
-                http, client = session(daemon, daemon.operator_token, "legacy", approve())
-                async with http, client:
-                    back = await plan_id(client, HOME, **SLOW)
-
-                    async def execute() -> None:
-                        await client.call_tool("execute_plan", {"plan_id": back}, progress_callback=moving)
-
-                    group.start_soon(execute)
-                    await moving.event.wait()
-                    group.cancel_scope.cancel()  # the whole client goes: streams closed, connection dropped
+        back = await interrupted_mid_motion(daemon, HOME, lambda: None)  # only the client goes
 
         assert await anyio.to_thread.run_sync(watch.wait_for_goals, "succeeded", "canceled") == ["succeeded", "canceled"]
         held = await anyio.to_thread.run_sync(watch.wait_still)
@@ -212,22 +221,12 @@ async def test_over_http_an_approved_plan_runs_and_a_client_dropped_mid_motion_l
 
 async def test_a_daemon_killed_mid_motion_has_its_goal_cancelled_by_the_guardian(tmp_path, watch, policy, config) -> None:
     with http_daemon(tmp_path, 1.0, ("--policy", str(policy)), backend="ros2", config=config) as daemon:
-        moving = MotionStarted()
-        with anyio.fail_after(60):
-            async with anyio.create_task_group() as group:
-                http, client = session(daemon, daemon.operator_token, "legacy", approve())
-                async with http, client:
-                    slow = await plan_id(client, GOAL, **SLOW)
 
-                    async def execute() -> None:
-                        with contextlib.suppress(Exception):  # the daemon dies under the call
-                            await client.call_tool("execute_plan", {"plan_id": slow}, progress_callback=moving)
+        def kill() -> None:  # SIGKILL: no shutdown, no stop of its own
+            daemon.process.kill()
+            daemon.process.wait()
 
-                    group.start_soon(execute)
-                    await moving.event.wait()
-                    daemon.process.kill()  # SIGKILL: no shutdown, no stop of its own
-                    daemon.process.wait()
-                    group.cancel_scope.cancel()
+        await interrupted_mid_motion(daemon, GOAL, kill)
 
         # nobody but the guardian was left to stop it: without it the goal runs to its end
         assert await anyio.to_thread.run_sync(watch.wait_for_goals, "canceled") == ["canceled"]

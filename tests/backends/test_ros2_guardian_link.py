@@ -135,3 +135,13 @@ def test_an_exit_the_daemon_expects_is_no_fault(started: GuardianLink, faults: F
     assert started.process is not None and started.process.wait(timeout=10) == 0
     time.sleep(0.2)  # the listener has seen the end by now; nothing may have been reported
     assert not faults.reported and started.problem is None
+
+
+@pytest.mark.parametrize("started", ["print('ready', flush=True)\nprint('watching', flush=True)" + ALIVE], indirect=True)
+def test_a_guardian_that_found_the_cancel_service_is_watching(started: GuardianLink) -> None:
+    assert started.wait_watching(10.0)
+
+
+@pytest.mark.parametrize("started", [READY_THEN_ALIVE], indirect=True)
+def test_a_guardian_that_has_not_found_the_cancel_service_is_not_watching(started: GuardianLink) -> None:
+    assert not started.wait_watching(0.3)

@@ -303,8 +303,15 @@ class Ros2Backend(Backend):
 
     # ================================================================ motion and stops
     async def _execute(self, trajectory: JointTrajectory, progress: ProgressCallback) -> ExecutionResult:
-        if self.guardian is not None and self.guardian.problem is not None:
-            raise BackendError(f"{self.guardian.problem}; nothing was sent")
+        guardian = self.guardian
+        if guardian is not None:
+            if guardian.problem is not None:
+                raise BackendError(f"{guardian.problem}; nothing was sent")
+            timeout_s = self.config.trajectory.server_timeout_s
+            if not await anyio.to_thread.run_sync(guardian.wait_watching, timeout_s, abandon_on_cancel=True):
+                raise BackendError(f"the ROS 2 guardian process has not found the cancel service of "
+                                   f"{self.arm.interface} within {timeout_s:g} s: a goal it could not cancel is "
+                                   "not sent; nothing was sent")
         return await self.arm.execute(trajectory, progress, self._execution_epoch)
 
     async def _stop(self) -> None:

@@ -15,6 +15,8 @@ pipe (`armwarden.backends.ros2.guardian_link` is the daemon's end):
     guardian -> daemon (a copy of its stdout; stdout itself is pointed at stderr, where whatever
     C libraries print belongs):
         ready           its node is up; the watch has begun
+        watching        its client has found the action's cancel service: it can cancel now
+                        (the daemon sends no goal before this; DDS discovery may take a while)
         alive           every `ALIVE_PERIOD_S` from the watch loop (the daemon faults on silence)
         cancelled WHY   it cancelled the current goal on its own (the cell confirmed), and why
         failed to cancel (DETAIL): WHY
@@ -81,6 +83,7 @@ class Guardian:
         self._silence_handled = False  # the current goal was cancelled (or found over) for this silence
         self._last_alive = 0.0
         self._last_heard = time.monotonic()  # when the daemon last wrote anything
+        self._service_seen = False  # its client has matched the cell's cancel service
 
     def watch(self, fd: int) -> str:
         """Until the daemon says bye or goes: returns why the watch ended. Silence is what `select`
@@ -89,6 +92,9 @@ class Guardian:
         pending = b""
         while True:
             self._say_alive()
+            if not self._service_seen and self._client.service_is_ready():
+                self._service_seen = True
+                self._tell("watching")  # the daemon sends no goal before this
             ready, _, _ = select.select([fd], [], [], min(self._deadline_s, ALIVE_PERIOD_S))
             if not ready:
                 if time.monotonic() - self._last_heard >= self._deadline_s:

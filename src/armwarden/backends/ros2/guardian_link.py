@@ -45,6 +45,7 @@ class GuardianLink:
         self._closing = threading.Event()
         self._problem: str | None = None
         self._last_alive = time.monotonic()  # the guardian's latest line (it says "alive" every 0.1 s)
+        self._watching = threading.Event()  # it has found the cancel service
 
     @property
     def problem(self) -> str | None:
@@ -104,6 +105,12 @@ class GuardianLink:
         """The goal is over."""
         self._send("idle")
 
+    def wait_watching(self, timeout_s: float) -> bool:
+        """Blocking: whether the guardian has found the action's cancel service (waiting up to
+        `timeout_s`). Its node discovers the cell on its own, and a goal it cannot cancel is not
+        watched: the backend sends none before this."""
+        return self._watching.wait(timeout_s)
+
     def expect_exit(self) -> None:
         """The daemon is closing: the guardian's exit from now on is no fault (a stop of the whole
         process group may reach it before "bye" does)."""
@@ -151,7 +158,9 @@ class GuardianLink:
         assert process is not None and process.stdout is not None
         for line in process.stdout:  # the guardian writes only its protocol here (its stdout is its stderr)
             self._last_alive = time.monotonic()
-            if line.startswith("cancelled "):  # it stopped the arm behind the daemon's back, and watches on
+            if line.strip() == "watching":
+                self._watching.set()
+            elif line.startswith("cancelled "):  # it stopped the arm behind the daemon's back, and watches on
                 self._report(f"the ROS 2 guardian process cancelled the goal: {line.strip()[len('cancelled '):]}")
             elif line.startswith("failed to cancel"):  # it tried, and the cell did not confirm
                 self._report(f"the ROS 2 guardian process {line.strip()}")
