@@ -62,6 +62,7 @@ import anyio
 
 from armwarden.backends.base import Backend
 from armwarden.backends.parts import Cell, PublishedWrench
+from armwarden.backends.ros2.action_client import wait_for_server
 from armwarden.backends.ros2.arm import POLL_S, Ros2Arm
 from armwarden.backends.ros2.bridge import HEARTBEAT_PERIOD_S, ExecutorFactory, RosBridge
 from armwarden.backends.ros2.cameras import Ros2Cameras
@@ -308,6 +309,9 @@ class Ros2Backend(Backend):
             if guardian.problem is not None:
                 raise BackendError(f"{guardian.problem}; nothing was sent")
             timeout_s = self.config.trajectory.server_timeout_s
+            action = self._endpoints.trajectory_action
+            if action is not None:  # the server first: an absent one is refused as such, nothing sent
+                await wait_for_server(action, self.arm.interface, timeout_s)
             if not await anyio.to_thread.run_sync(guardian.wait_watching, timeout_s, abandon_on_cancel=True):
                 raise BackendError(f"the ROS 2 guardian process has not found the cancel service of "
                                    f"{self.arm.interface} within {timeout_s:g} s: a goal it could not cancel is "
