@@ -583,7 +583,7 @@ async def detection(forces_n: tuple[float, ...], trials: int, rng: np.random.Gen
                 joint_peak, wrench_peak = np.zeros(len(bench.names)), 0.0
                 for stamp, estimate, truth, tcp_force in run.samples:
                     if began <= stamp <= ended + period:
-                        joint_peak = np.maximum(joint_peak, np.abs(estimate))
+                        joint_peak = np.fmax(joint_peak, np.abs(estimate))  # a lost reading (NaN) is no peak
                         wrench_peak = wrench_peak if math.isnan(tcp_force) else max(wrench_peak, tcp_force)
                     if began + 0.002 <= stamp <= ended and np.all(np.isfinite(estimate)):  # the push acts from
                         errors_all.append(estimate - truth)  # the step after `began`; a lost reading has no estimate
