@@ -47,7 +47,7 @@ import signal
 import sys
 import time
 from collections.abc import Sequence
-from typing import TextIO
+from typing import NoReturn, TextIO
 
 import rclpy.node
 from action_msgs.srv import CancelGoal
@@ -171,7 +171,7 @@ def _outcome(goal: bytes, response: CancelGoal.Response | None) -> tuple[str, st
     return "failed", f"the cell answered return code {response.return_code}"
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None) -> NoReturn:
     parser = argparse.ArgumentParser(prog="armwarden-ros2-guardian",
                                      description="Cancel the daemon's trajectory goal if the daemon dies or hangs.")
     parser.add_argument("--action", required=True, help="the FollowJointTrajectory action the daemon sends goals to")
@@ -188,14 +188,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     bridge = RosBridge(f"armwarden_guardian_{os.getpid()}", args.domain_id)
     made: list[Guardian] = []
     bridge.start(lambda: made.append(Guardian(bridge.node, args.action, args.deadline_s, report)))
-    guardian = made[0]
+    code = 0
     try:
         print("ready", file=report, flush=True)
-        guardian.watch(sys.stdin.fileno())
-        return 0
-    finally:
-        bridge.close()  # the executor joined before the node goes: a thread left spinning aborts at exit
+        made[0].watch(sys.stdin.fileno())
+    except BaseException:
+        logger.exception("armwarden guardian: the watch failed")
+        code = 1
+    # No rclpy shutdown: destroying the node's FastDDS participant can spin for ever waiting on its
+    # listener (seen here: a guardian at 100 % of a core for 20 minutes after its daemon was killed).
+    # Every cancel has had its answer by now; the kernel frees the rest.
+    logging.shutdown()
+    with contextlib.suppress(OSError):
+        report.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
