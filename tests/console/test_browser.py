@@ -88,9 +88,12 @@ def sign_in(browser: Any, served: ServedConsole, token: str) -> None:
 
 
 def wait_for(browser: Any, condition: Any) -> Any:
+    """Until `condition` holds. An element found and then replaced by the page before it was read
+    (a stale reference: the console re-renders after an action) is one more try, not a failure."""
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.support.ui import WebDriverWait
 
-    return WebDriverWait(browser, WAIT_S).until(condition)
+    return WebDriverWait(browser, WAIT_S, ignored_exceptions=(StaleElementReferenceException,)).until(condition)
 
 
 def click_and_load(browser: Any, element_id: str) -> None:
