@@ -45,6 +45,7 @@ import os
 import select
 import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from typing import NoReturn, TextIO
@@ -62,6 +63,8 @@ SERVICE_TIMEOUT_S = 1.0
 ANSWER_TIMEOUT_S = 2.0
 #: how often the guardian says "alive" to the daemon [s]
 ALIVE_PERIOD_S = 0.1
+#: how long the guardian gives its node to leave the DDS domain before it exits anyway [s]
+CLOSE_TIMEOUT_S = 2.0
 
 
 def cancel_request(goal_id: bytes) -> CancelGoal.Request:
@@ -195,9 +198,13 @@ def main(argv: Sequence[str] | None = None) -> NoReturn:
     except BaseException:
         logger.exception("armwarden guardian: the watch failed")
         code = 1
-    # No rclpy shutdown: destroying the node's FastDDS participant can spin for ever waiting on its
-    # listener (seen here: a guardian at 100 % of a core for 20 minutes after its daemon was killed).
-    # Every cancel has had its answer by now; the kernel frees the rest.
+    # Leave the DDS domain properly (a participant that just vanishes stays matched by the others
+    # until its lease runs out, slowing their discovery), but for a bounded time: destroying the
+    # node's FastDDS participant can spin for ever waiting on its listener (seen here: a guardian at
+    # 100 % of a core for 20 minutes after its daemon was killed). Every cancel has had its answer.
+    closing = threading.Thread(target=bridge.close, name="armwarden-guardian-close", daemon=True)
+    closing.start()
+    closing.join(CLOSE_TIMEOUT_S)
     logging.shutdown()
     with contextlib.suppress(OSError):
         report.flush()
