@@ -194,7 +194,7 @@ class Ros2Backend(Backend):
             await anyio.to_thread.run_sync(self.bridge.close)
         finally:  # after the bridge's own cancel of a running goal: the guardian then leaves quietly
             if self.guardian is not None:
-                await anyio.to_thread.run_sync(self.guardian.close)
+                self.guardian.close()  # one non-blocking write: no thread needed
 
     def _worker_heartbeats(self) -> tuple[Heartbeat, ...]:
         return (Heartbeat("executor", lambda: self.bridge.heartbeats, stall_deadline_s(HEARTBEAT_PERIOD_S)),)
